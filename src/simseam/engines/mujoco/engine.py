@@ -1,0 +1,380 @@
+"""MuJoCo engine: the embedded default. URDF compiled through MjSpec.
+
+Model conventions (see ``Engine`` for the contract):
+- The URDF is parsed by MuJoCo with visual geoms kept and static bodies not
+  fused, so every URDF link is a body of the same name. Robot visual geoms go
+  to geom group 2, robot collision geoms to group 3 (hidden when the robot has
+  visuals); the world and objects use group 0. Ray casts only see group 0, so
+  the robot never hits its own rays.
+- Each actuated joint gets a position actuator (gains from the manifest,
+  critically damped by default, force limited by the URDF effort limit) and
+  robot bodies are gravity compensated, like a real arm's controller.
+- A fixed base is a mocap root body, so ``set_root_pose`` teleports the robot.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from simseam.engines.base import CameraModel, EngineOptions, ObjectModel, RobotModel
+from simseam.engines.mujoco.render import CameraRenderer
+from simseam.robot.urdf import read_urdf
+from simseam.seam import BackendUnavailableError, ConfigError, SimulationError
+
+try:  # MUJOCO_GL is set by this package's __init__, before mujoco is imported
+    import mujoco
+except ImportError as exc:  # pragma: no cover - exercised only without mujoco
+    raise BackendUnavailableError(f"the MuJoCo engine needs the 'mujoco' package: {exc}") from None
+
+GROUP_WORLD = 0
+GROUP_ROBOT_VISUAL = 2
+GROUP_ROBOT_COLLISION = 3
+RAY_GROUPS = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
+
+DEFAULT_KP = 400.0
+JOINT_ARMATURE = 0.01
+
+
+def _fix_mesh_path(file: str, urdf_dir: Path) -> str:
+    """Resolve a URDF mesh reference (relative or package://) to an absolute path."""
+    rel = file[len("package://"):] if file.startswith("package://") else file
+    p = Path(rel)
+    if p.is_absolute():
+        return str(p)
+    parts = p.parts
+    # Try the path as is, then with leading package-name components dropped,
+    # relative to the URDF directory and up to three of its parents.
+    for base in [urdf_dir, *list(urdf_dir.parents)[:3]]:
+        for k in range(len(parts)):
+            cand = base.joinpath(*parts[k:])
+            if cand.is_file():
+                return str(cand)
+    raise ConfigError(f"URDF mesh {file!r} not found next to {urdf_dir}")
+
+
+def _urdf_spec(urdf_path: str) -> "mujoco.MjSpec":
+    """Parse a URDF into an MjSpec, keeping visuals and every link as a body."""
+    root = ET.parse(urdf_path).getroot()
+    mj = root.find("mujoco")
+    if mj is None:
+        mj = ET.SubElement(root, "mujoco")
+    comp = mj.find("compiler")
+    if comp is None:
+        comp = ET.SubElement(mj, "compiler")
+    comp.set("discardvisual", "false")
+    comp.set("strippath", "false")
+    comp.set("fusestatic", "false")
+    spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+    urdf_dir = Path(urdf_path).parent
+    for mesh in spec.meshes:
+        mesh.file = _fix_mesh_path(mesh.file, urdf_dir)
+    return spec
+
+
+def _mount_to_mjcam(quat: tuple[float, ...]) -> np.ndarray:
+    """REP-103 mount frame (x forward, z up) -> MuJoCo camera frame (-z forward, y up)."""
+    r = np.zeros(9)
+    mujoco.mju_quat2Mat(r, np.asarray(quat, dtype=np.float64))
+    m = r.reshape(3, 3)
+    cam = np.stack([-m[:, 1], m[:, 2], -m[:, 0]], axis=1)
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, cam.reshape(-1))
+    return q
+
+
+class MujocoEngine:
+    """MuJoCo implementation of ``simseam.engines.base.Engine``."""
+
+    name = "mujoco"
+
+    def __init__(self, options: EngineOptions | None = None):
+        self.options = options or EngineOptions()
+        if self.options.render_quality not in ("lean", "full"):
+            raise ConfigError(f"render_quality must be 'lean' or 'full', got {self.options.render_quality!r}")
+        self._robot: RobotModel | None = None
+        self._objects: list[ObjectModel] = []
+        self._cameras: dict[str, CameraModel] = {}
+        self._ground = False
+        self.model = None
+        self.data = None
+        self._renderer: CameraRenderer | None = None
+
+    # ------------------------------------------------------------ build phase
+    def load_robot(self, robot: RobotModel) -> None:
+        if self._robot is not None:
+            raise SimulationError("MujocoEngine holds one robot; load_robot was called twice")
+        self._robot = robot
+
+    def add_ground(self) -> None:
+        self._ground = True
+
+    def add_object(self, obj: ObjectModel) -> None:
+        if obj.name in {o.name for o in self._objects}:
+            raise ConfigError(f"object name {obj.name!r} used twice")
+        self._objects.append(obj)
+
+    def add_camera(self, camera: CameraModel) -> None:
+        self._cameras[camera.name] = camera
+
+    def build(self) -> None:
+        if self._robot is None:
+            raise SimulationError("build() before load_robot()")
+        try:
+            spec = self._build_spec()
+            self.model = spec.compile()
+        except ValueError as exc:  # MuJoCo compile errors
+            raise SimulationError(f"MuJoCo could not compile the scene: {exc}") from None
+        self.model.vis.quality.offsamples = 4 if self.options.render_quality == "full" else 0
+        self.data = mujoco.MjData(self.model)
+        self._index()
+        self.reset()
+
+    def _build_spec(self) -> "mujoco.MjSpec":
+        robot = self._robot
+        spec = _urdf_spec(robot.urdf_path)
+        spec.option.timestep = self.options.timestep
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+        spec.option.impratio = 10.0
+        w = max([640] + [c.width for c in self._cameras.values()])
+        h = max([480] + [c.height for c in self._cameras.values()])
+        spec.visual.global_.offwidth = w
+        spec.visual.global_.offheight = h
+        spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
+        spec.visual.headlight.diffuse = [0.5, 0.5, 0.5]
+
+        root = spec.worldbody.first_body()
+        self._root_name = root.name
+        root.pos = list(robot.base_pos)
+        root.quat = list(robot.base_quat)
+        if robot.fixed_base:
+            root.mocap = True
+        else:
+            root.add_freejoint()
+        robot_bodies = [b for b in spec.bodies if b.name != "world"]
+        self._robot_body_names = [b.name for b in robot_bodies]
+        geoms = [g for b in robot_bodies for g in b.geoms]
+        visual = [g for g in geoms if g.contype == 0 and g.conaffinity == 0]
+        for g in geoms:
+            is_visual = g.contype == 0 and g.conaffinity == 0
+            g.group = GROUP_ROBOT_VISUAL if (is_visual or not visual) else GROUP_ROBOT_COLLISION
+            if is_visual and robot.color is not None:
+                g.rgba = list(robot.color)
+        for b in robot_bodies:
+            b.gravcomp = 1.0 if robot.gravity_compensation else 0.0
+
+        urdf = read_urdf(robot.urdf_path)
+        for i, jn in enumerate(robot.joints):
+            joint = spec.joint(jn)
+            if joint is None:
+                raise ConfigError(f"{robot.urdf_path}: joint {jn!r} not found in the compiled model")
+            joint.armature = max(joint.armature, JOINT_ARMATURE)
+            act = spec.add_actuator(name=f"act:{jn}", target=jn, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+            kp = robot.kp[i] or DEFAULT_KP
+            if robot.kd[i] is None:
+                act.set_to_position(kp=kp, dampratio=1.0)
+            else:
+                act.set_to_position(kp=kp, kv=robot.kd[i])
+            uj = urdf.joint(jn)
+            if uj.effort:
+                act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+                act.forcerange = [-uj.effort, uj.effort]
+
+        if self._ground:
+            tex = spec.add_texture(
+                name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                rgb1=[0.32, 0.34, 0.36], rgb2=[0.26, 0.28, 0.30], width=256, height=256,
+            )
+            mat = spec.add_material(name="grid", texrepeat=[8, 8], reflectance=0.1)
+            mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
+            spec.worldbody.add_geom(
+                name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05], material="grid", group=GROUP_WORLD
+            )
+        spec.worldbody.add_light(name="key", pos=[0.5, -0.5, 2.5], dir=[-0.2, 0.2, -1], castshadow=True,
+                                 diffuse=[0.6, 0.6, 0.6])
+
+        kinds = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+                 "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
+        for obj in self._objects:
+            body = spec.worldbody.add_body(name=f"obj:{obj.name}", pos=list(obj.pos), quat=list(obj.quat))
+            if obj.dynamic:
+                body.add_freejoint(name=f"obj:{obj.name}")
+            vols = [_volume(s) for s in obj.shapes]
+            for k, (shape, vol) in enumerate(zip(obj.shapes, vols)):
+                if shape.kind not in kinds:
+                    raise ConfigError(f"object {obj.name!r}: unknown shape kind {shape.kind!r}")
+                g = body.add_geom(
+                    name=f"obj:{obj.name}:{k}", type=kinds[shape.kind], size=list(shape.size) + [0] * (3 - len(shape.size)),
+                    pos=list(shape.pos), quat=list(shape.quat), rgba=list(shape.rgba), group=GROUP_WORLD,
+                    friction=[obj.friction, 0.005, 0.0001], condim=4 if obj.dynamic else 3,
+                )
+                if obj.dynamic:
+                    g.mass = obj.mass * vol / sum(vols)
+
+        for cam in self._cameras.values():
+            parent = spec.worldbody if cam.parent == "world" else spec.body(cam.parent)
+            if parent is None:
+                raise ConfigError(f"camera {cam.name!r}: parent link {cam.parent!r} is not in the robot model")
+            parent.add_camera(
+                name=f"cam:{cam.name}", pos=list(cam.pos), quat=list(_mount_to_mjcam(cam.quat)), fovy=cam.fovy_deg
+            )
+        return spec
+
+    def _index(self) -> None:
+        m = self.model
+        robot = self._robot
+        jids = [m.joint(j).id for j in robot.joints]
+        self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
+        self._vadr = np.array([m.jnt_dofadr[j] for j in jids])
+        self._act = np.array([m.actuator(f"act:{j}").id for j in robot.joints])
+        self._root_body = m.body(self._root_name).id
+        self._mocap = m.body_mocapid[self._root_body]
+        self._body_ids = {name: m.body(name).id for name in self._robot_body_names}
+        self._obj_body = {o.name: m.body(f"obj:{o.name}").id for o in self._objects}
+        self._obj_qadr = {
+            o.name: m.jnt_qposadr[m.body_jntadr[self._obj_body[o.name]]] for o in self._objects if o.dynamic
+        }
+        self._obj_vadr = {
+            o.name: m.jnt_dofadr[m.body_jntadr[self._obj_body[o.name]]] for o in self._objects if o.dynamic
+        }
+        # owner code per body: 0 world, 1 robot, k+2 object k
+        owner = np.zeros(m.nbody, dtype=np.int32)
+        for bid in self._body_ids.values():
+            owner[bid] = 1
+        self._owner_code = {"robot": 1}
+        for k, o in enumerate(self._objects):
+            owner[self._obj_body[o.name]] = k + 2
+            self._owner_code[o.name] = k + 2
+        self._geom_owner = owner[m.geom_bodyid]
+
+    # ------------------------------------------------------------- run phase
+    @property
+    def timestep(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def reset(self) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_joint_positions(self, q: np.ndarray) -> None:
+        self.data.qpos[self._qadr] = q
+        self.data.qvel[self._vadr] = 0.0
+        self.data.ctrl[self._act] = q
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_joint_targets(self, q: np.ndarray) -> None:
+        self.data.ctrl[self._act] = q
+
+    def joint_positions(self) -> np.ndarray:
+        return self.data.qpos[self._qadr].copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self.data.qvel[self._vadr].copy()
+
+    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        try:
+            bid = self._body_ids[link]
+        except KeyError:
+            raise ConfigError(f"link {link!r} is not part of the robot; links: {', '.join(self._body_ids)}") from None
+        return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
+
+    def set_root_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        if self._mocap >= 0:
+            self.data.mocap_pos[self._mocap] = pos
+            self.data.mocap_quat[self._mocap] = quat
+        else:
+            adr = self.model.jnt_qposadr[self.model.body_jntadr[self._root_body]]
+            self.data.qpos[adr:adr + 3] = pos
+            self.data.qpos[adr + 3:adr + 7] = quat
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def _obj(self, name: str) -> int:
+        try:
+            return self._obj_body[name]
+        except KeyError:
+            raise ConfigError(f"unknown object {name!r}; objects: {', '.join(self._obj_body)}") from None
+
+    def object_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        bid = self._obj(name)
+        return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
+
+    def set_object_pose(self, name: str, pos: np.ndarray, quat: np.ndarray) -> None:
+        self._obj(name)
+        if name not in self._obj_qadr:
+            raise ConfigError(f"object {name!r} is static and cannot be moved")
+        a, v = self._obj_qadr[name], self._obj_vadr[name]
+        self.data.qpos[a:a + 3] = pos
+        self.data.qpos[a + 3:a + 7] = quat
+        self.data.qvel[v:v + 6] = 0.0
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def object_velocity(self, name: str) -> np.ndarray:
+        self._obj(name)
+        v = self._obj_vadr.get(name)
+        return np.zeros(6) if v is None else self.data.qvel[v:v + 6].copy()
+
+    def step(self, n_substeps: int) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=int(n_substeps))
+        if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
+            self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 0
+            raise SimulationError(f"MuJoCo became unstable at t={self.data.time:.3f}s (bad accelerations)")
+
+    def sim_time(self) -> float:
+        return float(self.data.time)
+
+    def contacts_between(self, a: str, b: str) -> bool:
+        n = self.data.ncon
+        if n == 0:
+            return False
+        try:
+            ca, cb = self._owner_code[a], self._owner_code[b]
+        except KeyError as exc:
+            raise ConfigError(f"contacts_between: unknown name {exc.args[0]!r}") from None
+        g = self.data.contact.geom[:n]
+        o1, o2 = self._geom_owner[g[:, 0]], self._geom_owner[g[:, 1]]
+        return bool(np.any(((o1 == ca) & (o2 == cb)) | ((o1 == cb) & (o2 == ca))))
+
+    # -------------------------------------------------------------- sensing
+    def _renderers(self) -> CameraRenderer:
+        if self._renderer is None:
+            self._renderer = CameraRenderer(self.model, self._cameras, self.options.render_quality)
+        return self._renderer
+
+    def render_rgb(self, camera: str) -> np.ndarray:
+        return self._renderers().rgb(self.data, camera)
+
+    def render_depth(self, camera: str) -> np.ndarray:
+        return self._renderers().depth(self.data, camera)
+
+    def cast_rays(self, origin: np.ndarray, directions: np.ndarray, max_dist: float) -> np.ndarray:
+        dirs = np.ascontiguousarray(directions, dtype=np.float64)
+        n = dirs.shape[0]
+        dist = np.empty(n, dtype=np.float64)
+        geomid = np.empty(n, dtype=np.int32)
+        mujoco.mj_multiRay(
+            self.model, self.data, np.asarray(origin, dtype=np.float64), dirs.reshape(-1), RAY_GROUPS, True, -1,
+            geomid, dist, None, n, float(max_dist),
+        )
+        dist[(geomid < 0) | (dist < 0) | (dist > max_dist)] = max_dist
+        return dist
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self.data = None
+        self.model = None
+
+
+def _volume(shape) -> float:
+    s = shape.size
+    if shape.kind == "box":
+        return 8.0 * s[0] * s[1] * s[2]
+    if shape.kind == "sphere":
+        return 4.0 / 3.0 * np.pi * s[0] ** 3
+    if shape.kind == "cylinder":
+        return np.pi * s[0] ** 2 * 2.0 * s[1]
+    raise ConfigError(f"unknown shape kind {shape.kind!r}")

@@ -1,0 +1,110 @@
+"""Small rigid-body math helpers (numpy only). Quaternions are [w, x, y, z]."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rpy_to_matrix(rpy) -> np.ndarray:
+    """URDF convention: R = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Rotation matrix -> unit quaternion [w, x, y, z] with w >= 0."""
+    t = np.trace(m)
+    if t > 0:
+        s = 2.0 * np.sqrt(t + 1.0)
+        q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = np.array([(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s])
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = np.array([(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s])
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = np.array([(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s])
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    w, x, y, z = q
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def rpy_to_quat(rpy) -> np.ndarray:
+    return matrix_to_quat(rpy_to_matrix(rpy))
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def axis_angle_to_matrix(v) -> np.ndarray:
+    """Rotation vector (axis * angle, rad) -> matrix (Rodrigues)."""
+    v = np.asarray(v, dtype=np.float64)
+    th = float(np.linalg.norm(v))
+    if th < 1e-12:
+        return np.eye(3)
+    k = v / th
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * kx + (1 - np.cos(th)) * kx @ kx
+
+
+def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
+    """Matrix -> rotation vector (axis * angle), angle in [0, pi]."""
+    q = matrix_to_quat(m)
+    return quat_to_axis_angle(q)
+
+
+def quat_to_axis_angle(q) -> np.ndarray:
+    """Quaternion -> rotation vector, robosuite/LIBERO ``quat2axisangle`` semantics."""
+    q = np.asarray(q, dtype=np.float64)
+    w = np.clip(q[0], -1.0, 1.0)
+    den = np.sqrt(max(1.0 - w * w, 0.0))
+    if den < 1e-9:
+        return np.zeros(3)
+    return q[1:] * 2.0 * np.arccos(w) / den
+
+
+def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Rotation vector (world frame) that takes ``current`` to ``target``."""
+    m = target @ current.T
+    v = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+    cos = min(max((m[0, 0] + m[1, 1] + m[2, 2] - 1.0) * 0.5, -1.0), 1.0)
+    if cos > 0.999:  # small angle: sin(a) ~ a, v = 2 sin(a) axis
+        return 0.5 * v
+    if cos > -0.99:
+        angle = np.arccos(cos)
+        return v * (angle / (2.0 * np.sin(angle)))
+    return matrix_to_axis_angle(m)  # near pi: go through the quaternion
+
+
+def make_transform(pos, rot: np.ndarray) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = rot
+    t[:3, 3] = pos
+    return t
+
+
+def invert_transform(t: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = t[:3, :3].T
+    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
+    return out

@@ -1,0 +1,181 @@
+"""Serial-chain kinematics from a URDF, computed by the scene (numpy only).
+
+The scene owns inverse kinematics so that CARTESIAN_DELTA means exactly the
+same on every engine: the engine only reports joint positions and accepts
+joint targets. Frames: everything here is in the robot base link frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simseam.math3d import rotation_error, rpy_to_matrix
+from simseam.robot.urdf import MOVABLE, UrdfModel
+from simseam.seam import ConfigError
+
+
+@dataclass(frozen=True)
+class IKResult:
+    q: np.ndarray
+    pos_error: float  # metres
+    rot_error: float  # radians
+    iterations: int
+
+
+class SerialChain:
+    """The joints between ``base_link`` and ``tip_link``.
+
+    ``joint_names`` lists the chain's actuated joints (``q`` order); any other
+    movable joint on the way is held at 0. Joint limits clip every IK solution.
+    """
+
+    def __init__(self, urdf: UrdfModel, base_link: str, tip_link: str, joint_names: list[str],
+                 lower: np.ndarray, upper: np.ndarray):
+        chain = urdf.chain(base_link, tip_link)
+        names_on_chain = [j.name for j in chain if j.type in MOVABLE]
+        missing = [n for n in joint_names if n not in names_on_chain]
+        if missing:
+            raise ConfigError(
+                f"{urdf.path}: arm joints {missing} are not on the chain {base_link} -> {tip_link} "
+                f"(chain joints: {names_on_chain})"
+            )
+        # Fold fixed joints and unactuated movable joints (at 0) into constant transforms.
+        self._fixed: list[np.ndarray] = []  # transform before each actuated joint
+        self._axes: list[np.ndarray] = []
+        self._prismatic: list[bool] = []
+        self._index: list[int] = []
+        t = np.eye(4)
+        for j in chain:
+            origin = np.eye(4)
+            origin[:3, :3] = rpy_to_matrix(j.rpy)
+            origin[:3, 3] = j.xyz
+            t = t @ origin
+            if j.name in joint_names:
+                self._fixed.append(t)
+                axis = np.asarray(j.axis, dtype=np.float64)
+                self._axes.append(axis / np.linalg.norm(axis))
+                self._prismatic.append(j.type == "prismatic")
+                self._index.append(joint_names.index(j.name))
+                t = np.eye(4)
+        self._tail = t
+        order = np.argsort(self._index)
+        if list(np.asarray(self._index)[order]) != list(range(len(joint_names))):
+            raise ConfigError(f"{urdf.path}: duplicate arm joints {joint_names}")
+        # q is given in joint_names order; the chain visits joints in chain order.
+        self._q_from_names = np.asarray(self._index)
+        self.n = len(joint_names)
+        self.lower = np.asarray(lower, dtype=np.float64)
+        self.upper = np.asarray(upper, dtype=np.float64)
+        axes = np.asarray(self._axes)
+        self._kx = np.zeros((self.n, 3, 3))
+        self._kx[:, 0, 1], self._kx[:, 0, 2] = -axes[:, 2], axes[:, 1]
+        self._kx[:, 1, 0], self._kx[:, 1, 2] = axes[:, 2], -axes[:, 0]
+        self._kx[:, 2, 0], self._kx[:, 2, 1] = -axes[:, 1], axes[:, 0]
+        self._kx2 = self._kx @ self._kx
+        self._prism = np.asarray(self._prismatic)
+        self._axes_arr = axes
+        self._fixed_arr = np.asarray(self._fixed)
+        self._motion = np.zeros((self.n, 4, 4))
+        self._motion[:, 3, 3] = 1.0
+        self._eye3 = np.eye(3)
+        self._eye6 = np.eye(6)
+        self._revolute_f = (~self._prism).astype(np.float64)
+        self._any_prism = bool(self._prism.any())
+
+    def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tip pose (4x4) in the base frame and the 6xN geometric Jacobian (linear; angular)."""
+        qc = np.asarray(q, dtype=np.float64)[self._q_from_names]
+        ang = qc * self._revolute_f
+        s, c = np.sin(ang)[:, None, None], np.cos(ang)[:, None, None]
+        motion = self._motion
+        motion[:, :3, :3] = self._eye3 + s * self._kx + (1.0 - c) * self._kx2
+        if self._any_prism:
+            motion[:, :3, 3] = self._axes_arr * (qc * (1.0 - self._revolute_f))[:, None]
+        local = self._fixed_arr @ motion  # joint i's frame after its motion, in frame i-1
+        cum = np.empty_like(local)
+        t = local[0]
+        cum[0] = t
+        for i in range(1, self.n):
+            t = t @ local[i]
+            cum[i] = t
+        tip = t @ self._tail
+        # A joint's motion leaves its own axis and (revolute) origin in place.
+        zs = np.einsum("nij,nj->ni", cum[:, :3, :3], self._axes_arr)
+        p = tip[:3, 3]
+        d = p - cum[:, :3, 3]
+        lin = np.empty_like(zs)
+        lin[:, 0] = zs[:, 1] * d[:, 2] - zs[:, 2] * d[:, 1]
+        lin[:, 1] = zs[:, 2] * d[:, 0] - zs[:, 0] * d[:, 2]
+        lin[:, 2] = zs[:, 0] * d[:, 1] - zs[:, 1] * d[:, 0]
+        if self._any_prism:
+            lin[self._prism] = zs[self._prism]
+            zs[self._prism] = 0.0
+        jac = np.empty((6, self.n))
+        jac[:3, self._q_from_names] = lin.T
+        jac[3:, self._q_from_names] = zs.T
+        return tip, jac
+
+    def solve(self, q_start: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray, *,
+              max_iters: int = 1, pos_tol: float = 2e-4, rot_tol: float = 2e-3,
+              rot_weight: float = 0.5, damping: float = 0.02, q_rest: np.ndarray | None = None,
+              rest_gain: float = 0.05) -> IKResult:
+        """Damped least squares IK towards a base-frame target pose, within joint limits.
+
+        Each iteration is one Newton step from the last ``q``; with ``q_start``
+        the previous solution, one step per control step tracks a Cartesian
+        delta like an operational-space controller (the residual is corrected
+        at the next step). Orientation error is weighted by ``rot_weight``
+        (m/rad), so position wins when the arm cannot reach both (a 5-DoF arm).
+        With redundancy the null space pulls gently towards ``q_rest``.
+        ``pos_error``/``rot_error`` are measured at the last evaluated ``q``
+        (before the final step when ``max_iters`` ran out).
+        """
+        q = np.clip(np.asarray(q_start, dtype=np.float64), self.lower, self.upper)
+        w = self._weights(rot_weight)
+        ep = er = np.inf
+        it = 0
+        for it in range(max_iters):
+            t, jac = self.forward(q)
+            e_pos = target_pos - t[:3, 3]
+            e_rot = rotation_error(target_rot, t[:3, :3])
+            ep, er = float(np.linalg.norm(e_pos)), float(np.linalg.norm(e_rot))
+            if ep < pos_tol and er < rot_tol:
+                break
+            jw = jac * w[:, None]
+            rhs = np.empty((6, 2))
+            rhs[:3, 0], rhs[3:, 0] = e_pos, e_rot * rot_weight
+            nullspace = q_rest is not None and self.n > 6
+            if nullspace:
+                z = rest_gain * (q_rest - q)
+                rhs[:, 1] = jw @ z
+            sol = np.linalg.solve(jw @ jw.T + (damping ** 2) * self._eye6, rhs)
+            dq = jw.T @ sol[:, 0]
+            if nullspace:
+                dq += z - jw.T @ sol[:, 1]
+            q = np.clip(q + dq, self.lower, self.upper)
+            it += 1
+        return IKResult(q=q, pos_error=ep, rot_error=er, iterations=it)
+
+    def _weights(self, rot_weight: float) -> np.ndarray:
+        return np.array([1.0, 1.0, 1.0, rot_weight, rot_weight, rot_weight])
+
+    def tabletop_reach(self, n_samples: int = 1500, z_band: tuple[float, float] = (0.0, 0.2)) -> float:
+        """How far (m, horizontally) the tip reaches at tabletop height.
+
+        The 90th percentile of the tip's horizontal distance from the base over
+        random joint configurations whose tip lies ``z_band`` above the base.
+        Deterministic (fixed sample seed). Layouts scale their workspace by it.
+        """
+        rng = np.random.default_rng(0)
+        lo = np.maximum(self.lower, -np.pi)
+        hi = np.minimum(self.upper, np.pi)
+        dists = []
+        for q in rng.uniform(lo, hi, size=(n_samples, self.n)):
+            t, _ = self.forward(q)
+            if z_band[0] <= t[2, 3] <= z_band[1]:
+                dists.append(np.hypot(t[0, 3], t[1, 3]))
+        if len(dists) < 20:
+            raise ConfigError("the arm cannot reach tabletop height above its base")
+        return float(np.percentile(dists, 90))
