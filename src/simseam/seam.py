@@ -158,6 +158,8 @@ class SceneInfo:
     cameras: dict[str, tuple[int, int]]
     joint_names: tuple[str, ...]
     action_names: tuple[str, ...] = ()
+    #: CARTESIAN_DELTA scale: metres and radians per step at |action| = 1
+    action_scale: tuple[float, float] = (0.05, 0.5)
 
     def to_json(self) -> dict[str, Any]:
         """Plain JSON types (for summaries and the wire)."""
@@ -172,6 +174,7 @@ class SceneInfo:
             "cameras": {k: list(v) for k, v in self.cameras.items()},
             "joint_names": list(self.joint_names),
             "action_names": list(self.action_names),
+            "action_scale": list(self.action_scale),
         }
 
 

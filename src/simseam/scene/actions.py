@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simseam.robot.spec import RobotSpec
-from simseam.seam import ConfigError, ControlMode
+from simseam.seam import ConfigError, ControlMode, SceneInfo
 
 CARTESIAN_NAMES = ("dx", "dy", "dz", "dax", "day", "daz")
 BASE_NAMES = ("vx", "vy", "wz")
@@ -43,6 +43,19 @@ class ActionLayout:
                 "use joint_position or cartesian_delta"
             )
         return cls(mode, arm, spec.gripper is not None, spec.kinematic_base is not None)
+
+    @classmethod
+    def from_scene(cls, info: SceneInfo) -> "ActionLayout":
+        """Rebuild the layout a rollout advertises (``SceneInfo.action_names``)."""
+        names = tuple(info.action_names)
+        has_base = names[-3:] == BASE_NAMES
+        core = names[:-3] if has_base else names
+        has_gripper = bool(core) and core[-1] == "grip"
+        arm = core[:-1] if has_gripper else core
+        layout = cls(ControlMode.parse(info.control_mode), arm, has_gripper, has_base)
+        if layout.dim != info.action_dim:
+            raise ConfigError(f"scene advertises action_dim {info.action_dim} but action names {names}")
+        return layout
 
     @property
     def arm_dim(self) -> int:

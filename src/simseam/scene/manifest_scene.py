@@ -5,11 +5,11 @@ meaning lives here, computed the same way whatever the engine:
 
 - JOINT_POSITION: absolute arm joint targets, clipped to the joint limits.
 - CARTESIAN_DELTA: ``[dx, dy, dz, dax, day, daz]`` in [-1, 1] times the
-  robot's max step (m, rad), in the robot base frame; the rotation delta is
-  applied on the left (robosuite OSC_POSE / LIBERO). The new end-effector
-  target is the previous target plus the delta while the arm tracks it (error
-  < 3 cm / 0.2 rad), else the measured pose plus the delta (no wind-up when
-  blocked). Damped least squares IK on the arm joints, within limits.
+  robot's max step (m, rad), in the robot base frame, relative to the
+  measured end-effector pose; the rotation delta is applied on the left
+  (robosuite OSC_POSE / LIBERO semantics: a zero action holds the current
+  pose). Damped least squares IK on the arm joints (one Newton step from the
+  measured joints per control step by default), within joint limits.
 - Gripper: -1 fully open, +1 fully closed, linear in between, mapped to the
   manifest's open/closed finger positions.
 
@@ -29,7 +29,6 @@ from simseam.math3d import (
     matrix_to_quat,
     quat_to_axis_angle,
     quat_to_matrix,
-    rotation_error,
     rpy_to_quat,
     yaw_quat,
 )
@@ -50,8 +49,6 @@ from simseam.seam import (
     check_action,
 )
 
-REANCHOR_POS = 0.03  # m: tracking error beyond which the Cartesian target restarts from the measured pose
-REANCHOR_ROT = 0.2  # rad
 SETTLE_S = 0.1  # physics time after placing props, before the first observation
 
 
@@ -160,6 +157,7 @@ class ManifestScene:
             cameras=cameras if opts.render_images else {},
             joint_names=tuple(spec.joint_names),
             action_names=self.action_layout.names,
+            action_scale=(spec.action.max_translation, spec.action.max_rotation),
         )
         self._task = TaskInfo(layout=layout, instruction=self.layout.instruction,
                               max_steps=opts.max_steps or self.layout.max_steps)
@@ -193,7 +191,6 @@ class ManifestScene:
         eng.step(max(1, int(round(SETTLE_S / eng.timestep))))
         self._t0 = eng.sim_time()
         self._q_target = self._home.copy()
-        self._ref: tuple[np.ndarray, np.ndarray] | None = None
         self._steps = 0
         self._episode_ready = True
         self.last_ik = None
@@ -263,23 +260,13 @@ class ManifestScene:
 
     def _cartesian_target(self, arm: np.ndarray) -> np.ndarray:
         act = self.spec.action
-        q_arm = self.engine.joint_positions()[self._arm_idx]
         pos, rot = self.eef_pose_base()
-        seed = self._q_target[self._arm_idx]
-        if self._ref is not None:
-            ref_pos, ref_rot = self._ref
-            if (np.linalg.norm(ref_pos - pos) > REANCHOR_POS
-                    or np.linalg.norm(rotation_error(ref_rot, rot)) > REANCHOR_ROT):
-                self._ref = None
-        if self._ref is None:
-            ref_pos, ref_rot, seed = pos, rot, q_arm
-        tgt_pos = ref_pos + arm[:3] * act.max_translation
-        tgt_rot = axis_angle_to_matrix(arm[3:6] * act.max_rotation) @ ref_rot
-        ik = self.chain.solve(seed, tgt_pos, tgt_rot, max_iters=self.options.ik_iters,
+        tgt_pos = pos + arm[:3] * act.max_translation
+        tgt_rot = axis_angle_to_matrix(arm[3:6] * act.max_rotation) @ rot
+        q_arm = self.engine.joint_positions()[self._arm_idx]
+        ik = self.chain.solve(q_arm, tgt_pos, tgt_rot, max_iters=self.options.ik_iters,
                               q_rest=self._home[self._arm_idx])
         self.last_ik = ik
-        # An unreachable target shows up as tracking error and re-anchors above.
-        self._ref = (tgt_pos, tgt_rot)
         return ik.q
 
     def _observe(self) -> Observation:

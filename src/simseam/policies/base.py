@@ -1,0 +1,99 @@
+"""The Policy protocol and the policy registry.
+
+A policy maps observations (the seam's observation dict) to actions
+(``float32[action_dim]`` in the rollout's action layout). ``reset`` is called
+at the start of every episode with the rollout's ``SceneInfo`` and
+``TaskInfo``, so a policy can check it fits before the first step.
+
+Action chunks: a policy that predicts several actions at once subclasses
+``ChunkedPolicy`` and implements ``predict_chunk``; ``act`` then replays up to
+``n_action_steps`` actions of each chunk before asking for the next.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
+
+
+@runtime_checkable
+class Policy(Protocol):
+    #: needs ``observation['privileged']`` (ground truth): scripted experts
+    requires_privileged: bool
+    #: consumes ``observation['images']``; when False the runner skips rendering
+    uses_images: bool
+
+    def reset(self, scene: SceneInfo, task: TaskInfo) -> None: ...
+
+    def act(self, observation: Observation) -> np.ndarray: ...
+
+
+class BasePolicy:
+    """Convenience base: stores the scene/task on reset."""
+
+    requires_privileged: ClassVar[bool] = False
+    uses_images: ClassVar[bool] = False
+
+    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
+        self.scene_info = scene
+        self.task_info = task
+
+    def act(self, observation: Observation) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class ChunkedPolicy(BasePolicy):
+    """A policy that predicts ``(k, action_dim)`` chunks and executes ``n_action_steps`` of each."""
+
+    def __init__(self, n_action_steps: int | None = None):
+        self.n_action_steps = n_action_steps
+        self._queue: deque[np.ndarray] = deque()
+
+    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
+        super().reset(scene, task)
+        self._queue.clear()
+
+    def predict_chunk(self, observation: Observation) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def act(self, observation: Observation) -> np.ndarray:
+        if not self._queue:
+            chunk = np.asarray(self.predict_chunk(observation), dtype=np.float32)
+            if chunk.ndim != 2 or chunk.shape[0] == 0:
+                raise ConfigError(f"{type(self).__name__}.predict_chunk returned shape {chunk.shape}, expected (k, action_dim)")
+            self._queue.extend(chunk[: self.n_action_steps or len(chunk)])
+        return self._queue.popleft()
+
+
+_POLICIES: dict[str, Callable[..., Policy]] = {}
+
+
+def register_policy(name: str) -> Callable:
+    def deco(factory: Callable[..., Policy]) -> Callable[..., Policy]:
+        _POLICIES[name] = factory
+        return factory
+
+    return deco
+
+
+def policy_names() -> list[str]:
+    _load_builtin()
+    return sorted(_POLICIES)
+
+
+def make_policy(name: str, **kwargs: Any) -> Policy:
+    """Create a policy by name (``scripted``, ``random``, ``zero``)."""
+    _load_builtin()
+    try:
+        factory = _POLICIES[name]
+    except KeyError:
+        raise ConfigError(f"unknown policy {name!r}; known policies: {', '.join(sorted(_POLICIES))}") from None
+    return factory(**kwargs)
+
+
+def _load_builtin() -> None:
+    from simseam.policies import scripted, simple  # noqa: F401  (registers them)

@@ -1,0 +1,170 @@
+"""Scripted experts: state machines over privileged ground truth.
+
+They drive CARTESIAN_DELTA actions with a saturated proportional controller
+towards waypoints in the robot base frame, keeping the end effector's reset
+orientation (gripper down for a tabletop arm) and turning only about the base
+z axis to line the fingers up. Their success rate is the proof that layouts,
+IK and the gripper convention are right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simseam.math3d import quat_to_matrix, rotation_error
+from simseam.policies.base import BasePolicy, register_policy
+from simseam.scene.actions import ActionLayout
+from simseam.scene.layouts.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
+from simseam.seam import ConfigError, ControlMode, Observation, SceneInfo, TaskInfo
+
+OPEN, CLOSE = -1.0, 1.0
+
+
+def _rz(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _nearest_equivalent(angle: float, reference: float, period: float) -> float:
+    """``angle + k * period`` closest to ``reference``."""
+    return angle + period * np.round((reference - angle) / period)
+
+
+class _CartesianExpert:
+    """Waypoint following with a P-controller saturated at the action bounds."""
+
+    gain = 1.0
+
+    def __init__(self, layout: ActionLayout, max_translation: float, max_rotation: float, down_rot: np.ndarray):
+        self.layout = layout
+        self.max_t = max_translation
+        self.max_r = max_rotation
+        self.down = down_rot  # reset orientation of the end effector (base frame)
+        self.phase = 0
+        self.timer = 0
+
+    def yaw_of(self, rot: np.ndarray) -> float:
+        """Yaw of an end-effector rotation relative to the reset orientation."""
+        rel = rot @ self.down.T
+        return float(np.arctan2(rel[1, 0], rel[0, 0]))
+
+    def command(self, eef: np.ndarray, target_pos: np.ndarray, target_yaw: float, grip: float,
+                speed: float = 1.0) -> np.ndarray:
+        pos, rot = eef[:3], quat_to_matrix(eef[3:])
+        dpos = np.clip(self.gain * (target_pos - pos) / self.max_t, -speed, speed)
+        drot = np.clip(rotation_error(_rz(target_yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
+        return self.layout.pack(arm=np.concatenate([dpos, drot]), grip=grip)
+
+    def advance(self) -> None:
+        self.phase += 1
+        self.timer = 0
+
+
+class LiftExpert(_CartesianExpert):
+    """Above the cube, yaw-aligned -> down -> close -> lift 20 cm."""
+
+    def act(self, priv: dict) -> np.ndarray:
+        eef = priv["eef_pose"]
+        cube = priv["objects"]["cube"]
+        cube_yaw = self.yaw_of(quat_to_matrix(cube[3:]))
+        yaw = _nearest_equivalent(cube_yaw, self.yaw_of(quat_to_matrix(eef[3:])), np.pi / 2)
+        self.timer += 1
+        err = lambda p: float(np.linalg.norm(p - eef[:3]))  # noqa: E731
+        above = cube[:3] + [0.0, 0.0, 0.08]
+        if self.phase == 0:  # hover above the cube, aligned
+            if (err(above) < 0.01 and abs(self.yaw_of(quat_to_matrix(eef[3:])) - yaw) < 0.05) or self.timer > 60:
+                self.advance()
+            return self.command(eef, above, yaw, OPEN)
+        if self.phase == 1:  # descend around it
+            grasp = cube[:3] + [0.0, 0.0, 0.005]
+            if err(grasp) < 0.008 or self.timer > 40:
+                self.advance()
+            return self.command(eef, grasp, yaw, OPEN, speed=0.6)
+        if self.phase == 2:  # close
+            if self.timer > 6:
+                self.advance()
+                self.lift_to = eef[:3] + [0.0, 0.0, 0.2]
+            return self.command(eef, eef[:3], yaw, CLOSE)
+        return self.command(eef, self.lift_to, yaw, CLOSE, speed=0.6)
+
+
+class BowlPlateExpert(_CartesianExpert):
+    """Grip the bowl's wall on the side facing the robot, carry it over the plate, set it down, let go."""
+
+    def act(self, priv: dict) -> np.ndarray:
+        eef = priv["eef_pose"]
+        bowl, plate = priv["objects"]["bowl"], priv["objects"]["plate"]
+        self.timer += 1
+        err = lambda p: float(np.linalg.norm(p - eef[:3]))  # noqa: E731
+        cur_yaw = self.yaw_of(quat_to_matrix(eef[3:]))
+        if self.phase <= 2:
+            u = -bowl[:2] / np.linalg.norm(bowl[:2])  # towards the robot base
+            # Fingers close along the hand's y axis: point it along u (radially).
+            y_axis = self.down @ np.array([0.0, 1.0, 0.0])
+            base_yaw = np.arctan2(u[1], u[0]) - np.arctan2(y_axis[1], y_axis[0])
+            self.yaw = _nearest_equivalent(base_yaw, cur_yaw, np.pi)
+            self.grasp = np.array([*(bowl[:2] + BOWL_WALL_R * u), bowl[2] + BOWL_HEIGHT - 0.017])
+        if self.phase == 0:  # above the wall
+            above = self.grasp + [0.0, 0.0, 0.08]
+            if (err(above) < 0.01 and abs(cur_yaw - self.yaw) < 0.05) or self.timer > 60:
+                self.advance()
+            return self.command(eef, above, self.yaw, OPEN)
+        if self.phase == 1:  # straddle the wall
+            if err(self.grasp) < 0.006 or self.timer > 40:
+                self.advance()
+            return self.command(eef, self.grasp, self.yaw, OPEN, speed=0.6)
+        if self.phase == 2:  # close
+            if self.timer > 6:
+                self.advance()
+                self.hold = eef[:3] - bowl[:3]  # bowl -> hand offset while carried
+            return self.command(eef, eef[:3], self.yaw, CLOSE)
+        plate_top = plate[2] + 2 * PLATE_HALF_H
+        over = np.array([*(plate[:2] + self.hold[:2]), plate_top + self.hold[2] + 0.12])
+        if self.phase == 3:  # lift
+            lift = np.array([*eef[:2], over[2]])
+            if err(lift) < 0.02 or self.timer > 30:
+                self.advance()
+            return self.command(eef, lift, self.yaw, CLOSE)
+        if self.phase == 4:  # carry over the plate
+            if err(over) < 0.01 or self.timer > 80:
+                self.advance()
+            return self.command(eef, over, self.yaw, CLOSE)
+        if self.phase == 5:  # lower onto the plate
+            down = over - [0.0, 0.0, 0.11]
+            if err(down) < 0.008 or self.timer > 40:
+                self.advance()
+            return self.command(eef, down, self.yaw, CLOSE, speed=0.5)
+        if self.phase == 6:  # release
+            if self.timer > 6:
+                self.advance()
+            return self.command(eef, eef[:3], self.yaw, OPEN)
+        return self.command(eef, eef[:3] + [0.0, 0.0, 0.1], self.yaw, OPEN, speed=0.5)  # back off
+
+
+_EXPERTS = {"lift_cube": LiftExpert, "bowl_plate": BowlPlateExpert}
+
+
+@register_policy("scripted")
+class ScriptedPolicy(BasePolicy):
+    """Dispatches to the expert of the rollout's layout. Needs privileged observations."""
+
+    requires_privileged = True
+
+    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
+        super().reset(scene, task)
+        if task.layout not in _EXPERTS:
+            raise ConfigError(f"no scripted expert for layout {task.layout!r}; experts exist for {sorted(_EXPERTS)}")
+        layout = ActionLayout.from_scene(scene)
+        if layout.control_mode != ControlMode.CARTESIAN_DELTA:
+            raise ConfigError("the scripted experts drive cartesian_delta; set control_mode: cartesian_delta")
+        self._layout = layout
+        self._expert = None
+
+    def act(self, observation: Observation) -> np.ndarray:
+        priv = observation.get("privileged")
+        if priv is None:
+            raise ConfigError("the scripted expert needs privileged observations (build the scene with privileged=True)")
+        if self._expert is None:
+            down = quat_to_matrix(priv["eef_pose"][3:])
+            self._expert = _EXPERTS[self.task_info.layout](self._layout, *self.scene_info.action_scale, down)
+        return self._expert.act(priv)
