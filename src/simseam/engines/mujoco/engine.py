@@ -14,6 +14,7 @@ Model conventions (see ``Engine`` for the contract):
 
 from __future__ import annotations
 
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -124,7 +125,10 @@ class MujocoEngine:
             raise SimulationError("build() before load_robot()")
         try:
             spec = self._build_spec()
-            self.model = spec.compile()
+            with warnings.catch_warnings():
+                # Mesh files without texture coordinates are fine for us (no textures on robots).
+                warnings.filterwarnings("ignore", message=".*texture coordinate.*")
+                self.model = spec.compile()
         except ValueError as exc:  # MuJoCo compile errors
             raise SimulationError(f"MuJoCo could not compile the scene: {exc}") from None
         self.model.vis.quality.offsamples = 4 if self.options.render_quality == "full" else 0

@@ -1,0 +1,109 @@
+"""Scene files: which robot, engine and layout, and the episode knobs (YAML).
+
+Example::
+
+    robot: franka_panda          # a built-in robot or a manifest path (relative to this file)
+    engine: mujoco               # or {name: mujoco, render_quality: full, timestep: 0.002}
+    layout: lift_cube
+    image_size: [256, 256]       # (H, W) of every RGB camera; default: the layout's or the sensor's
+    max_steps: 150
+    control_hz: 20
+    control_mode: cartesian_delta   # optional; default: the layout's or the robot's
+
+Unknown keys are errors that name the file and the field.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from simseam.robot.manifest import find_manifest, load_manifest
+from simseam.seam import ConfigError, SimRollout
+
+
+class EngineConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    name: str = "mujoco"
+    render_quality: Literal["lean", "full"] = "lean"
+    timestep: float = Field(default=0.002, gt=0, le=0.05)
+
+
+class SceneConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    robot: str
+    engine: EngineConfig = EngineConfig()
+    layout: str
+    image_size: tuple[int, int] | None = None
+    max_steps: int | None = Field(default=None, gt=0)
+    control_hz: float = Field(default=20.0, gt=0, le=1000)
+    control_mode: Literal["joint_position", "cartesian_delta"] | None = None
+
+    @field_validator("engine", mode="before")
+    @classmethod
+    def _engine_name(cls, v: Any) -> Any:
+        return {"name": v} if isinstance(v, str) else v
+
+    @field_validator("image_size")
+    @classmethod
+    def _size(cls, v):
+        if v is not None and not all(8 <= x <= 4096 for x in v):
+            raise ValueError("image_size must be [height, width], each between 8 and 4096")
+        return v
+
+
+def load_scene_config(path: str | Path) -> tuple[SceneConfig, Path]:
+    """Parse a scene file; returns the config and the file's directory."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read scene file: {exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a scene file must be a YAML mapping")
+    try:
+        return SceneConfig.model_validate(data), path.resolve().parent
+    except ValidationError as exc:
+        lines = []
+        for err in exc.errors():
+            loc = ".".join(str(p) for p in err["loc"])
+            msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+            lines.append(f"{path}: field '{loc}': {msg}")
+        raise ConfigError("invalid scene file\n  " + "\n  ".join(lines)) from None
+
+
+def resolve_robot(cfg: SceneConfig, base_dir: Path):
+    """The scene's RobotSpec (built-in name, or manifest path relative to the scene file)."""
+    ref = cfg.robot
+    if ref.endswith((".yaml", ".yml")) and not Path(ref).is_absolute():
+        ref = str(base_dir / ref)
+    return load_manifest(find_manifest(ref))
+
+
+def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
+                  seed: int = 0) -> SimRollout:
+    """Build the rollout a scene file describes (in-process MuJoCo by default)."""
+    from simseam.engines.base import EngineOptions
+    from simseam.engines.registry import make_engine
+    from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+
+    spec = resolve_robot(cfg, base_dir)
+    engine = make_engine(cfg.engine.name, EngineOptions(timestep=cfg.engine.timestep,
+                                                        render_quality=cfg.engine.render_quality))
+    options = SceneOptions(
+        control_hz=cfg.control_hz,
+        image_size=cfg.image_size,
+        max_steps=cfg.max_steps,
+        control_mode=cfg.control_mode,
+        render_images=render_images,
+        privileged=privileged,
+        render_quality=cfg.engine.render_quality,
+        timestep=cfg.engine.timestep,
+        seed=seed,
+    )
+    return ManifestScene(spec, cfg.layout, engine, options)
