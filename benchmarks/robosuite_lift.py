@@ -8,7 +8,8 @@ Run with the interpreter of ``benchmarks/.venv-robosuite`` (see setup_robosuite.
 Cases: ``state`` (no rendering), ``rgb128`` / ``rgb256`` (RGB from ``agentview`` and
 ``robot0_eye_in_hand`` at that size, no depth). Each case builds the env, resets, runs
 10 warm-up steps, then times ``env.step`` alone (time.perf_counter) for N steps with one
-fixed seeded action in [-1, 1]^7; a reset on ``done`` is not timed. control_freq=20.
+fixed action in [-1, 1]^7; a reset on ``done`` is not timed. control_freq=20. ``--seed``
+seeds both the action and robosuite's own randomness (cube pose, joint init noise).
 """
 
 import argparse
@@ -35,7 +36,7 @@ CAMERAS = ["agentview", "robot0_eye_in_hand"]
 WARMUP = 10
 
 
-def make_env(case):
+def make_env(case, seed):
     """Build Lift for one case; camera cases render both CAMERAS at the case's size."""
     # Panda's default composite config is BASIC with the arm on OSC_POSE; unlike
     # controller="BASIC" it has no torso/head/base/legs parts to warn about.
@@ -48,6 +49,7 @@ def make_env(case):
         has_renderer=False,
         has_offscreen_renderer=False,
         use_camera_obs=False,
+        seed=seed,  # unseeded, robosuite randomizes cube pose and joint init noise
     )
     if case != "state":
         size = int(case.removeprefix("rgb"))
@@ -64,7 +66,7 @@ def make_env(case):
 
 def run_case(case, steps, seed):
     """Return per-step wall times (seconds) of ``steps`` timed env.step calls."""
-    env = make_env(case)
+    env = make_env(case, seed)
     try:
         low, high = env.action_spec
         action = np.random.default_rng(seed).uniform(-1.0, 1.0, size=low.shape)
@@ -91,7 +93,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200, help="timed steps per case (default 200)")
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of " + ",".join(CASES))
-    parser.add_argument("--seed", type=int, default=0, help="seed of the fixed action (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the env and the fixed action (default 0)")
     parser.add_argument("--json", metavar="PATH", help="also write results as JSON to PATH")
     args = parser.parse_args()
 

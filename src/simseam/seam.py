@@ -231,6 +231,6 @@ def check_action(action: Any, action_dim: int) -> np.ndarray:
     if not finite.all():
         bad = int(np.flatnonzero(~finite)[0])
         raise InvalidActionError(
-            f"action[{bad}] is {arr[bad]!r}; every entry must be finite"
+            f"action[{bad}] is {float(arr[bad])}; every entry must be finite"
         )
     return arr

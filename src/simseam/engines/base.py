@@ -30,7 +30,9 @@ class RobotModel:
     in order. ``kp``/``kd``: position gains per joint (None: engine default;
     kd None means critically damped). ``fixed_base``: weld the root link to the
     world at ``base_pos``/``base_quat`` (it can still be teleported with
-    ``set_root_pose``); otherwise the root is free.
+    ``set_root_pose``); otherwise the root is free. ``inertia_from_geometry``
+    replaces the URDF's link masses and inertias with those of the collision
+    geometry at 1000 kg/m^3 (for models that ship placeholder inertias).
     """
 
     urdf_path: str
@@ -41,6 +43,7 @@ class RobotModel:
     base_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     fixed_base: bool = True
     gravity_compensation: bool = True
+    inertia_from_geometry: bool = False
     color: tuple[float, float, float, float] | None = None
 
 

@@ -33,7 +33,8 @@ def _nearest_equivalent(angle: float, reference: float, period: float) -> float:
 class _CartesianExpert:
     """Waypoint following with a P-controller saturated at the action bounds."""
 
-    gain = 1.0
+    gain = 0.5  # per-step fraction of the position error to close
+    rot_gain = 0.2  # same for orientation (the wrist lags more: keep it calm)
 
     def __init__(self, layout: ActionLayout, max_translation: float, max_rotation: float, down_rot: np.ndarray):
         self.layout = layout
@@ -52,7 +53,7 @@ class _CartesianExpert:
                 speed: float = 1.0) -> np.ndarray:
         pos, rot = eef[:3], quat_to_matrix(eef[3:])
         dpos = np.clip(self.gain * (target_pos - pos) / self.max_t, -speed, speed)
-        drot = np.clip(rotation_error(_rz(target_yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
+        drot = np.clip(self.rot_gain * rotation_error(_rz(target_yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
         return self.layout.pack(arm=np.concatenate([dpos, drot]), grip=grip)
 
     def advance(self) -> None:

@@ -98,6 +98,7 @@ class ManifestModel(_Strict):
     kinematic_base: KinematicBaseModel | None = None
     sensors: list[SensorModel] = []
     action: ActionModel = ActionModel()
+    inertia: Literal["urdf", "geometry"] = "urdf"
 
     @model_validator(mode="after")
     def _consistent(self) -> "ManifestModel":
@@ -199,7 +200,7 @@ def load_manifest(path: str | Path) -> RobotSpec:
     joints: list[JointSpec] = []
     for i, j in enumerate(m.joints):
         sim_name = j.sim_name or j.name
-        lower = upper = None
+        lower = upper = velocity = None
         if j.role != "base":
             if sim_name not in movable:
                 problems.append(
@@ -208,14 +209,14 @@ def load_manifest(path: str | Path) -> RobotSpec:
                 )
                 continue
             uj = urdf.joint(sim_name)
-            lower, upper = uj.lower, uj.upper
+            lower, upper, velocity = uj.lower, uj.upper, uj.velocity
         if j.limits is not None:
             lo, hi = j.limits
             if lo >= hi:
                 problems.append(f"field 'joints.{i}.limits': lower {lo} must be below upper {hi}")
             lower = lo if lower is None else max(lower, lo)
             upper = hi if upper is None else min(upper, hi)
-        joints.append(JointSpec(j.name, j.role, sim_name, j.home, lower, upper, j.kp, j.kd))
+        joints.append(JointSpec(j.name, j.role, sim_name, j.home, lower, upper, j.kp, j.kd, velocity))
     for i, s in enumerate(m.sensors):
         if s.parent not in links:
             problems.append(
@@ -260,6 +261,7 @@ def load_manifest(path: str | Path) -> RobotSpec:
         action=ActionSpec(**m.action.model_dump()),
         description=m.description,
         source=str(path),
+        inertia=m.inertia,
     )
 
 

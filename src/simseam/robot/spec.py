@@ -27,6 +27,7 @@ class JointSpec:
     ``sim_name`` is the joint's name inside the simulator model (defaults to
     ``name``). ``lower``/``upper`` come from the URDF unless the manifest
     narrows them. ``kp``/``kd`` are position-servo gains (N m/rad, N m s/rad).
+    ``max_velocity`` bounds how far one control step may move the joint's target.
     """
 
     name: str
@@ -37,6 +38,7 @@ class JointSpec:
     upper: float | None = None
     kp: float | None = None
     kd: float | None = None
+    max_velocity: float | None = None  # rad/s or m/s, from the URDF <limit velocity>
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,8 @@ class RobotSpec:
     action: ActionSpec = field(default_factory=ActionSpec)
     description: str = ""
     source: str = ""
+    #: "urdf": the URDF's masses/inertias; "geometry": computed from collision geometry
+    inertia: str = "urdf"
 
     # ------------------------------------------------------------ derived views
     def joints_with_role(self, role: str) -> list[JointSpec]:

@@ -120,7 +120,7 @@ class SerialChain:
     def solve(self, q_start: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray, *,
               max_iters: int = 1, pos_tol: float = 2e-4, rot_tol: float = 2e-3,
               rot_weight: float = 0.5, damping: float = 0.02, q_rest: np.ndarray | None = None,
-              rest_gain: float = 0.05) -> IKResult:
+              rest_gain: float = 0.05, start_fk: tuple[np.ndarray, np.ndarray] | None = None) -> IKResult:
         """Damped least squares IK towards a base-frame target pose, within joint limits.
 
         Each iteration is one Newton step from the last ``q``; with ``q_start``
@@ -130,33 +130,64 @@ class SerialChain:
         (m/rad), so position wins when the arm cannot reach both (a 5-DoF arm).
         With redundancy the null space pulls gently towards ``q_rest``.
         ``pos_error``/``rot_error`` are measured at the last evaluated ``q``
-        (before the final step when ``max_iters`` ran out).
+        (before the final step when ``max_iters`` ran out). ``start_fk`` is
+        ``forward(q_start)`` when the caller already has it.
         """
         q = np.clip(np.asarray(q_start, dtype=np.float64), self.lower, self.upper)
         w = self._weights(rot_weight)
         ep = er = np.inf
         it = 0
         for it in range(max_iters):
-            t, jac = self.forward(q)
+            t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
             e_pos = target_pos - t[:3, 3]
             e_rot = rotation_error(target_rot, t[:3, :3])
             ep, er = float(np.linalg.norm(e_pos)), float(np.linalg.norm(e_rot))
             if ep < pos_tol and er < rot_tol:
                 break
             jw = jac * w[:, None]
-            rhs = np.empty((6, 2))
-            rhs[:3, 0], rhs[3:, 0] = e_pos, e_rot * rot_weight
-            nullspace = q_rest is not None and self.n > 6
-            if nullspace:
-                z = rest_gain * (q_rest - q)
-                rhs[:, 1] = jw @ z
-            sol = np.linalg.solve(jw @ jw.T + (damping ** 2) * self._eye6, rhs)
-            dq = jw.T @ sol[:, 0]
-            if nullspace:
-                dq += z - jw.T @ sol[:, 1]
+            e = np.concatenate([e_pos, e_rot * rot_weight])
+            z = rest_gain * (q_rest - q) if (q_rest is not None and self.n > 6) else None
+            step = self._dls_step if self.n >= 6 else self._priority_step
+            dq = step(jw, e, z, damping)
+            # Joints that would cross a limit stop at it and the step is re-solved
+            # without them, so the other joints take up their share of the motion.
+            blocked = ((q + dq < self.lower) & (dq < 0)) | ((q + dq > self.upper) & (dq > 0))
+            if blocked.any():
+                # Blocked joints go to their limit; the rest solve for what is left.
+                dq_b = np.clip(q + dq, self.lower, self.upper)[blocked] - q[blocked]
+                e = e - jw[:, blocked] @ dq_b
+                jw[:, blocked] = 0.0
+                if z is not None:
+                    z[blocked] = 0.0
+                dq = step(jw, e, z, damping)
+                dq[blocked] = dq_b
             q = np.clip(q + dq, self.lower, self.upper)
             it += 1
         return IKResult(q=q, pos_error=ep, rot_error=er, iterations=it)
+
+    def _dls_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
+        """Damped least squares step for task error ``e``, plus ``z`` projected into the null space."""
+        rhs = np.empty((6, 2))
+        rhs[:, 0] = e
+        rhs[:, 1] = 0.0 if z is None else jw @ z
+        sol = np.linalg.solve(jw @ jw.T + (damping ** 2) * self._eye6, rhs)
+        dq = jw.T @ sol[:, 0]
+        if z is not None:
+            dq += z - jw.T @ sol[:, 1]
+        return dq
+
+    def _priority_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
+        """Task-priority step for arms with fewer than 6 joints: position first,
+        orientation only within the position task's null space."""
+        jp, jo = jw[:3], jw[3:]
+        jp_pinv = jp.T @ np.linalg.inv(jp @ jp.T + (damping ** 2) * self._eye3)
+        dq1 = jp_pinv @ e[:3]
+        # The projector uses the exact pseudo-inverse: a damped one leaks, and the
+        # secondary task would then undo part of the position motion.
+        null = np.eye(self.n) - np.linalg.pinv(jp, rcond=1e-4) @ jp
+        jo_n = jo @ null
+        dq2 = jo_n.T @ np.linalg.solve(jo_n @ jo_n.T + (damping ** 2) * self._eye3, e[3:] - jo @ dq1)
+        return dq1 + null @ dq2
 
     def _weights(self, rot_weight: float) -> np.ndarray:
         return np.array([1.0, 1.0, 1.0, rot_weight, rot_weight, rot_weight])

@@ -5,11 +5,17 @@ meaning lives here, computed the same way whatever the engine:
 
 - JOINT_POSITION: absolute arm joint targets, clipped to the joint limits.
 - CARTESIAN_DELTA: ``[dx, dy, dz, dax, day, daz]`` in [-1, 1] times the
-  robot's max step (m, rad), in the robot base frame, relative to the
-  measured end-effector pose; the rotation delta is applied on the left
-  (robosuite OSC_POSE / LIBERO semantics: a zero action holds the current
-  pose). Damped least squares IK on the arm joints (one Newton step from the
-  measured joints per control step by default), within joint limits.
+  robot's max step (m, rad), in the robot base frame; the rotation delta is
+  applied on the left (robosuite OSC_POSE / LIBERO). The delta is added to
+  the previous end-effector target while the arm tracks its last command
+  (within 1.5 cm / 0.1 rad), else to the measured pose (blocked or
+  disturbed: no wind-up), so
+  free-space motion covers exactly the commanded distance and a zero action
+  holds the pose. Damped least squares IK on the arm joints (one Newton step
+  per control step, warm-started), within joint limits. Joint setpoints ramp
+  smoothly to the new targets over the first 60% of the control period.
+- Arm joint targets never leave the joint limits, nor move faster than the
+  URDF's joint velocity limits.
 - Gripper: -1 fully open, +1 fully closed, linear in between, mapped to the
   manifest's open/closed finger positions.
 
@@ -29,6 +35,7 @@ from simseam.math3d import (
     matrix_to_quat,
     quat_to_axis_angle,
     quat_to_matrix,
+    rotation_error,
     rpy_to_quat,
     yaw_quat,
 )
@@ -49,6 +56,10 @@ from simseam.seam import (
     check_action,
 )
 
+RAMP_CHUNKS = 5  # servo setpoint updates per control step
+RAMP_FRACTION = 0.6  # the setpoint reaches the new target at this fraction of the control period
+REANCHOR_POS = 0.015  # m: tracking error beyond which a Cartesian delta restarts from the measured pose
+REANCHOR_ROT = 0.1  # rad
 SETTLE_S = 0.1  # physics time after placing props, before the first observation
 
 
@@ -100,6 +111,8 @@ class ManifestScene:
         hi = np.array([np.inf if j.upper is None else j.upper for j in self._ejoints])
         self._lower, self._upper = lo, hi
         self._home = np.clip(np.array([j.home for j in self._ejoints]), lo, hi)
+        vmax = np.array([np.inf if j.max_velocity is None else j.max_velocity for j in self._ejoints])
+        self._max_step = vmax[self._arm_idx] / opts.control_hz
         if spec.gripper:
             self._grip_open = np.asarray(spec.gripper.open, dtype=np.float64)
             self._grip_closed = np.asarray(spec.gripper.closed, dtype=np.float64)
@@ -107,6 +120,7 @@ class ManifestScene:
         arm_hi = np.where(np.isfinite(hi[self._arm_idx]), hi[self._arm_idx], 2 * np.pi)
         self.chain = SerialChain(urdf, spec.base_link, spec.ee_link,
                                  [self._ejoints[i].sim_name for i in self._arm_idx], arm_lo, arm_hi)
+        self._rot_weight = 0.5
         self.layout = layout_cls(spec, self.chain.tabletop_reach())
         self.layout.check_robot()
 
@@ -128,6 +142,7 @@ class ManifestScene:
                 base_pos=tuple(self._base_pos),
                 base_quat=tuple(yaw_quat(base_yaw)),
                 fixed_base=True,
+                inertia_from_geometry=spec.inertia == "geometry",
             )
         )
         self.layout.build(engine)
@@ -145,6 +160,10 @@ class ManifestScene:
                 cameras[s.feature_key] = (h, w)
         engine.build()
         self._substeps = max(1, int(round(1.0 / (opts.control_hz * engine.timestep))))
+        n_chunks = min(RAMP_CHUNKS, self._substeps)
+        self._chunks = np.diff(np.linspace(0, self._substeps, n_chunks + 1).round().astype(int)).tolist()
+        t = np.cumsum(self._chunks) / self._substeps / RAMP_FRACTION
+        self._ramp = np.where(t >= 1.0, 1.0, t * t * (3.0 - 2.0 * t)).tolist()  # smoothstep
 
         self._scene_info = SceneInfo(
             robot=spec.name,
@@ -191,6 +210,8 @@ class ManifestScene:
         eng.step(max(1, int(round(SETTLE_S / eng.timestep))))
         self._t0 = eng.sim_time()
         self._q_target = self._home.copy()
+        self._q_sent = self._home.copy()
+        self._ref: tuple[np.ndarray, np.ndarray] | None = None
         self._steps = 0
         self._episode_ready = True
         self.last_ik = None
@@ -203,15 +224,17 @@ class ManifestScene:
         a = check_action(action, self.action_dim)
         arm, grip, _base = self.action_layout.unpack(a)
         target = self._q_target
+        previous = target[self._arm_idx]
         if self.action_layout.control_mode == ControlMode.JOINT_POSITION:
-            target[self._arm_idx] = np.clip(arm, self._lower[self._arm_idx], self._upper[self._arm_idx])
+            q_arm = np.clip(arm, self._lower[self._arm_idx], self._upper[self._arm_idx])
         else:
-            target[self._arm_idx] = self._cartesian_target(np.clip(arm, -1.0, 1.0))
+            q_arm = self._cartesian_target(np.clip(arm, -1.0, 1.0))
+        # Joint velocity limits: a target moves at most max_velocity * control period per step.
+        target[self._arm_idx] = np.clip(q_arm, previous - self._max_step, previous + self._max_step)
         if grip is not None:
             g = (min(max(grip, -1.0), 1.0) + 1.0) * 0.5
             target[self._grip_idx] = self._grip_open + g * (self._grip_closed - self._grip_open)
-        self.engine.set_joint_targets(target)
-        self.engine.step(self._substeps)
+        self._servo(target)
         self._steps += 1
         obs = self._observe()
         reward, success = self.layout.evaluate(self)
@@ -258,15 +281,40 @@ class ManifestScene:
         rt = self._base_rot.T
         return np.concatenate([rt @ (pos - self._base_pos), matrix_to_quat(rt @ quat_to_matrix(quat))])
 
+    def _servo(self, target: np.ndarray) -> None:
+        """Move the servo setpoints from the previous command to ``target`` along a
+        smooth ramp that ends at RAMP_FRACTION of the control period, then hold.
+
+        Stepping the setpoint (instead of jumping) lets the joints arrive at the
+        target nearly at rest by the end of the period, so a Cartesian delta
+        moves the end effector by the commanded distance in every direction.
+        """
+        eng = self.engine
+        start = self._q_sent
+        chunks = self._chunks
+        for k in range(1, len(chunks) + 1):
+            s = self._ramp[k - 1]
+            eng.set_joint_targets(start + s * (target - start) if s < 1.0 else target)
+            eng.step(chunks[k - 1])
+        self._q_sent = target.copy()
+
     def _cartesian_target(self, arm: np.ndarray) -> np.ndarray:
         act = self.spec.action
         pos, rot = self.eef_pose_base()
-        tgt_pos = pos + arm[:3] * act.max_translation
-        tgt_rot = axis_angle_to_matrix(arm[3:6] * act.max_rotation) @ rot
-        q_arm = self.engine.joint_positions()[self._arm_idx]
-        ik = self.chain.solve(q_arm, tgt_pos, tgt_rot, max_iters=self.options.ik_iters,
-                              q_rest=self._home[self._arm_idx])
+        seed = self._q_target[self._arm_idx]
+        fk = self.chain.forward(seed)  # the pose the last command asked for (reachable by construction)
+        ref = self._ref
+        if ref is None or (np.linalg.norm(fk[0][:3, 3] - pos) > REANCHOR_POS
+                           or np.linalg.norm(rotation_error(fk[0][:3, :3], rot)) > REANCHOR_ROT):
+            # first step, blocked or disturbed: restart from the measured pose (no wind-up)
+            ref, seed = (pos, rot), self.engine.joint_positions()[self._arm_idx]
+            fk = None
+        tgt_pos = ref[0] + arm[:3] * act.max_translation
+        tgt_rot = axis_angle_to_matrix(arm[3:6] * act.max_rotation) @ ref[1]
+        ik = self.chain.solve(seed, tgt_pos, tgt_rot, max_iters=self.options.ik_iters, rot_weight=self._rot_weight,
+                              q_rest=self._home[self._arm_idx], start_fk=fk)
         self.last_ik = ik
+        self._ref = (tgt_pos, tgt_rot)
         return ik.q
 
     def _observe(self) -> Observation:

@@ -169,6 +169,13 @@ class MujocoEngine:
                 g.rgba = list(robot.color)
         for b in robot_bodies:
             b.gravcomp = 1.0 if robot.gravity_compensation else 0.0
+            if b.mass <= 1e-9:  # massless frames (URDF placeholders) must not carry inertia either
+                b.inertia = [0.0, 0.0, 0.0]
+        if robot.inertia_from_geometry:
+            for g in geoms:
+                if g.contype == 0 and g.conaffinity == 0:
+                    g.density = 0.0  # visual geoms carry no mass
+            spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
 
         urdf = read_urdf(robot.urdf_path)
         for i, jn in enumerate(robot.joints):
