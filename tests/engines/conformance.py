@@ -116,7 +116,7 @@ def panda():
 def panda_model(spec, urdf_path: str, **overrides) -> RobotModel:
     joints = [j for j in spec.joints if j.role != "base"]
     kw = dict(urdf_path=urdf_path, joints=[j.sim_name for j in joints], kp=[j.kp for j in joints],
-              kd=[j.kd for j in joints])
+              kd=[j.kd for j in joints], inertia_from_geometry=spec.inertia == "geometry")
     kw.update(overrides)
     return RobotModel(**kw)
 
@@ -230,6 +230,19 @@ class EngineConformance:
                 assert abs(sag) < 1e-3
             else:
                 assert sag == pytest.approx(tau / kp, rel=0.05)
+
+    def test_inertia_from_geometry(self, new_engine):
+        """inertia_from_geometry: collision solids at 1000 kg/m^3 replace the URDF masses.
+
+        link2 (0.25 x 0.04 x 0.04 m) weighs 0.4 kg and link3 (0.1 x 0.03 x 0.03 m)
+        0.09 kg, so the uncompensated sag is g (0.4*0.125 + 0.09*0.30) / kp.
+        The visual boxes, identical to the collision ones, must add nothing.
+        """
+        kp = 50.0
+        engine = new_engine(robot=tiny_arm(kp=[None, kp, None], gravity_compensation=False,
+                                           inertia_from_geometry=True), ground=False)
+        engine.step(int(round(1.0 / engine.timestep)))
+        assert engine.joint_positions()[1] == pytest.approx(G * (0.4 * 0.125 + 0.09 * 0.30) / kp, rel=0.05)
 
     def test_urdf_effort_limit_bounds_the_actuator(self, new_engine):
         """A 2 rad step on joint1 (kp 400 asks for 800 N m) accelerates at most at effort / inertia.

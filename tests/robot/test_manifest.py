@@ -92,6 +92,8 @@ def test_tiny_manifest_becomes_a_spec(write):
     assert (j1.lower, j1.upper) == (-2.9, 2.9)
     assert (j2.lower, j2.upper) == (-1.2, 1.2)
     assert (j3.lower, j3.upper) == (0.0, 0.1)
+    assert (j1.max_velocity, j3.max_velocity) == (2.0, 0.2)  # URDF <limit velocity>
+    assert spec.inertia == "urdf"  # the default
     assert [j.name for j in spec.arm_joints] == ["shoulder_yaw", "joint2"]
     assert spec.gripper.joints == ["joint3"]
     assert (spec.gripper.open, spec.gripper.closed) == ([0.1], [0.0])
@@ -137,6 +139,12 @@ def test_kinematic_base_joints_need_no_urdf_joint(write):
     base = {j.name: j for j in spec.joints_with_role("base")}
     assert (base["base_x"].lower, base["base_x"].upper) == (None, None)
     assert (base["base_yaw"].lower, base["base_yaw"].upper) == (-3.0, 3.0)
+    assert base["base_x"].max_velocity is None
+
+
+def test_inertia_source(write):
+    assert load_manifest(write(edited(inertia="geometry"))).inertia == "geometry"
+    assert load_robot("franka_panda").inertia == "geometry"  # pybullet's Panda has placeholder inertias
 
 
 def test_spec_json_round_trip(write):
@@ -160,7 +168,7 @@ def test_builtin_manifest_matches_its_urdf(name):
     for joint in spec.joints:
         uj = urdf.joint(joint.sim_name)
         assert uj.type in ("revolute", "prismatic")
-        assert (joint.lower, joint.upper) == (uj.lower, uj.upper)
+        assert (joint.lower, joint.upper, joint.max_velocity) == (uj.lower, uj.upper, uj.velocity)
         assert joint.lower <= joint.home <= joint.upper, joint.name
     # the arm joints form the chain from the base to the end effector
     chain = [j.name for j in urdf.chain(spec.base_link, spec.ee_link) if j.type != "fixed"]
@@ -213,7 +221,7 @@ BAD = {
     "unknown top-level key": (edited(colour="red"), ["'colour'", "unknown key"]),
     "unknown nested key": (edited(joints=_joints((0, {"colour": "red"}))), ["'joints.0.colour'", "unknown key"]),
     "unknown sensor key": (edited(sensors=[{**TINY["sensors"][0], "exposure": 3}]), ["'sensors.0.exposure'"]),
-    "bad role": (edited(joints=_joints((1, {"role": "leg"}))), ["'joints.1.role'", "leg"]),
+    "bad role": (edited(joints=_joints((1, {"role": "leg"}))), ["'joints.1.role'", "'arm', 'gripper' or 'base'"]),
     "missing field": ({k: v for k, v in TINY.items() if k != "ee_link"}, ["'ee_link'"]),
     "bad name": (edited(name="my robot!"), ["'name'"]),
     "negative kp": (edited(joints=_joints((0, {"kp": -1}))), ["'joints.0.kp'"]),
@@ -254,6 +262,7 @@ BAD = {
     "inverted limits": (edited(joints=_joints((1, {"limits": [0.5, -0.5]}))), ["'joints.1.limits'"]),
     "base joints without kinematic_base": (
         edited(joints=TINY["joints"] + [{"name": "base_x", "role": "base"}]), ["kinematic_base", "base_x"]),
+    "bad inertia source": (edited(inertia="cad"), ["'inertia'", "'urdf' or 'geometry'"]),
     "unsupported control mode": (edited(action={"control_mode": "body_twist"}), ["'action.control_mode'"]),
 }
 

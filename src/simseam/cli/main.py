@@ -17,8 +17,8 @@ from simseam.seam import SimseamError
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Run robot policies in simulation.")
 robots_app = typer.Typer(no_args_is_help=True, help="Inspect and check robot manifests.")
 app.add_typer(robots_app, name="robots")
-console = Console()
-err_console = Console(stderr=True)
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 
 def _fail(exc: SimseamError) -> None:

@@ -1,0 +1,74 @@
+"""Run summaries and scene files."""
+
+import pytest
+
+from simseam.runner.episodes import EpisodeResult
+from simseam.runner.scene_config import build_rollout, load_scene_config
+from simseam.runner.summary import build_summary, wilson_interval
+from simseam.seam import ConfigError
+
+
+@pytest.mark.parametrize("k, n, lo, hi", [(8, 10, 0.4902, 0.9433), (0, 10, 0.0, 0.2775), (10, 10, 0.7225, 1.0),
+                                          (50, 100, 0.4038, 0.5962)])
+def test_wilson_interval_matches_reference_values(k, n, lo, hi):
+    got = wilson_interval(k, n)
+    assert got == pytest.approx((lo, hi), abs=1e-4)
+
+
+def test_summary_counts_and_latency_stats():
+    eps = [EpisodeResult(i, i, success=i < 3, steps=10, reward=float(i < 3), step_ms=[1.0, 2.0, 3.0],
+                         policy_ms=[0.1]) for i in range(4)]
+    s = build_summary({"policy": "x"}, {"robot": "r"}, eps)
+    assert s["n_success"] == 3 and s["success_rate"] == 0.75
+    assert s["episodes"][0]["step_latency_ms"] == {"mean": 2.0, "p50": 2.0, "p90": pytest.approx(2.8)}
+    assert s["success_rate_wilson95"] == list(wilson_interval(3, 4))
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "scene.yaml"
+    p.write_text(text)
+    return p
+
+
+def test_scene_file_unknown_key_names_file_and_field(tmp_path):
+    p = _write(tmp_path, "robot: franka_panda\nlayout: lift_cube\nengine: {name: mujoco, gpu: true}\n")
+    with pytest.raises(ConfigError) as exc:
+        load_scene_config(p)
+    assert str(p) in str(exc.value) and "field 'engine.gpu': unknown key" in str(exc.value)
+
+
+def test_scene_file_bad_values(tmp_path):
+    with pytest.raises(ConfigError, match="field 'image_size'"):
+        load_scene_config(_write(tmp_path, "robot: franka_panda\nlayout: lift_cube\nimage_size: [2, 256]\n"))
+    with pytest.raises(ConfigError, match="field 'layout': Field required"):
+        load_scene_config(_write(tmp_path, "robot: franka_panda\n"))
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_scene_config(_write(tmp_path, "robot: [unclosed\n"))
+
+
+@pytest.mark.parametrize("field, value, fragment", [
+    ("robot", "ur5e", "unknown robot 'ur5e'"),
+    ("layout", "stack", "unknown layout 'stack'"),
+    ("engine", "gazebo", "unknown engine 'gazebo'"),
+])
+def test_scene_file_unknown_names(tmp_path, field, value, fragment):
+    data = {"robot": "franka_panda", "layout": "lift_cube", "engine": "mujoco", field: value}
+    p = _write(tmp_path, "".join(f"{k}: {v}\n" for k, v in data.items()))
+    cfg, base = load_scene_config(p)
+    with pytest.raises(ConfigError, match=fragment):
+        build_rollout(cfg, base)
+
+
+def test_scene_file_robot_manifest_relative_to_scene(tmp_path):
+    from simseam.robot.manifest import builtin_manifests
+
+    (tmp_path / "robots").mkdir()
+    (tmp_path / "robots" / "mine.yaml").write_text(builtin_manifests()["franka_panda"].read_text())
+    p = _write(tmp_path, "robot: robots/mine.yaml\nlayout: lift_cube\nimage_size: [32, 32]\nmax_steps: 7\n")
+    cfg, base = load_scene_config(p)
+    rollout = build_rollout(cfg, base)
+    try:
+        assert rollout.scene.robot == "franka_panda" and rollout.task.max_steps == 7
+        assert rollout.reset(0)["images"]["camera1"].shape == (32, 32, 3)
+    finally:
+        rollout.close()
