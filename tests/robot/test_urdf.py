@@ -97,9 +97,6 @@ def test_missing_urdf_is_a_config_error_naming_the_file(tmp_path):
         read_urdf(path)
 
 
-@pytest.mark.xfail(strict=True, reason="src bug: read_urdf does el.find('parent').get(...) and float(...) "
-                   "unguarded, so a joint without <parent> raises AttributeError and a non-numeric "
-                   "attribute raises a bare ValueError, neither naming the file")
 @pytest.mark.parametrize(
     "joint",
     [

@@ -95,30 +95,43 @@ def read_urdf(path: str | Path) -> UrdfModel:
     links = tuple(el.get("name", "") for el in root.findall("link"))
     joints = []
     for el in root.findall("joint"):
-        origin = el.find("origin")
-        axis = el.find("axis")
-        limit = el.find("limit")
-        jtype = el.get("type", "fixed")
-        lower = upper = effort = velocity = None
-        if limit is not None:
-            effort = float(limit.get("effort")) if limit.get("effort") else None
-            velocity = float(limit.get("velocity")) if limit.get("velocity") else None
-            if jtype != "continuous":
-                lower = float(limit.get("lower", 0.0))
-                upper = float(limit.get("upper", 0.0))
-        joints.append(
-            UrdfJoint(
-                name=el.get("name", ""),
-                type=jtype,
-                parent=el.find("parent").get("link"),
-                child=el.find("child").get("link"),
-                xyz=_floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0)),
-                rpy=_floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0)),
-                axis=_floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
-                lower=lower,
-                upper=upper,
-                effort=effort,
-                velocity=velocity,
-            )
-        )
+        try:
+            joints.append(_read_joint(el))
+        except ValueError as exc:
+            raise ConfigError(f"{path}: joint {el.get('name', '')!r}: {exc}") from None
     return UrdfModel(name=root.get("name", ""), path=path, links=links, joints=tuple(joints))
+
+
+def _link_of(el: ET.Element, tag: str) -> str:
+    child = el.find(tag)
+    if child is None or not child.get("link"):
+        raise ValueError(f"needs a <{tag} link=\"...\"/> element")
+    return child.get("link")
+
+
+def _read_joint(el: ET.Element) -> UrdfJoint:
+    """One <joint> element; ValueError (no file name) on a missing element or a non-number."""
+    origin = el.find("origin")
+    axis = el.find("axis")
+    limit = el.find("limit")
+    jtype = el.get("type", "fixed")
+    lower = upper = effort = velocity = None
+    if limit is not None:
+        effort = float(limit.get("effort")) if limit.get("effort") else None
+        velocity = float(limit.get("velocity")) if limit.get("velocity") else None
+        if jtype != "continuous":
+            lower = float(limit.get("lower", 0.0))
+            upper = float(limit.get("upper", 0.0))
+    return UrdfJoint(
+        name=el.get("name", ""),
+        type=jtype,
+        parent=_link_of(el, "parent"),
+        child=_link_of(el, "child"),
+        xyz=_floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0)),
+        rpy=_floats(origin.get("rpy") if origin is not None else None, (0.0, 0.0, 0.0)),
+        axis=_floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+        lower=lower,
+        upper=upper,
+        effort=effort,
+        velocity=velocity,
+    )

@@ -102,6 +102,7 @@ class MujocoEngine:
         self.model = None
         self.data = None
         self._renderer: CameraRenderer | None = None
+        self._stale = False
 
     # ------------------------------------------------------------ build phase
     def load_robot(self, robot: RobotModel) -> None:
@@ -129,6 +130,8 @@ class MujocoEngine:
                 # Mesh files without texture coordinates are fine for us (no textures on robots).
                 warnings.filterwarnings("ignore", message=".*texture coordinate.*")
                 self.model = spec.compile()
+        except ConfigError:  # a ValueError too: ours, already precise
+            raise
         except ValueError as exc:  # MuJoCo compile errors
             raise SimulationError(f"MuJoCo could not compile the scene: {exc}") from None
         self.model.vis.quality.offsamples = 4 if self.options.render_quality == "full" else 0
@@ -168,7 +171,9 @@ class MujocoEngine:
             if is_visual and robot.color is not None:
                 g.rgba = list(robot.color)
         for b in robot_bodies:
-            b.gravcomp = 1.0 if robot.gravity_compensation else 0.0
+            # A free root is not compensated: the robot must still rest on what carries it.
+            compensated = robot.gravity_compensation and (robot.fixed_base or b.name != root.name)
+            b.gravcomp = 1.0 if compensated else 0.0
             if b.mass <= 1e-9:  # massless frames (URDF placeholders) must not carry inertia either
                 b.inertia = [0.0, 0.0, 0.0]
         if robot.inertia_from_geometry:
@@ -264,17 +269,25 @@ class MujocoEngine:
     # ------------------------------------------------------------- run phase
     @property
     def timestep(self) -> float:
-        return float(self.model.opt.timestep)
+        return float(self.model.opt.timestep) if self.model is not None else self.options.timestep
+
+    def _sync(self) -> None:
+        """Bring derived quantities (poses, cameras, contacts) up to date with qpos/qvel."""
+        if self._stale:
+            mujoco.mj_forward(self.model, self.data)
+            self._stale = False
 
     def reset(self) -> None:
         mujoco.mj_resetData(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
+        self._stale = False
 
     def set_joint_positions(self, q: np.ndarray) -> None:
         self.data.qpos[self._qadr] = q
         self.data.qvel[self._vadr] = 0.0
         self.data.ctrl[self._act] = q
         mujoco.mj_forward(self.model, self.data)
+        self._stale = False
 
     def set_joint_targets(self, q: np.ndarray) -> None:
         self.data.ctrl[self._act] = q
@@ -286,6 +299,7 @@ class MujocoEngine:
         return self.data.qvel[self._vadr].copy()
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        self._sync()
         try:
             bid = self._body_ids[link]
         except KeyError:
@@ -300,7 +314,8 @@ class MujocoEngine:
             adr = self.model.jnt_qposadr[self.model.body_jntadr[self._root_body]]
             self.data.qpos[adr:adr + 3] = pos
             self.data.qpos[adr + 3:adr + 7] = quat
-        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)  # poses, cameras and contacts of the new state
+        self._stale = False
 
     def _obj(self, name: str) -> int:
         try:
@@ -309,6 +324,7 @@ class MujocoEngine:
             raise ConfigError(f"unknown object {name!r}; objects: {', '.join(self._obj_body)}") from None
 
     def object_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        self._sync()
         bid = self._obj(name)
         return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
 
@@ -320,15 +336,26 @@ class MujocoEngine:
         self.data.qpos[a:a + 3] = pos
         self.data.qpos[a + 3:a + 7] = quat
         self.data.qvel[v:v + 6] = 0.0
-        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)  # poses, cameras and contacts of the new state
+        self._stale = False
 
     def object_velocity(self, name: str) -> np.ndarray:
         self._obj(name)
         v = self._obj_vadr.get(name)
-        return np.zeros(6) if v is None else self.data.qvel[v:v + 6].copy()
+        if v is None:
+            return np.zeros(6)
+        vel = self.data.qvel[v:v + 6].copy()
+        # A free joint's angular velocity is in the body frame; the contract is world frame.
+        a = self._obj_qadr[name]
+        mujoco.mju_rotVecQuat(vel[3:], self.data.qvel[v + 3:v + 6], self.data.qpos[a + 3:a + 7])
+        return vel
 
     def step(self, n_substeps: int) -> None:
         mujoco.mj_step(self.model, self.data, nstep=int(n_substeps))
+        # mj_step integrates qpos/qvel last, so poses, cameras and contacts describe the state
+        # one substep earlier; they are recomputed (mj_forward, a pure function of the state, so
+        # the trajectory is unchanged) the first time something reads them.
+        self._stale = True
         if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
             self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 0
             raise SimulationError(f"MuJoCo became unstable at t={self.data.time:.3f}s (bad accelerations)")
@@ -337,13 +364,16 @@ class MujocoEngine:
         return float(self.data.time)
 
     def contacts_between(self, a: str, b: str) -> bool:
-        n = self.data.ncon
-        if n == 0:
-            return False
         try:
             ca, cb = self._owner_code[a], self._owner_code[b]
         except KeyError as exc:
-            raise ConfigError(f"contacts_between: unknown name {exc.args[0]!r}") from None
+            raise ConfigError(
+                f"contacts_between: unknown name {exc.args[0]!r}; names: {', '.join(self._owner_code)}"
+            ) from None
+        self._sync()
+        n = self.data.ncon
+        if n == 0:
+            return False
         g = self.data.contact.geom[:n]
         o1, o2 = self._geom_owner[g[:, 0]], self._geom_owner[g[:, 1]]
         return bool(np.any(((o1 == ca) & (o2 == cb)) | ((o1 == cb) & (o2 == ca))))
@@ -355,12 +385,15 @@ class MujocoEngine:
         return self._renderer
 
     def render_rgb(self, camera: str) -> np.ndarray:
+        self._sync()
         return self._renderers().rgb(self.data, camera)
 
     def render_depth(self, camera: str) -> np.ndarray:
+        self._sync()
         return self._renderers().depth(self.data, camera)
 
     def cast_rays(self, origin: np.ndarray, directions: np.ndarray, max_dist: float) -> np.ndarray:
+        self._sync()
         dirs = np.ascontiguousarray(directions, dtype=np.float64)
         n = dirs.shape[0]
         dist = np.empty(n, dtype=np.float64)

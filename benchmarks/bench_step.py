@@ -1,0 +1,189 @@
+"""Per-control-step cost of the seam vs the raw physics floor, and vs robosuite's Lift.
+
+    .venv/bin/python benchmarks/bench_step.py [--steps 300] [--rounds 3] [--robosuite]
+
+Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step):
+
+- ``floor``: ``mj_step`` x 25 substeps on the very model the scene compiled, constant controls:
+  what physics alone costs per control step.
+- ``seam_state_cartesian`` / ``seam_state_joint``: ``ManifestScene.step`` with no images
+  (CARTESIAN_DELTA through the scene's IK / JOINT_POSITION targets).
+- ``seam_rgb128`` / ``seam_rgb256``: CARTESIAN_DELTA with both cameras (camera1 + wrist
+  camera2) rendered into every observation at 128x128 / 256x256, lean render settings.
+- ``robosuite_*`` (with ``--robosuite``): robosuite 1.5.2 Lift, Panda, OSC_POSE, the same two
+  camera counts and sizes, run by benchmarks/robosuite_lift.py in its own venv
+  (benchmarks/setup_robosuite.sh), one case after the other, never concurrently.
+
+Each round runs every case once, interleaved, so slow phases of a shared machine hit all cases;
+the table reports the median over rounds of each case's per-step p50 / p90. The action stream
+is a smooth, seeded sweep (like a policy's), not white noise. Prints a table and writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+from simseam.robot.manifest import load_robot  # noqa: E402
+from simseam.scene.manifest_scene import ManifestScene, SceneOptions  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+WARMUP = 20
+
+
+def smooth_actions(n: int, dim: int, seed: int, scale: float = 0.4) -> np.ndarray:
+    """A seeded sum of slow sinusoids per action dimension, in [-scale, scale]."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)[:, None]
+    freq = rng.uniform(0.02, 0.08, (1, dim))
+    phase = rng.uniform(0, 2 * np.pi, (1, dim))
+    return (scale * np.sin(2 * np.pi * freq * t + phase)).astype(np.float32)
+
+
+def time_steps(fn, n: int) -> np.ndarray:
+    out = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter()
+        fn(i)
+        out[i] = time.perf_counter() - t0
+    return out * 1e3
+
+
+class SeamCase:
+    def __init__(self, spec, mode: str, images: bool, size: int | None, steps: int):
+        opts = SceneOptions(render_images=images, image_size=(size, size) if size else None, control_mode=mode)
+        self.scene = ManifestScene(spec, "lift_cube", "mujoco", opts)
+        self.steps = steps
+        dim = self.scene.action_dim
+        acts = smooth_actions(steps + WARMUP, dim, seed=1)
+        if mode == "joint_position":
+            home = np.array([j.home for j in spec.arm_joints], dtype=np.float32)
+            acts[:, :7] = home + 0.5 * acts[:, :7]
+        self.actions = acts
+
+    def run(self) -> np.ndarray:
+        self.scene.reset(0)
+        for i in range(WARMUP):
+            self.scene.step(self.actions[i])
+        return time_steps(lambda i: self.scene.step(self.actions[WARMUP + i]), self.steps)
+
+
+class FloorCase:
+    """Raw physics: the scene's own compiled model, stepped like one control period."""
+
+    def __init__(self, spec, steps: int):
+        self.scene = ManifestScene(spec, "lift_cube", "mujoco", SceneOptions(render_images=False))
+        self.model, self.data = self.scene.engine.model, self.scene.engine.data
+        self.substeps = self.scene._substeps
+        self.steps = steps
+
+    def run(self) -> np.ndarray:
+        self.scene.reset(0)
+        m, d, n = self.model, self.data, self.substeps
+        for _ in range(WARMUP):
+            mujoco.mj_step(m, d, n)
+        return time_steps(lambda i: mujoco.mj_step(m, d, n), self.steps)
+
+
+def run_robosuite(steps: int) -> dict | None:
+    py = HERE / ".venv-robosuite" / "bin" / "python"
+    if not py.exists():
+        print("robosuite venv missing: run benchmarks/setup_robosuite.sh first (skipping the baseline)")
+        return None
+    out = HERE / "results" / "robosuite_lift.json"
+    out.parent.mkdir(exist_ok=True)
+    proc = subprocess.run([str(py), str(HERE / "robosuite_lift.py"), "--steps", str(steps),
+                           "--cases", "state,rgb128,rgb256", "--json", str(out)],
+                          env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")),
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        print("robosuite baseline failed:\n" + proc.stderr[-2000:])
+        return None
+    return json.loads(out.read_text())
+
+
+def stats(ms: np.ndarray) -> dict:
+    return {"p50_ms": float(np.percentile(ms, 50)), "p90_ms": float(np.percentile(ms, 90)),
+            "mean_ms": float(ms.mean()), "n": int(ms.size)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=300)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--robosuite", action="store_true", help="also run the robosuite Lift baseline (same run)")
+    ap.add_argument("--json", default=str(HERE / "results" / "step.json"))
+    args = ap.parse_args()
+
+    spec = load_robot("franka_panda")
+    cases = {
+        "floor": FloorCase(spec, args.steps),
+        "seam_state_cartesian": SeamCase(spec, "cartesian_delta", False, None, args.steps),
+        "seam_state_joint": SeamCase(spec, "joint_position", False, None, args.steps),
+        "seam_rgb128": SeamCase(spec, "cartesian_delta", True, 128, max(60, args.steps // 5)),
+        "seam_rgb256": SeamCase(spec, "cartesian_delta", True, 256, max(60, args.steps // 5)),
+    }
+    rounds: dict[str, list[dict]] = {k: [] for k in cases}
+    robosuite_rounds: list[dict] = []
+    for r in range(args.rounds):
+        for name, case in cases.items():
+            rounds[name].append(stats(case.run()))
+        if args.robosuite:
+            res = run_robosuite(max(60, args.steps // 5))
+            if res:
+                robosuite_rounds.append(res)
+        print(f"round {r + 1}/{args.rounds} done")
+
+    def median(rs: list[dict], key: str) -> float:
+        return float(np.median([x[key] for x in rs]))
+
+    results = {k: {"p50_ms": median(v, "p50_ms"), "p90_ms": median(v, "p90_ms"), "rounds": v}
+               for k, v in rounds.items()}
+    for case in ("state", "rgb128", "rgb256"):
+        rs = [r["cases"][case] for r in robosuite_rounds if case in r.get("cases", {})]
+        if rs:
+            results[f"robosuite_{case}"] = {"p50_ms": median(rs, "p50_ms"), "p90_ms": median(rs, "p90_ms"),
+                                            "rounds": rs}
+    floor = results["floor"]["p50_ms"]
+    rows = []
+    for name, r in results.items():
+        ratio = r["p50_ms"] / floor
+        rows.append((name, r["p50_ms"], r["p90_ms"], ratio))
+    print(f"\n{'case':24s} {'p50 ms':>9s} {'p90 ms':>9s} {'x floor':>8s}")
+    for name, p50, p90, ratio in rows:
+        print(f"{name:24s} {p50:9.3f} {p90:9.3f} {ratio:8.2f}")
+    goals = {
+        "state_cartesian_within_1.25x_floor": results["seam_state_cartesian"]["p50_ms"] <= 1.25 * floor,
+        "state_joint_within_1.25x_floor": results["seam_state_joint"]["p50_ms"] <= 1.25 * floor,
+    }
+    for size in ("128", "256"):
+        if f"robosuite_rgb{size}" in results:
+            goals[f"rgb{size}_faster_than_robosuite"] = (
+                results[f"seam_rgb{size}"]["p50_ms"] < results[f"robosuite_rgb{size}"]["p50_ms"])
+    print("\ngoals: " + ", ".join(f"{k}={'met' if v else 'NOT met'}" for k, v in goals.items()))
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "machine": {"python": platform.python_version(), "mujoco": mujoco.__version__, "cpus": os.cpu_count(),
+                    "MUJOCO_GL": os.environ.get("MUJOCO_GL")},
+        "steps": args.steps, "rounds": args.rounds, "results": results, "goals": goals,
+    }, indent=2))
+    print(f"wrote {out}")
+    for c in cases.values():
+        c.scene.close()
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    main()
