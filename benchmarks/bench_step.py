@@ -4,7 +4,8 @@
 
 Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step):
 
-- ``floor``: ``mj_step`` x 25 substeps on the very model the scene compiled, constant controls:
+- ``floor``: bare ``mj_step`` x 25 substeps per control step on the very model the scene
+  compiled, replaying the controls a seam run sent (same trajectory, same physics work):
   what physics alone costs per control step.
 - ``seam_state_cartesian`` / ``seam_state_joint``: ``ManifestScene.step`` with no images
   (CARTESIAN_DELTA through the scene's IK / JOINT_POSITION targets).
@@ -14,8 +15,9 @@ Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step)
   camera counts and sizes, run by benchmarks/robosuite_lift.py in its own venv
   (benchmarks/setup_robosuite.sh), one case after the other, never concurrently.
 
-Each round runs every case once, interleaved, so slow phases of a shared machine hit all cases;
-the table reports the median over rounds of each case's per-step p50 / p90. The action stream
+The state-only cases are interleaved every 10 steps within a round, so the slow and fast phases
+of a shared machine hit all of them alike; the table reports the median over rounds of each
+case's per-step p50 / p90. The action stream
 is a smooth, seeded sweep (like a policy's), not white noise. Prints a table and writes JSON.
 """
 
@@ -72,28 +74,65 @@ class SeamCase:
             acts[:, :7] = home + 0.5 * acts[:, :7]
         self.actions = acts
 
-    def run(self) -> np.ndarray:
+    def start(self) -> None:
         self.scene.reset(0)
         for i in range(WARMUP):
             self.scene.step(self.actions[i])
-        return time_steps(lambda i: self.scene.step(self.actions[WARMUP + i]), self.steps)
+
+    def step(self, i: int) -> None:
+        self.scene.step(self.actions[WARMUP + i])
+
+    def run(self) -> np.ndarray:
+        self.start()
+        return time_steps(self.step, self.steps)
 
 
 class FloorCase:
-    """Raw physics: the scene's own compiled model, stepped like one control period."""
+    """Raw physics: the scene's own compiled model stepped through the very same trajectory.
 
-    def __init__(self, spec, steps: int):
-        self.scene = ManifestScene(spec, "lift_cube", "mujoco", SceneOptions(render_images=False))
-        self.model, self.data = self.scene.engine.model, self.scene.engine.data
-        self.substeps = self.scene._substeps
-        self.steps = steps
+    A seam run (the cartesian case's actions) records every control the scene sends (its
+    setpoint ramp included); the floor replays them with bare ``mj_step`` calls, so both do
+    identical physics work (contacts, solver iterations) and differ only by the seam itself.
+    """
 
-    def run(self) -> np.ndarray:
+    def __init__(self, seam: "SeamCase"):
+        self.scene = seam.scene
+        eng = self.scene.engine
+        self.model, self.data = eng.model, eng.data
+        self.steps = seam.steps
+        record: list[list[tuple[np.ndarray, int]]] = []
+        orig_targets, orig_step = eng.set_joint_targets, eng.step
+        pending: list[np.ndarray] = []
+
+        def set_targets(q):
+            orig_targets(q)
+            pending.append(self.data.ctrl.copy())
+
+        def step(n):
+            orig_step(n)
+            record[-1].append((pending[-1], int(n)))
+
         self.scene.reset(0)
-        m, d, n = self.model, self.data, self.substeps
-        for _ in range(WARMUP):
+        eng.set_joint_targets, eng.step = set_targets, step
+        for a in seam.actions:
+            record.append([])
+            self.scene.step(a)
+        eng.set_joint_targets, eng.step = orig_targets, orig_step
+        self.record = record
+
+    def _control_step(self, i: int) -> None:
+        m, d = self.model, self.data
+        for ctrl, n in self.record[i]:
+            d.ctrl[:] = ctrl
             mujoco.mj_step(m, d, n)
-        return time_steps(lambda i: mujoco.mj_step(m, d, n), self.steps)
+
+    def start(self) -> None:
+        self.scene.reset(0)
+        for i in range(WARMUP):
+            self._control_step(i)
+
+    def step(self, i: int) -> None:
+        self._control_step(WARMUP + i)
 
 
 def run_robosuite(steps: int) -> dict | None:
@@ -113,6 +152,21 @@ def run_robosuite(steps: int) -> dict | None:
     return json.loads(out.read_text())
 
 
+def interleaved(cases: dict, steps: int, block: int = 10) -> dict[str, np.ndarray]:
+    """Time ``steps`` steps of each case, alternating between cases every ``block`` steps,
+    so that a shared machine's slow and fast phases fall on every case alike."""
+    for c in cases.values():
+        c.start()
+    times = {k: np.empty(steps) for k in cases}
+    for b0 in range(0, steps, block):
+        for name, c in cases.items():
+            for i in range(b0, min(steps, b0 + block)):
+                t0 = time.perf_counter()
+                c.step(i)
+                times[name][i] = (time.perf_counter() - t0) * 1e3
+    return times
+
+
 def stats(ms: np.ndarray) -> dict:
     return {"p50_ms": float(np.percentile(ms, 50)), "p90_ms": float(np.percentile(ms, 90)),
             "mean_ms": float(ms.mean()), "n": int(ms.size)}
@@ -127,18 +181,22 @@ def main() -> None:
     args = ap.parse_args()
 
     spec = load_robot("franka_panda")
+    cartesian = SeamCase(spec, "cartesian_delta", False, None, args.steps)
     cases = {
-        "floor": FloorCase(spec, args.steps),
-        "seam_state_cartesian": SeamCase(spec, "cartesian_delta", False, None, args.steps),
+        "floor": FloorCase(SeamCase(spec, "cartesian_delta", False, None, args.steps)),
+        "seam_state_cartesian": cartesian,
         "seam_state_joint": SeamCase(spec, "joint_position", False, None, args.steps),
         "seam_rgb128": SeamCase(spec, "cartesian_delta", True, 128, max(60, args.steps // 5)),
         "seam_rgb256": SeamCase(spec, "cartesian_delta", True, 256, max(60, args.steps // 5)),
     }
     rounds: dict[str, list[dict]] = {k: [] for k in cases}
     robosuite_rounds: list[dict] = []
+    state_cases = {k: cases[k] for k in ("floor", "seam_state_cartesian", "seam_state_joint")}
     for r in range(args.rounds):
-        for name, case in cases.items():
-            rounds[name].append(stats(case.run()))
+        for name, ms in interleaved(state_cases, args.steps).items():
+            rounds[name].append(stats(ms))
+        for name in ("seam_rgb128", "seam_rgb256"):
+            rounds[name].append(stats(cases[name].run()))
         if args.robosuite:
             res = run_robosuite(max(60, args.steps // 5))
             if res:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -69,8 +71,12 @@ def axis_angle_to_matrix(v) -> np.ndarray:
 
 def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
     """Matrix -> rotation vector (axis * angle), angle in [0, pi]."""
-    q = matrix_to_quat(m)
-    return quat_to_axis_angle(q)
+    cos = min(max((m[0, 0] + m[1, 1] + m[2, 2] - 1.0) * 0.5, -1.0), 1.0)
+    if -0.99 < cos < 0.999:  # well away from 0 and pi: the log map from the skew part
+        angle = math.acos(cos)
+        v = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+        return v * (angle / (2.0 * math.sin(angle)))
+    return quat_to_axis_angle(matrix_to_quat(m))
 
 
 def quat_to_axis_angle(q) -> np.ndarray:
@@ -91,9 +97,9 @@ def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     if cos > 0.999:  # small angle: sin(a) ~ a, v = 2 sin(a) axis
         return 0.5 * v
     if cos > -0.99:
-        angle = np.arccos(cos)
-        return v * (angle / (2.0 * np.sin(angle)))
-    return matrix_to_axis_angle(m)  # near pi: go through the quaternion
+        angle = math.acos(cos)
+        return v * (angle / (2.0 * math.sin(angle)))
+    return quat_to_axis_angle(matrix_to_quat(m))  # near pi: go through the quaternion
 
 
 def make_transform(pos, rot: np.ndarray) -> np.ndarray:

@@ -7,6 +7,7 @@ joint targets. Frames: everything here is in the robot base link frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,40 +82,40 @@ class SerialChain:
         self._motion[:, 3, 3] = 1.0
         self._eye3 = np.eye(3)
         self._eye6 = np.eye(6)
+        self._in_chain_order = bool(np.array_equal(self._q_from_names, np.arange(self.n)))
+        self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tip pose (4x4) in the base frame and the 6xN geometric Jacobian (linear; angular)."""
-        qc = np.asarray(q, dtype=np.float64)[self._q_from_names]
+        qc = np.asarray(q, dtype=np.float64)
+        if not self._in_chain_order:
+            qc = qc[self._q_from_names]
         ang = qc * self._revolute_f
         s, c = np.sin(ang)[:, None, None], np.cos(ang)[:, None, None]
         motion = self._motion
         motion[:, :3, :3] = self._eye3 + s * self._kx + (1.0 - c) * self._kx2
         if self._any_prism:
             motion[:, :3, 3] = self._axes_arr * (qc * (1.0 - self._revolute_f))[:, None]
-        local = self._fixed_arr @ motion  # joint i's frame after its motion, in frame i-1
-        cum = np.empty_like(local)
-        t = local[0]
-        cum[0] = t
+        cum = np.matmul(self._fixed_arr, motion)  # joint i's frame after its motion, in frame i-1 ...
         for i in range(1, self.n):
-            t = t @ local[i]
-            cum[i] = t
-        tip = t @ self._tail
+            np.matmul(cum[i - 1], cum[i], out=cum[i])  # ... then chained: in the base frame
+        tip = cum[-1] @ self._tail
         # A joint's motion leaves its own axis and (revolute) origin in place.
         zs = np.einsum("nij,nj->ni", cum[:, :3, :3], self._axes_arr)
-        p = tip[:3, 3]
-        d = p - cum[:, :3, 3]
-        lin = np.empty_like(zs)
-        lin[:, 0] = zs[:, 1] * d[:, 2] - zs[:, 2] * d[:, 1]
-        lin[:, 1] = zs[:, 2] * d[:, 0] - zs[:, 0] * d[:, 2]
-        lin[:, 2] = zs[:, 0] * d[:, 1] - zs[:, 1] * d[:, 0]
+        d = tip[:3, 3] - cum[:, :3, 3]
+        lin = zs.take(self._c1, 1) * d.take(self._c2, 1) - zs.take(self._c2, 1) * d.take(self._c1, 1)
         if self._any_prism:
             lin[self._prism] = zs[self._prism]
             zs[self._prism] = 0.0
         jac = np.empty((6, self.n))
-        jac[:3, self._q_from_names] = lin.T
-        jac[3:, self._q_from_names] = zs.T
+        if self._in_chain_order:
+            jac[:3] = lin.T
+            jac[3:] = zs.T
+        else:
+            jac[:3, self._q_from_names] = lin.T
+            jac[3:, self._q_from_names] = zs.T
         return tip, jac
 
     def solve(self, q_start: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray, *,
@@ -141,7 +142,7 @@ class SerialChain:
             t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
             e_pos = target_pos - t[:3, 3]
             e_rot = rotation_error(target_rot, t[:3, :3])
-            ep, er = float(np.linalg.norm(e_pos)), float(np.linalg.norm(e_rot))
+            ep, er = math.sqrt(e_pos @ e_pos), math.sqrt(e_rot @ e_rot)
             if ep < pos_tol and er < rot_tol:
                 break
             jw = jac * w[:, None]

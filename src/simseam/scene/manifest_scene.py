@@ -32,8 +32,8 @@ import numpy as np
 from simseam.engines.base import CameraModel, Engine, EngineOptions, RobotModel
 from simseam.math3d import (
     axis_angle_to_matrix,
+    matrix_to_axis_angle,
     matrix_to_quat,
-    quat_to_axis_angle,
     quat_to_matrix,
     rotation_error,
     rpy_to_quat,
@@ -56,7 +56,7 @@ from simseam.seam import (
     check_action,
 )
 
-RAMP_CHUNKS = 5  # servo setpoint updates per control step
+RAMP_CHUNKS = 3  # servo setpoint updates per control step
 RAMP_FRACTION = 0.6  # the setpoint reaches the new target at this fraction of the control period
 REANCHOR_POS = 0.015  # m: tracking error beyond which a Cartesian delta restarts from the measured pose
 REANCHOR_ROT = 0.1  # rad
@@ -300,15 +300,13 @@ class ManifestScene:
 
     def _cartesian_target(self, arm: np.ndarray) -> np.ndarray:
         act = self.spec.action
-        pos, rot = self.eef_pose_base()
+        pos, rot = self._eef  # measured at the last observation; nothing moved since
         seed = self._q_target[self._arm_idx]
         fk = self.chain.forward(seed)  # the pose the last command asked for (reachable by construction)
         ref = self._ref
         if ref is None or (np.linalg.norm(fk[0][:3, 3] - pos) > REANCHOR_POS
                            or np.linalg.norm(rotation_error(fk[0][:3, :3], rot)) > REANCHOR_ROT):
-            # first step, blocked or disturbed: restart from the measured pose (no wind-up)
-            ref, seed = (pos, rot), self.engine.joint_positions()[self._arm_idx]
-            fk = None
+            ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose (no wind-up)
         tgt_pos = ref[0] + arm[:3] * act.max_translation
         tgt_rot = axis_angle_to_matrix(arm[3:6] * act.max_rotation) @ ref[1]
         ik = self.chain.solve(seed, tgt_pos, tgt_rot, max_iters=self.options.ik_iters, rot_weight=self._rot_weight,
@@ -320,10 +318,10 @@ class ManifestScene:
     def _observe(self) -> Observation:
         eng = self.engine
         q = eng.joint_positions()
-        pos, rot = self.eef_pose_base()
+        self._eef = pos, rot = self.eef_pose_base()
         state = np.empty(self._scene_info.state_dim, dtype=np.float32)
         state[:3] = pos
-        state[3:6] = quat_to_axis_angle(matrix_to_quat(rot))
+        state[3:6] = matrix_to_axis_angle(rot)
         state[6:] = q[self._grip_idx]
         images = {}
         self._frame = None
