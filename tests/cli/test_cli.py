@@ -8,7 +8,6 @@ from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
-import pytest
 from typer.testing import CliRunner
 
 from simseam.cli.main import app
