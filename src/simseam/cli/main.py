@@ -16,6 +16,8 @@ from simseam.seam import SimseamError
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Run robot policies in simulation.")
 robots_app = typer.Typer(no_args_is_help=True, help="Inspect and check robot manifests.")
 app.add_typer(robots_app, name="robots")
+sidecar_app = typer.Typer(no_args_is_help=True, help="Out-of-process engines.")
+app.add_typer(sidecar_app, name="sidecar")
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
@@ -40,11 +42,16 @@ def run(
     from simseam.runner.scene_config import build_rollout, load_scene_config
     from simseam.runner.summary import build_summary, write_summary
 
+    from simseam.runner.episodes import EpisodeResult
+    from simseam.seam import SidecarError
+
     try:
         cfg, base_dir = load_scene_config(scene)
         pol = make_policy(policy)
-        rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged,
-                                render_images=pol.uses_images, seed=seed)
+        with console.status("building the scene") as status:
+            rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged,
+                                    render_images=pol.uses_images, seed=seed,
+                                    progress=lambda stage: status.update(f"sidecar: {stage}"))
     except SimseamError as exc:
         _fail(exc)
     results = []
@@ -59,9 +66,16 @@ def run(
                       console=console, transient=True) as progress:
             for i in range(episodes):
                 task = progress.add_task(f"episode {i}", total=rollout.task.max_steps)
-                res = run_episode(rollout, pol, index=i, seed=seed + i,
-                                  video_path=out / f"episode_{i:03d}.mp4" if video else None,
-                                  on_step=lambda n, t=task: progress.update(t, completed=n))
+                try:
+                    res = run_episode(rollout, pol, index=i, seed=seed + i,
+                                      video_path=out / f"episode_{i:03d}.mp4" if video else None,
+                                      on_step=lambda n, t=task: progress.update(t, completed=n))
+                except SidecarError as exc:  # the engine process died or hung: count it, start a fresh one
+                    res = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
+                                        error=f"{type(exc).__name__}: {exc}")
+                    err_console.print(f"[red]episode {i}: {res.error}[/]; restarting the sidecar", markup=True,
+                                      highlight=False)
+                    rollout.restart()
                 progress.remove_task(task)
                 results.append(res)
                 j = res.to_json()
@@ -84,6 +98,14 @@ def run(
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
         f"(Wilson 95% [{lo:.2f}, {hi:.2f}])  summary: {path}"
     )
+
+
+@sidecar_app.command("serve")
+def sidecar_serve(boot: Path = typer.Option(..., "--boot", help="Boot file (JSON) written by the client.")) -> None:
+    """Serve one scene over the sidecar wire (normally spawned by the client, not by hand)."""
+    from simseam.sidecar.server import main as serve_main
+
+    raise typer.Exit(code=serve_main(["--boot", str(boot)]))
 
 
 @robots_app.command("list")

@@ -27,6 +27,7 @@ class EpisodeResult:
     step_ms: list[float] = field(default_factory=list, repr=False)
     policy_ms: list[float] = field(default_factory=list, repr=False)
     video: str | None = None
+    error: str | None = None  # set when the episode was cut short by an engine failure
 
     def to_json(self) -> dict:
         def stats(xs: list[float]) -> dict:
@@ -44,6 +45,7 @@ class EpisodeResult:
             "step_latency_ms": stats(self.step_ms),
             "policy_latency_ms": stats(self.policy_ms),
             "video": self.video,
+            "error": self.error,
         }
 
 

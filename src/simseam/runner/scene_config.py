@@ -3,7 +3,8 @@
 Example::
 
     robot: franka_panda          # a built-in robot or a manifest path (relative to this file)
-    engine: mujoco               # or {name: mujoco, render_quality: full, timestep: 0.002}
+    engine: mujoco               # or {name: mujoco, render_quality: full, timestep: 0.002,
+                                 #     process: sidecar, python: /path/to/venv/bin/python, transport: ipc}
     layout: lift_cube
     image_size: [256, 256]       # (H, W) of every RGB camera; default: the layout's or the sensor's
     max_steps: 150
@@ -26,10 +27,20 @@ from simseam.seam import ConfigError, SimRollout
 
 
 class EngineConfig(BaseModel):
+    """``process: sidecar`` runs the engine in its own process (``python``: its interpreter,
+    default this one; ``transport``: ipc or tcp; ``keep_alive``: leave it running for later
+    runs of the same scene to adopt)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
     name: str = "mujoco"
     render_quality: Literal["lean", "full"] = "lean"
     timestep: float = Field(default=0.002, gt=0, le=0.05)
+    process: Literal["inprocess", "sidecar"] = "inprocess"
+    python: str | None = None
+    transport: Literal["ipc", "tcp"] = "ipc"
+    boot_timeout_s: float = Field(default=120.0, gt=0)
+    request_timeout_s: float = Field(default=30.0, gt=0)
+    keep_alive: bool = False
 
 
 class SceneConfig(BaseModel):
@@ -86,15 +97,16 @@ def resolve_robot(cfg: SceneConfig, base_dir: Path):
 
 
 def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
-                  seed: int = 0) -> SimRollout:
-    """Build the rollout a scene file describes (in-process MuJoCo by default)."""
+                  seed: int = 0, progress=None) -> SimRollout:
+    """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar).
+    ``progress`` receives sidecar boot stages."""
+    import dataclasses
+
     from simseam.engines.base import EngineOptions
     from simseam.engines.registry import make_engine
     from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 
     spec = resolve_robot(cfg, base_dir)
-    engine = make_engine(cfg.engine.name, EngineOptions(timestep=cfg.engine.timestep,
-                                                        render_quality=cfg.engine.render_quality))
     options = SceneOptions(
         control_hz=cfg.control_hz,
         image_size=cfg.image_size,
@@ -106,4 +118,15 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
         timestep=cfg.engine.timestep,
         seed=seed,
     )
+    eng = cfg.engine
+    if eng.process == "sidecar":
+        from simseam.sidecar.client import SidecarRollout
+
+        python = eng.python
+        if python and not Path(python).is_absolute() and "/" in python:
+            python = str((base_dir / python).resolve())
+        return SidecarRollout(spec.to_json(), cfg.layout, eng.name, dataclasses.asdict(options), python=python,
+                              transport=eng.transport, boot_timeout=eng.boot_timeout_s,
+                              request_timeout=eng.request_timeout_s, keep_alive=eng.keep_alive, progress=progress)
+    engine = make_engine(eng.name, EngineOptions(timestep=eng.timestep, render_quality=eng.render_quality))
     return ManifestScene(spec, cfg.layout, engine, options)

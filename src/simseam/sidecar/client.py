@@ -1,0 +1,467 @@
+"""SidecarRollout: the ``SimRollout`` seam, served by a scene in another process.
+
+The client spawns ``python -m simseam.sidecar.server`` with the configured
+interpreter (its own virtualenv, its own CUDA stack), in a new process session,
+with a sanitized environment (PYTHONPATH, PYTHONHOME, VIRTUAL_ENV and friends
+removed), and talks to it over ZeroMQ with ``simseam.sidecar.wire``.
+
+Access: by default a private ``ipc://`` socket inside a fresh 0700 directory;
+with ``transport="tcp"`` a socket bound to 127.0.0.1 on a random port. Either
+way every request carries a random per-launch token, and ``hello`` checks the
+sidecar serves exactly this scene (its identity: a hash of robot spec, layout,
+engine and options) before anything else is sent.
+
+Failure handling: while waiting for a reply the client polls in 50 ms slices
+and checks the process, so a sidecar that dies (crash, kill -9, import error)
+raises ``SidecarCrashed`` with its exit code and the tail of its stderr within
+a fraction of a second, during boot or mid-episode; a hung one raises
+``SidecarTimeout`` after ``request_timeout`` seconds. ``close()``, interpreter
+exit and SIGTERM reap every sidecar this process started; ``restart()`` starts
+a fresh one after a crash.
+
+Reuse: one sidecar serves any number of episodes (reset does not rebuild the
+scene). With ``keep_alive=True`` the sidecar outlives this client and registers
+itself (endpoint, token, pid, identity) in a private per-user directory; a later
+client with the same identity adopts it instead of booting a new one, and never
+drives a sidecar whose identity differs.
+"""
+
+from __future__ import annotations
+
+import atexit
+import collections
+import hashlib
+import json
+import os
+import queue
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import weakref
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import zmq
+
+from simseam.seam import (
+    ConfigError,
+    ControlMode,
+    Observation,
+    SceneInfo,
+    StepResult,
+    TaskInfo,
+    check_action,
+)
+from simseam.sidecar.errors import (
+    SidecarAccessError,
+    SidecarBusy,
+    SidecarCrashed,
+    SidecarProtocolError,
+    SidecarTimeout,
+    remote_error,
+)
+from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
+
+SANITIZED_ENV = ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV", "PYTHONSTARTUP", "PYTHONUSERBASE",
+                 "__PYVENV_LAUNCHER__", "CONDA_PREFIX")
+POLL_SLICE_MS = 50
+STDERR_LINES = 40
+EXIT_BUSY = 3
+
+
+def scene_identity(spec_json: dict, layout: str, engine: str, options: dict) -> str:
+    """What a sidecar serves, as a short hash: two sidecars with the same identity are interchangeable."""
+    blob = json.dumps({"spec": spec_json, "layout": layout, "engine": engine, "options": options},
+                      sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(blob.encode()).hexdigest()[:24]
+
+
+def registry_dir() -> Path:
+    """Per-user directory (0700) where kept-alive sidecars register themselves."""
+    base = os.environ.get("XDG_RUNTIME_DIR") or os.path.join(tempfile.gettempdir(), f"simseam-{os.getuid()}")
+    path = Path(base) / "simseam-sidecars"
+    path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    os.chmod(path, 0o700)
+    return path
+
+
+def sanitized_env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in SANITIZED_ENV}
+    env.setdefault("MUJOCO_GL", "egl")
+    env.update(extra or {})
+    return env
+
+
+_LIVE: "weakref.WeakSet[SidecarRollout]" = weakref.WeakSet()
+_HOOKS_INSTALLED = False
+
+
+def _reap_all(*_args: Any) -> None:
+    for rollout in list(_LIVE):
+        rollout._reap(graceful=False)
+
+
+def _install_hooks() -> None:
+    """Reap our sidecars at interpreter exit and on SIGTERM (when nobody else handles it)."""
+    global _HOOKS_INSTALLED
+    if _HOOKS_INSTALLED:
+        return
+    _HOOKS_INSTALLED = True
+    atexit.register(_reap_all)
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) in (
+            signal.SIG_DFL, None):
+        def on_term(signum, frame):
+            _reap_all()
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        signal.signal(signal.SIGTERM, on_term)
+
+
+class _Process:
+    """A spawned sidecar: the Popen, its boot events and the tail of its stderr."""
+
+    def __init__(self, argv: list[str], env: dict[str, str]):
+        self.popen = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
+        self.events: queue.Queue = queue.Queue()
+        self.stderr: collections.deque[str] = collections.deque(maxlen=STDERR_LINES)
+        self._threads = [threading.Thread(target=self._read_stdout, daemon=True),
+                         threading.Thread(target=self._read_stderr, daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    def _read_stdout(self) -> None:
+        for line in self.popen.stdout:
+            try:
+                self.events.put(json.loads(line))
+            except ValueError:
+                self.stderr.append(line.decode(errors="replace").rstrip())
+
+    def _read_stderr(self) -> None:
+        for line in self.popen.stderr:
+            self.stderr.append(line.decode(errors="replace").rstrip())
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def exit_code(self) -> int | None:
+        return self.popen.poll()
+
+    def stderr_tail(self) -> str:
+        for t in self._threads:  # the pipes close when the process dies: drain them
+            t.join(timeout=0.5)
+        return "\n".join(self.stderr)
+
+    def kill(self, graceful_s: float = 2.0) -> None:
+        """SIGTERM the sidecar's process group, SIGKILL what is left after ``graceful_s``."""
+        if self.popen.poll() is None:
+            try:
+                os.killpg(self.popen.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            try:
+                self.popen.wait(graceful_s)
+            except subprocess.TimeoutExpired:
+                pass
+        try:
+            os.killpg(self.popen.pid, signal.SIGKILL)  # stragglers of the group (engine helpers)
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            self.popen.wait(5)
+        except subprocess.TimeoutExpired:
+            pass
+        for pipe in (self.popen.stdout, self.popen.stderr):
+            if pipe is not None:
+                pipe.close()
+
+
+class SidecarRollout:
+    """A ``SimRollout`` whose scene lives in a sidecar process.
+
+    ``spec_json``: a ``RobotSpec.to_json()``; ``options``: ``SceneOptions`` fields
+    (JSON types). ``python``: the sidecar's interpreter (default: this one).
+    ``progress``: called with each boot stage (a str).
+    """
+
+    def __init__(self, spec_json: dict, layout: str, engine: str = "mujoco", options: dict | None = None, *,
+                 python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
+                 request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
+                 progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None):
+        if transport not in ("ipc", "tcp"):
+            raise ConfigError(f"sidecar transport must be 'ipc' or 'tcp', got {transport!r}")
+        self._spec_json = spec_json
+        self._layout = layout
+        self._engine = engine
+        self._options = dict(options or {})
+        self._python = python or sys.executable
+        self._transport = transport
+        self._boot_timeout = boot_timeout
+        self.request_timeout = request_timeout
+        self._keep_alive = keep_alive
+        self._exclusive = exclusive
+        self._progress = progress or (lambda stage: None)
+        self._extra_env = env
+        self.identity = scene_identity(spec_json, layout, engine, self._options)
+        self._ctx = zmq.Context.instance()
+        self._sock: zmq.Socket | None = None
+        self._proc: _Process | None = None
+        self._adopted_pid: int | None = None
+        self._dir: str | None = None
+        self._closed = False
+        self._frame: np.ndarray | None = None
+        _install_hooks()
+        _LIVE.add(self)
+        if keep_alive and self._adopt():
+            return
+        self._start()
+
+    # ------------------------------------------------------------------ boot
+    def _start(self) -> None:
+        if not shutil.which(self._python) and not os.path.exists(self._python):
+            raise ConfigError(f"sidecar interpreter {self._python!r} not found")
+        self._dir = tempfile.mkdtemp(prefix="simseam-sidecar-")  # 0700
+        os.chmod(self._dir, 0o700)
+        self._token = secrets.token_hex(16)
+        endpoint = f"ipc://{self._dir}/scene.sock" if self._transport == "ipc" else "tcp://127.0.0.1:*"
+        boot = {"spec": self._spec_json, "layout": self._layout, "engine": self._engine, "options": self._options,
+                "endpoint": endpoint, "token": self._token, "identity": self.identity,
+                "exclusive": self._exclusive, "keep_alive": self._keep_alive,
+                "registry_dir": str(registry_dir()) if self._keep_alive else None}
+        boot_path = Path(self._dir) / "boot.json"
+        fd = os.open(boot_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            json.dump(boot, f)
+        self._progress(f"starting sidecar ({self._python})")
+        self._proc = _Process([self._python, "-m", "simseam.sidecar.server", "--boot", str(boot_path)],
+                              sanitized_env(self._extra_env))
+        endpoint = self._await_ready()
+        self._connect(endpoint)
+        self._hello()
+
+    def _await_ready(self) -> str:
+        deadline = time.monotonic() + self._boot_timeout
+        while True:
+            try:
+                ev = self._proc.events.get(timeout=POLL_SLICE_MS / 1000)
+            except queue.Empty:
+                ev = None
+            if ev is not None:
+                if ev.get("event") == "boot":
+                    self._progress(str(ev.get("stage")))
+                elif ev.get("event") == "ready":
+                    return str(ev["endpoint"])
+                elif ev.get("event") == "error":
+                    self._proc.kill()
+                    self._proc = None
+                    raise remote_error(str(ev.get("kind")), str(ev.get("message")), str(ev.get("traceback", "")))
+                continue
+            code = self._proc.exit_code()
+            if code is not None:
+                self._crashed("while booting")
+            if time.monotonic() > deadline:
+                tail = self._proc.stderr_tail()
+                self._proc.kill()
+                self._proc = None
+                raise SidecarTimeout(f"sidecar did not become ready within {self._boot_timeout:.0f} s"
+                                     + (f"; its stderr ends with:\n{tail}" if tail else ""))
+
+    def _connect(self, endpoint: str) -> None:
+        sock = self._ctx.socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.REQ_RELAXED, 1)
+        sock.setsockopt(zmq.REQ_CORRELATE, 1)
+        sock.connect(endpoint)
+        self._sock = sock
+        self.endpoint = endpoint
+
+    def _hello(self) -> None:
+        info = self._request("hello", {"protocol": PROTOCOL_VERSION, "client_pid": os.getpid()}, during="hello")
+        if info.get("identity") != self.identity:
+            self._sock.close(0)
+            self._sock = None
+            raise SidecarAccessError(
+                f"the sidecar at {self.endpoint} serves scene {info.get('identity')!r}, not {self.identity!r}; "
+                "it was not driven")
+        s = info["scene"]
+        self._scene = SceneInfo(
+            robot=s["robot"], engine=s["engine"], layout=s["layout"], control_mode=ControlMode.parse(s["control_mode"]),
+            action_dim=int(s["action_dim"]), state_dim=int(s["state_dim"]), control_hz=float(s["control_hz"]),
+            cameras={k: tuple(v) for k, v in s["cameras"].items()}, joint_names=tuple(s["joint_names"]),
+            action_names=tuple(s["action_names"]), action_scale=tuple(s.get("action_scale", (0.05, 0.5))))
+        self._task = TaskInfo(**info["task"])
+        self.observation_spec = info["observation_spec"]
+        self.server_pid = int(info["pid"])
+        self.server_python = info.get("python")
+
+    def _adopt(self) -> bool:
+        """Adopt a kept-alive sidecar of the same identity, if one is registered and alive."""
+        entry_path = registry_dir() / f"{self.identity}.json"
+        try:
+            entry = json.loads(entry_path.read_text())
+            pid = int(entry["pid"])
+            os.kill(pid, 0)
+        except (OSError, ValueError, KeyError):
+            return False
+        self._token = str(entry["token"])
+        self._adopted_pid = pid
+        self._connect(str(entry["endpoint"]))
+        try:
+            self._hello()
+        except (SidecarAccessError, SidecarTimeout, SidecarCrashed, SidecarProtocolError):
+            if self._sock is not None:
+                self._sock.close(0)
+                self._sock = None
+            self._adopted_pid = None
+            return False
+        self._progress(f"adopted running sidecar pid {pid}")
+        return True
+
+    # --------------------------------------------------------------- requests
+    def _alive_code(self) -> int | None:
+        """None while the sidecar lives, else its exit code (-1 if unknown: adopted)."""
+        if self._proc is not None:
+            return self._proc.exit_code()
+        if self._adopted_pid is not None:
+            try:
+                os.kill(self._adopted_pid, 0)
+                return None
+            except ProcessLookupError:
+                return -1
+            except PermissionError:
+                return None
+        return -1
+
+    def _crashed(self, during: str) -> None:
+        proc, self._proc = self._proc, None
+        code = proc.exit_code() if proc is not None else None
+        tail = proc.stderr_tail() if proc is not None else ""
+        if proc is not None:
+            proc.kill(graceful_s=0)
+        if self._sock is not None:
+            self._sock.close(0)
+            self._sock = None
+        if code == EXIT_BUSY:
+            raise SidecarBusy(tail or "the engine is already running in another sidecar")
+        how = f"exit code {code}" if code is not None and code >= 0 else (
+            f"killed by signal {-code}" if code is not None else "gone")
+        raise SidecarCrashed(f"sidecar crashed {during} ({how})" + (f"; its stderr ends with:\n{tail}" if tail else ""),
+                             exit_code=code, stderr_tail=tail)
+
+    def _request(self, op: str, body: dict, during: str | None = None, timeout: float | None = None) -> Any:
+        if self._closed:
+            raise SidecarCrashed("the sidecar rollout is closed")
+        if self._sock is None:
+            raise SidecarCrashed("the sidecar is gone (crashed earlier); call restart()")
+        body["token"] = self._token
+        during = during or f"during {op}"
+        self._sock.send_multipart(encode(op, body), copy=False)
+        deadline = time.monotonic() + (self.request_timeout if timeout is None else timeout)
+        while not self._sock.poll(POLL_SLICE_MS):
+            if self._alive_code() is not None:
+                self._crashed(during)
+            if time.monotonic() > deadline:
+                raise SidecarTimeout(f"the sidecar did not answer {op!r} within "
+                                     f"{self.request_timeout if timeout is None else timeout:.1f} s (hung?)")
+        frames = self._sock.recv_multipart(copy=False)
+        try:
+            kind, reply = decode(frames)
+        except WireError as exc:
+            raise SidecarProtocolError(f"malformed reply to {op!r}: {exc}") from None
+        if kind == "error":
+            if reply.get("kind") == "AccessDenied":
+                raise SidecarAccessError(f"the sidecar refused {op!r}: {reply.get('message')}")
+            if reply.get("kind") == "WireError" and op == "hello":
+                raise SidecarProtocolError(str(reply.get("message")))
+            raise remote_error(str(reply.get("kind")), str(reply.get("message")), str(reply.get("traceback", "")))
+        return reply
+
+    # ------------------------------------------------------------------- seam
+    @property
+    def action_dim(self) -> int:
+        return self._scene.action_dim
+
+    @property
+    def scene(self) -> SceneInfo:
+        return self._scene
+
+    @property
+    def task(self) -> TaskInfo:
+        return self._task
+
+    def reset(self, seed: int | None = None) -> Observation:
+        reply = self._request("reset", {"seed": None if seed is None else int(seed)})
+        obs = reply["obs"]
+        self._sim_time = int(obs["sim_time_ns"])
+        self._frame = self._first_image(obs)
+        return obs
+
+    def step(self, action: np.ndarray) -> StepResult:
+        a = check_action(action, self.action_dim)  # fail fast, locally, before a round trip
+        r = self._request("step", {"action": a})
+        obs = r["obs"]
+        self._sim_time = int(obs["sim_time_ns"])
+        self._frame = self._first_image(obs)
+        return StepResult(obs, float(r["reward"]), bool(r["terminated"]), bool(r["truncated"]), dict(r["info"]))
+
+    def _first_image(self, obs: Observation) -> np.ndarray | None:
+        images = obs.get("images") or {}
+        return next(iter(images.values())) if images else None
+
+    def render(self) -> np.ndarray | None:
+        if self._frame is None:
+            self._frame = self._request("render", {})["frame"]
+        return self._frame
+
+    def sim_time_ns(self) -> int:
+        return getattr(self, "_sim_time", 0)
+
+    # -------------------------------------------------------------- lifecycle
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc is not None else self._adopted_pid
+
+    def restart(self) -> None:
+        """Start a fresh sidecar (same scene) after a crash or a hang."""
+        self._reap(graceful=False)
+        self._closed = False
+        _LIVE.add(self)
+        self._start()
+
+    def close(self) -> None:
+        """Ask the sidecar to exit, then reap it (kept-alive sidecars are left running)."""
+        if self._closed:
+            return
+        if self._sock is not None and not self._keep_alive:
+            try:
+                self._request("close", {}, timeout=2.0)
+            except Exception:
+                pass
+        self._reap(graceful=True)
+
+    def _reap(self, graceful: bool) -> None:
+        self._closed = True
+        if self._sock is not None:
+            self._sock.close(0)
+            self._sock = None
+        if self._proc is not None and not self._keep_alive:
+            self._proc.kill(graceful_s=2.0 if graceful else 0.2)
+        self._proc = None
+        if self._dir is not None and not self._keep_alive:
+            shutil.rmtree(self._dir, ignore_errors=True)
+        self._dir = None
+        _LIVE.discard(self)
+
+    def __enter__(self) -> "SidecarRollout":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,238 @@
+"""The sidecar server: hosts one ``ManifestScene`` in its own process and serves it.
+
+    python -m simseam.sidecar.server --boot BOOT.json      (what SidecarRollout spawns)
+    simseam sidecar serve --boot BOOT.json                  (the same, through the CLI)
+
+``BOOT.json`` (written by the client into its private 0700 directory, read and
+deleted at start): ``{"spec": RobotSpec JSON, "layout": str, "engine": str,
+"options": SceneOptions fields, "endpoint": "ipc://..." | "tcp://127.0.0.1:*",
+"token": str, "identity": str, "exclusive": bool, "keep_alive": bool,
+"registry_dir": str | null}``.
+
+Boot progress goes to stdout as JSON lines (``{"event": "boot", "stage": ...}``,
+then ``{"event": "ready", "endpoint": ..., "pid": ...}``); diagnostics go to
+stderr. Every request must carry the launch token; a request that fails to
+decode, or a handler that raises, gets a typed error reply and the server keeps
+serving. Unless ``keep_alive``, the server exits when its parent dies.
+
+Imports numpy, msgpack, pyzmq and the scene layer only (plus the engine's SDK
+when the scene is built): no pydantic, typer, rich or yaml.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import hmac
+import json
+import os
+import signal
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
+
+EXIT_BUSY = 3  # exit code: an exclusive engine is already running elsewhere
+EXIT_BOOT_ERROR = 4  # exit code: the scene could not be built (the error went out as an "error" event)
+EXCLUSIVE_ENGINES = ("isaac",)
+TEST_HOOKS_ENV = "SIMSEAM_SIDECAR_TEST_HOOKS"  # enables the _sleep/_exit ops (tests only)
+
+
+def _emit(event: str, **fields: Any) -> None:
+    sys.stdout.write(json.dumps({"event": event, **fields}) + "\n")
+    sys.stdout.flush()
+
+
+def _die_with_parent() -> None:
+    """Linux: get SIGTERM when the parent dies (the poll loop also checks getppid)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def _take_engine_lock(engine: str):
+    """Machine-wide lock for engines that must be alone on the machine (GPU ownership)."""
+    import fcntl
+
+    path = Path(os.environ.get("SIMSEAM_LOCK_DIR", "/tmp")) / f"simseam-engine-{engine}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+        sys.stderr.write(
+            f"simseam sidecar: engine {engine!r} is already running in another sidecar (pid {holder}); "
+            f"it must be alone on this machine. Close that one first (lock file {path}).\n"
+        )
+        sys.exit(EXIT_BUSY)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    return fd
+
+
+def observation_spec(scene) -> dict:
+    """Keys, dtypes and shapes of the scene's observations (from its contract)."""
+    info = scene.scene
+    n = len(info.joint_names)
+    spec = {
+        "images": {k: {"dtype": "|u1", "shape": [h, w, 3]} for k, (h, w) in info.cameras.items()},
+        "state": {"dtype": "<f4", "shape": [info.state_dim]},
+        "joint_positions": {"dtype": "<f4", "shape": [n]},
+        "joint_velocities": {"dtype": "<f4", "shape": [n]},
+        "task": {"type": "str"},
+        "sim_time_ns": {"type": "int"},
+    }
+    if scene.options.privileged:
+        spec["privileged"] = {"type": "dict"}
+    return spec
+
+
+class Server:
+    def __init__(self, scene, token: str, identity: str, test_hooks: bool = False):
+        self.scene = scene
+        self.token = token
+        self.identity = identity
+        self.test_hooks = test_hooks
+        self.requests = 0
+
+    def handle(self, frames: list) -> tuple[list, bool]:
+        """Reply frames for one request, and whether to stop serving."""
+        try:
+            op, body = decode(frames)
+        except WireError as exc:
+            return encode("error", {"kind": "WireError", "message": str(exc)}), False
+        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")), self.token):
+            return encode("error", {"kind": "AccessDenied", "message": "missing or wrong token"}), False
+        self.requests += 1
+        try:
+            if op == "hello":
+                return encode("ok", self.hello(body)), False
+            if op == "reset":
+                seed = body.get("seed")
+                if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
+                    raise WireError(f"reset: seed must be an int or null, got {seed!r}")
+                return encode("ok", {"obs": self.scene.reset(seed)}), False
+            if op == "step":
+                r = self.scene.step(body.get("action"))
+                info = {k: v for k, v in r.info.items()}
+                return encode("ok", {"obs": r.observation, "reward": r.reward, "terminated": r.terminated,
+                                     "truncated": r.truncated, "info": info}), False
+            if op == "render":
+                return encode("ok", {"frame": self.scene.render()}), False
+            if op == "close":
+                return encode("ok", {"requests": self.requests}), True
+            if self.test_hooks and op == "_sleep":
+                time.sleep(float(body.get("seconds", 0)))
+                return encode("ok", {}), False
+            if self.test_hooks and op == "_exit":
+                sys.stderr.write("simseam sidecar: exiting on request (test hook)\n")
+                sys.stderr.flush()
+                os._exit(int(body.get("code", 1)))
+            return encode("error", {"kind": "UnknownOp", "message": f"unknown op {op!r}"}), False
+        except Exception as exc:  # every handler failure becomes a typed reply
+            return encode("error", {"kind": type(exc).__name__, "message": str(exc),
+                                    "traceback": traceback.format_exc()}), False
+
+    def hello(self, body: dict) -> dict:
+        if body.get("protocol") != PROTOCOL_VERSION:
+            raise WireError(f"client speaks protocol {body.get('protocol')!r}, server {PROTOCOL_VERSION}")
+        task = self.scene.task
+        return {
+            "protocol": PROTOCOL_VERSION,
+            "identity": self.identity,
+            "pid": os.getpid(),
+            "python": sys.version.split()[0],
+            "action_dim": self.scene.action_dim,
+            "scene": self.scene.scene.to_json(),
+            "task": {"layout": task.layout, "instruction": task.instruction, "success_key": task.success_key,
+                     "max_steps": task.max_steps},
+            "observation_spec": observation_spec(self.scene),
+        }
+
+
+def build_scene(boot: dict):
+    from simseam.robot.spec import RobotSpec
+    from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+
+    opts = dict(boot.get("options") or {})
+    if opts.get("image_size") is not None:
+        opts["image_size"] = tuple(opts["image_size"])
+    return ManifestScene(RobotSpec.from_json(boot["spec"]), boot["layout"], boot.get("engine", "mujoco"),
+                         SceneOptions(**opts))
+
+
+def serve(boot: dict) -> int:
+    keep_alive = bool(boot.get("keep_alive"))
+    parent = os.getppid()
+    if not keep_alive:
+        _die_with_parent()
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    lock = None
+    if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
+        lock = _take_engine_lock(boot.get("engine", "mujoco"))
+    _emit("boot", stage=f"building scene {boot['layout']!r} on engine {boot.get('engine', 'mujoco')!r}")
+    try:
+        scene = build_scene(boot)
+    except Exception as exc:  # reported to the client as a typed error, then exit
+        _emit("error", kind=type(exc).__name__, message=str(exc), traceback=traceback.format_exc())
+        sys.stderr.write(f"simseam sidecar: cannot build the scene: {type(exc).__name__}: {exc}\n")
+        return EXIT_BOOT_ERROR
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.REP)
+    sock.setsockopt(zmq.LINGER, 0)
+    registry = None
+    try:
+        sock.bind(boot["endpoint"])
+        endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
+        if boot.get("registry_dir"):
+            registry = Path(boot["registry_dir"]) / f"{boot['identity']}.json"
+            fd = os.open(registry, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as f:
+                json.dump({"endpoint": endpoint, "token": boot["token"], "pid": os.getpid(),
+                           "identity": boot["identity"]}, f)
+        server = Server(scene, boot["token"], boot["identity"], test_hooks=os.environ.get(TEST_HOOKS_ENV) == "1")
+        _emit("ready", endpoint=endpoint, pid=os.getpid(), identity=boot["identity"])
+        while True:
+            if not sock.poll(500):
+                if not keep_alive and os.getppid() != parent:
+                    sys.stderr.write("simseam sidecar: parent process is gone, exiting\n")
+                    return 0
+                continue
+            frames = sock.recv_multipart(copy=False)
+            reply, stop = server.handle(frames)
+            sock.send_multipart(reply, copy=False)
+            if stop:
+                return 0
+    finally:
+        if registry is not None:
+            registry.unlink(missing_ok=True)
+        sock.close(0)
+        ctx.term()
+        scene.close()
+        if lock is not None:
+            os.close(lock)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="simseam sidecar serve", description="Serve one scene over the sidecar wire.")
+    ap.add_argument("--boot", required=True, help="boot file (JSON) written by the client; deleted once read")
+    args = ap.parse_args(argv)
+    path = Path(args.boot)
+    try:
+        boot = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        sys.stderr.write(f"simseam sidecar: cannot read boot file {path}: {exc}\n")
+        return 2
+    path.unlink(missing_ok=True)
+    return serve(boot)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

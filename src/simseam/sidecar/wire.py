@@ -1,0 +1,143 @@
+"""The sidecar wire format: one msgpack header frame + one raw frame per ndarray.
+
+A message is a ZeroMQ multipart message ``[header, buf_0, buf_1, ...]``. The header
+is a msgpack map ``{"v": PROTOCOL_VERSION, "op": str, "body": ..., "arrays":
+[[dtype, [shape...]], ...]}``; inside ``body`` every ndarray is replaced by the
+marker ``{"__nd__": i}`` and its bytes travel as frame ``i + 1``, C-ordered, with
+the dtype and shape from ``arrays[i]``. Nothing else is ever decoded: no pickle,
+no ``np.save`` blobs, no object dtypes, nothing executable.
+
+Encoding is zero-copy for C-contiguous arrays (their buffers are handed to ZeroMQ
+as they are); decoding is zero-copy too (arrays are read-only views of the
+received frames). Decoding validates everything and raises ``WireError`` (never
+anything else) on malformed input: version, header size and type, dtype whitelist,
+shape, frame count and byte counts.
+
+Imports: numpy and msgpack only.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import numpy as np
+
+PROTOCOL_VERSION = 1
+MAX_HEADER_BYTES = 1 << 20  # 1 MiB of msgpack is far more than any header needs
+MAX_ARRAY_BYTES = 1 << 30  # 1 GiB per array
+MAX_ARRAYS = 256
+MAX_NDIM = 8
+ND = "__nd__"
+
+#: dtypes allowed on the wire (little-endian, fixed size, no objects)
+DTYPES = {np.dtype(t).str: np.dtype(t) for t in ("|b1", "|u1", "|i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8",
+                                                   "<f2", "<f4", "<f8")}
+
+
+class WireError(ValueError):
+    """A message that does not follow the wire format. Says what and where."""
+
+
+def _pack_body(obj: Any, arrays: list[np.ndarray]) -> Any:
+    if isinstance(obj, np.ndarray):
+        arr = obj
+        if arr.dtype.str not in DTYPES:
+            if arr.dtype.byteorder == ">" and arr.dtype.newbyteorder("<").str in DTYPES:
+                arr = arr.astype(arr.dtype.newbyteorder("<"))
+            else:
+                raise WireError(f"dtype {arr.dtype} cannot travel on the wire (allowed: {', '.join(DTYPES)})")
+        if not arr.flags.c_contiguous:
+            arr = np.ascontiguousarray(arr)
+        arrays.append(arr)
+        return {ND: len(arrays) - 1}
+    if isinstance(obj, dict):
+        return {str(k): _pack_body(v, arrays) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_pack_body(v, arrays) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if obj is None or isinstance(obj, (bool, int, float, str, bytes)):
+        return obj
+    raise WireError(f"value of type {type(obj).__name__} cannot travel on the wire")
+
+
+def encode(op: str, body: Any = None) -> list:
+    """Message frames for ``op`` with ``body`` (JSON-like data and ndarrays)."""
+    arrays: list[np.ndarray] = []
+    packed = _pack_body(body, arrays)
+    header = msgpack.packb(
+        {"v": PROTOCOL_VERSION, "op": op, "body": packed, "arrays": [[a.dtype.str, list(a.shape)] for a in arrays]},
+        use_bin_type=True,
+    )
+    return [header, *(memoryview(a).cast("B") if a.size else b"" for a in arrays)]
+
+
+def _unpack_body(obj: Any, arrays: list[np.ndarray], used: list[bool]) -> Any:
+    if isinstance(obj, dict):
+        if ND in obj:
+            idx = obj[ND]
+            if len(obj) != 1 or not isinstance(idx, int) or isinstance(idx, bool) or not 0 <= idx < len(arrays):
+                raise WireError(f"bad array reference {obj!r}")
+            used[idx] = True
+            return arrays[idx]
+        return {k: _unpack_body(v, arrays, used) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_unpack_body(v, arrays, used) for v in obj]
+    return obj
+
+
+def decode(frames: list) -> tuple[str, Any]:
+    """``(op, body)`` of a received message; raises ``WireError`` on anything malformed."""
+    if not frames:
+        raise WireError("empty message")
+    head = frames[0]
+    head_bytes = head.bytes if hasattr(head, "bytes") else bytes(head)
+    if len(head_bytes) > MAX_HEADER_BYTES:
+        raise WireError(f"header is {len(head_bytes)} bytes, more than {MAX_HEADER_BYTES}")
+    try:
+        header = msgpack.unpackb(head_bytes, raw=False, strict_map_key=True, use_list=True)
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise WireError(f"header is not valid msgpack: {type(exc).__name__}: {exc}") from None
+    if not isinstance(header, dict):
+        raise WireError(f"header must be a map, got {type(header).__name__}")
+    if header.get("v") != PROTOCOL_VERSION:
+        raise WireError(f"protocol version {header.get('v')!r}, this side speaks {PROTOCOL_VERSION}")
+    op, specs = header.get("op"), header.get("arrays", [])
+    if not isinstance(op, str) or not op:
+        raise WireError(f"header field 'op' must be a non-empty string, got {op!r}")
+    if not isinstance(specs, list) or len(specs) > MAX_ARRAYS:
+        raise WireError("header field 'arrays' must be a list of at most %d [dtype, shape] pairs" % MAX_ARRAYS)
+    if len(frames) != len(specs) + 1:
+        raise WireError(f"header announces {len(specs)} array frame(s), message has {len(frames) - 1}")
+    arrays = []
+    for i, (spec, frame) in enumerate(zip(specs, frames[1:])):
+        arrays.append(_array(i, spec, frame))
+    used = [False] * len(arrays)
+    body = _unpack_body(header.get("body"), arrays, used)
+    if not all(used):
+        raise WireError(f"array frame {used.index(False) + 1} is not referenced by the body")
+    return op, body
+
+
+def _array(i: int, spec: Any, frame: Any) -> np.ndarray:
+    if not (isinstance(spec, list) and len(spec) == 2 and isinstance(spec[0], str) and isinstance(spec[1], list)):
+        raise WireError(f"array {i}: spec must be [dtype, shape], got {spec!r}")
+    dtype = DTYPES.get(spec[0])
+    if dtype is None:
+        raise WireError(f"array {i}: dtype {spec[0]!r} is not allowed (allowed: {', '.join(DTYPES)})")
+    shape = spec[1]
+    if len(shape) > MAX_NDIM or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in shape):
+        raise WireError(f"array {i}: bad shape {shape!r}")
+    count = 1
+    for d in shape:
+        count *= d
+    nbytes = count * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        raise WireError(f"array {i}: {nbytes} bytes is more than {MAX_ARRAY_BYTES}")
+    buf = frame.buffer if hasattr(frame, "buffer") else memoryview(frame)
+    if buf.nbytes != nbytes:
+        raise WireError(f"array {i}: frame has {buf.nbytes} bytes, {spec[0]}{tuple(shape)} needs {nbytes}")
+    arr = np.frombuffer(buf, dtype=dtype, count=count).reshape(shape)
+    arr.flags.writeable = False
+    return arr
