@@ -33,6 +33,8 @@ class RobotModel:
     ``set_root_pose``); otherwise the root is free. ``inertia_from_geometry``
     replaces the URDF's link masses and inertias with those of the collision
     geometry at 1000 kg/m^3 (for models that ship placeholder inertias).
+    ``link_shapes`` adds primitive geometry (visible, colliding, part of the
+    robot: never hit by its own rays) to named links, e.g. a mobile chassis.
     """
 
     urdf_path: str
@@ -45,6 +47,7 @@ class RobotModel:
     gravity_compensation: bool = True
     inertia_from_geometry: bool = False
     color: tuple[float, float, float, float] | None = None
+    link_shapes: dict[str, list["Shape"]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import numpy as np
 
 from simseam.math3d import quat_to_matrix, rotation_error
 from simseam.policies.base import BasePolicy, register_policy
+from simseam.policies.navigation import NavExpert
 from simseam.scene.actions import ActionLayout
 from simseam.scene.layouts.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
 from simseam.seam import ConfigError, ControlMode, Observation, SceneInfo, TaskInfo
@@ -64,7 +65,7 @@ class _CartesianExpert:
 class LiftExpert(_CartesianExpert):
     """Above the cube, yaw-aligned -> down -> close -> lift 20 cm."""
 
-    def act(self, priv: dict) -> np.ndarray:
+    def act(self, priv: dict, obs: dict | None = None) -> np.ndarray:
         eef = priv["eef_pose"]
         cube = priv["objects"]["cube"]
         cube_yaw = self.yaw_of(quat_to_matrix(cube[3:]))
@@ -92,7 +93,7 @@ class LiftExpert(_CartesianExpert):
 class BowlPlateExpert(_CartesianExpert):
     """Grip the bowl's wall on the side facing the robot, carry it over the plate, set it down, let go."""
 
-    def act(self, priv: dict) -> np.ndarray:
+    def act(self, priv: dict, obs: dict | None = None) -> np.ndarray:
         eef = priv["eef_pose"]
         bowl, plate = priv["objects"]["bowl"], priv["objects"]["plate"]
         self.timer += 1
@@ -142,7 +143,7 @@ class BowlPlateExpert(_CartesianExpert):
         return self.command(eef, eef[:3] + [0.0, 0.0, 0.1], self.yaw, OPEN, speed=0.5)  # back off
 
 
-_EXPERTS = {"lift_cube": LiftExpert, "bowl_plate": BowlPlateExpert}
+_EXPERTS = {"lift_cube": LiftExpert, "bowl_plate": BowlPlateExpert, "nav_obstacles": NavExpert}
 
 
 @register_policy("scripted")
@@ -168,4 +169,4 @@ class ScriptedPolicy(BasePolicy):
         if self._expert is None:
             down = quat_to_matrix(priv["eef_pose"][3:])
             self._expert = _EXPERTS[self.task_info.layout](self._layout, *self.scene_info.action_scale, down)
-        return self._expert.act(priv)
+        return self._expert.act(priv, observation)

@@ -48,10 +48,19 @@ class GripperModel(_Strict):
     closed: list[float]
 
 
+class ShapeModel(_Strict):
+    kind: Literal["box", "sphere", "cylinder"]
+    size: list[float] = Field(min_length=1, max_length=3)
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rgba: tuple[float, float, float, float] = (0.3, 0.3, 0.32, 1.0)
+
+
 class KinematicBaseModel(_Strict):
     joints: tuple[str, str, str]
     max_linear: float = Field(default=0.5, gt=0)
     max_angular: float = Field(default=1.0, gt=0)
+    height: float = Field(default=0.0, ge=0)
+    shapes: list[ShapeModel] = []
 
 
 class SensorModel(_Strict):
@@ -230,7 +239,9 @@ def load_manifest(path: str | Path) -> RobotSpec:
         gripper = GripperSpec([j.name for j in m.joints if j.role == "gripper"], list(m.gripper.open), list(m.gripper.closed))
     kb = None
     if m.kinematic_base is not None:
-        kb = KinematicBaseSpec(list(m.kinematic_base.joints), m.kinematic_base.max_linear, m.kinematic_base.max_angular)
+        k = m.kinematic_base
+        kb = KinematicBaseSpec(list(k.joints), k.max_linear, k.max_angular, k.height,
+                               [sh.model_dump(mode="json") for sh in k.shapes])
     sensors = [
         SensorSpec(
             name=s.name,

@@ -77,11 +77,20 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class KinematicBaseSpec:
-    """A planar base moved kinematically: joint names for [x, y, yaw], speed limits."""
+    """A planar holonomic base moved kinematically (the robot root is teleported).
+
+    ``joints``: names of the virtual [x, y, yaw] joints (not in the URDF).
+    ``max_linear`` (m/s, norm of [vx, vy]) and ``max_angular`` (rad/s) clip
+    BODY_TWIST. ``height``: z of the base link above the floor (m). ``shapes``:
+    primitive chassis geometry fixed to the base link (``{kind, size, pos,
+    rgba}``, same conventions as ``engines.base.Shape``), part of the robot.
+    """
 
     joints: list[str]
     max_linear: float
     max_angular: float
+    height: float = 0.0
+    shapes: list[dict] = field(default_factory=list)
 
 
 @dataclass(frozen=True)

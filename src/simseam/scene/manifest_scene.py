@@ -25,11 +25,12 @@ only when observed. Importable with numpy alone (no pydantic).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from simseam.engines.base import CameraModel, Engine, EngineOptions, RobotModel
+from simseam.engines.base import CameraModel, Engine, EngineOptions, RobotModel, Shape
 from simseam.math3d import (
     axis_angle_to_matrix,
     matrix_to_axis_angle,
@@ -43,6 +44,8 @@ from simseam.robot.assets import resolve_asset
 from simseam.robot.spec import RobotSpec
 from simseam.robot.urdf import read_urdf
 from simseam.scene.actions import ActionLayout
+from simseam.scene.base_motion import KinematicBase
+from simseam.scene.sensors import DepthCloud, Lidar2D
 from simseam.scene.kinematics import SerialChain
 from simseam.scene.layouts.base import get_layout
 from simseam.seam import (
@@ -127,6 +130,27 @@ class ManifestScene:
         base_pos, base_yaw = self.layout.robot_base()
         self._base_pos = np.asarray(base_pos, dtype=np.float64)
         self._base_rot = quat_to_matrix(yaw_quat(base_yaw))
+        self._base_start = (float(base_pos[0]), float(base_pos[1]), float(base_yaw))
+
+        # Manifest order <-> engine joints; the kinematic base supplies the base joints.
+        manifest = [j.name for j in spec.joints]
+        self._eidx = np.array([manifest.index(j.name) for j in self._ejoints])
+        self._kbase = None
+        link_shapes = {}
+        if spec.kinematic_base is not None:
+            kb = spec.kinematic_base
+            if urdf.root_link != spec.base_link:
+                raise ConfigError(f"robot {spec.name!r}: a kinematic base moves the URDF root link "
+                                  f"{urdf.root_link!r}, so base_link must be it (got {spec.base_link!r})")
+            self._kbase = KinematicBase(kb)
+            self._bidx = np.array([manifest.index(n) for n in kb.joints])
+            link_shapes[spec.base_link] = [
+                Shape(sh["kind"], tuple(sh["size"]), pos=tuple(sh["pos"]), rgba=tuple(sh["rgba"])) for sh in kb.shapes]
+        lidars = spec.sensors_of("lidar_2d")
+        if len(lidars) > 1:
+            raise ConfigError(f"robot {spec.name!r} declares {len(lidars)} lidar_2d sensors; "
+                              "the observation's 'scan' holds one")
+        self._lidar = Lidar2D(lidars[0]) if lidars else None
 
         if isinstance(engine, str):
             from simseam.engines.registry import make_engine
@@ -143,11 +167,13 @@ class ManifestScene:
                 base_quat=tuple(yaw_quat(base_yaw)),
                 fixed_base=True,
                 inertia_from_geometry=spec.inertia == "geometry",
+                link_shapes=link_shapes,
             )
         )
         self.layout.build(engine)
         size = opts.image_size or self.layout.image_size
         self._rgb = []  # (sensor name, feature key)
+        self._depth: list[DepthCloud] = []
         cameras = {}
         for s in spec.sensors:
             if s.kind not in ("rgb", "depth"):
@@ -158,6 +184,8 @@ class ManifestScene:
             if s.kind == "rgb":
                 self._rgb.append((s.name, s.feature_key))
                 cameras[s.feature_key] = (h, w)
+            else:
+                self._depth.append(DepthCloud(s, w, h))
         engine.build()
         self._substeps = max(1, int(round(1.0 / (opts.control_hz * engine.timestep))))
         n_chunks = min(RAMP_CHUNKS, self._substeps)
@@ -205,6 +233,9 @@ class ManifestScene:
         rng = np.random.default_rng(seed)
         eng = self.engine
         eng.reset()
+        if self._kbase is not None:
+            self._kbase.reset(*self._base_start)
+            self._place_base()
         eng.set_joint_positions(self._home)
         self.layout.reset(eng, rng)
         eng.step(max(1, int(round(SETTLE_S / eng.timestep))))
@@ -222,7 +253,8 @@ class ManifestScene:
         if not self._episode_ready:
             raise SimulationError("step() called before reset() (or after the episode ended and was not reset)")
         a = check_action(action, self.action_dim)
-        arm, grip, _base = self.action_layout.unpack(a)
+        arm, grip, base = self.action_layout.unpack(a)
+        twist = self._kbase.clip(base) if base is not None else None
         target = self._q_target
         previous = target[self._arm_idx]
         if self.action_layout.control_mode == ControlMode.JOINT_POSITION:
@@ -234,7 +266,7 @@ class ManifestScene:
         if grip is not None:
             g = (min(max(grip, -1.0), 1.0) + 1.0) * 0.5
             target[self._grip_idx] = self._grip_open + g * (self._grip_closed - self._grip_open)
-        self._servo(target)
+        self._servo(target, twist)
         self._steps += 1
         obs = self._observe()
         reward, success = self.layout.evaluate(self)
@@ -281,13 +313,14 @@ class ManifestScene:
         rt = self._base_rot.T
         return np.concatenate([rt @ (pos - self._base_pos), matrix_to_quat(rt @ quat_to_matrix(quat))])
 
-    def _servo(self, target: np.ndarray) -> None:
+    def _servo(self, target: np.ndarray, twist: np.ndarray | None = None) -> None:
         """Move the servo setpoints from the previous command to ``target`` along a
         smooth ramp that ends at RAMP_FRACTION of the control period, then hold.
 
         Stepping the setpoint (instead of jumping) lets the joints arrive at the
         target nearly at rest by the end of the period, so a Cartesian delta
         moves the end effector by the commanded distance in every direction.
+        A kinematic base advances along ``twist`` chunk by chunk, teleporting the root.
         """
         eng = self.engine
         start = self._q_sent
@@ -295,8 +328,32 @@ class ManifestScene:
         for k in range(1, len(chunks) + 1):
             s = self._ramp[k - 1]
             eng.set_joint_targets(start + s * (target - start) if s < 1.0 else target)
+            if twist is not None:
+                self._kbase.advance(twist, chunks[k - 1] * eng.timestep)
+                self._place_base()
             eng.step(chunks[k - 1])
         self._q_sent = target.copy()
+
+    def _place_base(self) -> None:
+        x, y, yaw = self._kbase.pose
+        self._base_pos = np.array([x, y, self._base_pos[2]])
+        self._base_rot = quat_to_matrix(yaw_quat(yaw))
+        self.engine.set_root_pose(self._base_pos, yaw_quat(yaw))
+
+    def base_pose(self) -> np.ndarray:
+        """[x, y, yaw] of the base link in the world."""
+        if self._kbase is not None:
+            return self._kbase.pose.copy()
+        r = self._base_rot
+        return np.array([self._base_pos[0], self._base_pos[1], math.atan2(r[1, 0], r[0, 0])])
+
+    def link_in_base(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """Measured pose of a robot link in the base frame: (rot 3x3, pos 3)."""
+        if link == self.spec.base_link:
+            return np.eye(3), np.zeros(3)
+        p, q = self.engine.link_pose(link)
+        rt = self._base_rot.T
+        return rt @ quat_to_matrix(q), rt @ (p - self._base_pos)
 
     def _cartesian_target(self, arm: np.ndarray) -> np.ndarray:
         act = self.spec.action
@@ -330,17 +387,33 @@ class ManifestScene:
                 images[key] = eng.render_rgb(name)
             if self._rgb:
                 self._frame = images[self._rgb[0][1]]
+        n = len(self.spec.joints)
+        qpos, qvel = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+        qpos[self._eidx] = q
+        qvel[self._eidx] = eng.joint_velocities()
         obs: Observation = {
             "images": images,
             "state": state,
             "task": self._task.instruction,
-            "joint_positions": q.astype(np.float32),
-            "joint_velocities": eng.joint_velocities().astype(np.float32),
+            "joint_positions": qpos,
+            "joint_velocities": qvel,
             "sim_time_ns": self.sim_time_ns(),
         }
+        if self._kbase is not None:
+            qpos[self._bidx] = self._kbase.pose
+            qvel[self._bidx] = self._kbase.velocity
+            obs["base_pose"] = self._kbase.pose.astype(np.float32)
+        if self._lidar is not None:
+            obs["scan"] = self._lidar.scan(eng, self._base_rot, self._base_pos,
+                                           *self.link_in_base(self._lidar.sensor.parent))
+        if self._depth and self.options.render_images:
+            obs["depth_points"] = {
+                d.sensor.name: d.points(eng.render_depth(d.sensor.name), *self.link_in_base(d.sensor.parent))
+                for d in self._depth}
         if self.options.privileged:
             obs["privileged"] = {
                 "eef_pose": np.concatenate([pos, matrix_to_quat(rot)]),
-                "objects": {n: self.to_base(*eng.object_pose(n)) for n in self.layout.tracked_objects},
+                "objects": {**{n: self.to_base(*eng.object_pose(n)) for n in self.layout.tracked_objects},
+                            **self.layout.privileged(self)},
             }
         return obs

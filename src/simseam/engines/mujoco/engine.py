@@ -35,6 +35,7 @@ GROUP_ROBOT_VISUAL = 2
 GROUP_ROBOT_COLLISION = 3
 RAY_GROUPS = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
 
+MESH_SUFFIXES = (".stl", ".obj", ".msh")
 DEFAULT_KP = 400.0
 JOINT_ARMATURE = 0.01
 
@@ -70,8 +71,20 @@ def _urdf_spec(urdf_path: str) -> "mujoco.MjSpec":
     comp.set("fusestatic", "false")
     spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
     urdf_dir = Path(urdf_path).parent
-    for mesh in spec.meshes:
+    unreadable = []
+    for mesh in list(spec.meshes):
+        if Path(mesh.file).suffix.lower() not in MESH_SUFFIXES:
+            unreadable.append(mesh)
+            continue
         mesh.file = _fix_mesh_path(mesh.file, urdf_dir)
+    if unreadable:  # e.g. COLLADA (.dae): MuJoCo cannot read it; drop those geoms, say so once
+        names = {m.name for m in unreadable}
+        for g in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH and g.meshname in names]:
+            spec.delete(g)
+        for m in unreadable:
+            spec.delete(m)
+        warnings.warn(f"{urdf_path}: MuJoCo cannot read meshes {sorted(Path(m.file).name for m in unreadable)}; "
+                      "their geoms were left out", stacklevel=3)
     return spec
 
 
@@ -135,6 +148,13 @@ class MujocoEngine:
         except ValueError as exc:  # MuJoCo compile errors
             raise SimulationError(f"MuJoCo could not compile the scene: {exc}") from None
         self.model.vis.quality.offsamples = 4 if self.options.render_quality == "full" else 0
+        # Clip planes are relative to the model's extent: set them in metres from the cameras
+        # (a big scene would otherwise clip everything within a metre of a camera).
+        extent = max(float(self.model.stat.extent), 1e-6)
+        near = min([c.near for c in self._cameras.values()] + [0.01])
+        far = max([c.far for c in self._cameras.values()] + [50.0])
+        self.model.vis.map.znear = near / extent
+        self.model.vis.map.zfar = far / extent
         self.data = mujoco.MjData(self.model)
         self._index()
         self.reset()
@@ -170,6 +190,19 @@ class MujocoEngine:
             g.group = GROUP_ROBOT_VISUAL if (is_visual or not visual) else GROUP_ROBOT_COLLISION
             if is_visual and robot.color is not None:
                 g.rgba = list(robot.color)
+        kinds = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+                 "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
+        for link, shapes in robot.link_shapes.items():
+            body = spec.body(link)
+            if body is None:
+                raise ConfigError(f"robot shapes: link {link!r} is not in the robot model")
+            for k, shape in enumerate(shapes):
+                if shape.kind not in kinds:
+                    raise ConfigError(f"robot shapes on {link!r}: unknown shape kind {shape.kind!r}")
+                body.add_geom(name=f"{link}:shape{k}", type=kinds[shape.kind],
+                              size=list(shape.size) + [0] * (3 - len(shape.size)), pos=list(shape.pos),
+                              quat=list(shape.quat), rgba=list(shape.rgba), group=GROUP_ROBOT_VISUAL,
+                              density=0.0 if not robot.inertia_from_geometry else 1000.0)
         for b in robot_bodies:
             # A free root is not compensated: the robot must still rest on what carries it.
             compensated = robot.gravity_compensation and (robot.fixed_base or b.name != root.name)
@@ -212,8 +245,6 @@ class MujocoEngine:
         spec.worldbody.add_light(name="key", pos=[0.5, -0.5, 2.5], dir=[-0.2, 0.2, -1], castshadow=True,
                                  diffuse=[0.6, 0.6, 0.6])
 
-        kinds = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
-                 "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
         for obj in self._objects:
             body = spec.worldbody.add_body(name=f"obj:{obj.name}", pos=list(obj.pos), quat=list(obj.quat))
             if obj.dynamic:

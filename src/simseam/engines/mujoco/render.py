@@ -31,6 +31,10 @@ class CameraRenderer:
         self._rgb: dict[tuple[int, int], mujoco.Renderer] = {}
         self._depth: dict[tuple[int, int], mujoco.Renderer] = {}
         self._cam_ids = {name: model.camera(f"cam:{name}").id for name in cameras}
+        self._mjv_cams = {}
+        for cid in self._cam_ids.values():
+            cam = self._mjv_cams[cid] = mujoco.MjvCamera()
+            cam.type, cam.fixedcamid = mujoco.mjtCamera.mjCAMERA_FIXED, cid
         self._opt = mujoco.MjvOption()
         self._opt.geomgroup[:] = 0
         self._opt.geomgroup[0] = self._opt.geomgroup[1] = self._opt.geomgroup[2] = 1
@@ -61,14 +65,23 @@ class CameraRenderer:
             pool[size] = self._make(size, depth)
         return pool[size], self._cam_ids[camera]
 
+    def _update(self, r: "mujoco.Renderer", data: "mujoco.MjData", cid: int) -> None:
+        # mjv_updateScene places the headlight from the scene's camera *before* it updates that
+        # camera: without this the headlight sits where the previous frame's camera was, so a
+        # renderer's first frame, or a frame after another camera, differs from a repeat render
+        # of the same state (the same seed must give the same images).
+        cam = self._mjv_cams[cid]
+        mujoco.mjv_updateCamera(self._model, data, cam, r.scene)
+        r.update_scene(data, camera=cam, scene_option=self._opt)
+
     def rgb(self, data: "mujoco.MjData", camera: str) -> np.ndarray:
         r, cid = self._get(camera, depth=False)
-        r.update_scene(data, camera=cid, scene_option=self._opt)
+        self._update(r, data, cid)
         return r.render()
 
     def depth(self, data: "mujoco.MjData", camera: str) -> np.ndarray:
         r, cid = self._get(camera, depth=True)
-        r.update_scene(data, camera=cid, scene_option=self._opt)
+        self._update(r, data, cid)
         return r.render().astype(np.float32, copy=False)
 
     def close(self) -> None:

@@ -77,6 +77,10 @@ class Layout:
     def reset(self, engine: Engine, rng: np.random.Generator) -> None:
         """Place the props for a new episode (after the engine reset)."""
 
+    def privileged(self, scene: "ManifestScene") -> dict[str, np.ndarray]:
+        """Extra ground truth for ``privileged['objects']`` (base frame [x, y, z, qw, qx, qy, qz])."""
+        return {}
+
     def evaluate(self, scene: "ManifestScene") -> tuple[float, bool]:
         """(reward, success) after a control step."""
         raise NotImplementedError
@@ -107,6 +111,6 @@ def get_layout(name: str) -> type[Layout]:
 
 
 def _load_builtin() -> None:
-    from simseam.scene.layouts import bowl_plate, lift_cube  # noqa: F401  (registers them)
+    from simseam.scene.layouts import bowl_plate, lift_cube, nav_obstacles  # noqa: F401  (registers them)
 
 

@@ -1,0 +1,84 @@
+"""nav_obstacles: drive a mobile base to a goal pose between static obstacles.
+
+The robot starts at the origin facing +x. Obstacles (boxes and cylinders, 4-6
+of them) and the goal pose (2.5-3.5 m ahead, +-1.2 m sideways, any heading) are
+drawn from the seed; obstacles keep 1 m clear of the start and of the goal and 1.6 m apart (centres).
+Success: the base within 0.2 m and 0.3 rad of the goal, and no obstacle touched
+during the episode (a touch is a failure that cannot be undone). The goal pose
+is ground truth in ``privileged['objects']['goal']`` (base frame). Needs a robot
+with a kinematic base; the scripted policy also needs its 2-D lidar.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from simseam.engines.base import Engine, ObjectModel, Shape
+from simseam.math3d import yaw_quat
+from simseam.scene.layouts.base import Layout, register_layout
+from simseam.seam import ConfigError
+
+N_OBSTACLES = 6
+GOAL_POS_TOL = 0.2
+GOAL_YAW_TOL = 0.3
+CLEARANCE = 1.0
+PARKED_X = -8.0  # unused obstacles wait behind the start, out of the way, on the floor
+
+
+@register_layout
+class NavObstacles(Layout):
+    name = "nav_obstacles"
+    instruction = "drive to the goal without touching anything"
+    max_steps = 400
+    needs_gripper = False
+
+    def check_robot(self) -> None:
+        super().check_robot()
+        if self.spec.kinematic_base is None:
+            raise ConfigError(f"layout {self.name!r} needs robot {self.spec.name!r} to declare a kinematic_base")
+
+    def robot_base(self) -> tuple[np.ndarray, float]:
+        return np.array([0.0, 0.0, self.spec.kinematic_base.height]), 0.0
+
+    def build(self, engine: Engine) -> None:
+        engine.add_ground()
+        # Obstacles are built once and moved per episode: static in physics, placed by reset.
+        for k in range(N_OBSTACLES):
+            shape = (Shape("box", (0.2, 0.3, 0.4), pos=(0, 0, 0.4), rgba=(0.75, 0.55, 0.2, 1)) if k % 2 == 0 else
+                     Shape("cylinder", (0.22, 0.4), pos=(0, 0, 0.4), rgba=(0.3, 0.55, 0.75, 1)))
+            engine.add_object(ObjectModel(f"obstacle{k}", [shape], pos=(PARKED_X - 1.5 * k, 0.0, 0.0), dynamic=True,
+                                          mass=50.0))
+        self.goal = np.zeros(3)
+
+    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
+        self.goal = np.array([rng.uniform(2.5, 3.5), rng.uniform(-1.2, 1.2), rng.uniform(-math.pi, math.pi)])
+        n = int(rng.integers(4, N_OBSTACLES + 1))
+        placed: list[np.ndarray] = []
+        for k in range(N_OBSTACLES):
+            pos = np.array([PARKED_X - 1.5 * k, 0.0, 0.0])
+            if k < n:
+                for _ in range(100):
+                    p = np.array([rng.uniform(0.6, self.goal[0] - 0.2), rng.uniform(-1.8, 1.8)])
+                    if (np.linalg.norm(p) > CLEARANCE and np.linalg.norm(p - self.goal[:2]) > CLEARANCE
+                            and all(np.linalg.norm(p - q) > 1.6 for q in placed)):
+                        placed.append(p)
+                        pos = np.array([p[0], p[1], 0.0])
+                        break
+            engine.set_object_pose(f"obstacle{k}", pos, yaw_quat(rng.uniform(-math.pi, math.pi)))
+        self.obstacles = [f"obstacle{k}" for k in range(len(placed))]
+        self.touched = False
+
+    def privileged(self, scene) -> dict[str, np.ndarray]:
+        gx, gy, gyaw = self.goal
+        return {"goal": scene.to_base(np.array([gx, gy, 0.0]), yaw_quat(gyaw))}
+
+    def evaluate(self, scene) -> tuple[float, bool]:
+        eng = scene.engine
+        self.touched = self.touched or any(eng.contacts_between("robot", o) for o in self.obstacles)
+        x, y, yaw = scene.base_pose()
+        dyaw = math.atan2(math.sin(self.goal[2] - yaw), math.cos(self.goal[2] - yaw))
+        success = (not self.touched and math.hypot(self.goal[0] - x, self.goal[1] - y) < GOAL_POS_TOL
+                   and abs(dyaw) < GOAL_YAW_TOL)
+        return float(success), bool(success)
