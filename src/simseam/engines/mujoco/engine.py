@@ -14,6 +14,7 @@ Model conventions (see ``Engine`` for the contract):
 
 from __future__ import annotations
 
+import re
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -57,6 +58,35 @@ def _fix_mesh_path(file: str, urdf_dir: Path) -> str:
     raise ConfigError(f"URDF mesh {file!r} not found next to {urdf_dir}")
 
 
+def _fix_inertias(root: ET.Element, urdf_path: str) -> None:
+    """Replace inertia tensors that are not (numerically) positive definite (MuJoCo refuses them) by a small
+    diagonal one (1e-4 kg m^2 per kg), with a warning naming the links."""
+    bad = []
+    for link in root.findall("link"):
+        el = link.find("inertial/inertia")
+        if el is None:
+            continue
+        try:
+            v = {k: float(el.get(k, 0.0)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
+        except ValueError:
+            continue
+        tensor = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
+                           [v["ixz"], v["iyz"], v["izz"]]])
+        if np.all(tensor == 0) or np.linalg.eigvalsh(tensor).min() > 1e-12:
+            continue
+        mass_el = link.find("inertial/mass")
+        mass = float(mass_el.get("value", 0.0)) if mass_el is not None else 0.0
+        diag = max(mass, 1e-3) * 1e-4
+        for k in ("ixx", "iyy", "izz"):
+            el.set(k, repr(diag))
+        for k in ("ixy", "ixz", "iyz"):
+            el.set(k, "0")
+        bad.append(link.get("name"))
+    if bad:
+        warnings.warn(f"{urdf_path}: inertias of links {bad} are not positive definite; "
+                      "replaced by small diagonal ones", stacklevel=3)
+
+
 def _urdf_spec(urdf_path: str) -> "mujoco.MjSpec":
     """Parse a URDF into an MjSpec, keeping visuals and every link as a body."""
     root = ET.parse(urdf_path).getroot()
@@ -66,6 +96,7 @@ def _urdf_spec(urdf_path: str) -> "mujoco.MjSpec":
     comp = mj.find("compiler")
     if comp is None:
         comp = ET.SubElement(mj, "compiler")
+    _fix_inertias(root, urdf_path)
     comp.set("discardvisual", "false")
     comp.set("strippath", "false")
     comp.set("fusestatic", "false")
@@ -139,10 +170,28 @@ class MujocoEngine:
             raise SimulationError("build() before load_robot()")
         try:
             spec = self._build_spec()
-            with warnings.catch_warnings():
-                # Mesh files without texture coordinates are fine for us (no textures on robots).
-                warnings.filterwarnings("ignore", message=".*texture coordinate.*")
-                self.model = spec.compile()
+            flat: list[str] = []
+            while True:
+                try:
+                    with warnings.catch_warnings():
+                        # Mesh files without texture coordinates are fine for us (no textures on robots).
+                        warnings.filterwarnings("ignore", message=".*texture coordinate.*")
+                        self.model = spec.compile()
+                    break
+                except ValueError as exc:
+                    # A flat mesh (a marker, a label) has no volume: MuJoCo cannot use it.
+                    # Leave its geoms out, say so, and compile again.
+                    m = re.search(r"mesh '([^']+)' has coplanar vertices", str(exc))
+                    if m is None or m.group(1) in flat or len(flat) > 50:
+                        raise
+                    flat.append(m.group(1))
+                    for g in [g for g in spec.geoms if g.type == mujoco.mjtGeom.mjGEOM_MESH
+                              and g.meshname == m.group(1)]:
+                        spec.delete(g)
+                    spec.delete(spec.mesh(m.group(1)))
+            if flat:
+                warnings.warn(f"flat meshes {flat} have no volume for MuJoCo; their geoms were left out",
+                              stacklevel=2)
         except ConfigError:  # a ValueError too: ours, already precise
             raise
         except ValueError as exc:  # MuJoCo compile errors
