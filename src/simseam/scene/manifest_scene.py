@@ -96,6 +96,9 @@ class ManifestScene:
             raise ConfigError("control_hz and timestep must be positive")
         urdf_path = str(resolve_asset(spec.urdf))
         urdf = read_urdf(urdf_path)
+        if spec.kinematic_base is not None and urdf.root_link != spec.base_link:
+            raise ConfigError(f"robot {spec.name!r}: a kinematic base moves the URDF root link "
+                              f"{urdf.root_link!r}, so base_link must be it (got {spec.base_link!r})")
         layout_cls = get_layout(layout)
 
         mode = ControlMode.parse(opts.control_mode or layout_cls.control_mode or spec.action.control_mode)
@@ -139,9 +142,6 @@ class ManifestScene:
         link_shapes = {}
         if spec.kinematic_base is not None:
             kb = spec.kinematic_base
-            if urdf.root_link != spec.base_link:
-                raise ConfigError(f"robot {spec.name!r}: a kinematic base moves the URDF root link "
-                                  f"{urdf.root_link!r}, so base_link must be it (got {spec.base_link!r})")
             self._kbase = KinematicBase(kb)
             self._bidx = np.array([manifest.index(n) for n in kb.joints])
             link_shapes[spec.base_link] = [
