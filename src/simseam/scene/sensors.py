@@ -38,19 +38,26 @@ class DepthCloud:
         v, u = np.mgrid[0:height, 0:width].astype(np.float64)
         # Mount frame: x along the optical axis (depth), y left, z up; pixel centres.
         rays = np.stack([np.ones_like(u), -(u + 0.5 - cx) / fx, -(v + 0.5 - cy) / fy], axis=-1)
-        self._rays = rays.reshape(-1, 3)
+        self._rays = rays.reshape(-1, 3).astype(np.float32)
         self._mount_rot = rpy_to_matrix(sensor.rpy)
         self._mount_pos = np.asarray(sensor.xyz, dtype=np.float64)
+        self._cache_key: bytes | None = None
+        self._rays_base: np.ndarray | None = None
 
     def points(self, depth: np.ndarray, parent_rot: np.ndarray, parent_pos: np.ndarray) -> np.ndarray:
         """``depth`` (H, W) metres; ``parent_rot``/``parent_pos``: the parent link in base_link."""
-        d = depth.reshape(-1)
-        keep = (d >= self.sensor.range_min) & (d <= self.sensor.range_max)
         rot = parent_rot @ self._mount_rot
-        pos = parent_rot @ self._mount_pos + parent_pos
-        pts = (self._rays[keep] * d[keep, None]) @ rot.T
+        pos = (parent_rot @ self._mount_pos + parent_pos).astype(np.float32)
+        key = rot.tobytes()
+        if key != self._cache_key:  # rays in base_link: recomputed only when the camera turned
+            self._rays_base = self._rays @ rot.T.astype(np.float32)
+            self._cache_key = key
+        d = depth.reshape(-1).astype(np.float32, copy=False)
+        keep = (d >= self.sensor.range_min) & (d <= self.sensor.range_max)
+        pts = self._rays_base.compress(keep, axis=0)  # compress: ~4x faster than boolean indexing
+        pts *= d.compress(keep)[:, None]
         pts += pos
-        return pts.astype(np.float32)
+        return pts
 
 
 class Lidar2D:
