@@ -1,4 +1,4 @@
-"""``simseam`` command line: run | robots."""
+"""``simseam`` command line: run | robots | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from simseam.cli.isaac import doctor, isaac_app
 from simseam.seam import SimseamError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Run robot policies in simulation.")
@@ -18,6 +19,8 @@ robots_app = typer.Typer(no_args_is_help=True, help="Inspect and check robot man
 app.add_typer(robots_app, name="robots")
 sidecar_app = typer.Typer(no_args_is_help=True, help="Out-of-process engines.")
 app.add_typer(sidecar_app, name="sidecar")
+app.add_typer(isaac_app, name="isaac")
+app.command("doctor")(doctor)
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
@@ -78,11 +81,11 @@ def run(
                     rollout.restart()
                 progress.remove_task(task)
                 results.append(res)
-                j = res.to_json()
+                step_ms = res.to_json()["step_latency_ms"]["mean"]  # None when the episode took no step
                 mark = "[green]success[/]" if res.success else "[red]failure[/]"
                 console.print(
                     f"episode {i:3d}  seed {res.seed:5d}  {mark}  steps {res.steps:4d}  "
-                    f"reward {res.reward:6.2f}  step {j['step_latency_ms']['mean']:.2f} ms"
+                    f"reward {res.reward:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
                     + (f"  video {res.video}" if res.video else "")
                 )
     except SimseamError as exc:

@@ -16,6 +16,7 @@ Unknown keys are errors that name the file and the field.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Literal
 
@@ -122,7 +123,7 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     if eng.process == "sidecar":
         from simseam.sidecar.client import SidecarRollout
 
-        python = eng.python
+        python = os.path.expanduser(eng.python) if eng.python else None
         if python and not Path(python).is_absolute() and "/" in python:
             python = str((base_dir / python).resolve())
         return SidecarRollout(spec.to_json(), cfg.layout, eng.name, dataclasses.asdict(options), python=python,
