@@ -243,9 +243,25 @@ class SidecarRollout:
         self._progress(f"starting sidecar ({self._python})")
         self._proc = _Process([self._python, "-m", "simseam.sidecar.server", "--boot", str(boot_path)],
                               sanitized_env(self._extra_env))
-        endpoint = self._await_ready()
-        self._connect(endpoint)
-        self._hello()
+        try:
+            endpoint = self._await_ready()
+            self._connect(endpoint)
+            self._hello()
+        except BaseException:  # a failed boot leaves nothing behind: no process, no private dir
+            self._discard_failed_boot()
+            raise
+
+    def _discard_failed_boot(self) -> None:
+        if self._sock is not None:
+            self._sock.close(0)
+            self._sock = None
+        if self._proc is not None:  # e.g. ready, then hello failed: killed even if keep_alive
+            self._proc.kill(graceful_s=0.2)
+            self._proc = None
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = None
+        _LIVE.discard(self)
 
     def _await_ready(self) -> str:
         deadline = time.monotonic() + self._boot_timeout

@@ -108,7 +108,9 @@ class Server:
             op, body = decode(frames)
         except WireError as exc:
             return encode("error", {"kind": "WireError", "message": str(exc)}), False
-        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")), self.token):
+        # compare bytes: compare_digest raises TypeError on non-ASCII str (a peer could send one)
+        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
+                                                                 self.token.encode()):
             return encode("error", {"kind": "AccessDenied", "message": "missing or wrong token"}), False
         self.requests += 1
         try:
@@ -178,6 +180,7 @@ def serve(boot: dict) -> int:
     if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
         lock = _take_engine_lock(boot.get("engine", "mujoco"))
     _emit("boot", stage=f"building scene {boot['layout']!r} on engine {boot.get('engine', 'mujoco')!r}")
+    os.environ["SIMSEAM_SIDECAR"] = "1"  # sidecar-only engines (isaac) are made only in this process
     try:
         scene = build_scene(boot)
     except Exception as exc:  # reported to the client as a typed error, then exit

@@ -18,6 +18,7 @@ Imports: numpy and msgpack only.
 
 from __future__ import annotations
 
+import reprlib
 from typing import Any
 
 import msgpack
@@ -28,6 +29,7 @@ MAX_HEADER_BYTES = 1 << 20  # 1 MiB of msgpack is far more than any header needs
 MAX_ARRAY_BYTES = 1 << 30  # 1 GiB per array
 MAX_ARRAYS = 256
 MAX_NDIM = 8
+MAX_DEPTH = 32  # nesting levels of a body (observations need 4)
 ND = "__nd__"
 
 #: dtypes allowed on the wire (little-endian, fixed size, no objects)
@@ -37,6 +39,10 @@ DTYPES = {np.dtype(t).str: np.dtype(t) for t in ("|b1", "|u1", "|i1", "<u2", "<i
 
 class WireError(ValueError):
     """A message that does not follow the wire format. Says what and where."""
+
+
+_repr = reprlib.Repr()  # bounded repr for error messages: peer data can be huge or deeply nested
+_repr.maxlevel, _repr.maxstring, _repr.maxother = 3, 80, 80
 
 
 def _pack_body(obj: Any, arrays: list[np.ndarray]) -> Any:
@@ -73,17 +79,19 @@ def encode(op: str, body: Any = None) -> list:
     return [header, *(memoryview(a).cast("B") if a.size else b"" for a in arrays)]
 
 
-def _unpack_body(obj: Any, arrays: list[np.ndarray], used: list[bool]) -> Any:
+def _unpack_body(obj: Any, arrays: list[np.ndarray], used: list[bool], depth: int = 0) -> Any:
+    if isinstance(obj, (dict, list)) and depth >= MAX_DEPTH:
+        raise WireError(f"body is nested deeper than {MAX_DEPTH} levels")
     if isinstance(obj, dict):
         if ND in obj:
             idx = obj[ND]
             if len(obj) != 1 or not isinstance(idx, int) or isinstance(idx, bool) or not 0 <= idx < len(arrays):
-                raise WireError(f"bad array reference {obj!r}")
+                raise WireError(f"bad array reference {_repr.repr(obj)}")
             used[idx] = True
             return arrays[idx]
-        return {k: _unpack_body(v, arrays, used) for k, v in obj.items()}
+        return {k: _unpack_body(v, arrays, used, depth + 1) for k, v in obj.items()}
     if isinstance(obj, list):
-        return [_unpack_body(v, arrays, used) for v in obj]
+        return [_unpack_body(v, arrays, used, depth + 1) for v in obj]
     return obj
 
 
@@ -102,10 +110,10 @@ def decode(frames: list) -> tuple[str, Any]:
     if not isinstance(header, dict):
         raise WireError(f"header must be a map, got {type(header).__name__}")
     if header.get("v") != PROTOCOL_VERSION:
-        raise WireError(f"protocol version {header.get('v')!r}, this side speaks {PROTOCOL_VERSION}")
+        raise WireError(f"protocol version {_repr.repr(header.get('v'))}, this side speaks {PROTOCOL_VERSION}")
     op, specs = header.get("op"), header.get("arrays", [])
     if not isinstance(op, str) or not op:
-        raise WireError(f"header field 'op' must be a non-empty string, got {op!r}")
+        raise WireError(f"header field 'op' must be a non-empty string, got {_repr.repr(op)}")
     if not isinstance(specs, list) or len(specs) > MAX_ARRAYS:
         raise WireError("header field 'arrays' must be a list of at most %d [dtype, shape] pairs" % MAX_ARRAYS)
     if len(frames) != len(specs) + 1:
@@ -122,13 +130,13 @@ def decode(frames: list) -> tuple[str, Any]:
 
 def _array(i: int, spec: Any, frame: Any) -> np.ndarray:
     if not (isinstance(spec, list) and len(spec) == 2 and isinstance(spec[0], str) and isinstance(spec[1], list)):
-        raise WireError(f"array {i}: spec must be [dtype, shape], got {spec!r}")
+        raise WireError(f"array {i}: spec must be [dtype, shape], got {_repr.repr(spec)}")
     dtype = DTYPES.get(spec[0])
     if dtype is None:
-        raise WireError(f"array {i}: dtype {spec[0]!r} is not allowed (allowed: {', '.join(DTYPES)})")
+        raise WireError(f"array {i}: dtype {_repr.repr(spec[0])} is not allowed (allowed: {', '.join(DTYPES)})")
     shape = spec[1]
     if len(shape) > MAX_NDIM or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in shape):
-        raise WireError(f"array {i}: bad shape {shape!r}")
+        raise WireError(f"array {i}: bad shape {_repr.repr(shape)}")
     count = 1
     for d in shape:
         count *= d
@@ -138,6 +146,9 @@ def _array(i: int, spec: Any, frame: Any) -> np.ndarray:
     buf = frame.buffer if hasattr(frame, "buffer") else memoryview(frame)
     if buf.nbytes != nbytes:
         raise WireError(f"array {i}: frame has {buf.nbytes} bytes, {spec[0]}{tuple(shape)} needs {nbytes}")
-    arr = np.frombuffer(buf, dtype=dtype, count=count).reshape(shape)
+    try:  # numpy refuses some 0-size shapes whose other extents overflow (e.g. [0, 2**63])
+        arr = np.frombuffer(buf, dtype=dtype, count=count).reshape(shape)
+    except ValueError as exc:
+        raise WireError(f"array {i}: bad shape {_repr.repr(shape)}: {exc}") from None
     arr.flags.writeable = False
     return arr

@@ -1,0 +1,220 @@
+"""Failure handling: a dead sidecar is reported as a crash (exit code, stderr tail) within
+1 s, during boot and mid-episode, never as a silent timeout; a hung one hits the
+per-request timeout; restart() continues with a fresh sidecar; the CLI run loop does the
+same, end to end."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sidecar_util import actions, assert_same, process_gone, running, scene_options
+from typer.testing import CliRunner
+
+from simseam.seam import SidecarError
+from simseam.sidecar.client import SidecarRollout
+from simseam.sidecar.errors import SidecarCrashed, SidecarTimeout
+
+REPO = Path(__file__).resolve().parents[2]
+HOOKS = {"SIMSEAM_SIDECAR_TEST_HOOKS": "1"}
+CRASH_BOUND_S = 1.0  # the issue's bound: a dead sidecar is reported within a second
+
+
+def _kill9(pid: int) -> float:
+    os.kill(pid, signal.SIGKILL)
+    return time.monotonic()
+
+
+def test_kill9_mid_episode_is_a_crash_within_1s(make_sidecar):
+    rollout = make_sidecar(options=scene_options(render_images=False))
+    rollout.reset(seed=0)
+    rollout.step(np.zeros(7, np.float32))
+    pid = rollout.pid
+    t_kill = _kill9(pid)
+    with pytest.raises(SidecarCrashed) as ei:
+        rollout.step(np.zeros(7, np.float32))
+    elapsed = time.monotonic() - t_kill
+    assert elapsed < CRASH_BOUND_S, f"crash reported after {elapsed:.2f} s"
+    err = ei.value
+    assert err.exit_code == -9 and "killed by signal 9" in str(err) and "during step" in str(err)
+    assert isinstance(err, SidecarError) and not isinstance(err, SidecarTimeout)
+    with pytest.raises(SidecarCrashed, match="call restart"):  # and it stays a crash, not a hang
+        rollout.step(np.zeros(7, np.float32))
+    assert not running(pid)
+
+
+def test_kill9_while_a_request_is_in_flight_is_a_crash_within_1s(make_sidecar):
+    """The sidecar dies while the client waits for its reply (here: a 30 s request)."""
+    rollout = make_sidecar(options=scene_options(render_images=False), env=HOOKS, request_timeout=60)
+    rollout.reset(seed=0)
+    killed = {}
+    timer = threading.Timer(0.3, lambda: killed.setdefault("t", _kill9(rollout.pid)))
+    timer.start()
+    try:
+        with pytest.raises(SidecarCrashed) as ei:
+            rollout._request("_sleep", {"seconds": 30})
+    finally:
+        timer.cancel()
+    elapsed = time.monotonic() - killed["t"]
+    assert elapsed < CRASH_BOUND_S, f"crash reported {elapsed:.2f} s after the kill"
+    assert ei.value.exit_code == -9 and "during _sleep" in str(ei.value)
+
+
+def test_exit_with_code_and_stderr_is_reported(make_sidecar):
+    rollout = make_sidecar(options=scene_options(render_images=False), env=HOOKS)
+    rollout.reset(seed=0)
+    t0 = time.monotonic()
+    with pytest.raises(SidecarCrashed) as ei:
+        rollout._request("_exit", {"code": 7})
+    assert time.monotonic() - t0 < CRASH_BOUND_S
+    err = ei.value
+    assert err.exit_code == 7 and "exit code 7" in str(err)
+    assert "simseam sidecar: exiting on request (test hook)" in err.stderr_tail
+    assert err.stderr_tail.splitlines()[-1] in str(err)  # the message carries the tail too
+    with pytest.raises(SidecarCrashed):
+        rollout.step(np.zeros(7, np.float32))
+
+
+def test_interpreter_that_dies_at_start_is_a_boot_crash_within_1s(panda_json, tmp_path, client_tmp):
+    """A sidecar interpreter that exits before it is ready (a wrapper standing in for an engine
+    SDK that fails to import): SidecarCrashed with its exit code and stderr, not a boot timeout."""
+    stamp, args = tmp_path / "exit_time", tmp_path / "args"
+    wrapper = tmp_path / "python"
+    wrapper.write_text(
+        "#!/bin/bash\n"
+        f'echo "$@" > {args}\n'
+        'echo "loading engine SDK ..." >&2\n'
+        'echo "boom: cannot import engine" >&2\n'
+        f"date +%s.%N > {stamp}\n"
+        "exit 5\n")
+    wrapper.chmod(0o755)
+    with pytest.raises(SidecarCrashed) as ei:
+        SidecarRollout(panda_json, "lift_cube", options=scene_options(), python=str(wrapper), boot_timeout=60)
+    t_raised = time.time()
+    exited = float(stamp.read_text())
+    assert t_raised - exited < CRASH_BOUND_S, f"reported {t_raised - exited:.2f} s after the process exited"
+    err = ei.value
+    assert err.exit_code == 5 and "while booting" in str(err) and "exit code 5" in str(err)
+    assert err.stderr_tail.splitlines() == ["loading engine SDK ...", "boom: cannot import engine"]
+    assert "boom: cannot import engine" in str(err)
+    assert args.read_text().split()[:3] == ["-m", "simseam.sidecar.server", "--boot"]
+    assert list(client_tmp.iterdir()) == []  # the private dir (and the boot file with the token) is gone
+
+
+def test_interpreter_without_simseam_is_a_boot_crash(panda_json, tmp_path, monkeypatch, client_tmp):
+    """A bare venv cannot import the server: ModuleNotFoundError, reported as a crash. PYTHONPATH
+    pointing at the source tree must not leak into the sidecar and hide the problem."""
+    venv = tmp_path / "bare"
+    subprocess.run([getattr(sys, "_base_executable", sys.executable), "-m", "venv", "--without-pip", str(venv)],
+                   check=True, timeout=120)
+    monkeypatch.setenv("PYTHONPATH", str(REPO / "src"))
+    t0 = time.monotonic()
+    with pytest.raises(SidecarCrashed) as ei:
+        SidecarRollout(panda_json, "lift_cube", options=scene_options(), python=str(venv / "bin" / "python"),
+                       boot_timeout=60)
+    assert time.monotonic() - t0 < 10  # not the 60 s boot timeout
+    err = ei.value
+    assert err.exit_code == 1 and "while booting" in str(err)
+    assert "No module named 'simseam'" in err.stderr_tail and "No module named 'simseam'" in str(err)
+    assert list(client_tmp.iterdir()) == []
+
+
+def test_hung_sidecar_hits_the_request_timeout(make_sidecar):
+    rollout = make_sidecar(options=scene_options(render_images=False), env=HOOKS, request_timeout=0.5)
+    rollout.reset(seed=0)
+    pid = rollout.pid
+    t0 = time.monotonic()
+    with pytest.raises(SidecarTimeout) as ei:
+        rollout._request("_sleep", {"seconds": 5})
+    elapsed = time.monotonic() - t0
+    assert 0.5 <= elapsed < 4.0, elapsed  # the request's limit, not the 5 s hang
+    assert "did not answer '_sleep' within 0.5 s" in str(ei.value)
+    assert not isinstance(ei.value, SidecarCrashed) and running(pid)  # alive, hung: not a crash
+    rollout.close()  # close() reaps a hung sidecar too
+    assert process_gone(pid, timeout=5)
+
+
+def test_restart_after_a_crash_continues_with_the_next_episode(make_sidecar):
+    rollout = make_sidecar()
+    acts = actions(seed=4, n=5, dim=7)
+    ref_obs = rollout.reset(seed=11)
+    ref = [rollout.step(a).observation for a in acts]
+    old = rollout.pid
+    rollout.reset(seed=12)
+    os.kill(old, signal.SIGKILL)
+    with pytest.raises(SidecarCrashed):
+        rollout.step(acts[0])
+    rollout.restart()
+    assert rollout.pid != old and running(rollout.pid) and not running(old)
+    assert_same(rollout.reset(seed=11), ref_obs)  # the fresh sidecar serves the same scene
+    for a, exp in zip(acts, ref):
+        assert_same(rollout.step(a).observation, exp)
+    rollout.reset(seed=12)  # and the next episode
+    assert rollout.step(acts[0]).info["steps"] == 1
+
+
+def _scene_file(tmp_path: Path, name: str, engine: str) -> Path:
+    path = tmp_path / name
+    path.write_text(f"robot: franka_panda\nengine: {engine}\nlayout: lift_cube\nmax_steps: 60\n")
+    return path
+
+
+def test_cli_run_with_a_sidecar_end_to_end(tmp_path):
+    """`simseam run` on a scene file with `process: sidecar`, in a subprocess: 2 episodes,
+    summary.json written, and the same episodes as the in-process engine."""
+    results = {}
+    for kind, engine in (("sidecar", "{name: mujoco, process: sidecar, transport: tcp}"), ("inprocess", "mujoco")):
+        out = tmp_path / kind
+        proc = subprocess.run(
+            [sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(_scene_file(tmp_path, f"{kind}.yaml",
+                                                                                       engine)),
+             "--policy", "scripted", "--episodes", "2", "--seed", "3", "--out", str(out)],
+            cwd=REPO, capture_output=True, text=True, timeout=240)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        results[kind] = json.loads((out / "summary.json").read_text())
+    side, local = results["sidecar"], results["inprocess"]
+    assert side["config"]["scene"]["engine"]["process"] == "sidecar" and side["n_episodes"] == 2
+    assert side["scene"] == local["scene"]
+    for a, b in zip(side["episodes"], local["episodes"]):
+        assert a["error"] is None
+        assert (a["seed"], a["success"], a["steps"], a["reward"]) == (b["seed"], b["success"], b["steps"], b["reward"])
+    assert side["n_success"] == 2
+
+
+def test_cli_run_loop_restarts_a_crashed_sidecar(tmp_path, monkeypatch):
+    """The sidecar is killed at the start of episode 0: that episode is recorded with the crash,
+    a fresh sidecar is started and episode 1 runs normally."""
+    import simseam.runner.episodes as episodes
+    from simseam.cli.main import app
+
+    original = episodes.run_episode
+    pids = []
+
+    def run_episode(rollout, policy, *, index, **kw):
+        pids.append(rollout.pid)
+        if index == 0:
+            os.kill(rollout.pid, signal.SIGKILL)
+            assert process_gone(rollout.pid, timeout=5)
+        return original(rollout, policy, index=index, **kw)
+
+    monkeypatch.setattr(episodes, "run_episode", run_episode)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["run", "--scene", str(_scene_file(tmp_path, "s.yaml", "{process: sidecar}")),
+                                   "--policy", "scripted", "--episodes", "2", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "restarting the sidecar" in res.output
+    summary = json.loads((out / "summary.json").read_text())
+    ep0, ep1 = summary["episodes"]
+    assert ep0["success"] is False and ep0["steps"] == 0 and ep0["error"].startswith("SidecarCrashed:")
+    assert "killed by signal 9" in ep0["error"]
+    assert ep1["error"] is None and ep1["success"] is True
+    assert len(pids) == 2 and pids[0] != pids[1]
+    assert process_gone(pids[1], timeout=5)  # the CLI closed the fresh one at the end
