@@ -33,3 +33,23 @@ def make_scene():
     yield _make
     for s in scenes:
         s.close()
+
+
+@pytest.fixture
+def count_successes():
+    """``count(scene, policy, seeds) -> int``: episodes (one per seed) that end in success."""
+
+    def _count(scene, policy, seeds):
+        wins = 0
+        for seed in seeds:
+            obs = scene.reset(seed)
+            policy.reset(scene.scene, scene.task)
+            for _ in range(scene.task.max_steps):
+                step = scene.step(policy.act(obs))
+                obs = step.observation
+                if step.terminated or step.truncated:
+                    break
+            wins += bool(step.info["success"])
+        return wins
+
+    return _count

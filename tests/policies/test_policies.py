@@ -8,24 +8,10 @@ from simseam.policies.base import ChunkedPolicy, make_policy, policy_names
 from simseam.seam import ConfigError
 
 
-def _success_rate(scene, policy, seeds):
-    wins = 0
-    for seed in seeds:
-        obs = scene.reset(seed)
-        policy.reset(scene.scene, scene.task)
-        for _ in range(scene.task.max_steps):
-            step = scene.step(policy.act(obs))
-            obs = step.observation
-            if step.terminated or step.truncated:
-                break
-        wins += step.info["success"]
-    return wins
-
-
 @pytest.mark.parametrize("layout", ["lift_cube", "bowl_plate"])
-def test_scripted_expert_succeeds_in_at_least_8_of_10_seeds(panda_spec, make_scene, layout):
+def test_scripted_expert_succeeds_in_at_least_8_of_10_seeds(panda_spec, make_scene, count_successes, layout):
     scene = make_scene(panda_spec, layout=layout, render_images=False, privileged=True)
-    assert _success_rate(scene, make_policy("scripted"), range(10)) >= 8
+    assert count_successes(scene, make_policy("scripted"), range(10)) >= 8
 
 
 def test_lift_success_means_the_cube_is_10cm_up(panda_spec, make_scene):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from simseam.math3d import yaw_quat
+from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.robot.spec import KinematicBaseSpec
 from simseam.scene.actions import ActionLayout
@@ -154,28 +155,12 @@ def test_manifest_and_layout_checks(mobile_spec, panda_spec):
         ManifestScene(wrong_root, "nav_obstacles", options=SceneOptions(render_images=False))
 
 
-def _nav_successes(scene, seeds):
-    from simseam.policies.base import make_policy
-
-    policy, wins = make_policy("scripted"), 0
-    for seed in seeds:
-        obs = scene.reset(seed)
-        policy.reset(scene.scene, scene.task)
-        for _ in range(scene.task.max_steps):
-            step = scene.step(policy.act(obs))
-            obs = step.observation
-            if step.terminated or step.truncated:
-                break
-        wins += step.info["success"]
-    return wins
-
-
-def test_scripted_navigation_reaches_the_goal_in_8_of_10(mobile_spec, make_scene):
+def test_scripted_navigation_reaches_the_goal_in_8_of_10(mobile_spec, make_scene, count_successes):
     scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False, privileged=True)
-    assert _nav_successes(scene, range(10)) >= 8
+    assert count_successes(scene, make_policy("scripted"), range(10)) >= 8
 
 
-def test_second_mobile_robot_stretch_runs_an_episode(make_scene):
+def test_second_mobile_robot_stretch_runs_an_episode(make_scene, count_successes):
     stretch = load_robot("stretch")
     scene = make_scene(stretch, layout="nav_obstacles", privileged=True, image_size=(64, 64))
     obs = scene.reset(1)
@@ -183,4 +168,4 @@ def test_second_mobile_robot_stretch_runs_an_episode(make_scene):
     assert obs["scan"].shape == (360,) and obs["joint_positions"].shape == (len(stretch.joints),)
     scene.close()
     state_only = make_scene(stretch, layout="nav_obstacles", privileged=True, render_images=False)
-    assert _nav_successes(state_only, [1]) == 1
+    assert count_successes(state_only, make_policy("scripted"), [1]) == 1

@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from simseam.config_files import load_yaml_model
 from simseam.robot.assets import resolve_asset
 from simseam.robot.spec import (
     ActionSpec,
@@ -143,32 +143,9 @@ class ManifestModel(_Strict):
         return self
 
 
-def _format_validation(path: str, exc: ValidationError) -> str:
-    lines = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"]) or "<root>"
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key (not part of the manifest schema)"
-        lines.append(f"{path}: field '{loc}': {msg}")
-    return "invalid robot manifest\n  " + "\n  ".join(lines)
-
-
 def parse_manifest(path: str | Path) -> ManifestModel:
     """Read and schema-validate a manifest file (no URDF access)."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read robot manifest: {exc}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: a robot manifest must be a YAML mapping, got {type(data).__name__}")
-    try:
-        return ManifestModel.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(_format_validation(str(path), exc)) from None
+    return load_yaml_model(path, ManifestModel, "robot manifest")
 
 
 def _absolute_ref(ref: str, base_dir: Path) -> str:

@@ -20,11 +20,11 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from simseam.config_files import load_yaml_model
 from simseam.robot.manifest import find_manifest, load_manifest
-from simseam.seam import ConfigError, SimRollout
+from simseam.seam import SimRollout
 
 
 class EngineConfig(BaseModel):
@@ -69,24 +69,7 @@ class SceneConfig(BaseModel):
 
 def load_scene_config(path: str | Path) -> tuple[SceneConfig, Path]:
     """Parse a scene file; returns the config and the file's directory."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read scene file: {exc}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: a scene file must be a YAML mapping")
-    try:
-        return SceneConfig.model_validate(data), path.resolve().parent
-    except ValidationError as exc:
-        lines = []
-        for err in exc.errors():
-            loc = ".".join(str(p) for p in err["loc"])
-            msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-            lines.append(f"{path}: field '{loc}': {msg}")
-        raise ConfigError("invalid scene file\n  " + "\n  ".join(lines)) from None
+    return load_yaml_model(path, SceneConfig, "scene file"), Path(path).resolve().parent
 
 
 def resolve_robot(cfg: SceneConfig, base_dir: Path):
