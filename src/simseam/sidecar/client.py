@@ -442,6 +442,11 @@ class SidecarRollout:
 
     # -------------------------------------------------------------- lifecycle
     @property
+    def spec_json(self) -> dict:
+        """The RobotSpec (JSON) of the scene this sidecar serves."""
+        return self._spec_json
+
+    @property
     def pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else self._adopted_pid
 
