@@ -1,4 +1,4 @@
-"""``simseam`` command line: run | robots | sidecar | isaac | doctor."""
+"""``simseam`` command line: run | deploy | robots | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.seam import SimseamError
 
@@ -21,6 +22,7 @@ sidecar_app = typer.Typer(no_args_is_help=True, help="Out-of-process engines.")
 app.add_typer(sidecar_app, name="sidecar")
 app.add_typer(isaac_app, name="isaac")
 app.command("doctor")(doctor)
+app.command("deploy")(deploy)
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 
