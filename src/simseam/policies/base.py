@@ -70,11 +70,23 @@ class ChunkedPolicy(BasePolicy):
 
 
 _POLICIES: dict[str, Callable[..., Policy]] = {}
+#: ``scheme:target`` policy specs (``lerobot:<dir|hub id>``, ``remote:ws://host:port``)
+_SCHEMES: dict[str, Callable[..., Policy]] = {}
 
 
 def register_policy(name: str) -> Callable:
     def deco(factory: Callable[..., Policy]) -> Callable[..., Policy]:
         _POLICIES[name] = factory
+        return factory
+
+    return deco
+
+
+def register_policy_scheme(scheme: str) -> Callable:
+    """Register a factory ``f(target: str, **kwargs) -> Policy`` for specs ``<scheme>:<target>``."""
+
+    def deco(factory: Callable[..., Policy]) -> Callable[..., Policy]:
+        _SCHEMES[scheme] = factory
         return factory
 
     return deco
@@ -86,14 +98,21 @@ def policy_names() -> list[str]:
 
 
 def make_policy(name: str, **kwargs: Any) -> Policy:
-    """Create a policy by name (``scripted``, ``random``, ``zero``)."""
+    """Create a policy from a spec: a registered name (``scripted``, ``random``, ``zero``)
+    or ``<scheme>:<target>`` (``lerobot:<dir or hub id>``, ``remote:ws://host:port``)."""
     _load_builtin()
+    scheme, sep, target = name.partition(":")
+    if sep and scheme in _SCHEMES:
+        if not target:
+            raise ConfigError(f"policy spec {name!r} names no target after '{scheme}:'")
+        return _SCHEMES[scheme](target, **kwargs)
     try:
         factory = _POLICIES[name]
     except KeyError:
-        raise ConfigError(f"unknown policy {name!r}; known policies: {', '.join(sorted(_POLICIES))}") from None
+        known = ", ".join(sorted(_POLICIES)) + ", " + ", ".join(f"{s}:<target>" for s in sorted(_SCHEMES))
+        raise ConfigError(f"unknown policy {name!r}; known policies: {known}") from None
     return factory(**kwargs)
 
 
 def _load_builtin() -> None:
-    from simseam.policies import scripted, simple  # noqa: F401  (registers them)
+    from simseam.policies import lerobot_policy, remote, scripted, simple  # noqa: F401  (registers them)

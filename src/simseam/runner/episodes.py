@@ -50,8 +50,11 @@ class EpisodeResult:
 
 
 def run_episode(rollout: SimRollout, policy: Policy, *, index: int, seed: int, video_path: Path | None = None,
-                on_step: Callable[[int], None] | None = None) -> EpisodeResult:
-    """Run one episode until success (terminated) or the step limit (truncated)."""
+                on_step: Callable[[int], None] | None = None, recorder=None) -> EpisodeResult:
+    """Run one episode until success (terminated) or the step limit (truncated).
+
+    ``recorder`` (a ``LeRobotRecorder``) receives every (observation, action) pair;
+    the caller decides whether to keep the episode (``recorder.end_episode``)."""
     obs = rollout.reset(seed)
     policy.reset(rollout.scene, rollout.task)
     result = EpisodeResult(index=index, seed=seed, success=False, steps=0, reward=0.0)
@@ -68,6 +71,8 @@ def run_episode(rollout: SimRollout, policy: Policy, *, index: int, seed: int, v
             t0 = time.perf_counter()
             action = policy.act(obs)
             t1 = time.perf_counter()
+            if recorder is not None:
+                recorder.add(obs, action, rollout.task)
             step = rollout.step(action)
             t2 = time.perf_counter()
             result.policy_ms.append((t1 - t0) * 1e3)

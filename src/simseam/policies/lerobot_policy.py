@@ -1,0 +1,180 @@
+"""LeRobot policies (ACT, Diffusion, SmolVLA, pi0 ...) behind the simseam Policy protocol.
+
+Spec: ``lerobot:<directory or hub id>``. The directory is what ``save_pretrained``
+writes (``config.json``, ``model.safetensors``) plus the processor pipelines
+(``policy_preprocessor.json`` / ``policy_postprocessor.json``), which carry the
+normalization statistics. Hub ids download through ``huggingface_hub`` (needs a
+network; everything else here runs offline).
+
+Per step: the seam observation is mapped to LeRobot keys through the camera
+feature keys (``observation.images.<image>`` <- ``images[scene_key]``,
+``observation.state`` <- ``state``, ``task`` <- the instruction), images become
+``float32[1, 3, H, W]`` in [0, 1], the preprocessor normalizes and moves them to
+the device, ``select_action`` runs (it executes ``n_action_steps`` actions of each
+predicted chunk before predicting again), and the postprocessor unnormalizes the
+action, returned as ``float32[action_dim]``.
+
+Before the first step, ``reset`` checks the policy's contract against the scene:
+``simseam_skill.json`` when the checkpoint has one (saved by ``simseam train``),
+else one derived from its config (images and sizes, state and action length;
+the control mode is then unknown and not checked).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simseam.policies.base import BasePolicy, register_policy_scheme
+from simseam.policies.contract import SkillContract, check_contract
+from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
+
+IMAGE_PREFIX = "observation.images."
+STATE_KEY = "observation.state"
+
+
+def pick_device(requested: str | None = None) -> str:
+    """``requested`` if given, else CUDA when present, else Apple MPS, else CPU."""
+    import torch
+
+    if requested:
+        if requested.startswith("cuda") and not torch.cuda.is_available():
+            raise ConfigError(f"device {requested!r} requested but torch sees no CUDA GPU")
+        return requested
+    if torch.cuda.is_available():
+        return "cuda"
+    mps = getattr(torch.backends, "mps", None)
+    if mps is not None and mps.is_available():
+        return "mps"
+    return "cpu"
+
+
+def _import_lerobot():
+    try:
+        import torch  # noqa: F401
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+    except ImportError as exc:
+        raise ConfigError(f"lerobot: policies need the lerobot extra ({exc}); install it with "
+                          "`pip install 'simseam[lerobot]'`") from None
+    return PreTrainedConfig, get_policy_class, make_pre_post_processors
+
+
+def contract_from_config(cfg: Any, name: str) -> SkillContract:
+    """What a LeRobot policy config declares: image names and sizes, state and action length."""
+    images: dict[str, tuple[int, int]] = {}
+    state_dim = None
+    for key, ft in cfg.input_features.items():
+        if key.startswith(IMAGE_PREFIX):
+            c, h, w = ft.shape
+            images[key[len(IMAGE_PREFIX):]] = (int(h), int(w))
+        elif key == STATE_KEY:
+            state_dim = int(ft.shape[0])
+    action = cfg.output_features.get("action")
+    return SkillContract(name=name, images=images, state_dim=state_dim,
+                         action_dim=int(action.shape[0]) if action is not None else None)
+
+
+class LeRobotPolicy(BasePolicy):
+    """A LeRobot ``PreTrainedPolicy`` with its processors (see the module docstring).
+
+    ``n_action_steps`` overrides the checkpoint's (1 <= n <= chunk size); ``image_map``
+    maps policy image names to scene camera feature keys (overrides the skill file's).
+    """
+
+    uses_images = True
+
+    def __init__(self, source: str | Path, *, device: str | None = None, n_action_steps: int | None = None,
+                 image_map: dict[str, str] | None = None):
+        PreTrainedConfig, get_policy_class, make_pre_post_processors = _import_lerobot()
+        import torch
+
+        self.source = str(source)
+        path = Path(self.source).expanduser()
+        is_local = path.exists() or self.source.startswith((".", "/", "~"))
+        if is_local:
+            if not path.is_dir():
+                raise ConfigError(f"lerobot:{self.source}: no such directory")
+            missing = [f for f in ("config.json", "model.safetensors", "policy_preprocessor.json",
+                                   "policy_postprocessor.json") if not (path / f).is_file()]
+            if missing:
+                raise ConfigError(
+                    f"lerobot:{self.source}: not a complete LeRobot checkpoint, missing {', '.join(missing)} "
+                    "(save the policy and its pre/post-processors with save_pretrained)")
+            ref = str(path)
+        else:
+            ref = self.source
+        self.device = pick_device(device)
+        try:
+            cfg = PreTrainedConfig.from_pretrained(ref)
+        except Exception as exc:  # noqa: BLE001 - hub/network/parse errors all mean "cannot load"
+            raise ConfigError(f"lerobot:{self.source}: cannot load the policy config: {type(exc).__name__}: {exc}") \
+                from None
+        cfg.device = self.device
+        if n_action_steps is not None:
+            chunk = getattr(cfg, "chunk_size", None)
+            if n_action_steps < 1 or (chunk is not None and n_action_steps > chunk):
+                raise ConfigError(f"lerobot:{self.source}: n_action_steps must be in [1, {chunk}], "
+                                  f"got {n_action_steps}")
+            cfg.n_action_steps = n_action_steps
+        self.config = cfg
+        self.policy = get_policy_class(cfg.type).from_pretrained(ref, config=cfg)
+        self.policy.to(self.device)
+        self.policy.eval()
+        self.preprocessor, self.postprocessor = make_pre_post_processors(
+            cfg, pretrained_path=ref, preprocessor_overrides={"device_processor": {"device": self.device}})
+        derived = contract_from_config(cfg, name=f"lerobot:{self.source}")
+        saved = SkillContract.load(path) if is_local else None
+        contract = saved or derived
+        if image_map:
+            contract = SkillContract(**{**contract.__dict__, "image_map": {**contract.image_map, **image_map}})
+        self.contract = contract
+        self.image_names = list(derived.images)
+        self._torch = torch
+        #: number of chunks predicted in the current episode (one model call each)
+        self.chunks_predicted = 0
+        inner = self.policy.predict_action_chunk
+
+        def counted(batch, *args, **kwargs):
+            self.chunks_predicted += 1
+            return inner(batch, *args, **kwargs)
+
+        self.policy.predict_action_chunk = counted
+
+    @property
+    def n_action_steps(self) -> int:
+        return int(self.config.n_action_steps)
+
+    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
+        check_contract(self.contract, scene)
+        super().reset(scene, task)
+        self.policy.reset()
+        self.chunks_predicted = 0
+
+    def act(self, observation: Observation) -> np.ndarray:
+        torch = self._torch
+        images = observation.get("images") or {}
+        batch: dict[str, Any] = {}
+        for name in self.image_names:
+            key = self.contract.scene_key(name)
+            if key not in images:
+                raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
+                                  f"(cameras: {sorted(images)})")
+            img = torch.from_numpy(np.ascontiguousarray(images[key]))
+            batch[IMAGE_PREFIX + name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
+        if STATE_KEY in self.config.input_features:
+            batch[STATE_KEY] = torch.from_numpy(np.asarray(observation["state"], dtype=np.float32)).unsqueeze(0)
+        batch["task"] = observation.get("task") or self.task_info.instruction
+        batch["robot_type"] = self.scene_info.robot
+        with torch.inference_mode():
+            batch = self.preprocessor(batch)
+            action = self.policy.select_action(batch)
+            action = self.postprocessor(action)
+        return action.squeeze(0).to("cpu", torch.float32).numpy()
+
+
+@register_policy_scheme("lerobot")
+def _lerobot_from_spec(target: str, **kwargs: Any) -> LeRobotPolicy:
+    return LeRobotPolicy(target, **kwargs)

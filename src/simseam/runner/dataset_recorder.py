@@ -1,0 +1,133 @@
+"""Record rollouts as a LeRobot dataset (the ``lerobot`` library's current format, v3.0).
+
+Features come from the scene contract (``SceneInfo``):
+
+- ``observation.images.<feature_key>``: ``uint8[H, W, 3]`` per RGB camera, stored as
+  AV1 video (``use_videos=True``, default) or as PNG images;
+- ``observation.state``: ``float32[state_dim]``;
+- ``action``: ``float32[action_dim]``, named by ``SceneInfo.action_names``;
+- the task string per frame, and ``fps`` = the scene's control rate;
+- ``meta/simseam_skill.json``: the scene contract (control mode included), which
+  ``simseam train`` copies into the checkpoint so ``lerobot:`` can check it.
+
+Frame ``t`` pairs the observation the policy saw with the action it took. Episodes
+are buffered and written (or dropped) when they end; ``finalize()`` must run for
+the parquet footers to be written (``close()`` does it, also on errors).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simseam.policies.contract import SkillContract
+from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
+
+IMAGE_PREFIX = "observation.images."
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+
+
+def _require_lerobot():
+    try:
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    except ImportError as exc:  # pragma: no cover - depends on the install
+        raise ConfigError(
+            f"recording a LeRobot dataset needs the lerobot extra ({exc}); install it with "
+            "`pip install 'simseam[lerobot]'`") from None
+    return LeRobotDataset
+
+
+def dataset_features(scene: SceneInfo, *, use_videos: bool = True) -> dict[str, dict[str, Any]]:
+    """LeRobot feature spec for a scene (see the module docstring)."""
+    features: dict[str, dict[str, Any]] = {}
+    for key, (h, w) in scene.cameras.items():
+        features[IMAGE_PREFIX + key] = {"dtype": "video" if use_videos else "image", "shape": (h, w, 3),
+                                        "names": ["height", "width", "channels"]}
+    features[STATE_KEY] = {"dtype": "float32", "shape": (scene.state_dim,),
+                           "names": [f"state_{i}" for i in range(scene.state_dim)]}
+    features[ACTION_KEY] = {"dtype": "float32", "shape": (scene.action_dim,),
+                            "names": list(scene.action_names) or [f"action_{i}" for i in range(scene.action_dim)]}
+    return features
+
+
+class LeRobotRecorder:
+    """Writes episodes of one scene into a new LeRobot dataset at ``root``.
+
+    ``root`` must not exist yet (LeRobot refuses to append to a dataset it did not
+    open); ``overwrite=True`` deletes it first. ``repo_id`` is only a name here
+    (nothing is uploaded).
+    """
+
+    def __init__(self, root: str | Path, scene: SceneInfo, *, repo_id: str | None = None,
+                 use_videos: bool = True, overwrite: bool = False):
+        LeRobotDataset = _require_lerobot()
+        self.root = Path(root)
+        if self.root.exists():
+            if not overwrite:
+                raise ConfigError(f"dataset directory {self.root} already exists; pick a new --out "
+                                  "or pass --overwrite")
+            shutil.rmtree(self.root)
+        fps = float(scene.control_hz)
+        if abs(fps - round(fps)) > 1e-9:
+            raise ConfigError(f"LeRobot datasets need an integer fps; the scene runs at {fps:g} Hz "
+                              "(set control_hz to a whole number)")
+        self.scene = scene
+        self.features = dataset_features(scene, use_videos=use_videos)
+        self._image_keys = list(scene.cameras)
+        self.dataset = LeRobotDataset.create(
+            repo_id=repo_id or f"simseam/{scene.robot}_{scene.layout}", fps=int(round(fps)),
+            features=self.features, root=self.root, robot_type=scene.robot, use_videos=use_videos,
+            image_writer_threads=4 if self._image_keys else 0)
+        SkillContract.for_scene(f"{scene.robot}/{scene.layout}", scene).save(self.root / "meta")
+        self.episodes_written = 0
+        self.frames_written = 0
+        self._frames = 0
+        self._closed = False
+
+    def add(self, observation: Observation, action: np.ndarray, task: TaskInfo) -> None:
+        """Buffer one frame: the observation the policy saw and the action it took."""
+        images = observation.get("images") or {}
+        missing = [k for k in self._image_keys if k not in images]
+        if missing:
+            raise ConfigError(f"cannot record: observation has no image(s) {missing} (was rendering turned off?)")
+        frame: dict[str, Any] = {IMAGE_PREFIX + k: np.asarray(images[k], dtype=np.uint8) for k in self._image_keys}
+        frame[STATE_KEY] = np.asarray(observation["state"], dtype=np.float32)
+        frame[ACTION_KEY] = np.asarray(action, dtype=np.float32)
+        frame["task"] = task.instruction
+        self.dataset.add_frame(frame)
+        self._frames += 1
+
+    def end_episode(self, keep: bool = True) -> bool:
+        """Write the buffered episode (``keep``) or drop it. Returns whether one was written."""
+        if self._frames == 0:
+            return False
+        if keep:
+            self.dataset.save_episode()
+            self.episodes_written += 1
+            self.frames_written += self._frames
+        else:
+            self.dataset.clear_episode_buffer()
+        self._frames = 0
+        return keep
+
+    def close(self) -> None:
+        """Drop an unfinished episode and finalize the files (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._frames:
+            self.dataset.clear_episode_buffer()
+            self._frames = 0
+        self.dataset.finalize()
+        if getattr(self.dataset, "image_writer", None) is not None:
+            self.dataset.stop_image_writer()
+
+    def __enter__(self) -> "LeRobotRecorder":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

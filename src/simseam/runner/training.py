@@ -1,0 +1,161 @@
+"""Train a LeRobot ACT policy on a simseam-recorded LeRobot dataset.
+
+The loop is LeRobot's own recipe, written out so it can run on a step and a
+wall-clock budget: features from the dataset metadata, ``ACTConfig`` (no
+pretrained backbone download: ``pretrained_backbone_weights=None`` unless asked),
+pre/post-processors built from the dataset statistics, action chunks through
+``delta_timestamps``, AdamW with the policy's parameter groups, gradient clipping.
+
+The output directory is a complete ``lerobot:`` checkpoint: ``config.json`` +
+``model.safetensors`` (``save_pretrained``), both processor pipelines, the
+``simseam_skill.json`` contract of the scene the data came from, and
+``training.json`` (steps, seconds, loss curve, dataset size, device).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from simseam.policies.contract import SkillContract
+from simseam.seam import ConfigError
+
+
+@dataclass
+class ActTrainConfig:
+    """Hyper-parameters. ``steps`` and ``time_budget_s`` both bound the run (first one hit wins)."""
+
+    steps: int = 1000
+    time_budget_s: float | None = None
+    batch_size: int = 8
+    lr: float = 1e-5
+    lr_backbone: float = 1e-5
+    weight_decay: float = 1e-4
+    grad_clip_norm: float = 10.0
+    chunk_size: int = 20
+    n_action_steps: int = 20
+    dim_model: int = 512
+    n_heads: int = 8
+    dim_feedforward: int = 3200
+    n_encoder_layers: int = 4
+    n_decoder_layers: int = 1
+    use_vae: bool = True
+    kl_weight: float = 10.0
+    pretrained_backbone_weights: str | None = None
+    num_workers: int = 0
+    seed: int = 0
+    device: str | None = None
+    log_every: int = 50
+
+
+@dataclass
+class TrainResult:
+    out_dir: str
+    steps: int
+    seconds: float
+    device: str
+    episodes: int
+    frames: int
+    n_params: int
+    losses: list[tuple[int, float]] = field(default_factory=list)
+
+
+def _skill_from_dataset(meta, root: Path, name: str) -> SkillContract:
+    """The contract of the scene the dataset was recorded in (``meta/simseam_skill.json``, written by the
+    recorder); for datasets recorded elsewhere, the one their features imply (control mode unknown)."""
+    saved = SkillContract.load(root / "meta")
+    if saved is not None:
+        return SkillContract(**{**saved.__dict__, "name": name})
+    images = {k[len("observation.images."):]: (int(ft["shape"][0]), int(ft["shape"][1]))
+              for k, ft in meta.features.items() if k.startswith("observation.images.")}
+    state = meta.features.get("observation.state")
+    return SkillContract(name=name, action_dim=int(meta.features["action"]["shape"][0]),
+                         state_dim=int(state["shape"][0]) if state else None, images=images,
+                         control_hz=float(meta.fps))
+
+
+def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig | None = None,
+              on_log: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Train ACT on the dataset at ``dataset_root`` and save a ``lerobot:`` checkpoint in ``out_dir``."""
+    cfg = cfg or ActTrainConfig()
+    try:
+        import torch
+        from lerobot.configs.types import FeatureType
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+        from lerobot.datasets.utils import dataset_to_policy_features
+        from lerobot.policies.act.configuration_act import ACTConfig
+        from lerobot.policies.act.modeling_act import ACTPolicy
+        from lerobot.policies.factory import make_pre_post_processors
+    except ImportError as exc:
+        raise ConfigError(f"training needs the lerobot extra ({exc}); `pip install 'simseam[lerobot]'`") from None
+    from simseam.policies.lerobot_policy import pick_device
+
+    root = Path(dataset_root)
+    if not (root / "meta" / "info.json").is_file():
+        raise ConfigError(f"{root}: not a LeRobot dataset (no meta/info.json); record one with `simseam collect`")
+    device = pick_device(cfg.device)
+    torch.manual_seed(cfg.seed)
+    meta = LeRobotDatasetMetadata("simseam/local", root=root)
+    features = dataset_to_policy_features(meta.features)
+    outputs = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    inputs = {k: f for k, f in features.items() if k not in outputs}
+    if not any(f.type is FeatureType.VISUAL for f in inputs.values()):
+        raise ConfigError(f"{root}: ACT needs at least one camera; the dataset has none")
+    act_cfg = ACTConfig(
+        input_features=inputs, output_features=outputs, device=device,
+        chunk_size=cfg.chunk_size, n_action_steps=cfg.n_action_steps, dim_model=cfg.dim_model,
+        n_heads=cfg.n_heads, dim_feedforward=cfg.dim_feedforward, n_encoder_layers=cfg.n_encoder_layers,
+        n_decoder_layers=cfg.n_decoder_layers, use_vae=cfg.use_vae, kl_weight=cfg.kl_weight,
+        pretrained_backbone_weights=cfg.pretrained_backbone_weights,
+        optimizer_lr=cfg.lr, optimizer_lr_backbone=cfg.lr_backbone, optimizer_weight_decay=cfg.weight_decay,
+    )
+    policy = ACTPolicy(act_cfg)
+    policy.to(device)
+    policy.train()
+    preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=meta.stats)
+    delta = {"action": [i / meta.fps for i in act_cfg.action_delta_indices]}
+    dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta)
+    loader = torch.utils.data.DataLoader(
+        dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+        num_workers=cfg.num_workers, pin_memory=device.startswith("cuda"),
+        persistent_workers=cfg.num_workers > 0, generator=torch.Generator().manual_seed(cfg.seed))
+    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
+                         frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
+    t0 = time.perf_counter()
+    running = 0.0
+    done = False
+    while not done:
+        for batch in loader:
+            batch = preprocessor(batch)
+            loss, _ = policy.forward(batch)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
+            optimizer.step()
+            result.steps += 1
+            running += float(loss.detach())
+            if result.steps % cfg.log_every == 0 or result.steps == cfg.steps:
+                n = cfg.log_every if result.steps % cfg.log_every == 0 else result.steps % cfg.log_every
+                result.losses.append((result.steps, running / n))
+                if on_log:
+                    on_log(result.steps, running / n)
+                running = 0.0
+            over_time = cfg.time_budget_s is not None and time.perf_counter() - t0 >= cfg.time_budget_s
+            if result.steps >= cfg.steps or over_time:
+                done = True
+                break
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    result.seconds = time.perf_counter() - t0
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    policy.save_pretrained(out)
+    preprocessor.save_pretrained(out)
+    postprocessor.save_pretrained(out)
+    _skill_from_dataset(meta, root, name=f"act trained on {root.name}").save(out)
+    (out / "training.json").write_text(json.dumps({"config": asdict(cfg), **asdict(result)}, indent=2) + "\n")
+    return result
