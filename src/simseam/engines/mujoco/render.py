@@ -7,7 +7,9 @@ the skybox and MSAA (20-30x faster on a CPU rasterizer); "full" keeps them.
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 
 import mujoco
 import numpy as np
@@ -19,6 +21,24 @@ _GL_HINT = (
     "headless rendering needs EGL or OSMesa: on Debian `apt-get install libegl1 libgl1 libegl-mesa0 libosmesa6`, "
     "then set MUJOCO_GL=egl (default) or MUJOCO_GL=osmesa"
 )
+
+
+def _load_triton_before_mesa() -> None:
+    """Import Triton (when installed, i.e. beside PyTorch) before the first GL context.
+
+    Mesa's llvmpipe/OSMesa rasterizers load their own LLVM; loading Triton's
+    libtriton (which PyTorch, torchvision and LeRobot import) *after* that
+    segfaults the process. Importing it first avoids the clash. No-op when Triton
+    is absent or already imported; ``SIMSEAM_NO_TRITON_PRELOAD=1`` turns it off.
+    """
+    if "triton" in sys.modules or os.environ.get("SIMSEAM_NO_TRITON_PRELOAD") == "1":
+        return
+    if importlib.util.find_spec("triton") is None:
+        return
+    try:
+        import triton  # noqa: F401
+    except Exception:  # a broken Triton install must not stop rendering  # noqa: BLE001
+        pass
 
 
 class CameraRenderer:
@@ -40,6 +60,7 @@ class CameraRenderer:
         self._opt.geomgroup[0] = self._opt.geomgroup[1] = self._opt.geomgroup[2] = 1
 
     def _make(self, size: tuple[int, int], depth: bool) -> "mujoco.Renderer":
+        _load_triton_before_mesa()
         try:
             r = mujoco.Renderer(self._model, height=size[0], width=size[1])
         except Exception as exc:  # GL context creation errors vary by backend
