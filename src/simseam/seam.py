@@ -177,6 +177,27 @@ class SceneInfo:
             "action_scale": list(self.action_scale),
         }
 
+    @classmethod
+    def from_json(cls, data: Any) -> "SceneInfo":
+        """Inverse of ``to_json``; a malformed document raises ``ConfigError`` naming the field."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"scene info: expected a JSON object, got {type(data).__name__}")
+        try:
+            return cls(
+                robot=str(data["robot"]), engine=str(data["engine"]), layout=str(data["layout"]),
+                control_mode=ControlMode.parse(data["control_mode"]),
+                action_dim=int(data["action_dim"]), state_dim=int(data["state_dim"]),
+                control_hz=float(data["control_hz"]),
+                cameras={str(k): (int(v[0]), int(v[1])) for k, v in dict(data["cameras"]).items()},
+                joint_names=tuple(str(n) for n in data["joint_names"]),
+                action_names=tuple(str(n) for n in data.get("action_names", ())),
+                action_scale=tuple(float(x) for x in data.get("action_scale", (0.05, 0.5))),
+            )
+        except KeyError as exc:
+            raise ConfigError(f"scene info: missing field {exc.args[0]!r}") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f"scene info: malformed field: {exc}") from None
+
 
 # ------------------------------------------------------------------------ protocol
 @runtime_checkable

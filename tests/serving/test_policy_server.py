@@ -1,0 +1,348 @@
+"""PolicyServer and `serve-policy`: both ends of the openpi protocol against each other and
+against openpi-client's WebsocketClientPolicy; garbage, busy, shutdown. Localhost, free ports."""
+
+import dataclasses
+import http.client
+import inspect
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from simseam.policies import openpi_wire as wire
+from simseam.policies.base import BasePolicy, ChunkedPolicy, make_policy
+from simseam.policies.contract import SkillContract
+from simseam.policies.remote import RemotePolicy, RemotePolicyError
+from simseam.seam import ConfigError, ControlMode
+from simseam.serving import PolicyServer
+
+try:
+    from openpi_client import websocket_client_policy as openpi_client
+except ImportError:  # fail (not skip) the tests that need it, with the fix
+    openpi_client = None
+
+OPENPI_PIP = ".venv/bin/python -m pip install --no-deps openpi-client==0.1.2 dm-tree"
+REPO = Path(__file__).resolve().parents[2]
+
+
+class StateEcho(BasePolicy):
+    """Deterministic per-step policy: action = 0.1 * state padded/cut to action_dim, last entry
+    the mean of camera1 / 255 (so images must arrive intact)."""
+
+    uses_images = True
+
+    def act(self, obs):
+        d = self.scene_info.action_dim
+        a = np.zeros(d, np.float32)
+        n = min(d, obs["state"].shape[0])
+        a[:n] = 0.1 * obs["state"][:n]
+        a[-1] = obs["images"]["camera1"].mean() / 255.0 if "camera1" in obs["images"] else -1.0
+        return a
+
+
+class Ramp(ChunkedPolicy):
+    """Chunks of 8 actions, row i filled with (i + 1) / 10 * sign, sign flipping every chunk."""
+
+    def __init__(self, n_action_steps=3):
+        super().__init__(n_action_steps)
+        self.chunks = 0
+
+    def predict_chunk(self, obs):
+        self.chunks += 1
+        sign = 1.0 if self.chunks % 2 else -1.0
+        rows = (np.arange(8, dtype=np.float32)[:, None] + 1) / 10 * sign
+        return np.repeat(rows, self.scene_info.action_dim, axis=1)
+
+
+@pytest.fixture
+def served():
+    """``served(policy, **kw) -> PolicyServer`` started on a free port, stopped after the test."""
+    servers = []
+
+    def _serve(policy, **kw):
+        servers.append(PolicyServer(policy, port=0, verbose=False, **kw).start())
+        return servers[-1]
+
+    yield _serve
+    for s in servers:
+        s.stop()
+
+
+@pytest.fixture
+def lift(panda_spec, make_scene):
+    return make_scene(panda_spec, render_images=False)
+
+
+def port_is_free(port):
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("127.0.0.1", port))
+            s.listen()
+        except OSError:
+            return False
+    return True
+
+
+def raw_client(url):
+    from websockets.sync.client import connect
+
+    params = inspect.signature(connect).parameters  # proxy: websockets >= 15, legacy: >= 17
+    extra = {k: v for k, v in (("proxy", None), ("legacy", True)) if k in params}
+    ws = connect(url, compression=None, max_size=None, open_timeout=5, **extra)
+    return ws, wire.unpackb(ws.recv(timeout=5))
+
+
+def episode_request(scene, obs):
+    """The first request of an episode in the simseam format (what RemotePolicy sends)."""
+    req = wire.flatten({k: v for k, v in obs.items() if k not in ("task", "privileged")}, "observation/")
+    req.update({"prompt": obs["task"], "simseam/reset": True, "simseam/scene": scene.scene.to_json(),
+                "simseam/task": dataclasses.asdict(scene.task)})
+    return req
+
+
+# ------------------------------------------------------------------- end to end
+def test_remote_scripted_expert_lifts_the_cube(served, panda_spec, make_scene, count_successes):
+    server = served(make_policy("scripted"), name="scripted")
+    with make_policy(f"remote:{server.url}") as pol:
+        assert pol.requires_privileged and not pol.uses_images  # from the server's metadata
+        scene = make_scene(panda_spec, render_images=pol.uses_images, privileged=pol.requires_privileged)
+        assert count_successes(scene, pol, range(3)) == 3
+        assert pol.requests == server.requests > 3 * 20  # one request per step (a per-step policy)
+
+
+def test_chunked_policy_serves_chunks_and_the_client_executes_n_action_steps(served, lift):
+    policy = Ramp(n_action_steps=3)
+    server = served(policy)
+    with make_policy(f"remote:{server.url}") as pol:
+        assert pol.metadata["chunked"] and pol.metadata["n_action_steps"] == 3 and pol.n_action_steps == 3
+        obs = lift.reset(0)
+        pol.reset(lift.scene, lift.task)
+        got = []
+        for _ in range(9):
+            got.append(pol.act(obs))
+            obs = lift.step(got[-1]).observation
+    assert server.requests == policy.chunks == 3
+    expect = [(i % 3 + 1) / 10 * (1 if i // 3 % 2 == 0 else -1) for i in range(9)]
+    assert np.allclose([g[0] for g in got], expect) and all(g.shape == (7,) for g in got)
+    with make_policy(f"remote:{server.url}?n_action_steps=8") as pol:  # the client's choice wins
+        obs = lift.reset(0)
+        pol.reset(lift.scene, lift.task)
+        for _ in range(8):
+            pol.act(obs)
+    assert server.requests == 4
+
+
+def test_privileged_observations_are_forwarded_only_when_asked(served, panda_spec, make_scene):
+    seen = []
+
+    class Spy(BasePolicy):
+        requires_privileged = False
+
+        def act(self, obs):
+            seen.append(obs)
+            return np.zeros(self.scene_info.action_dim, np.float32)
+
+    scene = make_scene(panda_spec, render_images=False, privileged=True)
+    for flag in (False, True):
+        Spy.requires_privileged = flag
+        with make_policy(f"remote:{served(Spy()).url}") as pol:
+            obs = scene.reset(1)
+            pol.reset(scene.scene, scene.task)
+            pol.act(obs)
+        assert ("privileged" in seen[-1]) is flag
+    priv = seen[-1]["privileged"]
+    assert np.array_equal(priv["objects"]["cube"], obs["privileged"]["objects"]["cube"])
+    assert np.array_equal(seen[-1]["joint_positions"], obs["joint_positions"])
+    assert seen[-1]["task"] == scene.task.instruction and seen[-1]["images"] == {}
+
+
+# ---------------------------------------------------------------- openpi-client
+@pytest.mark.filterwarnings("ignore:connect\\(\\) must be used:DeprecationWarning")  # openpi-client on websockets 17
+def test_openpi_websocket_client_policy_talks_to_policy_server(served, panda_spec, make_scene):
+    if openpi_client is None:
+        pytest.fail(f"openpi-client is not installed in this venv; install it with `{OPENPI_PIP}` "
+                    "(scripts/test's bootstrap does this)")
+    contract = SkillContract(name="echo", action_dim=7, control_mode=ControlMode.CARTESIAN_DELTA)
+    server = served(StateEcho(), contract=contract, metadata={"robot": "franka_panda"})
+    client = openpi_client.WebsocketClientPolicy(server.url)
+    try:
+        meta = client.get_server_metadata()
+        assert meta["server"] == "simseam" and meta["protocol"] == "openpi-websocket" and meta["robot"] == "franka_panda"
+        assert SkillContract.from_json(meta["simseam_skill"]) == contract
+        scene = make_scene(panda_spec, layout="lift_cube")
+        obs = scene.reset(0)
+        local = StateEcho()
+        local.reset(scene.scene, scene.task)
+        for i in range(3):
+            req = episode_request(scene, obs) if i == 0 else {
+                **wire.flatten({"images": obs["images"], "state": obs["state"]}, "observation/"), "prompt": obs["task"]}
+            out = client.infer(req)
+            expect = local.act(obs)
+            assert out["actions"].shape == (1, 7) and np.array_equal(out["actions"][0], expect)
+            assert out["server_timing"]["infer_ms"] >= 0 and (i == 0) == ("prev_total_ms" not in out["server_timing"])
+            obs = scene.step(expect).observation
+    finally:
+        client._ws.close()
+
+
+# ------------------------------------------------------------------- robustness
+@pytest.mark.parametrize("frame, match", [
+    (b"\xc1\xc1 definitely not msgpack", "not a msgpack-numpy message"),
+    ("a text frame", "text frame"),
+    (wire.packb([1, 2, 3]), "must be a map"),
+    (wire.packb({"observation/state": np.zeros(3, np.float32), "prompt": "x"}), "'simseam/reset'"),
+])
+def test_garbage_gets_an_error_and_the_server_serves_the_next_client(served, lift, frame, match):
+    server = served(make_policy("zero"))
+    ws, meta = raw_client(server.url)
+    assert meta["server"] == "simseam"
+    ws.send(frame)
+    reply = ws.recv(timeout=5)
+    assert isinstance(reply, str) and re.search(match, reply)
+    from websockets.exceptions import ConnectionClosed
+
+    with pytest.raises(ConnectionClosed) as closed:
+        ws.recv(timeout=5)
+    assert closed.value.rcvd.code == 1011
+    with socket.create_connection(("127.0.0.1", server.port), timeout=5) as raw:  # not even HTTP
+        raw.sendall(b"\x00\xff garbage\r\n\r\n")
+        raw.recv(100)
+    with make_policy(f"remote:{server.url}") as pol:
+        obs = lift.reset(0)
+        pol.reset(lift.scene, lift.task)
+        assert pol.act(obs).shape == (7,)
+
+
+def test_wrong_types_in_a_request_are_reported(served, lift):
+    server = served(make_policy("zero"))
+    obs = lift.reset(0)
+    for bad, match in [({"observation/state": "high"}, "must be a numeric array"),
+                       ({"observation/images/camera1": np.zeros((4, 4), np.float32)}, "uint8 HxWx3"),
+                       ({"simseam/scene": {"robot": "x"}}, "scene info: missing field")]:
+        ws, _ = raw_client(server.url)
+        ws.send(wire.packb({**episode_request(lift, obs), **bad}))
+        reply = ws.recv(timeout=5)
+        assert isinstance(reply, str) and match in reply, reply
+        ws.close()
+
+
+def test_policy_errors_reach_the_client_as_remotepolicyerror(served, panda_spec, make_scene):
+    server = served(make_policy("scripted"))
+    scene = make_scene(panda_spec, render_images=False, control_mode="joint_position", privileged=True)
+    with make_policy(f"remote:{server.url}") as pol:
+        pol.reset(scene.scene, scene.task)  # no contract: the policy's own check runs remotely
+        with pytest.raises(RemotePolicyError, match="ConfigError: the scripted experts drive cartesian_delta"):
+            pol.act(scene.reset(0))
+
+
+def test_one_client_at_a_time_second_is_told_busy(served, lift):
+    server = served(make_policy("zero"), busy_wait=0.2)
+    with make_policy(f"remote:{server.url}"), pytest.raises(RemotePolicyError, match="busy"):
+        make_policy(f"remote:{server.url}")
+    with make_policy(f"remote:{server.url}") as pol:  # sequential clients are fine
+        pol.reset(lift.scene, lift.task)
+        assert pol.act(lift.reset(0)).shape == (7,)
+
+
+def test_defaults_health_check_and_stop_releases_the_port(lift):
+    server = PolicyServer(make_policy("zero"), port=0, verbose=False)
+    assert server.host == "127.0.0.1"
+    with server:
+        assert server._server.socket.getsockname()[0] == "127.0.0.1"
+        conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
+        conn.request("GET", "/healthz")
+        assert conn.getresponse().status == 200
+        conn.close()
+        pol = make_policy(f"remote:{server.url}")
+        pol.reset(lift.scene, lift.task)
+        pol.act(lift.reset(0))
+        assert not port_is_free(server.port)
+    t0 = time.monotonic()
+    assert port_is_free(server.port)
+    with pytest.raises(RemotePolicyError, match="closed the connection"):  # stop() closed the client too
+        pol.act(lift.reset(0))
+    assert time.monotonic() - t0 < 2.0
+    again = PolicyServer(make_policy("zero"), port=server.port, verbose=False).start()  # same port, at once
+    again.stop()
+    assert not [t for t in threading.enumerate() if t.name.startswith("policy-server:")]
+
+
+# --------------------------------------------------------------- serve-policy CLI
+CLI = ("import typer; from simseam.cli.serve_policy import serve_policy; "
+       "app = typer.Typer(); app.command()(serve_policy); app()")
+
+
+@pytest.fixture
+def cli():
+    """``cli(*args) -> (process, url)``: `serve-policy` in a subprocess, killed at the end."""
+    procs = []
+
+    def _start(*args):
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+        proc = subprocess.Popen([sys.executable, "-c", CLI, *args, "--port", "0"], cwd=REPO, env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(proc)
+        line = proc.stdout.readline()  # "serving <policy> on ws://127.0.0.1:PORT ..."
+        found = re.search(r"ws://127\.0\.0\.1:(\d+)", line)
+        assert found, f"no URL printed: {line!r} {proc.stderr.read() if proc.poll() is not None else ''}"
+        return proc, found.group(0)
+
+    yield _start
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        p.wait(10)
+
+
+def test_serve_policy_cli_contract_then_ctrl_c_exits_0(cli, panda_spec, make_scene):
+    proc, url = cli("--policy", "scripted", "--scene", "scenes/franka_lift.yaml")
+    port = int(url.rsplit(":", 1)[1])
+    pol = make_policy(f"remote:{url}")
+    skill = SkillContract.from_json(pol.metadata["simseam_skill"])
+    assert skill.action_dim == 7 and skill.images == {}  # state-only policy: no camera demands
+    scene = make_scene(panda_spec, render_images=False, privileged=True)
+    wrong = dataclasses.replace(scene.scene, control_mode=ControlMode.JOINT_POSITION, action_dim=8, control_hz=10.0)
+    with pytest.raises(ConfigError, match="3 mismatches"):
+        pol.reset(wrong, scene.task)
+    obs = scene.reset(0)
+    pol.reset(scene.scene, scene.task)
+    for _ in range(5):
+        obs = scene.step(pol.act(obs)).observation
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(10) == 0
+    assert port_is_free(port)
+    t0 = time.monotonic()
+    with pytest.raises(RemotePolicyError, match=re.escape(url)):
+        pol.act(obs)
+    assert time.monotonic() - t0 < 2.0
+    pol.close()
+
+
+def test_server_process_killed_mid_episode_raises_fast(cli, lift):
+    proc, url = cli("--policy", "zero")
+    with RemotePolicy(url, timeout=30) as pol:
+        obs = lift.reset(0)
+        pol.reset(lift.scene, lift.task)
+        for _ in range(3):
+            obs = lift.step(pol.act(obs)).observation
+        proc.kill()
+        proc.wait(10)
+        t0 = time.monotonic()
+        with pytest.raises(RemotePolicyError, match="closed the connection") as err:
+            pol.act(obs)
+        assert url in str(err.value) and time.monotonic() - t0 < 2.0
+
+
+def test_serve_policy_cli_bad_spec_exits_2():
+    out = subprocess.run([sys.executable, "-c", CLI, "--policy", "nonsense", "--port", "0"], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "unknown policy 'nonsense'" in out.stderr
