@@ -248,6 +248,7 @@ def test_one_client_at_a_time_second_is_told_busy(served, lift):
     server = served(make_policy("zero"), busy_wait=0.2)
     with make_policy(f"remote:{server.url}"), pytest.raises(RemotePolicyError, match="busy"):
         make_policy(f"remote:{server.url}")
+    server.busy_wait = 3.0  # the next client may arrive before the first one's handler has finished
     with make_policy(f"remote:{server.url}") as pol:  # sequential clients are fine
         pol.reset(lift.scene, lift.task)
         assert pol.act(lift.reset(0)).shape == (7,)

@@ -222,6 +222,10 @@ class RemotePolicy(ChunkedPolicy):
             self.close()
             raise RemotePolicyError(f"policy server {self.url} closed the connection while simseam waited for "
                                     f"{what} ({_close_text(exc)})") from None
+        except OSError as exc:
+            self.close()
+            raise RemotePolicyError(f"policy server {self.url}: the connection broke while simseam waited for "
+                                    f"{what} ({exc}); the server closed the connection or died") from None
         if isinstance(data, str):  # openpi: a text frame carries the server-side traceback
             self.close()
             last = data.strip().splitlines()[-1] if data.strip() else "(empty message)"
@@ -282,9 +286,10 @@ class RemotePolicy(ChunkedPolicy):
 
         try:
             self._ws.send(wire.packb(payload))
-        except ConnectionClosed as exc:
+        except (ConnectionClosed, OSError) as exc:
             self.close()
-            raise RemotePolicyError(f"policy server {self.url} closed the connection ({_close_text(exc)})") from None
+            why = _close_text(exc) if isinstance(exc, ConnectionClosed) else str(exc)
+            raise RemotePolicyError(f"policy server {self.url} closed the connection ({why})") from None
         self.requests += 1
         self._episode_start = False
         reply = self._receive(self.timeout, "an action chunk")

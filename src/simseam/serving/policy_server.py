@@ -180,8 +180,8 @@ class PolicyServer:
                     timing = {"infer_ms": (time.monotonic() - t0) * 1e3}
                     if prev_total is not None:
                         timing["prev_total_ms"] = prev_total * 1e3
+                    self.requests += 1  # before the send: a client may read the count as soon as it has the reply
                     conn.send(wire.packb({"actions": actions, "server_timing": timing}))
-                    self.requests += 1
                     prev_total = time.monotonic() - start
                 except ConnectionClosed:
                     raise
