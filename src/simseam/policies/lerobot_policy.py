@@ -81,13 +81,15 @@ class LeRobotPolicy(BasePolicy):
     """A LeRobot ``PreTrainedPolicy`` with its processors (see the module docstring).
 
     ``n_action_steps`` overrides the checkpoint's (1 <= n <= chunk size); ``image_map``
-    maps policy image names to scene camera feature keys (overrides the skill file's).
+    maps policy image names to scene camera feature keys (overrides the skill file's);
+    ``config_overrides`` sets other inference-time config fields (e.g. ACT's
+    ``temporal_ensemble_coeff``) before the policy is built; unknown fields are errors.
     """
 
     uses_images = True
 
     def __init__(self, source: str | Path, *, device: str | None = None, n_action_steps: int | None = None,
-                 image_map: dict[str, str] | None = None):
+                 image_map: dict[str, str] | None = None, config_overrides: dict[str, Any] | None = None):
         PreTrainedConfig, get_policy_class, make_pre_post_processors = _import_lerobot()
         import torch
 
@@ -113,6 +115,10 @@ class LeRobotPolicy(BasePolicy):
             raise ConfigError(f"lerobot:{self.source}: cannot load the policy config: {type(exc).__name__}: {exc}") \
                 from None
         cfg.device = self.device
+        for key, value in (config_overrides or {}).items():
+            if not hasattr(cfg, key):
+                raise ConfigError(f"lerobot:{self.source}: {cfg.type} config has no field {key!r}")
+            setattr(cfg, key, value)
         if n_action_steps is not None:
             chunk = getattr(cfg, "chunk_size", None)
             if n_action_steps < 1 or (chunk is not None and n_action_steps > chunk):

@@ -26,7 +26,8 @@ from simseam.seam import ConfigError
 
 @dataclass
 class ActTrainConfig:
-    """Hyper-parameters. ``steps`` and ``time_budget_s`` both bound the run (first one hit wins)."""
+    """Hyper-parameters. ``steps`` and ``time_budget_s`` (counted from the call, preparation
+    included) both bound the run; the first one reached ends it."""
 
     steps: int = 1000
     time_budget_s: float | None = None
@@ -46,6 +47,11 @@ class ActTrainConfig:
     kl_weight: float = 10.0
     pretrained_backbone_weights: str | None = None
     num_workers: int = 0
+    #: decode every frame once and keep the dataset on the training device (uint8 images):
+    #: batches are then index gathers instead of per-sample PNG/video decoding
+    cache_on_device: bool = False
+    #: bfloat16 autocast for the forward pass on CUDA (weights and optimizer stay float32)
+    use_amp: bool = False
     seed: int = 0
     device: str | None = None
     log_every: int = 50
@@ -60,6 +66,8 @@ class TrainResult:
     episodes: int
     frames: int
     n_params: int
+    #: seconds before the first step (model, processors, dataset; decoding when cached)
+    prepare_seconds: float = 0.0
     losses: list[tuple[int, float]] = field(default_factory=list)
 
 
@@ -77,10 +85,58 @@ def _skill_from_dataset(meta, root: Path, name: str) -> SkillContract:
                          control_hz=float(meta.fps))
 
 
+class _DeviceCache:
+    """The whole dataset decoded once and held on ``device``; ``batches()`` yields shuffled
+    batches shaped like LeRobotDataset's with action ``delta_timestamps`` (action chunks
+    clamped to the episode, ``action_is_pad`` marking steps past its end)."""
+
+    def __init__(self, dataset, chunk_offsets: list[int], device: str, num_workers: int, batch_size: int,
+                 seed: int):
+        import torch
+
+        loader = torch.utils.data.DataLoader(dataset, batch_size=256, num_workers=num_workers, shuffle=False)
+        parts: dict[str, list] = {}
+        self.image_keys = [k for k in dataset.meta.camera_keys]
+        for batch in loader:
+            for k in self.image_keys:
+                parts.setdefault(k, []).append((batch[k] * 255).round().to(torch.uint8))
+            for k in ("observation.state", "action", "episode_index"):
+                parts.setdefault(k, []).append(batch[k])
+        data = {k: torch.cat(v).to(device) for k, v in parts.items()}
+        ep = data.pop("episode_index")
+        n = ep.shape[0]
+        idx = torch.arange(n, device=device)
+        starts = torch.zeros(n, dtype=torch.long, device=device)
+        ends = torch.zeros(n, dtype=torch.long, device=device)
+        for e in ep.unique():
+            m = ep == e
+            starts[m], ends[m] = idx[m].min(), idx[m].max() + 1
+        offsets = torch.as_tensor(chunk_offsets, device=device)
+        raw = idx[:, None] + offsets[None, :]
+        self.chunk_idx = torch.maximum(torch.minimum(raw, ends[:, None] - 1), starts[:, None])
+        self.chunk_pad = (raw < starts[:, None]) | (raw >= ends[:, None])
+        self.data, self.n, self.device, self.batch_size = data, n, device, batch_size
+        self._gen = torch.Generator(device="cpu").manual_seed(seed)
+
+    def batches(self):
+        import torch
+
+        while True:
+            order = torch.randperm(self.n, generator=self._gen).to(self.device)
+            for i in range(0, self.n - self.batch_size + 1 if self.n >= self.batch_size else 1, self.batch_size):
+                b = order[i:i + self.batch_size]
+                out = {k: self.data[k][b].float() / 255.0 for k in self.image_keys}
+                out["observation.state"] = self.data["observation.state"][b]
+                out["action"] = self.data["action"][self.chunk_idx[b]]
+                out["action_is_pad"] = self.chunk_pad[b]
+                yield out
+
+
 def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig | None = None,
               on_log: Callable[[int, float], None] | None = None) -> TrainResult:
     """Train ACT on the dataset at ``dataset_root`` and save a ``lerobot:`` checkpoint in ``out_dir``."""
     cfg = cfg or ActTrainConfig()
+    t_start = time.perf_counter()
     try:
         import torch
         from lerobot.configs.types import FeatureType
@@ -96,6 +152,9 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     root = Path(dataset_root)
     if not (root / "meta" / "info.json").is_file():
         raise ConfigError(f"{root}: not a LeRobot dataset (no meta/info.json); record one with `simseam collect`")
+    if not (root / "meta" / "tasks.parquet").is_file():
+        raise ConfigError(f"{root}: the dataset holds no episodes (was every collected episode a failure? "
+                          "`simseam collect --keep-failures` keeps them)")
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
     meta = LeRobotDatasetMetadata("simseam/local", root=root)
@@ -116,41 +175,57 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     policy.to(device)
     policy.train()
     preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=meta.stats)
-    delta = {"action": [i / meta.fps for i in act_cfg.action_delta_indices]}
-    dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta)
-    loader = torch.utils.data.DataLoader(
-        dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-        num_workers=cfg.num_workers, pin_memory=device.startswith("cuda"),
-        persistent_workers=cfg.num_workers > 0, generator=torch.Generator().manual_seed(cfg.seed))
+    if cfg.cache_on_device:
+        cache = _DeviceCache(LeRobotDataset("simseam/local", root=root), list(act_cfg.action_delta_indices),
+                             device, cfg.num_workers, cfg.batch_size, cfg.seed)
+        batches = cache.batches()
+    else:
+        delta = {"action": [i / meta.fps for i in act_cfg.action_delta_indices]}
+        dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta)
+        loader = torch.utils.data.DataLoader(
+            dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+            num_workers=cfg.num_workers, pin_memory=device.startswith("cuda"),
+            persistent_workers=cfg.num_workers > 0, generator=torch.Generator().manual_seed(cfg.seed))
+
+        def _epochs():
+            while True:
+                yield from loader
+
+        batches = _epochs()
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
                          frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
+    amp = cfg.use_amp and device.startswith("cuda")
+    if device.startswith("cuda"):
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
     t0 = time.perf_counter()
     running = 0.0
     done = False
+    since_log = 0
     while not done:
-        for batch in loader:
-            batch = preprocessor(batch)
+        batch = preprocessor(next(batches))
+        with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
             loss, _ = policy.forward(batch)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
-            optimizer.step()
-            result.steps += 1
-            running += float(loss.detach())
-            if result.steps % cfg.log_every == 0 or result.steps == cfg.steps:
-                n = cfg.log_every if result.steps % cfg.log_every == 0 else result.steps % cfg.log_every
-                result.losses.append((result.steps, running / n))
-                if on_log:
-                    on_log(result.steps, running / n)
-                running = 0.0
-            over_time = cfg.time_budget_s is not None and time.perf_counter() - t0 >= cfg.time_budget_s
-            if result.steps >= cfg.steps or over_time:
-                done = True
-                break
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
+        optimizer.step()
+        result.steps += 1
+        since_log += 1
+        running += loss.detach()
+        over_time = cfg.time_budget_s is not None and time.perf_counter() - t_start >= cfg.time_budget_s
+        done = result.steps >= cfg.steps or over_time
+        if result.steps % cfg.log_every == 0 or done:
+            mean = float(running) / since_log
+            result.losses.append((result.steps, mean))
+            if on_log:
+                on_log(result.steps, mean)
+            running, since_log = 0.0, 0
     if device.startswith("cuda"):
         torch.cuda.synchronize()
     result.seconds = time.perf_counter() - t0
+    result.prepare_seconds = t0 - t_start
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     policy.save_pretrained(out)
