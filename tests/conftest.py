@@ -53,3 +53,66 @@ def count_successes():
         return wins
 
     return _count
+
+
+# ------------------------------------------------------------------ learned policies (marker: learning)
+TINY_ACT = dict(dim_model=64, n_heads=2, dim_feedforward=128, n_encoder_layers=1, chunk_size=8, n_action_steps=4,
+                batch_size=4, num_workers=0, log_every=1)
+
+
+class RecordingPolicy:
+    """Wraps a policy and keeps every (state, action) pair it produced, in order."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.requires_privileged = inner.requires_privileged
+        self.uses_images = True
+        self.log = []
+
+    def reset(self, scene, task):
+        self.inner.reset(scene, task)
+
+    def act(self, obs):
+        action = self.inner.act(obs)
+        self.log.append((obs["state"].copy(), {k: v.copy() for k, v in obs["images"].items()}, action.copy()))
+        return action
+
+
+@pytest.fixture(scope="session")
+def scripted_dataset(tmp_path_factory, panda_spec):
+    """3 scripted lift_cube episodes (48x48 cameras, AV1 video) recorded through ``collect_dataset``;
+    returns (root, CollectResult, the RecordingPolicy's log)."""
+    from simseam.policies.base import make_policy
+    from simseam.runner.collect import collect_dataset
+
+    root = tmp_path_factory.mktemp("lerobot") / "lift"
+    scene = ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(image_size=(48, 48), privileged=True,
+                                                                          max_steps=60))
+    policy = RecordingPolicy(make_policy("scripted"))
+    try:
+        result = collect_dataset(scene, policy, root, episodes=3)
+    finally:
+        scene.close()
+    return root, result, policy.log
+
+
+@pytest.fixture(scope="session")
+def tiny_act(scripted_dataset, tmp_path_factory):
+    """A tiny ACT trained for 3 optimizer steps on ``scripted_dataset``; returns (checkpoint dir, TrainResult)."""
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    out = tmp_path_factory.mktemp("act") / "ckpt"
+    result = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, device="cpu", **TINY_ACT))
+    return out, result
+
+
+@pytest.fixture
+def recording_policy():
+    """The ``RecordingPolicy`` class (wraps a policy, logs (state, images, action) per step)."""
+    return RecordingPolicy
+
+
+@pytest.fixture
+def tiny_act_config():
+    """Keyword arguments for a tiny, fast ``ActTrainConfig``."""
+    return dict(TINY_ACT)

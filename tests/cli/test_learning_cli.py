@@ -1,0 +1,48 @@
+"""simseam collect -> simseam train -> simseam run --policy lerobot:..., as a user types them."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.learning
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _simseam(*args, cwd):
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), HF_HUB_OFFLINE="1")
+    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_collect_train_run_record(tmp_path):
+    (tmp_path / "lift.yaml").write_text("robot: franka_panda\nengine: mujoco\nlayout: lift_cube\n"
+                                        "image_size: [40, 40]\nmax_steps: 50\ncontrol_hz: 20\n")
+    p = _simseam("collect", "--scene", "lift.yaml", "--episodes", "2", "--out", "demos", "--images", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "dataset demos: 2 episode(s)" in p.stdout and p.stdout.count("recorded") == 2
+    p = _simseam("collect", "--scene", "lift.yaml", "--episodes", "1", "--out", "demos", cwd=tmp_path)
+    assert p.returncode == 2 and "already exists" in p.stderr
+
+    p = _simseam("train", "--dataset", "demos", "--out", "act", "--steps", "2", "--batch-size", "4",
+                 "--chunk-size", "6", "--n-action-steps", "3", "--workers", "0", "--cache", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "for 2 steps" in p.stdout and "--policy lerobot:act" in p.stdout
+
+    p = _simseam("run", "--scene", "lift.yaml", "--policy", "lerobot:act", "--episodes", "1", "--out", "eval",
+                 "--record-dataset", "rollouts", "--dataset-images", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    summary = json.loads((tmp_path / "eval" / "summary.json").read_text())
+    assert summary["config"]["policy"] == "lerobot:act" and summary["episodes"][0]["steps"] == 50
+    assert summary["config"]["record_dataset"] == "rollouts"
+    info = json.loads((tmp_path / "rollouts" / "meta" / "info.json").read_text())
+    assert info["total_episodes"] == 1 and info["total_frames"] == 50 and info["fps"] == 20
+
+    (tmp_path / "other.yaml").write_text("robot: franka_panda\nengine: mujoco\nlayout: lift_cube\n"
+                                         "image_size: [64, 64]\nmax_steps: 5\n")
+    p = _simseam("run", "--scene", "other.yaml", "--policy", "lerobot:act", "--episodes", "1", "--out", "x",
+                 cwd=tmp_path)
+    assert p.returncode == 2 and "does not fit this scene" in p.stderr and "image_size: [40, 40]" in p.stderr

@@ -1,0 +1,120 @@
+"""The proof of the learned-policy path: scripted episodes -> LeRobot dataset -> ACT (a few optimizer
+steps) -> saved -> loaded through ``lerobot:`` -> an episode in simseam, with chunks executed."""
+
+import json
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from simseam.policies.base import make_policy
+from simseam.runner.episodes import run_episode
+from simseam.seam import ConfigError
+
+pytestmark = pytest.mark.learning
+
+
+def test_trained_act_runs_an_episode_through_the_lerobot_spec(tiny_act, panda_spec, make_scene):
+    out, _ = tiny_act
+    policy = make_policy(f"lerobot:{out}", device="cpu")
+    assert policy.uses_images and not policy.requires_privileged
+    assert policy.device == "cpu" and policy.n_action_steps == 4
+    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=10)
+    res = run_episode(scene, policy, index=0, seed=3)
+    assert res.steps == 10 and res.error is None
+    assert policy.chunks_predicted == math.ceil(10 / 4)  # one model call per 4 executed actions
+    # the actions it emitted are unnormalized into the dataset's action range
+    obs = scene.reset(4)
+    policy.reset(scene.scene, scene.task)
+    action = policy.act(obs)
+    assert action.shape == (7,) and action.dtype == np.float32 and np.all(np.isfinite(action))
+    assert np.all(np.abs(action) < 50)
+
+
+def test_n_action_steps_override_changes_how_often_the_model_runs(tiny_act, panda_spec, make_scene):
+    out, _ = tiny_act
+    policy = make_policy(f"lerobot:{out}", device="cpu", n_action_steps=1)
+    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=5)
+    run_episode(scene, policy, index=0, seed=0)
+    assert policy.chunks_predicted == 5
+    with pytest.raises(ConfigError, match=r"n_action_steps must be in \[1, 8\]"):
+        make_policy(f"lerobot:{out}", device="cpu", n_action_steps=9)
+    with pytest.raises(ConfigError, match="has no field 'warp_speed'"):
+        make_policy(f"lerobot:{out}", device="cpu", config_overrides={"warp_speed": 9})
+
+
+def test_image_map_routes_scene_cameras_to_policy_images(tiny_act, panda_spec, make_scene):
+    out, _ = tiny_act
+    plain = make_policy(f"lerobot:{out}", device="cpu")
+    swapped = make_policy(f"lerobot:{out}", device="cpu", image_map={"camera1": "camera2", "camera2": "camera1"})
+    scene = make_scene(panda_spec, image_size=(48, 48))
+    obs = scene.reset(1)
+    plain.reset(scene.scene, scene.task)
+    swapped.reset(scene.scene, scene.task)
+    a, b = plain.act(obs), swapped.act(obs)
+    same = {**obs, "images": {"camera1": obs["images"]["camera2"], "camera2": obs["images"]["camera1"]}}
+    plain.reset(scene.scene, scene.task)
+    np.testing.assert_allclose(plain.act(same), b, rtol=1e-5, atol=1e-5)
+    assert not np.allclose(a, b)
+
+
+def test_a_misfit_scene_fails_before_the_first_step(tiny_act, panda_spec, make_scene):
+    out, _ = tiny_act
+    policy = make_policy(f"lerobot:{out}", device="cpu")
+    scene = make_scene(panda_spec, image_size=(64, 64), control_mode="joint_position", control_hz=10)
+    with pytest.raises(ConfigError) as err:
+        run_episode(scene, policy, index=0, seed=0)
+    text = str(err.value)
+    assert "5 mismatches" in text and "`image_size: [48, 48]`" in text
+    assert "`control_mode: cartesian_delta`" in text and "`control_hz: 20`" in text
+    assert scene.sim_time_ns() == 0  # reset, then refused: no step was taken
+
+
+def test_contract_derived_from_config_when_no_skill_file(tiny_act, tmp_path, panda_spec, make_scene):
+    out, _ = tiny_act
+    copy = tmp_path / "ckpt"
+    shutil.copytree(out, copy)
+    (copy / "simseam_skill.json").unlink()
+    policy = make_policy(f"lerobot:{copy}", device="cpu")
+    c = policy.contract
+    assert c.images == {"camera1": (48, 48), "camera2": (48, 48)} and c.state_dim == 8 and c.action_dim == 7
+    assert c.control_mode is None  # LeRobot configs do not say; not checked
+    with pytest.raises(ConfigError, match="expects 48x48"):
+        policy.reset(make_scene(panda_spec, image_size=(32, 32)).scene, None)
+
+
+def test_bad_sources_name_what_is_missing(tiny_act, tmp_path):
+    with pytest.raises(ConfigError, match="no such directory"):
+        make_policy(f"lerobot:{tmp_path / 'nope'}")
+    partial = tmp_path / "partial"
+    shutil.copytree(tiny_act[0], partial)
+    (partial / "policy_preprocessor.json").unlink()
+    (partial / "model.safetensors").unlink()
+    with pytest.raises(ConfigError, match="missing model.safetensors, policy_preprocessor.json"):
+        make_policy(f"lerobot:{partial}")
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_act[0], broken)
+    (broken / "config.json").write_text(json.dumps({"type": "no-such-policy"}))
+    with pytest.raises(ConfigError, match="cannot load the policy config"):
+        make_policy(f"lerobot:{broken}")
+    with pytest.raises(ConfigError, match="names no target"):
+        make_policy("lerobot:")
+
+
+def test_hub_ids_fail_cleanly_offline(monkeypatch):
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    with pytest.raises(ConfigError, match="lerobot:lerobot/act_aloha_sim_transfer_cube_human: cannot load"):
+        make_policy("lerobot:lerobot/act_aloha_sim_transfer_cube_human")
+
+
+def test_device_defaults_to_cuda_only_when_present():
+    import torch
+
+    from simseam.policies.lerobot_policy import pick_device
+
+    assert pick_device() == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert pick_device("cpu") == "cpu"
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no CUDA GPU"):
+            pick_device("cuda")

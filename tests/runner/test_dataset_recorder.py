@@ -1,0 +1,97 @@
+"""LeRobot datasets written by simseam load with LeRobotDataset and hold what the policy saw and did."""
+
+import json
+
+import numpy as np
+import pytest
+
+from simseam.seam import ConfigError
+
+pytestmark = pytest.mark.learning
+
+
+def _load(root, **kw):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset("simseam/test", root=root, **kw)
+
+
+def test_dataset_loads_with_the_scene_features(scripted_dataset):
+    root, result, _ = scripted_dataset
+    ds = _load(root)
+    assert result.episodes_written == 3 and ds.num_episodes == 3
+    assert ds.num_frames == result.frames_written == sum(r.steps for r in result.results)
+    assert ds.fps == 20 and ds.meta.robot_type == "franka_panda"
+    feats = ds.meta.features
+    assert feats["observation.images.camera1"]["dtype"] == "video"
+    assert tuple(feats["observation.images.camera1"]["shape"]) == (48, 48, 3)
+    assert tuple(feats["observation.state"]["shape"]) == (8,)
+    assert feats["action"]["names"] == ["dx", "dy", "dz", "dax", "day", "daz", "grip"]
+    item = ds[5]
+    assert tuple(item["observation.images.camera2"].shape) == (3, 48, 48)
+    assert item["task"] == "lift the red cube"
+    skill = json.loads((root / "meta" / "simseam_skill.json").read_text())
+    assert skill["control_mode"] == "cartesian_delta" and skill["images"]["camera1"] == [48, 48]
+
+
+def test_frames_pair_each_observation_with_the_action_taken(scripted_dataset):
+    root, result, log = scripted_dataset
+    ds = _load(root)
+    assert len(log) == ds.num_frames
+    states = np.stack([s for s, _, _ in log])
+    actions = np.stack([a for _, _, a in log])
+    table = ds.hf_dataset.with_format("numpy")
+    np.testing.assert_array_equal(np.stack(table["observation.state"]), states)
+    np.testing.assert_array_equal(np.stack(table["action"]), actions)
+    ends = np.cumsum([r.steps for r in result.results])
+    assert list(np.flatnonzero(np.diff(np.asarray(table["episode_index"])))) == list(ends[:-1] - 1)
+    # AV1 is lossy: decoded frames stay close to the rendered ones
+    for i in (0, 17, len(log) - 1):
+        rendered = log[i][1]["camera1"].astype(np.float32)
+        decoded = ds[i]["observation.images.camera1"].permute(1, 2, 0).numpy() * 255
+        assert np.abs(decoded - rendered).mean() < 8.0
+
+
+def test_png_frames_are_lossless_and_failures_are_dropped(panda_spec, make_scene, tmp_path, recording_policy):
+    from simseam.policies.base import make_policy
+    from simseam.runner.collect import collect_dataset
+
+    RecordingPolicy = recording_policy
+    scene = make_scene(panda_spec, image_size=(32, 32), privileged=True, max_steps=12)  # too short to lift
+    policy = RecordingPolicy(make_policy("scripted"))
+    res = collect_dataset(scene, policy, tmp_path / "fail", episodes=2, use_videos=False)
+    assert res.episodes_run == 2 and res.episodes_written == 0
+    res = collect_dataset(scene, policy, tmp_path / "kept", episodes=1, use_videos=False, keep_failures=True,
+                          seed=7)
+    assert res.episodes_written == 1 and res.frames_written == 12
+    ds = _load(tmp_path / "kept")
+    for i in (0, 11):
+        got = (ds[i]["observation.images.camera2"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+        np.testing.assert_array_equal(got, policy.log[24 + i][1]["camera2"])
+
+
+def test_existing_directory_is_refused_unless_overwritten(panda_spec, make_scene, tmp_path):
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+
+    scene = make_scene(panda_spec, image_size=(32, 32))
+    (tmp_path / "ds").mkdir()
+    (tmp_path / "ds" / "keep.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="already exists"):
+        LeRobotRecorder(tmp_path / "ds", scene.scene)
+    assert (tmp_path / "ds" / "keep.txt").read_text() == "mine"
+    LeRobotRecorder(tmp_path / "ds", scene.scene, overwrite=True).close()
+    assert not (tmp_path / "ds" / "keep.txt").exists()
+
+
+def test_recording_needs_images_and_an_integer_rate(panda_spec, make_scene, tmp_path):
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+
+    scene = make_scene(panda_spec, image_size=(32, 32))
+    rec = LeRobotRecorder(tmp_path / "a", scene.scene)
+    obs = scene.reset(0)
+    with pytest.raises(ConfigError, match=r"no image\(s\) \['camera2'\]"):
+        rec.add({**obs, "images": {"camera1": obs["images"]["camera1"]}}, np.zeros(7, np.float32), scene.task)
+    rec.close()
+    odd = make_scene(panda_spec, image_size=(32, 32), control_hz=12.5)
+    with pytest.raises(ConfigError, match="integer fps"):
+        LeRobotRecorder(tmp_path / "b", odd.scene)

@@ -1,0 +1,69 @@
+"""ACT training on a simseam dataset: the checkpoint is complete, the device cache gives LeRobot's batches."""
+
+import json
+
+import numpy as np
+import pytest
+
+from simseam.seam import ConfigError
+
+pytestmark = pytest.mark.learning
+
+
+def test_checkpoint_is_complete(tiny_act, scripted_dataset):
+    out, res = tiny_act
+    assert res.steps == 3 and len(res.losses) == 3 and all(np.isfinite(loss) for _, loss in res.losses)
+    for f in ("config.json", "model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json",
+              "simseam_skill.json", "training.json"):
+        assert (out / f).is_file(), f
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["type"] == "act" and cfg["chunk_size"] == 8 and cfg["n_action_steps"] == 4
+    assert set(cfg["input_features"]) == {"observation.images.camera1", "observation.images.camera2",
+                                          "observation.state"}
+    info = json.loads((out / "training.json").read_text())
+    assert info["episodes"] == 3 and info["frames"] == scripted_dataset[1].frames_written
+
+
+def test_device_cache_batches_equal_lerobot_dataset_items(scripted_dataset):
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from simseam.runner.training import _DeviceCache
+
+    root = scripted_dataset[0]
+    offsets = list(range(8))
+    plain = LeRobotDataset("simseam/test", root=root)
+    cache = _DeviceCache(plain, offsets, "cpu", num_workers=0, batch_size=4, seed=0)
+    chunked = LeRobotDataset("simseam/test", root=root, delta_timestamps={"action": [i / 20 for i in offsets]})
+    ends = np.cumsum([r.steps for r in scripted_dataset[1].results])
+    for i in (0, 5, int(ends[0]) - 3, int(ends[0]) - 1, int(ends[-1]) - 1):  # chunks running past an episode's end
+        ref = chunked[i]
+        torch.testing.assert_close(cache.data["action"][cache.chunk_idx[i]], ref["action"])
+        assert torch.equal(cache.chunk_pad[i], ref["action_is_pad"])
+        torch.testing.assert_close(cache.data["observation.state"][i], ref["observation.state"])
+        img = cache.data["observation.images.camera1"][i].float() / 255
+        torch.testing.assert_close(img, ref["observation.images.camera1"], atol=1 / 255 + 1e-6, rtol=0)
+    batch = next(cache.batches())
+    assert batch["action"].shape == (4, 8, 7) and batch["action_is_pad"].shape == (4, 8)
+    assert batch["observation.images.camera2"].dtype == torch.float32
+
+
+def test_cached_training_runs_and_stops_on_its_time_budget(scripted_dataset, tmp_path, tiny_act_config):
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    res = train_act(scripted_dataset[0], tmp_path / "ck",
+                    ActTrainConfig(steps=10_000, time_budget_s=0.0, cache_on_device=True, device="cpu",
+                                   **tiny_act_config))
+    assert res.steps == 1 and (tmp_path / "ck" / "model.safetensors").is_file()
+
+
+def test_empty_or_missing_dataset_is_a_clear_error(tmp_path, panda_spec, make_scene):
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+    from simseam.runner.training import train_act
+
+    with pytest.raises(ConfigError, match="not a LeRobot dataset"):
+        train_act(tmp_path / "nothing", tmp_path / "out")
+    LeRobotRecorder(tmp_path / "empty", make_scene(panda_spec, image_size=(32, 32)).scene).close()
+    with pytest.raises(ConfigError, match="holds no episodes"):
+        train_act(tmp_path / "empty", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
