@@ -18,7 +18,7 @@ try:
 except ImportError as exc:  # pragma: no cover - exercised in a subprocess by the tests
     raise ImportError(
         "simseam.gym needs gymnasium (>= 1.0): pip install gymnasium "
-        "(or pip install 'simseam[lerobot]')"
+        "(or pip install 'simseam[gym]')"
     ) from exc
 
 from simseam.gym.env import SimseamEnv
