@@ -226,4 +226,4 @@ def test_core_never_imports_gymnasium_and_missing_gymnasium_is_explained():
     assert out.stdout.strip() == "False"
     blocked = "import sys\nsys.modules['gymnasium'] = None\nimport simseam.gym"
     out = subprocess.run([sys.executable, "-c", blocked], capture_output=True, text=True, check=False)
-    assert out.returncode != 0 and "pip install gymnasium" in out.stderr and "simseam[lerobot]" in out.stderr
+    assert out.returncode != 0 and "pip install gymnasium" in out.stderr and "simseam[gym]" in out.stderr
