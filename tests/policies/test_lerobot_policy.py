@@ -118,3 +118,30 @@ def test_device_defaults_to_cuda_only_when_present():
     if not torch.cuda.is_available():
         with pytest.raises(ConfigError, match="no CUDA GPU"):
             pick_device("cuda")
+
+
+def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, make_scene):
+    """The GPU-box setup: `serve-policy --policy lerobot:...` on one side, `remote:` on the other."""
+    from simseam.serving import PolicyServer
+
+    out, _ = tiny_act
+    served = make_policy(f"lerobot:{out}", device="cpu")
+    local = make_policy(f"lerobot:{out}", device="cpu")
+    server = PolicyServer(served, port=0).start()
+    try:
+        remote = make_policy(f"remote:{server.url}")
+        scene = make_scene(panda_spec, image_size=(48, 48), max_steps=6)
+        obs = scene.reset(2)
+        remote.reset(scene.scene, scene.task)
+        local.reset(scene.scene, scene.task)
+        for _ in range(6):
+            a_remote, a_local = remote.act(obs), local.act(obs)
+            np.testing.assert_allclose(a_remote, a_local, rtol=1e-5, atol=1e-6)
+            obs = scene.step(a_remote).observation
+        assert served.chunks_predicted == local.chunks_predicted == 2  # chunks run server-side, 4 actions each
+        misfit = make_scene(panda_spec, image_size=(64, 64))
+        with pytest.raises(ConfigError, match="expects 48x48"):
+            remote.reset(misfit.scene, misfit.task)  # the contract travelled in the server's metadata
+        remote.close()
+    finally:
+        server.stop()
