@@ -36,6 +36,12 @@ def make_scene():
 
 
 @pytest.fixture
+def lift(panda_spec, make_scene):
+    """A state-only Franka lift scene (7-D cartesian_delta actions)."""
+    return make_scene(panda_spec, render_images=False)
+
+
+@pytest.fixture
 def count_successes():
     """``count(scene, policy, seeds) -> int``: episodes (one per seed) that end in success."""
 

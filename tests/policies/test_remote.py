@@ -79,12 +79,6 @@ def bare():
         s.close()
 
 
-@pytest.fixture
-def lift(panda_spec, make_scene):
-    """A state-only Franka lift scene (7-D cartesian_delta actions)."""
-    return make_scene(panda_spec, render_images=False)
-
-
 def free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

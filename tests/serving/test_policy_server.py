@@ -76,11 +76,6 @@ def served():
         s.stop()
 
 
-@pytest.fixture
-def lift(panda_spec, make_scene):
-    return make_scene(panda_spec, render_images=False)
-
-
 def port_is_free(port):
     with socket.socket() as s:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -31,8 +31,10 @@ from simseam.policies.base import BasePolicy, register_policy_scheme
 from simseam.policies.contract import SkillContract, check_contract
 from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
 
+#: LeRobot's feature names (datasets and policy inputs/outputs)
 IMAGE_PREFIX = "observation.images."
 STATE_KEY = "observation.state"
+ACTION_KEY = "action"
 
 
 def pick_device(requested: str | None = None) -> str:
@@ -72,7 +74,7 @@ def contract_from_config(cfg: Any, name: str) -> SkillContract:
             images[key[len(IMAGE_PREFIX):]] = (int(h), int(w))
         elif key == STATE_KEY:
             state_dim = int(ft.shape[0])
-    action = cfg.output_features.get("action")
+    action = cfg.output_features.get(ACTION_KEY)
     return SkillContract(name=name, images=images, state_dim=state_dim,
                          action_dim=int(action.shape[0]) if action is not None else None)
 

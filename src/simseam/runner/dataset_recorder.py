@@ -24,11 +24,8 @@ from typing import Any
 import numpy as np
 
 from simseam.policies.contract import SkillContract
+from simseam.policies.lerobot_policy import ACTION_KEY, IMAGE_PREFIX, STATE_KEY
 from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
-
-IMAGE_PREFIX = "observation.images."
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
 
 
 def _require_lerobot():

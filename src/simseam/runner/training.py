@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Callable
 
 from simseam.policies.contract import SkillContract
+from simseam.policies.lerobot_policy import ACTION_KEY, IMAGE_PREFIX, STATE_KEY
 from simseam.seam import ConfigError
 
 
@@ -77,10 +78,10 @@ def _skill_from_dataset(meta, root: Path, name: str) -> SkillContract:
     saved = SkillContract.load(root / "meta")
     if saved is not None:
         return SkillContract(**{**saved.__dict__, "name": name})
-    images = {k[len("observation.images."):]: (int(ft["shape"][0]), int(ft["shape"][1]))
-              for k, ft in meta.features.items() if k.startswith("observation.images.")}
-    state = meta.features.get("observation.state")
-    return SkillContract(name=name, action_dim=int(meta.features["action"]["shape"][0]),
+    images = {k[len(IMAGE_PREFIX):]: (int(ft["shape"][0]), int(ft["shape"][1]))
+              for k, ft in meta.features.items() if k.startswith(IMAGE_PREFIX)}
+    state = meta.features.get(STATE_KEY)
+    return SkillContract(name=name, action_dim=int(meta.features[ACTION_KEY]["shape"][0]),
                          state_dim=int(state["shape"][0]) if state else None, images=images,
                          control_hz=float(meta.fps))
 
@@ -100,7 +101,7 @@ class _DeviceCache:
         for batch in loader:
             for k in self.image_keys:
                 parts.setdefault(k, []).append((batch[k] * 255).round().to(torch.uint8))
-            for k in ("observation.state", "action", "episode_index"):
+            for k in (STATE_KEY, ACTION_KEY, "episode_index"):
                 parts.setdefault(k, []).append(batch[k])
         data = {k: torch.cat(v).to(device) for k, v in parts.items()}
         ep = data.pop("episode_index")
@@ -126,8 +127,8 @@ class _DeviceCache:
             for i in range(0, self.n - self.batch_size + 1 if self.n >= self.batch_size else 1, self.batch_size):
                 b = order[i:i + self.batch_size]
                 out = {k: self.data[k][b].float() / 255.0 for k in self.image_keys}
-                out["observation.state"] = self.data["observation.state"][b]
-                out["action"] = self.data["action"][self.chunk_idx[b]]
+                out[STATE_KEY] = self.data[STATE_KEY][b]
+                out[ACTION_KEY] = self.data[ACTION_KEY][self.chunk_idx[b]]
                 out["action_is_pad"] = self.chunk_pad[b]
                 yield out
 
@@ -180,7 +181,7 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
                              device, cfg.num_workers, cfg.batch_size, cfg.seed)
         batches = cache.batches()
     else:
-        delta = {"action": [i / meta.fps for i in act_cfg.action_delta_indices]}
+        delta = {ACTION_KEY: [i / meta.fps for i in act_cfg.action_delta_indices]}
         dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta)
         loader = torch.utils.data.DataLoader(
             dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
