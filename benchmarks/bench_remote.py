@@ -104,7 +104,7 @@ def main() -> None:
         for name, (scene, obs) in observations().items():
             scenes.append(scene)
             with RemotePolicy(url) as probe:  # the request RemotePolicy sends mid-episode
-                probe.reset(scene.scene, scene.task)
+                probe.reset(scene.spec)
                 probe.act(obs)
                 request = probe._payload(obs)
             entries[name] = {"scene": scene, "obs": obs, "request": request,
@@ -178,7 +178,7 @@ def make_case(case, entry, url, name, server_infer, client_cls):
     scene, obs, request = entry["scene"], entry["obs"], entry["request"]
     if case == "remote":
         pol = RemotePolicy(url)
-        pol.reset(scene.scene, scene.task)
+        pol.reset(scene.spec)
         pol.act(obs)
 
         def call():
@@ -196,7 +196,7 @@ def make_case(case, entry, url, name, server_infer, client_cls):
         reply = entry["reply"]
         return (lambda: (wire.unpackb(wire.packb(request)), wire.unpackb(wire.packb(reply)))), (lambda: None)
     local = ZeroPolicy()
-    local.reset(scene.scene, scene.task)
+    local.reset(scene.spec)
     return (lambda: local.act(obs)), (lambda: None)
 
 

@@ -32,7 +32,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from simseam.robot.manifest import load_robot  # noqa: E402
-from simseam.scene.actions import ActionLayout  # noqa: E402
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions  # noqa: E402
 from simseam.scene.sensors import DepthCloud  # noqa: E402
 
@@ -73,7 +72,7 @@ def main() -> None:
                                ("step_franka_fixed", load_robot("franka_panda"), "lift_cube")):
         sc = ManifestScene(spec, layout, "mujoco", SceneOptions(image_size=(256, 256)))
         sc.reset(0)
-        lay = ActionLayout.from_scene(sc.scene)
+        lay = sc.spec.action
         rng = np.random.default_rng(0)
         acts[name] = [lay.pack(arm=rng.uniform(-0.2, 0.2, 6), grip=-1.0,
                                base=[0.2, 0.0, 0.1] if lay.has_base else None) for _ in range(args.reps)]

@@ -20,13 +20,18 @@ def so101_spec():
     return load_robot("so101")
 
 
+@pytest.fixture(scope="session")
+def mobile_spec():
+    return load_robot("panda_mobile")
+
+
 @pytest.fixture
 def make_scene():
     """Factory for ManifestScenes that are closed at the end of the test."""
     scenes = []
 
-    def _make(spec, layout="lift_cube", **options):
-        scene = ManifestScene(spec, layout, "mujoco", SceneOptions(**options))
+    def _make(spec, task="lift_cube", **options):
+        scene = ManifestScene(spec, task, "mujoco", SceneOptions(**options))
         scenes.append(scene)
         return scene
 
@@ -49,8 +54,8 @@ def count_successes():
         wins = 0
         for seed in seeds:
             obs = scene.reset(seed)
-            policy.reset(scene.scene, scene.task)
-            for _ in range(scene.task.max_steps):
+            policy.reset(scene.spec)
+            for _ in range(scene.spec.task.max_steps):
                 step = scene.step(policy.act(obs))
                 obs = step.observation
                 if step.terminated or step.truncated:

@@ -12,7 +12,7 @@ def test_scene_and_engine_import_no_client_side_packages():
     code = (
         "import sys, simseam.seam, simseam.scene.manifest_scene, simseam.engines.mujoco.engine, "
         "simseam.robot.spec\n"
-        "from simseam.scene.layouts.base import layout_names; layout_names()\n"
+        "from simseam.scene.tasks.base import task_names; task_names()\n"
         f"bad = [m for m in {FORBIDDEN!r} if m in sys.modules]\n"
         "print(','.join(bad))"
     )

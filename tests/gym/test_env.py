@@ -184,9 +184,9 @@ def test_scripted_expert_lifts_the_cube_through_the_env(tmp_path, envs):
     rollout = env.unwrapped.rollout
     for seed in (0, 1):
         _, info = env.reset(seed=seed)
-        policy.reset(rollout.scene, rollout.task)
+        policy.reset(rollout.spec)
         assert not info["is_success"]
-        for _ in range(rollout.task.max_steps):
+        for _ in range(rollout.spec.task.max_steps):
             _, reward, terminated, truncated, info = env.step(policy.act(env.unwrapped.last_observation))
             if terminated or truncated:
                 break
@@ -209,7 +209,7 @@ def test_scene_config_overrides_and_close_twice(tmp_path):
     env = SimseamEnv(SceneConfig(robot="franka_panda", layout="lift_cube"), image_size=(32, 48), max_steps=5)
     try:
         assert env.observation_space["images"]["camera1"].shape == (32, 48, 3)
-        assert env.rollout.task.max_steps == 5
+        assert env.rollout.spec.task.max_steps == 5
     finally:
         env.close()
         env.close()

@@ -8,22 +8,16 @@ import pytest
 
 from simseam.hal import JointState, NotConnectedError, SimAttachedHAL
 from simseam.robot.manifest import load_robot
-from simseam.scene.actions import ActionLayout
 from simseam.scene.manifest_scene import SceneOptions
 from simseam.seam import ConfigError, ControlMode, InvalidActionError
 
 HZ = 20  # the scenes' control rate: 20 ticks = 1 s of sim time
 
 
-@pytest.fixture(scope="module")
-def mobile_spec():
-    return load_robot("panda_mobile")
-
-
 @pytest.fixture
 def mobile_hal(mobile_spec, make_scene):
     def _make(**kw):
-        hal = SimAttachedHAL(make_scene(mobile_spec, layout="nav_obstacles", render_images=False), **kw)
+        hal = SimAttachedHAL(make_scene(mobile_spec, task="nav_obstacles", render_images=False), **kw)
         hal.connect()
         return hal
 
@@ -39,7 +33,7 @@ def drive(hal, ticks, twist=None):
 
 
 def test_connect_learns_the_layout_and_state_is_in_manifest_order(mobile_spec, make_scene):
-    scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False)
+    scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False)
     hal = SimAttachedHAL(scene)
     assert not hal.connected
     with pytest.raises(NotConnectedError):
@@ -48,8 +42,8 @@ def test_connect_learns_the_layout_and_state_is_in_manifest_order(mobile_spec, m
         hal.tick()
     hal.connect()
     assert hal.connected and hal.action_dim == scene.action_dim == 10
-    assert hal.layout == ActionLayout.from_scene(scene.scene) and hal.control_hz == HZ
-    assert hal.joint_names == tuple(mobile_spec.joint_names) == scene.scene.joint_names
+    assert hal.layout == scene.spec.action and hal.control_hz == HZ
+    assert hal.joint_names == tuple(mobile_spec.joint_names) == scene.spec.robot.joint_names
     drive(hal, 10, [0.4, 0.1, 0.3])
     st = hal.read_state()
     assert isinstance(st, JointState) and st.names == tuple(mobile_spec.joint_names)
@@ -63,31 +57,25 @@ def test_connect_learns_the_layout_and_state_is_in_manifest_order(mobile_spec, m
     assert hal.read_scan().shape == (360,) and hal.read_images() == {} and hal.read_depth_clouds() == {}
 
 
-class _Unadvertised:
-    """A rollout whose scene does not list its action slots: the HAL must refuse, not guess."""
+class _Misdescribed:
+    """A rollout whose ``action_dim`` disagrees with its own spec: the HAL must refuse, not guess."""
 
-    def __init__(self, inner, **changes):
+    def __init__(self, inner, action_dim):
         self._inner = inner
-        self._scene = dataclasses.replace(inner.scene, **changes)
+        self._dim = action_dim
 
     def __getattr__(self, name):
         return getattr(self._inner, name)
 
     @property
-    def scene(self):
-        return self._scene
-
-    @property
     def action_dim(self):
-        return self._inner.action_dim
+        return self._dim
 
 
-def test_connect_never_guesses_the_action_layout(panda_spec, make_scene):
+def test_connect_refuses_a_rollout_that_contradicts_its_spec(panda_spec, make_scene):
     scene = make_scene(panda_spec, render_images=False)
-    with pytest.raises(ConfigError, match="does not advertise its action names"):
-        SimAttachedHAL(_Unadvertised(scene, action_names=())).connect()
     with pytest.raises(ConfigError, match="action_dim 9"):
-        SimAttachedHAL(_Unadvertised(scene, action_dim=9)).connect()
+        SimAttachedHAL(_Misdescribed(scene, 9)).connect()
 
 
 def test_body_twist_moves_the_base_and_odometry_reads_it_in_the_base_frame(mobile_hal):

@@ -5,15 +5,12 @@ import json
 import pytest
 
 from simseam.policies.contract import SKILL_FILE, SkillContract, check_contract, contract_mismatches
-from simseam.seam import ConfigError, ControlMode, SceneInfo
+from simseam.seam import ConfigError, ControlMode
+from spec_factory import make_spec
 
 
 def _scene(**kw):
-    base = dict(robot="franka_panda", engine="mujoco", layout="lift_cube", control_mode=ControlMode.CARTESIAN_DELTA,
-                action_dim=7, state_dim=8, control_hz=20.0, cameras={"camera1": (96, 96), "camera2": (96, 96)},
-                joint_names=("j1",))
-    base.update(kw)
-    return SceneInfo(**base)
+    return make_spec(**kw)
 
 
 FITS = SkillContract(name="act", action_dim=7, control_mode=ControlMode.CARTESIAN_DELTA, state_dim=8,

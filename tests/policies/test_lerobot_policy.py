@@ -26,7 +26,7 @@ def test_trained_act_runs_an_episode_through_the_lerobot_spec(tiny_act, panda_sp
     assert policy.chunks_predicted == math.ceil(10 / 4)  # one model call per 4 executed actions
     # the actions it emitted are unnormalized into the dataset's action range
     obs = scene.reset(4)
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     action = policy.act(obs)
     assert action.shape == (7,) and action.dtype == np.float32 and np.all(np.isfinite(action))
     assert np.all(np.abs(action) < 50)
@@ -50,11 +50,11 @@ def test_image_map_routes_scene_cameras_to_policy_images(tiny_act, panda_spec, m
     swapped = make_policy(f"lerobot:{out}", device="cpu", image_map={"camera1": "camera2", "camera2": "camera1"})
     scene = make_scene(panda_spec, image_size=(48, 48))
     obs = scene.reset(1)
-    plain.reset(scene.scene, scene.task)
-    swapped.reset(scene.scene, scene.task)
+    plain.reset(scene.spec)
+    swapped.reset(scene.spec)
     a, b = plain.act(obs), swapped.act(obs)
     same = {**obs, "images": {"camera1": obs["images"]["camera2"], "camera2": obs["images"]["camera1"]}}
-    plain.reset(scene.scene, scene.task)
+    plain.reset(scene.spec)
     np.testing.assert_allclose(plain.act(same), b, rtol=1e-5, atol=1e-5)
     assert not np.allclose(a, b)
 
@@ -81,7 +81,7 @@ def test_contract_derived_from_config_when_no_skill_file(tiny_act, tmp_path, pan
     assert c.images == {"camera1": (48, 48), "camera2": (48, 48)} and c.state_dim == 8 and c.action_dim == 7
     assert c.control_mode is None  # LeRobot configs do not say; not checked
     with pytest.raises(ConfigError, match="expects 48x48"):
-        policy.reset(make_scene(panda_spec, image_size=(32, 32)).scene, None)
+        policy.reset(make_scene(panda_spec, image_size=(32, 32)).spec)
 
 
 def test_bad_sources_name_what_is_missing(tiny_act, tmp_path):
@@ -132,8 +132,8 @@ def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, 
         remote = make_policy(f"remote:{server.url}")
         scene = make_scene(panda_spec, image_size=(48, 48), max_steps=6)
         obs = scene.reset(2)
-        remote.reset(scene.scene, scene.task)
-        local.reset(scene.scene, scene.task)
+        remote.reset(scene.spec)
+        local.reset(scene.spec)
         for _ in range(6):
             a_remote, a_local = remote.act(obs), local.act(obs)
             np.testing.assert_allclose(a_remote, a_local, rtol=1e-5, atol=1e-6)
@@ -141,7 +141,7 @@ def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, 
         assert served.chunks_predicted == local.chunks_predicted == 2  # chunks run server-side, 4 actions each
         misfit = make_scene(panda_spec, image_size=(64, 64))
         with pytest.raises(ConfigError, match="expects 48x48"):
-            remote.reset(misfit.scene, misfit.task)  # the contract travelled in the server's metadata
+            remote.reset(misfit.spec)  # the contract travelled in the server's metadata
         remote.close()
     finally:
         server.stop()

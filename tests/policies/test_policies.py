@@ -10,7 +10,7 @@ from simseam.seam import ConfigError
 
 @pytest.mark.parametrize("layout", ["lift_cube", "bowl_plate"])
 def test_scripted_expert_succeeds_in_at_least_8_of_10_seeds(panda_spec, make_scene, count_successes, layout):
-    scene = make_scene(panda_spec, layout=layout, render_images=False, privileged=True)
+    scene = make_scene(panda_spec, task=layout, render_images=False, privileged=True)
     assert count_successes(scene, make_policy("scripted"), range(10)) >= 8
 
 
@@ -19,9 +19,9 @@ def test_lift_success_means_the_cube_is_10cm_up(panda_spec, make_scene):
     policy = make_policy("scripted")
     obs = scene.reset(4)
     rest_z = obs["privileged"]["objects"]["cube"][2]
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     heights = []
-    for _ in range(scene.task.max_steps):
+    for _ in range(scene.spec.task.max_steps):
         step = scene.step(policy.act(obs))
         obs = step.observation
         heights.append(obs["privileged"]["objects"]["cube"][2] - rest_z)
@@ -35,12 +35,12 @@ def test_scripted_needs_privileged_and_a_known_layout(panda_spec, make_scene):
     scene = make_scene(panda_spec, render_images=False)
     policy = make_policy("scripted")
     obs = scene.reset(0)
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     with pytest.raises(ConfigError, match="privileged"):
         policy.act(obs)
     js = make_scene(panda_spec, render_images=False, control_mode="joint_position", privileged=True)
     with pytest.raises(ConfigError, match="cartesian_delta"):
-        policy.reset(js.scene, js.task)
+        policy.reset(js.spec)
 
 
 @pytest.mark.parametrize("name", ["random", "zero"])
@@ -49,7 +49,7 @@ def test_baselines_produce_valid_actions(panda_spec, make_scene, name, mode):
     scene = make_scene(panda_spec, render_images=False, control_mode=mode)
     policy = make_policy(name)
     obs = scene.reset(0)
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     q0 = obs["joint_positions"].copy()
     for _ in range(10):
         action = policy.act(obs)
@@ -65,7 +65,6 @@ def test_baselines_produce_valid_actions(panda_spec, make_scene, name, mode):
 
 
 def test_random_is_seeded():
-    from simseam.scene.actions import ActionLayout  # noqa: F401
 
     a, b = make_policy("random", seed=3), make_policy("random", seed=3)
     assert a._rng.uniform() == b._rng.uniform()
@@ -90,8 +89,8 @@ def test_chunked_policy_executes_n_action_steps_per_chunk(panda_spec, make_scene
     scene = make_scene(panda_spec, render_images=False)
     policy = Counting(n_action_steps=3)
     obs = scene.reset(0)
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     tags = [policy.act(obs)[0] for _ in range(7)]
     assert tags == [0, 1, 2, 0, 1, 2, 0] and Counting.calls == 3
-    policy.reset(scene.scene, scene.task)  # reset drops the queued actions
+    policy.reset(scene.spec)  # reset drops the queued actions
     assert policy.act(obs)[0] == 0 and Counting.calls == 4

@@ -16,7 +16,8 @@ from simseam.policies import openpi_wire as wire
 from simseam.policies.base import make_policy
 from simseam.policies.contract import SkillContract
 from simseam.policies.remote import RemotePolicy, RemotePolicyError, parse_target, resize_with_pad
-from simseam.seam import ConfigError, ControlMode, SceneInfo
+from simseam.seam import ConfigError, ControlMode, RolloutSpec
+from spec_factory import misfit as _misfit
 
 try:
     from openpi_client import msgpack_numpy as openpi_msgpack
@@ -167,7 +168,7 @@ def test_parse_target():
 # --------------------------------------------------------------- against a bare server
 def run_steps(policy, scene, n, seed=0):
     obs = scene.reset(seed)
-    policy.reset(scene.scene, scene.task)
+    policy.reset(scene.spec)
     actions = []
     for _ in range(n):
         actions.append(policy.act(obs))
@@ -188,17 +189,17 @@ def test_simseam_format_against_openpi_packed_server(bare, lift):
     for i, a in enumerate(actions):
         assert a.dtype == np.float32 and np.allclose(a, chunk[i % 3])
     first, second = srv.received[:2]
-    assert first["simseam/reset"] is True and first["simseam/scene"] == lift.scene.to_json()
-    assert SceneInfo.from_json(first["simseam/scene"]) == lift.scene
-    assert first["simseam/task"]["instruction"] == lift.task.instruction == first["prompt"]
+    assert first["simseam/reset"] is True and first["simseam/spec"] == lift.spec.to_json()
+    assert RolloutSpec.from_json(first["simseam/spec"]) == lift.spec
+    assert first["simseam/task"]["instruction"] == lift.spec.task.instruction == first["prompt"]
     assert "simseam/reset" not in second and "simseam/scene" not in second
-    assert first["observation/state"].dtype == np.float32 and first["observation/state"].shape == (lift.scene.state_dim,)
+    assert first["observation/state"].dtype == np.float32 and first["observation/state"].shape == (lift.spec.state_dim,)
     assert "observation/joint_positions" in first
     assert not any(k.startswith("observation/privileged") for k in first)
 
 
 def test_libero_preset_sends_openpi_libero_keys(bare, panda_spec, make_scene):
-    scene = make_scene(panda_spec, layout="bowl_plate")
+    scene = make_scene(panda_spec, task="bowl_plate")
     srv = bare(lambda obs: {"actions": np.zeros((10, 7))})
     with RemotePolicy(srv.url, obs_format="libero", n_action_steps=5) as pol:
         run_steps(pol, scene, 6)
@@ -207,14 +208,14 @@ def test_libero_preset_sends_openpi_libero_keys(bare, panda_spec, make_scene):
     assert set(obs) == {"observation/image", "observation/wrist_image", "observation/state", "prompt"}
     for key in ("observation/image", "observation/wrist_image"):
         assert obs[key].shape == (224, 224, 3) and obs[key].dtype == np.uint8
-    assert obs["observation/state"].shape == (8,) and obs["prompt"] == scene.task.instruction
+    assert obs["observation/state"].shape == (8,) and obs["prompt"] == scene.spec.task.instruction
 
 
 def test_libero_preset_needs_camera1_camera2_and_the_libero_dims(bare, lift):
     srv = bare(lambda obs: {"actions": np.zeros((1, 7))})
-    bad = dataclasses.replace(lift.scene, cameras={"front": (256, 256)}, state_dim=9)
+    bad = _misfit(lift.spec, cameras={"front": (256, 256)}, state_dim=9)
     with RemotePolicy(srv.url, obs_format="libero") as pol, pytest.raises(ConfigError) as err:
-        pol.reset(bad, lift.task)
+        pol.reset(bad)
     assert "'camera1'" in str(err.value) and "'camera2'" in str(err.value) and "8-D" in str(err.value)
     assert srv.received == []
 
@@ -228,10 +229,10 @@ def test_resize_with_pad_keeps_aspect():
 
 def test_metadata_contract_mismatch_is_one_configerror_before_the_first_step(bare, lift):
     skill = SkillContract(name="pi0-test", action_dim=8, control_mode=ControlMode.JOINT_POSITION,
-                          state_dim=lift.scene.state_dim + 1, images={"camera1": (224, 224)}, control_hz=10.0)
+                          state_dim=lift.spec.state_dim + 1, images={"camera1": (224, 224)}, control_hz=10.0)
     srv = bare(lambda obs: {"actions": np.zeros((1, 7))}, metadata={"simseam_skill": skill.to_json()})
     with make_policy(f"remote:{srv.url}") as pol, pytest.raises(ConfigError) as err:
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
     msg = str(err.value)
     assert "pi0-test" in msg and "mismatches" in msg
     for part in ("image 'camera1'", "state:", "control mode", "action:", "control rate"):

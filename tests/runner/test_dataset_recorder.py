@@ -77,9 +77,9 @@ def test_existing_directory_is_refused_unless_overwritten(panda_spec, make_scene
     (tmp_path / "ds").mkdir()
     (tmp_path / "ds" / "keep.txt").write_text("mine")
     with pytest.raises(ConfigError, match="already exists"):
-        LeRobotRecorder(tmp_path / "ds", scene.scene)
+        LeRobotRecorder(tmp_path / "ds", scene.spec)
     assert (tmp_path / "ds" / "keep.txt").read_text() == "mine"
-    LeRobotRecorder(tmp_path / "ds", scene.scene, overwrite=True).close()
+    LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True).close()
     assert not (tmp_path / "ds" / "keep.txt").exists()
 
 
@@ -87,11 +87,11 @@ def test_recording_needs_images_and_an_integer_rate(panda_spec, make_scene, tmp_
     from simseam.runner.dataset_recorder import LeRobotRecorder
 
     scene = make_scene(panda_spec, image_size=(32, 32))
-    rec = LeRobotRecorder(tmp_path / "a", scene.scene)
+    rec = LeRobotRecorder(tmp_path / "a", scene.spec)
     obs = scene.reset(0)
     with pytest.raises(ConfigError, match=r"no image\(s\) \['camera2'\]"):
-        rec.add({**obs, "images": {"camera1": obs["images"]["camera1"]}}, np.zeros(7, np.float32), scene.task)
+        rec.add({**obs, "images": {"camera1": obs["images"]["camera1"]}}, np.zeros(7, np.float32))
     rec.close()
     odd = make_scene(panda_spec, image_size=(32, 32), control_hz=12.5)
     with pytest.raises(ConfigError, match="integer fps"):
-        LeRobotRecorder(tmp_path / "b", odd.scene)
+        LeRobotRecorder(tmp_path / "b", odd.spec)

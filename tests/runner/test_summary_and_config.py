@@ -68,7 +68,7 @@ def test_scene_file_robot_manifest_relative_to_scene(tmp_path):
     cfg, base = load_scene_config(p)
     rollout = build_rollout(cfg, base)
     try:
-        assert rollout.scene.robot == "franka_panda" and rollout.task.max_steps == 7
+        assert rollout.spec.robot.name == "franka_panda" and rollout.spec.task.max_steps == 7
         assert rollout.reset(0)["images"]["camera1"].shape == (32, 32, 3)
     finally:
         rollout.close()

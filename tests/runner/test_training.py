@@ -63,7 +63,7 @@ def test_empty_or_missing_dataset_is_a_clear_error(tmp_path, panda_spec, make_sc
 
     with pytest.raises(ConfigError, match="not a LeRobot dataset"):
         train_act(tmp_path / "nothing", tmp_path / "out")
-    LeRobotRecorder(tmp_path / "empty", make_scene(panda_spec, image_size=(32, 32)).scene).close()
+    LeRobotRecorder(tmp_path / "empty", make_scene(panda_spec, image_size=(32, 32)).spec).close()
     with pytest.raises(ConfigError, match="holds no episodes"):
         train_act(tmp_path / "empty", tmp_path / "out")
     assert not (tmp_path / "out").exists()

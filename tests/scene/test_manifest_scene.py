@@ -5,7 +5,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from simseam.scene.actions import ActionLayout
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.seam import (
     ConfigError,
@@ -19,7 +18,7 @@ from simseam.seam import (
 
 def _hold(scene, grip=-1.0):
     """The no-motion Cartesian action with the given grip."""
-    return ActionLayout.from_scene(scene.scene).pack(grip=grip)
+    return scene.spec.action.pack(grip=grip)
 
 
 @pytest.mark.parametrize("robot", ["panda_spec", "so101_spec"])
@@ -64,7 +63,7 @@ def test_joint_position_targets_are_reached(request, make_scene, robot):
     spec = request.getfixturevalue(robot)
     scene = make_scene(spec, control_mode="joint_position", render_images=False)
     obs = scene.reset(0)
-    layout = ActionLayout.from_scene(scene.scene)
+    layout = scene.spec.action
     assert layout.names[: layout.arm_dim] == tuple(j.name for j in spec.arm_joints)
     home = np.array([j.home for j in spec.arm_joints])
     upper = np.array([j.upper for j in spec.arm_joints])
@@ -78,7 +77,7 @@ def test_joint_position_targets_are_reached(request, make_scene, robot):
 def test_joint_position_targets_are_clipped_to_limits(panda_spec, make_scene):
     scene = make_scene(panda_spec, control_mode="joint_position", render_images=False)
     scene.reset(0)
-    layout = ActionLayout.from_scene(scene.scene)
+    layout = scene.spec.action
     arm = np.full(7, 10.0)  # far outside every limit
     for _ in range(30):
         obs = scene.step(layout.pack(arm=arm, grip=-1.0)).observation
@@ -128,7 +127,7 @@ def test_observation_contract_and_images(panda_spec, make_scene):
     assert obs["state"].dtype == np.float32 and obs["state"].shape == (9 - 1,)
     assert obs["joint_positions"].shape == (9,) and obs["joint_velocities"].dtype == np.float32
     assert obs["task"] == "lift the red cube"
-    assert scene.scene.cameras == {"camera1": (96, 128), "camera2": (96, 128)}
+    assert scene.spec.cameras == {"camera1": (96, 128), "camera2": (96, 128)}
     frame = scene.render()
     assert frame is obs["images"]["camera1"]  # the video frame re-uses the observed image
 
@@ -198,15 +197,15 @@ def test_undeclared_sensors_are_absent(panda_spec, make_scene):
 def test_state_only_renders_nothing_but_video_frames_on_demand(panda_spec, make_scene):
     scene = make_scene(panda_spec, render_images=False)
     obs = scene.reset(0)
-    assert obs["images"] == {} and scene.scene.cameras == {}
+    assert obs["images"] == {} and scene.spec.cameras == {}
     frame = scene.render()
     assert frame.shape == (256, 256, 3) and frame.std() > 10
 
 
 def test_bowl_plate_is_the_libero_contract(panda_spec, make_scene):
-    scene = make_scene(panda_spec, layout="bowl_plate")
+    scene = make_scene(panda_spec, task="bowl_plate")
     obs = scene.reset(0)
-    info = scene.scene
+    info = scene.spec
     assert info.control_mode == ControlMode.CARTESIAN_DELTA and info.action_dim == 7
     assert info.state_dim == 8 and obs["state"].shape == (8,)
     assert {k: v.shape for k, v in obs["images"].items()} == {"camera1": (256, 256, 3), "camera2": (256, 256, 3)}
@@ -242,7 +241,7 @@ def test_step_before_reset_and_after_close(panda_spec, make_scene):
 
 
 def test_unknown_layout_and_engine(panda_spec):
-    with pytest.raises(ConfigError, match="unknown layout 'stack_cubes'.*bowl_plate, lift_cube"):
+    with pytest.raises(ConfigError, match="unknown task 'stack_cubes'.*bowl_plate, lift_cube"):
         ManifestScene(panda_spec, "stack_cubes")
     with pytest.raises(ConfigError, match="unknown engine 'gazebo'.*mujoco"):
         ManifestScene(panda_spec, "lift_cube", "gazebo")

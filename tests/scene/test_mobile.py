@@ -10,30 +10,24 @@ from simseam.math3d import yaw_quat
 from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.robot.spec import KinematicBaseSpec
-from simseam.scene.actions import ActionLayout
 from simseam.scene.base_motion import KinematicBase
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.seam import ConfigError
 
 
-@pytest.fixture(scope="module")
-def mobile_spec():
-    return load_robot("panda_mobile")
-
-
 def _twist(scene, vx=0.0, vy=0.0, wz=0.0):
-    return ActionLayout.from_scene(scene.scene).pack(grip=-1.0, base=[vx, vy, wz])
+    return scene.spec.action.pack(grip=-1.0, base=[vx, vy, wz])
 
 
 def _clear_obstacles(scene, far=60.0):
     """Move every obstacle of nav_obstacles out of the lidar's range."""
     for k in range(6):
         scene.engine.set_object_pose(f"obstacle{k}", np.array([far + 3 * k, far, 0.0]), yaw_quat(0.0))
-    scene.layout.obstacles = []
+    scene.task.obstacles = []
 
 
 def test_body_twist_moves_and_turns_the_base_by_the_commanded_amount(mobile_spec, make_scene):
-    scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False)
+    scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False)
     obs = scene.reset(0)
     assert obs["base_pose"].tolist() == [0.0, 0.0, 0.0]
     for _ in range(20):  # 1 s at 20 Hz
@@ -55,11 +49,11 @@ def test_body_twist_moves_and_turns_the_base_by_the_commanded_amount(mobile_spec
 
 
 def test_base_joints_in_manifest_order_and_speed_limits(mobile_spec, make_scene):
-    scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False)
+    scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False)
     scene.reset(0)
     for _ in range(10):
         obs = scene.step(_twist(scene, vx=3.0, vy=3.0, wz=9.0)).observation  # far above the limits
-    names = list(scene.scene.joint_names)
+    names = list(scene.spec.robot.joint_names)
     assert names[:3] == ["base_x", "base_y", "base_yaw"]
     kb = mobile_spec.kinematic_base
     v = obs["joint_velocities"][:3]
@@ -82,7 +76,7 @@ def test_exact_arc_integration():
 
 
 def test_lidar_ranges_match_known_obstacles_and_never_hit_the_robot(mobile_spec, make_scene):
-    scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False, control_mode="joint_position")
+    scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False, control_mode="joint_position")
     scene.reset(0)
     _clear_obstacles(scene)
     lidar = mobile_spec.sensors_of("lidar_2d")[0]
@@ -90,7 +84,7 @@ def test_lidar_ranges_match_known_obstacles_and_never_hit_the_robot(mobile_spec,
     # where the lidar sits. A cylinder (radius 0.22) centred 1.5 m to the left.
     scene.engine.set_object_pose("obstacle0", np.array([2.0, 0.0, 0.0]), yaw_quat(0.0))
     scene.engine.set_object_pose("obstacle1", np.array([0.0, 1.5, 0.0]), yaw_quat(0.0))
-    layout = ActionLayout.from_scene(scene.scene)
+    layout = scene.spec.action
     home = np.array([j.home for j in mobile_spec.arm_joints])
     scan = scene.step(layout.pack(arm=home, grip=-1.0)).observation["scan"]
     assert scan.shape == (360,) and scan.dtype == np.float32
@@ -114,7 +108,7 @@ def test_lidar_ranges_match_known_obstacles_and_never_hit_the_robot(mobile_spec,
 
 
 def test_depth_cloud_points_lie_on_the_floor_and_the_obstacle(mobile_spec, make_scene):
-    scene = make_scene(mobile_spec, layout="nav_obstacles")
+    scene = make_scene(mobile_spec, task="nav_obstacles")
     scene.reset(0)
     _clear_obstacles(scene)
     scene.engine.set_object_pose("obstacle0", np.array([1.6, 0.0, 0.0]), yaw_quat(0.0))  # face at x = 1.4
@@ -133,13 +127,13 @@ def test_depth_cloud_points_lie_on_the_floor_and_the_obstacle(mobile_spec, make_
 
 
 def test_sensors_only_as_declared(mobile_spec, panda_spec, make_scene):
-    arm = make_scene(panda_spec, layout="lift_cube")
+    arm = make_scene(panda_spec, task="lift_cube")
     obs = arm.reset(0)
     assert not {"scan", "depth_points", "base_pose"} & set(obs)
     no_depth = dataclasses.replace(mobile_spec, sensors=[s for s in mobile_spec.sensors if s.kind == "lidar_2d"])
-    obs = make_scene(no_depth, layout="nav_obstacles").reset(0)
+    obs = make_scene(no_depth, task="nav_obstacles").reset(0)
     assert "scan" in obs and "depth_points" not in obs and obs["images"] == {}
-    state_only = make_scene(mobile_spec, layout="nav_obstacles", render_images=False).reset(0)
+    state_only = make_scene(mobile_spec, task="nav_obstacles", render_images=False).reset(0)
     assert "depth_points" not in state_only  # state-only scenes render nothing
 
 
@@ -156,16 +150,16 @@ def test_manifest_and_layout_checks(mobile_spec, panda_spec):
 
 
 def test_scripted_navigation_reaches_the_goal_in_8_of_10(mobile_spec, make_scene, count_successes):
-    scene = make_scene(mobile_spec, layout="nav_obstacles", render_images=False, privileged=True)
+    scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False, privileged=True)
     assert count_successes(scene, make_policy("scripted"), range(10)) >= 8
 
 
 def test_second_mobile_robot_stretch_runs_an_episode(make_scene, count_successes):
     stretch = load_robot("stretch")
-    scene = make_scene(stretch, layout="nav_obstacles", privileged=True, image_size=(64, 64))
+    scene = make_scene(stretch, task="nav_obstacles", privileged=True, image_size=(64, 64))
     obs = scene.reset(1)
     assert set(obs["images"]) == {"camera1"} and "head_depth" in obs["depth_points"]
     assert obs["scan"].shape == (360,) and obs["joint_positions"].shape == (len(stretch.joints),)
     scene.close()
-    state_only = make_scene(stretch, layout="nav_obstacles", privileged=True, render_images=False)
+    state_only = make_scene(stretch, task="nav_obstacles", privileged=True, render_images=False)
     assert count_successes(state_only, make_policy("scripted"), [1]) == 1

@@ -21,6 +21,7 @@ from simseam.policies import openpi_wire as wire
 from simseam.policies.base import BasePolicy, ChunkedPolicy, make_policy
 from simseam.policies.contract import SkillContract
 from simseam.policies.remote import RemotePolicy, RemotePolicyError
+from spec_factory import misfit as _misfit
 from simseam.seam import ConfigError, ControlMode
 from simseam.serving import PolicyServer
 
@@ -99,8 +100,7 @@ def raw_client(url):
 def episode_request(scene, obs):
     """The first request of an episode in the simseam format (what RemotePolicy sends)."""
     req = wire.flatten({k: v for k, v in obs.items() if k not in ("task", "privileged")}, "observation/")
-    req.update({"prompt": obs["task"], "simseam/reset": True, "simseam/scene": scene.scene.to_json(),
-                "simseam/task": dataclasses.asdict(scene.task)})
+    req.update({"prompt": obs["task"], "simseam/reset": True, "simseam/spec": scene.spec.to_json()})
     return req
 
 
@@ -120,7 +120,7 @@ def test_chunked_policy_serves_chunks_and_the_client_executes_n_action_steps(ser
     with make_policy(f"remote:{server.url}") as pol:
         assert pol.metadata["chunked"] and pol.metadata["n_action_steps"] == 3 and pol.n_action_steps == 3
         obs = lift.reset(0)
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         got = []
         for _ in range(9):
             got.append(pol.act(obs))
@@ -130,7 +130,7 @@ def test_chunked_policy_serves_chunks_and_the_client_executes_n_action_steps(ser
     assert np.allclose([g[0] for g in got], expect) and all(g.shape == (7,) for g in got)
     with make_policy(f"remote:{server.url}?n_action_steps=8") as pol:  # the client's choice wins
         obs = lift.reset(0)
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         for _ in range(8):
             pol.act(obs)
     assert server.requests == 4
@@ -151,13 +151,13 @@ def test_privileged_observations_are_forwarded_only_when_asked(served, panda_spe
         Spy.requires_privileged = flag
         with make_policy(f"remote:{served(Spy()).url}") as pol:
             obs = scene.reset(1)
-            pol.reset(scene.scene, scene.task)
+            pol.reset(scene.spec)
             pol.act(obs)
         assert ("privileged" in seen[-1]) is flag
     priv = seen[-1]["privileged"]
     assert np.array_equal(priv["objects"]["cube"], obs["privileged"]["objects"]["cube"])
     assert np.array_equal(seen[-1]["joint_positions"], obs["joint_positions"])
-    assert seen[-1]["task"] == scene.task.instruction and seen[-1]["images"] == {}
+    assert seen[-1]["task"] == scene.spec.task.instruction and seen[-1]["images"] == {}
 
 
 # ---------------------------------------------------------------- openpi-client
@@ -173,10 +173,10 @@ def test_openpi_websocket_client_policy_talks_to_policy_server(served, panda_spe
         meta = client.get_server_metadata()
         assert meta["server"] == "simseam" and meta["protocol"] == "openpi-websocket" and meta["robot"] == "franka_panda"
         assert SkillContract.from_json(meta["simseam_skill"]) == contract
-        scene = make_scene(panda_spec, layout="lift_cube")
+        scene = make_scene(panda_spec, task="lift_cube")
         obs = scene.reset(0)
         local = StateEcho()
-        local.reset(scene.scene, scene.task)
+        local.reset(scene.spec)
         for i in range(3):
             req = episode_request(scene, obs) if i == 0 else {
                 **wire.flatten({"images": obs["images"], "state": obs["state"]}, "observation/"), "prompt": obs["task"]}
@@ -213,7 +213,7 @@ def test_garbage_gets_an_error_and_the_server_serves_the_next_client(served, lif
         raw.recv(100)
     with make_policy(f"remote:{server.url}") as pol:
         obs = lift.reset(0)
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         assert pol.act(obs).shape == (7,)
 
 
@@ -234,7 +234,7 @@ def test_policy_errors_reach_the_client_as_remotepolicyerror(served, panda_spec,
     server = served(make_policy("scripted"))
     scene = make_scene(panda_spec, render_images=False, control_mode="joint_position", privileged=True)
     with make_policy(f"remote:{server.url}") as pol:
-        pol.reset(scene.scene, scene.task)  # no contract: the policy's own check runs remotely
+        pol.reset(scene.spec)  # no contract: the policy's own check runs remotely
         with pytest.raises(RemotePolicyError, match="ConfigError: the scripted experts drive cartesian_delta"):
             pol.act(scene.reset(0))
 
@@ -245,7 +245,7 @@ def test_one_client_at_a_time_second_is_told_busy(served, lift):
         make_policy(f"remote:{server.url}")
     server.busy_wait = 3.0  # the next client may arrive before the first one's handler has finished
     with make_policy(f"remote:{server.url}") as pol:  # sequential clients are fine
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         assert pol.act(lift.reset(0)).shape == (7,)
 
 
@@ -259,7 +259,7 @@ def test_defaults_health_check_and_stop_releases_the_port(lift):
         assert conn.getresponse().status == 200
         conn.close()
         pol = make_policy(f"remote:{server.url}")
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         pol.act(lift.reset(0))
         assert not port_is_free(server.port)
     t0 = time.monotonic()
@@ -306,11 +306,11 @@ def test_serve_policy_cli_contract_then_ctrl_c_exits_0(cli, panda_spec, make_sce
     skill = SkillContract.from_json(pol.metadata["simseam_skill"])
     assert skill.action_dim == 7 and skill.images == {}  # state-only policy: no camera demands
     scene = make_scene(panda_spec, render_images=False, privileged=True)
-    wrong = dataclasses.replace(scene.scene, control_mode=ControlMode.JOINT_POSITION, action_dim=8, control_hz=10.0)
+    wrong = _misfit(scene.spec, control_mode=ControlMode.JOINT_POSITION, action_dim=8, control_hz=10.0)
     with pytest.raises(ConfigError, match="3 mismatches"):
-        pol.reset(wrong, scene.task)
+        pol.reset(wrong)
     obs = scene.reset(0)
-    pol.reset(scene.scene, scene.task)
+    pol.reset(scene.spec)
     for _ in range(5):
         obs = scene.step(pol.act(obs)).observation
     proc.send_signal(signal.SIGINT)
@@ -327,7 +327,7 @@ def test_server_process_killed_mid_episode_raises_fast(cli, lift):
     proc, url = cli("--policy", "zero")
     with RemotePolicy(url, timeout=30) as pol:
         obs = lift.reset(0)
-        pol.reset(lift.scene, lift.task)
+        pol.reset(lift.spec)
         for _ in range(3):
             obs = lift.step(pol.act(obs)).observation
         proc.kill()

@@ -46,7 +46,8 @@ def test_same_results_as_in_process(make_sidecar, make_scene, panda_spec):
     remote = make_sidecar(options=scene_options(**opts))
     local = make_scene(panda_spec, "lift_cube", **opts)
     assert isinstance(remote, SimRollout)
-    assert remote.scene == local.scene and remote.task == local.task and remote.action_dim == local.action_dim == 7
+    assert remote.spec == local.spec.replace(backend="sidecar", capabilities=(*local.spec.capabilities, "restart"))
+    assert remote.action_dim == local.action_dim == 7
     for seed in (7, 8):
         assert_same(remote.reset(seed), local.reset(seed))
         assert_same(remote.render(), local.render(), "render()")
@@ -68,11 +69,11 @@ def test_one_sidecar_serves_many_episodes(make_sidecar):
     rollout = make_sidecar()
     pid = rollout.pid
     first = rollout.reset(seed=3)
-    spec = rollout.observation_spec
-    for key in ("state", "joint_positions", "joint_velocities"):  # hello's observation spec describes the data
-        assert list(first[key].shape) == spec[key]["shape"] and first[key].dtype.str == spec[key]["dtype"]
-    assert {k: list(v.shape) for k, v in first["images"].items()} == {
-        k: v["shape"] for k, v in spec["images"].items()}
+    spec = rollout.spec.observation.fields
+    for key in ("state", "joint_positions", "joint_velocities"):  # hello's spec describes the data
+        assert first[key].shape == spec[key].shape and first[key].dtype == np.dtype(spec[key].dtype)
+    assert {k: v.shape for k, v in first["images"].items()} == {
+        k: v.shape for k, v in spec["images"].entries.items()}
     for seed in (4, 5, 6, 7, 3):
         rollout.reset(seed=seed)
         for a in actions(seed=seed, n=3, dim=rollout.action_dim):
@@ -270,7 +271,7 @@ def test_identity_mismatch_is_never_driven(make_sidecar, panda_json, make_scene,
         {"endpoint": a.endpoint, "token": a._token, "pid": a.pid, "identity": other_identity}))
     c = make_sidecar(options=other_opts, keep_alive=True)
     assert c.pid != a.pid and c._proc is not None  # it booted a sidecar of its own
-    assert c.scene.control_hz == 10.0
+    assert c.spec.control_hz == 10.0
 
     # A's episode goes on untouched: same numbers as an undisturbed in-process run
     local = make_scene(panda_spec, "lift_cube", render_images=False)

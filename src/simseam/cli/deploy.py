@@ -9,6 +9,7 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from simseam.seam import SimseamError
 
@@ -49,7 +50,6 @@ def deploy(
     from simseam.runner.scene_config import (
         build_rollout,
         load_scene_config,
-        resolve_robot,
     )
 
     stop = threading.Event()
@@ -73,7 +73,6 @@ def deploy(
             if mode not in ("joint_position", "cartesian_delta"):
                 raise typer.BadParameter(f"--control-mode {mode!r}: expected joint_position or cartesian_delta")
             cfg = cfg.model_copy(update={"control_mode": mode})
-            spec = resolve_robot(cfg, base_dir)
             if record is not None:
                 from simseam.ros2.record import McapRecorder
 
@@ -93,23 +92,22 @@ def deploy(
             with console.status("building the scene"):
                 rollout = build_rollout(cfg, base_dir, seed=seed)
             hal = SimAttachedHAL.attach(rollout, target="sim", hold_time_s=hold_time, seed=seed)
-            bridge = Ros2Bridge(hal, spec=spec, rates=rates, rtf=rtf, participant=participant, sinks=sinks,
+            bridge = Ros2Bridge(hal, rates=rates, rtf=rtf, participant=participant, sinks=sinks,
                                 joint_command_topic=joint_command_topic,
-                                log=lambda msg: err_console.print(f"[yellow]warning:[/] {msg}", markup=True,
+                                log=lambda msg: err_console.print(f"warning: {msg}", style="yellow", markup=False,
                                                                   highlight=False))
             sinks = []  # the bridge owns them now
             bridge.start()
         except SimseamError as exc:
-            err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", highlight=False, markup=True)
+            err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
             raise typer.Exit(code=2)
-        info = rollout.scene
-        console.print(f"[bold]{info.robot}[/] on [bold]{info.engine}[/], layout [bold]{info.layout}[/], "
-                      f"{info.control_mode.value} at {info.control_hz:g} Hz, rtf {rtf:g}"
+        info = rollout.spec
+        console.print(f"{escape(info.describe())} at {info.control_hz:g} Hz, rtf {rtf:g}"
                       + (f", {duration:g} s" if duration is not None else ", Ctrl-C to stop"))
         try:
             stats = bridge.run(duration, stop=stop)
         except SimseamError as exc:
-            err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", highlight=False, markup=True)
+            err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
             raise typer.Exit(code=2)
         console.print(f"stopped: {stats.ticks} ticks, {stats.sim_s:.2f} s sim in {stats.wall_s:.2f} s wall "
                       f"(rtf {stats.rtf:.3f}), {sum(stats.published.values())} messages"

@@ -1,13 +1,16 @@
-"""``simseam`` command line: run | collect | train | serve-policy | deploy | robots | sidecar | isaac | doctor."""
+"""``simseam`` command line: run | summarize | collect | train | serve-policy | deploy | robots | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import sys
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -30,7 +33,8 @@ err_console = Console(stderr=True, soft_wrap=True)
 
 
 def _fail(exc: SimseamError) -> None:
-    err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {exc}", highlight=False, markup=True)
+    """Print the error literally (no Rich markup: brackets in messages stay) and exit with code 2."""
+    err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
     raise typer.Exit(code=2)
 
 
@@ -43,50 +47,53 @@ def _policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
     return kwargs
 
 
-def _episode_loop(rollout, pol, *, episodes: int, seed: int, out: Path | None, video: bool, recorder=None,
-                  keep_failures: bool = True) -> list:
-    """Run the episodes with a progress bar and one line each; a crashed sidecar or a lost policy
-    server costs that episode only (the sidecar restarts; the remote policy reconnects on reset)."""
-    from simseam.policies.remote import RemotePolicyError
-    from simseam.runner.episodes import EpisodeResult, run_episode
-    from simseam.seam import SidecarError
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the episode in flight is dropped, the finished ones are kept."""
 
-    results = []
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    def on_term(signum, frame):
+        raise _Terminated()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
+              keep_failures: bool = True, on_result=None) -> list:
+    """``runner.session.run_episodes`` with a progress bar and one line per episode."""
+    from simseam.runner.session import run_episodes
+
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as progress:
-        for i in range(episodes):
-            task = progress.add_task(f"episode {i}", total=rollout.task.max_steps)
-            written = None
-            try:
-                res = run_episode(rollout, pol, index=i, seed=seed + i,
-                                  video_path=out / f"episode_{i:03d}.mp4" if (video and out) else None,
-                                  on_step=lambda n, t=task: progress.update(t, completed=n), recorder=recorder)
-                if recorder is not None:
-                    written = recorder.end_episode(keep=res.success or keep_failures)
-            except (SidecarError, RemotePolicyError) as exc:
-                if recorder is not None:
-                    recorder.end_episode(keep=False)
-                res = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
-                                    error=f"{type(exc).__name__}: {exc}")
-                what = "restarting the sidecar" if isinstance(exc, SidecarError) else "reconnecting next episode"
-                err_console.print(f"[red]episode {i}: {res.error}[/]; {what}", markup=True, highlight=False)
-                if isinstance(exc, SidecarError):
-                    rollout.restart()
-            except BaseException:
-                if recorder is not None:
-                    recorder.end_episode(keep=False)
-                raise
-            progress.remove_task(task)
-            results.append(res)
+        current = {}
+
+        def start(i):
+            current["task"] = progress.add_task(f"episode {i}", total=rollout.spec.task.max_steps)
+            return lambda n: progress.update(current["task"], completed=n)
+
+        def done(res, written):
+            progress.remove_task(current.pop("task"))
+            if on_result is not None:
+                on_result(res)
             step_ms = res.to_json()["step_latency_ms"]["mean"]  # None when the episode took no step
             mark = "[green]success[/]" if res.success else "[red]failure[/]"
             console.print(
-                f"episode {i:3d}  seed {res.seed:5d}  {mark}  steps {res.steps:4d}  "
+                f"episode {res.index:3d}  seed {res.seed:5d}  {mark}  steps {res.steps:4d}  "
                 f"reward {res.reward:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
-                + (f"  video {res.video}" if res.video else "")
-                + ("" if written is None else ("  [dim]recorded[/]" if written else "  [dim]not recorded[/]"))
-            )
-    return results
+                + (f"  video {escape(res.video)}" if res.video else "")
+                + ("" if written is None else ("  [dim]recorded[/]" if written else "  [dim]not recorded[/]")))
+
+        def error(res, what_next):
+            err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
+                              highlight=False)
+
+        return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
+                            keep_failures=keep_failures, on_start=start, on_done=done, on_error=error)
 
 
 def _open_run(scene: Path, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):
@@ -110,12 +117,16 @@ def _close_policy(pol) -> None:
 
 @app.command()
 def run(
-    scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, layout, image size, max steps)."),
+    scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, task, image size, max steps)."),
     policy: str = typer.Option("scripted", "--policy", help="Policy spec: scripted, random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Number of episodes."),
-    seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i."),
-    out: Path = typer.Option(Path("runs/latest"), "--out", help="Output directory (summary.json, videos)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Episode i uses seed + i (a non-negative integer)."),
+    out: Path = typer.Option(None, "--out", help="Output directory (run.json, episodes.jsonl, summary.json, "
+                             "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config): skip the "
+                                "episodes it already recorded."),
     video: bool = typer.Option(False, "--video/--no-video", help="Write one MP4 per episode (first RGB camera)."),
     record_dataset: Path = typer.Option(None, "--record-dataset", help="Also record the episodes as a new "
                                         "LeRobot dataset in this directory."),
@@ -127,49 +138,88 @@ def run(
     n_action_steps: int = typer.Option(None, "--n-action-steps", min=1,
                                        help="Chunked policies: actions executed per predicted chunk."),
 ) -> None:
-    """Run a policy for N episodes and write summary.json (+ MP4s, + a LeRobot dataset)."""
-    from simseam.runner.summary import build_summary, write_summary
+    """Run a policy for N episodes; every finished episode is on disk before the next begins."""
+    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
+    from simseam.runner.scene_config import load_scene_config
 
+    default_out = out is None
+    if default_out and resume:
+        _fail(ConfigError("--resume needs --out (the run directory to continue)"))
+    out = default_run_dir() if default_out else out
+    try:
+        cfg, _ = load_scene_config(scene)
+        config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": policy,
+                  "episodes": episodes, "seed": seed, "video": video,
+                  "record_dataset": str(record_dataset) if record_dataset else None}
+        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
+    except SimseamError as exc:
+        _fail(exc)
+    if default_out:
+        point_latest(out)
+    todo = [i for i in range(episodes) if i not in run_dir.done]
+    if resume:
+        console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
     try:
         cfg, pol, rollout = _open_run(scene, policy, seed, _policy_kwargs(device, n_action_steps),
                                       need_images=record_dataset is not None)
     except SimseamError as exc:
+        run_dir.close()
         _fail(exc)
+    spec_json = rollout.spec.to_json()
+    if video and not rollout.spec.robot.sensors_of("rgb"):
+        err_console.print(f"note: --video: robot {rollout.spec.robot.name!r} has no RGB camera, so no video "
+                          "is written", style="yellow", markup=False, highlight=False)
     recorder = None
-    results = []
+    interrupted = False
     try:
-        info = rollout.scene
-        if record_dataset is not None:
-            from simseam.runner.dataset_recorder import LeRobotRecorder
+        with _sigterm_as_interrupt():
+            if record_dataset is not None:
+                from simseam.runner.dataset_recorder import LeRobotRecorder
 
-            recorder = LeRobotRecorder(record_dataset, info, use_videos=videos)
-        console.print(
-            f"[bold]{info.robot}[/] on [bold]{info.engine}[/], layout [bold]{info.layout}[/], "
-            f"policy [bold]{policy}[/], {info.control_mode.value} ({info.action_dim}-D actions), "
-            f"{episodes} episode(s)"
-        )
-        results = _episode_loop(rollout, pol, episodes=episodes, seed=seed, out=out, video=video,
-                                recorder=recorder, keep_failures=keep_failures)
+                recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos)
+            console.print(f"{escape(rollout.spec.describe())}, policy [bold]{escape(policy)}[/], "
+                          f"{episodes} episode(s) -> {escape(str(out))}")
+            _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
+                      keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
+    except KeyboardInterrupt:
+        interrupted = True
     except SimseamError as exc:
+        rebuild_summary(out, spec_json, interrupted=True)
         _fail(exc)
     finally:
+        run_dir.close()
         if recorder is not None:
             recorder.close()
         rollout.close()
         _close_policy(pol)
-    config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": policy,
-              "episodes": episodes, "seed": seed, "video": video,
-              "record_dataset": str(record_dataset) if record_dataset else None}
-    summary = build_summary(config, rollout.scene.to_json(), results)
-    path = write_summary(out, summary)
+    summary = rebuild_summary(out, spec_json, interrupted=interrupted)
+    if interrupted:
+        err_console.print(f"interrupted after {summary['n_episodes']} of {episodes} episodes; "
+                          f"summary of the finished ones: {out / 'summary.json'}", markup=False, highlight=False)
+        raise typer.Exit(code=130)
     lo, hi = summary["success_rate_wilson95"]
     console.print(
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
-        f"(Wilson 95% [{lo:.2f}, {hi:.2f}])  summary: {path}"
+        f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
     )
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
-                      f"in {record_dataset}")
+                      f"in {escape(str(record_dataset))}")
+
+
+@app.command()
+def summarize(run: Path = typer.Argument(..., help="A run directory (holds episodes.jsonl).")) -> None:
+    """Rebuild DIR/summary.json from its episode log (after a kill, or to re-read a run)."""
+    from simseam.runner.run_dir import rebuild_summary
+
+    try:
+        summary = rebuild_summary(run)
+    except SimseamError as exc:
+        _fail(exc)
+    lo, hi = summary["success_rate_wilson95"]
+    console.print(f"{summary['n_episodes']} episode(s), success {summary['n_success']}/{summary['n_episodes']} "
+                  f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}]); {'complete' if summary['complete'] else 'incomplete'}; "
+                  f"summary: {escape(str(run / 'summary.json'))}")
 
 
 @app.command()
@@ -178,36 +228,54 @@ def collect(
     policy: str = typer.Option("scripted", "--policy", help="Policy spec (default: the scripted expert)."),
     episodes: int = typer.Option(50, "--episodes", min=1, help="Episodes to run."),
     out: Path = typer.Option(..., "--out", help="New LeRobot dataset directory."),
-    seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Episode i uses seed + i (a non-negative integer)."),
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
     videos: bool = typer.Option(True, "--videos/--images", help="Camera frames as AV1 video or PNG images."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace --out if it exists."),
 ) -> None:
-    """Collect demonstrations as a LeRobot dataset (images, state, action, task, fps = control rate)."""
+    """Collect demonstrations as a LeRobot dataset (images, state, action, task, fps = control rate).
+    Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
     from simseam.runner.dataset_recorder import LeRobotRecorder
+    from simseam.runner.run_dir import check_writable
 
     try:
+        check_writable(out)
+        if out.exists() and any(out.iterdir()) and not overwrite:
+            raise ConfigError(f"dataset directory {out} already exists; pick a new --out or pass --overwrite")
         _, pol, rollout = _open_run(scene, policy, seed, {}, need_images=True)
     except SimseamError as exc:
         _fail(exc)
+    results: list = []
+    interrupted = False
+    rec = None
     try:
-        with LeRobotRecorder(out, rollout.scene, use_videos=videos, overwrite=overwrite) as rec:
-            info = rollout.scene
-            console.print(f"collecting {episodes} episode(s) of [bold]{policy}[/] on [bold]{info.robot}[/] / "
-                          f"[bold]{info.layout}[/] into {out}")
-            results = _episode_loop(rollout, pol, episodes=episodes, seed=seed, out=None, video=False,
-                                    recorder=rec, keep_failures=keep_failures)
+        with _sigterm_as_interrupt():
+            rec = LeRobotRecorder(out, rollout.spec, use_videos=videos, overwrite=overwrite)
+            console.print(f"collecting {episodes} episode(s) of [bold]{escape(policy)}[/] on "
+                          f"{escape(rollout.spec.describe())} into {escape(str(out))}")
+            _episodes(rollout, pol, range(episodes), seed=seed, video_dir=None, recorder=rec,
+                      keep_failures=keep_failures, on_result=results.append)
+    except KeyboardInterrupt:
+        interrupted = True
     except SimseamError as exc:
         _fail(exc)
     finally:
+        if rec is not None:
+            rec.close()
         rollout.close()
         _close_policy(pol)
     n_ok = sum(r.success for r in results)
-    console.print(f"dataset {out}: {rec.episodes_written} episode(s), {rec.frames_written} frames "
-                  f"({n_ok}/{len(results)} episodes succeeded)")
-    if rec.episodes_written == 0:
-        err_console.print("[red]no episode was recorded[/] (all failed; --keep-failures records them anyway)")
+    written = rec.episodes_written if rec is not None else 0
+    console.print(f"dataset {escape(str(out))}: {written} episode(s), "
+                  f"{rec.frames_written if rec is not None else 0} frames ({n_ok}/{len(results)} episodes succeeded)")
+    if interrupted:
+        err_console.print(f"interrupted after {len(results)} of {episodes} episodes; the dataset keeps the "
+                          f"{written} recorded", markup=False, highlight=False)
+        raise typer.Exit(code=130)
+    if written == 0:
+        err_console.print("no episode was recorded (all failed; --keep-failures records them anyway)",
+                          style="red", markup=False, highlight=False)
         raise typer.Exit(code=1)
 
 

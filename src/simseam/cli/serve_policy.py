@@ -44,8 +44,8 @@ def serve_policy(
             cfg, base_dir = load_scene_config(scene)
             rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged, render_images=pol.uses_images)
             try:
-                pol.reset(rollout.scene, rollout.task)  # the policy's own fit checks, now rather than per client
-                contract = SkillContract.for_scene(policy, rollout.scene)
+                pol.reset(rollout.spec)  # the policy's own fit checks, now rather than per client
+                contract = SkillContract.for_spec(policy, rollout.spec)
             finally:
                 rollout.close()
             if not pol.uses_images:  # a state-only policy must not demand cameras from its clients

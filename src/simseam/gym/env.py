@@ -34,7 +34,6 @@ import numpy as np
 from simseam.gym.spaces import action_space, observation_space, pad_points, to_gym
 from simseam.seam import (
     OBS_DEPTH_POINTS,
-    OBS_PRIVILEGED,
     ConfigError,
     InvalidActionError,
     Observation,
@@ -73,8 +72,7 @@ class SimseamEnv(gym.Env):
         render_mode: None or ``"rgb_array"`` (needs an RGB camera on the robot).
         render_images: False builds a state-only scene (no ``images``, no depth clouds).
         privileged: add ground truth (``privileged``) to the observation, for scripted
-            experts and dataset collection. The layout's object names come from one probe
-            ``reset(seed=0)`` at construction.
+            experts and dataset collection (object names from the rollout's spec).
         depth_points: rows K of the padded ``depth_points`` arrays; None (default) leaves
             depth clouds out of the gym observation (``last_observation`` still has them).
         **overrides: SceneConfig fields replacing the file's (``image_size``, ``max_steps``,
@@ -86,27 +84,25 @@ class SimseamEnv(gym.Env):
 
     def __init__(self, scene: Any, *, render_mode: str | None = None, render_images: bool = True,
                  privileged: bool = False, depth_points: int | None = None, **overrides: Any):
-        from simseam.runner.scene_config import build_rollout, resolve_robot
+        from simseam.runner.scene_config import build_rollout
 
         cfg, base_dir = _scene_config(scene, overrides)
         if depth_points is not None and (not isinstance(depth_points, int) or depth_points <= 0):
             raise ConfigError(f"depth_points must be a positive int (rows per depth sensor) or None, got {depth_points!r}")
-        self.robot = resolve_robot(cfg, base_dir)
-        modes = ["rgb_array"] if self.robot.sensors_of("rgb") else []
-        if render_mode is not None and render_mode not in modes:
-            raise ConfigError(f"render_mode {render_mode!r} is not supported by robot {self.robot.name!r}; "
-                              f"supported: {modes or 'none (it has no RGB camera)'}")
-        self.render_mode = render_mode
         self._closed = True
+        self.render_mode = None
         self.rollout = build_rollout(cfg, base_dir, privileged=privileged, render_images=render_images)
         self._closed = False
         try:
-            info = self.rollout.scene
-            self.metadata = {"render_modes": modes, "render_fps": float(info.control_hz)}
-            sample = self.rollout.reset(seed=0)[OBS_PRIVILEGED] if privileged else None
-            self.action_space = action_space(info, self.robot)
-            self.observation_space = observation_space(info, self.robot, depth_points=depth_points,
-                                                       privileged=sample)
+            spec = self.rollout.spec
+            modes = ["rgb_array"] if spec.robot.sensors_of("rgb") else []
+            if render_mode is not None and render_mode not in modes:
+                raise ConfigError(f"render_mode {render_mode!r} is not supported by robot {spec.robot.name!r}; "
+                                  f"supported: {modes or 'none (it has no RGB camera)'}")
+            self.render_mode = render_mode
+            self.metadata = {"render_modes": modes, "render_fps": float(spec.control_hz)}
+            self.action_space = action_space(spec)
+            self.observation_space = observation_space(spec, depth_points=depth_points, privileged=privileged)
         except BaseException:
             self.close()
             raise
@@ -128,10 +124,10 @@ class SimseamEnv(gym.Env):
             a = check_action(action, self.action_space.shape[0])
         except InvalidActionError as exc:
             raise InvalidActionError(f"{exc}; this env's action_space is {self.action_space} "
-                                     f"({', '.join(self.rollout.scene.action_names)})") from None
+                                     f"({', '.join(self.rollout.spec.action.names)})") from None
         result = self.rollout.step(a)
         obs, info = self._convert(result.observation, result.info)
-        info["is_success"] = bool(result.info.get(self.rollout.task.success_key, False))
+        info["is_success"] = bool(result.info.get(self.rollout.spec.task.success_key, False))
         return obs, float(result.reward), bool(result.terminated), bool(result.truncated), info
 
     def render(self) -> np.ndarray | None:

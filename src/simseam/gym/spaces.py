@@ -1,9 +1,8 @@
 """Gymnasium spaces from the scene contract, and seam observation -> gym observation.
 
-Everything here is derived from what a rollout advertises before its first
-reset (``SceneInfo``, the ``ActionLayout`` it implies, and the ``RobotSpec``
-for limits and declared sensors), so the spaces match any engine, in-process
-or sidecar. Units and shapes follow ``simseam.seam``:
+Everything here is derived from the rollout's ``RolloutSpec`` (available
+before the first reset), so the spaces match any backend, in-process or
+sidecar. Units and shapes follow ``simseam.seam``:
 
 observation (``spaces.Dict``; a key is present only when stated):
 
@@ -23,11 +22,12 @@ observation (``spaces.Dict``; a key is present only when stated):
 - ``privileged``: only with ``privileged=True``: ``eef_pose`` ``Box(-inf, inf, (7,),
   float64)`` (xyz + quaternion wxyz, base frame) and ``objects`` ``{name: Box(7,)}``.
 
-action: ``Box(low, high, (action_dim,), float32)`` in the ``ActionLayout`` slot order:
+action: ``Box(spec.action.low, spec.action.high, (action_dim,), float32)``, the slot bounds:
 CARTESIAN_DELTA arm slots in [-1, 1]; JOINT_POSITION arm slots within the joint limits
 (rad / m; unbounded joints get +-inf); gripper in [-1, 1]; base twist ``[vx, vy, wz]``
-within ``+-max_linear`` (m/s) and ``+-max_angular`` (rad/s). The scene also clips
-``[vx, vy]`` to ``max_linear`` in norm, so the Box is a superset of what moves the base.
+within ``+-max_linear`` (m/s) and ``+-max_angular`` (rad/s). The rollout also clips
+``[vx, vy]`` to ``max_linear`` in norm (``spec.action.norm_bounds``), so the Box is a
+superset of what moves the base.
 """
 
 from __future__ import annotations
@@ -37,8 +37,6 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from simseam.robot.spec import RobotSpec
-from simseam.scene.actions import ActionLayout
 from simseam.seam import (
     OBS_BASE_POSE,
     OBS_DEPTH_POINTS,
@@ -48,9 +46,7 @@ from simseam.seam import (
     OBS_PRIVILEGED,
     OBS_SCAN,
     OBS_STATE,
-    ControlMode,
-    Observation,
-    SceneInfo,
+    RolloutSpec,
     SimulationError,
 )
 
@@ -61,51 +57,39 @@ def _vec(n: int, low: float = -INF, high: float = INF, dtype=np.float32) -> spac
     return spaces.Box(low, high, (n,), dtype)
 
 
-def action_space(info: SceneInfo, robot: RobotSpec) -> spaces.Box:
-    """The Box of the rollout's action layout (see the module docstring for bounds)."""
-    layout = ActionLayout.from_scene(info)
-    low = np.full(layout.dim, -1.0)
-    high = np.full(layout.dim, 1.0)
-    if layout.control_mode == ControlMode.JOINT_POSITION:
-        joints = {j.name: j for j in robot.arm_joints}
-        for i, name in enumerate(layout.arm_names):
-            j = joints[name]
-            low[i] = -INF if j.lower is None else j.lower
-            high[i] = INF if j.upper is None else j.upper
-    if layout.base is not None:
-        kb = robot.kinematic_base
-        lim = np.array([kb.max_linear, kb.max_linear, kb.max_angular])
-        low[layout.base], high[layout.base] = -lim, lim
-    return spaces.Box(low.astype(np.float32), high.astype(np.float32), (layout.dim,), np.float32)
+def action_space(spec: RolloutSpec) -> spaces.Box:
+    """The Box of the rollout's action slots (see the module docstring for bounds)."""
+    a = spec.action
+    return spaces.Box(a.low.astype(np.float32), a.high.astype(np.float32), (a.dim,), np.float32)
 
 
-def observation_space(info: SceneInfo, robot: RobotSpec, *, depth_points: int | None = None,
-                      privileged: Observation | None = None) -> spaces.Dict:
+def observation_space(spec: RolloutSpec, *, depth_points: int | None = None,
+                      privileged: bool = False) -> spaces.Dict:
     """The Dict observation space. ``depth_points``: K rows per depth sensor, or None to leave
-    depth clouds out (they are also left out when the scene renders no images: it computes none).
-    ``privileged``: a sample ``observation['privileged']`` giving the layout's object names, or
-    None to leave ground truth out."""
-    n = len(info.joint_names)
+    depth clouds out (also left out when the rollout declares none: a state-only scene);
+    ``privileged``: include the ground truth the spec declares."""
+    fields = spec.observation.fields
+    n = len(spec.robot.joints)
     out: dict[str, spaces.Space] = {}
-    if info.cameras:
-        out[OBS_IMAGES] = spaces.Dict({k: spaces.Box(0, 255, (h, w, 3), np.uint8)
-                                       for k, (h, w) in info.cameras.items()})
-    out[OBS_STATE] = _vec(info.state_dim)
+    if spec.cameras:
+        out[OBS_IMAGES] = spaces.Dict({k: spaces.Box(0, 255, (h, w, 3), np.uint8) for k, (h, w) in spec.cameras.items()})
+    out[OBS_STATE] = _vec(spec.state_dim)
     out[OBS_JOINT_POSITIONS] = _vec(n)
     out[OBS_JOINT_VELOCITIES] = _vec(n)
-    if robot.kinematic_base is not None:
+    if OBS_BASE_POSE in fields:
         out[OBS_BASE_POSE] = spaces.Box(np.array([-INF, -INF, -np.pi], np.float32),
                                         np.array([INF, INF, np.pi], np.float32), (3,), np.float32)
-    for s in robot.sensors_of("lidar_2d")[:1]:
-        out[OBS_SCAN] = _vec(s.beams, 0.0, s.range_max)
-    depth = robot.sensors_of("depth")
-    if depth_points and depth and info.cameras:
-        out[OBS_DEPTH_POINTS] = spaces.Dict({s.name: spaces.Box(-INF, INF, (depth_points, 3), np.float32)
-                                             for s in depth})
-    if privileged is not None:
+    if OBS_SCAN in fields:
+        lidar = spec.robot.sensors_of("lidar_2d")[0]
+        out[OBS_SCAN] = _vec(lidar.beams, 0.0, lidar.range_max)
+    if depth_points and OBS_DEPTH_POINTS in fields:
+        out[OBS_DEPTH_POINTS] = spaces.Dict({name: spaces.Box(-INF, INF, (depth_points, 3), np.float32)
+                                             for name in fields[OBS_DEPTH_POINTS].entries})
+    if privileged and OBS_PRIVILEGED in fields:
+        objects = fields[OBS_PRIVILEGED].entries["objects"].entries
         priv: dict[str, spaces.Space] = {"eef_pose": _vec(7, dtype=np.float64)}
-        if privileged.get("objects"):
-            priv["objects"] = spaces.Dict({k: _vec(len(v), dtype=np.float64) for k, v in privileged["objects"].items()})
+        if objects:
+            priv["objects"] = spaces.Dict({k: _vec(7, dtype=np.float64) for k in objects})
         out[OBS_PRIVILEGED] = spaces.Dict(priv)
     return spaces.Dict(out)
 

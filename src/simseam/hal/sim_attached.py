@@ -10,11 +10,10 @@ ROS 2 bridge or a teleop loop can sit on top of it.
 
 Semantics (decided here, tested in ``tests/hal``):
 
-- ``connect()`` resets the rollout and learns the action layout from what the
-  rollout advertises (``SceneInfo.action_names`` through
-  ``ActionLayout.from_scene``, the one layout definition the scene unpacks
-  with); it never guesses: a rollout whose advertised names do not add up to
-  its ``action_dim`` is a ``ConfigError``.
+- ``connect()`` resets the rollout and takes everything else from its
+  ``RolloutSpec``: the action slots and their bounds (``spec.action``, the one
+  definition the scene unpacks with), joint names, the gripper's open/closed
+  positions and the base's joints (``spec.robot``), the control rate.
 - ``send_action(values, mode)`` stores the latest command of one part, stamped
   with the current SIM time. Modes: JOINT_POSITION (absolute arm joint targets,
   manifest order, only on a joint_position rollout), CARTESIAN_DELTA (6 values,
@@ -29,12 +28,12 @@ Semantics (decided here, tested in ``tests/hal``):
   applied: the arm holds (zero Cartesian delta; in joint-position mode the arm
   joints measured when the hold began), the twist is zero. The gripper keeps
   its last value. Ticks without any command keep the sensors live.
-- JOINT_POSITION targets are clamped to the joint limits (``joint_limits``, or
-  the robot spec's when the rollout exposes one) and, with ``max_joint_speed``,
+- Commands are clipped to the action spec's slot bounds (``spec.action.clip_group``:
+  joint limits, [-1, 1], the base's speed limits); ``joint_limits`` narrows the
+  arm joints' further. With ``max_joint_speed``,
   the applied target moves toward the command by at most
   ``max_joint_speed / control_hz`` per tick (a rate limiter in sim time). The
-  rollout applies the URDF velocity limits on top. BODY_TWIST is clipped to the
-  kinematic base's limits by the scene (and here too when the spec is known).
+  rollout applies the URDF velocity limits on top.
 - ``estop()`` latches: the stored arm and twist commands are discarded at once
   (the next tick holds the arm and applies a zero twist) and every command
   sent while engaged (gripper included) is dropped and counted in
@@ -56,11 +55,12 @@ from typing import Any
 
 import numpy as np
 
-from simseam.scene.actions import ActionLayout
 from simseam.seam import (
+    ActionSpec,
     ConfigError,
     ControlMode,
     InvalidActionError,
+    ObsRequest,
     Observation,
     SimRollout,
     SimulationError,
@@ -85,26 +85,6 @@ class JointState:
     stamp_ns: int
 
 
-def _robot_spec(rollout: Any):
-    """The rollout's ``RobotSpec`` when it exposes one (ManifestScene.spec, a sidecar's spec JSON), else None.
-
-    Only used for optional extras (default joint limits, base joint names, the
-    gripper's starting value); the action layout never comes from here.
-    """
-    spec = getattr(rollout, "spec", None)
-    if spec is not None and hasattr(spec, "joints"):
-        return spec
-    data = getattr(rollout, "spec_json", None)  # SidecarRollout: the spec it serves
-    if isinstance(data, dict):
-        try:
-            from simseam.robot.spec import RobotSpec
-
-            return RobotSpec.from_json(data)
-        except (KeyError, TypeError, ValueError):  # a spec we cannot read is simply not used
-            return None
-    return None
-
-
 class SimAttachedHAL:
     """A robot interface over any ``SimRollout`` (see the module docstring)."""
 
@@ -123,7 +103,7 @@ class SimAttachedHAL:
         self.max_joint_speed = None if max_joint_speed is None else float(max_joint_speed)
         self._lock = threading.Lock()
         self._connected = False
-        self._layout: ActionLayout | None = None
+        self._layout: ActionSpec | None = None
         self._obs: Observation = {}
         self._estopped = False
         self._dropped = 0
@@ -141,35 +121,27 @@ class SimAttachedHAL:
         return cls(rollout, **kw)
 
     def connect(self) -> None:
-        """Reset the rollout and learn its action layout from what it advertises."""
+        """Reset the rollout and take the action slots, joints and limits from its spec."""
         with self._lock:
-            info = self.rollout.scene
-            if not info.action_names:
-                raise ConfigError(f"rollout {info.robot!r}/{info.layout!r} does not advertise its action names; "
-                                  "the HAL cannot lay out actions without them")
-            layout = ActionLayout.from_scene(info)  # ConfigError when names and action_dim disagree
+            spec = self.rollout.spec
+            layout = spec.action
             if layout.dim != self.rollout.action_dim:
-                raise ConfigError(f"rollout action_dim {self.rollout.action_dim} but its advertised layout "
+                raise ConfigError(f"rollout action_dim {self.rollout.action_dim} but its spec's action "
                                   f"{layout.names} has {layout.dim} slots")
+            self.spec = spec
             self._layout = layout
-            self._names = tuple(info.joint_names)
+            self._names = tuple(spec.robot.joint_names)
             self._index = {n: i for i, n in enumerate(self._names)}
-            self._dt_ns = int(round(1e9 / info.control_hz))
-            spec = _robot_spec(self.rollout)
-            self._setup_limits(layout, spec)
+            self._dt_ns = int(round(1e9 / spec.control_hz))
+            self._setup_limits(layout)
+            robot = spec.robot
             self._base_idx = None
-            self._twist_max = None
-            if spec is not None and spec.kinematic_base is not None and layout.has_base:
-                kb = spec.kinematic_base
-                if all(n in self._index for n in kb.joints):
-                    self._base_idx = np.array([self._index[n] for n in kb.joints])
-                self._twist_max = (float(kb.max_linear), float(kb.max_angular))
+            if robot.base is not None and layout.has_base and all(n in self._index for n in robot.base.joints):
+                self._base_idx = np.array([self._index[n] for n in robot.base.joints])
             self._grip_fingers = None
-            if spec is not None and spec.gripper is not None and layout.has_gripper:
-                g = spec.gripper
-                if all(n in self._index for n in g.joints):
-                    self._grip_fingers = (np.array([self._index[n] for n in g.joints]),
-                                          np.asarray(g.open, float), np.asarray(g.closed, float))
+            if robot.gripper is not None and layout.has_gripper and all(n in self._index for n in robot.gripper.joints):
+                self._grip_fingers = np.array([self._index[n] for n in robot.gripper.joints])
+            self._request = ObsRequest()
 
             obs = self.rollout.reset(self.seed)
             self._obs = obs
@@ -186,7 +158,7 @@ class SimAttachedHAL:
             self._last_action = None
             self._connected = True
 
-    def _setup_limits(self, layout: ActionLayout, spec) -> None:
+    def _setup_limits(self, layout: ActionSpec) -> None:
         self._arm_idx = None
         self._lo = self._hi = None
         if layout.control_mode != ControlMode.JOINT_POSITION:
@@ -199,20 +171,17 @@ class SimAttachedHAL:
         if unknown:
             raise ConfigError(f"joint_limits names joints that are not arm joints of this rollout: {unknown}; "
                               f"arm joints: {list(layout.arm_names)}")
-        spec_limits = {j.name: (j.lower, j.upper) for j in spec.joints} if spec is not None else {}
-        lo, hi = np.full(layout.arm_dim, -np.inf), np.full(layout.arm_dim, np.inf)
+        lo, hi = layout.low[layout.arm], layout.high[layout.arm]
         for k, name in enumerate(layout.arm_names):
-            lower, upper = self._user_limits.get(name, spec_limits.get(name, (None, None)))
-            if lower is not None:
-                lo[k] = float(lower)
-            if upper is not None:
-                hi[k] = float(upper)
-            if lo[k] > hi[k]:
-                raise ConfigError(f"joint_limits[{name!r}]: lower {lo[k]} > upper {hi[k]}")
+            if name in self._user_limits:
+                lower, upper = (float(x) for x in self._user_limits[name])
+                if lower > upper:
+                    raise ConfigError(f"joint_limits[{name!r}]: lower {lower} > upper {upper}")
+                lo[k], hi[k] = max(lo[k], lower), min(hi[k], upper)
         self._lo, self._hi = lo, hi
 
     # -------------------------------------------------------------- properties
-    def _require(self) -> ActionLayout:
+    def _require(self) -> ActionSpec:
         if not self._connected or self._layout is None:
             raise NotConnectedError("the HAL is not connected: call connect() first")
         return self._layout
@@ -222,7 +191,7 @@ class SimAttachedHAL:
         return self._connected
 
     @property
-    def layout(self) -> ActionLayout:
+    def layout(self) -> ActionSpec:
         return self._require()
 
     @property
@@ -236,7 +205,7 @@ class SimAttachedHAL:
 
     @property
     def control_hz(self) -> float:
-        return float(self.rollout.scene.control_hz)
+        return float(self.rollout.spec.control_hz)
 
     @property
     def control_mode(self) -> ControlMode:
@@ -299,8 +268,8 @@ class SimAttachedHAL:
         """``[vx, vy, wz]`` in the base frame (odometry twist), or None without a kinematic base.
 
         From the base joint velocities (world-frame ``[xdot, ydot, yawdot]``)
-        rotated into the base frame; when the rollout exposes no robot spec
-        (so the base joints are unknown), from the pose change over the last tick.
+        rotated into the base frame; when the spec names no base joints, from
+        the pose change over the last tick.
         """
         self._require()
         obs = self._obs
@@ -356,11 +325,11 @@ class SimAttachedHAL:
             if mode == ControlMode.JOINT_POSITION:
                 self._arm_cmd = (np.clip(v, self._lo, self._hi), now)
             elif mode == ControlMode.CARTESIAN_DELTA:
-                self._arm_cmd = (np.clip(v, -1.0, 1.0), now)
+                self._arm_cmd = (layout.clip_group("arm", v), now)
             elif mode == ControlMode.GRIPPER:
-                self._grip = float(min(max(v[0], -1.0), 1.0))
+                self._grip = float(layout.clip_group("grip", v)[0])
             else:
-                self._twist_cmd = (self._clip_twist(v), now)
+                self._twist_cmd = (layout.clip_group("base", v), now)
 
     @staticmethod
     def _check(values: Any, mode: ControlMode, n: int) -> np.ndarray:
@@ -377,16 +346,6 @@ class SimAttachedHAL:
             raise InvalidActionError(f"{mode.value} command[{bad}] is {v[bad]}; expected {n} finite values")
         return v.copy()
 
-    def _clip_twist(self, v: np.ndarray) -> np.ndarray:
-        if self._twist_max is None:
-            return v
-        lin, ang = self._twist_max
-        speed = math.hypot(v[0], v[1])
-        if speed > lin:
-            v[:2] *= lin / speed
-        v[2] = min(max(v[2], -ang), ang)
-        return v
-
     def estop(self, engaged: bool = True) -> None:
         """Engage (latch) or clear the E-stop."""
         with self._lock:
@@ -400,6 +359,11 @@ class SimAttachedHAL:
             self._estopped = bool(engaged)
 
     # -------------------------------------------------------------------- loop
+    def observe(self, request: ObsRequest) -> None:
+        """What the following ticks observe (e.g. images only on the ticks a camera topic publishes)."""
+        with self._lock:
+            self._request = request
+
     def tick(self) -> StepResult:
         """One rollout step with the latest fresh commands (holds otherwise)."""
         with self._lock:
@@ -427,7 +391,7 @@ class SimAttachedHAL:
             grip = self._grip if layout.has_gripper else None
             base = (twist_cmd[0] if twist_fresh else np.zeros(3)) if layout.has_base else None
             action = layout.pack(arm=arm, grip=grip, base=base)
-            result = self.rollout.step(action)
+            result = self.rollout.step(action, self._request)
             self._last_action = action
             self._prev_pose = self._pose_of(self._obs)
             self._prev_pose_ns = now
@@ -463,11 +427,5 @@ class SimAttachedHAL:
         """The gripper command matching the fingers' measured opening (-1 open when unknown)."""
         if self._grip_fingers is None:
             return -1.0
-        idx, open_, closed = self._grip_fingers
-        span = closed - open_
-        ok = np.abs(span) > 1e-9
-        if not ok.any():
-            return -1.0
-        q = np.asarray(obs["joint_positions"], dtype=np.float64)[idx]
-        g = float(np.mean((q[ok] - open_[ok]) / span[ok]))
-        return float(np.clip(round(2.0 * g - 1.0, 4), -1.0, 1.0))  # float32 noise off: -0.99999994 is -1
+        q = np.asarray(obs["joint_positions"], dtype=np.float64)[self._grip_fingers]
+        return self.spec.robot.gripper.command_of(q)

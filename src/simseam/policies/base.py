@@ -1,9 +1,14 @@
 """The Policy protocol and the policy registry.
 
 A policy maps observations (the seam's observation dict) to actions
-(``float32[action_dim]`` in the rollout's action layout). ``reset`` is called
-at the start of every episode with the rollout's ``SceneInfo`` and
-``TaskInfo``, so a policy can check it fits before the first step.
+(``float32[spec.action.dim]`` in the rollout's slot order). ``reset`` is called
+at the start of every episode with the rollout's ``RolloutSpec``, so a policy
+can check it fits before the first step.
+
+Observation requests: ``observe_next()`` says what the next ``act`` will read
+(``None``: everything). The episode loop passes it to the rollout's step, so a
+state-only policy never pays for rendering and a chunked policy gets images
+only on the steps where it predicts a new chunk.
 
 Action chunks: a policy that predicts several actions at once subclasses
 ``ChunkedPolicy`` and implements ``predict_chunk``; ``act`` then replays up to
@@ -17,7 +22,7 @@ from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
+from simseam.seam import STATE_ONLY, ConfigError, Observation, ObsRequest, RolloutSpec
 
 
 @runtime_checkable
@@ -27,20 +32,25 @@ class Policy(Protocol):
     #: consumes ``observation['images']``; when False the runner skips rendering
     uses_images: bool
 
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None: ...
+    def reset(self, spec: RolloutSpec) -> None: ...
 
     def act(self, observation: Observation) -> np.ndarray: ...
 
+    def observe_next(self) -> ObsRequest | None: ...
+
 
 class BasePolicy:
-    """Convenience base: stores the scene/task on reset."""
+    """Convenience base: stores the spec on reset; reads images only when ``uses_images``."""
 
     requires_privileged: ClassVar[bool] = False
     uses_images: ClassVar[bool] = False
 
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
-        self.scene_info = scene
-        self.task_info = task
+    def reset(self, spec: RolloutSpec) -> None:
+        self.spec = spec
+
+    def observe_next(self) -> ObsRequest | None:
+        """What the next ``act`` reads: everything for image policies, else no images."""
+        return None if self.uses_images else STATE_ONLY
 
     def act(self, observation: Observation) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -53,9 +63,15 @@ class ChunkedPolicy(BasePolicy):
         self.n_action_steps = n_action_steps
         self._queue: deque[np.ndarray] = deque()
 
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
-        super().reset(scene, task)
+    def reset(self, spec: RolloutSpec) -> None:
+        super().reset(spec)
         self._queue.clear()
+
+    def observe_next(self) -> ObsRequest | None:
+        """Images only when the next ``act`` predicts a new chunk (the queue is empty)."""
+        if self._queue:  # the next act pops from the queue: it reads nothing but state
+            return STATE_ONLY
+        return super().observe_next()
 
     def predict_chunk(self, observation: Observation) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError

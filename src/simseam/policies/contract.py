@@ -3,7 +3,7 @@
 A ``SkillContract`` is the "skill manifest" of a policy: the images it reads
 (policy-side name -> (height, width) in pixels, and which scene camera feeds
 each one), the state vector length, and the action length and control mode it
-emits. ``check_contract`` compares it with a rollout's ``SceneInfo`` before the
+emits. ``check_contract`` compares it with a rollout's ``RolloutSpec`` before the
 first step and raises one ``ConfigError`` listing every mismatch with its fix,
 so a misfit never surfaces as a shape error mid-episode.
 
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from simseam.seam import ConfigError, ControlMode, SceneInfo
+from simseam.seam import ConfigError, ControlMode, RolloutSpec
 
 SKILL_FILE = "simseam_skill.json"
 
@@ -112,16 +112,16 @@ class SkillContract:
         return cls.from_json(data, where=str(path))
 
     @classmethod
-    def for_scene(cls, name: str, scene: SceneInfo) -> "SkillContract":
-        """The contract a policy trained on ``scene`` has (used when saving a trained policy)."""
-        return cls(name=name, action_dim=scene.action_dim, control_mode=scene.control_mode,
-                   state_dim=scene.state_dim, images=dict(scene.cameras), control_hz=scene.control_hz)
+    def for_spec(cls, name: str, spec: RolloutSpec) -> "SkillContract":
+        """The contract a policy trained on rollouts of ``spec`` has (used when saving a trained policy)."""
+        return cls(name=name, action_dim=spec.action_dim, control_mode=spec.control_mode,
+                   state_dim=spec.state_dim, images=dict(spec.cameras), control_hz=spec.control_hz)
 
 
-def contract_mismatches(contract: SkillContract, scene: SceneInfo) -> list[str]:
-    """Every way ``scene`` fails ``contract``, each with its fix (empty when it fits)."""
+def contract_mismatches(contract: SkillContract, scene: RolloutSpec) -> list[str]:
+    """Every way the rollout ``scene`` describes fails ``contract``, each with its fix (empty when it fits)."""
     problems: list[str] = []
-    where = f"robot {scene.robot!r}, layout {scene.layout!r}"
+    where = f"robot {scene.robot.name!r}, task {scene.task.name!r}"
     for image, (h, w) in contract.images.items():
         key = contract.scene_key(image)
         if key not in scene.cameras:
@@ -158,7 +158,7 @@ def contract_mismatches(contract: SkillContract, scene: SceneInfo) -> list[str]:
     return problems
 
 
-def check_contract(contract: SkillContract, scene: SceneInfo) -> None:
+def check_contract(contract: SkillContract, scene: RolloutSpec) -> None:
     """Raise one ``ConfigError`` listing every mismatch between ``contract`` and ``scene``."""
     problems = contract_mismatches(contract, scene)
     if problems:

@@ -29,12 +29,19 @@ import numpy as np
 
 from simseam.policies.base import BasePolicy, register_policy_scheme
 from simseam.policies.contract import SkillContract, check_contract
-from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
-
-#: LeRobot's feature names (datasets and policy inputs/outputs)
-IMAGE_PREFIX = "observation.images."
-STATE_KEY = "observation.state"
-ACTION_KEY = "action"
+from simseam.seam import (
+    FEATURE_ACTION as ACTION_KEY,
+    FEATURE_IMAGE_PREFIX as IMAGE_PREFIX,
+    FEATURE_STATE as STATE_KEY,
+    OBS_IMAGES,
+    OBS_STATE,
+    OBS_TASK,
+    STATE_ONLY,
+    ConfigError,
+    Observation,
+    ObsRequest,
+    RolloutSpec,
+)
 
 
 def pick_device(requested: str | None = None) -> str:
@@ -155,15 +162,22 @@ class LeRobotPolicy(BasePolicy):
     def n_action_steps(self) -> int:
         return int(self.config.n_action_steps)
 
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
-        check_contract(self.contract, scene)
-        super().reset(scene, task)
+    def reset(self, spec: RolloutSpec) -> None:
+        check_contract(self.contract, spec)
+        super().reset(spec)
         self.policy.reset()
         self.chunks_predicted = 0
+        self._acts = 0
+
+    def observe_next(self) -> ObsRequest | None:
+        """Images only for the calls that predict a chunk (every ``n_action_steps``-th: LeRobot's
+        ``select_action`` refills its queue then); the others replay the queue and read nothing."""
+        return None if self._acts % max(1, self.n_action_steps) == 0 else STATE_ONLY
 
     def act(self, observation: Observation) -> np.ndarray:
         torch = self._torch
-        images = observation.get("images") or {}
+        self._acts += 1
+        images = observation.get(OBS_IMAGES) or {}
         batch: dict[str, Any] = {}
         for name in self.image_names:
             key = self.contract.scene_key(name)
@@ -173,9 +187,9 @@ class LeRobotPolicy(BasePolicy):
             img = torch.from_numpy(np.ascontiguousarray(images[key]))
             batch[IMAGE_PREFIX + name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
         if STATE_KEY in self.config.input_features:
-            batch[STATE_KEY] = torch.from_numpy(np.asarray(observation["state"], dtype=np.float32)).unsqueeze(0)
-        batch["task"] = observation.get("task") or self.task_info.instruction
-        batch["robot_type"] = self.scene_info.robot
+            batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
+        batch["task"] = observation.get(OBS_TASK) or self.spec.task.instruction
+        batch["robot_type"] = self.spec.robot.name
         with torch.inference_mode():
             batch = self.preprocessor(batch)
             action = self.policy.select_action(batch)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from simseam.math3d import quat_to_matrix
-from simseam.scene.actions import ActionLayout
+from simseam.seam import ActionSpec
 
 
 class NavExpert:
@@ -27,8 +27,8 @@ class NavExpert:
     look_ahead = 0.6  # m of free room wanted along the chosen heading
     yaw_gain = 1.2
 
-    def __init__(self, layout: ActionLayout, *_scale, **_kw):
-        self.layout = layout
+    def __init__(self, action: ActionSpec, _down_rot=None):
+        self.layout = action
         self.headings = np.linspace(-np.pi, np.pi, 72, endpoint=False)
         self._u = np.stack([np.cos(self.headings), np.sin(self.headings)], axis=1)
         self._angles = None

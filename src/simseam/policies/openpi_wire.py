@@ -96,8 +96,7 @@ def require_websockets() -> None:
 PREFIX = "observation/"
 PROMPT = "prompt"
 RESET = "simseam/reset"
-SCENE = "simseam/scene"
-TASK = "simseam/task"
+SPEC = "simseam/spec"  # RolloutSpec.to_json(), sent with the first request of each episode
 
 
 def flatten(tree: dict, prefix: str) -> dict[str, Any]:

@@ -16,8 +16,8 @@ Observation formats (``obs_format``):
   (``observation/images/<feature_key>`` uint8 HxWx3, ``observation/state`` float32,
   ``observation/joint_positions`` ...; ``observation/privileged/...`` only when the server's
   metadata says ``requires_privileged: true``), ``prompt`` (the instruction) and, on the first
-  request of each episode, ``simseam/reset: True``, ``simseam/scene`` (``SceneInfo.to_json()``)
-  and ``simseam/task`` (the ``TaskInfo`` fields).
+  request of each episode, ``simseam/reset: True``, ``simseam/spec``
+  (``RolloutSpec.to_json()``).
 - ``libero``: exactly the keys of openpi's LIBERO example client: ``observation/image``
   (scene camera ``camera1``), ``observation/wrist_image`` (``camera2``), both resized with
   zero padding to ``resize`` x ``resize`` (224, as the example does; ``resize=0`` sends them
@@ -35,7 +35,6 @@ raises ``ConfigError``.
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
 import ipaddress
 from typing import Any
@@ -54,9 +53,8 @@ from simseam.seam import (
     ConfigError,
     ControlMode,
     Observation,
-    SceneInfo,
+    RolloutSpec,
     SimseamError,
-    TaskInfo,
 )
 
 OBS_FORMATS = ("simseam", "libero")
@@ -253,9 +251,10 @@ class RemotePolicy(ChunkedPolicy):
         self.close()
 
     # ------------------------------------------------------------------ policy
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
+    def reset(self, spec: RolloutSpec) -> None:
         """Check the scene fits (the server's skill contract, the LIBERO preset's needs) and
         start an episode; reconnects when an earlier error closed the connection."""
+        scene = spec
         problems = contract_mismatches(self.contract, scene) if self.contract else []
         if self.obs_format == "libero":
             libero = SkillContract(name="openpi LIBERO", action_dim=7, control_mode=ControlMode.CARTESIAN_DELTA,
@@ -271,7 +270,7 @@ class RemotePolicy(ChunkedPolicy):
             lines = "\n".join(f"  - {p}" for p in problems)
             raise ConfigError(f"remote policy {name!r} ({self.url}) does not fit this scene ({len(problems)} "
                               f"mismatch{'es' if len(problems) > 1 else ''}):\n{lines}")
-        super().reset(scene, task)
+        super().reset(spec)
         if self._ws is None:
             self.metadata = self._connect()
         self._episode_start = True
@@ -315,17 +314,16 @@ class RemotePolicy(ChunkedPolicy):
         payload[wire.PROMPT] = str(obs.get(OBS_TASK, ""))
         if self._episode_start:
             payload[wire.RESET] = True
-            payload[wire.SCENE] = self.scene_info.to_json()
-            payload[wire.TASK] = dataclasses.asdict(self.task_info)
+            payload[wire.SPEC] = self.spec.to_json()
         return payload
 
     def _check_chunk(self, actions: Any) -> np.ndarray:
-        dim = self.scene_info.action_dim
+        dim = self.spec.action_dim
         try:
             arr = np.asarray(actions)
         except Exception:  # noqa: BLE001
             arr = np.asarray(None)
-        expected = f"expected (H, {dim}) or ({dim},) for this scene ({self.scene_info.control_mode.value})"
+        expected = f"expected (H, {dim}) or ({dim},) for this scene ({self.spec.control_mode.value})"
         if arr.dtype.kind not in "fiub":
             raise RemotePolicyError(f"policy server {self.url} replied with non-numeric actions "
                                     f"({type(actions).__name__}, dtype {arr.dtype}); {expected}")

@@ -3,7 +3,7 @@
 They drive CARTESIAN_DELTA actions with a saturated proportional controller
 towards waypoints in the robot base frame, keeping the end effector's reset
 orientation (gripper down for a tabletop arm) and turning only about the base
-z axis to line the fingers up. Their success rate is the proof that layouts,
+z axis to line the fingers up. Their success rate is the proof that tasks,
 IK and the gripper convention are right.
 """
 
@@ -14,9 +14,8 @@ import numpy as np
 from simseam.math3d import quat_to_matrix, rotation_error
 from simseam.policies.base import BasePolicy, register_policy
 from simseam.policies.navigation import NavExpert
-from simseam.scene.actions import ActionLayout
-from simseam.scene.layouts.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
-from simseam.seam import ConfigError, ControlMode, Observation, SceneInfo, TaskInfo
+from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
+from simseam.seam import OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation, RolloutSpec
 
 OPEN, CLOSE = -1.0, 1.0
 
@@ -37,10 +36,10 @@ class _CartesianExpert:
     gain = 0.5  # per-step fraction of the position error to close
     rot_gain = 0.2  # same for orientation (the wrist lags more: keep it calm)
 
-    def __init__(self, layout: ActionLayout, max_translation: float, max_rotation: float, down_rot: np.ndarray):
-        self.layout = layout
-        self.max_t = max_translation
-        self.max_r = max_rotation
+    def __init__(self, action: ActionSpec, down_rot: np.ndarray):
+        self.layout = action
+        self.max_t = action.max_translation
+        self.max_r = action.max_rotation
         self.down = down_rot  # reset orientation of the end effector (base frame)
         self.phase = 0
         self.timer = 0
@@ -148,25 +147,23 @@ _EXPERTS = {"lift_cube": LiftExpert, "bowl_plate": BowlPlateExpert, "nav_obstacl
 
 @register_policy("scripted")
 class ScriptedPolicy(BasePolicy):
-    """Dispatches to the expert of the rollout's layout. Needs privileged observations."""
+    """Dispatches to the expert of the rollout's task. Needs privileged observations."""
 
     requires_privileged = True
 
-    def reset(self, scene: SceneInfo, task: TaskInfo) -> None:
-        super().reset(scene, task)
-        if task.layout not in _EXPERTS:
-            raise ConfigError(f"no scripted expert for layout {task.layout!r}; experts exist for {sorted(_EXPERTS)}")
-        layout = ActionLayout.from_scene(scene)
-        if layout.control_mode != ControlMode.CARTESIAN_DELTA:
+    def reset(self, spec: RolloutSpec) -> None:
+        super().reset(spec)
+        if spec.task.name not in _EXPERTS:
+            raise ConfigError(f"no scripted expert for task {spec.task.name!r}; experts exist for {sorted(_EXPERTS)}")
+        if spec.control_mode != ControlMode.CARTESIAN_DELTA:
             raise ConfigError("the scripted experts drive cartesian_delta; set control_mode: cartesian_delta")
-        self._layout = layout
         self._expert = None
 
     def act(self, observation: Observation) -> np.ndarray:
-        priv = observation.get("privileged")
+        priv = observation.get(OBS_PRIVILEGED)
         if priv is None:
             raise ConfigError("the scripted expert needs privileged observations (build the scene with privileged=True)")
         if self._expert is None:
             down = quat_to_matrix(priv["eef_pose"][3:])
-            self._expert = _EXPERTS[self.task_info.layout](self._layout, *self.scene_info.action_scale, down)
+            self._expert = _EXPERTS[self.spec.task.name](self.spec.action, down)
         return self._expert.act(priv, observation)

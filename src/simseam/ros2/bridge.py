@@ -34,14 +34,13 @@ always computed.
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from simseam.ros2 import convert as cv
-from simseam.seam import ConfigError, ControlMode, SimseamError
+from simseam.seam import ConfigError, ControlMode, ObsRequest, SimseamError
 
 DEFAULT_RATES: dict[str, float] = {
     "clock": float("inf"),
@@ -104,8 +103,8 @@ class Ros2Bridge:
     """Drive ``hal`` and publish its sensors (see the module docstring).
 
     ``participant``: a ``dds.Participant`` (None: no DDS, e.g. ``simseam deploy`` without
-    ``--ros2``); ``sinks``: MCAP recorder / Foxglove server; ``spec``: the RobotSpec (default:
-    ``hal.rollout.spec``).
+    ``--ros2``); ``sinks``: MCAP recorder / Foxglove server; ``spec``: the robot's facts
+    (default: ``hal.rollout.spec.robot``, a ``RobotFacts``).
     """
 
     def __init__(self, hal, *, spec=None, rates: dict[str, float] | None = None, rtf: float = 1.0,
@@ -114,9 +113,7 @@ class Ros2Bridge:
         if rtf < 0:
             raise ConfigError(f"rtf must be >= 0 (0: as fast as possible), got {rtf}")
         self.hal = hal
-        self.spec = spec if spec is not None else getattr(hal.rollout, "spec", None)
-        if self.spec is None:
-            raise ConfigError("the ROS 2 bridge needs the robot spec (pass spec=)")
+        self.spec = spec if spec is not None else hal.rollout.spec.robot
         self.rates = dict(DEFAULT_RATES, **(rates or {}))
         self.rtf = float(rtf)
         self.participant = participant
@@ -131,8 +128,8 @@ class Ros2Bridge:
         self._depths = {s.name: s for s in self.spec.sensors_of("depth")}
         lidars = self.spec.sensors_of("lidar_2d")
         self._lidar = lidars[0] if lidars else None
-        self._has_base = self.spec.kinematic_base is not None
-        self._height = self.spec.kinematic_base.height if self._has_base else 0.0
+        self._has_base = self.spec.base is not None
+        self._height = self.spec.base.height if self._has_base else 0.0
         self._next: dict[str, int] = {}
         self._jmap = cv.JointCommandMap.from_spec(self.spec)
         self._started = False
@@ -265,19 +262,13 @@ class Ros2Bridge:
 
     # --------------------------------------------------------------------- loop
     def _gate_rendering(self, next_now: int) -> None:
-        """Render cameras/depth on the coming tick only when their topics will be published."""
-        rollout = self.hal.rollout
-        opts = getattr(rollout, "options", None)
-        if not self._render_on_demand or opts is None or not hasattr(opts, "render_images"):
+        """Ask the coming tick for camera images / depth clouds only when their topics will be
+        published (an observation request: honoured in-process and through a sidecar alike)."""
+        if not self._render_on_demand:
             return
-        if not hasattr(self, "_render_default"):
-            self._render_default = bool(opts.render_images)
-        if not self._render_default:
-            return
-        want = ((bool(self._cams) and self._will_be_due("camera", next_now))
-                or (bool(self._depths) and self._will_be_due("depth", next_now)))
-        if bool(opts.render_images) != want:
-            rollout.options = dataclasses.replace(opts, render_images=want)
+        cams = bool(self._cams) and self._will_be_due("camera", next_now)
+        depth = bool(self._depths) and self._will_be_due("depth", next_now)
+        self.hal.observe(ObsRequest(images=None if cams else frozenset(), depth=depth))
 
     def step(self) -> None:
         """One control tick: commands in, ``hal.tick()``, due topics out."""

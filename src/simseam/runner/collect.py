@@ -8,7 +8,8 @@ from typing import Callable
 
 from simseam.policies.base import Policy
 from simseam.runner.dataset_recorder import LeRobotRecorder
-from simseam.runner.episodes import EpisodeResult, run_episode
+from simseam.runner.episodes import EpisodeResult
+from simseam.runner.session import run_episodes
 from simseam.seam import SimRollout
 
 
@@ -28,20 +29,18 @@ def collect_dataset(rollout: SimRollout, policy: Policy, root: str | Path, *, ep
     """Run ``episodes`` episodes (episode i uses ``seed + i``) and write them to a new dataset at ``root``.
 
     Failed episodes are dropped unless ``keep_failures``. ``on_episode(result, written)``
-    is called after each one. The dataset is finalized even when an episode raises.
+    is called after each one. The dataset is finalized even when an episode raises
+    (Ctrl-C included): every episode written before stays readable.
     """
     out = CollectResult(root=str(root), episodes_run=0, episodes_written=0, frames_written=0)
-    with LeRobotRecorder(root, rollout.scene, repo_id=repo_id, use_videos=use_videos, overwrite=overwrite) as rec:
-        for i in range(episodes):
-            try:
-                res = run_episode(rollout, policy, index=i, seed=seed + i, recorder=rec)
-            except BaseException:
-                rec.end_episode(keep=False)
-                raise
-            written = rec.end_episode(keep=res.success or keep_failures)
+    with LeRobotRecorder(root, rollout.spec, repo_id=repo_id, use_videos=use_videos, overwrite=overwrite) as rec:
+        def done(res: EpisodeResult, written: bool | None) -> None:
             out.episodes_run += 1
             out.results.append(res)
             if on_episode:
-                on_episode(res, written)
+                on_episode(res, bool(written))
+
+        run_episodes(rollout, policy, range(episodes), seed=seed, recorder=rec, keep_failures=keep_failures,
+                     on_done=done)
         out.episodes_written, out.frames_written = rec.episodes_written, rec.frames_written
     return out

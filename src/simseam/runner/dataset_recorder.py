@@ -1,11 +1,11 @@
 """Record rollouts as a LeRobot dataset (the ``lerobot`` library's current format, v3.0).
 
-Features come from the scene contract (``SceneInfo``):
+Features come from the rollout's ``RolloutSpec``:
 
 - ``observation.images.<feature_key>``: ``uint8[H, W, 3]`` per RGB camera, stored as
   AV1 video (``use_videos=True``, default) or as PNG images;
 - ``observation.state``: ``float32[state_dim]``;
-- ``action``: ``float32[action_dim]``, named by ``SceneInfo.action_names``;
+- ``action``: ``float32[action_dim]``, named by the action spec's slots;
 - the task string per frame, and ``fps`` = the scene's control rate;
 - ``meta/simseam_skill.json``: the scene contract (control mode included), which
   ``simseam train`` copies into the checkpoint so ``lerobot:`` can check it.
@@ -24,8 +24,10 @@ from typing import Any
 import numpy as np
 
 from simseam.policies.contract import SkillContract
-from simseam.policies.lerobot_policy import ACTION_KEY, IMAGE_PREFIX, STATE_KEY
-from simseam.seam import ConfigError, Observation, SceneInfo, TaskInfo
+from simseam.seam import FEATURE_ACTION as ACTION_KEY
+from simseam.seam import FEATURE_IMAGE_PREFIX as IMAGE_PREFIX
+from simseam.seam import FEATURE_STATE as STATE_KEY
+from simseam.seam import FEATURE_TASK, OBS_IMAGES, OBS_STATE, ConfigError, Observation, RolloutSpec
 
 
 def _require_lerobot():
@@ -38,16 +40,16 @@ def _require_lerobot():
     return LeRobotDataset
 
 
-def dataset_features(scene: SceneInfo, *, use_videos: bool = True) -> dict[str, dict[str, Any]]:
-    """LeRobot feature spec for a scene (see the module docstring)."""
+def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str, dict[str, Any]]:
+    """LeRobot feature spec for a rollout (see the module docstring)."""
     features: dict[str, dict[str, Any]] = {}
-    for key, (h, w) in scene.cameras.items():
+    for key, (h, w) in spec.cameras.items():
         features[IMAGE_PREFIX + key] = {"dtype": "video" if use_videos else "image", "shape": (h, w, 3),
                                         "names": ["height", "width", "channels"]}
-    features[STATE_KEY] = {"dtype": "float32", "shape": (scene.state_dim,),
-                           "names": [f"state_{i}" for i in range(scene.state_dim)]}
-    features[ACTION_KEY] = {"dtype": "float32", "shape": (scene.action_dim,),
-                            "names": list(scene.action_names) or [f"action_{i}" for i in range(scene.action_dim)]}
+    features[STATE_KEY] = {"dtype": "float32", "shape": (spec.state_dim,),
+                           "names": list(spec.observation.state_names)
+                           or [f"state_{i}" for i in range(spec.state_dim)]}
+    features[ACTION_KEY] = {"dtype": "float32", "shape": (spec.action_dim,), "names": list(spec.action.names)}
     return features
 
 
@@ -59,7 +61,7 @@ class LeRobotRecorder:
     (nothing is uploaded).
     """
 
-    def __init__(self, root: str | Path, scene: SceneInfo, *, repo_id: str | None = None,
+    def __init__(self, root: str | Path, spec: RolloutSpec, *, repo_id: str | None = None,
                  use_videos: bool = True, overwrite: bool = False):
         LeRobotDataset = _require_lerobot()
         self.root = Path(root)
@@ -68,33 +70,33 @@ class LeRobotRecorder:
                 raise ConfigError(f"dataset directory {self.root} already exists; pick a new --out "
                                   "or pass --overwrite")
             shutil.rmtree(self.root)
-        fps = float(scene.control_hz)
+        fps = float(spec.control_hz)
         if abs(fps - round(fps)) > 1e-9:
             raise ConfigError(f"LeRobot datasets need an integer fps; the scene runs at {fps:g} Hz "
                               "(set control_hz to a whole number)")
-        self.scene = scene
-        self.features = dataset_features(scene, use_videos=use_videos)
-        self._image_keys = list(scene.cameras)
+        self.spec = spec
+        self.features = dataset_features(spec, use_videos=use_videos)
+        self._image_keys = list(spec.cameras)
         self.dataset = LeRobotDataset.create(
-            repo_id=repo_id or f"simseam/{scene.robot}_{scene.layout}", fps=int(round(fps)),
-            features=self.features, root=self.root, robot_type=scene.robot, use_videos=use_videos,
+            repo_id=repo_id or f"simseam/{spec.robot.name}_{spec.task.name}", fps=int(round(fps)),
+            features=self.features, root=self.root, robot_type=spec.robot.name, use_videos=use_videos,
             image_writer_threads=4 if self._image_keys else 0)
-        SkillContract.for_scene(f"{scene.robot}/{scene.layout}", scene).save(self.root / "meta")
+        SkillContract.for_spec(f"{spec.robot.name}/{spec.task.name}", spec).save(self.root / "meta")
         self.episodes_written = 0
         self.frames_written = 0
         self._frames = 0
         self._closed = False
 
-    def add(self, observation: Observation, action: np.ndarray, task: TaskInfo) -> None:
+    def add(self, observation: Observation, action: np.ndarray) -> None:
         """Buffer one frame: the observation the policy saw and the action it took."""
-        images = observation.get("images") or {}
+        images = observation.get(OBS_IMAGES) or {}
         missing = [k for k in self._image_keys if k not in images]
         if missing:
             raise ConfigError(f"cannot record: observation has no image(s) {missing} (was rendering turned off?)")
         frame: dict[str, Any] = {IMAGE_PREFIX + k: np.asarray(images[k], dtype=np.uint8) for k in self._image_keys}
-        frame[STATE_KEY] = np.asarray(observation["state"], dtype=np.float32)
+        frame[STATE_KEY] = np.asarray(observation[OBS_STATE], dtype=np.float32)
         frame[ACTION_KEY] = np.asarray(action, dtype=np.float32)
-        frame["task"] = task.instruction
+        frame[FEATURE_TASK] = self.spec.task.instruction
         self.dataset.add_frame(frame)
         self._frames += 1
 

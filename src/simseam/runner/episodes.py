@@ -1,23 +1,31 @@
-"""The episode loop: policy -> rollout, timing, optional video."""
+"""The one episode loop: policy -> rollout, observation requests, timing, optional video and recording.
+
+Used by ``simseam run``, ``simseam collect`` and ``collect_dataset``. Each step
+asks the rollout for what the policy will read next (``policy.observe_next()``;
+everything when a dataset recorder needs the frames), so a state-only policy
+never renders and a chunked policy renders once per chunk.
+"""
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
 from simseam.policies.base import Policy
 from simseam.runner.video import VideoWriter
-from simseam.seam import SimRollout
+from simseam.seam import INFO_DIAGNOSTICS, SimRollout
 
 
 @dataclass
 class EpisodeResult:
     """One episode. Latencies in milliseconds: ``step`` is the rollout's step
-    (physics, control, sensors), ``policy`` is ``policy.act``."""
+    (physics, control, sensors), ``policy`` is ``policy.act``. ``diagnostics``:
+    the task's values after the last step (``spec.task.diagnostics``)."""
 
     index: int
     seed: int
@@ -27,7 +35,8 @@ class EpisodeResult:
     step_ms: list[float] = field(default_factory=list, repr=False)
     policy_ms: list[float] = field(default_factory=list, repr=False)
     video: str | None = None
-    error: str | None = None  # set when the episode was cut short by an engine failure
+    error: str | None = None  # set when the episode was cut short by an engine or policy-server failure
+    diagnostics: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict:
         def stats(xs: list[float]) -> dict:
@@ -46,7 +55,14 @@ class EpisodeResult:
             "policy_latency_ms": stats(self.policy_ms),
             "video": self.video,
             "error": self.error,
+            "diagnostics": {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
+                            for k, v in self.diagnostics.items()},
         }
+
+
+def partial_video_path(path: Path) -> Path:
+    """Where a video is written while its episode runs; renamed to ``path`` once complete."""
+    return path.with_name(path.stem + ".partial" + path.suffix)
 
 
 def run_episode(rollout: SimRollout, policy: Policy, *, index: int, seed: int, video_path: Path | None = None,
@@ -54,31 +70,42 @@ def run_episode(rollout: SimRollout, policy: Policy, *, index: int, seed: int, v
     """Run one episode until success (terminated) or the step limit (truncated).
 
     ``recorder`` (a ``LeRobotRecorder``) receives every (observation, action) pair;
-    the caller decides whether to keep the episode (``recorder.end_episode``)."""
-    obs = rollout.reset(seed)
-    policy.reset(rollout.scene, rollout.task)
+    the caller decides whether to keep the episode (``recorder.end_episode``). A
+    video is written to ``partial_video_path(video_path)`` and renamed to
+    ``video_path`` only when the episode ends normally.
+    """
+    spec = rollout.spec
+    policy.reset(spec)
+
+    def request():
+        return None if recorder is not None else policy.observe_next()
+
+    obs = rollout.reset(seed, request())
     result = EpisodeResult(index=index, seed=seed, success=False, steps=0, reward=0.0)
     writer = None
+    partial = None
     if video_path is not None:
         frame = rollout.render()
         if frame is not None:
-            writer = VideoWriter(video_path, fps=rollout.scene.control_hz)
+            partial = partial_video_path(video_path)
+            writer = VideoWriter(partial, fps=spec.control_hz)
             writer.append(frame)
-            result.video = str(video_path)
-    key = rollout.task.success_key
+    key = spec.task.success_key
+    completed = False
     try:
-        for _ in range(rollout.task.max_steps):
+        for _ in range(spec.task.max_steps):
             t0 = time.perf_counter()
             action = policy.act(obs)
             t1 = time.perf_counter()
             if recorder is not None:
-                recorder.add(obs, action, rollout.task)
-            step = rollout.step(action)
+                recorder.add(obs, action)
+            step = rollout.step(action, request())
             t2 = time.perf_counter()
             result.policy_ms.append((t1 - t0) * 1e3)
             result.step_ms.append((t2 - t1) * 1e3)
             result.steps += 1
             result.reward += step.reward
+            result.diagnostics = dict(step.info.get(INFO_DIAGNOSTICS) or {})
             obs = step.observation
             if writer is not None:
                 writer.append(rollout.render())
@@ -88,7 +115,13 @@ def run_episode(rollout: SimRollout, policy: Policy, *, index: int, seed: int, v
                 result.success = True
             if step.terminated or step.truncated:
                 break
+        completed = True
     finally:
         if writer is not None:
             writer.close()
+            if completed:
+                os.replace(partial, video_path)
+                result.video = str(video_path)
+            else:
+                partial.unlink(missing_ok=True)
     return result

@@ -1,15 +1,15 @@
-"""Scene files: which robot, engine and layout, and the episode knobs (YAML).
+"""Scene files: which robot, engine and task, and the episode knobs (YAML).
 
 Example::
 
     robot: franka_panda          # a built-in robot or a manifest path (relative to this file)
     engine: mujoco               # or {name: mujoco, render_quality: full, timestep: 0.002,
                                  #     process: sidecar, python: /path/to/venv/bin/python, transport: ipc}
-    layout: lift_cube
+    task: lift_cube              # (``layout:`` is accepted as an older name for ``task:``)
     image_size: [256, 256]       # (H, W) of every RGB camera; default: the layout's or the sensor's
     max_steps: 150
     control_hz: 20
-    control_mode: cartesian_delta   # optional; default: the layout's or the robot's
+    control_mode: cartesian_delta   # optional; default: the task's or the robot's
 
 Unknown keys are errors that name the file and the field.
 """
@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from simseam.config_files import load_yaml_model
 from simseam.robot.manifest import find_manifest, load_manifest
@@ -48,7 +48,7 @@ class SceneConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     robot: str
     engine: EngineConfig = EngineConfig()
-    layout: str
+    task: str = Field(validation_alias=AliasChoices("task", "layout"))
     image_size: tuple[int, int] | None = None
     max_steps: int | None = Field(default=None, gt=0)
     control_hz: float = Field(default=20.0, gt=0, le=1000)
@@ -109,8 +109,8 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
         python = os.path.expanduser(eng.python) if eng.python else None
         if python and not Path(python).is_absolute() and "/" in python:
             python = str((base_dir / python).resolve())
-        return SidecarRollout(spec.to_json(), cfg.layout, eng.name, dataclasses.asdict(options), python=python,
+        return SidecarRollout(spec.to_json(), cfg.task, eng.name, dataclasses.asdict(options), python=python,
                               transport=eng.transport, boot_timeout=eng.boot_timeout_s,
                               request_timeout=eng.request_timeout_s, keep_alive=eng.keep_alive, progress=progress)
     engine = make_engine(eng.name, EngineOptions(timestep=eng.timestep, render_quality=eng.render_quality))
-    return ManifestScene(spec, cfg.layout, engine, options)
+    return ManifestScene(spec, cfg.task, engine, options)

@@ -1,15 +1,13 @@
-"""Run summaries: success rate with a Wilson score interval, written as summary.json."""
+"""Run summaries: success rate with a Wilson score interval and per-episode diagnostics (summary.json)."""
 
 from __future__ import annotations
 
-import json
 import math
 import platform
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from simseam.runner.episodes import EpisodeResult
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
@@ -30,14 +28,22 @@ def _version(dist: str) -> str | None:
         return None
 
 
-def build_summary(config: dict[str, Any], scene: dict[str, Any], episodes: list[EpisodeResult]) -> dict[str, Any]:
+def build_summary(config: dict[str, Any], spec: dict[str, Any] | None, episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """``spec``: the rollout's ``RolloutSpec.to_json()``; ``episodes``: ``EpisodeResult.to_json()`` dicts.
+    Besides the success rate, ``diagnostics_mean`` averages each numeric final diagnostic over the
+    episodes (bools count as 0/1)."""
     n = len(episodes)
-    k = sum(e.success for e in episodes)
+    k = sum(bool(e["success"]) for e in episodes)
     lo, hi = wilson_interval(k, n)
+    diag: dict[str, list[float]] = {}
+    for e in episodes:
+        for name, v in (e.get("diagnostics") or {}).items():
+            diag.setdefault(name, []).append(float(v))
     return {
         "config": config,
-        "scene": scene,
-        "episodes": [e.to_json() for e in episodes],
+        "spec": spec,
+        "episodes": list(episodes),
+        "diagnostics_mean": {name: sum(v) / len(v) for name, v in diag.items()},
         "n_episodes": n,
         "n_success": k,
         "success_rate": k / n if n else 0.0,
@@ -51,7 +57,10 @@ def build_summary(config: dict[str, Any], scene: dict[str, Any], episodes: list[
 
 
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
+    """Write ``out_dir/summary.json`` atomically."""
+    from simseam.runner.run_dir import write_json_atomic
+
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "summary.json"
-    path.write_text(json.dumps(summary, indent=2))
+    write_json_atomic(path, summary)
     return path

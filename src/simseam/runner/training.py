@@ -21,7 +21,9 @@ from pathlib import Path
 from typing import Callable
 
 from simseam.policies.contract import SkillContract
-from simseam.policies.lerobot_policy import ACTION_KEY, IMAGE_PREFIX, STATE_KEY
+from simseam.seam import FEATURE_ACTION as ACTION_KEY
+from simseam.seam import FEATURE_IMAGE_PREFIX as IMAGE_PREFIX
+from simseam.seam import FEATURE_STATE as STATE_KEY
 from simseam.seam import ConfigError
 
 

@@ -1,9 +1,10 @@
 """The kinematic holonomic base: BODY_TWIST in, planar pose out (numpy only).
 
 The pose ``[x, y, yaw]`` is the base link in the world (m, m, rad). A twist
-``[vx, vy, wz]`` is in the base frame (m/s, rad/s); ``[vx, vy]`` is clipped to
-``max_linear`` in norm and ``wz`` to ``max_angular``. Integration is exact for
-a twist held constant over the interval (the base follows the arc).
+``[vx, vy, wz]`` is in the base frame (m/s, rad/s), already within the bounds
+of the rollout's action spec (``scene.controllers.TwistBase`` states them).
+Integration is exact for a twist held constant over the interval (the base
+follows the arc).
 """
 
 from __future__ import annotations
@@ -24,14 +25,6 @@ class KinematicBase:
     def reset(self, x: float, y: float, yaw: float) -> None:
         self.pose[:] = (x, y, yaw)
         self.velocity[:] = 0.0
-
-    def clip(self, twist: np.ndarray) -> np.ndarray:
-        vx, vy, wz = (float(v) for v in twist)
-        speed = math.hypot(vx, vy)
-        if speed > self.spec.max_linear:
-            vx, vy = vx * self.spec.max_linear / speed, vy * self.spec.max_linear / speed
-        wz = min(max(wz, -self.spec.max_angular), self.spec.max_angular)
-        return np.array([vx, vy, wz])
 
     def advance(self, twist: np.ndarray, dt: float) -> None:
         """Move along a clipped body twist held for ``dt`` seconds."""

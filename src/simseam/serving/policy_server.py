@@ -10,8 +10,8 @@ its metadata on connect::
 then answers each observation (the ``simseam`` format of ``simseam.policies.remote``) with
 ``{"actions": float32[H, action_dim], "server_timing": {"infer_ms": ..., "prev_total_ms": ...}}``:
 a ``ChunkedPolicy`` (anything with ``predict_chunk``) replies its chunk, any other policy one
-action (``H = 1``). A request with ``simseam/reset`` rebuilds ``SceneInfo`` / ``TaskInfo`` from
-``simseam/scene`` / ``simseam/task`` (or the prompt) and calls ``policy.reset``; the first request
+action (``H = 1``). A request with ``simseam/reset`` rebuilds the ``RolloutSpec`` from
+``simseam/spec`` and calls ``policy.reset``; the first request
 of a connection must carry them.
 
 Errors mirror openpi: the traceback goes to the client as a text frame, the connection is closed
@@ -23,7 +23,6 @@ One client at a time (a policy keeps per-episode state): a second concurrent cli
 
 from __future__ import annotations
 
-import dataclasses
 import http
 import sys
 import threading
@@ -35,7 +34,7 @@ import numpy as np
 
 from simseam.policies import openpi_wire as wire
 from simseam.policies.contract import SkillContract
-from simseam.seam import OBS_IMAGES, OBS_STATE, OBS_TASK, SceneInfo, TaskInfo
+from simseam.seam import OBS_IMAGES, OBS_STATE, OBS_TASK, RolloutSpec
 
 
 class ProtocolError(ValueError):
@@ -53,7 +52,7 @@ def _health_check(connection: Any, request: Any) -> Any:
 
 
 class PolicyServer:
-    """Serve ``policy`` (``reset(scene, task)``, ``act(obs)``, optionally ``predict_chunk(obs)``).
+    """Serve ``policy`` (``reset(spec)``, ``act(obs)``, optionally ``predict_chunk(obs)``).
 
     ``port=0`` picks a free port (read ``.port`` / ``.url`` after ``start()``). ``contract``
     (default: the policy's own ``contract`` attribute when it has one) goes into the metadata as
@@ -207,22 +206,16 @@ class PolicyServer:
             raise ProtocolError(f"a request must be a map of observation entries, got {type(request).__name__}")
         prompt = request.get(wire.PROMPT)
         if request.get(wire.RESET):
-            if wire.SCENE not in request:
-                raise ProtocolError(f"{wire.RESET!r} without {wire.SCENE!r} (SceneInfo.to_json())")
-            scene = SceneInfo.from_json(request[wire.SCENE])
-            task_json = request.get(wire.TASK) or {}
-            if not isinstance(task_json, dict):
-                raise ProtocolError(f"{wire.TASK!r} must be a map of TaskInfo fields")
-            fields = {f.name for f in dataclasses.fields(TaskInfo)}
-            task = TaskInfo(**{"layout": scene.layout, "instruction": str(prompt or ""),
-                               **{k: v for k, v in task_json.items() if k in fields}})
-            self.policy.reset(scene, task)
-            episode.update(scene=scene, task=task)
-        elif "scene" not in episode:
+            if wire.SPEC not in request:
+                raise ProtocolError(f"{wire.RESET!r} without {wire.SPEC!r} (RolloutSpec.to_json())")
+            spec = RolloutSpec.from_json(request[wire.SPEC], where=f"request field {wire.SPEC!r}")
+            self.policy.reset(spec)
+            episode.update(spec=spec)
+        elif "spec" not in episode:
             keys = ", ".join(sorted(map(str, request))) or "none"
             raise ProtocolError(
                 f"the first request on a connection must start an episode: it needs {wire.RESET!r}: True and "
-                f"{wire.SCENE!r} (SceneInfo.to_json()), and this one has neither (keys: {keys}). simseam's "
+                f"{wire.SPEC!r} (RolloutSpec.to_json()), and this one has neither (keys: {keys}). simseam's "
                 "RemotePolicy sends them; a plain openpi client does not, so add them to its first observation")
         obs = wire.unflatten(request, wire.PREFIX)
         state = obs.get(OBS_STATE)
@@ -233,7 +226,7 @@ class PolicyServer:
             if not (isinstance(img, np.ndarray) and img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3):
                 raise ProtocolError(f"'{wire.PREFIX}{OBS_IMAGES}/{key}' must be a uint8 HxWx3 array, got "
                                     f"{getattr(img, 'dtype', type(img).__name__)} {getattr(img, 'shape', '')}")
-        obs[OBS_TASK] = str(prompt) if prompt is not None else episode["task"].instruction
+        obs[OBS_TASK] = str(prompt) if prompt is not None else episode["spec"].task.instruction
         return obs
 
     def _infer(self, obs: dict[str, Any]) -> np.ndarray:

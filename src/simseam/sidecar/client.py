@@ -8,7 +8,7 @@ removed), and talks to it over ZeroMQ with ``simseam.sidecar.wire``.
 Access: by default a private ``ipc://`` socket inside a fresh 0700 directory;
 with ``transport="tcp"`` a socket bound to 127.0.0.1 on a random port. Either
 way every request carries a random per-launch token, and ``hello`` checks the
-sidecar serves exactly this scene (its identity: a hash of robot spec, layout,
+sidecar serves exactly this scene (its identity: a hash of robot spec, task,
 engine and options) before anything else is sent.
 
 Failure handling: while waiting for a reply the client polls in 50 ms slices
@@ -50,12 +50,12 @@ import numpy as np
 import zmq
 
 from simseam.seam import (
+    CAP_RESTART,
     ConfigError,
-    ControlMode,
+    ObsRequest,
     Observation,
-    SceneInfo,
+    RolloutSpec,
     StepResult,
-    TaskInfo,
     check_action,
 )
 from simseam.sidecar.errors import (
@@ -75,9 +75,9 @@ STDERR_LINES = 40
 EXIT_BUSY = 3
 
 
-def scene_identity(spec_json: dict, layout: str, engine: str, options: dict) -> str:
+def scene_identity(spec_json: dict, task: str, engine: str, options: dict) -> str:
     """What a sidecar serves, as a short hash: two sidecars with the same identity are interchangeable."""
-    blob = json.dumps({"spec": spec_json, "layout": layout, "engine": engine, "options": options},
+    blob = json.dumps({"spec": spec_json, "task": task, "engine": engine, "options": options},
                       sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
@@ -192,14 +192,14 @@ class SidecarRollout:
     ``progress``: called with each boot stage (a str).
     """
 
-    def __init__(self, spec_json: dict, layout: str, engine: str = "mujoco", options: dict | None = None, *,
+    def __init__(self, spec_json: dict, task: str, engine: str = "mujoco", options: dict | None = None, *,
                  python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
                  progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None):
         if transport not in ("ipc", "tcp"):
             raise ConfigError(f"sidecar transport must be 'ipc' or 'tcp', got {transport!r}")
         self._spec_json = spec_json
-        self._layout = layout
+        self._task = task
         self._engine = engine
         self._options = dict(options or {})
         self._python = python or sys.executable
@@ -210,7 +210,7 @@ class SidecarRollout:
         self._exclusive = exclusive
         self._progress = progress or (lambda stage: None)
         self._extra_env = env
-        self.identity = scene_identity(spec_json, layout, engine, self._options)
+        self.identity = scene_identity(spec_json, task, engine, self._options)
         self._ctx = zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self._proc: _Process | None = None
@@ -232,7 +232,7 @@ class SidecarRollout:
         os.chmod(self._dir, 0o700)
         self._token = secrets.token_hex(16)
         endpoint = f"ipc://{self._dir}/scene.sock" if self._transport == "ipc" else "tcp://127.0.0.1:*"
-        boot = {"spec": self._spec_json, "layout": self._layout, "engine": self._engine, "options": self._options,
+        boot = {"spec": self._spec_json, "task": self._task, "engine": self._engine, "options": self._options,
                 "endpoint": endpoint, "token": self._token, "identity": self.identity,
                 "exclusive": self._exclusive, "keep_alive": self._keep_alive,
                 "registry_dir": str(registry_dir()) if self._keep_alive else None}
@@ -307,14 +307,12 @@ class SidecarRollout:
             raise SidecarAccessError(
                 f"the sidecar at {self.endpoint} serves scene {info.get('identity')!r}, not {self.identity!r}; "
                 "it was not driven")
-        s = info["scene"]
-        self._scene = SceneInfo(
-            robot=s["robot"], engine=s["engine"], layout=s["layout"], control_mode=ControlMode.parse(s["control_mode"]),
-            action_dim=int(s["action_dim"]), state_dim=int(s["state_dim"]), control_hz=float(s["control_hz"]),
-            cameras={k: tuple(v) for k, v in s["cameras"].items()}, joint_names=tuple(s["joint_names"]),
-            action_names=tuple(s["action_names"]), action_scale=tuple(s.get("action_scale", (0.05, 0.5))))
-        self._task = TaskInfo(**info["task"])
-        self.observation_spec = info["observation_spec"]
+        try:
+            spec = RolloutSpec.from_json(info.get("spec"), where=f"the sidecar at {self.endpoint}: hello's spec")
+        except ConfigError as exc:
+            raise SidecarProtocolError(str(exc)) from None
+        caps = tuple(dict.fromkeys((*spec.capabilities, CAP_RESTART)))
+        self._spec = spec.replace(backend="sidecar", capabilities=caps)
         self.server_pid = int(info["pid"])
         self.server_python = info.get("python")
 
@@ -402,35 +400,38 @@ class SidecarRollout:
 
     # ------------------------------------------------------------------- seam
     @property
+    def spec(self) -> RolloutSpec:
+        return self._spec
+
+    @property
     def action_dim(self) -> int:
-        return self._scene.action_dim
+        return self._spec.action.dim
 
-    @property
-    def scene(self) -> SceneInfo:
-        return self._scene
-
-    @property
-    def task(self) -> TaskInfo:
-        return self._task
-
-    def reset(self, seed: int | None = None) -> Observation:
-        reply = self._request("reset", {"seed": None if seed is None else int(seed)})
+    def reset(self, seed: int | None = None, observe: ObsRequest | None = None) -> Observation:
+        body = {"seed": None if seed is None else int(seed)}
+        if observe is not None:
+            body["observe"] = observe.to_json()
+        reply = self._request("reset", body)
         obs = reply["obs"]
         self._sim_time = int(obs["sim_time_ns"])
         self._frame = self._first_image(obs)
         return obs
 
-    def step(self, action: np.ndarray) -> StepResult:
+    def step(self, action: np.ndarray, observe: ObsRequest | None = None) -> StepResult:
         a = check_action(action, self.action_dim)  # fail fast, locally, before a round trip
-        r = self._request("step", {"action": a})
+        body = {"action": a}
+        if observe is not None:
+            body["observe"] = observe.to_json()
+        r = self._request("step", body)
         obs = r["obs"]
         self._sim_time = int(obs["sim_time_ns"])
         self._frame = self._first_image(obs)
         return StepResult(obs, float(r["reward"]), bool(r["terminated"]), bool(r["truncated"]), dict(r["info"]))
 
     def _first_image(self, obs: Observation) -> np.ndarray | None:
-        images = obs.get("images") or {}
-        return next(iter(images.values())) if images else None
+        """The first RGB camera's frame when this observation carries it (render() re-uses it)."""
+        first = next(iter(self._spec.cameras), None)
+        return (obs.get("images") or {}).get(first) if first is not None else None
 
     def render(self) -> np.ndarray | None:
         if self._frame is None:
@@ -441,11 +442,6 @@ class SidecarRollout:
         return getattr(self, "_sim_time", 0)
 
     # -------------------------------------------------------------- lifecycle
-    @property
-    def spec_json(self) -> dict:
-        """The RobotSpec (JSON) of the scene this sidecar serves."""
-        return self._spec_json
-
     @property
     def pid(self) -> int | None:
         return self._proc.pid if self._proc is not None else self._adopted_pid

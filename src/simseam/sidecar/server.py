@@ -4,7 +4,7 @@
     simseam sidecar serve --boot BOOT.json                  (the same, through the CLI)
 
 ``BOOT.json`` (written by the client into its private 0700 directory, read and
-deleted at start): ``{"spec": RobotSpec JSON, "layout": str, "engine": str,
+deleted at start): ``{"spec": RobotSpec JSON, "task": str, "engine": str,
 "options": SceneOptions fields, "endpoint": "ipc://..." | "tcp://127.0.0.1:*",
 "token": str, "identity": str, "exclusive": bool, "keep_alive": bool,
 "registry_dir": str | null}``.
@@ -77,23 +77,6 @@ def _take_engine_lock(engine: str):
     return fd
 
 
-def observation_spec(scene) -> dict:
-    """Keys, dtypes and shapes of the scene's observations (from its contract)."""
-    info = scene.scene
-    n = len(info.joint_names)
-    spec = {
-        "images": {k: {"dtype": "|u1", "shape": [h, w, 3]} for k, (h, w) in info.cameras.items()},
-        "state": {"dtype": "<f4", "shape": [info.state_dim]},
-        "joint_positions": {"dtype": "<f4", "shape": [n]},
-        "joint_velocities": {"dtype": "<f4", "shape": [n]},
-        "task": {"type": "str"},
-        "sim_time_ns": {"type": "int"},
-    }
-    if scene.options.privileged:
-        spec["privileged"] = {"type": "dict"}
-    return spec
-
-
 class Server:
     def __init__(self, scene, token: str, identity: str, test_hooks: bool = False):
         self.scene = scene
@@ -120,9 +103,9 @@ class Server:
                 seed = body.get("seed")
                 if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
                     raise WireError(f"reset: seed must be an int or null, got {seed!r}")
-                return encode("ok", {"obs": self.scene.reset(seed)}), False
+                return encode("ok", {"obs": self.scene.reset(seed, self._request(body))}), False
             if op == "step":
-                r = self.scene.step(body.get("action"))
+                r = self.scene.step(body.get("action"), self._request(body))
                 info = {k: v for k, v in r.info.items()}
                 return encode("ok", {"obs": r.observation, "reward": r.reward, "terminated": r.terminated,
                                      "truncated": r.truncated, "info": info}), False
@@ -142,20 +125,25 @@ class Server:
             return encode("error", {"kind": type(exc).__name__, "message": str(exc),
                                     "traceback": traceback.format_exc()}), False
 
+    @staticmethod
+    def _request(body: dict):
+        """The ``observe`` field of a reset/step body as an ``ObsRequest`` (None: everything)."""
+        from simseam.seam import ConfigError, ObsRequest
+
+        try:
+            return ObsRequest.from_json(body.get("observe"))
+        except ConfigError as exc:
+            raise WireError(str(exc)) from None
+
     def hello(self, body: dict) -> dict:
         if body.get("protocol") != PROTOCOL_VERSION:
             raise WireError(f"client speaks protocol {body.get('protocol')!r}, server {PROTOCOL_VERSION}")
-        task = self.scene.task
         return {
             "protocol": PROTOCOL_VERSION,
             "identity": self.identity,
             "pid": os.getpid(),
             "python": sys.version.split()[0],
-            "action_dim": self.scene.action_dim,
-            "scene": self.scene.scene.to_json(),
-            "task": {"layout": task.layout, "instruction": task.instruction, "success_key": task.success_key,
-                     "max_steps": task.max_steps},
-            "observation_spec": observation_spec(self.scene),
+            "spec": self.scene.spec.to_json(),
         }
 
 
@@ -166,7 +154,7 @@ def build_scene(boot: dict):
     opts = dict(boot.get("options") or {})
     if opts.get("image_size") is not None:
         opts["image_size"] = tuple(opts["image_size"])
-    return ManifestScene(RobotSpec.from_json(boot["spec"]), boot["layout"], boot.get("engine", "mujoco"),
+    return ManifestScene(RobotSpec.from_json(boot["spec"]), boot["task"], boot.get("engine", "mujoco"),
                          SceneOptions(**opts))
 
 
@@ -179,7 +167,7 @@ def serve(boot: dict) -> int:
     lock = None
     if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
         lock = _take_engine_lock(boot.get("engine", "mujoco"))
-    _emit("boot", stage=f"building scene {boot['layout']!r} on engine {boot.get('engine', 'mujoco')!r}")
+    _emit("boot", stage=f"building task {boot['task']!r} on engine {boot.get('engine', 'mujoco')!r}")
     os.environ["SIMSEAM_SIDECAR"] = "1"  # sidecar-only engines (isaac) are made only in this process
     try:
         scene = build_scene(boot)

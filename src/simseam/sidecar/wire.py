@@ -24,7 +24,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2  # 2: hello carries the RolloutSpec; reset/step carry an observation request
 MAX_HEADER_BYTES = 1 << 20  # 1 MiB of msgpack is far more than any header needs
 MAX_ARRAY_BYTES = 1 << 30  # 1 GiB per array
 MAX_ARRAYS = 256

@@ -1,19 +1,23 @@
-"""Layouts: the task part of a scene (props, randomisation, success), by name.
+"""Tasks: what the robot is asked to do in a scene (props, randomisation, state, success), by name.
 
-A layout never touches control: it places the robot base, adds props through
-engine primitives, randomises them from the episode's generator and judges
-success. Layouts that constrain nothing about the robot ("free-axis") accept
-any manifest robot; others state what they need (``required_rgb``, a forced
-control mode) and ``check_robot`` rejects a robot that lacks it.
+A task never touches control: it places the robot base, adds props through
+engine primitives, randomises them from the episode's generator, defines the
+observation's state vector and judges each step (``evaluate``: reward, success
+and named diagnostics such as a distance to the goal). Tasks that constrain
+nothing about the robot accept any manifest robot; others state what they need
+(``required_rgb``, a forced control mode, a gripper) and ``check_robot``
+rejects a robot that lacks it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
+from simseam.math3d import matrix_to_axis_angle
 from simseam.robot.spec import RobotSpec
 from simseam.seam import ConfigError
 
@@ -25,7 +29,17 @@ TABLE_HALF = (0.55, 0.7, TABLE_TOP / 2)
 TABLE_CENTER_X = 0.35  # table centre in front of the robot base (m)
 
 
-class Layout:
+@dataclass(frozen=True)
+class Evaluation:
+    """A task's judgement after a control step: ``diagnostics`` maps each name in
+    ``Task.diagnostics`` to a float (SI units) or a bool."""
+
+    reward: float
+    success: bool
+    diagnostics: dict[str, float | bool] = field(default_factory=dict)
+
+
+class Task:
     """Base class. Subclasses set the class attributes and override the hooks."""
 
     name: ClassVar[str] = ""
@@ -37,13 +51,17 @@ class Layout:
     needs_gripper: ClassVar[bool] = True
     #: props whose poses ``privileged['objects']`` reports
     tracked_objects: ClassVar[tuple[str, ...]] = ()
+    #: extra ground-truth names ``privileged()`` adds to ``privileged['objects']``
+    privileged_extras: ClassVar[tuple[str, ...]] = ()
+    #: names of the values ``evaluate`` reports besides reward and success
+    diagnostics: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, spec: RobotSpec, reach: float):
         self.spec = spec
         self.reach = reach
 
     def check_robot(self) -> None:
-        """Raise ``ConfigError`` listing what the robot lacks for this layout."""
+        """Raise ``ConfigError`` listing what the robot lacks for this task."""
         problems = []
         if self.needs_gripper and self.spec.gripper is None:
             problems.append("a gripper")
@@ -52,7 +70,7 @@ class Layout:
         if missing:
             problems.append(f"RGB sensors with feature keys {missing} (it has {sorted(keys) or 'none'})")
         if problems:
-            raise ConfigError(f"layout {self.name!r} needs robot {self.spec.name!r} to declare " + " and ".join(problems))
+            raise ConfigError(f"task {self.name!r} needs robot {self.spec.name!r} to declare " + " and ".join(problems))
 
     def robot_base(self) -> tuple[np.ndarray, float]:
         """World position of the robot base link and its yaw (rad)."""
@@ -81,36 +99,51 @@ class Layout:
         """Extra ground truth for ``privileged['objects']`` (base frame [x, y, z, qw, qx, qy, qz])."""
         return {}
 
-    def evaluate(self, scene: "ManifestScene") -> tuple[float, bool]:
-        """(reward, success) after a control step."""
+    def state_names(self) -> tuple[str, ...]:
+        """Slot names of the observation's ``state`` vector. Default (the LIBERO convention):
+        tool position (m) and axis-angle orientation (rad) in the base frame, then each
+        gripper finger's position."""
+        grip = self.spec.gripper.joints if self.spec.gripper else []
+        return ("eef_pos.x", "eef_pos.y", "eef_pos.z", "eef_axis_angle.x", "eef_axis_angle.y",
+                "eef_axis_angle.z", *(f"gripper_qpos.{n}" for n in grip))
+
+    def state(self, eef_pos: np.ndarray, eef_rot: np.ndarray, gripper_q: np.ndarray, out: np.ndarray) -> None:
+        """Fill ``out`` (float32[len(state_names())]) from the measured tool pose (base frame) and
+        the gripper finger positions."""
+        out[:3] = eef_pos
+        out[3:6] = matrix_to_axis_angle(eef_rot)
+        out[6:] = gripper_q
+
+    def evaluate(self, scene: "ManifestScene") -> Evaluation:
+        """Reward, success and diagnostics after a control step."""
         raise NotImplementedError
 
 
-_LAYOUTS: dict[str, type[Layout]] = {}
+_TASKS: dict[str, type[Task]] = {}
 
 
-def register_layout(cls: type[Layout]) -> type[Layout]:
-    """Class decorator: make a layout available by its ``name``."""
+def register_task(cls: type[Task]) -> type[Task]:
+    """Class decorator: make a task available by its ``name``."""
     if not cls.name:
         raise ValueError(f"{cls.__name__} has no name")
-    _LAYOUTS[cls.name] = cls
+    _TASKS[cls.name] = cls
     return cls
 
 
-def layout_names() -> list[str]:
+def task_names() -> list[str]:
     _load_builtin()
-    return sorted(_LAYOUTS)
+    return sorted(_TASKS)
 
 
-def get_layout(name: str) -> type[Layout]:
+def get_task(name: str) -> type[Task]:
     _load_builtin()
     try:
-        return _LAYOUTS[name]
+        return _TASKS[name]
     except KeyError:
-        raise ConfigError(f"unknown layout {name!r}; known layouts: {', '.join(sorted(_LAYOUTS))}") from None
+        raise ConfigError(f"unknown task {name!r}; known tasks: {', '.join(sorted(_TASKS))}") from None
 
 
 def _load_builtin() -> None:
-    from simseam.scene.layouts import bowl_plate, lift_cube, nav_obstacles  # noqa: F401  (registers them)
+    from simseam.scene.tasks import bowl_plate, lift_cube, nav_obstacles  # noqa: F401  (registers them)
 
 

@@ -8,7 +8,6 @@ from simseam.seam import (
     ConfigError,
     ControlMode,
     InvalidActionError,
-    SceneInfo,
     SidecarError,
     SimseamError,
     SimulationError,
@@ -47,8 +46,15 @@ def test_error_hierarchy():
     assert issubclass(ConfigError, ValueError) and issubclass(InvalidActionError, ValueError)
 
 
-def test_scene_info_json_is_plain():
-    info = SceneInfo("r", "mujoco", "lift_cube", ControlMode.CARTESIAN_DELTA, 7, 8, 20.0,
-                     {"camera1": (256, 256)}, ("j1",), ("dx",))
-    j = info.to_json()
-    assert j["control_mode"] == "cartesian_delta" and j["cameras"] == {"camera1": [256, 256]}
+def test_rollout_spec_json_is_plain_and_round_trips(lift):
+    import json
+
+    from simseam.seam import RolloutSpec
+
+    spec = lift.spec
+    j = json.loads(json.dumps(spec.to_json()))  # plain JSON types only
+    assert j["action"]["control_mode"] == "cartesian_delta" and j["observation"]["images"]["entries"] == {}
+    assert [s["name"] for s in j["action"]["slots"]] == ["dx", "dy", "dz", "dax", "day", "daz", "grip"]
+    assert RolloutSpec.from_json(j) == spec
+    with pytest.raises(ConfigError, match="rollout spec: missing field 'task'"):
+        RolloutSpec.from_json({k: v for k, v in j.items() if k != "task"})

@@ -11,18 +11,19 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.layouts.base import TABLE_TOP, Layout, register_layout
+from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task, register_task
 
 CUBE_HALF = 0.02
 LIFT_HEIGHT = 0.10
 
 
-@register_layout
-class LiftCube(Layout):
+@register_task
+class LiftCube(Task):
     name = "lift_cube"
     instruction = "lift the red cube"
     max_steps = 150
     tracked_objects = ("cube",)
+    diagnostics = ("cube_height", "eef_to_cube", "grasped")
 
     def build(self, engine: Engine) -> None:
         super().build(engine)
@@ -45,7 +46,14 @@ class LiftCube(Layout):
         self.rest_z = TABLE_TOP + CUBE_HALF
         engine.set_object_pose("cube", np.array([base[0] + x, base[1] + y, self.rest_z]), yaw_quat(yaw))
 
-    def evaluate(self, scene) -> tuple[float, bool]:
-        pos, _ = scene.engine.object_pose("cube")
-        success = bool(pos[2] > self.rest_z + LIFT_HEIGHT)
-        return float(success), success
+    def evaluate(self, scene) -> Evaluation:
+        eng = scene.engine
+        pos, _ = eng.object_pose("cube")
+        height = float(pos[2] - self.rest_z)
+        success = bool(height > LIFT_HEIGHT)
+        eef, _ = scene.eef_pose_world()
+        return Evaluation(float(success), success, {
+            "cube_height": height,  # m above its resting height
+            "eef_to_cube": float(np.linalg.norm(eef - pos)),  # m, tool frame to cube centre
+            "grasped": bool(eng.contacts_between("cube", "robot")) and height > 0.005,
+        })

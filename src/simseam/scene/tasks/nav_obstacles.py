@@ -17,7 +17,7 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.layouts.base import Layout, register_layout
+from simseam.scene.tasks.base import Evaluation, Task, register_task
 from simseam.seam import ConfigError
 
 N_OBSTACLES = 6
@@ -27,17 +27,19 @@ CLEARANCE = 1.0
 PARKED_X = -8.0  # unused obstacles wait behind the start, out of the way, on the floor
 
 
-@register_layout
-class NavObstacles(Layout):
+@register_task
+class NavObstacles(Task):
     name = "nav_obstacles"
     instruction = "drive to the goal without touching anything"
     max_steps = 400
     needs_gripper = False
+    diagnostics = ("distance_to_goal", "yaw_error", "touched")
+    privileged_extras = ("goal",)
 
     def check_robot(self) -> None:
         super().check_robot()
         if self.spec.kinematic_base is None:
-            raise ConfigError(f"layout {self.name!r} needs robot {self.spec.name!r} to declare a kinematic_base")
+            raise ConfigError(f"task {self.name!r} needs robot {self.spec.name!r} to declare a kinematic_base")
 
     def robot_base(self) -> tuple[np.ndarray, float]:
         return np.array([0.0, 0.0, self.spec.kinematic_base.height]), 0.0
@@ -74,11 +76,12 @@ class NavObstacles(Layout):
         gx, gy, gyaw = self.goal
         return {"goal": scene.to_base(np.array([gx, gy, 0.0]), yaw_quat(gyaw))}
 
-    def evaluate(self, scene) -> tuple[float, bool]:
+    def evaluate(self, scene) -> Evaluation:
         eng = scene.engine
         self.touched = self.touched or any(eng.contacts_between("robot", o) for o in self.obstacles)
         x, y, yaw = scene.base_pose()
         dyaw = math.atan2(math.sin(self.goal[2] - yaw), math.cos(self.goal[2] - yaw))
-        success = (not self.touched and math.hypot(self.goal[0] - x, self.goal[1] - y) < GOAL_POS_TOL
-                   and abs(dyaw) < GOAL_YAW_TOL)
-        return float(success), bool(success)
+        dist = math.hypot(self.goal[0] - x, self.goal[1] - y)
+        success = bool(not self.touched and dist < GOAL_POS_TOL and abs(dyaw) < GOAL_YAW_TOL)
+        return Evaluation(float(success), success,
+                          {"distance_to_goal": dist, "yaw_error": abs(dyaw), "touched": bool(self.touched)})

@@ -15,7 +15,7 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.layouts.base import TABLE_TOP, Layout, register_layout
+from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task, register_task
 
 BOWL_BASE_R = 0.045
 BOWL_WALL_R = 0.052  # centre radius of the wall segments
@@ -44,8 +44,8 @@ def bowl_shapes() -> list[Shape]:
     return shapes
 
 
-@register_layout
-class BowlPlate(Layout):
+@register_task
+class BowlPlate(Task):
     name = "bowl_plate"
     instruction = "put the bowl on the plate"
     max_steps = 250
@@ -53,6 +53,7 @@ class BowlPlate(Layout):
     required_rgb = ("camera1", "camera2")
     control_mode = "cartesian_delta"
     tracked_objects = ("bowl", "plate")
+    diagnostics = ("bowl_to_plate", "bowl_on_plate", "released")
 
     def build(self, engine: Engine) -> None:
         super().build(engine)
@@ -76,13 +77,16 @@ class BowlPlate(Layout):
         engine.set_object_pose("bowl", np.array([*(base[:2] + bowl), TABLE_TOP]), yaw_quat(rng.uniform(-np.pi, np.pi)))
         engine.set_object_pose("plate", np.array([*(base[:2] + plate), TABLE_TOP]), yaw_quat(0.0))
 
-    def evaluate(self, scene) -> tuple[float, bool]:
+    def evaluate(self, scene) -> Evaluation:
         engine = scene.engine
         bowl, _ = engine.object_pose("bowl")
         plate, _ = engine.object_pose("plate")
-        centred = np.linalg.norm(bowl[:2] - plate[:2]) < PLATE_R - 0.02
+        offset = float(np.linalg.norm(bowl[:2] - plate[:2]))
+        centred = offset < PLATE_R - 0.02
         on_top = abs(bowl[2] - (plate[2] + 2 * PLATE_HALF_H)) < 0.015
         still = np.linalg.norm(engine.object_velocity("bowl")[:3]) < 0.05
         released = not engine.contacts_between("bowl", "robot")
         success = bool(centred and on_top and still and released)
-        return float(success), success
+        return Evaluation(float(success), success, {
+            "bowl_to_plate": offset,  # m, horizontal distance between the centres
+            "bowl_on_plate": bool(centred and on_top), "released": bool(released)})

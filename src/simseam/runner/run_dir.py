@@ -1,0 +1,189 @@
+"""A run's output directory: results are never lost or silently replaced.
+
+Layout of ``DIR``::
+
+    run.json          the run's config (what ran: scene, policy, seeds, options), written first
+    episodes.jsonl    one JSON line per finished episode, appended, flushed and fsynced as it ends
+    summary.json      rebuilt from episodes.jsonl, written atomically (temp file + rename)
+    episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
+
+Rules: the directory is checked before the first episode (a file, or a
+directory that cannot be written, is a ``ConfigError``). A directory that
+already holds a run is refused unless ``overwrite`` (the old run's files are
+removed first: two runs never mix) or ``resume`` (same config required; the
+differences are listed otherwise; episodes already in the log are skipped).
+``rebuild_summary(DIR)`` turns the log into ``summary.json`` after any crash.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from simseam.seam import ConfigError
+
+CONFIG_FILE = "run.json"
+LOG_FILE = "episodes.jsonl"
+SUMMARY_FILE = "summary.json"
+RUN_FILES = (CONFIG_FILE, LOG_FILE, SUMMARY_FILE)
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to ``path`` through a temp file in the same directory and a rename."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=2)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def default_run_dir(root: Path = Path("runs")) -> Path:
+    """A new directory per run, ``runs/<UTC timestamp>`` (a suffix when taken)."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
+    path = root / stamp
+    n = 1
+    while path.exists():
+        path = root / f"{stamp}-{n}"
+        n += 1
+    return path
+
+
+def point_latest(run: Path) -> None:
+    """Make ``<parent>/latest`` a symlink to ``run`` (replaced atomically; a real directory named
+    latest is left alone)."""
+    latest = run.parent / "latest"
+    if latest.exists() and not latest.is_symlink():
+        return
+    tmp = run.parent / f".latest.{os.getpid()}"
+    tmp.unlink(missing_ok=True)
+    os.symlink(run.name, tmp)
+    os.replace(tmp, latest)
+
+
+def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Human-readable differences between two configs (``key: old -> new``)."""
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k, "<absent>"), new.get(k, "<absent>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += config_differences(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k}: {a!r} -> {b!r}")
+    return out
+
+
+def check_writable(path: Path) -> None:
+    """``ConfigError`` unless ``path`` is (or can be created as) a writable directory."""
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"--out {path}: exists and is not a directory")
+    probe_dir = path
+    while not probe_dir.exists():
+        probe_dir = probe_dir.parent
+    if not probe_dir.is_dir() or not os.access(probe_dir, os.W_OK | os.X_OK):
+        raise ConfigError(f"--out {path}: {probe_dir} is not writable")
+    if path.exists():
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".write-test.", dir=path)
+            os.close(fd)
+            os.unlink(tmp)
+        except OSError as exc:
+            raise ConfigError(f"--out {path}: cannot write there ({exc.strerror})") from None
+
+
+class RunDir:
+    """The output directory of one run (see the module docstring)."""
+
+    def __init__(self, path: Path, config: dict, *, overwrite: bool = False, resume: bool = False):
+        if overwrite and resume:
+            raise ConfigError("--overwrite and --resume exclude each other")
+        self.path = Path(path)
+        check_writable(self.path)
+        self.config = json.loads(json.dumps(config))  # plain JSON, as it will be read back
+        held = [f for f in RUN_FILES if (self.path / f).exists()]
+        self.resumed: list[dict] = []
+        if held and resume:
+            old = self._read_config()
+            diff = config_differences(old, self.config)
+            if diff:
+                raise ConfigError(f"--resume {self.path}: the run there has a different config:\n"
+                                  + "\n".join(f"  - {d}" for d in diff))
+            self.resumed = read_log(self.path)
+        elif held and not overwrite:
+            raise ConfigError(f"--out {self.path} already holds a run ({', '.join(held)}); pass --overwrite to "
+                              "replace it, --resume to continue it, or choose another --out")
+        elif held:
+            for f in self.path.iterdir():
+                if f.name in RUN_FILES or (f.name.startswith("episode_") and f.suffix == ".mp4"):
+                    f.unlink()
+        self.path.mkdir(parents=True, exist_ok=True)
+        if not self.resumed:
+            write_json_atomic(self.path / CONFIG_FILE, self.config)
+            (self.path / LOG_FILE).touch()
+        self._log = open(self.path / LOG_FILE, "a")
+
+    def _read_config(self) -> dict:
+        try:
+            return json.loads((self.path / CONFIG_FILE).read_text())
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"--resume {self.path}: cannot read {CONFIG_FILE}: {exc}") from None
+
+    @property
+    def done(self) -> set[int]:
+        """Episode indices already in the log (skipped when resuming)."""
+        return {int(e["index"]) for e in self.resumed}
+
+    def append(self, episode: dict) -> None:
+        """Record one finished episode: one line, flushed and fsynced before returning."""
+        self._log.write(json.dumps(episode) + "\n")
+        self._log.flush()
+        os.fsync(self._log.fileno())
+
+    def close(self) -> None:
+        self._log.close()
+
+
+def read_log(path: Path) -> list[dict]:
+    """The finished episodes in ``DIR/episodes.jsonl``, by index (a torn last line is ignored;
+    an index logged twice counts once, the last entry winning)."""
+    log = Path(path) / LOG_FILE
+    if not log.is_file():
+        raise ConfigError(f"{path}: no {LOG_FILE} (not a simseam run directory)")
+    by_index: dict[int, dict] = {}
+    for line in log.read_text().splitlines():
+        try:
+            e = json.loads(line)
+            by_index[int(e["index"])] = e
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut short by a kill
+    return [by_index[i] for i in sorted(by_index)]
+
+
+def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: bool = False) -> dict:
+    """Rebuild ``DIR/summary.json`` from its config and episode log; returns the summary."""
+    from simseam.runner.summary import build_summary
+
+    path = Path(path)
+    episodes = read_log(path)
+    try:
+        config = json.loads((path / CONFIG_FILE).read_text())
+    except (OSError, ValueError):
+        config = {}
+    if spec_json is None:
+        try:
+            spec_json = json.loads((path / SUMMARY_FILE).read_text()).get("spec")
+        except (OSError, ValueError, AttributeError):
+            spec_json = None
+    summary = build_summary(config, spec_json, episodes)
+    planned = config.get("episodes")
+    summary["complete"] = (not interrupted) and isinstance(planned, int) and summary["n_episodes"] >= planned
+    write_json_atomic(path / SUMMARY_FILE, summary)
+    return summary

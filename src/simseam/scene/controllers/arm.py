@@ -1,0 +1,97 @@
+"""Arm controllers: turn the arm slots of an action into arm joint targets.
+
+Both keep targets inside the joint limits and move them at most
+``max_velocity / control_hz`` per control step (the URDF's joint speed limits).
+
+- ``JointPositionArm``: one slot per arm joint (manifest order), absolute targets
+  in rad (m for prismatic joints), bounded by the joint limits.
+- ``CartesianDeltaArm``: ``[dx, dy, dz, dax, day, daz]`` in [-1, 1] times the
+  robot's max step (m, rad), in the robot base frame; the rotation delta applies
+  on the left (robosuite OSC_POSE / LIBERO). The delta adds to the previous
+  end-effector target while the arm tracks its last command (within 1.5 cm /
+  0.1 rad), else to the measured pose (blocked or disturbed: no wind-up). Damped
+  least squares IK on the arm joints (``ik_iters`` Newton steps per control step,
+  warm-started from the last target), null-space pull to the home posture.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simseam.math3d import axis_angle_to_matrix, rotation_error
+from simseam.scene.kinematics import IKResult, SerialChain
+from simseam.seam import ActionSlot, ControlMode
+
+CARTESIAN_NAMES = ("dx", "dy", "dz", "dax", "day", "daz")
+REANCHOR_POS = 0.015  # m: tracking error beyond which a Cartesian delta restarts from the measured pose
+REANCHOR_ROT = 0.1  # rad
+ROT_WEIGHT = 0.5  # m/rad: orientation error weight in the IK
+
+
+class ArmController:
+    """Common part: joint limits and the per-step rate limit of arm targets."""
+
+    group = "arm"
+    control_mode: ControlMode
+
+    def __init__(self, names: list[str], lower: np.ndarray, upper: np.ndarray, max_step: np.ndarray):
+        self.names = tuple(names)
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.max_step = np.asarray(max_step, float)  # rad (m) per control step
+
+    def reset(self) -> None:
+        """A new episode begins."""
+
+    def rate_limit(self, q_new: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
+        return np.clip(q_new, q_prev - self.max_step, q_prev + self.max_step)
+
+
+class JointPositionArm(ArmController):
+    control_mode = ControlMode.JOINT_POSITION
+
+    def __init__(self, names, lower, upper, max_step, units: list[str]):
+        super().__init__(names, lower, upper, max_step)
+        self.slots = tuple(ActionSlot(n, "arm", float(lo), float(hi), u)
+                           for n, lo, hi, u in zip(self.names, self.lower, self.upper, units))
+
+    def targets(self, values: np.ndarray, q_prev: np.ndarray, eef=None) -> np.ndarray:
+        """Arm targets for slot values already within the joint limits."""
+        return self.rate_limit(np.asarray(values, dtype=np.float64), q_prev)
+
+
+class CartesianDeltaArm(ArmController):
+    control_mode = ControlMode.CARTESIAN_DELTA
+
+    def __init__(self, names, lower, upper, max_step, *, chain: SerialChain, q_home: np.ndarray,
+                 max_translation: float, max_rotation: float, ik_iters: int = 1):
+        super().__init__(names, lower, upper, max_step)
+        self.chain = chain
+        self.q_home = np.asarray(q_home, float)
+        self.max_translation, self.max_rotation = float(max_translation), float(max_rotation)
+        self.ik_iters = int(ik_iters)
+        unit_t, unit_r = f"x {max_translation:g} m", f"x {max_rotation:g} rad"
+        self.slots = tuple(ActionSlot(n, "arm", -1.0, 1.0, unit_t if i < 3 else unit_r)
+                           for i, n in enumerate(CARTESIAN_NAMES))
+        self.last_ik: IKResult | None = None
+        self._ref: tuple[np.ndarray, np.ndarray] | None = None
+
+    def reset(self) -> None:
+        self._ref = None
+        self.last_ik = None
+
+    def targets(self, values: np.ndarray, q_prev: np.ndarray, eef: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Arm targets for a delta already in [-1, 1]; ``q_prev``: the last arm targets;
+        ``eef``: the measured tool pose (pos, rot) in the base frame."""
+        pos, rot = eef
+        fk = self.chain.forward(q_prev)  # the pose the last command asked for (reachable by construction)
+        ref = self._ref
+        if ref is None or (np.linalg.norm(fk[0][:3, 3] - pos) > REANCHOR_POS
+                           or np.linalg.norm(rotation_error(fk[0][:3, :3], rot)) > REANCHOR_ROT):
+            ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
+        tgt_pos = ref[0] + values[:3] * self.max_translation
+        tgt_rot = axis_angle_to_matrix(values[3:6] * self.max_rotation) @ ref[1]
+        ik = self.chain.solve(q_prev, tgt_pos, tgt_rot, max_iters=self.ik_iters, rot_weight=ROT_WEIGHT,
+                              q_rest=self.q_home, start_fk=fk)
+        self.last_ik = ik
+        self._ref = (tgt_pos, tgt_rot)
+        return self.rate_limit(ik.q, q_prev)

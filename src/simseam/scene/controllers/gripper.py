@@ -1,0 +1,22 @@
+"""The gripper: one slot, -1 fully open .. +1 fully closed, linear in between."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simseam.robot.spec import GripperSpec
+from simseam.seam import ActionSlot
+
+
+class Gripper:
+    group = "grip"
+
+    def __init__(self, spec: GripperSpec):
+        self.open = np.asarray(spec.open, dtype=np.float64)
+        self.closed = np.asarray(spec.closed, dtype=np.float64)
+        self.slots = (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open .. +1 closed"),)
+
+    def targets(self, command: float) -> np.ndarray:
+        """Finger joint targets (manifest gripper-joint order) for a command already in [-1, 1]."""
+        g = (command + 1.0) * 0.5
+        return self.open + g * (self.closed - self.open)

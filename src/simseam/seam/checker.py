@@ -1,0 +1,207 @@
+"""``check_rollout``: does a rollout keep the seam's contract? (in the spirit of gymnasium's ``check_env``)
+
+Every backend's tests call it: in-process scenes, sidecars, the Isaac stand-in
+and every future one. It drives the rollout through a few short episodes and
+raises ``RolloutContractError`` listing every broken promise:
+
+- ``spec`` is a ``RolloutSpec`` that survives a JSON round trip, and
+  ``action_dim`` agrees with it;
+- observations hold exactly the keys the spec declares, with its dtypes and
+  shapes (images at the declared sizes), for reset and step;
+- the same seed gives the same episode (observations, rewards, info);
+- a wrong shape or a non-finite action raises ``InvalidActionError`` and
+  changes nothing; an action outside the bounds acts as ``spec.action.clip`` of it;
+- observation requests are honoured (state-only, one camera, link poses when declared);
+- ``info`` carries the success flag, the step count and the declared diagnostics;
+- ``render()`` is a ``uint8[H, W, 3]`` frame when the robot has a camera;
+- ``close()`` is idempotent and a closed rollout refuses to reset.
+
+The rollout is closed when the check returns.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+
+from simseam.seam.errors import InvalidActionError, SimseamError
+from simseam.seam.keys import (
+    INFO_DIAGNOSTICS,
+    INFO_STEPS,
+    OBS_DEPTH_POINTS,
+    OBS_IMAGES,
+    OBS_LINK_POSES,
+)
+from simseam.seam.request import ObsRequest
+from simseam.seam.spec import CAP_LINK_POSES, FieldSpec, RolloutSpec
+
+
+class RolloutContractError(SimseamError, AssertionError):
+    """A rollout broke the seam's contract; the message lists every problem found."""
+
+
+def _check_value(key: str, value: Any, spec: FieldSpec, problems: list[str]) -> None:
+    if spec.dtype == "dict":
+        if not isinstance(value, dict):
+            problems.append(f"{key}: expected a dict, got {type(value).__name__}")
+            return
+        if spec.entries is not None:
+            if set(value) != set(spec.entries):
+                problems.append(f"{key}: keys {sorted(value)}, the spec declares {sorted(spec.entries)}")
+            for k in set(value) & set(spec.entries):
+                _check_value(f"{key}[{k!r}]", value[k], spec.entries[k], problems)
+        return
+    if spec.dtype == "str":
+        if not isinstance(value, str):
+            problems.append(f"{key}: expected str, got {type(value).__name__}")
+        return
+    if spec.dtype == "int":
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool):
+            problems.append(f"{key}: expected int, got {type(value).__name__}")
+        return
+    arr = np.asarray(value)
+    if arr.dtype != np.dtype(spec.dtype):
+        problems.append(f"{key}: dtype {arr.dtype}, the spec says {spec.dtype}")
+    if len(arr.shape) != len(spec.shape) or any(s != -1 and s != a for s, a in zip(spec.shape, arr.shape)):
+        problems.append(f"{key}: shape {arr.shape}, the spec says {spec.shape}")
+
+
+def observation_problems(obs: Any, spec: RolloutSpec, request: ObsRequest | None = None) -> list[str]:
+    """Every way ``obs`` differs from what ``spec`` promises under ``request`` (empty: it conforms)."""
+    request = request or ObsRequest()
+    if not isinstance(obs, dict):
+        return [f"observation: expected a dict, got {type(obs).__name__}"]
+    problems: list[str] = []
+    fields = spec.observation.fields
+    expected = set()
+    for key, f in fields.items():
+        if f.presence == "on_request":
+            if key == OBS_LINK_POSES and request.link_poses:
+                expected.add(key)
+            if key == OBS_DEPTH_POINTS and request.depth:
+                expected.add(key)
+        else:
+            expected.add(key)
+    missing = sorted(expected - set(obs))
+    extra = sorted(set(obs) - expected)
+    if missing:
+        problems.append(f"observation lacks {missing}")
+    if extra:
+        problems.append(f"observation has keys the spec/request does not declare: {extra}")
+    for key in expected & set(obs):
+        f = fields[key]
+        if key == OBS_IMAGES and f.entries is not None:
+            want = {k for k in f.entries if request.wants_image(k)}
+            f = FieldSpec("dict", entries={k: f.entries[k] for k in want})
+        _check_value(key, obs[key], f, problems)
+    return problems
+
+
+def _sample_action(spec: RolloutSpec, rng: np.random.Generator) -> np.ndarray:
+    low, high = spec.action.low, spec.action.high
+    finite = np.isfinite(low) & np.isfinite(high)
+    a = np.zeros(spec.action.dim)
+    a[finite] = rng.uniform(low[finite], high[finite]) * 0.5 + (low[finite] + high[finite]) * 0.25
+    return a.astype(np.float32)
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return set(a) == set(b) and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, (str, bool, int, float)) or a is None:
+        return a == b
+    return np.array_equal(np.asarray(a), np.asarray(b))
+
+
+def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec:
+    """Raise ``RolloutContractError`` unless ``rollout`` keeps the seam's contract; returns its spec.
+
+    Takes a handful of short episodes (``steps`` control steps each) and closes the rollout.
+    """
+    problems: list[str] = []
+    try:
+        spec = rollout.spec
+        if not isinstance(spec, RolloutSpec):
+            raise RolloutContractError(f"rollout.spec is a {type(spec).__name__}, not a RolloutSpec")
+        again = RolloutSpec.from_json(json.loads(json.dumps(spec.to_json())))
+        if again != spec:
+            problems.append("spec: RolloutSpec.from_json(to_json()) differs from the spec")
+        if rollout.action_dim != spec.action.dim:
+            problems.append(f"action_dim {rollout.action_dim} but spec.action has {spec.action.dim} slots")
+        rng = np.random.default_rng(seed)
+        actions = [_sample_action(spec, rng) for _ in range(steps)]
+        key = spec.task.success_key
+
+        def episode(request: ObsRequest | None = None, first: np.ndarray | None = None):
+            obs = rollout.reset(seed, request)
+            where = "reset" if request is None else f"reset({request})"
+            problems.extend(f"{where}: {p}" for p in observation_problems(obs, spec, request))
+            trace = [obs]
+            for i, a in enumerate(actions):
+                r = rollout.step(first if (first is not None and i == 0) else a, request)
+                problems.extend(f"step {i}: {p}" for p in observation_problems(r.observation, spec, request))
+                if not isinstance(r.info.get(key), bool):
+                    problems.append(f"step {i}: info[{key!r}] is {r.info.get(key)!r}, expected a bool")
+                if r.info.get(INFO_STEPS) != i + 1:
+                    problems.append(f"step {i}: info['steps'] is {r.info.get(INFO_STEPS)!r}, expected {i + 1}")
+                diag = r.info.get(INFO_DIAGNOSTICS)
+                if not isinstance(diag, dict) or set(diag) != set(spec.task.diagnostics):
+                    problems.append(f"step {i}: info['diagnostics'] is {diag!r}, the spec declares "
+                                    f"{list(spec.task.diagnostics)}")
+                trace.append((r.observation, r.reward, r.terminated, r.truncated, r.info))
+            return trace
+
+        first = episode()
+        # bad actions change nothing
+        rollout.reset(seed)
+        for bad, what in ((np.zeros(spec.action.dim + 1, np.float32), "a too-long action"),
+                          (np.full(spec.action.dim, np.nan, np.float32), "a NaN action")):
+            try:
+                rollout.step(bad)
+                problems.append(f"{what} was accepted; expected InvalidActionError")
+            except InvalidActionError:
+                pass
+        r = rollout.step(actions[0])
+        if not _same(r.observation, first[1][0]):
+            problems.append("a rejected action changed the episode (the next step differs from a clean run)")
+        if not _same(episode(), first):
+            problems.append("the same seed did not give the same episode")
+        # out-of-bounds actions act as their clipped value
+        big = actions[0] + np.where(np.arange(spec.action.dim) % 2 == 0, 100.0, -100.0).astype(np.float32)
+        clipped = spec.action.clip(big).astype(np.float32)
+        rollout.reset(seed)
+        r_big = rollout.step(big)
+        rollout.reset(seed)
+        r_clip = rollout.step(clipped)
+        if not _same(r_big.observation, r_clip.observation):
+            problems.append("an action outside the bounds did not act as spec.action.clip() of it")
+        # observation requests
+        episode(ObsRequest.state_only())
+        cams = sorted(spec.observation.images)
+        if cams:
+            episode(ObsRequest(images=frozenset(cams[:1])))
+        if spec.can(CAP_LINK_POSES):
+            episode(ObsRequest(link_poses=True))
+        frame = rollout.render()
+        if cams or spec.robot.sensors_of("rgb"):
+            if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8 and frame.ndim == 3
+                    and frame.shape[2] == 3):
+                problems.append(f"render(): expected uint8[H, W, 3], got {type(frame).__name__}")
+        elif frame is not None:
+            problems.append("render() returned a frame though the robot has no RGB camera")
+    finally:
+        rollout.close()
+    rollout.close()  # idempotent
+    try:
+        rollout.reset(seed)
+        problems.append("reset() on a closed rollout did not raise")
+    except SimseamError:
+        pass
+    if problems:
+        raise RolloutContractError(f"rollout broke the seam contract ({len(problems)} problem(s)):\n"
+                                   + "\n".join(f"  - {p}" for p in problems))
+    return spec
