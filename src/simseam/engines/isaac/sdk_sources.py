@@ -492,6 +492,21 @@ class SdkSources:
         return spec
 
 
+def stub_class(text: str, name: str, module: str = "stub") -> ClassSpec:
+    """A class of a hand-written stub file (no bases followed), e.g. ``urdf51_bindings.pyi``."""
+    tree = ast.parse(text)
+    (node,) = [n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name]
+    spec = ClassSpec(f"{module}.{name}")
+    for item in node.body:
+        if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            spec.members[item.name] = _member_of(item)
+        elif isinstance(item, ast.Assign):
+            for t in item.targets:
+                if isinstance(t, ast.Name):
+                    spec.members[t.id] = Member(t.id, "attribute")
+    return spec
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m simseam.engines.isaac.sdk_sources",
                                  description="Fetch Isaac Sim's wheel sources into the cache (idempotent).")
