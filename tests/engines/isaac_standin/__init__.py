@@ -578,9 +578,12 @@ class StandinModule(types.ModuleType):
 
 class Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def find_spec(self, fullname, path=None, target=None):
-        if fullname.split(".")[0] in TOP_LEVEL:
-            return importlib.machinery.ModuleSpec(fullname, self, is_package=True)
-        return None
+        if fullname.split(".")[0] not in TOP_LEVEL:
+            return None
+        if fullname.startswith(("isaacsim.", "omni.physx")) and not sources().has_package(fullname):
+            raise ModuleNotFoundError(f"No module named {fullname!r} in the Isaac Sim {sdk_sources.SDK_VERSION} "
+                                      f"sources", name=fullname)
+        return importlib.machinery.ModuleSpec(fullname, self, is_package=True)
 
     def create_module(self, spec):
         mod = StandinModule(spec.name)

@@ -372,6 +372,10 @@ class SdkSources:
     def has_module(self, name: str) -> bool:
         return name in self._where
 
+    def has_package(self, name: str) -> bool:
+        """``name`` is a module of the sources or a package above one (namespace packages included)."""
+        return name in self._where or any(m.startswith(name + ".") for m in self._where)
+
     def where(self, module: str) -> str:
         z, member = self._where[module]
         return f"{z.name}:{member}"
