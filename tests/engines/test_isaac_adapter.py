@@ -730,6 +730,8 @@ SKIP_REASON = (f"needs {provision.ISAAC_PYTHON_ENV}=<a provisioned Isaac Sim int
 class TestIsaacConformance(EngineConformance):
     """The real engine conformance suite, each engine living in the Isaac Sim worker (isaac_remote.py)."""
 
+    engine_name = "isaac"  # float32 PhysX: conformance.TOLERANCES["isaac"]
+
     @pytest.fixture
     def make_engine(self):
         remote = isaac_remote.shared(ISAAC_PYTHON)
@@ -778,3 +780,14 @@ def test_the_standin_refuses_what_isaac_sim_does_not_have(standin):
     ok, what = check_sources.check_use(isaac_standin.sources(), check_sources.Use(
         "isaacsim.asset.importer.urdf.URDFImporterConfig.__init__", "6.x", 0, ("default_drive_type",)))
     assert not ok and "SIGNATURE" in what
+
+
+def test_conformance_tolerances_per_engine():
+    from conformance import TOLERANCES
+
+    isaac, mujoco = TOLERANCES["isaac"], TOLERANCES["mujoco"]
+    assert mujoco.state <= 1e-9 and mujoco.replay <= 1e-12  # float64 MuJoCo stays exact
+    # float32 PhysX: a joint at 2.9 rad, a pose component at 1.5 m survive a float32 round trip within them
+    for v in (2.9, 1.5, -0.8):
+        assert abs(float(np.float32(v)) - v) < isaac.state / 10
+    assert isaac.state >= 1e-6 and isaac.fk >= 1e-6 and isaac.replay >= 1e-5
