@@ -344,7 +344,7 @@ class SdkSources:
         if not (self.root / MARKER).is_file():
             raise SourcesMissing(
                 f"the Isaac Sim {version} wheel sources are not in {self.root} (the Isaac adapter's tests bind every "
-                f"SDK call against them). Fetch them (about 45 MiB from PyPI, needs the network once): "
+                f"SDK call against them). Fetch them (about 40 MiB from PyPI, needs the network once): "
                 f"`{fetch_command()}`; scripts/bootstrap.sh does this.")
         self._where: dict[str, tuple[Path, str]] = {}  # module -> (zip, member)
         for z in sorted(json.loads((self.root / MARKER).read_text())["files"]):
