@@ -174,8 +174,6 @@ class Strict:
         m = self._spec.member(name)  # AttributeError for what Isaac Sim does not have
         if m.kind in ("property", "attribute"):
             return getattr(self._impl, name)
-        if m.kind == "staticmethod":
-            return _bound_call(f"{self._label}.{name}", m.signature, getattr(self._impl, name, None))
         return _bound_call(f"{self._label}.{name}", m.signature, getattr(self._impl, name, None))
 
     def __setattr__(self, name, value):

@@ -9,7 +9,9 @@ checks the install without importing it, ``launch_app`` imports
 does ``make_api`` build an ``IsaacApi`` whose constructor imports the rest.
 
 Which API each piece uses, and where it was verified (github.com/isaac-sim/IsaacSim,
-tags v5.1.0 and v6.0.1; paths under ``source/``):
+tags v5.1.0 and v6.0.1; paths under ``source/``). Every Isaac Sim symbol used here is also
+checked on each test run against Isaac Sim 6.0.1's PyPI wheel sources (``check_sources``:
+exists, the call binds, not deprecated on the 6.x path):
 
 - App: ``from isaacsim import SimulationApp``; ``SimulationApp({"headless": True,
   "physics_gpu": N})`` (``extensions/isaacsim.simulation_app/isaacsim/simulation_app/
