@@ -2,7 +2,9 @@
 # Idempotent set-up, sourced by scripts/demo and scripts/test:
 #   1. Debian GL libraries for headless rendering (EGL + OSMesa), if missing;
 #   2. a virtualenv (default .venv, Python >= 3.10) with simseam and the robot model packages;
-#   3. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
+#   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
+#      which the Isaac adapter's tests bind every SDK call against (never imported);
+#   4. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
 set -euo pipefail
@@ -57,4 +59,8 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   fi
   echo "$WANT" > "$STAMP"
 fi
+# Isaac Sim's real sources for the Isaac adapter's tests (idempotent: keyed by version, skipped when complete;
+# the tests fail with the command to run if this could not fetch them)
+"$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
+  || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"

@@ -40,6 +40,7 @@ from typer.testing import CliRunner
 
 from simseam.engines.base import CameraModel, EngineOptions
 from simseam.engines.isaac import compat, config, gpu, provision
+from simseam.engines.isaac.sdk_sources import SourcesMissing
 from simseam.engines.registry import make_engine
 from simseam.math3d import quat_to_matrix, rpy_to_quat
 from simseam.seam import BackendUnavailableError, ConfigError
@@ -52,7 +53,11 @@ REPO = Path(__file__).resolve().parents[2]
 def standin(monkeypatch):
     """Install the recording stand-in; returns a function ``(Scenario) -> state``."""
     def use(scenario: Scenario | None = None):
-        return isaac_standin.install(monkeypatch, scenario)
+        try:
+            return isaac_standin.install(monkeypatch, scenario)
+        except SourcesMissing as exc:  # fail, never skip: these tests are only worth something with them
+            missing = str(exc)
+        pytest.fail(missing, pytrace=False)
 
     yield use
     isaac_standin.uninstall()
@@ -197,15 +202,20 @@ def test_isaac_5_1_imports_with_the_urdf_commands_and_steps_physx_directly(stand
     assert [c[2][0] for c in ex] == ["URDFCreateImportConfig", "URDFParseAndImportFile"]
     assert ex[1][3]["urdf_path"] == TINY_ARM_URDF and ex[1][3]["get_articulation_root"] is False
     setters = {c[1].split(".")[1]: c[2][0] for c in state.log if c[0] == "call" and c[1].startswith("ImportConfig.")}
-    assert setters == compat.urdf51_import_settings(True)
-    assert setters["set_fix_base"] is True and setters["set_merge_fixed_joints"] is False
+    assert setters == {  # written out by hand: every link a body, URDF inertias, POSITION drives, metres
+        "set_merge_fixed_joints": False, "set_fix_base": True, "set_import_inertia_tensor": True,
+        "set_self_collision": False, "set_convex_decomp": False, "set_collision_from_visuals": False,
+        "set_distance_scale": 1.0, "set_density": 0.0, "set_create_physics_scene": False,
+        "set_make_default_prim": False, "set_parse_mimic": False,
+        "set_default_drive_type": 1,  # UrdfJointTargetType.JOINT_DRIVE_POSITION (NONE=0, POSITION=1, VELOCITY=2)
+    }
     assert ("call", "extensions.enable", ("isaacsim.asset.importer.urdf", True), {}) in state.log
     assert state.log.calls("Articulation")[0][2] == ("/tiny_arm",)
     n0 = len(state.log)
     engine.step(3)
-    sims = [e[2] for e in state.log[n0:] if e[0] == "call" and e[1] == "physx.simulate"]
+    sims = [e[2] for e in state.log[n0:] if e[0] == "call" and e[1] == "IPhysxSimulation.simulate"]
     assert sims == [(0.004, 0.0), (0.004, 0.004), (0.004, 0.008)]
-    assert len(state.log.calls("physx.fetch_results")) == 3
+    assert len(state.log.calls("IPhysxSimulation.fetch_results")) == 3
     assert engine.sim_time() == pytest.approx(0.012, abs=1e-12)
     assert not state.log.calls("SimulationManager.step")
     # rendering-only app updates switch physics playback off and back on
@@ -233,7 +243,7 @@ def test_isaac_6_converts_the_urdf_to_usd_and_steps_through_the_simulation_manag
     n0 = len(state.log)
     engine.step(5)
     assert [e[3] for e in state.log[n0:] if e[0] == "call" and e[1] == "SimulationManager.step"] == [{"steps": 5}]
-    assert not state.log.calls("physx.simulate")
+    assert not state.log.calls("IPhysxSimulation.simulate")
     n0 = len(state.log)
     engine.api.pump()
     assert [e[1] for e in state.log[n0:] if e[0] == "call"] == ["RenderingManager.render"]
@@ -279,11 +289,25 @@ def test_manifest_joints_map_to_articulation_dofs_in_any_order(standin):
     assert list(gains[3]["dof_indices"]) == [2, 3, 0]
     kp, kd = gains[2]
     np.testing.assert_allclose(kp, [[400.0, 400.0, 400.0]])
-    np.testing.assert_allclose(kd, [[config.critical_damping(400.0, 0.5)] * 3])  # stand-in inertia 0.5
+    np.testing.assert_allclose(kd, [[28.284271247461902] * 3])  # 2 sqrt(400 * 0.5): stand-in inertia 0.5
     efforts = state.log.calls("Articulation.set_dof_max_efforts")[-1]
     np.testing.assert_allclose(efforts[2][0], [[50.0, 30.0, 20.0]])  # the URDF's effort limits
     speeds = state.log.calls("Articulation.set_dof_max_velocities")[-1]  # no engine-side speed cap
     assert np.min(speeds[2][0]) >= 1e5 and list(speeds[3]["dof_indices"]) == [2, 3, 0]
+
+
+@pytest.mark.parametrize("fixed", [True, False])
+def test_damping_uses_the_joint_rows_of_the_mass_matrix_after_a_floating_base(standin, fixed):
+    # a floating base puts 6 base rows first (Articulation.mass_matrix_shape: (num_dofs + 6, num_dofs + 6))
+    state = standin(Scenario(dof_names=["joint3", "joint1", "joint2"], dof_inertias=[0.02, 0.5, 0.08],
+                             floating_base=not fixed))
+    built_engine(robot=tiny_arm(fixed_base=fixed))
+    gains = state.log.calls("Articulation.set_dof_gains")[-1]
+    assert list(gains.bound["dof_indices"]) == [1, 2, 0]
+    np.testing.assert_allclose(gains.bound["stiffnesses"], [[400.0, 400.0, 400.0]])
+    # 2 sqrt(kp I) for I = 0.5, 0.08, 0.02 (joint1, joint2, joint3)
+    np.testing.assert_allclose(gains.bound["dampings"], [[28.284271247461902, 11.313708498984761, 5.656854249492381]],
+                               rtol=1e-6)
 
 
 def test_a_manifest_joint_missing_from_the_articulation_lists_what_it_has(standin):
@@ -294,13 +318,25 @@ def test_a_manifest_joint_missing_from_the_articulation_lists_what_it_has(standi
     assert "'joint3'" in msg and "joint1, joint2, slider" in msg and "/tiny_arm" in msg
 
 
+LINK_POSES = {  # world poses the stand-in's rigid bodies report, one per link, all different
+    "base_link": ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+    "link1": ((0.0, 0.0, 0.1), (0.9238795, 0.0, 0.0, 0.3826834)),
+    "link2": ((0.01, 0.02, 0.35), (0.7071068, 0.0, 0.7071068, 0.0)),
+    "link3": ((0.2, -0.05, 0.5), (0.5, 0.5, 0.5, 0.5)),
+    "tip_link": ((0.3, -0.05, 0.55), (0.0, 1.0, 0.0, 0.0)),
+}
+
+
 def test_link_poses_come_from_the_articulation_links_by_name(standin):
-    state = standin(Scenario(link_names=["tip_link", "link3", "link2", "link1", "base_link"]))
+    state = standin(Scenario(link_names=["tip_link", "link3", "link2", "link1", "base_link"], body_poses=LINK_POSES))
     engine = built_engine()
     links = state.log.calls("RigidPrim")[0][2][0]
     assert links == [f"/tiny_arm/{n}" for n in ["base_link", "link1", "link2", "link3", "tip_link"]]
-    pos, quat = engine.link_pose("tip_link")
-    assert pos.shape == (3,) and quat.shape == (4,)
+    for link, (pos, quat) in LINK_POSES.items():
+        got = engine.link_pose(link)
+        np.testing.assert_allclose(got[0], pos, atol=1e-7, err_msg=link)
+        np.testing.assert_allclose(got[1], quat, atol=1e-7, err_msg=link)
+        assert got[0].dtype == np.float64 and got[0].shape == (3,) and got[1].shape == (4,)
     with pytest.raises(ConfigError, match="nope_link.*base_link, link1"):
         engine.link_pose("nope_link")
 
@@ -333,7 +369,11 @@ def test_base_pose_massless_links_and_inertia_from_geometry(standin):
     np.testing.assert_allclose(root[1], [q])
     light = state.log.calls("Articulation.set_link_masses")[0]
     assert light[3]["link_indices"] == [4]  # tip_link has no <inertial>
-    np.testing.assert_allclose(light[2][0], [[config.MASSLESS_LINK_MASS]])
+    np.testing.assert_allclose(light.bound["masses"], [[1e-3]])
+    (inertia,) = state.log.calls("Articulation.set_link_inertias")
+    assert inertia.bound["link_indices"] == [4]
+    assert np.shape(inertia.bound["inertias"]) == (1, 1, 9)  # (N prims, L links, 9): the real docstring's shape
+    np.testing.assert_allclose(inertia.bound["inertias"], [[[1e-7, 0, 0, 0, 1e-7, 0, 0, 0, 1e-7]]])
     dens = [e for e in state.log if e[0] == "call" and e[1].endswith("CreateDensityAttr().Set")]
     assert len(dens) == 5 and all(e[2] == (1000.0,) for e in dens)
 
@@ -474,7 +514,12 @@ def test_cast_rays_skip_the_robot_found_from_the_articulation(standin):
     dirs = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
     d = engine.cast_rays(np.array([0.0, 0.0, 0.05]), dirs, 3.0)
     np.testing.assert_allclose(d, [0.95, 0.95])
-    assert d.dtype == np.float64 and len(state.log.calls("physx.raycast_all")) == 2
+    first, second = state.log.calls("PhysXSceneQuery.raycast_all")
+    assert d.dtype == np.float64
+    # raycast_all(origin, dir, distance, reportFn, bothSides) in the real _physx.pyi
+    assert first.bound["origin"] == (0.0, 0.0, 0.05) and first.bound["dir"] == (1.0, 0.0, 0.0)
+    assert second.bound["origin"] == (0.0, 0.0, 0.05) and second.bound["dir"] == (0.0, 1.0, 0.0)
+    assert first.bound["distance"] == 3.0
     d = engine.cast_rays(np.zeros(3), dirs[:1], 0.5)  # the wall is beyond max_dist
     np.testing.assert_allclose(d, [0.5])
 
@@ -485,10 +530,27 @@ def test_contacts_between_uses_overlaps_of_the_named_objects_shapes(standin):
     engine = built_engine(objects=[table(), cube(0.45)])
     assert engine.contacts_between("cube", "table") and engine.contacts_between("table", "cube")
     assert not engine.contacts_between("cube", "robot")
-    half = state.log.calls("physx.overlap_box")[0][2][0]
+    half = state.log.calls("PhysXSceneQuery.overlap_box")[0][2][0]
     np.testing.assert_allclose(half, [0.025 + config.CONTACT_MARGIN] * 3)
     with pytest.raises(ConfigError, match="nope_obj.*robot, table, cube"):
         engine.contacts_between("nope_obj", "table")
+
+
+def test_overlap_box_gets_the_shape_pose_with_its_quaternion_xyzw(standin):
+    from simseam.engines.base import ObjectModel, Shape
+
+    pose = ((0.1, 0.8, 0.45), (0.8660254037844387, 0.0, 0.0, 0.5))  # 60 degrees about z (wxyz)
+    state = standin(Scenario(overlap_hits=[("/World/objects/table", "/World/objects/table/shape_0")],
+                             body_poses={"cube": pose}))  # where PhysX has the dynamic cube
+    yawed = ObjectModel("cube", [Shape("box", (0.03, 0.02, 0.01))], pos=pose[0], quat=pose[1], mass=0.1)
+    engine = built_engine(objects=[table(), yawed])
+    assert engine.contacts_between("cube", "table")
+    (call,) = state.log.calls("PhysXSceneQuery.overlap_box")
+    # overlap_box(halfExtent, pos, rot, reportFn, anyHit): rot is "quat x, y, z, w" in the real _physx.pyi
+    np.testing.assert_allclose(call.bound["rot"], (0.0, 0.0, 0.5, 0.8660254037844387), atol=1e-12)
+    np.testing.assert_allclose(call.bound["pos"], (0.1, 0.8, 0.45), atol=1e-12)
+    np.testing.assert_allclose(call.bound["halfExtent"], (0.032, 0.022, 0.012), atol=1e-12)  # + 2 mm margin
+    assert call.bound["anyHit"] is False
 
 
 def test_static_objects_stay_where_they_were_built(standin):
@@ -669,7 +731,66 @@ SKIP_REASON = (f"needs {provision.ISAAC_PYTHON_ENV}=<a provisioned Isaac Sim int
 class TestIsaacConformance(EngineConformance):
     """The real engine conformance suite, each engine living in the Isaac Sim worker (isaac_remote.py)."""
 
+    engine_name = "isaac"  # float32 PhysX: conformance.TOLERANCES["isaac"]
+
     @pytest.fixture
     def make_engine(self):
         remote = isaac_remote.shared(ISAAC_PYTHON)
         return lambda options=None: isaac_remote.RemoteEngine(remote, options)
+
+
+# =================================================================== the real Isaac Sim sources
+def test_every_sdk_symbol_the_adapter_uses_is_in_the_real_sources():
+    """check_sources: each symbol exists in the Isaac Sim 6.0.1 wheels, the adapter's call binds, and the
+    6.x path uses no deprecated API; the 5.1 importer's setters against the transcribed bindings."""
+    from simseam.engines.isaac import check_sources
+
+    try:
+        src = isaac_standin.sources()
+    except SourcesMissing as exc:
+        src, missing = None, str(exc)
+    if src is None:
+        pytest.fail(missing, pytrace=False)
+    lines, bad = check_sources.report(src)
+    assert bad == 0, "\n".join(ln for ln in lines if ln.startswith("BAD"))
+    assert check_sources.urdf51_constants() == {"JOINT_DRIVE_NONE": 0, "JOINT_DRIVE_POSITION": 1,
+                                                "JOINT_DRIVE_VELOCITY": 2}
+
+
+def test_the_standin_refuses_what_isaac_sim_does_not_have(standin):
+    """The stand-in can fail: unknown methods and module names raise AttributeError, calls that do not
+    bind to the real parameters raise TypeError, deprecated 6.x API is flagged by the checker."""
+    from simseam.engines.isaac import check_sources
+
+    standin(Scenario(version="6.0.1.0"))
+    from isaacsim.core.experimental.prims import Articulation
+    from isaacsim.core.simulation_manager import SimulationManager
+
+    art = Articulation("/World/robot")
+    with pytest.raises(AttributeError, match="set_link_inertia_tensors"):
+        art.set_link_inertia_tensors(np.zeros((1, 1, 9)))
+    with pytest.raises(TypeError):
+        art.set_link_inertias(np.zeros((1, 1, 9)), joint_indices=[0])
+    with pytest.raises(TypeError):
+        SimulationManager.step(5)  # steps is keyword-only
+    with pytest.raises(ImportError):
+        from isaacsim.core.experimental.prims import SingleArticulation  # noqa: F401  (5.x core.api, not here)
+    with pytest.raises(ImportError):
+        import isaacsim.core.experimental.robots  # noqa: F401
+    ok, what = check_sources.check_use(isaac_standin.sources(), check_sources.Use(
+        "isaacsim.core.simulation_manager.SimulationManager.get_physics_dt", "6.x"))
+    assert not ok and "DEPRECATED" in what
+    ok, what = check_sources.check_use(isaac_standin.sources(), check_sources.Use(
+        "isaacsim.asset.importer.urdf.URDFImporterConfig.__init__", "6.x", 0, ("default_drive_type",)))
+    assert not ok and "SIGNATURE" in what
+
+
+def test_conformance_tolerances_per_engine():
+    from conformance import TOLERANCES
+
+    isaac, mujoco = TOLERANCES["isaac"], TOLERANCES["mujoco"]
+    assert mujoco.state <= 1e-9 and mujoco.replay <= 1e-12  # float64 MuJoCo stays exact
+    # float32 PhysX: a joint at 2.9 rad, a pose component at 1.5 m survive a float32 round trip within them
+    for v in (2.9, 1.5, -0.8):
+        assert abs(float(np.float32(v)) - v) < isaac.state / 10
+    assert isaac.state >= 1e-6 and isaac.fk >= 1e-6 and isaac.replay >= 1e-5

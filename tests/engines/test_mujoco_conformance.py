@@ -9,6 +9,8 @@ from simseam.engines.mujoco.engine import MujocoEngine
 
 
 class TestMujocoConformance(EngineConformance):
+    engine_name = "mujoco"
+
     @pytest.fixture
     def make_engine(self):
         return lambda options=None: MujocoEngine(options)

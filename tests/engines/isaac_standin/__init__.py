@@ -1,15 +1,26 @@
-"""A recording stand-in for the Isaac Sim Python modules (``isaacsim``, ``omni``, ``pxr``,
-``carb``, ``warp``, ``usdrt``), for the Isaac engine's *adapter* tests.
+"""A stand-in for the Isaac Sim Python modules (``isaacsim``, ``omni``, ``pxr``, ``carb``,
+``warp``, ``usdrt``), for the Isaac engine's *adapter* tests.
 
-It is not Isaac Sim and proves nothing about Isaac Sim: it records which modules are
-imported and which calls are made, in order, and answers the few calls whose results
-the adapter's logic depends on (the articulation's DOF and link names, joint state,
-scene-query hits, annotator images) from a ``Scenario``. Everything else returns a
-``Rec``, a recorder that accepts any attribute access or call.
+It is not Isaac Sim and proves nothing about Isaac Sim's behaviour. What it does prove:
+every Isaac Sim class, function and method the adapter reaches through the modules below
+exists in Isaac Sim 6.0.1's real sources, and every call binds to its real parameters.
+Those objects are ``Strict`` wrappers built from the AST of the wheels' sources
+(``simseam.engines.isaac.sdk_sources``, cached by scripts/bootstrap.sh): an unknown
+attribute raises ``AttributeError``, a call that does not bind (wrong keyword, missing
+argument) raises ``TypeError``, and each call is logged with its arguments by their real
+names (``Call.bound``). Strict modules (only their real, overridden names exist):
 
-Install with ``install(monkeypatch, Scenario(...))`` and remove with ``uninstall()``: a
-``sys.meta_path`` finder serves every module under the stand-in's top-level names, and
-the installed ``isaacsim`` version is ``Scenario.version``.
+    isaacsim (SimulationApp), isaacsim.core.experimental.prims, isaacsim.core.simulation_manager,
+    isaacsim.core.rendering_manager, isaacsim.asset.importer.urdf, omni.physx
+
+plus the 5.1 URDF importer's ``ImportConfig`` (from ``urdf51_bindings.pyi``, transcribed
+by hand: no wheel holds it). Everything else (``pxr``, ``carb``, ``omni.usd``,
+``omni.timeline``, ``omni.kit.*``, ``omni.replicator.core``) is not in the wheels read and
+stays a ``Rec``, a recorder that accepts any attribute or call.
+
+Behaviour (DOF and link names, joint state, per-link poses, mass matrices, scene-query
+hits, annotator images) comes from a ``Scenario``; install with
+``install(monkeypatch, Scenario(...))`` and remove with ``uninstall()``.
 """
 
 from __future__ import annotations
@@ -26,7 +37,11 @@ from typing import Any
 
 import numpy as np
 
+from simseam.engines.isaac import check_sources, sdk_sources
+from simseam.engines.isaac.sdk_sources import ClassSpec, FunctionSpec, SdkSources
+
 TOP_LEVEL = ("isaacsim", "omni", "pxr", "carb", "warp", "usdrt")
+IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -37,12 +52,26 @@ class Scenario:
     dof_names: list[str] = field(default_factory=lambda: ["joint1", "joint2", "joint3"])
     link_names: list[str] = field(default_factory=lambda: ["base_link", "link1", "link2", "link3", "tip_link"])
     robot_prim: str = "/tiny_arm"  # where 5.1's importer puts the robot
-    physics_dt: float | None = None  # what 6.x's SimulationManager.get_physics_dt() answers (None: the scene's)
+    physics_dt: float | None = None  # the dt of 6.x's PhysicsScene (None: the one the scene authored)
     ray_hits: list[tuple[str, str, float]] = field(default_factory=list)  # every ray reports these
     overlap_hits: list[tuple[str, str]] = field(default_factory=list)
+    #: world pose (pos, quat wxyz) of rigid bodies by prim name; others at the origin
+    body_poses: dict[str, tuple[tuple, tuple]] = field(default_factory=dict)
+    #: diagonal of the joint-space mass matrix, in the articulation's DOF order (default 0.5 each)
+    dof_inertias: list[float] | None = None
+    floating_base: bool = False  # a floating base puts 6 base rows/columns first in the mass matrix
 
     def link_paths(self, root: str) -> list[str]:
         return [f"{root}/{n}" for n in self.link_names]
+
+
+class Call(tuple):
+    """``("call", name, args, kwargs)``; ``.bound`` holds the arguments by their real parameter names."""
+
+    def __new__(cls, name: str, args: tuple, kwargs: dict, bound: dict | None = None):
+        t = super().__new__(cls, ("call", name, args, kwargs))
+        t.bound = dict(bound or {})
+        return t
 
 
 class Log(list):
@@ -56,7 +85,7 @@ class Log(list):
 
 
 class Rec:
-    """Accepts any attribute access and call, recording calls."""
+    """Accepts any attribute access and call, recording calls (modules not in the wheels read)."""
 
     def __init__(self, log: Log, path: str):
         object.__setattr__(self, "_log", log)
@@ -87,63 +116,168 @@ class Rec:
         return f"<Rec {self._path}>"
 
 
-# ------------------------------------------------------------------ fakes with behaviour
+# ------------------------------------------------------------------ strict wrappers (real signatures)
+_SOURCES: SdkSources | None = None
+
+
+def sources() -> SdkSources:
+    """The Isaac Sim sources in the cache (``SourcesMissing`` with the fetch command when absent)."""
+    global _SOURCES
+    if _SOURCES is None:
+        _SOURCES = SdkSources()
+    return _SOURCES
+
+
+def _by_name(bound) -> tuple[list, dict]:
+    """The bound arguments as (positional-only and *args, everything else by name) for the behaviour."""
+    import inspect
+
+    args, kwargs = [], {}
+    for name, value in bound.arguments.items():
+        kind = bound.signature.parameters[name].kind
+        if kind == inspect.Parameter.POSITIONAL_ONLY:
+            args.append(value)
+        elif kind == inspect.Parameter.VAR_POSITIONAL:
+            args.extend(value)
+        elif kind == inspect.Parameter.VAR_KEYWORD:
+            kwargs.update(value)
+        else:
+            kwargs[name] = value
+    return args, kwargs
+
+
+def _bound_call(label: str, sig, fn):
+    def call(*args, **kwargs):
+        bound = sig.bind(*args, **kwargs)  # TypeError: the real Isaac Sim would not accept this call
+        STATE.log.append(Call(label, args, kwargs, bound.arguments))
+        if fn is None:
+            return None
+        a, k = _by_name(bound)
+        return fn(*a, **k)
+
+    call.__name__ = label
+    return call
+
+
+class Strict:
+    """An instance of a real Isaac Sim class: its real members only, every call bound to its signature,
+    behaviour from ``impl`` (members ``impl`` lacks are recorded and return None)."""
+
+    def __init__(self, spec: ClassSpec, impl: Any, label: str | None = None):
+        object.__setattr__(self, "_spec", spec)
+        object.__setattr__(self, "_impl", impl)
+        object.__setattr__(self, "_label", label or spec.name)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        m = self._spec.member(name)  # AttributeError for what Isaac Sim does not have
+        if m.kind in ("property", "attribute"):
+            return getattr(self._impl, name)
+        return _bound_call(f"{self._label}.{name}", m.signature, getattr(self._impl, name, None))
+
+    def __setattr__(self, name, value):
+        self._spec.member(name)
+        setattr(self._impl, name, value)
+
+    def __repr__(self):
+        return f"<Strict {self._spec.qualname}>"
+
+
+class StrictClass:
+    """A real Isaac Sim class: construction and class/static methods bound to the real signatures."""
+
+    def __init__(self, spec: ClassSpec, impl_cls: type, label: str | None = None):
+        self._spec, self._impl_cls, self._label = spec, impl_cls, label or spec.name
+
+    def __call__(self, *args, **kwargs):
+        bound = self._spec.init_signature().bind(*args, **kwargs)
+        STATE.log.append(Call(self._label, args, kwargs, bound.arguments))
+        a, k = _by_name(bound)
+        return Strict(self._spec, self._impl_cls(*a, **k), self._label)
+
+    def __getattr__(self, name: str):
+        if name.startswith("__"):
+            raise AttributeError(name)
+        m = self._spec.member(name)
+        if m.kind not in ("classmethod", "staticmethod"):
+            raise AttributeError(f"{self._spec.qualname}.{name} is a {m.kind}, not callable on the class")
+        return _bound_call(f"{self._label}.{name}", m.signature, getattr(self._impl_cls, name, None))
+
+
+def strict_function(spec: FunctionSpec, impl, label: str):
+    return _bound_call(label, spec.signature, impl)
+
+
+def real(symbol: str):
+    return sources().find(symbol)
+
+
+_URDF51: dict[str, ClassSpec] = {}
+
+
+def urdf51_class(name: str) -> ClassSpec:
+    if name not in _URDF51:
+        _URDF51[name] = sdk_sources.stub_class(check_sources.URDF51_PYI.read_text(), name, "isaac51._urdf")
+    return _URDF51[name]
+
+
+# ------------------------------------------------------------------ fakes with behaviour (real parameter names)
 class FakeSimulationApp:
     instances: list = []
 
-    def __init__(self, config=None, experience=""):
-        STATE.log.append(("app", dict(config or {})))
+    def __init__(self, launch_config=None, experience=""):
+        STATE.log.append(("app", dict(launch_config or {})))
         FakeSimulationApp.instances.append(self)
 
     def update(self):
-        STATE.log.append(("call", "SimulationApp.update", (), {}))
+        pass
 
-    def close(self):
-        STATE.log.append(("call", "SimulationApp.close", (), {}))
+    def close(self, wait_for_replicator=True, skip_cleanup=False):
+        pass
 
 
 class FakeImportConfig:
-    def __getattr__(self, name):
-        if name.startswith("set_"):
-            return lambda value: STATE.log.append(("call", f"ImportConfig.{name}", (value,), {}))
-        raise AttributeError(name)
+    """5.1 ``ImportConfig``: the strict wrapper records the setters; nothing to answer."""
 
 
 def fake_execute(name, **kwargs):
     STATE.log.append(("call", "omni.kit.commands.execute", (name,), kwargs))
     if name == "URDFCreateImportConfig":
-        return True, FakeImportConfig()
+        return True, Strict(urdf51_class("ImportConfig"), FakeImportConfig(), "ImportConfig")
     if name == "URDFParseAndImportFile":
         return True, STATE.scenario.robot_prim
     return True, None
 
 
 class FakeURDFImporterConfig:
-    def __init__(self, **kwargs):
-        STATE.log.append(("call", "URDFImporterConfig", (), kwargs))
-        self.__dict__.update(kwargs)
+    def __init__(self, **fields):
+        self.__dict__.update(fields)
 
 
 class FakeURDFImporter:
-    def __init__(self, config):
+    def __init__(self, config=None):
         self.config = config
 
-    def import_urdf(self):
-        STATE.log.append(("call", "URDFImporter.import_urdf", (), {}))
-        path = os.path.join(self.config.usd_path, "robot", "robot.usda")
+    def import_urdf(self, config=None):
+        cfg = config or self.config
+        path = os.path.join(cfg.usd_path, "robot", "robot.usda")
         os.makedirs(os.path.dirname(path), exist_ok=True)
         with open(path, "w") as f:
             f.write("#usda 1.0\n")
         return path
 
 
+def _rows(indices, n):
+    return list(range(n)) if indices is None else [int(i) for i in np.asarray(indices).reshape(-1)]
+
+
 class FakeArticulation:
     """Joint state of one articulation, in the stand-in's DOF order."""
 
-    def __init__(self, path, **kwargs):
-        STATE.log.append(("call", "Articulation", (path,), kwargs))
+    def __init__(self, paths, **kwargs):
         sc = STATE.scenario
-        self.paths = [path]
+        self.paths = [paths] if isinstance(paths, str) else list(paths)
         self.dof_names = list(sc.dof_names)
         self.link_names = list(sc.link_names)
         self.link_paths = [sc.link_paths(STATE.robot_root())]
@@ -151,24 +285,19 @@ class FakeArticulation:
         self.q = np.zeros(n)
         self.qd = np.zeros(n)
         self.target = np.zeros(n)
+        self.root = (np.zeros(3), np.array(IDENTITY))
         STATE.articulations.append(self)
-
-    def _rec(self, name, *args, **kwargs):
-        STATE.log.append(("call", f"Articulation.{name}", args, kwargs))
 
     def is_physics_tensor_entity_valid(self):
         return True
 
     def set_dof_positions(self, positions, *, indices=None, dof_indices=None):
-        self._rec("set_dof_positions", positions, dof_indices=dof_indices)
         self.q[_idx(dof_indices, self.q)] = np.asarray(positions).reshape(-1)
 
     def set_dof_velocities(self, velocities, *, indices=None, dof_indices=None):
-        self._rec("set_dof_velocities", velocities, dof_indices=dof_indices)
         self.qd[_idx(dof_indices, self.qd)] = np.asarray(velocities).reshape(-1)
 
     def set_dof_position_targets(self, positions, *, indices=None, dof_indices=None):
-        self._rec("set_dof_position_targets", positions, dof_indices=dof_indices)
         self.target[_idx(dof_indices, self.target)] = np.asarray(positions).reshape(-1)
 
     def get_dof_positions(self, *, indices=None, dof_indices=None):
@@ -177,87 +306,72 @@ class FakeArticulation:
     def get_dof_velocities(self, *, indices=None, dof_indices=None):
         return self.qd[_idx(dof_indices, self.qd)][None, :].astype(np.float32)
 
-    def get_mass_matrices(self, *, indices=None):
-        n = len(self.dof_names)
-        return (np.eye(n) * 0.5)[None]
+    def set_world_poses(self, positions=None, orientations=None, *, indices=None):
+        self.root = (np.asarray(positions).reshape(3), np.asarray(orientations).reshape(4))
 
-    def __getattr__(self, name):
-        if name.startswith("__"):
-            raise AttributeError(name)
-        return lambda *a, **k: self._rec(name, *a, **k)
+    def get_world_poses(self, *, indices=None):
+        return self.root[0][None].astype(np.float32), self.root[1][None].astype(np.float32)
+
+    def get_mass_matrices(self, *, indices=None):
+        sc = STATE.scenario
+        diag = list(sc.dof_inertias or [0.5] * len(self.dof_names))
+        if sc.floating_base:
+            diag = [100.0] * 6 + diag  # base rows first, far heavier than any joint
+        return np.diag(diag).astype(np.float32)[None]
 
 
 class FakeRigidPrim:
     def __init__(self, paths, **kwargs):
-        STATE.log.append(("call", "RigidPrim", (list(paths),), kwargs))
-        self.paths = list(paths)
-        self.pos = np.zeros((len(self.paths), 3))
-        self.quat = np.tile([1.0, 0.0, 0.0, 0.0], (len(self.paths), 1))
+        self.paths = [paths] if isinstance(paths, str) else list(paths)
+        poses = STATE.scenario.body_poses
+        self.pos = np.array([poses.get(p.rsplit("/", 1)[-1], ((0, 0, 0), IDENTITY))[0] for p in self.paths], float)
+        self.quat = np.array([poses.get(p.rsplit("/", 1)[-1], ((0, 0, 0), IDENTITY))[1] for p in self.paths], float)
 
     def is_physics_tensor_entity_valid(self):
         return True
 
     def get_world_poses(self, *, indices=None):
-        i = list(range(len(self.paths))) if indices is None else list(indices)
-        return self.pos[i], self.quat[i]
+        i = _rows(indices, len(self.paths))
+        return self.pos[i].astype(np.float32), self.quat[i].astype(np.float32)
 
     def set_world_poses(self, positions=None, orientations=None, *, indices=None):
-        STATE.log.append(("call", "RigidPrim.set_world_poses", (positions, orientations), {"indices": indices}))
-        i = list(range(len(self.paths))) if indices is None else list(indices)
+        i = _rows(indices, len(self.paths))
         self.pos[i] = positions
         self.quat[i] = orientations
 
     def get_velocities(self, *, indices=None):
-        i = list(range(len(self.paths))) if indices is None else list(indices)
+        i = _rows(indices, len(self.paths))
         return np.zeros((len(i), 3)), np.zeros((len(i), 3))
-
-    def set_velocities(self, lin=None, ang=None, *, indices=None):
-        STATE.log.append(("call", "RigidPrim.set_velocities", (lin, ang), {"indices": indices}))
 
 
 class FakeView:
-    def update_articulations_kinematic(self):
-        STATE.log.append(("call", "SimulationView.update_articulations_kinematic", (), {}))
+    pass
 
 
-class FakeSimulationManager:
-    @staticmethod
-    def initialize_physics():
-        STATE.log.append(("call", "SimulationManager.initialize_physics", (), {}))
+class FakePhysicsScene:
+    def __init__(self, prim):
+        self.path = str(prim)
 
-    @staticmethod
-    def step(*args, **kwargs):
-        STATE.log.append(("call", "SimulationManager.step", args, kwargs))
-
-    @staticmethod
-    def get_physics_sim_view():
-        return FakeView()
-
-    @staticmethod
-    def get_physics_simulation_view():
-        return FakeView()
-
-    @staticmethod
-    def get_physics_dt():
-        """The dt of the physics scene the engine authored (or the scenario's override)."""
+    def get_dt(self):
         if STATE.scenario.physics_dt is not None:
             return STATE.scenario.physics_dt
         rates = [e[2][0] for e in STATE.log if e[0] == "call" and e[1].endswith("CreateTimeStepsPerSecondAttr")]
         return 1.0 / rates[-1] if rates else 1.0 / 60.0
 
 
-class FakeRenderingManager:
+class FakeSimulationManager:
     @staticmethod
-    def render():
-        STATE.log.append(("call", "RenderingManager.render", (), {}))
+    def get_physics_sim_view():
+        return Strict(real("omni.physics.tensors.SimulationView"), FakeView(), "SimulationView")
 
+    @staticmethod
+    def get_physics_simulation_view():
+        return Strict(real("omni.physics.tensors.SimulationView"), FakeView(), "SimulationView")
 
-class FakeSimInterface:
-    def simulate(self, dt, t):
-        STATE.log.append(("call", "physx.simulate", (dt, t), {}))
-
-    def fetch_results(self):
-        STATE.log.append(("call", "physx.fetch_results", (), {}))
+    @staticmethod
+    def get_physics_scenes():
+        spec = real("isaacsim.core.simulation_manager.PhysicsScene")
+        return [Strict(spec, FakePhysicsScene("/World/PhysicsScene"), "PhysicsScene")]
 
 
 class FakeHit:
@@ -266,18 +380,23 @@ class FakeHit:
 
 
 class FakeSceneQuery:
-    def raycast_all(self, origin, direction, distance, report, both_sides=False):
-        STATE.log.append(("call", "physx.raycast_all", (origin, direction, distance), {}))
+    def raycast_all(self, origin, dir, distance, reportFn, bothSides=False):
+        hit_spec = real("omni.physx.bindings._physx.RaycastHit")
         for body, collision, d in STATE.scenario.ray_hits:
-            if d <= distance and not report(FakeHit(body, collision, d)) is True:
+            if d <= distance and reportFn(Strict(hit_spec, FakeHit(body, collision, d))) is not True:
                 break
+        return bool(STATE.scenario.ray_hits)
 
-    def overlap_box(self, half, pos, rot, report, any_hit=False):
-        STATE.log.append(("call", "physx.overlap_box", (half, pos, rot), {}))
+    def overlap_box(self, halfExtent, pos, rot, reportFn, anyHit=False):
+        hit_spec = real("omni.physx.bindings._physx.OverlapHit")
         for body, collision in STATE.scenario.overlap_hits:
-            if report(FakeHit(body, collision)) is not True:
+            if reportFn(Strict(hit_spec, FakeHit(body, collision))) is not True:
                 break
         return len(STATE.scenario.overlap_hits)
+
+
+class FakeSimInterface:
+    pass
 
 
 class FakeSettings:
@@ -395,11 +514,35 @@ def _idx(dof_indices, arr):
 
 
 # ------------------------------------------------------------------ module overrides
+#: strict modules: name -> {attribute: (real symbol, behaviour)}; nothing else exists in them
+def _strict_modules() -> dict[str, dict[str, Any]]:
+    prims = "isaacsim.core.experimental.prims"
+    sim = "isaacsim.core.simulation_manager"
+    urdf = "isaacsim.asset.importer.urdf"
+    physx = "omni.physx"
+    query = Strict(real("omni.physx.bindings._physx.PhysXSceneQuery"), FakeSceneQuery(), "PhysXSceneQuery")
+    simulation = Strict(real("omni.physx.bindings._physx.IPhysxSimulation"), FakeSimInterface(), "IPhysxSimulation")
+    return {
+        "isaacsim": {"SimulationApp": StrictClass(real("isaacsim.simulation_app.SimulationApp"), FakeSimulationApp)},
+        prims: {"Articulation": StrictClass(real(f"{prims}.Articulation"), FakeArticulation),
+                "RigidPrim": StrictClass(real(f"{prims}.RigidPrim"), FakeRigidPrim)},
+        sim: {"SimulationManager": StrictClass(real(f"{sim}.SimulationManager"), FakeSimulationManager)},
+        "isaacsim.core.rendering_manager": {
+            "RenderingManager": StrictClass(real("isaacsim.core.rendering_manager.RenderingManager"), object)},
+        urdf: {"URDFImporter": StrictClass(real(f"{urdf}.URDFImporter"), FakeURDFImporter),
+               "URDFImporterConfig": StrictClass(real(f"{urdf}.URDFImporterConfig"), FakeURDFImporterConfig)},
+        physx: {"get_physx_scene_query_interface": strict_function(
+                    real(f"{physx}.get_physx_scene_query_interface"), lambda: query, "get_physx_scene_query_interface"),
+                "get_physx_simulation_interface": strict_function(
+                    real(f"{physx}.get_physx_simulation_interface"), lambda: simulation,
+                    "get_physx_simulation_interface")},
+    }
+
+
 def _overrides() -> dict[str, dict[str, Any]]:
     settings = FakeSettings()
     STATE.settings = settings
     return {
-        "isaacsim": {"SimulationApp": FakeSimulationApp},
         "omni.kit.commands": {"execute": fake_execute},
         "omni.kit.app": {"get_app": FakeKitApp},
         "omni.usd": {"get_context": lambda: STATE.context},
@@ -407,17 +550,15 @@ def _overrides() -> dict[str, dict[str, Any]]:
         "carb": {"settings": types.SimpleNamespace(get_settings=lambda: settings),
                  "Float3": lambda *v: tuple(v), "Float4": lambda *v: tuple(v)},
         "pxr": {"Usd": types.SimpleNamespace(PrimRange=fake_prim_range)},
-        "omni.physx": {"get_physx_simulation_interface": FakeSimInterface,
-                       "get_physx_scene_query_interface": FakeSceneQuery},
         "omni.replicator.core": {
             "create": types.SimpleNamespace(render_product=FakeRenderProduct),
             "AnnotatorRegistry": types.SimpleNamespace(get_annotator=FakeAnnotator)},
-        "isaacsim.core.simulation_manager": {"SimulationManager": FakeSimulationManager},
-        "isaacsim.core.rendering_manager": {"RenderingManager": FakeRenderingManager},
-        "isaacsim.core.experimental.prims": {"Articulation": FakeArticulation, "RigidPrim": FakeRigidPrim},
-        "isaacsim.asset.importer.urdf": {"URDFImporter": FakeURDFImporter,
-                                         "URDFImporterConfig": FakeURDFImporterConfig},
+        **_strict_modules(),
     }
+
+
+STRICT_MODULES = ("isaacsim", "isaacsim.core.experimental.prims", "isaacsim.core.simulation_manager",
+                  "isaacsim.core.rendering_manager", "isaacsim.asset.importer.urdf", "omni.physx")
 
 
 class StandinModule(types.ModuleType):
@@ -427,14 +568,20 @@ class StandinModule(types.ModuleType):
         sub = f"{self.__name__}.{name}"
         if sub in sys.modules:
             return sys.modules[sub]
+        if self.__name__ in STRICT_MODULES:
+            raise AttributeError(f"module {self.__name__!r} has no attribute {name!r} (not in the Isaac Sim "
+                                 f"{sdk_sources.SDK_VERSION} sources, or not stood in)")
         return Rec(STATE.log, sub)
 
 
 class Finder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     def find_spec(self, fullname, path=None, target=None):
-        if fullname.split(".")[0] in TOP_LEVEL:
-            return importlib.machinery.ModuleSpec(fullname, self, is_package=True)
-        return None
+        if fullname.split(".")[0] not in TOP_LEVEL:
+            return None
+        if fullname.startswith(("isaacsim.", "omni.physx")) and not sources().has_package(fullname):
+            raise ModuleNotFoundError(f"No module named {fullname!r} in the Isaac Sim {sdk_sources.SDK_VERSION} "
+                                      f"sources", name=fullname)
+        return importlib.machinery.ModuleSpec(fullname, self, is_package=True)
 
     def create_module(self, spec):
         mod = StandinModule(spec.name)
@@ -466,7 +613,9 @@ STATE = _State()
 
 
 def install(monkeypatch, scenario: Scenario | None = None) -> _State:
-    """Serve the stand-in modules for the rest of the test; returns the state (``.log``)."""
+    """Serve the stand-in modules for the rest of the test; returns the state (``.log``).
+    Raises ``sdk_sources.SourcesMissing`` (with the fetch command) without the cached sources."""
+    sources()
     new = _State()
     new.scenario = scenario or Scenario()
     STATE.__dict__.update(new.__dict__)

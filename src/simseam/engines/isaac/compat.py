@@ -9,7 +9,9 @@ checks the install without importing it, ``launch_app`` imports
 does ``make_api`` build an ``IsaacApi`` whose constructor imports the rest.
 
 Which API each piece uses, and where it was verified (github.com/isaac-sim/IsaacSim,
-tags v5.1.0 and v6.0.1; paths under ``source/``):
+tags v5.1.0 and v6.0.1; paths under ``source/``). Every Isaac Sim symbol used here is also
+checked on each test run against Isaac Sim 6.0.1's PyPI wheel sources (``check_sources``:
+exists, the call binds, not deprecated on the 6.x path):
 
 - App: ``from isaacsim import SimulationApp``; ``SimulationApp({"headless": True,
   "physics_gpu": N})`` (``extensions/isaacsim.simulation_app/isaacsim/simulation_app/
@@ -44,7 +46,9 @@ tags v5.1.0 and v6.0.1; paths under ``source/``):
   simulation_manager/python/impl/simulation_manager.py``, both tags).
 - Stepping, 5.1: ``omni.physx.get_physx_simulation_interface().simulate(dt, t)`` +
   ``fetch_results()``, what 5.1's ``SimulationManager.step`` does, with our dt.
-  6.x: ``SimulationManager.step(steps=n)`` (keyword-only; v6.0.1).
+  6.x: ``SimulationManager.step(steps=n)`` (keyword-only; v6.0.1); the dt is checked on
+  ``SimulationManager.get_physics_scenes()`` -> ``PhysicsScene.get_dt()`` (``get_physics_dt`` is
+  deprecated in 6.0).
 - Rendering without stepping physics, 5.1: ``/app/player/playSimulations`` off around
   ``app.update()`` after a PhysX-to-Fabric ``force_update`` (5.1 ``SimulationContext.render``);
   6.x: ``isaacsim.core.rendering_manager.RenderingManager.render()`` (v6.0.1).
@@ -630,10 +634,15 @@ class Isaac6Api(IsaacApi):
     def check_dt(self, dt):
         from isaacsim.core.simulation_manager import SimulationManager
 
-        got = float(SimulationManager.get_physics_dt())
+        # SimulationManager.get_physics_dt() is deprecated in 6.0: the scene objects carry their dt
+        scenes = {str(s.path): s for s in SimulationManager.get_physics_scenes()}
+        if PHYSICS_SCENE not in scenes:
+            raise SimulationError(f"Isaac Sim 6.x did not pick up the physics scene {PHYSICS_SCENE} "
+                                  f"(SimulationManager has {', '.join(scenes) or 'none'})")
+        got = float(scenes[PHYSICS_SCENE].get_dt())
         if abs(got - dt) > 1e-9:
             raise SimulationError(f"Isaac Sim 6.x would step physics with dt={got}, the scene asks for {dt} "
-                                  f"(physics scene {PHYSICS_SCENE} not picked up by SimulationManager)")
+                                  f"(physics scene {PHYSICS_SCENE})")
 
 
 def ros_packages(urdf_path: str) -> list[dict[str, str]]:
