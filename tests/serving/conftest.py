@@ -5,7 +5,15 @@ import sys
 import pytest
 from serving_util import CLI, Child
 
+from simseam.policies.remote import TOKEN_ENV
 from simseam.serving import PolicyServer
+
+
+@pytest.fixture(autouse=True)
+def no_token_from_the_environment(monkeypatch):
+    """A developer's SIMSEAM_POLICY_TOKEN must not leak into servers or clients here (children
+    inherit os.environ at spawn: it is gone by then too)."""
+    monkeypatch.delenv(TOKEN_ENV, raising=False)
 
 
 @pytest.fixture

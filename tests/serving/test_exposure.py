@@ -75,7 +75,6 @@ def test_cli_with_allow_remote_prints_the_token_and_enforces_it(cli, lift):
 
 # ------------------------------------------------------------------- token
 def test_wrong_or_missing_token_is_refused_with_a_clear_error(served, lift, monkeypatch):
-    monkeypatch.delenv(TOKEN_ENV, raising=False)
     server = served(make_policy("zero"), token=TOKEN)
     with pytest.raises(RemotePolicyError, match=r"refused the connection \(HTTP 401\): no token was given.*"
                                                 r"requires the token"):
