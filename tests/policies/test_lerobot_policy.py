@@ -24,12 +24,38 @@ def test_trained_act_runs_an_episode_through_the_lerobot_spec(tiny_act, panda_sp
     res = run_episode(scene, policy, index=0, seed=3)
     assert res.steps == 10 and res.error is None
     assert policy.chunks_predicted == math.ceil(10 / 4)  # one model call per 4 executed actions
-    # the actions it emitted are unnormalized into the dataset's action range
+
+
+
+def test_actions_are_the_models_output_unnormalized_with_the_dataset_statistics(tiny_act, scripted_dataset,
+                                                                                  panda_spec, make_scene):
+    """act() = the model's normalized action mapped through the dataset's action mean/std (ACT's
+    MEAN_STD), read here from the dataset itself; never the normalized value."""
+    out, _ = tiny_act
+    stats = json.loads((scripted_dataset[0] / "meta" / "stats.json").read_text())["action"]
+    mean, std = np.asarray(stats["mean"], np.float32), np.asarray(stats["std"], np.float32)
+    assert mean.shape == std.shape == (7,)
+    policy = make_policy(f"lerobot:{out}", device="cpu")
+    normalized = []
+    select = policy.policy.select_action
+
+    def recording(batch, *args, **kwargs):  # the model's own output, before any postprocessing
+        action = select(batch, *args, **kwargs)
+        normalized.append(action.squeeze(0).to("cpu").float().numpy().copy())
+        return action
+
+    policy.policy.select_action = recording
+    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=10)
     obs = scene.reset(4)
     policy.reset(scene.spec)
-    action = policy.act(obs)
-    assert action.shape == (7,) and action.dtype == np.float32 and np.all(np.isfinite(action))
-    assert np.all(np.abs(action) < 50)
+    for _ in range(3):
+        action = policy.act(obs)
+        assert action.shape == (7,) and action.dtype == np.float32 and np.all(np.isfinite(action))
+        expected = normalized[-1] * std + mean
+        np.testing.assert_allclose(action, expected, rtol=1e-5, atol=1e-5)
+        assert not np.allclose(action, normalized[-1], atol=1e-3)  # not in normalized units
+        obs = scene.step(action).observation
+    assert len(normalized) == 3
 
 
 def test_n_action_steps_override_changes_how_often_the_model_runs(tiny_act, panda_spec, make_scene):

@@ -19,6 +19,9 @@ from simseam.policies.remote import RemotePolicy, RemotePolicyError, parse_targe
 from simseam.seam import ConfigError, ControlMode, RolloutSpec
 from spec_factory import misfit as _misfit
 
+#: bound that only tells "reported" from "waited out a 60 s timeout"; not a latency requirement
+HANG_GUARD_S = 10.0
+
 try:
     from openpi_client import msgpack_numpy as openpi_msgpack
 except ImportError:  # fail (not skip) the tests that need it, with the fix
@@ -291,8 +294,8 @@ def test_connection_refused_is_fast_and_names_the_url():
     url = f"ws://127.0.0.1:{free_port()}"
     t0 = time.monotonic()
     with pytest.raises(RemotePolicyError, match="connection refused") as err:
-        make_policy(f"remote:{url}")
-    assert url in str(err.value) and time.monotonic() - t0 < 2.0
+        make_policy(f"remote:{url}?connect_timeout=60")
+    assert url in str(err.value) and time.monotonic() - t0 < HANG_GUARD_S  # not the 60 s connect timeout
 
 
 def test_silent_tcp_listener_hits_the_connect_timeout():
@@ -303,7 +306,7 @@ def test_silent_tcp_listener_hits_the_connect_timeout():
         t0 = time.monotonic()
         with pytest.raises(RemotePolicyError, match="within 0.5 s") as err:
             RemotePolicy(url, connect_timeout=0.5)
-        assert url in str(err.value) and time.monotonic() - t0 < 3.0
+        assert url in str(err.value) and time.monotonic() - t0 < HANG_GUARD_S
 
 
 def test_no_reply_hits_the_request_timeout(bare, lift):
@@ -312,7 +315,7 @@ def test_no_reply_hits_the_request_timeout(bare, lift):
     t0 = time.monotonic()
     with pytest.raises(RemotePolicyError, match=r"no reply \(an action chunk\) within 0.5 s") as err:
         run_steps(pol, lift, 1)
-    assert srv.url in str(err.value) and time.monotonic() - t0 < 3.0
+    assert srv.url in str(err.value) and time.monotonic() - t0 < HANG_GUARD_S
     pol.close()
     pol.close()  # twice is harmless
 
@@ -328,7 +331,7 @@ def test_server_closing_mid_episode_raises_fast(bare, lift):
         t0 = time.monotonic()
         with pytest.raises(RemotePolicyError, match="closed the connection") as err:
             run_steps(pol, lift, 5)
-        assert srv.url in str(err.value) and time.monotonic() - t0 < 3.0
+        assert srv.url in str(err.value) and time.monotonic() - t0 < HANG_GUARD_S
 
 
 def test_metadata_flags_set_images_and_privileged(bare):

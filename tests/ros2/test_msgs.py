@@ -9,7 +9,7 @@ from simseam.robot.manifest import load_robot
 from simseam.ros2 import convert as cv
 from simseam.ros2 import msgs as m
 
-rosbags_typesys = pytest.importorskip("rosbags.typesys")
+import rosbags.typesys as rosbags_typesys  # noqa: E402  (a missing module fails, never skips)
 STORE = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_HUMBLE)
 from rosbags.typesys.base import Nodetype
 

@@ -3,19 +3,15 @@ against openpi-client's WebsocketClientPolicy; garbage, busy, shutdown. Localhos
 
 import dataclasses
 import http.client
-import inspect
-import os
 import re
 import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from serving_util import port_is_free, raw_client, run_cli
 
 from simseam.policies import openpi_wire as wire
 from simseam.policies.base import BasePolicy, ChunkedPolicy, make_policy
@@ -31,7 +27,8 @@ except ImportError:  # fail (not skip) the tests that need it, with the fix
     openpi_client = None
 
 OPENPI_PIP = ".venv/bin/python -m pip install --no-deps openpi-client==0.1.2 dm-tree"
-REPO = Path(__file__).resolve().parents[2]
+#: hang guard for "fails fast" checks (a dead peer must not wait out the 30-60 s request timeouts)
+FAST_S = 10.0
 
 
 class StateEcho(BasePolicy):
@@ -61,40 +58,6 @@ class Ramp(ChunkedPolicy):
         sign = 1.0 if self.chunks % 2 else -1.0
         rows = (np.arange(8, dtype=np.float32)[:, None] + 1) / 10 * sign
         return np.repeat(rows, self.scene_info.action_dim, axis=1)
-
-
-@pytest.fixture
-def served():
-    """``served(policy, **kw) -> PolicyServer`` started on a free port, stopped after the test."""
-    servers = []
-
-    def _serve(policy, **kw):
-        servers.append(PolicyServer(policy, port=0, verbose=False, **kw).start())
-        return servers[-1]
-
-    yield _serve
-    for s in servers:
-        s.stop()
-
-
-def port_is_free(port):
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-            s.listen()
-        except OSError:
-            return False
-    return True
-
-
-def raw_client(url):
-    from websockets.sync.client import connect
-
-    params = inspect.signature(connect).parameters  # proxy: websockets >= 15, legacy: >= 17
-    extra = {k: v for k, v in (("proxy", None), ("legacy", True)) if k in params}
-    ws = connect(url, compression=None, max_size=None, open_timeout=5, **extra)
-    return ws, wire.unpackb(ws.recv(timeout=5))
 
 
 def episode_request(scene, obs):
@@ -264,42 +227,20 @@ def test_defaults_health_check_and_stop_releases_the_port(lift):
         assert not port_is_free(server.port)
     t0 = time.monotonic()
     assert port_is_free(server.port)
-    with pytest.raises(RemotePolicyError, match="closed the connection"):  # stop() closed the client too
+    with pytest.raises(RemotePolicyError, match="closed the connection.*1001"):  # stop() closed the client too
         pol.act(lift.reset(0))
-    assert time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 < FAST_S  # reported, not the 60 s reply timeout
     again = PolicyServer(make_policy("zero"), port=server.port, verbose=False).start()  # same port, at once
     again.stop()
     assert not [t for t in threading.enumerate() if t.name.startswith("policy-server:")]
 
 
 # --------------------------------------------------------------- serve-policy CLI
-CLI = ("import typer; from simseam.cli.serve_policy import serve_policy; "
-       "app = typer.Typer(); app.command()(serve_policy); app()")
-
-
-@pytest.fixture
-def cli():
-    """``cli(*args) -> (process, url)``: `serve-policy` in a subprocess, killed at the end."""
-    procs = []
-
-    def _start(*args):
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-        proc = subprocess.Popen([sys.executable, "-c", CLI, *args, "--port", "0"], cwd=REPO, env=env,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        procs.append(proc)
-        line = proc.stdout.readline()  # "serving <policy> on ws://127.0.0.1:PORT ..."
-        found = re.search(r"ws://127\.0\.0\.1:(\d+)", line)
-        assert found, f"no URL printed: {line!r} {proc.stderr.read() if proc.poll() is not None else ''}"
-        return proc, found.group(0)
-
-    yield _start
-    for p in procs:
-        if p.poll() is None:
-            p.kill()
-        p.wait(10)
-
-
 def test_serve_policy_cli_contract_then_ctrl_c_exits_0(cli, panda_spec, make_scene):
+    """Ctrl-C while a client is connected mid-episode and a second one waits for the slot: the
+    server closes both connections (1001) and exits 0."""
+    from websockets.exceptions import ConnectionClosed
+
     proc, url = cli("--policy", "scripted", "--scene", "scenes/franka_lift.yaml")
     port = int(url.rsplit(":", 1)[1])
     pol = make_policy(f"remote:{url}")
@@ -313,14 +254,60 @@ def test_serve_policy_cli_contract_then_ctrl_c_exits_0(cli, panda_spec, make_sce
     pol.reset(scene.spec)
     for _ in range(5):
         obs = scene.step(pol.act(obs)).observation
-    proc.send_signal(signal.SIGINT)
-    assert proc.wait(10) == 0
+    from serving_util import connect
+
+    waiting = connect(url)  # handshake done; its handler waits for the slot pol holds
+    proc.proc.send_signal(signal.SIGINT)
+    assert proc.wait() == 0, proc.output()
+    assert "stopped" in "".join(proc.stdout)
     assert port_is_free(port)
+    with pytest.raises(ConnectionClosed) as closed:  # told, not left hanging: shutdown (or busy, if it waited)
+        waiting.recv(timeout=FAST_S)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code in (1001, 1013)
     t0 = time.monotonic()
-    with pytest.raises(RemotePolicyError, match=re.escape(url)):
+    with pytest.raises(RemotePolicyError, match=re.escape(url) + ".*close code 1001: server shutting down"):
         pol.act(obs)
-    assert time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 < FAST_S
     pol.close()
+
+
+#: serve-policy with an extra policy scheme, `hang:<anything>`, whose act() never returns by itself
+CLI_HANG = """
+import threading, typer, numpy as np
+from simseam.policies.base import BasePolicy, register_policy_scheme
+from simseam.cli.serve_policy import serve_policy
+
+class Hang(BasePolicy):
+    def act(self, obs):
+        print("inside act", flush=True)
+        threading.Event().wait()  # a model call that never finishes
+
+register_policy_scheme("hang")(lambda target, **kw: Hang())
+app = typer.Typer(); app.command()(serve_policy); app()
+"""
+
+
+def test_ctrl_c_exits_even_while_a_request_is_stuck_in_the_policy(cli, lift):
+    proc, url = cli("--policy", "hang:forever", script=CLI_HANG)
+    pol = RemotePolicy(url, timeout=600)
+    pol.reset(lift.spec)
+    errors = []
+    client = threading.Thread(target=lambda: errors.append(_raises(pol.act, lift.reset(0))), daemon=True)
+    client.start()
+    proc.wait_line("inside act")  # the request is in the policy
+    proc.proc.send_signal(signal.SIGINT)
+    assert proc.wait() == 0, proc.output()
+    client.join(FAST_S)
+    assert not client.is_alive() and isinstance(errors[0], RemotePolicyError), errors
+    assert "1001" in str(errors[0])
+
+
+def _raises(fn, *args):
+    try:
+        fn(*args)
+    except Exception as exc:  # noqa: BLE001
+        return exc
+    return None
 
 
 def test_server_process_killed_mid_episode_raises_fast(cli, lift):
@@ -331,14 +318,12 @@ def test_server_process_killed_mid_episode_raises_fast(cli, lift):
         for _ in range(3):
             obs = lift.step(pol.act(obs)).observation
         proc.kill()
-        proc.wait(10)
         t0 = time.monotonic()
         with pytest.raises(RemotePolicyError, match="closed the connection") as err:
             pol.act(obs)
-        assert url in str(err.value) and time.monotonic() - t0 < 2.0
+        assert url in str(err.value) and time.monotonic() - t0 < FAST_S  # not the 30 s reply timeout
 
 
 def test_serve_policy_cli_bad_spec_exits_2():
-    out = subprocess.run([sys.executable, "-c", CLI, "--policy", "nonsense", "--port", "0"], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
-    assert out.returncode == 2 and "unknown policy 'nonsense'" in out.stderr
+    out = run_cli("--policy", "nonsense", "--port", "0")
+    assert out.proc.returncode == 2 and "unknown policy 'nonsense'" in "".join(out.stderr), out.output()

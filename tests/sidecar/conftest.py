@@ -25,7 +25,7 @@ os.environ[SESSION_ENV] = secrets.token_hex(8)
 def no_orphan_sidecars():
     """Session guard: every sidecar this session started is gone at the end (no orphans)."""
     yield
-    deadline = time.monotonic() + 5.0
+    deadline = time.monotonic() + 10.0
     left = marked_sidecars(os.environ[SESSION_ENV])
     while left and time.monotonic() < deadline:  # a just-closed sidecar may still be exiting
         time.sleep(0.05)
@@ -84,7 +84,7 @@ def make_sidecar(panda_json):
                 popen.wait(5)
             except Exception:
                 pass
-    stuck = [pid for pid in sorted(pids) if not process_gone(pid, timeout=5.0)]
+    stuck = [pid for pid in sorted(pids) if not process_gone(pid, timeout=10.0)]
     for pid in stuck:
         try:
             os.kill(pid, signal.SIGKILL)

@@ -6,7 +6,9 @@ Register in ``cli/main.py`` with ``app.command("serve-policy")(serve_policy)``.
 from __future__ import annotations
 
 import dataclasses
+import os
 import signal
+import sys
 from pathlib import Path
 
 import typer
@@ -22,19 +24,36 @@ err_console = Console(stderr=True, soft_wrap=True)
 def serve_policy(
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted, random, zero, lerobot:<dir|hub id>, ..."),
     port: int = typer.Option(8000, "--port", min=0, max=65535, help="TCP port (0: any free one, printed)."),
-    host: str = typer.Option("127.0.0.1", "--host", help="Bind address (0.0.0.0 to accept other machines)."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Bind address (0.0.0.0 to accept other machines: needs "
+                             "--allow-remote)."),
     scene: Path = typer.Option(None, "--scene", help="Scene YAML: check the policy fits it now and send its "
                                "skill contract (robot cameras, state/action dims, control mode and rate) to "
                                "clients, which then refuse scenes that differ before the first step."),
+    allow_remote: bool = typer.Option(False, "--allow-remote", help="Allow a non-loopback --host. Clients must then "
+                                      "present a token (generated and printed unless --token gives one)."),
+    token: str = typer.Option(None, "--token", envvar="SIMSEAM_POLICY_TOKEN", show_default=False,
+                              help="Token clients must present (remote:ws://HOST:PORT?token=...; openpi-client: "
+                              "api_key). Optional on loopback, generated when omitted off loopback."),
+    idle_timeout_s: float = typer.Option(60.0, "--idle-timeout-s", min=0.0, help="Disconnect a client that sends "
+                                         "nothing for this long, freeing the one client slot (0: never)."),
+    max_message_mb: float = typer.Option(64.0, "--max-message-mb", min=0.01, help="Largest request accepted, in "
+                                         "MiB; a larger one closes that connection (code 1009)."),
 ) -> None:
     """Serve a policy to `remote:ws://HOST:PORT` clients (openpi's policy-server protocol).
 
     Prints the URL, serves one client at a time until Ctrl-C or SIGTERM, then exits 0.
+    Binds loopback only unless --allow-remote; off loopback every client needs the token.
     """
+    from simseam.policies import openpi_wire as wire
     from simseam.policies.base import make_policy
     from simseam.policies.contract import SkillContract
     from simseam.serving import PolicyServer
 
+    if not wire.is_loopback(host) and not allow_remote:  # before loading anything
+        err_console.print(f"[bold red]error:[/] refusing to serve on {escape(host)}: not a loopback address; the "
+                          "server has no TLS and runs any client's observations through the policy: add "
+                          "--allow-remote to serve other machines (clients then need the token)", highlight=False)
+        raise typer.Exit(code=2)
     try:
         pol = make_policy(policy)
         contract = None
@@ -50,7 +69,9 @@ def serve_policy(
                 rollout.close()
             if not pol.uses_images:  # a state-only policy must not demand cameras from its clients
                 contract = dataclasses.replace(contract, images={})
-        server = PolicyServer(pol, host=host, port=port, contract=contract, name=policy).start()
+        server = PolicyServer(pol, host=host, port=port, contract=contract, name=policy, allow_remote=allow_remote,
+                              token=token or None, idle_timeout=idle_timeout_s or None,
+                              max_message_bytes=int(max_message_mb * 2**20)).start()
     except SimseamError as exc:
         err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(code=2) from None
@@ -62,13 +83,23 @@ def serve_policy(
         raise KeyboardInterrupt
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
-    console.print(f"serving {policy} on {server.url}  (clients: --policy remote:{server.url}; Ctrl-C to stop)",
+    console.print(f"serving {policy} on {server.url}  (clients: --policy remote:{server.client_url}; Ctrl-C to stop)",
                   markup=False, highlight=False)
+    if server.token and not token:
+        console.print(f"token: {server.token}  (generated; clients pass it as ?token=... or SIMSEAM_POLICY_TOKEN; "
+                      "openpi-client: api_key)", markup=False, highlight=False)
+    if host in ("0.0.0.0", "::", ""):
+        console.print("(listening on every interface: clients use this machine's address in place of "
+                      f"{host or '0.0.0.0'})", markup=False, highlight=False)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
-        server.stop()
+        server.stop()  # closes every client connection; does not wait for a policy call still running
         signal.signal(signal.SIGTERM, previous)
     console.print("stopped")
+    if server.active_handlers():  # a request stuck in the policy: Python would wait for it at exit
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)

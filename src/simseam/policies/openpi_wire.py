@@ -11,8 +11,9 @@ Codec (byte-compatible with ``openpi_client.msgpack_numpy``):
 Object, void (structured) and complex dtypes are refused on both sides. Decoded arrays are
 read-only views of the received message (no copy): copy one before writing to it.
 
-Protocol (websocket, binary frames, no compression, no message size limit, websockets'
-default keepalive: ping every 20 s, 20 s to answer):
+Protocol (websocket, binary frames, no compression, websockets' default keepalive: ping every
+20 s, 20 s to answer; openpi sets no message size limit, simseam's ends bound each message to
+``DEFAULT_MAX_MESSAGE_BYTES`` unless told otherwise, and ``unpackb`` checks the bound too):
 
 1. on connect the server sends one message: its metadata (a map);
 2. then, per request, the client sends an observation map and the server answers with a map
@@ -22,14 +23,26 @@ default keepalive: ping every 20 s, 20 s to answer):
    connection with code 1011 (internal error). A client treats any text frame as an error.
 
 ``GET /healthz`` on the server's port answers ``200 OK`` (openpi's health check).
+
+A server may require a token in the opening handshake (simseam's does off loopback): openpi's
+``Authorization: Api-Key <token>`` header, which ``remote:ws://host:port?token=<token>`` sends.
 """
 
 from __future__ import annotations
 
+import ipaddress
+import math
 from typing import Any
 
 import msgpack
 import numpy as np
+
+#: bound on one message, both ends (64 MiB: a request with several full-HD cameras fits easily)
+DEFAULT_MAX_MESSAGE_BYTES = 64 * 2**20
+#: the URL query parameter that carries a policy server's token (``remote:ws://h:p?token=...``)
+TOKEN_QUERY = "token"
+#: more dimensions than any observation has; a header claiming more is refused
+_MAX_NDIM = 32
 
 #: dtype kinds that cannot cross the wire (object, void/structured, complex), as in openpi
 _REFUSED_KINDS = {"O": "object", "V": "void/structured", "c": "complex"}
@@ -55,7 +68,16 @@ def _object_hook(obj: dict) -> Any:
     if b"__ndarray__" in obj:
         dtype = np.dtype(obj[b"dtype"])
         _refuse(dtype)
-        return np.ndarray(buffer=obj[b"data"], dtype=dtype, shape=tuple(obj[b"shape"]))
+        data, shape = obj[b"data"], obj[b"shape"]
+        if not isinstance(data, bytes):
+            raise ValueError(f"ndarray data must be bytes, got {type(data).__name__}")
+        if not (isinstance(shape, (list, tuple)) and len(shape) <= _MAX_NDIM
+                and all(isinstance(n, int) and n >= 0 for n in shape)):
+            raise ValueError(f"ndarray shape must be at most {_MAX_NDIM} non-negative ints, got {shape!r:.80}")
+        if math.prod(shape) * dtype.itemsize != len(data):  # exactly what the header claims, never more
+            raise ValueError(f"ndarray of shape {tuple(shape)} and dtype {dtype.str} needs "
+                             f"{math.prod(shape) * dtype.itemsize} bytes, the message carries {len(data)}")
+        return np.ndarray(buffer=data, dtype=dtype, shape=tuple(shape))
     if b"__npgeneric__" in obj:
         dtype = np.dtype(obj[b"dtype"])
         _refuse(dtype)
@@ -70,15 +92,30 @@ def packb(obj: Any) -> bytes:
     return msgpack.packb(obj, default=_default, use_bin_type=True)
 
 
-def unpackb(data: bytes) -> Any:
-    """Decode one message; anything that is not a well-formed msgpack-numpy message raises
-    ``ValueError`` saying why."""
+def unpackb(data: bytes, max_bytes: int | None = DEFAULT_MAX_MESSAGE_BYTES) -> Any:
+    """Decode one message; anything that is not a well-formed msgpack-numpy message, or a message
+    longer than ``max_bytes`` (None: no bound), raises ``ValueError`` saying why."""
+    if max_bytes is not None and len(data) > max_bytes:
+        raise ValueError(f"message of {len(data)} bytes is over the limit of {max_bytes} bytes")
     try:
+        # msgpack bounds every string, bin, array and map length by len(data), and the nesting depth
         return msgpack.unpackb(data, object_hook=_object_hook, raw=False)
     except ValueError as exc:
         raise ValueError(f"not a msgpack-numpy message: {exc}") from None
     except Exception as exc:  # noqa: BLE001  (msgpack and numpy raise many kinds for garbage)
         raise ValueError(f"not a msgpack-numpy message: {type(exc).__name__}: {exc}") from None
+
+
+def is_loopback(host: str) -> bool:
+    """``host`` names this machine only: ``localhost`` or a loopback IP (127.0.0.0/8, ``::1``).
+    Anything else (``0.0.0.0``, a hostname, an interface address) counts as reachable from outside."""
+    host = host.strip().strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def require_websockets() -> None:

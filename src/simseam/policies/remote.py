@@ -8,7 +8,14 @@ to ``simseam serve-policy`` (``simseam.serving.PolicyServer``).
 
 Spec: ``remote:ws://host:port`` (or ``wss://``, or ``host:port`` meaning ``ws://``), with
 optional query options ``?format=libero&n_action_steps=5&timeout=60&connect_timeout=10&resize=224``
-(keyword arguments of ``RemotePolicy`` win over query options).
+and ``token=<token>`` (keyword arguments of ``RemotePolicy`` win over query options).
+
+Token: a server that requires one (``simseam serve-policy`` off loopback) gets it in the handshake
+as ``Authorization: Api-Key <token>`` (openpi's header), from ``?token=``, the ``api_key``
+argument or else the ``SIMSEAM_POLICY_TOKEN`` environment variable (which keeps it out of the
+policy spec that ``simseam run`` records in summary.json). A missing or wrong token raises
+``RemotePolicyError`` with the server's reason. A connection the server dropped while the client
+sat idle (serve-policy's ``--idle-timeout-s``) is reopened by the next ``reset()``.
 
 Observation formats (``obs_format``):
 
@@ -36,7 +43,7 @@ raises ``ConfigError``.
 from __future__ import annotations
 
 import inspect
-import ipaddress
+import os
 from typing import Any
 from urllib.parse import parse_qsl, urlsplit, urlunsplit
 
@@ -63,7 +70,11 @@ LIBERO_IMAGES = {"observation/image": "camera1", "observation/wrist_image": "cam
 #: LIBERO preset: actions executed per chunk when neither the caller nor the server says (the example's replan_steps)
 LIBERO_REPLAN_STEPS = 5
 _QUERY_OPTIONS = {"format": "obs_format", "obs_format": "obs_format", "n_action_steps": "n_action_steps",
-                  "timeout": "timeout", "connect_timeout": "connect_timeout", "resize": "resize"}
+                  "timeout": "timeout", "connect_timeout": "connect_timeout", "resize": "resize",
+                  wire.TOKEN_QUERY: "api_key", "api_key": "api_key"}
+_TEXT_OPTIONS = ("obs_format", "api_key")
+#: where RemotePolicy finds the server's token when neither the spec nor the caller gives one
+TOKEN_ENV = "SIMSEAM_POLICY_TOKEN"
 
 
 class RemotePolicyError(SimseamError):
@@ -95,7 +106,7 @@ def parse_target(target: str) -> tuple[str, dict[str, Any]]:
                               f"known: {', '.join(sorted(_QUERY_OPTIONS))}")
         name = _QUERY_OPTIONS[key]
         try:
-            options[name] = value if name == "obs_format" else (
+            options[name] = value if name in _TEXT_OPTIONS else (
                 float(value) if "timeout" in name else int(value))
         except ValueError:
             raise ConfigError(f"remote policy target {target!r}: option {key}={value!r} is not a number") from None
@@ -116,15 +127,6 @@ def resize_with_pad(image: np.ndarray, size: int) -> np.ndarray:
     top, left = (size - nh) // 2, (size - nw) // 2
     out[top:top + nh, left:left + nw] = np.asarray(Image.fromarray(image).resize((nw, nh), Image.BILINEAR))
     return out
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class RemotePolicy(ChunkedPolicy):
@@ -150,7 +152,7 @@ class RemotePolicy(ChunkedPolicy):
         self.timeout = float(timeout)
         self.connect_timeout = float(connect_timeout)
         self.resize = int(resize)
-        self._api_key = api_key
+        self._api_key = api_key or os.environ.get(TOKEN_ENV) or None
         self._ws = None
         self._episode_start = False
         #: ``server_timing`` of the last reply (``infer_ms``, ``prev_total_ms``), and requests sent
@@ -179,16 +181,17 @@ class RemotePolicy(ChunkedPolicy):
     def _connect(self) -> Any:
         """Open the websocket and return the server's metadata (the first message)."""
         wire.require_websockets()
-        from websockets.exceptions import InvalidHandshake, InvalidURI, WebSocketException
+        from websockets.exceptions import InvalidHandshake, InvalidStatus, InvalidURI, WebSocketException
         from websockets.sync.client import connect
 
-        kwargs: dict[str, Any] = {"open_timeout": self.connect_timeout, "compression": None, "max_size": None}
+        kwargs: dict[str, Any] = {"open_timeout": self.connect_timeout, "compression": None,
+                                  "max_size": wire.DEFAULT_MAX_MESSAGE_BYTES}
         if self._api_key:
             kwargs["additional_headers"] = {"Authorization": f"Api-Key {self._api_key}"}
         params = inspect.signature(connect).parameters
         if "legacy" in params:  # websockets >= 17: a plain connection object, no context manager
             kwargs["legacy"] = True
-        if "proxy" in params and _is_loopback(urlsplit(self.url).hostname or ""):
+        if "proxy" in params and wire.is_loopback(urlsplit(self.url).hostname or ""):
             kwargs["proxy"] = None  # never route localhost through an HTTP(S)_PROXY from the environment
         try:
             self._ws = connect(self.url, **kwargs)
@@ -200,6 +203,16 @@ class RemotePolicy(ChunkedPolicy):
         except TimeoutError:
             raise RemotePolicyError(f"cannot connect to policy server {self.url}: no websocket handshake "
                                     f"within {self.connect_timeout:g} s") from None
+        except InvalidStatus as exc:
+            status = exc.response.status_code
+            body = (exc.response.body or b"").decode("utf-8", "replace").strip().splitlines()
+            if status in (401, 403):
+                given = "the token given was refused" if self._api_key else (
+                    f"no token was given (?{wire.TOKEN_QUERY}=... or {TOKEN_ENV})")
+                raise RemotePolicyError(f"policy server {self.url} refused the connection (HTTP {status}): {given}"
+                                        + (f"; the server says: {body[0]}" if body else "")) from None
+            raise RemotePolicyError(f"cannot connect to policy server {self.url}: handshake failed: {exc}"
+                                    + (f" ({body[0]})" if body else "")) from None
         except (InvalidHandshake, WebSocketException) as exc:
             raise RemotePolicyError(f"cannot connect to policy server {self.url}: handshake failed: {exc}") from None
         except OSError as exc:
@@ -230,7 +243,7 @@ class RemotePolicy(ChunkedPolicy):
             raise RemotePolicyError(f"policy server {self.url} reported an error: {last}\n"
                                     f"--- server traceback ---\n{data.rstrip()}")
         try:
-            return wire.unpackb(data)
+            return wire.unpackb(data, max_bytes=None)  # the websocket's max_size bounded it already
         except ValueError as exc:
             self.close()
             raise RemotePolicyError(f"policy server {self.url} sent a malformed message ({what}): {exc}") from None
@@ -271,6 +284,8 @@ class RemotePolicy(ChunkedPolicy):
             raise ConfigError(f"remote policy {name!r} ({self.url}) does not fit this scene ({len(problems)} "
                               f"mismatch{'es' if len(problems) > 1 else ''}):\n{lines}")
         super().reset(spec)
+        if self._ws is not None and not _is_open(self._ws):  # e.g. the server dropped us for idling
+            self.close()
         if self._ws is None:
             self.metadata = self._connect()
         self._episode_start = True
@@ -283,8 +298,14 @@ class RemotePolicy(ChunkedPolicy):
         payload = self._payload(observation)
         from websockets.exceptions import ConnectionClosed
 
+        message = wire.packb(payload)
+        limit = self.metadata.get("max_message_bytes")
+        if isinstance(limit, int) and len(message) > limit:  # the server would close the connection (1009)
+            raise RemotePolicyError(f"policy server {self.url} accepts messages of at most {limit} bytes and this "
+                                    f"observation is {len(message)} bytes; render smaller images or raise the "
+                                    "server's limit (serve-policy --max-message-mb)")
         try:
-            self._ws.send(wire.packb(payload))
+            self._ws.send(message)
         except (ConnectionClosed, OSError) as exc:
             self.close()
             why = _close_text(exc) if isinstance(exc, ConnectionClosed) else str(exc)
@@ -344,7 +365,16 @@ def _close_text(exc: Exception) -> str:
     rcvd = getattr(exc, "rcvd", None)
     if rcvd is None:
         return "no close frame: the server process died or the network dropped"
-    return f"close code {rcvd.code}" + (f": {rcvd.reason}" if rcvd.reason else "")
+    text = f"close code {rcvd.code}" + (f": {rcvd.reason}" if rcvd.reason else "")
+    if rcvd.code == 1009:
+        text += " (a message was over the server's size limit)"
+    return text
+
+
+def _is_open(ws: Any) -> bool:
+    from websockets.protocol import State
+
+    return ws.protocol.state is State.OPEN
 
 
 @register_policy_scheme("remote")

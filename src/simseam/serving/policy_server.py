@@ -18,23 +18,47 @@ Errors mirror openpi: the traceback goes to the client as a text frame, the conn
 with code 1011, the error is logged to stderr, and the server goes on serving the next client.
 One client at a time (a policy keeps per-episode state): a second concurrent client waits up to
 ``busy_wait`` seconds, then gets a "busy" text frame and close code 1013 (try again later).
-``GET /healthz`` answers 200. Binds 127.0.0.1 unless told otherwise.
+``GET /healthz`` answers 200 (no token needed).
+
+Exposure (the server runs whatever observations a client sends through the policy; no TLS):
+
+- it binds 127.0.0.1 unless told otherwise, and refuses a non-loopback ``host`` unless
+  ``allow_remote=True`` (``ConfigError``);
+- with a ``token`` (always, when not on loopback: one is generated, read ``.token`` / ``.client_url``)
+  the opening handshake must present it, as ``Authorization: Api-Key <token>`` (openpi-client's
+  ``api_key``; ``Bearer`` works too) or as ``?token=<token>`` in the URL; otherwise HTTP 401 with a
+  one-line reason, before any message is read;
+- a message over ``max_message_bytes`` closes that connection (code 1009) before it is read into
+  memory, and the decoder refuses arrays whose header disagrees with their data; the server serves on;
+- a client that sends nothing for ``idle_timeout`` seconds while holding the client slot is
+  disconnected (code 1008) so that the next client can connect; ``None`` or 0: never;
+- ``stop()`` (and Ctrl-C in ``serve_forever``) closes every connection, those waiting for the slot
+  included, each within ``close_timeout`` seconds, and returns without waiting for a policy call
+  still running (``active_handlers()`` says whether one is).
 """
 
 from __future__ import annotations
 
+import hmac
 import http
+import secrets
 import sys
 import threading
 import time
 import traceback
 from typing import Any
+from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
 
 from simseam.policies import openpi_wire as wire
 from simseam.policies.contract import SkillContract
-from simseam.seam import OBS_IMAGES, OBS_STATE, OBS_TASK, RolloutSpec
+from simseam.seam import OBS_IMAGES, OBS_STATE, OBS_TASK, ConfigError, RolloutSpec
+
+#: default bound on one websocket message (a request with several full-HD cameras fits easily)
+DEFAULT_MAX_MESSAGE_BYTES = wire.DEFAULT_MAX_MESSAGE_BYTES
+#: default seconds a connected client may stay silent before it is dropped (frees the one client slot)
+DEFAULT_IDLE_TIMEOUT_S = 60.0
 
 
 class ProtocolError(ValueError):
@@ -45,9 +69,17 @@ def _log(msg: str) -> None:
     print(f"[simseam policy-server] {msg}", file=sys.stderr, flush=True)
 
 
-def _health_check(connection: Any, request: Any) -> Any:
-    if request.path == "/healthz":
-        return connection.respond(http.HTTPStatus.OK, "OK\n")
+def presented_token(request: Any) -> str | None:
+    """The token a handshake request carries: ``Authorization: Api-Key <t>`` (openpi-client's
+    ``api_key``) or ``Bearer <t>``, else a ``token`` query parameter; None when it has none."""
+    auth = request.headers.get("Authorization")
+    if auth:
+        scheme, _, value = auth.strip().partition(" ")
+        if scheme.lower() in ("api-key", "bearer") and value.strip():
+            return value.strip()
+    for key, value in parse_qsl(urlsplit(request.path).query, keep_blank_values=True):
+        if key == wire.TOKEN_QUERY:
+            return value
     return None
 
 
@@ -63,12 +95,30 @@ class PolicyServer:
 
     def __init__(self, policy: Any, host: str = "127.0.0.1", port: int = 8000, *,
                  contract: SkillContract | None = None, metadata: dict[str, Any] | None = None,
-                 name: str | None = None, busy_wait: float = 3.0, verbose: bool = True):
+                 name: str | None = None, busy_wait: float = 3.0, verbose: bool = True,
+                 allow_remote: bool = False, token: str | None = None,
+                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+                 idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT_S, close_timeout: float = 2.0):
+        if not wire.is_loopback(host) and not allow_remote:
+            raise ConfigError(f"refusing to serve on {host!r}: not a loopback address, and the policy server runs "
+                              "any client's observations through the policy over plain websockets; to serve other "
+                              "machines opt in with allow_remote=True (serve-policy --allow-remote), which also "
+                              "requires a token")
+        if token is not None and not token.strip():
+            raise ConfigError("the policy server's token must not be empty")
+        if token is None and not wire.is_loopback(host):
+            token = secrets.token_urlsafe(24)
+        if max_message_bytes < 1024:
+            raise ConfigError(f"max_message_bytes must be >= 1024, got {max_message_bytes}")
         self.policy = policy
         self.host = host
         self.port = port
         self.busy_wait = busy_wait
         self.verbose = verbose
+        self.token = token
+        self.max_message_bytes = int(max_message_bytes)
+        self.idle_timeout = float(idle_timeout) if idle_timeout else None
+        self.close_timeout = float(close_timeout)
         if contract is None and isinstance(getattr(policy, "contract", None), SkillContract):
             contract = policy.contract
         self.chunked = callable(getattr(policy, "predict_chunk", None))
@@ -76,6 +126,7 @@ class PolicyServer:
             "server": "simseam", "protocol": "openpi-websocket", "policy": name or type(policy).__name__,
             "requires_privileged": bool(getattr(policy, "requires_privileged", False)),
             "uses_images": bool(getattr(policy, "uses_images", True)), "chunked": self.chunked,
+            "max_message_bytes": self.max_message_bytes,
         }
         n = getattr(policy, "n_action_steps", None) if self.chunked else None
         if n:
@@ -86,14 +137,27 @@ class PolicyServer:
         self._server: Any = None
         self._thread: threading.Thread | None = None
         self._busy = threading.Lock()
+        self._stopping = threading.Event()
         self._conns: set[Any] = set()
+        self._handlers: set[threading.Thread] = set()
         self._conns_lock = threading.Lock()
         self.requests = 0  #: inference requests answered, over all clients
+        self.refused = 0  #: handshakes refused for a missing or wrong token
 
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
         return f"ws://{host}:{self.port}"
+
+    @property
+    def client_url(self) -> str:
+        """``url``, with ``?token=...`` when the server requires one (what ``remote:`` takes)."""
+        return f"{self.url}?{wire.TOKEN_QUERY}={self.token}" if self.token else self.url
+
+    def active_handlers(self) -> list[threading.Thread]:
+        """Connection handlers still running (after ``stop()``: one stuck in a policy call)."""
+        with self._conns_lock:
+            return [t for t in self._handlers if t.is_alive()]
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> "PolicyServer":
@@ -103,8 +167,9 @@ class PolicyServer:
 
         if self._server is not None:
             return self
-        self._server = serve(self._handle, self.host, self.port, compression=None, max_size=None,
-                             process_request=_health_check)
+        self._stopping.clear()
+        self._server = serve(self._handle, self.host, self.port, compression=None, max_size=self.max_message_bytes,
+                             process_request=self._process_request, close_timeout=self.close_timeout)
         self.port = self._server.socket.getsockname()[1]
         self._thread = threading.Thread(target=self._server.serve_forever, name=f"policy-server:{self.port}",
                                         daemon=True)
@@ -127,18 +192,30 @@ class PolicyServer:
         server, self._server = self._server, None
         if server is None:
             return
+        self._stopping.set()  # clients waiting for the slot give up at once
+        # websockets' shutdown() closes the listening socket, then closes every open connection (1001)
+        # and waits, without a bound, until every handler has returned: a handler inside a long policy
+        # call would hold stop() (and Ctrl-C) hostage. So: shutdown() on a helper thread, our own close
+        # of every connection (those still handshaking or waiting for the slot too), bounded waits.
+        shutdown = threading.Thread(target=server.shutdown, kwargs={"code": 1001, "reason": "server shutting down"},
+                                    name=f"policy-server-shutdown:{self.port}", daemon=True)
+        shutdown.start()
         with self._conns_lock:
             conns = list(self._conns)
-        for conn in conns:
-            try:
-                conn.close(1001, "server shutting down")
-            except Exception:  # noqa: BLE001  (already broken: nothing to close)
-                pass
-        server.shutdown()
+        closers = [threading.Thread(target=_close_quietly, args=(c, 1001, "server shutting down"), daemon=True)
+                   for c in conns]
+        for t in closers:
+            t.start()
+        deadline = time.monotonic() + self.close_timeout + 1.0
+        for t in (*closers, shutdown):
+            t.join(max(0.0, deadline - time.monotonic()))
         if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(5.0)
+            self._thread.join(max(0.5, deadline - time.monotonic()))  # ends once the listening socket is closed
         self._thread = None
-        if self.verbose:
+        busy = self.active_handlers()
+        if busy and self.verbose:
+            _log(f"stopped; {len(busy)} request(s) still inside the policy were not waited for")
+        elif self.verbose:
             _log(f"stopped ({self.url})")
 
     def __enter__(self) -> "PolicyServer":
@@ -148,11 +225,55 @@ class PolicyServer:
         self.stop()
 
     # ------------------------------------------------------------------ one client
+    def _process_request(self, connection: Any, request: Any) -> Any:
+        """Before the upgrade: the health check, then the token (HTTP 401 and a reason without it)."""
+        if urlsplit(request.path).path == "/healthz":
+            return connection.respond(http.HTTPStatus.OK, "OK\n")
+        if self.token is None:
+            return None
+        got = presented_token(request)
+        if got is not None and hmac.compare_digest(got.encode(), self.token.encode()):
+            return None
+        self.refused += 1
+        why = "no token" if got is None else "a wrong token"
+        _log(f"{connection.remote_address}: refused, {why}")
+        return connection.respond(http.HTTPStatus.UNAUTHORIZED,
+                                  f"simseam policy server: {why}; this server requires the token that serve-policy "
+                                  f"printed, as remote:ws://HOST:PORT?{wire.TOKEN_QUERY}=TOKEN or the header "
+                                  "'Authorization: Api-Key TOKEN' (openpi-client: api_key=TOKEN)\n")
+
+    def _acquire_slot(self) -> bool:
+        """Wait up to ``busy_wait`` s for the one client slot; False when busy or stopping."""
+        deadline = time.monotonic() + self.busy_wait
+        while not self._stopping.is_set():
+            if self._busy.acquire(timeout=max(0.0, min(0.1, deadline - time.monotonic()))):
+                if not self._stopping.is_set():
+                    return True
+                self._busy.release()
+                return False
+            if time.monotonic() >= deadline:
+                return False
+        return False
+
     def _handle(self, conn: Any) -> None:
+        with self._conns_lock:
+            self._conns.add(conn)
+            self._handlers.add(threading.current_thread())
+        try:
+            self._serve_client(conn)
+        finally:
+            with self._conns_lock:
+                self._conns.discard(conn)
+                self._handlers.discard(threading.current_thread())
+
+    def _serve_client(self, conn: Any) -> None:
         from websockets.exceptions import ConnectionClosed
 
         peer = conn.remote_address
-        if not self._busy.acquire(timeout=self.busy_wait):
+        if not self._acquire_slot():
+            if self._stopping.is_set():
+                _close_quietly(conn, 1001, "server shutting down")
+                return
             _log(f"{peer}: refused, another client is connected")
             try:
                 conn.send("simseam policy server busy: it serves one client at a time and another one is "
@@ -161,8 +282,6 @@ class PolicyServer:
             except ConnectionClosed:
                 pass
             return
-        with self._conns_lock:
-            self._conns.add(conn)
         episode: dict[str, Any] = {}
         try:
             if self.verbose:
@@ -170,7 +289,12 @@ class PolicyServer:
             conn.send(wire.packb(self.metadata))
             prev_total = None
             while True:
-                data = conn.recv()
+                try:
+                    data = conn.recv(timeout=self.idle_timeout)
+                except TimeoutError:
+                    _log(f"{peer}: idle for {self.idle_timeout:g} s, disconnected (frees the client slot)")
+                    _close_quietly(conn, 1008, f"idle for more than {self.idle_timeout:g} s; reconnect to go on")
+                    return
                 start = time.monotonic()
                 try:
                     obs = self._observation(data, episode)
@@ -189,19 +313,19 @@ class PolicyServer:
                     conn.send(traceback.format_exc())
                     conn.close(1011, "Internal server error. Traceback included in previous frame.")
                     return
-        except ConnectionClosed:
-            if self.verbose:
+        except ConnectionClosed as exc:
+            if exc.sent is not None and exc.sent.code == 1009:
+                _log(f"{peer}: sent a message over the {self.max_message_bytes}-byte limit; connection closed (1009)")
+            elif self.verbose:
                 _log(f"{peer}: disconnected")
         finally:
-            with self._conns_lock:
-                self._conns.discard(conn)
             self._busy.release()
 
     def _observation(self, data: Any, episode: dict[str, Any]) -> dict[str, Any]:
         """A request (bytes) -> the seam observation dict; resets the policy on ``simseam/reset``."""
         if isinstance(data, str):
             raise ProtocolError("got a text frame; requests are binary msgpack frames (openpi's msgpack_numpy)")
-        request = wire.unpackb(data)
+        request = wire.unpackb(data, max_bytes=self.max_message_bytes)
         if not isinstance(request, dict):
             raise ProtocolError(f"a request must be a map of observation entries, got {type(request).__name__}")
         prompt = request.get(wire.PROMPT)
@@ -235,3 +359,11 @@ class PolicyServer:
             chunk = np.asarray(self.policy.predict_chunk(obs), dtype=np.float32)
             return chunk[None, :] if chunk.ndim == 1 else chunk
         return np.asarray(self.policy.act(obs), dtype=np.float32)[None, :]
+
+
+def _close_quietly(conn: Any, code: int, reason: str) -> None:
+    """Close a connection (bounded by its close_timeout); a broken one has nothing left to close."""
+    try:
+        conn.close(code, reason)
+    except Exception:  # noqa: BLE001
+        pass
