@@ -30,7 +30,7 @@ def test_run_writes_summary_and_playable_videos(tmp_path):
     assert "episode   0  seed     5" in proc.stdout and "episode   1  seed     6" in proc.stdout
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_episodes"] == 2 and summary["config"]["policy"] == "scripted"
-    assert summary["config"]["scene"]["layout"] == "lift_cube" and summary["scene"]["action_dim"] == 7
+    assert summary["config"]["scene"]["task"] == "lift_cube" and len(summary["spec"]["action"]["slots"]) == 7
     lo, hi = summary["success_rate_wilson95"]
     assert 0.0 <= lo <= summary["success_rate"] <= hi <= 1.0
     for ep in summary["episodes"]:

@@ -126,7 +126,7 @@ def test_boot_config_error_comes_back_with_its_message(panda_json, client_tmp):
     err = ei.value
     assert isinstance(err, SimseamError) and isinstance(err, ValueError)
     assert not isinstance(err, SidecarTimeout)
-    assert err.kind == "ConfigError" and "unknown layout 'no_such_layout'" in err.remote_message
+    assert err.kind == "ConfigError" and "unknown task 'no_such_layout'" in err.remote_message
     assert "lift_cube" in err.remote_message  # says what is known
     assert "Traceback" in err.remote_traceback
     assert _server_children() == before  # the failed sidecar was reaped
@@ -140,7 +140,7 @@ def test_protocol_mismatch_at_hello_leaves_nothing_behind(panda_json, client_tmp
 
     monkeypatch.setattr(client, "PROTOCOL_VERSION", 99)
     before = _server_children()
-    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 1"):
+    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 2"):
         SidecarRollout(panda_json, "lift_cube", options=scene_options(render_images=False))
     assert _server_children() == before
     assert list(client_tmp.iterdir()) == []
@@ -333,3 +333,21 @@ def test_exclusive_engine_second_sidecar_gets_busy_not_a_stuck_boot(make_sidecar
     first.close()
     third = make_sidecar(options=opts, exclusive=True)
     assert lock.read_text() == str(third.pid)
+
+
+def test_a_sidecar_keeps_the_seam_contract(make_sidecar):
+    """check_rollout through the wire: spec in hello, requests honoured, bad actions refused, close idempotent."""
+    from simseam.seam import check_rollout
+
+    spec = check_rollout(make_sidecar())
+    assert spec.backend == "sidecar" and spec.can("restart") and spec.task.name == "lift_cube"
+
+
+def test_observation_requests_travel_to_the_sidecar(make_sidecar):
+    from simseam.seam import STATE_ONLY, ObsRequest
+
+    rollout = make_sidecar()
+    assert rollout.reset(1, STATE_ONLY)["images"] == {}
+    obs = rollout.step(np.zeros(7, np.float32), ObsRequest(images=frozenset({"camera2"}), link_poses=True)).observation
+    assert set(obs["images"]) == {"camera2"} and set(obs["link_poses"]) == {l.name for l in rollout.spec.robot.links}
+    assert rollout.render().shape == obs["images"]["camera2"].shape  # camera1 rendered on demand for videos

@@ -211,7 +211,8 @@ def test_cli_run_with_a_sidecar_end_to_end(tmp_path):
         results[kind] = json.loads((out / "summary.json").read_text())
     side, local = results["sidecar"], results["inprocess"]
     assert side["config"]["scene"]["engine"]["process"] == "sidecar" and side["n_episodes"] == 2
-    assert side["scene"] == local["scene"]
+    assert side["spec"]["backend"] == "sidecar" and local["spec"]["backend"] == "inprocess"
+    assert {**side["spec"], "backend": "", "capabilities": []} == {**local["spec"], "backend": "", "capabilities": []}
     for a, b in zip(side["episodes"], local["episodes"]):
         assert a["error"] is None
         assert (a["seed"], a["success"], a["steps"], a["reward"]) == (b["seed"], b["success"], b["steps"], b["reward"])

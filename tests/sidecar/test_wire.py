@@ -186,15 +186,15 @@ MALFORMED = {
     "empty": ([], "empty message"),
     "empty header": ([b""], "not valid msgpack"),
     "non-msgpack header": ([b"\xc1\xc1garbage"], "not valid msgpack"),
-    "trailing bytes after header": ([msgpack.packb({"v": 1, "op": "x"}) + b"\x01"], "not valid msgpack"),
+    "trailing bytes after header": ([msgpack.packb({"v": PROTOCOL_VERSION, "op": "x"}) + b"\x01"], "not valid msgpack"),
     "non-str map key": ([msgpack.packb({1: 2})], "not valid msgpack"),
-    "header too large": ([msgpack.packb({"v": 1, "op": "x", "body": "a" * MAX_HEADER_BYTES})], "more than"),
+    "header too large": ([msgpack.packb({"v": PROTOCOL_VERSION, "op": "x", "body": "a" * MAX_HEADER_BYTES})], "more than"),
     "non-map header (list)": ([msgpack.packb([1, "step"])], "header must be a map, got list"),
     "non-map header (int)": ([msgpack.packb(7)], "header must be a map, got int"),
-    "wrong version": ([_hdr(v=2)], "protocol version 2, this side speaks 1"),
+    "wrong version": ([_hdr(v=99)], f"protocol version 99, this side speaks {PROTOCOL_VERSION}"),
     "missing version": ([msgpack.packb({"op": "x"})], "protocol version None"),
     "deep version": ([_hdr(v=_DEEP)], "protocol version"),
-    "missing op": ([msgpack.packb({"v": 1, "body": {}})], "'op' must be a non-empty string, got None"),
+    "missing op": ([msgpack.packb({"v": PROTOCOL_VERSION, "body": {}})], "'op' must be a non-empty string, got None"),
     "empty op": ([_hdr(op="")], "'op' must be a non-empty string"),
     "non-str op": ([_hdr(op=5)], "'op' must be a non-empty string, got 5"),
     "arrays not a list": ([_hdr(arrays={"a": 1})], "'arrays' must be a list"),
@@ -309,7 +309,7 @@ def _nest(depth: int, container: str, leaf):
 def test_fuzz_deeply_nested_headers_only_raise_wire_error(depth, where, container):
     """msgpack accepts ~1000 levels of nesting; nothing downstream may recurse itself to death."""
     deep = _nest(depth, container, 0)
-    header = {"v": 1, "op": "step", "body": {"a": ND0}, "arrays": F4x3, "extra": None}
+    header = {"v": PROTOCOL_VERSION, "op": "step", "body": {"a": ND0}, "arrays": F4x3, "extra": None}
     if where == "marker":
         header["body"] = {"__nd__": 0, "x": deep}
     elif where == "spec":

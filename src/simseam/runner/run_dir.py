@@ -3,6 +3,7 @@
 Layout of ``DIR``::
 
     run.json          the run's config (what ran: scene, policy, seeds, options), written first
+    spec.json         the rollout's RolloutSpec, written once the rollout is built
     episodes.jsonl    one JSON line per finished episode, appended, flushed and fsynced as it ends
     summary.json      rebuilt from episodes.jsonl, written atomically (temp file + rename)
     episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
@@ -27,9 +28,10 @@ from typing import Any
 from simseam.seam import ConfigError
 
 CONFIG_FILE = "run.json"
+SPEC_FILE = "spec.json"
 LOG_FILE = "episodes.jsonl"
 SUMMARY_FILE = "summary.json"
-RUN_FILES = (CONFIG_FILE, LOG_FILE, SUMMARY_FILE)
+RUN_FILES = (CONFIG_FILE, SPEC_FILE, LOG_FILE, SUMMARY_FILE)
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
@@ -141,6 +143,9 @@ class RunDir:
         """Episode indices already in the log (skipped when resuming)."""
         return {int(e["index"]) for e in self.resumed}
 
+    def write_spec(self, spec_json: dict) -> None:
+        write_json_atomic(self.path / SPEC_FILE, spec_json)
+
     def append(self, episode: dict) -> None:
         """Record one finished episode: one line, flushed and fsynced before returning."""
         self._log.write(json.dumps(episode) + "\n")
@@ -179,8 +184,8 @@ def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: b
         config = {}
     if spec_json is None:
         try:
-            spec_json = json.loads((path / SUMMARY_FILE).read_text()).get("spec")
-        except (OSError, ValueError, AttributeError):
+            spec_json = json.loads((path / SPEC_FILE).read_text())
+        except (OSError, ValueError):
             spec_json = None
     summary = build_summary(config, spec_json, episodes)
     planned = config.get("episodes")

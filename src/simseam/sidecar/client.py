@@ -227,6 +227,12 @@ class SidecarRollout:
     # ------------------------------------------------------------------ boot
     def _start(self) -> None:
         if not shutil.which(self._python) and not os.path.exists(self._python):
+            if self._engine == "isaac":  # the interpreter is the provisioned Isaac Sim venv
+                from simseam.engines.isaac.provision import provision_hint
+                from simseam.seam import BackendUnavailableError
+
+                raise BackendUnavailableError(f"Isaac Sim is not provisioned here: the sidecar interpreter "
+                                              f"{self._python!r} does not exist. {provision_hint()}")
             raise ConfigError(f"sidecar interpreter {self._python!r} not found")
         self._dir = tempfile.mkdtemp(prefix="simseam-sidecar-")  # 0700
         os.chmod(self._dir, 0o700)

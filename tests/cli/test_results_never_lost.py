@@ -1,0 +1,167 @@
+"""Results are never lost or silently replaced: output checks, --overwrite / --resume, the episode
+log, Ctrl-C / SIGTERM / SIGKILL mid-run, summarize, partial videos."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SCENE = """robot: franka_panda
+task: lift_cube
+image_size: [32, 32]
+max_steps: {steps}
+"""
+
+
+@pytest.fixture
+def scene(tmp_path):
+    def _make(steps=4):
+        path = tmp_path / f"scene{steps}.yaml"
+        path.write_text(SCENE.format(steps=steps))
+        return path
+
+    return _make
+
+
+def _env():
+    return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1")
+
+
+def _simseam(*args, cwd=REPO):
+    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=cwd, env=_env(),
+                          capture_output=True, text=True, timeout=600)
+
+
+def _log(out: Path) -> list[dict]:
+    path = out / "episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def test_unusable_out_is_refused_before_anything_runs(scene, tmp_path):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for out in (a_file, a_file / "below"):
+        proc = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out)
+        assert proc.returncode == 2, proc.stderr
+        err = proc.stderr.strip()
+        assert err.count("\n") == 0 and "error: ConfigError: --out" in err and "Traceback" not in err
+        assert "episode" not in proc.stdout
+
+
+def test_existing_run_is_refused_then_overwritten_or_resumed(scene, tmp_path):
+    out = tmp_path / "run"
+    first = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "2", "--out", out, "--video")
+    assert first.returncode == 0, first.stderr
+    assert sorted(p.name for p in out.glob("*.mp4")) == ["episode_000.mp4", "episode_001.mp4"]
+    assert [e["index"] for e in _log(out)] == [0, 1]
+
+    again = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out)
+    assert again.returncode == 2 and "already holds a run" in again.stderr and "--overwrite" in again.stderr
+    assert [e["index"] for e in _log(out)] == [0, 1]  # untouched
+
+    over = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out, "--overwrite")
+    assert over.returncode == 0, over.stderr
+    assert list(out.glob("*.mp4")) == [] and [e["index"] for e in _log(out)] == [0]  # never two runs mixed
+    assert json.loads((out / "summary.json").read_text())["n_episodes"] == 1
+
+    wrong = _simseam("run", "--scene", scene(), "--policy", "random", "--episodes", "1", "--out", out, "--resume")
+    assert wrong.returncode == 2 and "different config" in wrong.stderr and "policy: 'zero' -> 'random'" in wrong.stderr
+
+
+def test_resume_skips_recorded_episodes(scene, tmp_path):
+    out = tmp_path / "run"
+    args = ("run", "--scene", scene(), "--policy", "zero", "--episodes", "3", "--seed", "4", "--out", out)
+    first = _simseam(*args)
+    assert first.returncode == 0, first.stderr
+    # drop the last episode from the log, as if the run had been killed during it
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    (out / "episodes.jsonl").write_text("\n".join(lines[:2]) + "\n")
+    before = _log(out)
+    resumed = _simseam(*args, "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "2 episode(s) already recorded, 1 to run" in resumed.stdout
+    assert "episode   2  seed     6" in resumed.stdout and "episode   0" not in resumed.stdout
+    after = _log(out)
+    assert after[:2] == before and [e["index"] for e in after] == [0, 1, 2]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == 3 and summary["complete"] is True
+
+
+def test_default_out_is_a_new_directory_per_run_with_latest(scene, tmp_path):
+    for _ in range(2):
+        proc = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+    runs = sorted(p for p in (tmp_path / "runs").iterdir() if not p.is_symlink())
+    assert len(runs) == 2 and all((r / "summary.json").is_file() for r in runs)
+    latest = tmp_path / "runs" / "latest"
+    assert latest.is_symlink() and latest.resolve() == runs[-1].resolve()
+
+
+def _start(out: Path, scene_path: Path, *extra):
+    return subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene_path),
+                             "--policy", "zero", "--episodes", "50", "--out", str(out), *extra],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_episodes(proc, out: Path, n: int, deadline_s: float = 300.0) -> None:
+    """Readiness signal: the episode log holds ``n`` finished episodes (hang guard only)."""
+    end = time.monotonic() + deadline_s
+    while len(_log(out)) < n:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < end, "the run never logged its episodes"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupt_keeps_every_finished_episode_and_exits_130(scene, tmp_path, sig):
+    out = tmp_path / "run"
+    proc = _start(out, scene(steps=40))
+    try:
+        _wait_for_episodes(proc, out, 2)
+        proc.send_signal(sig)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    logged = _log(out)
+    k = len(logged)
+    assert k >= 2 and f"interrupted after {k} of 50 episodes" in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == k and summary["complete"] is False
+    assert [e["index"] for e in summary["episodes"]] == list(range(k))
+
+
+def test_after_sigkill_the_log_has_every_finished_episode_and_summarize_rebuilds(scene, tmp_path):
+    out = tmp_path / "run"
+    proc = _start(out, scene(steps=40), "--video")
+    try:
+        _wait_for_episodes(proc, out, 2)
+        proc.kill()
+        proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    logged = _log(out)
+    assert len(logged) >= 2 and not (out / "summary.json").exists()
+    # finished episodes have complete videos; the one in flight, if any, only a .partial file
+    for e in logged:
+        assert Path(e["video"]).is_file() and ".partial" not in e["video"]
+    assert all(".partial" in p.name for p in out.glob("*.mp4") if p.name not in {Path(e["video"]).name
+                                                                                 for e in logged})
+    proc = _simseam("summarize", out)
+    assert proc.returncode == 0, proc.stderr and "incomplete" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == len(logged) and summary["complete"] is False
+    assert summary["config"]["policy"] == "zero" and summary["spec"]["task"]["name"] == "lift_cube"
+
+
+def test_a_token_in_a_remote_policy_url_is_never_written_to_disk():
+    from simseam.cli.main import _redacted
+
+    assert _redacted("remote:ws://h:1?token=s3cret&x=1") == "remote:ws://h:1?token=<redacted>&x=1"
+    assert _redacted("scripted") == "scripted"
