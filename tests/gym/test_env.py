@@ -143,7 +143,7 @@ def test_plus_z_cartesian_delta_raises_the_end_effector(tmp_path, envs):
 
 def test_joint_position_action_space_is_the_joint_limits(tmp_path, envs):
     env = envs(tmp_path, {**LIFT, "control_mode": "joint_position"}, render_images=False)
-    arm = env.unwrapped.robot.arm_joints
+    arm = env.unwrapped.rollout.spec.robot.arm_joints
     act = env.action_space
     np.testing.assert_allclose(act.low, [j.lower for j in arm] + [-1.0], rtol=1e-6)
     np.testing.assert_allclose(act.high, [j.upper for j in arm] + [1.0], rtol=1e-6)
