@@ -58,3 +58,7 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   echo "$WANT" > "$STAMP"
 fi
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
+
+# --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,
+# cached outside the repo under ~/.cache/simseam/, keyed by their pins (scripts/setup_ros_peers.sh)
+bash "$SIMSEAM_ROOT/scripts/setup_ros_peers.sh" >/dev/null
