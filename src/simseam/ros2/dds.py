@@ -76,6 +76,18 @@ def discovery_config(env=None) -> str | None:
     return "<CycloneDDS><Domain Id=\"any\">" + _DISCOVERY.format(peers=peer_xml) + "</Domain></CycloneDDS>"
 
 
+def discovery_summary(env=None) -> str:
+    """One line for the deploy banner: where DDS discovery reaches."""
+    env = os.environ if env is None else env
+    if env.get("CYCLONEDDS_URI"):
+        return "CYCLONEDDS_URI"
+    rng = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() or "LOCALHOST"
+    peers = env.get("ROS_STATIC_PEERS", "").strip()
+    where = {"LOCALHOST": "loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to reach other machines)",
+             "OFF": "off", "SUBNET": "the network", "SYSTEM_DEFAULT": "the network"}.get(rng, rng)
+    return where + (f", static peers {peers}" if peers else "")
+
+
 def domain_id_from_env(default: int = 0) -> int:
     raw = os.environ.get("ROS_DOMAIN_ID", "").strip()
     if not raw:
