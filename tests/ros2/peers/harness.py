@@ -36,7 +36,7 @@ class Proc:
 
     def __init__(self, args, env, name):
         self.name = name
-        self.p = subprocess.Popen(args, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+        self.p = subprocess.Popen([str(a) for a in args], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self.lines: list[str] = []
         self._cv = threading.Condition()
