@@ -43,6 +43,7 @@ always computed.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import threading
 import time
@@ -52,6 +53,8 @@ from typing import Any, Protocol
 from simseam.ros2 import convert as cv
 from simseam.ros2 import msgs as m
 from simseam.seam import ConfigError, ControlMode, SimseamError
+
+_BURST_BYTES = 32 * 1024  # larger Image/PointCloud2 samples go out on DDS one per tick
 
 DEFAULT_RATES: dict[str, float] = {
     "clock": float("inf"),
@@ -147,6 +150,7 @@ class Ros2Bridge:
         self._jmap = cv.JointCommandMap.from_spec(self.spec)
         self._started = False
         self._injected: list[tuple[str, Any]] = []
+        self._dds_queue: collections.deque = collections.deque()
         self._inject_lock = threading.Lock()
         self._model = None
         try:
@@ -197,7 +201,12 @@ class Ros2Bridge:
     # ------------------------------------------------------------------ publish
     def _emit(self, topic: str, msg, stamp_ns: int, qos_kind: str) -> None:
         if self.participant is not None:
-            self.participant.writer(topic, type(msg), qos_kind).write(msg)
+            if isinstance(msg, (m.Image, m.PointCloud2)) and len(msg.data) > _BURST_BYTES:
+                # one large sample per tick on DDS: a burst of several (3 images + a cloud, ~0.8 MB) overflows a
+                # receiver's default UDP buffer and best-effort fragments are lost (measured with rclpy/Fast DDS)
+                self._dds_queue.append((topic, msg, qos_kind))
+            else:
+                self.participant.writer(topic, type(msg), qos_kind).write(msg)
         if self.sinks:
             data = msg.serialize()
             for sink in self.sinks:
@@ -222,9 +231,20 @@ class Ros2Bridge:
         hz = self.rates.get(key, 0.0)
         return hz > 0 and (hz == float("inf") or now + self._dt_ns // 2 >= self._next[key])
 
+    def _flush_dds(self) -> None:
+        """Write the oldest queued large sample (its stamp stays its capture time); drop samples that a newer
+        one on the same topic already superseded."""
+        q = self._dds_queue
+        while q and any(t == q[0][0] for t, _, _ in list(q)[1:]):
+            q.popleft()
+        if q and self.participant is not None:
+            topic, msg, kind = q.popleft()
+            self.participant.writer(topic, type(msg), kind).write(msg)
+
     def _publish(self, now: int) -> None:
         from simseam.ros2.dds import CLOCK, SENSOR, STATE, TF
 
+        self._flush_dds()
         hal = self.hal
         if self._due("clock", now):
             self._emit("/clock", cv.clock_msg(now), now, CLOCK)

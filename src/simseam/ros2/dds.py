@@ -42,7 +42,7 @@ from simseam.seam import BackendUnavailableError, ConfigError
 _DISCOVERY = "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>{peers}</Discovery>"
 LOOPBACK_XML = (
     "<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/>"
-    "</Interfaces><AllowMulticast>spdp</AllowMulticast></General>"
+    "</Interfaces><AllowMulticast>spdp</AllowMulticast><MaxMessageSize>65500B</MaxMessageSize></General>"
     + _DISCOVERY.format(peers="<Peers><Peer address=\"127.0.0.1\"/></Peers>") + "</Domain></CycloneDDS>"
 )
 _OFF_XML = ("<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
