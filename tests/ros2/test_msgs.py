@@ -55,7 +55,7 @@ def samples():
     ranges = rng.uniform(0.1, 9, 360).astype(np.float32)
     ranges[::7] = lidar.range_max  # no return: +inf on the wire (REP-117)
     # a participant that discovers nothing (ROS_AUTOMATIC_DISCOVERY_RANGE=OFF): only its graph sample is used
-    participant = Participant(232, config=discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}))
+    participant = Participant(7, config=discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"}))
     try:
         participant.writer("/clock", m.Clock, CLOCK)
         participant.reader("/cmd_vel", m.Twist, COMMAND)
