@@ -97,3 +97,7 @@ fi
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
+
+# --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,
+# cached outside the repo under ~/.cache/simseam/, keyed by their pins (scripts/setup_ros_peers.sh)
+bash "$SIMSEAM_ROOT/scripts/setup_ros_peers.sh" >/dev/null

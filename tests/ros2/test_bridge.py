@@ -25,7 +25,8 @@ def bridge(ros_env, mobile_scene):
     hal.close()
 
 
-def _wait(pred, timeout=5.0, tick=None):
+def _wait(pred, timeout=60.0, tick=None):
+    """Until ``pred()`` (an event); ``timeout`` is a hang guard for a loaded machine, not a timing check."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if tick is not None:
@@ -54,19 +55,23 @@ def test_joint_states_clock_and_tf_static_reach_a_dds_subscriber(bridge):
         got_clock.clear()
         for _ in range(25):
             bridge.step()
-            time.sleep(0.002)
-        assert _wait(lambda: (drain(), got_js and got_js[-1].header.stamp.to_ns() == bridge.hal.sim_time_ns())[1])
+        now = bridge.hal.sim_time_ns()
+        # reliable /joint_states: wait (event) until the sample of the current tick is here
+        assert _wait(lambda: (drain(), got_js and got_js[-1].header.stamp.to_ns() == now)[1], timeout=60)
         state = bridge.hal.read_state()
         last = got_js[-1]
-        assert list(last.name) == list(bridge.spec.joint_names) == list(state.names)
-        np.testing.assert_array_equal(last.position, state.positions)
-        np.testing.assert_array_equal(last.velocity, state.velocities)
+        urdf_names = [j.sim_name for j in bridge.spec.joints if j.role != "base"]  # the base is on /odom
+        assert list(last.name) == urdf_names and list(state.names)[3:] == urdf_names
+        np.testing.assert_array_equal(last.position, state.positions[3:])
+        np.testing.assert_array_equal(last.velocity, state.velocities[3:])
+        # best-effort /clock: whatever arrived is strictly monotonic, on the tick grid, never ahead of sim time
         stamps = [c.clock.to_ns() for c in got_clock]
-        assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)  # strictly monotonic
-        assert stamps[-1] == bridge.hal.sim_time_ns()
-        # /tf_static is latched (transient local): a late subscriber still gets the sensor mounts
+        assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+        assert all(s % bridge._dt_ns == 0 and s <= now for s in stamps)
+        # /tf_static is latched (transient local): a late subscriber still gets the mounts and fixed joints
+        assert _wait(lambda: (drain(), got_static)[1], timeout=60)
         frames = {t.child_frame_id for msg in got_static for t in msg.transforms}
-        assert {"camera1", "camera1_optical", "front_depth", "base_scan"} <= frames
+        assert {"camera1", "camera1_optical", "front_depth", "base_scan", "panda_link0", "panda_hand"} <= frames
     finally:
         client.close()
 
@@ -81,20 +86,20 @@ def test_estop_over_dds_stops_the_base(bridge):
         def drive(n):
             for _ in range(n):
                 cmd.write(go)
-                time.sleep(0.003)
                 bridge.step()
 
         x0 = bridge.hal.base_pose()[0]
-        assert _wait(lambda: (drive(1), bridge.hal.base_pose()[0] > x0 + 0.02)[1]), "the base never moved"
+        assert _wait(lambda: (drive(1), bridge.hal.base_pose()[0] > x0 + 0.02)[1], timeout=60), "never moved"
         estop.write(m.Bool(True))
-        assert _wait(lambda: (drive(1), bridge.hal.estopped)[1])
-        bridge.step()
+        assert _wait(lambda: (drive(1), bridge.hal.estopped)[1], timeout=60)  # the event: the latch engaged
         x1 = bridge.hal.base_pose()[0]
-        drive(15)  # /cmd_vel keeps coming: ignored while the E-stop is latched
+        drive(50)  # 1 s of sim time with /cmd_vel still coming: ignored while the E-stop is latched
         assert bridge.hal.base_pose()[0] == pytest.approx(x1, abs=1e-9)
         assert bridge.stats.commands["/estop"] >= 1
         estop.write(m.Bool(False))
-        assert _wait(lambda: (drive(1), bridge.hal.base_pose()[0] > x1 + 0.02)[1]), "cleared E-stop: no motion"
+        assert _wait(lambda: (drive(1), not bridge.hal.estopped)[1], timeout=60)
+        drive(25)  # 0.5 s sim: moving again at 0.4 m/s
+        assert bridge.hal.base_pose()[0] - x1 == pytest.approx(0.4 * 0.5, abs=0.02)
     finally:
         client.close()
 
@@ -108,4 +113,43 @@ def test_rates_parse_and_schedule(bridge):
         bridge.step()
     pub = bridge.stats.published
     assert pub["/clock"] == 50 and pub["/joint_states"] == 50 and pub["/odom"] == 50
+    assert pub["/tf"] == 100  # arm links + odom -> base_link, each at 50 Hz
     assert pub["/camera1/image_raw"] == 10 and pub["/scan"] == 10 and pub["/front_depth/points"] == 10
+
+
+def test_foxglove_style_injected_commands_share_the_hal_path(bridge):
+    """``inject`` (the Foxglove server's clientPublish) obeys the same hold time and E-stop latch as DDS."""
+    go = m.Twist(m.Vector3(0.3, 0.0, 0.0), m.Vector3())
+    x0 = bridge.hal.base_pose()[0]
+    for _ in range(25):
+        bridge.inject("/cmd_vel", go)
+        bridge.step()
+    assert bridge.hal.base_pose()[0] - x0 == pytest.approx(0.3 * 0.5, abs=0.01)
+    bridge.inject("/estop", m.Bool(True))
+    bridge.inject("/cmd_vel", go)
+    bridge.step()
+    assert bridge.hal.estopped
+    x1 = bridge.hal.base_pose()[0]
+    for _ in range(10):
+        bridge.inject("/cmd_vel", go)
+        bridge.step()
+    assert bridge.hal.base_pose()[0] == pytest.approx(x1, abs=1e-9)
+    bridge.inject("/estop", m.Bool(False))
+    bridge.step()
+    assert not bridge.hal.estopped
+    with pytest.raises(ConfigError):
+        bridge.inject("/bogus", go)
+
+
+def test_discovery_config_follows_ros_environment():
+    from simseam.ros2.dds import LOOPBACK_XML, discovery_config, discovery_summary
+
+    assert discovery_config({}) == LOOPBACK_XML == discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "localhost"})
+    assert 'name="lo" multicast="true"' in LOOPBACK_XML and "<AllowMulticast>spdp" in LOOPBACK_XML
+    assert discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}) is None  # Cyclone's defaults: the network
+    peers = discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "ROS_STATIC_PEERS": "10.0.0.7;robot.local"})
+    assert '<Peer address="10.0.0.7"/>' in peers and '<Peer address="robot.local"/>' in peers and 'name="lo"' not in peers
+    assert "<AllowMulticast>false" in discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "OFF"})
+    with pytest.raises(ConfigError):
+        discovery_config({"ROS_AUTOMATIC_DISCOVERY_RANGE": "everywhere"})
+    assert discovery_summary({}).startswith("loopback only")

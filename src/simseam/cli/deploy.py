@@ -85,10 +85,11 @@ def deploy(
                 console.print(f"foxglove: ws://127.0.0.1:{fg.port}")
             participant = None
             if ros2:
-                from simseam.ros2.dds import Participant
+                from simseam.ros2.dds import Participant, discovery_summary
 
                 participant = Participant(domain_id)
-                console.print(f"ROS 2: DDS domain {participant.domain_id}")
+                console.print(f"ROS 2: node /{participant.node_name}, DDS domain {participant.domain_id}, "
+                              f"discovery: {discovery_summary()}")
             with console.status("building the scene"):
                 rollout = build_rollout(cfg, base_dir, seed=seed)
             hal = SimAttachedHAL.attach(rollout, target="sim", hold_time_s=hold_time, seed=seed)
@@ -102,6 +103,7 @@ def deploy(
             err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
             raise typer.Exit(code=2)
         info = rollout.spec
+        # the line tests and scripts wait for: the robot is live (first state published)
         console.print(f"{escape(info.describe())} at {info.control_hz:g} Hz, rtf {rtf:g}"
                       + (f", {duration:g} s" if duration is not None else ", Ctrl-C to stop"))
         try:

@@ -7,9 +7,11 @@ Topics (``/<sensor>`` is the manifest sensor name):
 topic                      type                           default rate    source
 =========================  =============================  ==============  =====================
 /clock                     rosgraph_msgs/Clock            every tick      ``hal.sim_time_ns()``
-/joint_states              sensor_msgs/JointState         50 Hz           ``hal.read_state()``
+/joint_states, /tf         sensor_msgs/JointState, TF     50 Hz           ``hal.read_state()``: URDF
+                                                                          joints; their link transforms
 /odom, /tf                 nav_msgs/Odometry, TFMessage   50 Hz           ``hal.base_pose/twist``
-/tf_static                 tf2_msgs/TFMessage             once (latched)  sensor mounts
+/tf_static                 tf2_msgs/TFMessage             once (latched)  fixed joints, base_link, mounts
+/robot_description         std_msgs/String                once (latched)  the URDF
 /<cam>/image_raw           sensor_msgs/Image (rgb8)       10 Hz           ``hal.read_images()``
 /<cam>/camera_info         sensor_msgs/CameraInfo         with the image  sensor intrinsics
 /<depth>/points            sensor_msgs/PointCloud2        10 Hz           ``hal.read_depth_clouds()``
@@ -22,7 +24,14 @@ convention of Isaac Sim's ROS 2 bridge: positions by name -> JOINT_POSITION
 for arm joints, gripper joints -> the gripper scalar), ``/estop``
 (std_msgs/Bool: true latches the HAL's E-stop, false clears it). The HAL
 holds a motion command for ``hold_time_s`` of sim time, then stops: a teleop
-node must keep publishing (as ``ros2 topic pub -r 10`` does).
+node must keep publishing (as ``ros2 topic pub -r 10`` does). Sinks that take
+commands (the Foxglove server's client publishing) hand them to ``inject``:
+they go through the very same path (hold time, E-stop latch, clamps).
+
+The TF tree (``robot_model``): ``odom -> base_link`` (the kinematic base),
+``base_link -> <URDF root>`` (identity, when named differently), every URDF
+joint's ``parent -> child`` (fixed on ``/tf_static``, movable on ``/tf`` at the
+``joint_states`` rate), and the sensor mounts.
 
 Rates are in sim time (Hz; 0 turns a topic off; a rate at or above the
 control rate publishes every tick). The loop runs at ``rtf`` x real time
@@ -34,13 +43,17 @@ always computed.
 
 from __future__ import annotations
 
+import collections
 import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from simseam.ros2 import convert as cv
+from simseam.ros2 import msgs as m
 from simseam.seam import ConfigError, ControlMode, ObsRequest, SimseamError
+
+_BURST_BYTES = 32 * 1024  # larger Image/PointCloud2 samples go out on DDS one per tick
 
 DEFAULT_RATES: dict[str, float] = {
     "clock": float("inf"),
@@ -133,6 +146,29 @@ class Ros2Bridge:
         self._next: dict[str, int] = {}
         self._jmap = cv.JointCommandMap.from_spec(self.spec)
         self._started = False
+        self._injected: list[tuple[str, Any]] = []
+        self._dds_queue: collections.deque = collections.deque()
+        self._inject_lock = threading.Lock()
+        self._model = None
+        try:
+            from simseam.ros2.robot_model import RobotModel
+
+            self._model = RobotModel(self.spec)
+        except SimseamError as exc:
+            self._log(f"no TF tree / robot_description for {self.spec.name}: {exc}")
+
+    @property
+    def command_topics(self) -> dict[str, type]:
+        """The topics this bridge obeys, with their message classes (for sinks that take commands)."""
+        return {"/cmd_vel": m.Twist, self._joint_topic: m.JointState, "/estop": m.Bool}
+
+    def inject(self, topic: str, msg) -> None:
+        """A command from outside DDS (e.g. a Foxglove client's publish); thread-safe; applied on the next
+        tick exactly like the same message arriving over DDS."""
+        if topic not in self.command_topics:
+            raise ConfigError(f"{topic!r} is not a command topic ({', '.join(self.command_topics)})")
+        with self._inject_lock:
+            self._injected.append((topic, msg))
 
     # ------------------------------------------------------------------ set-up
     def start(self) -> None:
@@ -145,9 +181,15 @@ class Ros2Bridge:
             from simseam.ros2.dds import CommandSubscriber
 
             self._subs = CommandSubscriber(self.participant, joint_command=self._joint_topic)
+        for sink in self.sinks:
+            if hasattr(sink, "accept_commands"):
+                sink.accept_commands(self.command_topics, self.inject)
         now = self.hal.sim_time_ns()
         self._next = {k: now for k in self.rates}
         tf_static = cv.static_transforms(self.spec, now)
+        if self._model is not None:
+            tf_static.transforms[:0] = self._model.static_transforms(now)
+            self._emit("/robot_description", self._model.description_msg(), now, "latched")
         if tf_static.transforms:
             self._emit("/tf_static", tf_static, now, "tf_static")
         self._started = True
@@ -156,7 +198,12 @@ class Ros2Bridge:
     # ------------------------------------------------------------------ publish
     def _emit(self, topic: str, msg, stamp_ns: int, qos_kind: str) -> None:
         if self.participant is not None:
-            self.participant.writer(topic, type(msg), qos_kind).write(msg)
+            if isinstance(msg, (m.Image, m.PointCloud2)) and len(msg.data) > _BURST_BYTES:
+                # one large sample per tick on DDS: a burst of several (3 images + a cloud, ~0.8 MB) overflows a
+                # receiver's default UDP buffer and best-effort fragments are lost (measured with rclpy/Fast DDS)
+                self._dds_queue.append((topic, msg, qos_kind))
+            else:
+                self.participant.writer(topic, type(msg), qos_kind).write(msg)
         if self.sinks:
             data = msg.serialize()
             for sink in self.sinks:
@@ -181,20 +228,38 @@ class Ros2Bridge:
         hz = self.rates.get(key, 0.0)
         return hz > 0 and (hz == float("inf") or now + self._dt_ns // 2 >= self._next[key])
 
+    def _flush_dds(self) -> None:
+        """Write the oldest queued large sample (its stamp stays its capture time); drop samples that a newer
+        one on the same topic already superseded."""
+        q = self._dds_queue
+        while q and any(t == q[0][0] for t, _, _ in list(q)[1:]):
+            q.popleft()
+        if q and self.participant is not None:
+            topic, msg, kind = q.popleft()
+            self.participant.writer(topic, type(msg), kind).write(msg)
+
     def _publish(self, now: int) -> None:
         from simseam.ros2.dds import CLOCK, SENSOR, STATE, TF
 
+        self._flush_dds()
         hal = self.hal
         if self._due("clock", now):
             self._emit("/clock", cv.clock_msg(now), now, CLOCK)
         if self._due("joint_states", now):
             js = hal.read_state()
-            self._emit("/joint_states", cv.joint_state_msg(js.names, js.positions, js.velocities, js.stamp_ns),
-                       js.stamp_ns, STATE)
+            if self._model is not None:
+                self._emit("/joint_states", self._model.joint_state_msg(js.names, js.positions, js.velocities,
+                                                                        js.stamp_ns), js.stamp_ns, STATE)
+                moving = self._model.moving_transforms(js.names, js.positions, js.stamp_ns)
+                if moving:
+                    self._emit("/tf", m.TFMessage(moving), js.stamp_ns, TF)
+            else:
+                self._emit("/joint_states", cv.joint_state_msg(js.names, js.positions, js.velocities, js.stamp_ns),
+                           js.stamp_ns, STATE)
         if self._has_base and self._due("odom", now):
             pose = hal.base_pose()
             if pose is not None:
-                odom, tf = cv.odom_msgs(pose, hal.base_twist(), now, self.spec.base_link, self._height)
+                odom, tf = cv.odom_msgs(pose, hal.base_twist(), now, "base_link", self._height)
                 self._emit("/odom", odom, now, STATE)
                 self._emit("/tf", tf, now, TF)
         if self._cams and self._due("camera", now):
@@ -229,10 +294,25 @@ class Ros2Bridge:
     def _count(self, key: str) -> None:
         self.stats.commands[key] = self.stats.commands.get(key, 0) + 1
 
+    def _poll_commands(self):
+        from simseam.ros2.dds import Commands
+
+        cmds = self._subs.poll() if self._subs is not None else Commands()
+        with self._inject_lock:
+            injected, self._injected = self._injected, []
+        for topic, msg in injected:  # after DDS's: the newest wins, E-stop events keep their order
+            if topic == "/estop":
+                cmds.estop = [*(cmds.estop or []), bool(msg.data)]
+            elif topic == "/cmd_vel":
+                cmds.twist = msg
+            else:
+                cmds.joint = msg
+        return cmds
+
     def _apply_commands(self) -> None:
-        if self._subs is None:
+        if self._subs is None and not self._injected:
             return
-        cmds = self._subs.poll()
+        cmds = self._poll_commands()
         hal = self.hal
         if cmds.estop:
             for engaged in cmds.estop:

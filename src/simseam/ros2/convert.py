@@ -2,18 +2,24 @@
 
 Frames (REP-105 / REP-103):
 
-- ``odom`` -> ``<base_link>`` (the manifest's ``base_link``): the kinematic
-  base pose, with z = the base height, published on ``/tf`` and ``/odom``
-  (twist in the base frame, as nav_msgs/Odometry specifies).
+- ``odom`` -> ``base_link`` (REP-105): the kinematic base pose, with z = the
+  base height, published on ``/tf`` and ``/odom`` (twist in the base frame, as
+  nav_msgs/Odometry specifies). ``base_link`` coincides with the URDF's root
+  link (``robot_model``: an identity ``base_link -> <root>`` on ``/tf_static``
+  when the root has another name).
 - ``<sensor.parent>`` -> ``<sensor.name>``: each sensor mount (REP-103: +x
   forward) on ``/tf_static``; cameras add ``<sensor.name>_optical`` (z forward,
   x right, y down), the frame their Image/CameraInfo are stamped in.
-- Links between ``base_link`` and the arm links come from the URDF plus
-  ``/joint_states`` (robot_state_publisher), as on a real robot.
-- Depth point clouds are in ``base_link`` (what the HAL reports). The scan is
+- Every URDF link: ``robot_model`` (what robot_state_publisher computes from
+  ``/robot_description`` and ``/joint_states``; simseam publishes it itself).
+- Depth point clouds are in the manifest's ``base_link`` (what the HAL reports). The scan is
   stamped in ``<sensor.name>`` when the lidar is mounted on ``base_link`` with
   no roll/pitch (its origin is the mount, beam 0 at -pi about base_link's z);
   otherwise in ``base_link``.
+
+Ranges follow REP-117: a beam with no return within ``range_max`` is ``+inf``
+in the LaserScan (the simulator's scan reports such a beam as ``range_max``;
+the conversion happens here).
 
 All stamps are sim time (nodes run with ``use_sim_time:=true`` on ``/clock``).
 """
@@ -50,7 +56,7 @@ def joint_state_msg(names, positions, velocities, stamp_ns: int) -> m.JointState
                         [float(v) for v in velocities], [])
 
 
-def odom_msgs(pose, twist, stamp_ns: int, base_link: str, height: float = 0.0,
+def odom_msgs(pose, twist, stamp_ns: int, base_link: str = "base_link", height: float = 0.0,
               odom_frame: str = "odom") -> tuple[m.Odometry, m.TFMessage]:
     """``/odom`` and the ``/tf`` odom -> base_link for a base at ``pose`` [x, y, yaw] moving at
     ``twist`` [vx, vy, wz] (base frame)."""
@@ -118,8 +124,11 @@ def pointcloud_msg(points: np.ndarray, stamp_ns: int, frame_id: str) -> m.PointC
 
 
 def scan_msg(ranges: np.ndarray, sensor, stamp_ns: int, frame_id: str, scan_time: float = 0.0) -> m.LaserScan:
-    """Beam 0 at -pi, counter-clockwise, over 360 deg (or the sensor's fov centred on its heading)."""
+    """Beam 0 at -pi, counter-clockwise, over 360 deg (or the sensor's fov centred on its heading).
+    REP-117: a beam at (or beyond) ``range_max`` had no return and reads ``+inf``."""
     n = len(ranges)
+    ranges = np.asarray(ranges, dtype=np.float32).copy()
+    ranges[ranges >= np.float32(sensor.range_max)] = np.inf
     if sensor.fov_deg >= 360.0:
         a0, inc = -math.pi, 2 * math.pi / n
     else:
@@ -129,7 +138,7 @@ def scan_msg(ranges: np.ndarray, sensor, stamp_ns: int, frame_id: str, scan_time
             a0 += float(sensor.rpy[2])
     return m.LaserScan(header(stamp_ns, frame_id), a0, a0 + inc * (n - 1), inc, 0.0, float(scan_time),
                        float(sensor.range_min), float(sensor.range_max),
-                       np.asarray(ranges, dtype=np.float32).tolist(), [])
+                       ranges.tolist(), [])
 
 
 # ----------------------------------------------------------------------- commands

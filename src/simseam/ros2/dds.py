@@ -7,18 +7,28 @@ ROS 2 conventions followed here (what rmw_cyclonedds does):
 - the domain is ``ROS_DOMAIN_ID`` (default 0);
 - QoS (REP-2003 and the rclcpp presets): sensor data (images, camera info,
   point clouds, scans) best effort, keep last 5; ``/clock`` best effort, keep
-  last 1; ``/tf`` reliable, keep last 100; ``/tf_static`` reliable, transient
-  local, keep last 1; state topics (``/joint_states``, ``/odom``) reliable, keep
+  last 1; ``/tf`` reliable, keep last 100; ``/tf_static`` and
+  ``/robot_description`` reliable, transient local, keep last 1; state topics (``/joint_states``, ``/odom``) reliable, keep
   last 10. Subscriptions (``/cmd_vel``, the joint command, ``/estop``) are
   reliable, keep last 10: they match ``ros2 topic pub`` and rclcpp's default
   publishers.
 
-Network: unless ``CYCLONEDDS_URI`` is set, the participant is configured for
-the loopback interface only, multicast off, with 127.0.0.1 as its unicast
-discovery peer (simseam makes no network traffic leave the machine by default).
-ROS 2 nodes on the same machine discover it when they run with the same
-``CYCLONEDDS_URI`` (``loopback_config()`` prints it); set your own
-``CYCLONEDDS_URI`` to publish on a real network.
+simseam is a ROS 2 node: the participant publishes ``ros_discovery_info``
+(``rmw_dds_common/msg/ParticipantEntitiesInfo``, what every rmw implementation
+exchanges), so ``ros2 node list`` shows ``/simseam`` and ``ros2 node info
+/simseam`` its publishers and subscriptions (and rclpy's graph API the same).
+
+Discovery (unless ``CYCLONEDDS_URI`` is set, which wins): by default, and with
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, DDS stays on the loopback
+interface: participant discovery (SPDP) goes to the standard multicast group on
+``lo`` (which a default ROS 2 node, announcing by multicast, sends and hears on
+the same machine), and also by unicast to 127.0.0.1's participant ports (what
+ROS 2 nodes run with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` listen on);
+data is unicast. Either side may start first. ``ROS_AUTOMATIC_DISCOVERY_RANGE=
+SUBNET`` (or ``SYSTEM_DEFAULT``) lets Cyclone use the network (its default
+interface, multicast discovery) to reach other machines, with
+``ROS_STATIC_PEERS`` (``;``-separated hosts) added as unicast peers; ``OFF``
+discovers nothing outside this process. ``ROS_DOMAIN_ID`` picks the domain.
 """
 
 from __future__ import annotations
@@ -29,17 +39,53 @@ from dataclasses import dataclass
 from simseam.ros2 import msgs as m
 from simseam.seam import BackendUnavailableError, ConfigError
 
+_DISCOVERY = "<Discovery><ParticipantIndex>auto</ParticipantIndex><MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>{peers}</Discovery>"
 LOOPBACK_XML = (
-    "<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
-    "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>"
-    "<MaxAutoParticipantIndex>64</MaxAutoParticipantIndex><Peers><Peer address=\"127.0.0.1\"/></Peers>"
-    "</Discovery></Domain></CycloneDDS>"
+    "<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"lo\" multicast=\"true\"/>"
+    "</Interfaces><AllowMulticast>spdp</AllowMulticast><MaxMessageSize>65500B</MaxMessageSize></General>"
+    + _DISCOVERY.format(peers="<Peers><Peer address=\"127.0.0.1\"/></Peers>") + "</Domain></CycloneDDS>"
 )
+_OFF_XML = ("<CycloneDDS><Domain Id=\"any\"><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
+            "<AllowMulticast>false</AllowMulticast></General></Domain></CycloneDDS>")
+DISCOVERY_RANGES = ("LOCALHOST", "SUBNET", "SYSTEM_DEFAULT", "OFF")
 
 
 def loopback_config() -> str:
-    """A ``CYCLONEDDS_URI`` value that keeps DDS on 127.0.0.1 (multicast off, unicast discovery)."""
+    """The default ``CYCLONEDDS_URI`` value: DDS on 127.0.0.1 only (SPDP multicast on ``lo`` plus unicast
+    to 127.0.0.1's participant ports, data unicast)."""
     return LOOPBACK_XML
+
+
+def discovery_config(env=None) -> str | None:
+    """The Cyclone configuration for ``ROS_AUTOMATIC_DISCOVERY_RANGE`` / ``ROS_STATIC_PEERS`` (see the module
+    docstring); None: use Cyclone's own defaults (the network)."""
+    env = os.environ if env is None else env
+    rng = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() or "LOCALHOST"
+    if rng not in DISCOVERY_RANGES:
+        raise ConfigError(f"ROS_AUTOMATIC_DISCOVERY_RANGE={rng!r}: expected one of {', '.join(DISCOVERY_RANGES)}")
+    peers = [p.strip() for p in env.get("ROS_STATIC_PEERS", "").split(";") if p.strip()]
+    if rng == "OFF":
+        return _OFF_XML
+    if rng == "LOCALHOST" and not peers:
+        return LOOPBACK_XML
+    if not peers:
+        return None
+    from xml.sax.saxutils import quoteattr
+
+    peer_xml = "<Peers>" + "".join(f"<Peer address={quoteattr(p)}/>" for p in peers) + "</Peers>"
+    return "<CycloneDDS><Domain Id=\"any\">" + _DISCOVERY.format(peers=peer_xml) + "</Domain></CycloneDDS>"
+
+
+def discovery_summary(env=None) -> str:
+    """One line for the deploy banner: where DDS discovery reaches."""
+    env = os.environ if env is None else env
+    if env.get("CYCLONEDDS_URI"):
+        return "CYCLONEDDS_URI"
+    rng = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper() or "LOCALHOST"
+    peers = env.get("ROS_STATIC_PEERS", "").strip()
+    where = {"LOCALHOST": "loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET to reach other machines)",
+             "OFF": "off", "SUBNET": "the network", "SYSTEM_DEFAULT": "the network"}.get(rng, rng)
+    return where + (f", static peers {peers}" if peers else "")
 
 
 def domain_id_from_env(default: int = 0) -> int:
@@ -62,6 +108,8 @@ def dds_topic(name: str) -> str:
 
 # QoS kinds of the topics this bridge uses
 SENSOR, CLOCK, TF, TF_STATIC, STATE, COMMAND = "sensor", "clock", "tf", "tf_static", "state", "command"
+LATCHED = "latched"  # /robot_description: reliable, transient local, keep last 1 (robot_state_publisher's)
+GRAPH = "graph"  # ros_discovery_info: reliable, transient local, keep last 1 (rmw_dds_common's)
 
 
 def qos(kind: str):
@@ -75,7 +123,7 @@ def qos(kind: str):
         return Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(1), Policy.Durability.Volatile)
     if kind == TF:
         return Qos(reliable, Policy.History.KeepLast(100), Policy.Durability.Volatile)
-    if kind == TF_STATIC:
+    if kind in (TF_STATIC, LATCHED, GRAPH):
         return Qos(reliable, Policy.History.KeepLast(1), Policy.Durability.TransientLocal)
     if kind in (STATE, COMMAND):
         return Qos(reliable, Policy.History.KeepLast(10), Policy.Durability.Volatile)
@@ -91,22 +139,55 @@ def _import_cyclone():
         ) from None
 
 
-class Participant:
-    """One DDS participant on a ROS domain, with writers and readers made on demand."""
+def _gid(entity) -> m.Gid:
+    """An entity's DDS GUID as an rmw GID (Jazzy: the 16 GUID bytes, as rmw_fastrtps and rmw_cyclonedds use)."""
+    return m.Gid(list(entity.guid.bytes))
 
-    def __init__(self, domain_id: int | None = None, *, config: str | None = None):
+
+class Participant:
+    """One DDS participant on a ROS domain, with writers and readers made on demand.
+
+    ``node_name`` (None: none): the ROS 2 node this participant is, announced on ``ros_discovery_info``
+    with every reader and writer made here; ``config``: a Cyclone XML configuration (default:
+    ``discovery_config()``, unless ``CYCLONEDDS_URI`` is set).
+    """
+
+    def __init__(self, domain_id: int | None = None, *, config: str | None = None,
+                 node_name: str | None = "simseam", namespace: str = "/"):
         _import_cyclone()
+        from cyclonedds.core import Policy, Qos
         from cyclonedds.domain import Domain, DomainParticipant
 
         self.domain_id = domain_id_from_env() if domain_id is None else int(domain_id)
         if config is None and not os.environ.get("CYCLONEDDS_URI"):
-            config = LOOPBACK_XML
+            config = discovery_config()
         # A Domain object carries the configuration; it must outlive the participant.
         self._domain = Domain(self.domain_id, config) if config else None
-        self.dp = DomainParticipant(self.domain_id)
+        # the user data every rmw participant carries (its security enclave)
+        self.dp = DomainParticipant(self.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
         self._topics: dict[str, object] = {}
         self._writers: dict[str, object] = {}
         self._readers: list[object] = []
+        self.node_name, self.namespace = node_name, namespace
+        self._graph_writer = None
+        if node_name:
+            from cyclonedds.pub import DataWriter
+            from cyclonedds.topic import Topic
+
+            topic = Topic(self.dp, "ros_discovery_info", m.ParticipantEntitiesInfo)
+            self._topics["ros_discovery_info"] = topic
+            self._graph_writer = DataWriter(self.dp, topic, qos=qos(GRAPH))
+            self._announce()
+
+    def graph_info(self) -> m.ParticipantEntitiesInfo:
+        """This participant's ``ros_discovery_info`` sample: one node with its readers and writers."""
+        node = m.NodeEntitiesInfo(self.namespace, self.node_name or "",
+                                  [_gid(r) for r in self._readers], [_gid(w) for w in self._writers.values()])
+        return m.ParticipantEntitiesInfo(_gid(self.dp), [node] if self.node_name else [])
+
+    def _announce(self) -> None:
+        if self._graph_writer is not None:
+            self._graph_writer.write(self.graph_info())
 
     def _topic(self, name: str, cls: type):
         from cyclonedds.topic import Topic
@@ -121,6 +202,7 @@ class Participant:
 
         if name not in self._writers:
             self._writers[name] = DataWriter(self.dp, self._topic(name, cls), qos=qos(kind))
+            self._announce()
         return self._writers[name]
 
     def reader(self, name: str, cls: type, kind: str):
@@ -128,12 +210,13 @@ class Participant:
 
         r = DataReader(self.dp, self._topic(name, cls), qos=qos(kind))
         self._readers.append(r)
+        self._announce()
         return r
 
     def close(self) -> None:
         """Delete readers, writers, topics and the participant now (DDS says goodbye to its peers)."""
-        entities = [*self._readers, *self._writers.values(), *self._topics.values(), self.dp]
-        self._readers, self._writers, self._topics, self.dp = [], {}, {}, None
+        entities = [*self._readers, *self._writers.values(), self._graph_writer, *self._topics.values(), self.dp]
+        self._readers, self._writers, self._topics, self.dp, self._graph_writer = [], {}, {}, None, None
         for entity in entities:
             if entity is not None:
                 try:

@@ -59,6 +59,11 @@ class Bool(IdlStruct, typename="std_msgs::msg::dds_::Bool_"):
 
 
 @dataclass
+class String(IdlStruct, typename="std_msgs::msg::dds_::String_"):
+    data: str = ""
+
+
+@dataclass
 class Clock(IdlStruct, typename="rosgraph_msgs::msg::dds_::Clock_"):
     clock: Time = field(default_factory=Time)
 
@@ -217,6 +222,29 @@ class LaserScan(IdlStruct, typename="sensor_msgs::msg::dds_::LaserScan_"):
     intensities: t.sequence[t.float32] = field(default_factory=list)
 
 
+# ---------------------------------------------------------------- rmw_dds_common
+# The ROS graph information every rmw implementation exchanges on the DDS topic
+# ``ros_discovery_info``: which nodes a participant hosts and which readers and
+# writers (by DDS GUID) belong to each node. Jazzy's Gid is 16 bytes.
+@dataclass
+class Gid(IdlStruct, typename="rmw_dds_common::msg::dds_::Gid_"):
+    data: t.array[t.uint8, 16] = field(default_factory=lambda: [0] * 16)
+
+
+@dataclass
+class NodeEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::NodeEntitiesInfo_"):
+    node_namespace: str = ""
+    node_name: str = ""
+    reader_gid_seq: t.sequence[Gid] = field(default_factory=list)
+    writer_gid_seq: t.sequence[Gid] = field(default_factory=list)
+
+
+@dataclass
+class ParticipantEntitiesInfo(IdlStruct, typename="rmw_dds_common::msg::dds_::ParticipantEntitiesInfo_"):
+    gid: Gid = field(default_factory=Gid)
+    node_entities_info_seq: t.sequence[NodeEntitiesInfo] = field(default_factory=list)
+
+
 class _OctetSequenceMachine(PlainCdrV2SequenceOfPrimitiveMachine):
     """``sequence<uint8>`` from/to ``bytes`` in one copy (same wire bytes as the default machine)."""
 
@@ -251,6 +279,7 @@ ROS_TYPES: dict[str, type] = {
     "builtin_interfaces/msg/Time": Time,
     "std_msgs/msg/Header": Header,
     "std_msgs/msg/Bool": Bool,
+    "std_msgs/msg/String": String,
     "rosgraph_msgs/msg/Clock": Clock,
     "geometry_msgs/msg/Vector3": Vector3,
     "geometry_msgs/msg/Point": Point,
@@ -270,6 +299,9 @@ ROS_TYPES: dict[str, type] = {
     "sensor_msgs/msg/PointField": PointField,
     "sensor_msgs/msg/PointCloud2": PointCloud2,
     "sensor_msgs/msg/LaserScan": LaserScan,
+    "rmw_dds_common/msg/Gid": Gid,
+    "rmw_dds_common/msg/NodeEntitiesInfo": NodeEntitiesInfo,
+    "rmw_dds_common/msg/ParticipantEntitiesInfo": ParticipantEntitiesInfo,
 }
 _NAME_OF = {cls: name for name, cls in ROS_TYPES.items()}
 
@@ -289,6 +321,6 @@ def ros2msg_schema(ros_type: str) -> str:
     if ros_type not in _MSGDEFS:
         from rosbags.typesys import Stores, get_typestore
 
-        store = get_typestore(Stores.ROS2_HUMBLE)
+        store = get_typestore(Stores.ROS2_JAZZY)
         _MSGDEFS[ros_type] = store.generate_msgdef(ros_type, ros_version=2)[0]
     return _MSGDEFS[ros_type]

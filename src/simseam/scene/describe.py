@@ -53,7 +53,7 @@ def robot_facts(spec: RobotSpec, urdf: UrdfModel, image_sizes: dict[str, tuple[i
     g, kb = spec.gripper, spec.kinematic_base
     return RobotFacts(
         name=spec.name, base_link=spec.base_link, tool_link=spec.ee_link, urdf=spec.urdf,
-        joints=tuple(JointFacts(j.name, j.role, j.lower, j.upper, j.max_velocity) for j in spec.joints),
+        joints=tuple(JointFacts(j.name, j.role, j.lower, j.upper, j.max_velocity, j.sim_name) for j in spec.joints),
         gripper=None if g is None else GripperFacts(tuple(g.joints), tuple(g.open), tuple(g.closed)),
         base=None if kb is None else BaseFacts(tuple(kb.joints), kb.max_linear, kb.max_angular, kb.height),
         sensors=tuple(sensors), links=tuple(links))

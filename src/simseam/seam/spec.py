@@ -341,13 +341,19 @@ def check_action(action: Any, action_dim: int) -> np.ndarray:
 @dataclass(frozen=True)
 class JointFacts:
     """A manifest joint: role ``arm`` | ``gripper`` | ``base``; limits in rad or m (None: unbounded);
-    ``max_velocity`` in rad/s or m/s (None: unbounded)."""
+    ``max_velocity`` in rad/s or m/s (None: unbounded); ``sim_name``: its name in the URDF
+    (empty: the same as ``name``; base joints are not in the URDF)."""
 
     name: str
     role: str
     lower: float | None = None
     upper: float | None = None
     max_velocity: float | None = None
+    sim_name: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.sim_name:
+            object.__setattr__(self, "sim_name", self.name)
 
 
 @dataclass(frozen=True)
@@ -459,7 +465,7 @@ class RobotFacts:
         return {
             "name": self.name, "base_link": self.base_link, "tool_link": self.tool_link, "urdf": self.urdf,
             "joints": [{"name": j.name, "role": j.role, "lower": opt(j.lower), "upper": opt(j.upper),
-                        "max_velocity": opt(j.max_velocity)} for j in self.joints],
+                        "max_velocity": opt(j.max_velocity), "sim_name": j.sim_name} for j in self.joints],
             "gripper": None if self.gripper is None else {
                 "joints": list(self.gripper.joints), "open": list(self.gripper.open),
                 "closed": list(self.gripper.closed)},
@@ -482,7 +488,7 @@ class RobotFacts:
             name=str(d["name"]), base_link=str(d["base_link"]), tool_link=str(d["tool_link"]),
             urdf=str(d.get("urdf", "")),
             joints=tuple(JointFacts(str(j["name"]), str(j["role"]), opt(j.get("lower")), opt(j.get("upper")),
-                                    opt(j.get("max_velocity"))) for j in d["joints"]),
+                                    opt(j.get("max_velocity")), str(j.get("sim_name", ""))) for j in d["joints"]),
             gripper=None if g is None else GripperFacts(_tuple(g, "joints", str), _tuple(g, "open"),
                                                         _tuple(g, "closed")),
             base=None if b is None else BaseFacts(_tuple(b, "joints", str), float(b["max_linear"]),
