@@ -97,7 +97,7 @@ def main() -> None:
     spec = resolve_robot(cfg, base)
     hal = SimAttachedHAL.attach(build_rollout(cfg, base), target="sim")
     sinks = [McapRecorder(tmp / "bench.mcap")] if args.record else []
-    bridge = Ros2Bridge(hal, spec=spec, rtf=args.rtf, participant=Participant(), sinks=sinks)
+    bridge = Ros2Bridge(hal, rtf=args.rtf, participant=Participant(), sinks=sinks)
     published_stamps: dict[str, list[int]] = {}
     emit = bridge._emit
 

@@ -80,8 +80,11 @@ class RecordingPolicy:
         self.uses_images = True
         self.log = []
 
-    def reset(self, scene, task):
-        self.inner.reset(scene, task)
+    def reset(self, spec):
+        self.inner.reset(spec)
+
+    def observe_next(self):
+        return None  # it logs the images too
 
     def act(self, obs):
         action = self.inner.act(obs)

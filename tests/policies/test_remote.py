@@ -194,8 +194,8 @@ def test_simseam_format_against_openpi_packed_server(bare, lift):
     first, second = srv.received[:2]
     assert first["simseam/reset"] is True and first["simseam/spec"] == lift.spec.to_json()
     assert RolloutSpec.from_json(first["simseam/spec"]) == lift.spec
-    assert first["simseam/task"]["instruction"] == lift.spec.task.instruction == first["prompt"]
-    assert "simseam/reset" not in second and "simseam/scene" not in second
+    assert lift.spec.task.instruction == first["prompt"]
+    assert "simseam/reset" not in second and "simseam/spec" not in second
     assert first["observation/state"].dtype == np.float32 and first["observation/state"].shape == (lift.spec.state_dim,)
     assert "observation/joint_positions" in first
     assert not any(k.startswith("observation/privileged") for k in first)

@@ -9,16 +9,16 @@ from simseam.hal.sim_attached import SimAttachedHAL
 from simseam.ros2 import msgs as m
 from simseam.ros2.bridge import Ros2Bridge, parse_rates
 from simseam.ros2.dds import CLOCK, COMMAND, STATE, TF_STATIC, Participant
-from simseam.runner.scene_config import build_rollout, load_scene_config, resolve_robot
+from simseam.runner.scene_config import build_rollout, load_scene_config
 from simseam.seam import ConfigError
 
 
 @pytest.fixture
 def bridge(ros_env, mobile_scene):
     cfg, base = load_scene_config(mobile_scene)
-    spec = resolve_robot(cfg, base)
+
     hal = SimAttachedHAL.attach(build_rollout(cfg, base), target="sim")
-    br = Ros2Bridge(hal, spec=spec, rtf=0, participant=Participant())
+    br = Ros2Bridge(hal, rtf=0, participant=Participant())
     br.start()
     yield br
     br.close()

@@ -17,11 +17,12 @@ def test_wilson_interval_matches_reference_values(k, n, lo, hi):
 
 def test_summary_counts_and_latency_stats():
     eps = [EpisodeResult(i, i, success=i < 3, steps=10, reward=float(i < 3), step_ms=[1.0, 2.0, 3.0],
-                         policy_ms=[0.1]) for i in range(4)]
+                         policy_ms=[0.1], diagnostics={"d": float(i), "ok": i < 2}).to_json() for i in range(4)]
     s = build_summary({"policy": "x"}, {"robot": "r"}, eps)
     assert s["n_success"] == 3 and s["success_rate"] == 0.75
     assert s["episodes"][0]["step_latency_ms"] == {"mean": 2.0, "p50": 2.0, "p90": pytest.approx(2.8)}
     assert s["success_rate_wilson95"] == list(wilson_interval(3, 4))
+    assert s["diagnostics_mean"] == {"d": 1.5, "ok": 0.5}
 
 
 def _write(tmp_path, text):
@@ -40,7 +41,7 @@ def test_scene_file_unknown_key_names_file_and_field(tmp_path):
 def test_scene_file_bad_values(tmp_path):
     with pytest.raises(ConfigError, match="field 'image_size'"):
         load_scene_config(_write(tmp_path, "robot: franka_panda\nlayout: lift_cube\nimage_size: [2, 256]\n"))
-    with pytest.raises(ConfigError, match="field 'layout': Field required"):
+    with pytest.raises(ConfigError, match="field 'task': Field required"):
         load_scene_config(_write(tmp_path, "robot: franka_panda\n"))
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_scene_config(_write(tmp_path, "robot: [unclosed\n"))
@@ -48,11 +49,13 @@ def test_scene_file_bad_values(tmp_path):
 
 @pytest.mark.parametrize("field, value, fragment", [
     ("robot", "ur5e", "unknown robot 'ur5e'"),
-    ("layout", "stack", "unknown layout 'stack'"),
+    ("layout", "stack", "unknown task 'stack'"),
+    ("task", "stack", "unknown task 'stack'"),
     ("engine", "gazebo", "unknown engine 'gazebo'"),
 ])
 def test_scene_file_unknown_names(tmp_path, field, value, fragment):
-    data = {"robot": "franka_panda", "layout": "lift_cube", "engine": "mujoco", field: value}
+    name_key = field if field in ("task", "layout") else "task"  # layout: the older name is still read
+    data = {"robot": "franka_panda", name_key: "lift_cube", "engine": "mujoco", field: value}
     p = _write(tmp_path, "".join(f"{k}: {v}\n" for k, v in data.items()))
     cfg, base = load_scene_config(p)
     with pytest.raises(ConfigError, match=fragment):

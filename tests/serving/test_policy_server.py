@@ -38,7 +38,7 @@ class StateEcho(BasePolicy):
     uses_images = True
 
     def act(self, obs):
-        d = self.scene_info.action_dim
+        d = self.spec.action_dim
         a = np.zeros(d, np.float32)
         n = min(d, obs["state"].shape[0])
         a[:n] = 0.1 * obs["state"][:n]
@@ -57,7 +57,7 @@ class Ramp(ChunkedPolicy):
         self.chunks += 1
         sign = 1.0 if self.chunks % 2 else -1.0
         rows = (np.arange(8, dtype=np.float32)[:, None] + 1) / 10 * sign
-        return np.repeat(rows, self.scene_info.action_dim, axis=1)
+        return np.repeat(rows, self.spec.action_dim, axis=1)
 
 
 def episode_request(scene, obs):
@@ -107,7 +107,7 @@ def test_privileged_observations_are_forwarded_only_when_asked(served, panda_spe
 
         def act(self, obs):
             seen.append(obs)
-            return np.zeros(self.scene_info.action_dim, np.float32)
+            return np.zeros(self.spec.action_dim, np.float32)
 
     scene = make_scene(panda_spec, render_images=False, privileged=True)
     for flag in (False, True):
@@ -185,7 +185,7 @@ def test_wrong_types_in_a_request_are_reported(served, lift):
     obs = lift.reset(0)
     for bad, match in [({"observation/state": "high"}, "must be a numeric array"),
                        ({"observation/images/camera1": np.zeros((4, 4), np.float32)}, "uint8 HxWx3"),
-                       ({"simseam/scene": {"robot": "x"}}, "scene info: missing field")]:
+                       ({"simseam/spec": {"robot": "x"}}, "request field 'simseam/spec': missing field")]:
         ws, _ = raw_client(server.url)
         ws.send(wire.packb({**episode_request(lift, obs), **bad}))
         reply = ws.recv(timeout=5)

@@ -168,6 +168,7 @@ class LeRobotPolicy(BasePolicy):
         self.policy.reset()
         self.chunks_predicted = 0
         self._acts = 0
+        self._last_images: dict[str, Any] = {}
 
     def observe_next(self) -> ObsRequest | None:
         """Images only for the calls that predict a chunk (every ``n_action_steps``-th: LeRobot's
@@ -176,16 +177,20 @@ class LeRobotPolicy(BasePolicy):
 
     def act(self, observation: Observation) -> np.ndarray:
         torch = self._torch
+        predicts = self._acts % max(1, self.n_action_steps) == 0  # select_action refills its queue now
         self._acts += 1
         images = observation.get(OBS_IMAGES) or {}
         batch: dict[str, Any] = {}
         for name in self.image_names:
             key = self.contract.scene_key(name)
+            if key not in images and not predicts and name in self._last_images:
+                batch[IMAGE_PREFIX + name] = self._last_images[name]  # a replay step: the model reads nothing
+                continue
             if key not in images:
                 raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
                                   f"(cameras: {sorted(images)})")
             img = torch.from_numpy(np.ascontiguousarray(images[key]))
-            batch[IMAGE_PREFIX + name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
+            batch[IMAGE_PREFIX + name] = self._last_images[name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
         if STATE_KEY in self.config.input_features:
             batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
         batch["task"] = observation.get(OBS_TASK) or self.spec.task.instruction
