@@ -185,7 +185,7 @@ def test_wrong_types_in_a_request_are_reported(served, lift):
     obs = lift.reset(0)
     for bad, match in [({"observation/state": "high"}, "must be a numeric array"),
                        ({"observation/images/camera1": np.zeros((4, 4), np.float32)}, "uint8 HxWx3"),
-                       ({"simseam/spec": {"robot": "x"}}, "request field 'simseam/spec': missing field")]:
+                       ({"simseam/spec": {"robot": "x"}}, "request field 'simseam/spec': malformed field")]:
         ws, _ = raw_client(server.url)
         ws.send(wire.packb({**episode_request(lift, obs), **bad}))
         reply = ws.recv(timeout=5)
