@@ -207,6 +207,12 @@ class ActionSpec:
         object.__setattr__(self, "_high", np.array([s.high for s in self.slots], dtype=np.float64))
         norm_idx = tuple((np.array([self.names.index(n) for n in b.slots]), b.limit) for b in self.norm_bounds)
         object.__setattr__(self, "_norm_idx", norm_idx)
+        groups = {}
+        for i, s in enumerate(self.slots):
+            start, _ = groups.get(s.group, (i, i))
+            groups[s.group] = (start, i + 1)
+        object.__setattr__(self, "_groups", {g: slice(a, b) for g, (a, b) in groups.items()})
+        object.__setattr__(self, "_grip", groups["grip"][0] if "grip" in groups else None)
 
     # ------------------------------------------------------------ layout
     @property
@@ -227,8 +233,7 @@ class ActionSpec:
 
     def group(self, name: str) -> slice | None:
         """The slice of ``name``'s slots (``arm``, ``grip``, ``base``), or None when absent."""
-        idx = [i for i, s in enumerate(self.slots) if s.group == name]
-        return slice(idx[0], idx[-1] + 1) if idx else None
+        return self._groups.get(name)
 
     @property
     def arm(self) -> slice:
@@ -245,8 +250,7 @@ class ActionSpec:
     @property
     def grip(self) -> int | None:
         """Index of the gripper scalar, or None."""
-        g = self.group("grip")
-        return None if g is None else g.start
+        return self._grip
 
     @property
     def base(self) -> slice | None:
@@ -267,7 +271,7 @@ class ActionSpec:
 
     def clip(self, action: np.ndarray) -> np.ndarray:
         """A copy of ``action`` within the slot bounds and norm bounds (what the rollout applies)."""
-        out = np.clip(np.asarray(action, dtype=np.float64), self._low, self._high)
+        out = np.minimum(np.maximum(np.asarray(action, dtype=np.float64), self._low), self._high)
         for idx, limit in self._norm_idx:
             n = float(np.linalg.norm(out[idx]))
             if n > limit:
