@@ -67,7 +67,7 @@ class SeamCase:
         opts = SceneOptions(render_images=images, image_size=(size, size) if size else None, control_mode=mode)
         self.scene = ManifestScene(spec, "lift_cube", "mujoco", opts)
         self.steps = steps
-        dim = self.spec.action_dim
+        dim = self.scene.action_dim
         acts = smooth_actions(steps + WARMUP, dim, seed=1)
         if mode == "joint_position":
             home = np.array([j.home for j in spec.arm_joints], dtype=np.float32)

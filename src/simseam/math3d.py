@@ -40,7 +40,7 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
 
 
 def quat_to_matrix(q) -> np.ndarray:
-    w, x, y, z = q
+    w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q  # Python floats: ~3x faster than numpy scalars
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -60,13 +60,15 @@ def yaw_quat(yaw: float) -> np.ndarray:
 
 def axis_angle_to_matrix(v) -> np.ndarray:
     """Rotation vector (axis * angle, rad) -> matrix (Rodrigues)."""
-    v = np.asarray(v, dtype=np.float64)
-    th = float(np.linalg.norm(v))
+    x, y, z = np.asarray(v, dtype=np.float64).tolist()
+    th = math.sqrt(x * x + y * y + z * z)
     if th < 1e-12:
         return np.eye(3)
-    k = v / th
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * kx + (1 - np.cos(th)) * kx @ kx
+    x, y, z = x / th, y / th, z / th
+    s, c = math.sin(th), 1.0 - math.cos(th)  # R = I + s [k]x + c (k k^T - I)
+    return np.array([[1.0 + c * (x * x - 1.0), c * x * y - s * z, c * x * z + s * y],
+                     [c * x * y + s * z, 1.0 + c * (y * y - 1.0), c * y * z - s * x],
+                     [c * x * z - s * y, c * y * z + s * x, 1.0 + c * (z * z - 1.0)]])
 
 
 def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
