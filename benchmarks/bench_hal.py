@@ -11,7 +11,7 @@ rendering. Cases, timed on the SAME scene:
 - ``hal_send_tick``: ``hal.send_action([0.2, 0, 0.1], BODY_TWIST)`` then
   ``hal.tick()``, which packs the same action through the layout and steps.
 - ``hal_send_only``: ``hal.send_action`` alone (validation + storing), for scale.
-- ``hal_send_tick_null``: send + tick over a null rollout (same SceneInfo, ``step`` returns a
+- ``hal_send_tick_null``: send + tick over a null rollout (same RolloutSpec, ``step`` returns a
   stored result at once): the HAL's own cost without the simulator's step noise, which at
   ~1-2 ms per step is larger than the difference being measured.
 
@@ -54,17 +54,17 @@ def timed(fn, n: int) -> np.ndarray:
 
 
 class NullRollout:
-    """A SimRollout that advertises a real scene's layout and steps in no time."""
+    """A SimRollout that advertises a real scene's spec and steps in no time."""
 
     def __init__(self, scene: ManifestScene):
-        self.scene, self.task, self.action_dim = scene.scene, scene.task, scene.action_dim
+        self.spec, self.action_dim = scene.spec, scene.action_dim
         self._obs = scene.reset(0)
         self._result = StepResult(self._obs, 0.0, False, False, {"success": False})
 
-    def reset(self, seed=None):
+    def reset(self, seed=None, observe=None):
         return self._obs
 
-    def step(self, action):
+    def step(self, action, observe=None):
         return self._result
 
     def render(self):

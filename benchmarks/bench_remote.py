@@ -201,9 +201,7 @@ def make_case(case, entry, url, name, server_infer, client_cls):
 
 
 def episode_keys(scene) -> dict:
-    import dataclasses
-
-    return {wire.RESET: True, wire.SCENE: scene.scene.to_json(), wire.TASK: dataclasses.asdict(scene.task)}
+    return {wire.RESET: True, wire.SPEC: scene.spec.to_json()}
 
 
 if __name__ == "__main__":
