@@ -88,7 +88,7 @@ def main() -> None:
     scene = ManifestScene(load_robot("panda_mobile"), "nav_obstacles", "mujoco", SceneOptions(render_images=False))
     hal = SimAttachedHAL(scene, hold_time_s=0.5)
     hal.connect()
-    action = hal.layout.pack(arm=np.zeros(hal.layout.arm_dim), grip=-1.0, base=TWIST)
+    action = hal.action.pack(arm=np.zeros(hal.action.arm_dim), grip=-1.0, base=TWIST)
 
     def hal_step():
         hal.send_action(TWIST, ControlMode.BODY_TWIST)

@@ -1,4 +1,4 @@
-"""DESIGN.md layering: scenes, engines and the seam import nothing heavier than numpy
+"""Layering (docs/ARCHITECTURE.md): scenes, engines and the seam import nothing heavier than numpy
 (+ the engine SDK), so an Isaac Sim or sidecar interpreter can host them."""
 
 import subprocess

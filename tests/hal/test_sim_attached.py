@@ -42,7 +42,7 @@ def test_connect_learns_the_layout_and_state_is_in_manifest_order(mobile_spec, m
         hal.tick()
     hal.connect()
     assert hal.connected and hal.action_dim == scene.action_dim == 10
-    assert hal.layout == scene.spec.action and hal.control_hz == HZ
+    assert hal.action == scene.spec.action and hal.control_hz == HZ
     assert hal.joint_names == tuple(mobile_spec.joint_names) == scene.spec.robot.joint_names
     drive(hal, 10, [0.4, 0.1, 0.3])
     st = hal.read_state()
@@ -136,9 +136,9 @@ def test_estop_latches_drops_commands_and_clears(mobile_hal):
         hal.tick()
     assert hal.dropped_commands == 9
     np.testing.assert_allclose(hal.base_pose(), p, atol=1e-3)
-    np.testing.assert_array_equal(hal.last_action[hal.layout.base], [0, 0, 0])
-    np.testing.assert_array_equal(hal.last_action[hal.layout.arm], np.zeros(6))
-    assert hal.last_action[hal.layout.grip] == -1.0  # the gripper command was dropped too
+    np.testing.assert_array_equal(hal.last_action[hal.action.base], [0, 0, 0])
+    np.testing.assert_array_equal(hal.last_action[hal.action.arm], np.zeros(6))
+    assert hal.last_action[hal.action.grip] == -1.0  # the gripper command was dropped too
     with pytest.raises(InvalidActionError):  # still validated while engaged
         hal.send_action([0.5, 0.0], ControlMode.BODY_TWIST)
     hal.estop(False)
@@ -170,7 +170,7 @@ def test_gripper_closes_and_opens_and_keeps_its_last_value(panda_spec, make_scen
     assert _fingers(hal).min() > 0.035
     hal.send_action(3.0, ControlMode.GRIPPER)  # clipped to +1
     hal.tick()
-    assert hal.last_action[hal.layout.grip] == 1.0
+    assert hal.last_action[hal.action.grip] == 1.0
 
 
 def test_cartesian_delta_moves_the_end_effector_and_holds_when_stale(panda_spec, make_scene):

@@ -18,7 +18,7 @@ err_console = Console(stderr=True, soft_wrap=True)
 
 
 def deploy(
-    scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, layout, control rate)."),
+    scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, task, control rate)."),
     ros2: bool = typer.Option(False, "--ros2/--no-ros2", help="Publish and subscribe ROS 2 topics over DDS."),
     record: Path = typer.Option(None, "--record", help="Write the topics to this MCAP file (ROS 2 schemas)."),
     foxglove: bool = typer.Option(False, "--foxglove/--no-foxglove",

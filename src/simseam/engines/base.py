@@ -1,6 +1,6 @@
 """The Engine protocol: simulator primitives, nothing more.
 
-Control semantics (IK, gripper mapping, action layouts) live in the scene; an
+Control semantics (IK, gripper mapping, action slots) live in the scene; an
 engine only offers the primitives below, so the same scene code means the same
 thing on every engine. Imports: numpy and the standard library only.
 

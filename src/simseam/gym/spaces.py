@@ -8,7 +8,7 @@ observation (``spaces.Dict``; a key is present only when stated):
 
 - ``images``: ``{feature_key: Box(0, 255, (H, W, 3), uint8)}`` per RGB camera in
   ``SceneInfo.cameras``; absent when the scene renders no images.
-- ``state``: ``Box(-inf, inf, (state_dim,), float32)`` (layout's state contract).
+- ``state``: ``Box(-inf, inf, (state_dim,), float32)`` (the task's state vector).
 - ``joint_positions`` / ``joint_velocities``: ``Box(-inf, inf, (n_joints,), float32)``,
   manifest joint order (rad, m; rad/s, m/s). Unbounded: physics can overshoot a limit.
 - ``base_pose``: ``Box([-inf, -inf, -pi], [inf, inf, pi], (3,), float32)`` = [x, y, yaw]

@@ -23,8 +23,8 @@ Semantics (decided here, tested in ``tests/hal``):
   only with a kinematic base). A mode the rollout cannot express is a
   ``ConfigError``; a wrong length or a non-finite value an
   ``InvalidActionError`` (nothing is stored).
-- ``tick()`` steps the rollout once with the latest commands packed by the
-  layout. A motion command older than ``hold_time_s`` of sim time is no longer
+- ``tick()`` steps the rollout once with the latest commands packed into
+  the action slots. A motion command older than ``hold_time_s`` of sim time is no longer
   applied: the arm holds (zero Cartesian delta; in joint-position mode the arm
   joints measured when the hold began), the twist is zero. The gripper keeps
   its last value. Ticks without any command keep the sensors live.
@@ -103,7 +103,7 @@ class SimAttachedHAL:
         self.max_joint_speed = None if max_joint_speed is None else float(max_joint_speed)
         self._lock = threading.Lock()
         self._connected = False
-        self._layout: ActionSpec | None = None
+        self._action: ActionSpec | None = None
         self._obs: Observation = {}
         self._estopped = False
         self._dropped = 0
@@ -124,22 +124,22 @@ class SimAttachedHAL:
         """Reset the rollout and take the action slots, joints and limits from its spec."""
         with self._lock:
             spec = self.rollout.spec
-            layout = spec.action
-            if layout.dim != self.rollout.action_dim:
+            slots = spec.action
+            if slots.dim != self.rollout.action_dim:
                 raise ConfigError(f"rollout action_dim {self.rollout.action_dim} but its spec's action "
-                                  f"{layout.names} has {layout.dim} slots")
+                                  f"{slots.names} has {slots.dim} slots")
             self.spec = spec
-            self._layout = layout
+            self._action = slots
             self._names = tuple(spec.robot.joint_names)
             self._index = {n: i for i, n in enumerate(self._names)}
             self._dt_ns = int(round(1e9 / spec.control_hz))
-            self._setup_limits(layout)
+            self._setup_limits(slots)
             robot = spec.robot
             self._base_idx = None
-            if robot.base is not None and layout.has_base and all(n in self._index for n in robot.base.joints):
+            if robot.base is not None and slots.has_base and all(n in self._index for n in robot.base.joints):
                 self._base_idx = np.array([self._index[n] for n in robot.base.joints])
             self._grip_fingers = None
-            if robot.gripper is not None and layout.has_gripper and all(n in self._index for n in robot.gripper.joints):
+            if robot.gripper is not None and slots.has_gripper and all(n in self._index for n in robot.gripper.joints):
                 self._grip_fingers = np.array([self._index[n] for n in robot.gripper.joints])
             self._request = ObsRequest()
 
@@ -158,21 +158,21 @@ class SimAttachedHAL:
             self._last_action = None
             self._connected = True
 
-    def _setup_limits(self, layout: ActionSpec) -> None:
+    def _setup_limits(self, slots: ActionSpec) -> None:
         self._arm_idx = None
         self._lo = self._hi = None
-        if layout.control_mode != ControlMode.JOINT_POSITION:
+        if slots.control_mode != ControlMode.JOINT_POSITION:
             return
-        missing = [n for n in layout.arm_names if n not in self._index]
+        missing = [n for n in slots.arm_names if n not in self._index]
         if missing:
             raise ConfigError(f"the rollout's arm joints {missing} are not among its joint names {self._names}")
-        self._arm_idx = np.array([self._index[n] for n in layout.arm_names])
-        unknown = sorted(set(self._user_limits) - set(layout.arm_names))
+        self._arm_idx = np.array([self._index[n] for n in slots.arm_names])
+        unknown = sorted(set(self._user_limits) - set(slots.arm_names))
         if unknown:
             raise ConfigError(f"joint_limits names joints that are not arm joints of this rollout: {unknown}; "
-                              f"arm joints: {list(layout.arm_names)}")
-        lo, hi = layout.low[layout.arm], layout.high[layout.arm]
-        for k, name in enumerate(layout.arm_names):
+                              f"arm joints: {list(slots.arm_names)}")
+        lo, hi = slots.low[slots.arm], slots.high[slots.arm]
+        for k, name in enumerate(slots.arm_names):
             if name in self._user_limits:
                 lower, upper = (float(x) for x in self._user_limits[name])
                 if lower > upper:
@@ -182,16 +182,17 @@ class SimAttachedHAL:
 
     # -------------------------------------------------------------- properties
     def _require(self) -> ActionSpec:
-        if not self._connected or self._layout is None:
+        if not self._connected or self._action is None:
             raise NotConnectedError("the HAL is not connected: call connect() first")
-        return self._layout
+        return self._action
 
     @property
     def connected(self) -> bool:
         return self._connected
 
     @property
-    def layout(self) -> ActionSpec:
+    def action(self) -> ActionSpec:
+        """The rollout's action slots (``spec.action``)."""
         return self._require()
 
     @property
@@ -227,11 +228,11 @@ class SimAttachedHAL:
 
     def supported_modes(self) -> tuple[ControlMode, ...]:
         """The command modes this rollout can express."""
-        layout = self._require()
-        modes = [layout.control_mode]
-        if layout.has_gripper:
+        slots = self._require()
+        modes = [slots.control_mode]
+        if slots.has_gripper:
             modes.append(ControlMode.GRIPPER)
-        if layout.has_base:
+        if slots.has_base:
             modes.append(ControlMode.BODY_TWIST)
         return tuple(modes)
 
@@ -301,19 +302,19 @@ class SimAttachedHAL:
         """Store the latest command for one part (see the module docstring)."""
         mode = ControlMode.parse(mode)
         with self._lock:
-            layout = self._require()
+            slots = self._require()
             if mode in (ControlMode.JOINT_POSITION, ControlMode.CARTESIAN_DELTA):
-                if mode != layout.control_mode:
-                    raise ConfigError(f"this rollout is in {layout.control_mode.value!r} control mode and cannot "
+                if mode != slots.control_mode:
+                    raise ConfigError(f"this rollout is in {slots.control_mode.value!r} control mode and cannot "
                                       f"express {mode.value!r} commands (build the scene with "
                                       f"control_mode={mode.value!r})")
-                n = layout.arm_dim
+                n = slots.arm_dim
             elif mode == ControlMode.GRIPPER:
-                if not layout.has_gripper:
+                if not slots.has_gripper:
                     raise ConfigError("this rollout's robot has no gripper: it cannot express 'gripper' commands")
                 n = 1
             else:  # BODY_TWIST
-                if not layout.has_base:
+                if not slots.has_base:
                     raise ConfigError("this rollout's robot has no kinematic base (a fixed arm): "
                                       "it cannot express 'body_twist' commands")
                 n = 3
@@ -325,11 +326,11 @@ class SimAttachedHAL:
             if mode == ControlMode.JOINT_POSITION:
                 self._arm_cmd = (np.clip(v, self._lo, self._hi), now)
             elif mode == ControlMode.CARTESIAN_DELTA:
-                self._arm_cmd = (layout.clip_group("arm", v), now)
+                self._arm_cmd = (slots.clip_group("arm", v), now)
             elif mode == ControlMode.GRIPPER:
-                self._grip = float(layout.clip_group("grip", v)[0])
+                self._grip = float(slots.clip_group("grip", v)[0])
             else:
-                self._twist_cmd = (layout.clip_group("base", v), now)
+                self._twist_cmd = (slots.clip_group("base", v), now)
 
     @staticmethod
     def _check(values: Any, mode: ControlMode, n: int) -> np.ndarray:
@@ -367,12 +368,12 @@ class SimAttachedHAL:
     def tick(self) -> StepResult:
         """One rollout step with the latest fresh commands (holds otherwise)."""
         with self._lock:
-            layout = self._require()
+            slots = self._require()
             now = int(self._obs["sim_time_ns"])
             arm_cmd, twist_cmd = self._arm_cmd, self._twist_cmd
             arm_fresh = arm_cmd is not None and now - arm_cmd[1] < self._hold_ns
             twist_fresh = twist_cmd is not None and now - twist_cmd[1] < self._hold_ns
-            if layout.control_mode == ControlMode.JOINT_POSITION:
+            if slots.control_mode == ControlMode.JOINT_POSITION:
                 if arm_fresh:
                     self._arm_hold = None
                     target = arm_cmd[0]
@@ -388,9 +389,9 @@ class SimAttachedHAL:
                 arm = target
             else:
                 arm = arm_cmd[0] if arm_fresh else None  # None packs a zero delta: hold the pose
-            grip = self._grip if layout.has_gripper else None
-            base = (twist_cmd[0] if twist_fresh else np.zeros(3)) if layout.has_base else None
-            action = layout.pack(arm=arm, grip=grip, base=base)
+            grip = self._grip if slots.has_gripper else None
+            base = (twist_cmd[0] if twist_fresh else np.zeros(3)) if slots.has_base else None
+            action = slots.pack(arm=arm, grip=grip, base=base)
             result = self.rollout.step(action, self._request)
             self._last_action = action
             self._prev_pose = self._pose_of(self._obs)

@@ -139,7 +139,7 @@ def contract_mismatches(contract: SkillContract, scene: RolloutSpec) -> list[str
     if contract.state_dim is not None and contract.state_dim != scene.state_dim:
         problems.append(
             f"state: the policy expects {contract.state_dim}-D, the scene provides {scene.state_dim}-D ({where}); "
-            f"fix: use the robot and layout the policy was trained on")
+            f"fix: use the robot and task the policy was trained on")
     mode_differs = contract.control_mode is not None and contract.control_mode != scene.control_mode
     if mode_differs:
         problems.append(

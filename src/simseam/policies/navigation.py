@@ -28,7 +28,7 @@ class NavExpert:
     yaw_gain = 1.2
 
     def __init__(self, action: ActionSpec, _down_rot=None):
-        self.layout = action
+        self.action = action
         self.headings = np.linspace(-np.pi, np.pi, 72, endpoint=False)
         self._u = np.stack([np.cos(self.headings), np.sin(self.headings)], axis=1)
         self._angles = None
@@ -67,4 +67,4 @@ class NavExpert:
         wz = float(np.clip(self.yaw_gain * yaw_err, -1.0, 1.0))
         if dist < 0.05:
             v[:] = g * 1.5  # final approach: straight in, slowly
-        return self.layout.pack(grip=-1.0 if self.layout.has_gripper else None, base=[v[0], v[1], wz])
+        return self.action.pack(grip=-1.0 if self.action.has_gripper else None, base=[v[0], v[1], wz])

@@ -37,7 +37,7 @@ class _CartesianExpert:
     rot_gain = 0.2  # same for orientation (the wrist lags more: keep it calm)
 
     def __init__(self, action: ActionSpec, down_rot: np.ndarray):
-        self.layout = action
+        self.action = action
         self.max_t = action.max_translation
         self.max_r = action.max_rotation
         self.down = down_rot  # reset orientation of the end effector (base frame)
@@ -54,7 +54,7 @@ class _CartesianExpert:
         pos, rot = eef[:3], quat_to_matrix(eef[3:])
         dpos = np.clip(self.gain * (target_pos - pos) / self.max_t, -speed, speed)
         drot = np.clip(self.rot_gain * rotation_error(_rz(target_yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
-        return self.layout.pack(arm=np.concatenate([dpos, drot]), grip=grip)
+        return self.action.pack(arm=np.concatenate([dpos, drot]), grip=grip)
 
     def advance(self) -> None:
         self.phase += 1

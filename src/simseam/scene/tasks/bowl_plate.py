@@ -1,6 +1,6 @@
 """bowl_plate: the LIBERO-shaped contract: "put the bowl on the plate".
 
-Contract (DESIGN.md): RGB ``camera1`` (third-person) and ``camera2`` (wrist),
+Contract (LIBERO's): RGB ``camera1`` (third-person) and ``camera2`` (wrist),
 256x256 by default; state 8-D ``[eef_pos(3), eef_axis_angle(3),
 gripper_qpos(2)]`` for a two-finger gripper; action 7-D CARTESIAN_DELTA.
 Bowl and plate positions are drawn from the seed on opposite sides of the
