@@ -67,3 +67,49 @@ def test_empty_or_missing_dataset_is_a_clear_error(tmp_path, panda_spec, make_sc
     with pytest.raises(ConfigError, match="holds no episodes"):
         train_act(tmp_path / "empty", tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_checkpoints_at_intervals_resume_and_refusals(scripted_dataset, tmp_path, tiny_act_config):
+    import torch
+
+    from simseam.runner.training import ActTrainConfig, latest_checkpoint, train_act
+
+    out = tmp_path / "ckpt"
+    cfg = ActTrainConfig(steps=4, device="cpu", checkpoint_every=1, **tiny_act_config)
+    first = train_act(scripted_dataset[0], out, cfg)
+    assert first.steps == 4 and first.resumed_from == 0
+    # every step checkpointed, the two newest kept, each complete
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["step_0000002", "step_0000003"]
+    ckpt = latest_checkpoint(out)
+    assert ckpt.name == "step_0000003" and torch.load(ckpt / "training_state.pt", weights_only=False)["step"] == 3
+    with pytest.raises(ConfigError, match="is not empty"):
+        train_act(scripted_dataset[0], out, cfg)
+    more = train_act(scripted_dataset[0], out, ActTrainConfig(steps=6, device="cpu", **tiny_act_config),
+                     resume=True)
+    assert more.resumed_from == 3 and more.steps == 6  # continued from the newest checkpoint, not from 0
+    assert [s for s, _ in more.losses][:3] == [1, 2, 3] and [s for s, _ in more.losses][-1] == 6
+    with pytest.raises(ConfigError, match="no complete checkpoint"):
+        train_act(scripted_dataset[0], tmp_path / "empty", cfg, resume=True)
+    fresh = train_act(scripted_dataset[0], out, ActTrainConfig(steps=1, device="cpu", **tiny_act_config),
+                      overwrite=True)
+    assert fresh.steps == 1 and not (out / "checkpoints").exists()  # the old run was removed first
+
+
+def test_an_interrupt_saves_a_checkpoint_of_the_steps_done(scripted_dataset, tmp_path, tiny_act_config):
+    from simseam.runner.training import ActTrainConfig, latest_checkpoint, train_act
+
+    calls = []
+
+    def stop_at_2(step, loss):
+        calls.append(step)
+        if step == 2:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "ckpt"
+    with pytest.raises(KeyboardInterrupt):
+        train_act(scripted_dataset[0], out, ActTrainConfig(steps=10, device="cpu", **tiny_act_config),
+                  on_log=stop_at_2)
+    assert latest_checkpoint(out).name == "step_0000002"
+    res = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, device="cpu", **tiny_act_config),
+                    resume=True)
+    assert res.resumed_from == 2 and res.steps == 3

@@ -302,20 +302,38 @@ def train(
     cache: bool = typer.Option(False, "--cache/--no-cache", help="Decode the dataset once and keep it on the "
                                "device (fast; needs the frames to fit in its memory)."),
     amp: bool = typer.Option(False, "--amp", help="bfloat16 autocast on CUDA."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", min=0),
+    checkpoint_every: int = typer.Option(None, "--checkpoint-every", min=1,
+                                         help="Save a resumable checkpoint every N steps (out/checkpoints/)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a training run already in --out."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from the newest checkpoint in --out up to "
+                                "--steps in total."),
 ) -> None:
-    """Train a LeRobot ACT policy on a dataset; the result loads with --policy lerobot:<out>."""
+    """Train a LeRobot ACT policy on a dataset; the result loads with --policy lerobot:<out>.
+    Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
     from simseam.runner.training import ActTrainConfig, train_act
 
     if n_action_steps > chunk_size:
         _fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))
     cfg = ActTrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
                          chunk_size=chunk_size, n_action_steps=n_action_steps, device=device, num_workers=workers,
-                         cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)))
+                         cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
+                         checkpoint_every=checkpoint_every)
     try:
-        res = train_act(dataset, out, cfg, on_log=lambda s, loss: console.print(f"step {s:7d}  loss {loss:.4f}"))
+        with _sigterm_as_interrupt():
+            res = train_act(dataset, out, cfg, overwrite=overwrite, resume=resume,
+                            on_log=lambda s, loss: console.print(f"step {s:7d}  loss {loss:.4f}"))
     except SimseamError as exc:
         _fail(exc)
+    except KeyboardInterrupt:
+        from simseam.runner.training import latest_checkpoint
+
+        ckpt = latest_checkpoint(out)
+        err_console.print("interrupted; " + (f"checkpoint {ckpt} (continue with --resume)" if ckpt else
+                                             "no step finished, nothing saved"), markup=False, highlight=False)
+        raise typer.Exit(code=130)
+    if res.resumed_from:
+        console.print(f"resumed from step {res.resumed_from}")
     console.print(f"trained ACT ({res.n_params / 1e6:.1f} M params) for {res.steps} steps in {res.seconds:.0f} s "
                   f"on {res.device}; checkpoint: {out}  (run it: --policy lerobot:{out})")
 

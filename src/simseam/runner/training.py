@@ -10,6 +10,15 @@ The output directory is a complete ``lerobot:`` checkpoint: ``config.json`` +
 ``model.safetensors`` (``save_pretrained``), both processor pipelines, the
 ``simseam_skill.json`` contract of the scene the data came from, and
 ``training.json`` (steps, seconds, loss curve, dataset size, device).
+
+Nothing is lost or silently replaced: an output directory that already holds a
+training run is refused unless ``overwrite`` (removed first) or ``resume``.
+Every ``checkpoint_every`` steps, and when the run is interrupted (Ctrl-C,
+SIGTERM), ``out_dir/checkpoints/step_NNNNNNN/`` receives the weights, both
+processors and ``training_state.pt`` (optimizer state, step, losses), written
+under a temporary name and renamed when complete (the two newest are kept).
+``resume`` continues from the newest checkpoint up to ``steps`` in total
+(the data order of the resumed part differs from an uninterrupted run).
 """
 
 from __future__ import annotations
@@ -58,6 +67,8 @@ class ActTrainConfig:
     seed: int = 0
     device: str | None = None
     log_every: int = 50
+    #: save a resumable checkpoint every this many steps (None: only at the end / on interrupt)
+    checkpoint_every: int | None = None
 
 
 @dataclass
@@ -72,6 +83,67 @@ class TrainResult:
     #: seconds before the first step (model, processors, dataset; decoding when cached)
     prepare_seconds: float = 0.0
     losses: list[tuple[int, float]] = field(default_factory=list)
+    #: the step a resumed run started from (0: a fresh run)
+    resumed_from: int = 0
+    interrupted: bool = False
+
+
+CHECKPOINTS = "checkpoints"
+KEEP_CHECKPOINTS = 2
+
+
+def latest_checkpoint(out_dir: str | Path) -> Path | None:
+    """The newest complete checkpoint under ``out_dir/checkpoints`` (None when there is none)."""
+    root = Path(out_dir) / CHECKPOINTS
+    done = sorted(p for p in root.glob("step_*") if (p / "training_state.pt").is_file()) if root.is_dir() else []
+    return done[-1] if done else None
+
+
+def _prepare_out(out: Path, overwrite: bool, resume: bool) -> Path | None:
+    """Check ``out`` before anything runs; returns the checkpoint to resume from."""
+    import shutil
+
+    from simseam.runner.run_dir import check_writable
+
+    if overwrite and resume:
+        raise ConfigError("--overwrite and --resume exclude each other")
+    check_writable(out)
+    held = out.is_dir() and any(out.iterdir())
+    if resume:
+        ckpt = latest_checkpoint(out)
+        if ckpt is None:
+            raise ConfigError(f"--resume {out}: no complete checkpoint under {out / CHECKPOINTS}")
+        return ckpt
+    if held and not overwrite:
+        raise ConfigError(f"--out {out} is not empty (an earlier training run?); pass --overwrite to replace it, "
+                          "--resume to continue its newest checkpoint, or choose another --out")
+    if held:
+        shutil.rmtree(out)
+    return None
+
+
+def _save_checkpoint(out: Path, step: int, policy, preprocessor, postprocessor, optimizer, losses) -> Path:
+    import os
+    import shutil
+
+    import torch
+
+    root = out / CHECKPOINTS
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / f"step_{step:07d}"
+    tmp = root / f".step_{step:07d}.partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    policy.save_pretrained(tmp)
+    preprocessor.save_pretrained(tmp)
+    postprocessor.save_pretrained(tmp)
+    torch.save({"step": step, "optimizer": optimizer.state_dict(), "losses": list(losses)},
+               tmp / "training_state.pt")
+    shutil.rmtree(final, ignore_errors=True)
+    os.replace(tmp, final)
+    for old in sorted(p for p in root.glob("step_*"))[:-KEEP_CHECKPOINTS]:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
 
 
 def _skill_from_dataset(meta, root: Path, name: str) -> SkillContract:
@@ -136,10 +208,15 @@ class _DeviceCache:
 
 
 def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig | None = None,
-              on_log: Callable[[int, float], None] | None = None) -> TrainResult:
-    """Train ACT on the dataset at ``dataset_root`` and save a ``lerobot:`` checkpoint in ``out_dir``."""
+              on_log: Callable[[int, float], None] | None = None, *, overwrite: bool = False,
+              resume: bool = False) -> TrainResult:
+    """Train ACT on the dataset at ``dataset_root`` and save a ``lerobot:`` checkpoint in ``out_dir``.
+    A KeyboardInterrupt (Ctrl-C, or SIGTERM turned into one) saves a checkpoint of the steps done,
+    then propagates."""
     cfg = cfg or ActTrainConfig()
     t_start = time.perf_counter()
+    out = Path(out_dir)
+    resume_from = _prepare_out(out, overwrite, resume)
     try:
         import torch
         from lerobot.configs.types import FeatureType
@@ -175,6 +252,12 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         optimizer_lr=cfg.lr, optimizer_lr_backbone=cfg.lr_backbone, optimizer_weight_decay=cfg.weight_decay,
     )
     policy = ACTPolicy(act_cfg)
+    state = None
+    if resume_from is not None:
+        from safetensors.torch import load_file
+
+        policy.load_state_dict(load_file(str(resume_from / "model.safetensors")))
+        state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
     policy.to(device)
     policy.train()
     preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=meta.stats)
@@ -198,33 +281,45 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
                          frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
+    if state is not None:
+        optimizer.load_state_dict(state["optimizer"])
+        result.steps = result.resumed_from = int(state["step"])
+        result.losses = [tuple(x) for x in state["losses"]]
     amp = cfg.use_amp and device.startswith("cuda")
     if device.startswith("cuda"):
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
     t0 = time.perf_counter()
     running = 0.0
-    done = False
+    done = result.steps >= cfg.steps
     since_log = 0
-    while not done:
-        batch = preprocessor(next(batches))
-        with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
-            loss, _ = policy.forward(batch)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
-        optimizer.step()
-        result.steps += 1
-        since_log += 1
-        running += loss.detach()
-        over_time = cfg.time_budget_s is not None and time.perf_counter() - t_start >= cfg.time_budget_s
-        done = result.steps >= cfg.steps or over_time
-        if result.steps % cfg.log_every == 0 or done:
-            mean = float(running) / since_log
-            result.losses.append((result.steps, mean))
-            if on_log:
-                on_log(result.steps, mean)
-            running, since_log = 0.0, 0
+    try:
+        while not done:
+            batch = preprocessor(next(batches))
+            with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
+                loss, _ = policy.forward(batch)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
+            optimizer.step()
+            result.steps += 1
+            since_log += 1
+            running += loss.detach()
+            over_time = cfg.time_budget_s is not None and time.perf_counter() - t_start >= cfg.time_budget_s
+            done = result.steps >= cfg.steps or over_time
+            if result.steps % cfg.log_every == 0 or done:
+                mean = float(running) / since_log
+                result.losses.append((result.steps, mean))
+                if on_log:
+                    on_log(result.steps, mean)
+                running, since_log = 0.0, 0
+            if cfg.checkpoint_every and result.steps % cfg.checkpoint_every == 0 and not done:
+                _save_checkpoint(out, result.steps, policy, preprocessor, postprocessor, optimizer, result.losses)
+    except KeyboardInterrupt:
+        result.interrupted = True
+        if result.steps > result.resumed_from:
+            _save_checkpoint(out, result.steps, policy, preprocessor, postprocessor, optimizer, result.losses)
+        raise
     if device.startswith("cuda"):
         torch.cuda.synchronize()
     result.seconds = time.perf_counter() - t0
