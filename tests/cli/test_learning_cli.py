@@ -46,3 +46,35 @@ def test_collect_train_run_record(tmp_path):
     p = _simseam("run", "--scene", "other.yaml", "--policy", "lerobot:act", "--episodes", "1", "--out", "x",
                  cwd=tmp_path)
     assert p.returncode == 2 and "does not fit this scene" in p.stderr and "image_size: [40, 40]" in p.stderr
+
+
+def test_collect_interrupted_keeps_the_recorded_episodes(tmp_path):
+    import signal
+    import time
+
+    (tmp_path / "lift.yaml").write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [32, 32]\n"
+                                        "max_steps: 30\n")
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), HF_HUB_OFFLINE="1", PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "collect", "--scene", "lift.yaml",
+                             "--policy", "zero", "--episodes", "100", "--keep-failures", "--images", "--out", "demos"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        end = time.monotonic() + 300  # hang guard only: the readiness signal is the second "recorded" line
+        while sum("recorded" in line for line in lines) < 2:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, proc.stderr.read()
+            lines.append(line)
+            assert time.monotonic() < end
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "interrupted after" in err
+    info = json.loads((tmp_path / "demos" / "meta" / "info.json").read_text())
+    assert info["total_episodes"] >= 2  # every episode recorded before Ctrl-C is in the finalized dataset
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset("simseam/test", root=tmp_path / "demos")
+    assert ds.num_episodes == info["total_episodes"] and len(ds) == 30 * ds.num_episodes
