@@ -38,6 +38,11 @@ def _fail(exc: SimseamError) -> None:
     raise typer.Exit(code=2)
 
 
+def _check_seed(seed: int) -> None:
+    if seed < 0:
+        _fail(ConfigError(f"--seed {seed}: seeds are non-negative integers (episode i uses seed + i)"))
+
+
 def _policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
     kwargs = {}
     if device:
@@ -128,7 +133,7 @@ def run(
     policy: str = typer.Option("scripted", "--policy", help="Policy spec: scripted, random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Number of episodes."),
-    seed: int = typer.Option(0, "--seed", min=0, help="Episode i uses seed + i (a non-negative integer)."),
+    seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     out: Path = typer.Option(None, "--out", help="Output directory (run.json, episodes.jsonl, summary.json, "
                              "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out."),
@@ -148,6 +153,8 @@ def run(
     """Run a policy for N episodes; every finished episode is on disk before the next begins."""
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
     from simseam.runner.scene_config import load_scene_config
+
+    _check_seed(seed)
 
     default_out = out is None
     if default_out and resume:
@@ -236,7 +243,7 @@ def collect(
     policy: str = typer.Option("scripted", "--policy", help="Policy spec (default: the scripted expert)."),
     episodes: int = typer.Option(50, "--episodes", min=1, help="Episodes to run."),
     out: Path = typer.Option(..., "--out", help="New LeRobot dataset directory."),
-    seed: int = typer.Option(0, "--seed", min=0, help="Episode i uses seed + i (a non-negative integer)."),
+    seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
     videos: bool = typer.Option(True, "--videos/--images", help="Camera frames as AV1 video or PNG images."),
@@ -246,6 +253,8 @@ def collect(
     Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
     from simseam.runner.dataset_recorder import LeRobotRecorder
     from simseam.runner.run_dir import check_writable
+
+    _check_seed(seed)
 
     try:
         check_writable(out)
@@ -302,7 +311,7 @@ def train(
     cache: bool = typer.Option(False, "--cache/--no-cache", help="Decode the dataset once and keep it on the "
                                "device (fast; needs the frames to fit in its memory)."),
     amp: bool = typer.Option(False, "--amp", help="bfloat16 autocast on CUDA."),
-    seed: int = typer.Option(0, "--seed", min=0),
+    seed: int = typer.Option(0, "--seed", help="Random seed (a non-negative integer)."),
     checkpoint_every: int = typer.Option(None, "--checkpoint-every", min=1,
                                          help="Save a resumable checkpoint every N steps (out/checkpoints/)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a training run already in --out."),
@@ -312,6 +321,8 @@ def train(
     """Train a LeRobot ACT policy on a dataset; the result loads with --policy lerobot:<out>.
     Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
     from simseam.runner.training import ActTrainConfig, train_act
+
+    _check_seed(seed)
 
     if n_action_steps > chunk_size:
         _fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))

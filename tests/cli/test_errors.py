@@ -1,0 +1,82 @@
+"""Errors, not tracebacks: each bad input gets one literal line naming what and where, exit code 2."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _simseam(*args, cwd=REPO):
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def _one_line_error(proc, *fragments):
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    err = proc.stderr.strip()
+    assert "Traceback" not in err and err.count("\n") == 0, err
+    for f in fragments:
+        assert f in err, err
+    return err
+
+
+def test_binary_scene_and_manifest_files(tmp_path):
+    blob = tmp_path / "blob.yaml"
+    blob.write_bytes(b"\x00\xff\xfe\x80 binary \x89PNG")
+    _one_line_error(_simseam("run", "--scene", blob, "--out", tmp_path / "o"), str(blob), "not a text file",
+                    "scene file")
+    _one_line_error(_simseam("robots", "check", blob), str(blob), "not a text file", "robot manifest")
+    assert not (tmp_path / "o").exists()
+
+
+def test_negative_seed(tmp_path):
+    for cmd in ("run", "collect"):
+        _one_line_error(_simseam(cmd, "--scene", "scenes/franka_lift.yaml", "--seed", "-1", "--out", tmp_path / cmd),
+                        "--seed -1")
+
+
+def test_error_text_is_printed_literally(tmp_path):
+    scene = tmp_path / "s.yaml"
+    scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [2, 256]\n")
+    proc = _simseam("run", "--scene", scene, "--out", tmp_path / "o")
+    assert proc.returncode == 2
+    assert "must be [height, width], each between 8 and 4096" in proc.stderr  # brackets survive
+
+
+def test_pkg_reference_names_the_distribution(tmp_path):
+    from simseam.robot.assets import resolve_asset
+    from simseam.seam import BackendUnavailableError, ConfigError
+
+    with pytest.raises(ConfigError, match="not a PyPI distribution but a folder inside 'pybullet'; "
+                                          "write pkg:pybullet/pybullet_data/franka_panda/panda.urdf"):
+        resolve_asset("pkg:pybullet_data/franka_panda/panda.urdf")
+    with pytest.raises(BackendUnavailableError, match="needs the PyPI distribution 'no-such-dist'"):
+        resolve_asset("pkg:no-such-dist/x.urdf")
+
+
+def test_unprovisioned_isaac_names_the_provision_command(tmp_path):
+    scene = tmp_path / "isaac.yaml"
+    scene.write_text("robot: franka_panda\ntask: lift_cube\n"
+                     f"engine: {{name: isaac, process: sidecar, python: {tmp_path / 'nowhere' / 'python'}}}\n")
+    _one_line_error(_simseam("run", "--scene", scene, "--out", tmp_path / "o"), "Isaac Sim is not provisioned",
+                    "simseam isaac provision")
+
+
+def test_video_without_an_rgb_camera_says_so(tmp_path):
+    import yaml
+
+    data = yaml.safe_load((REPO / "src" / "simseam" / "robot" / "manifests" / "franka_panda.yaml").read_text())
+    data.pop("sensors", None)
+    data["name"] = "blind_panda"
+    (tmp_path / "blind.yaml").write_text(yaml.safe_dump(data))
+    (tmp_path / "s.yaml").write_text("robot: blind.yaml\ntask: lift_cube\nmax_steps: 2\n")
+    proc = _simseam("run", "--scene", tmp_path / "s.yaml", "--policy", "zero", "--episodes", "1", "--video",
+                    "--out", tmp_path / "o")
+    assert proc.returncode == 0, proc.stderr
+    assert "has no RGB camera, so no video is written" in proc.stderr
+    assert list((tmp_path / "o").glob("*.mp4")) == []
