@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
 # Idempotent set-up, sourced by scripts/demo and scripts/test:
 #   1. Debian GL libraries for headless rendering (EGL + OSMesa), if missing;
-#   2. a virtualenv (default .venv, Python >= 3.10) with simseam and the robot model packages;
+#   2. a virtualenv (Python >= 3.10) with simseam and the robot model packages, cached outside the clone
+#      in ~/.cache/simseam/venvs/, keyed by the Python version and the pins (pyproject.toml, and
+#      scripts/learning-stack.txt with "learning"); <venv-dir> (default .venv) is a symlink to it, and
+#      a reused venv is pointed at this clone's sources (editable install) before use;
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
 #   4. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
@@ -10,8 +13,9 @@
 set -euo pipefail
 SIMSEAM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 PY="${1:-python3}"
-VENV="${2:-$SIMSEAM_ROOT/.venv}"
+VENV_LINK="${2:-$SIMSEAM_ROOT/.venv}"
 LEARNING="${3:-}"
+VENV_CACHE="${SIMSEAM_CACHE:-$HOME/.cache/simseam}/venvs"
 SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 
 _need_gl() {
@@ -26,7 +30,6 @@ fi
 if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 10))' 2>/dev/null; then
   echo "[simseam] $PY is missing or older than Python 3.10" >&2; exit 1
 fi
-STAMP="$VENV/.simseam-installed"
 WANT="$(cat "$SIMSEAM_ROOT/pyproject.toml" | sha256sum | cut -d' ' -f1)"
 if [ "$LEARNING" = "learning" ]; then
   WANT="$WANT-$(cat "$SIMSEAM_ROOT/scripts/learning-stack.txt" | sha256sum | cut -d' ' -f1)"
@@ -65,6 +68,19 @@ print("; ".join(bad))' "$@")" || missing="(the import check itself failed)"
     return 1
   fi
 }
+PYV="$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
+if [ -d "$VENV_LINK" ] && [ ! -L "$VENV_LINK" ]; then
+  VENV="$VENV_LINK"  # a venv inside the clone (an older set-up) keeps serving
+else
+  VENV="$VENV_CACHE/py$PYV-$(echo "$WANT" | sha256sum | cut -c1-16)"
+  if [ -z "$LEARNING" ] && [ -L "$VENV_LINK" ]; then  # a cached venv with the learning stack serves a plain set-up
+    LINKED="$(readlink "$VENV_LINK")"
+    if [ "$(cut -d- -f1 "$LINKED/.simseam-installed" 2>/dev/null || true)" = "$WANT" ]; then VENV="$LINKED"; fi
+  fi
+  mkdir -p "$VENV_CACHE"
+  ln -sfn "$VENV" "$VENV_LINK"
+fi
+STAMP="$VENV/.simseam-installed"
 HAVE="$(cat "$STAMP" 2>/dev/null || true)"
 # a venv that also holds the learning stack serves a plain set-up too
 if [ -z "$LEARNING" ] && [ "${HAVE%%-*}" = "$WANT" ]; then HAVE="$WANT"; fi
@@ -91,6 +107,11 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
       lerobot.datasets.lerobot_dataset
   fi
   echo "$WANT" > "$STAMP"
+fi
+# a cached venv may have been made by another clone: its editable install must point at this one
+if ! "$VENV/bin/python" -c 'import sys, simseam; sys.exit(not simseam.__file__.startswith(sys.argv[1]))' \
+    "$SIMSEAM_ROOT/src/" 2>/dev/null; then
+  _pip install -q --no-deps -e "$SIMSEAM_ROOT"
 fi
 # Isaac Sim's real sources for the Isaac adapter's tests (idempotent: keyed by version, skipped when complete;
 # the tests fail with the command to run if this could not fetch them)
