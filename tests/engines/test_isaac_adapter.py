@@ -794,3 +794,24 @@ def test_conformance_tolerances_per_engine():
     for v in (2.9, 1.5, -0.8):
         assert abs(float(np.float32(v)) - v) < isaac.state / 10
     assert isaac.state >= 1e-6 and isaac.fk >= 1e-6 and isaac.replay >= 1e-5
+
+
+@pytest.mark.parametrize("version", ["5.1.0.0", "6.0.1.0"])
+def test_a_scene_on_the_isaac_adapter_keeps_the_seam_contract(standin, panda_spec, version, monkeypatch):
+    """check_rollout over the Isaac engine (the stand-in built from Isaac Sim's real sources): the spec,
+    observation requests, bad actions and close behave as on every other backend. The stand-in does
+    no physics, so this checks the adapter's plumbing, not PhysX."""
+    from simseam.engines.isaac.engine import IsaacEngine
+    from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+    from simseam.seam import check_rollout
+
+    from simseam.robot.assets import resolve_asset
+    from simseam.robot.urdf import read_urdf
+
+    urdf = read_urdf(str(resolve_asset(panda_spec.urdf)))
+    standin(Scenario(version=version, dof_names=[j.sim_name for j in panda_spec.joints],
+                     link_names=list(urdf.links), robot_prim="/panda"))
+    monkeypatch.setattr(gpu, "rtx_problem", lambda *a: None)
+    scene = ManifestScene(panda_spec, "lift_cube", IsaacEngine(EngineOptions()), SceneOptions(image_size=(16, 16)))
+    spec = check_rollout(scene, steps=2)
+    assert spec.engine == "isaac" and spec.cameras == {"camera1": (16, 16), "camera2": (16, 16)}
