@@ -30,10 +30,12 @@ class SerialChain:
 
     ``joint_names`` lists the chain's actuated joints (``q`` order); any other
     movable joint on the way is held at 0. Joint limits clip every IK solution.
+    ``tip_offset`` (4x4, in ``tip_link``'s frame) moves the tip to a tool frame
+    the URDF lacks (a manifest's ``tcp``).
     """
 
     def __init__(self, urdf: UrdfModel, base_link: str, tip_link: str, joint_names: list[str],
-                 lower: np.ndarray, upper: np.ndarray):
+                 lower: np.ndarray, upper: np.ndarray, tip_offset: np.ndarray | None = None):
         chain = urdf.chain(base_link, tip_link)
         names_on_chain = [j.name for j in chain if j.type in MOVABLE]
         missing = [n for n in joint_names if n not in names_on_chain]
@@ -60,7 +62,7 @@ class SerialChain:
                 self._prismatic.append(j.type == "prismatic")
                 self._index.append(joint_names.index(j.name))
                 t = np.eye(4)
-        self._tail = t
+        self._tail = t if tip_offset is None else t @ np.asarray(tip_offset, dtype=np.float64)
         order = np.argsort(self._index)
         if list(np.asarray(self._index)[order]) != list(range(len(joint_names))):
             raise ConfigError(f"{urdf.path}: duplicate arm joints {joint_names}")
