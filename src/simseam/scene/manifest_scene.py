@@ -112,7 +112,7 @@ class ManifestScene:
                                  [self._ejoints[i].sim_name for i in self._arm_idx],
                                  self._arm_bounds(self._lower), self._arm_bounds(self._upper, +1),
                                  tip_offset=make_transform(self._tool_pos, self._tool_rot) if tcp else None)
-        self.task = task_cls(robot, self.chain.tabletop_reach())
+        self.task = task_cls(robot, self.chain.tabletop_reach(), self.chain)
         self.task.check_robot()
         self._make_controllers(mode)
         base_pos, base_yaw = self.task.robot_base()
