@@ -22,9 +22,10 @@ from pathlib import Path
 from simseam.robot.assets import resolve_asset
 from simseam.robot.manifest import load_manifest
 from simseam.robot.spec import RobotSpec
-from simseam.seam import STATE_ONLY, ConfigError, SimulationError
+from simseam.seam import ConfigError, ObsRequest, SimulationError
 
 HOLD_S = 1.0  # seconds of holding still at home after the reset
+_LINKS = ObsRequest(images=frozenset(), depth=False, link_poses=True)  # every link's pose, as ROS 2 TF asks
 
 
 @dataclass
@@ -65,7 +66,7 @@ def check_robot(path: str | Path) -> CheckReport:
             policy = ZeroPolicy()
             policy.reset(scene.spec)
             for _ in range(max(1, int(round(HOLD_S * scene.options.control_hz)))):
-                obs = scene.step(policy.act(obs), STATE_ONLY).observation
+                obs = scene.step(policy.act(obs), _LINKS).observation
             report.visual_geoms = scene.engine.robot_visual_geoms()
             report.tabletop_reach = scene.task.reach
         except ConfigError as exc:

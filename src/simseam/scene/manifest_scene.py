@@ -99,6 +99,7 @@ class ManifestScene:
         if robot.kinematic_base is not None and self._urdf.root_link != robot.base_link:
             raise ConfigError(f"robot {robot.name!r}: a kinematic base moves the URDF root link "
                               f"{self._urdf.root_link!r}, so base_link must be it (got {robot.base_link!r})")
+        self._above_base = self._links_above_base()
         task_cls = get_task(task)
         mode = ControlMode.parse(opts.control_mode or task_cls.control_mode or robot.action.control_mode)
         if task_cls.control_mode and mode != ControlMode.parse(task_cls.control_mode):
@@ -153,6 +154,19 @@ class ManifestScene:
         self._eidx = np.array([manifest.index(j.name) for j in self._ejoints], dtype=int)
         self._bidx = (np.array([manifest.index(n) for n in robot.kinematic_base.joints])
                       if robot.kinematic_base is not None else None)
+
+    def _links_above_base(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """URDF links above the base link (e.g. a root 'world' link, which MuJoCo merges into its world):
+        fixed to the base, so their pose in the base frame is constant: (rot, pos)."""
+        by_child = {j.child: j for j in self._urdf.joints}
+        out, t, link = {}, np.eye(4), self.robot.base_link
+        while link in by_child:
+            j = by_child[link]
+            t = make_transform(j.xyz, rpy_to_matrix(j.rpy)) @ t  # child in parent
+            link = j.parent
+            inv = np.linalg.inv(t)  # parent in base
+            out[link] = (inv[:3, :3].copy(), inv[:3, 3].copy())
+        return out
 
     def _arm_bounds(self, bound: np.ndarray, sign: int = -1) -> np.ndarray:
         b = bound[self._arm_idx]
@@ -343,6 +357,9 @@ class ManifestScene:
         """Measured pose of a robot link in the base frame: (rot 3x3, pos 3)."""
         if link == self.robot.base_link:
             return np.eye(3), np.zeros(3)
+        if link in self._above_base:
+            rot, pos = self._above_base[link]
+            return rot.copy(), pos.copy()
         if self.robot.tcp is not None and link == self.robot.tcp.name:
             p, r = self._tool_world()
         else:
