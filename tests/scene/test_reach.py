@@ -35,7 +35,8 @@ def test_success_means_within_2cm_and_10_degrees(panda_spec, make_scene):
     step = None
     for _ in range(60):
         step = scene.step(scene.spec.action.pack(arm=sol.q, grip=-1.0))
-        pos, rot = step.observation["privileged"]["eef_pose"][:3], quat_to_matrix(step.observation["privileged"]["eef_pose"][3:])
+        eef = step.observation["privileged"]["eef_pose"]
+        pos, rot = eef[:3], quat_to_matrix(eef[3:])
         e_pos = float(np.linalg.norm(pos - target[:3]))
         e_rot = float(np.linalg.norm(rotation_error(quat_to_matrix(target[3:]), rot)))
         d = step.info["diagnostics"]

@@ -1,9 +1,9 @@
 """Scripted experts: state machines over privileged ground truth.
 
-They drive CARTESIAN_DELTA actions with a saturated proportional controller
-towards waypoints in the robot base frame, keeping the end effector's reset
-orientation (gripper down for a tabletop arm) and turning only about the base
-z axis to line the fingers up. Their success rate is the proof that tasks,
+They drive CARTESIAN_DELTA actions (``reach``'s expert also JOINT_POSITION) with a
+saturated proportional controller towards waypoints in the robot base frame, keeping
+the end effector's reset orientation (gripper down for a tabletop arm) and turning
+only about the base z axis to line the fingers up. Their success rate is the proof that tasks,
 IK and the gripper convention are right.
 """
 
@@ -16,7 +16,8 @@ from simseam.policies.base import BasePolicy, register_policy
 from simseam.policies.navigation import NavExpert
 from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
 from simseam.scene.kinematics import SerialChain
-from simseam.seam import OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation, RolloutSpec
+from simseam.seam import (OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation,
+                          RolloutSpec)
 
 OPEN, CLOSE = -1.0, 1.0
 

@@ -3,12 +3,13 @@
 The target is reachable by construction: the task draws arm joint positions around the home
 posture (each joint within +-``SPREAD`` of its range, at most +-``MAX_DQ`` rad, inside its limits)
 and takes the tool pose the scene's own kinematic chain gives for them (``SerialChain.forward``,
-the same chain the Cartesian IK uses), keeping only poses at least ``MIN_HEIGHT`` above the table
-and ``MIN_TRAVEL`` away from the home pose, and ``MIN_RADIUS`` of its reach out from the base (a
-tool tucked against the arm's own base column puts the fingers into the first link). Success: the measured tool frame within
-``POS_TOL`` (2 cm) and ``ROT_TOL`` (10 degrees) of the target. The target pose is ground truth in
-``privileged['objects']['target']`` (base frame); diagnostics: ``position_error`` (m) and
-``orientation_error`` (rad). Reward is sparse: 1.0 on success. Either control mode.
+the same chain the Cartesian IK uses), keeping only poses at least ``MIN_HEIGHT`` above the table,
+``MIN_TRAVEL`` away from the home pose and ``MIN_RADIUS`` of the robot's reach out from its base
+(a tool tucked against the arm's own base column puts the fingers into the first link).
+Success: the measured tool frame within ``POS_TOL`` (2 cm) and ``ROT_TOL`` (10 degrees) of the
+target. The target pose is ground truth in ``privileged['objects']['target']`` (base frame);
+diagnostics: ``position_error`` (m) and ``orientation_error`` (rad). Reward is sparse: 1.0 on
+success. Either control mode.
 """
 
 from __future__ import annotations
