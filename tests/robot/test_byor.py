@@ -217,3 +217,14 @@ def test_urdfs_come_from_the_installed_wheel():
     for path in (KUKA, XARM):
         spec = load_manifest(path)
         assert spec.urdf.startswith("pkg:pybullet/") and resolve_asset(spec.urdf).is_file()
+
+
+def test_tcp_is_in_the_ros2_tf_tree(xarm, make_scene):
+    from simseam.ros2.robot_model import RobotModel
+
+    scene = make_scene(xarm, render_images=False)
+    model = RobotModel(scene.spec.robot)
+    assert "tcp" in model.frames()
+    tcp = [t for t in model.static_transforms(0) if t.child_frame_id == "tcp"]
+    assert len(tcp) == 1 and tcp[0].header.frame_id == "link6"
+    assert (tcp[0].transform.translation.x, tcp[0].transform.translation.z) == (0.0, 0.15)
