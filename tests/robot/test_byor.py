@@ -228,3 +228,13 @@ def test_tcp_is_in_the_ros2_tf_tree(xarm, make_scene):
     tcp = [t for t in model.static_transforms(0) if t.child_frame_id == "tcp"]
     assert len(tcp) == 1 and tcp[0].header.frame_id == "link6"
     assert (tcp[0].transform.translation.x, tcp[0].transform.translation.z) == (0.0, 0.15)
+
+
+@pytest.mark.parametrize("name", ["franka_panda", "so101", "panda_mobile", "stretch"])
+def test_builtin_robots_pass_check(name):
+    from simseam.robot.check import check_robot
+    from simseam.robot.manifest import builtin_manifests
+
+    report = check_robot(builtin_manifests()[name])
+    assert report.visual_geoms > 0 and report.tabletop_reach > 0.2
+    assert report.cameras == sorted(s.feature_key for s in report.spec.sensors_of("rgb"))
