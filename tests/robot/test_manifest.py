@@ -164,7 +164,8 @@ def test_builtin_manifest_matches_its_urdf(name):
     assert spec.name == name
     urdf = read_urdf(resolve_asset(spec.urdf))
     assert spec.base_link == urdf.root_link
-    assert spec.ee_link in urdf.links
+    assert spec.tool_parent in urdf.links  # the tool link, or the link a manifest tcp is fixed to
+    assert (spec.ee_link in urdf.links) == (spec.tcp is None)
     for joint in spec.joints:
         if joint.role == "base":  # kinematic base joints are virtual: not in the URDF
             assert spec.kinematic_base is not None and joint.name in spec.kinematic_base.joints
@@ -174,7 +175,7 @@ def test_builtin_manifest_matches_its_urdf(name):
         assert (joint.lower, joint.upper, joint.max_velocity) == (uj.lower, uj.upper, uj.velocity)
         assert joint.lower <= joint.home <= joint.upper, joint.name
     # the arm joints form the chain from the base to the end effector
-    chain = [j.name for j in urdf.chain(spec.base_link, spec.ee_link) if j.type != "fixed"]
+    chain = [j.name for j in urdf.chain(spec.base_link, spec.tool_parent) if j.type != "fixed"]
     assert [j.sim_name for j in spec.arm_joints] == chain
     grip = spec.gripper
     assert len(grip.open) == len(grip.closed) == len(grip.joints) == len(spec.joints_with_role("gripper"))

@@ -149,9 +149,11 @@ def test_manifest_and_layout_checks(mobile_spec, panda_spec):
         ManifestScene(wrong_root, "nav_obstacles", options=SceneOptions(render_images=False))
 
 
-def test_scripted_navigation_reaches_the_goal_in_8_of_10(mobile_spec, make_scene, count_successes):
+@pytest.mark.parametrize("first", [0, 13])
+def test_scripted_navigation_reaches_the_goal_in_9_of_10(mobile_spec, make_scene, count_successes, first):
+    """Any 10 consecutive seeds (two windows here; benchmarks/bench_scripted.py measured seeds 0-39: 40/40)."""
     scene = make_scene(mobile_spec, task="nav_obstacles", render_images=False, privileged=True)
-    assert count_successes(scene, make_policy("scripted"), range(10)) >= 8
+    assert count_successes(scene, make_policy("scripted"), range(first, first + 10)) >= 9
 
 
 def test_second_mobile_robot_stretch_runs_an_episode(make_scene, count_successes):

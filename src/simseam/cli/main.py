@@ -386,16 +386,25 @@ def robots_show(name: str = typer.Argument(..., help="Built-in robot name or man
 
 @robots_app.command("check")
 def robots_check(path: Path = typer.Argument(..., help="Manifest file to check against its URDF.")) -> None:
-    """Validate a manifest: schema, asset references, and every joint/link against its URDF."""
-    from simseam.robot.manifest import load_manifest
+    """Validate a manifest: schema, assets, every joint/link against its URDF, home and gripper positions
+    within the joint limits; then build the robot headless in MuJoCo as `run` does (meshes, inertias,
+    cameras, holding still) and warn about what would surprise (no visual geometry, unreadable meshes)."""
+    from simseam.robot.check import check_robot
 
     try:
-        spec = load_manifest(path)
+        report = check_robot(path)
     except SimseamError as exc:
         _fail(exc)
+    spec = report.spec
+    for w in report.warnings:
+        console.print(f"[yellow]warning[/] {path}: {w}", soft_wrap=True)
+    arm = len(spec.arm_joints)
+    grip = f"gripper {len(spec.gripper.joints)} joint(s)" if spec.gripper else "no gripper"
+    tool = (f"tcp {spec.tcp.name!r} on {spec.tcp.parent}" if spec.tcp else f"tool link {spec.ee_link}")
     console.print(
-        f"[green]ok[/] {path}: robot {spec.name!r}, {len(spec.joints)} joints, "
-        f"{len(spec.sensors)} sensors, URDF {spec.urdf}"
+        f"[green]ok[/] {path}: robot {spec.name!r}, {arm} arm joints, {grip}, {tool}, "
+        f"{len(spec.sensors)} sensors; built in MuJoCo: {report.visual_geoms} visual geoms, "
+        f"tabletop reach {report.tabletop_reach:.2f} m; URDF {spec.urdf}", soft_wrap=True
     )
 
 

@@ -1,9 +1,9 @@
 """Scripted experts: state machines over privileged ground truth.
 
-They drive CARTESIAN_DELTA actions with a saturated proportional controller
-towards waypoints in the robot base frame, keeping the end effector's reset
-orientation (gripper down for a tabletop arm) and turning only about the base
-z axis to line the fingers up. Their success rate is the proof that tasks,
+They drive CARTESIAN_DELTA actions (``reach``'s expert also JOINT_POSITION) with a
+saturated proportional controller towards waypoints in the robot base frame, keeping
+the end effector's reset orientation (gripper down for a tabletop arm) and turning
+only about the base z axis to line the fingers up. Their success rate is the proof that tasks,
 IK and the gripper convention are right.
 """
 
@@ -15,7 +15,9 @@ from simseam.math3d import quat_to_matrix, rotation_error
 from simseam.policies.base import BasePolicy, register_policy
 from simseam.policies.navigation import NavExpert
 from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
-from simseam.seam import OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation, RolloutSpec
+from simseam.scene.kinematics import SerialChain
+from simseam.seam import (OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation,
+                          RolloutSpec)
 
 OPEN, CLOSE = -1.0, 1.0
 
@@ -142,7 +144,53 @@ class BowlPlateExpert(_CartesianExpert):
         return self.command(eef, eef[:3] + [0.0, 0.0, 0.1], self.yaw, OPEN, speed=0.5)  # back off
 
 
-_EXPERTS = {"lift_cube": LiftExpert, "bowl_plate": BowlPlateExpert, "nav_obstacles": NavExpert}
+class ReachExpert:
+    """Bring the tool frame to ``privileged['objects']['target']``; the gripper holds its opening.
+
+    CARTESIAN_DELTA: a saturated P-controller on position and orientation. JOINT_POSITION: inverse
+    kinematics once, from the measured joints, on the chain built from ``spec.robot`` alone (the
+    policy's own ``SerialChain.of_robot``), then that joint target every step.
+    """
+
+    gain = 0.5
+    rot_gain = 0.3
+
+    def __init__(self, spec: RolloutSpec):
+        self.spec = spec
+        self.layout = spec.action
+        self.grip: float | None = None
+        self.q_goal: np.ndarray | None = None
+
+    def act(self, priv: dict, obs: dict) -> np.ndarray:
+        spec, layout = self.spec, self.layout
+        target = priv["objects"]["target"]
+        t_pos, t_rot = np.asarray(target[:3], dtype=np.float64), quat_to_matrix(target[3:])
+        names = spec.robot.joint_names
+        q = np.asarray(obs[OBS_JOINT_POSITIONS], dtype=np.float64)
+        if self.grip is None and layout.has_gripper:
+            g = spec.robot.gripper
+            self.grip = g.command_of(q[[names.index(n) for n in g.joints]])
+        if spec.control_mode == ControlMode.JOINT_POSITION:
+            if self.q_goal is None:
+                chain = SerialChain.of_robot(spec.robot)
+                q_arm = q[[names.index(n) for n in layout.arm_names]]
+                self.q_goal = chain.solve(q_arm, t_pos, t_rot, max_iters=300, q_rest=q_arm).q
+            arm = self.q_goal
+        else:
+            eef = priv["eef_pose"]
+            pos, rot = eef[:3], quat_to_matrix(eef[3:])
+            arm = np.concatenate([np.clip(self.gain * (t_pos - pos) / layout.max_translation, -1.0, 1.0),
+                                  np.clip(self.rot_gain * rotation_error(t_rot, rot) / layout.max_rotation, -1, 1)])
+        return layout.pack(arm=arm, grip=self.grip)
+
+
+def _cartesian(cls):
+    return lambda spec, down: cls(spec.action, down)
+
+
+_EXPERTS = {"lift_cube": _cartesian(LiftExpert), "bowl_plate": _cartesian(BowlPlateExpert),
+            "nav_obstacles": _cartesian(NavExpert), "reach": lambda spec, down: ReachExpert(spec)}
+_ANY_MODE = {"reach"}  # experts that drive joint_position too
 
 
 @register_policy("scripted")
@@ -155,8 +203,9 @@ class ScriptedPolicy(BasePolicy):
         super().reset(spec)
         if spec.task.name not in _EXPERTS:
             raise ConfigError(f"no scripted expert for task {spec.task.name!r}; experts exist for {sorted(_EXPERTS)}")
-        if spec.control_mode != ControlMode.CARTESIAN_DELTA:
-            raise ConfigError("the scripted experts drive cartesian_delta; set control_mode: cartesian_delta")
+        if spec.control_mode != ControlMode.CARTESIAN_DELTA and spec.task.name not in _ANY_MODE:
+            raise ConfigError(f"the scripted expert for {spec.task.name!r} drives cartesian_delta; "
+                              "set control_mode: cartesian_delta")
         self._expert = None
 
     def act(self, observation: Observation) -> np.ndarray:
@@ -165,5 +214,5 @@ class ScriptedPolicy(BasePolicy):
             raise ConfigError("the scripted expert needs privileged observations (build the scene with privileged=True)")
         if self._expert is None:
             down = quat_to_matrix(priv["eef_pose"][3:])
-            self._expert = _EXPERTS[self.spec.task.name](self.spec.action, down)
+            self._expert = _EXPERTS[self.spec.task.name](self.spec, down)
         return self._expert.act(priv, observation)

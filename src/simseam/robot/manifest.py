@@ -22,6 +22,7 @@ from simseam.robot.spec import (
     KinematicBaseSpec,
     RobotSpec,
     SensorSpec,
+    ToolFrameSpec,
 )
 from simseam.robot.urdf import read_urdf
 from simseam.seam import BackendUnavailableError, ConfigError
@@ -90,6 +91,15 @@ class SensorModel(_Strict):
         return self
 
 
+class ToolFrameModel(_Strict):
+    """A tool frame fixed to a URDF link (for URDFs without a link where the fingers close)."""
+
+    name: str = Field(default="tcp", pattern=r"^[A-Za-z0-9_\-]+$")
+    parent: str
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
 class ActionModel(_Strict):
     control_mode: Literal["joint_position", "cartesian_delta"] = "cartesian_delta"
     max_translation: float = Field(default=0.05, gt=0)
@@ -101,7 +111,8 @@ class ManifestModel(_Strict):
     description: str = ""
     urdf: str
     base_link: str
-    ee_link: str
+    ee_link: str | None = None
+    tcp: ToolFrameModel | None = None
     joints: list[JointModel] = Field(min_length=1)
     gripper: GripperModel | None = None
     kinematic_base: KinematicBaseModel | None = None
@@ -111,6 +122,9 @@ class ManifestModel(_Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> "ManifestModel":
+        if (self.ee_link is None) == (self.tcp is None):
+            raise ValueError("give the tool frame either as 'ee_link' (a URDF link) or as 'tcp' "
+                             "({parent: LINK, xyz: [...], rpy: [...]}), exactly one of them")
         names = [j.name for j in self.joints]
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
@@ -154,6 +168,10 @@ def _absolute_ref(ref: str, base_dir: Path) -> str:
     return ref
 
 
+def _within(value: float, lower: float | None, upper: float | None, tol: float = 1e-9) -> bool:
+    return (lower is None or value >= lower - tol) and (upper is None or value <= upper + tol)
+
+
 def _listing(items: list[str]) -> str:
     return ", ".join(items) if items else "(none)"
 
@@ -179,10 +197,13 @@ def load_manifest(path: str | Path) -> RobotSpec:
     problems = []
     links = list(urdf.links)
     movable = urdf.movable_joint_names
-    for field_name in ("base_link", "ee_link"):
-        link = getattr(m, field_name)
-        if link not in links:
+    for field_name, link in (("base_link", m.base_link), ("ee_link", m.ee_link),
+                             ("tcp.parent", m.tcp.parent if m.tcp else None)):
+        if link is not None and link not in links:
             problems.append(f"field '{field_name}': link {link!r} is not in the URDF; its links are: {_listing(links)}")
+    if m.tcp is not None and m.tcp.name in links:
+        problems.append(f"field 'tcp.name': {m.tcp.name!r} is already a link of the URDF; name the tool frame "
+                        f"differently, or use ee_link: {m.tcp.name} instead of tcp")
     joints: list[JointSpec] = []
     for i, j in enumerate(m.joints):
         sim_name = j.sim_name or j.name
@@ -202,12 +223,24 @@ def load_manifest(path: str | Path) -> RobotSpec:
                 problems.append(f"field 'joints.{i}.limits': lower {lo} must be below upper {hi}")
             lower = lo if lower is None else max(lower, lo)
             upper = hi if upper is None else min(upper, hi)
+        if j.role != "base" and not _within(j.home, lower, upper):
+            problems.append(f"field 'joints.{i}.home' ({j.name}): {j.home:g} is outside the joint limits "
+                            f"[{lower:g}, {upper:g}]")
         joints.append(JointSpec(j.name, j.role, sim_name, j.home, lower, upper, j.kp, j.kd, velocity))
     for i, s in enumerate(m.sensors):
         if s.parent not in links:
             problems.append(
                 f"field 'sensors.{i}.parent' ({s.name}): link {s.parent!r} is not in the URDF; its links are: {_listing(links)}"
             )
+    if m.gripper is not None:
+        by_name = {j.name: j for j in joints}
+        grip_joints = [j.name for j in m.joints if j.role == "gripper"]
+        for key in ("open", "closed"):
+            for k, (name, value) in enumerate(zip(grip_joints, getattr(m.gripper, key))):
+                j = by_name.get(name)
+                if j is not None and not _within(value, j.lower, j.upper):
+                    problems.append(f"field 'gripper.{key}.{k}' ({name}): {value:g} is outside the finger joint's "
+                                    f"limits [{j.lower:g}, {j.upper:g}]")
     if problems:
         raise ConfigError(f"{path}: manifest does not match its URDF {urdf_path}\n  " + "\n  ".join(problems))
 
@@ -241,7 +274,8 @@ def load_manifest(path: str | Path) -> RobotSpec:
         name=m.name,
         urdf=urdf_ref,
         base_link=m.base_link,
-        ee_link=m.ee_link,
+        ee_link=m.tcp.name if m.tcp is not None else m.ee_link,
+        tcp=None if m.tcp is None else ToolFrameSpec(m.tcp.name, m.tcp.parent, list(m.tcp.xyz), list(m.tcp.rpy)),
         joints=joints,
         gripper=gripper,
         sensors=sensors,

@@ -94,6 +94,21 @@ class KinematicBaseSpec:
 
 
 @dataclass(frozen=True)
+class ToolFrameSpec:
+    """A tool frame (TCP) fixed to a URDF link: ``xyz``/``rpy`` place it in ``parent``'s frame.
+
+    For URDFs without a link where the fingers close. It is a virtual link named ``name``:
+    the scene composes the offset (IK, the Cartesian action frame, state, link poses);
+    engines never see it.
+    """
+
+    name: str
+    parent: str
+    xyz: list[float]
+    rpy: list[float]
+
+
+@dataclass(frozen=True)
 class ActionSpec:
     """The robot's default action contract."""
 
@@ -109,6 +124,8 @@ class RobotSpec:
     ``urdf`` is an asset reference (``pkg:<dist>/<path>`` or ``file:<path>``),
     resolved by ``simseam.robot.assets.resolve_asset`` in the process that
     loads it. ``joints`` is the manifest order that observations use.
+    ``ee_link`` names the tool frame: a URDF link, or ``tcp.name`` when the
+    manifest declares a ``tcp`` (a virtual link fixed to ``tcp.parent``).
     """
 
     name: str
@@ -124,6 +141,7 @@ class RobotSpec:
     source: str = ""
     #: "urdf": the URDF's masses/inertias; "geometry": computed from collision geometry
     inertia: str = "urdf"
+    tcp: ToolFrameSpec | None = None
 
     # ------------------------------------------------------------ derived views
     def joints_with_role(self, role: str) -> list[JointSpec]:
@@ -132,6 +150,11 @@ class RobotSpec:
     @property
     def arm_joints(self) -> list[JointSpec]:
         return self.joints_with_role("arm")
+
+    @property
+    def tool_parent(self) -> str:
+        """The URDF link the tool frame is fixed to (the tool link itself without a ``tcp``)."""
+        return self.tcp.parent if self.tcp is not None else self.ee_link
 
     @property
     def joint_names(self) -> list[str]:
@@ -157,4 +180,6 @@ class RobotSpec:
         if d.get("kinematic_base") is not None:
             d["kinematic_base"] = KinematicBaseSpec(**d["kinematic_base"])
         d["action"] = ActionSpec(**d.get("action", {}))
+        if d.get("tcp") is not None:
+            d["tcp"] = ToolFrameSpec(**d["tcp"])
         return cls(**d)

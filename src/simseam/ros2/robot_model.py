@@ -13,6 +13,8 @@ joint positions the HAL reports:
   something else (the Panda's ``panda_link0``), ``base_link -> <root>`` is an
   identity on ``/tf_static``, so ``odom -> base_link -> <root> -> ...`` is one
   tree;
+- a manifest's tool frame (``tcp``, a virtual link in ``spec.links``) is one more fixed
+  transform ``<its parent> -> tcp`` on ``/tf_static`` (not in ``/robot_description``);
 - ``/robot_description`` (std_msgs/String, transient local) is the URDF text,
   with mesh file names made absolute ``file://`` URIs (relative paths, and
   ``package://<pkg>/...`` when a folder ``<pkg>`` encloses the URDF) so a
@@ -95,6 +97,11 @@ class RobotModel:
         self.joints = [_Joint(j.name, j.type, j.parent, j.child, rpy_to_matrix(j.rpy), np.asarray(j.xyz, float),
                               np.asarray(j.axis, float) / (np.linalg.norm(j.axis) or 1.0))
                        for j in self.urdf.joints]
+        for link in getattr(spec, "links", ()):  # a manifest's tool frame (tcp): a virtual link fixed to a URDF link
+            if link.name not in self.links and link.parent in self.links:
+                self.links.append(link.name)
+                self.joints.append(_Joint(link.joint, "fixed", link.parent, link.name, rpy_to_matrix(link.rpy),
+                                          np.asarray(link.xyz, float), np.array([0.0, 0.0, 1.0])))
         self.mimic: dict[str, tuple[str, float, float]] = {}
         for el in ET.fromstring(raw).findall("joint"):
             mim = el.find("mimic")

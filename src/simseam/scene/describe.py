@@ -45,6 +45,9 @@ def robot_facts(spec: RobotSpec, urdf: UrdfModel, image_sizes: dict[str, tuple[i
         j = by_child.get(name)
         links.append(LinkFacts(name) if j is None else
                      LinkFacts(name, j.parent, j.name, j.type, tuple(j.xyz), tuple(j.rpy), tuple(j.axis)))
+    if spec.tcp is not None:  # the manifest's tool frame: a virtual link fixed to its parent
+        t = spec.tcp
+        links.append(LinkFacts(t.name, t.parent, f"{t.name}_joint", "fixed", tuple(t.xyz), tuple(t.rpy)))
     sensors = []
     for s in spec.sensors:
         h, w = image_sizes.get(s.name, (s.height, s.width))

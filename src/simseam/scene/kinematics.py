@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from simseam.math3d import rotation_error, rpy_to_matrix
-from simseam.robot.urdf import MOVABLE, UrdfModel
-from simseam.seam import ConfigError
+from simseam.robot.urdf import MOVABLE, UrdfJoint, UrdfModel
+from simseam.seam import ConfigError, RobotFacts
 
 
 @dataclass(frozen=True)
@@ -30,10 +30,12 @@ class SerialChain:
 
     ``joint_names`` lists the chain's actuated joints (``q`` order); any other
     movable joint on the way is held at 0. Joint limits clip every IK solution.
+    ``tip_offset`` (4x4, in ``tip_link``'s frame) moves the tip to a tool frame
+    the URDF lacks (a manifest's ``tcp``).
     """
 
     def __init__(self, urdf: UrdfModel, base_link: str, tip_link: str, joint_names: list[str],
-                 lower: np.ndarray, upper: np.ndarray):
+                 lower: np.ndarray, upper: np.ndarray, tip_offset: np.ndarray | None = None):
         chain = urdf.chain(base_link, tip_link)
         names_on_chain = [j.name for j in chain if j.type in MOVABLE]
         missing = [n for n in joint_names if n not in names_on_chain]
@@ -60,7 +62,7 @@ class SerialChain:
                 self._prismatic.append(j.type == "prismatic")
                 self._index.append(joint_names.index(j.name))
                 t = np.eye(4)
-        self._tail = t
+        self._tail = t if tip_offset is None else t @ np.asarray(tip_offset, dtype=np.float64)
         order = np.argsort(self._index)
         if list(np.asarray(self._index)[order]) != list(range(len(joint_names))):
             raise ConfigError(f"{urdf.path}: duplicate arm joints {joint_names}")
@@ -86,6 +88,19 @@ class SerialChain:
         self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
+
+    @classmethod
+    def of_robot(cls, robot: RobotFacts) -> "SerialChain":
+        """The arm's chain, base link -> tool frame, from a rollout's ``spec.robot`` alone (its link
+        tree, the manifest's tool frame included, and the arm joints' limits), for a policy's own IK."""
+        joints = tuple(UrdfJoint(link.joint, link.joint_type, link.parent, link.name, tuple(link.xyz),
+                                 tuple(link.rpy), tuple(link.axis), None, None, None, None)
+                       for link in robot.links if link.parent is not None)
+        urdf = UrdfModel(robot.name, f"robot {robot.name!r}", tuple(link.name for link in robot.links), joints)
+        arm = [j for j in robot.joints if j.role == "arm"]
+        lower = np.array([-2 * np.pi if j.lower is None else j.lower for j in arm])
+        upper = np.array([2 * np.pi if j.upper is None else j.upper for j in arm])
+        return cls(urdf, robot.base_link, robot.tool_link, [j.sim_name or j.name for j in arm], lower, upper)
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tip pose (4x4) in the base frame and the 6xN geometric Jacobian (linear; angular)."""

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simseam.engines.base import CameraModel, Engine, EngineOptions, RobotModel, Shape
-from simseam.math3d import matrix_to_quat, quat_to_matrix, rpy_to_quat, yaw_quat
+from simseam.math3d import make_transform, matrix_to_quat, quat_to_matrix, rpy_to_matrix, rpy_to_quat, yaw_quat
 from simseam.robot.assets import resolve_asset
 from simseam.robot.spec import RobotSpec
 from simseam.robot.urdf import read_urdf
@@ -99,15 +99,21 @@ class ManifestScene:
         if robot.kinematic_base is not None and self._urdf.root_link != robot.base_link:
             raise ConfigError(f"robot {robot.name!r}: a kinematic base moves the URDF root link "
                               f"{self._urdf.root_link!r}, so base_link must be it (got {robot.base_link!r})")
+        self._above_base = self._links_above_base()
         task_cls = get_task(task)
         mode = ControlMode.parse(opts.control_mode or task_cls.control_mode or robot.action.control_mode)
         if task_cls.control_mode and mode != ControlMode.parse(task_cls.control_mode):
             raise ConfigError(f"task {task!r} requires control mode {task_cls.control_mode!r}, got {mode.value!r}")
         self._index_joints()
-        self.chain = SerialChain(self._urdf, robot.base_link, robot.ee_link,
+        tcp = robot.tcp
+        # The tool frame: a URDF link, or a manifest tcp fixed to one (composed here, engines never see it).
+        self._tool_rot = rpy_to_matrix(tcp.rpy) if tcp else np.eye(3)
+        self._tool_pos = np.asarray(tcp.xyz, dtype=np.float64) if tcp else np.zeros(3)
+        self.chain = SerialChain(self._urdf, robot.base_link, robot.tool_parent,
                                  [self._ejoints[i].sim_name for i in self._arm_idx],
-                                 self._arm_bounds(self._lower), self._arm_bounds(self._upper, +1))
-        self.task = task_cls(robot, self.chain.tabletop_reach())
+                                 self._arm_bounds(self._lower), self._arm_bounds(self._upper, +1),
+                                 tip_offset=make_transform(self._tool_pos, self._tool_rot) if tcp else None)
+        self.task = task_cls(robot, self.chain.tabletop_reach(), self.chain)
         self.task.check_robot()
         self._make_controllers(mode)
         base_pos, base_yaw = self.task.robot_base()
@@ -148,6 +154,19 @@ class ManifestScene:
         self._eidx = np.array([manifest.index(j.name) for j in self._ejoints], dtype=int)
         self._bidx = (np.array([manifest.index(n) for n in robot.kinematic_base.joints])
                       if robot.kinematic_base is not None else None)
+
+    def _links_above_base(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """URDF links above the base link (e.g. a root 'world' link, which MuJoCo merges into its world):
+        fixed to the base, so their pose in the base frame is constant: (rot, pos)."""
+        by_child = {j.child: j for j in self._urdf.joints}
+        out, t, link = {}, np.eye(4), self.robot.base_link
+        while link in by_child:
+            j = by_child[link]
+            t = make_transform(j.xyz, rpy_to_matrix(j.rpy)) @ t  # child in parent
+            link = j.parent
+            inv = np.linalg.inv(t)  # parent in base
+            out[link] = (inv[:3, :3].copy(), inv[:3, 3].copy())
+        return out
 
     def _arm_bounds(self, bound: np.ndarray, sign: int = -1) -> np.ndarray:
         b = bound[self._arm_idx]
@@ -303,15 +322,24 @@ class ManifestScene:
         """The last Cartesian step's IK result (None in joint-position mode or before a step)."""
         return getattr(self.arm, "last_ik", None)
 
+    def _tool_world(self) -> tuple[np.ndarray, np.ndarray]:
+        """Measured tool frame in the world: (pos[3], rot[3x3]); a tcp's offset composed on its parent link."""
+        p, q = self.engine.link_pose(self.robot.tool_parent)
+        r = quat_to_matrix(q)
+        if self.robot.tcp is None:
+            return p, r
+        return p + r @ self._tool_pos, r @ self._tool_rot
+
     def eef_pose_base(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool pose in the robot base frame: (pos[3], rot[3x3])."""
-        p, q = self.engine.link_pose(self.robot.ee_link)
+        p, r = self._tool_world()
         rt = self._base_rot.T
-        return rt @ (p - self._base_pos), rt @ quat_to_matrix(q)
+        return rt @ (p - self._base_pos), rt @ r
 
     def eef_pose_world(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool pose in the world: (pos[3], quat wxyz[4])."""
-        return self.engine.link_pose(self.robot.ee_link)
+        p, r = self._tool_world()
+        return p, matrix_to_quat(r)
 
     def to_base(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
         """World pose -> base-frame [x, y, z, qw, qx, qy, qz]."""
@@ -329,9 +357,16 @@ class ManifestScene:
         """Measured pose of a robot link in the base frame: (rot 3x3, pos 3)."""
         if link == self.robot.base_link:
             return np.eye(3), np.zeros(3)
-        p, q = self.engine.link_pose(link)
+        if link in self._above_base:
+            rot, pos = self._above_base[link]
+            return rot.copy(), pos.copy()
+        if self.robot.tcp is not None and link == self.robot.tcp.name:
+            p, r = self._tool_world()
+        else:
+            p, q = self.engine.link_pose(link)
+            r = quat_to_matrix(q)
         rt = self._base_rot.T
-        return rt @ quat_to_matrix(q), rt @ (p - self._base_pos)
+        return rt @ r, rt @ (p - self._base_pos)
 
     # ----------------------------------------------------------------- helpers
     def _check_open(self) -> None:

@@ -56,7 +56,7 @@ def _fix_mesh_path(file: str, urdf_dir: Path) -> str:
             cand = base.joinpath(*parts[k:])
             if cand.is_file():
                 return str(cand)
-    raise ConfigError(f"URDF mesh {file!r} not found next to {urdf_dir}")
+    raise ConfigError(f"URDF mesh {file!r} not found next to {urdf_dir} (nor up to three folders above it)")
 
 
 def _fix_inertias(root: ET.Element, urdf_path: str) -> None:
@@ -118,6 +118,26 @@ def _urdf_spec(urdf_path: str) -> "mujoco.MjSpec":
         warnings.warn(f"{urdf_path}: MuJoCo cannot read meshes {sorted(Path(m.file).name for m in unreadable)}; "
                       "their geoms were left out", stacklevel=3)
     return spec
+
+
+_INERTIA_ERRORS = ("balanceinertia", "inertia must satisfy", "mass and inertia of moving bodies",
+                   "positive-definite", "inertia must be positive")
+
+
+def _manifest_fix(message: str, robot: RobotModel) -> str | None:
+    """A MuJoCo compile error of the robot's URDF -> the robot manifest's fix (None: not one we know)."""
+    first = message.strip().splitlines()
+    where = re.search(r"Element name '([^']*)'", message)
+    link = f" (link {where.group(1)!r})" if where and where.group(1) else ""
+    if any(k in message for k in _INERTIA_ERRORS):
+        if robot.inertia_from_geometry:
+            return (f"{robot.urdf_path}: MuJoCo rejects a mass or inertia computed from the collision geometry"
+                    f"{link}: {first[0] if first else message}; check that link's collision meshes (closed, "
+                    "with volume) or set `inertia: urdf` in the robot manifest")
+        return (f"{robot.urdf_path}: the URDF's mass/inertia{link} is not physical ({first[0] if first else message}); "
+                "set `inertia: geometry` in the robot manifest to compute masses and inertias from the "
+                "collision meshes")
+    return None
 
 
 def _mount_to_mjcam(quat: tuple[float, ...]) -> np.ndarray:
@@ -197,6 +217,9 @@ class MujocoEngine:
         except ConfigError:  # a ValueError too: ours, already precise
             raise
         except ValueError as exc:  # MuJoCo compile errors
+            fix = _manifest_fix(str(exc), self._robot)
+            if fix:
+                raise ConfigError(fix) from None
             raise SimulationError(f"MuJoCo could not compile the scene: {exc}") from None
         self.model.vis.quality.offsamples = 4 if self.options.render_quality == "full" else 0
         # Clip planes are relative to the model's extent: set them in metres from the cameras
@@ -347,6 +370,13 @@ class MujocoEngine:
             owner[self._obj_body[o.name]] = k + 2
             self._owner_code[o.name] = k + 2
         self._geom_owner = owner[m.geom_bodyid]
+
+    def robot_visual_geoms(self) -> int:
+        """How many robot geoms render (group 2: the URDF's visuals, else its collision geometry)."""
+        m = self.model
+        robot_bodies = np.array(list(self._body_ids.values()), dtype=int)
+        on_robot = np.isin(m.geom_bodyid, robot_bodies)
+        return int(np.count_nonzero(on_robot & (m.geom_group == GROUP_ROBOT_VISUAL) & (m.geom_rgba[:, 3] > 0)))
 
     # ------------------------------------------------------------- run phase
     @property

@@ -22,6 +22,7 @@ from simseam.robot.spec import RobotSpec
 from simseam.seam import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
+    from simseam.scene.kinematics import SerialChain
     from simseam.scene.manifest_scene import ManifestScene
 
 TABLE_TOP = 0.8  # world z of the table surface (m)
@@ -56,9 +57,10 @@ class Task:
     #: names of the values ``evaluate`` reports besides reward and success
     diagnostics: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, spec: RobotSpec, reach: float):
+    def __init__(self, spec: RobotSpec, reach: float, chain: "SerialChain | None" = None):
         self.spec = spec
         self.reach = reach
+        self.chain = chain  # base link -> tool frame, the one the scene's IK uses
 
     def check_robot(self) -> None:
         """Raise ``ConfigError`` listing what the robot lacks for this task."""
@@ -144,6 +146,6 @@ def get_task(name: str) -> type[Task]:
 
 
 def _load_builtin() -> None:
-    from simseam.scene.tasks import bowl_plate, lift_cube, nav_obstacles  # noqa: F401  (registers them)
+    from simseam.scene.tasks import bowl_plate, lift_cube, nav_obstacles, reach  # noqa: F401  (registers them)
 
 
