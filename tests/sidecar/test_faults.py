@@ -222,10 +222,10 @@ def test_cli_run_with_a_sidecar_end_to_end(tmp_path):
 def test_cli_run_loop_restarts_a_crashed_sidecar(tmp_path, monkeypatch):
     """The sidecar is killed at the start of episode 0: that episode is recorded with the crash,
     a fresh sidecar is started and episode 1 runs normally."""
-    import simseam.runner.episodes as episodes
+    import simseam.runner.session as session
     from simseam.cli.main import app
 
-    original = episodes.run_episode
+    original = session.run_episode
     pids = []
 
     def run_episode(rollout, policy, *, index, **kw):
@@ -235,7 +235,7 @@ def test_cli_run_loop_restarts_a_crashed_sidecar(tmp_path, monkeypatch):
             assert process_gone(rollout.pid, timeout=HANG_GUARD_S)
         return original(rollout, policy, index=index, **kw)
 
-    monkeypatch.setattr(episodes, "run_episode", run_episode)
+    monkeypatch.setattr(session, "run_episode", run_episode)  # the loop run_episodes calls
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["run", "--scene", str(_scene_file(tmp_path, "s.yaml", "{process: sidecar}")),
                                    "--policy", "scripted", "--episodes", "2", "--out", str(out)])
