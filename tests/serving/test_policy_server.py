@@ -198,7 +198,7 @@ def test_policy_errors_reach_the_client_as_remotepolicyerror(served, panda_spec,
     scene = make_scene(panda_spec, render_images=False, control_mode="joint_position", privileged=True)
     with make_policy(f"remote:{server.url}") as pol:
         pol.reset(scene.spec)  # no contract: the policy's own check runs remotely
-        with pytest.raises(RemotePolicyError, match="ConfigError: the scripted experts drive cartesian_delta"):
+        with pytest.raises(RemotePolicyError, match="ConfigError: the scripted expert for .lift_cube. drives cartesian_delta"):
             pol.act(scene.reset(0))
 
 
