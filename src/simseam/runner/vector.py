@@ -1,0 +1,444 @@
+"""Vectorized episodes: N worker processes, each owning one rollout, driven by one batched policy.
+
+``VectorEnv(recipe, num_envs)`` starts ``num_envs`` worker processes (``spawn``); each builds the
+rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` whose sidecar the
+worker owns) and answers ``reset`` / ``step`` / video commands over a pipe. ``run(policy, indices)``
+steps every busy worker together: it waits for all replies, asks the ``PolicyBatch`` for the
+actions of every environment at once (``act_batch``), and sends them out. A worker whose episode
+ends takes the next episode index from the queue. Episode ``i`` always uses seed ``seed + i``, so
+the per-episode results do not depend on ``num_envs`` for a deterministic policy.
+
+Failures:
+
+- a worker process that dies (killed, segfault, OOM) costs nothing: its episode goes back to the
+  front of the queue, a fresh worker is started in its place, and the episode is re-run from its
+  reset (at most ``max_attempts`` times; then it is recorded with its error). An episode is handed
+  to ``on_done`` exactly once, when it has finished;
+- a sidecar crash inside a worker costs that episode, recorded with its error, exactly as in the
+  sequential loop (``runner.session``); the worker restarts its sidecar when the rollout declares
+  the ``restart`` capability;
+- any other error of a rollout (bad action, engine failure) stops the run and is raised here;
+- Ctrl-C / SIGTERM: the workers ignore SIGINT; ``close()`` (``with`` block) ends them, dropping the
+  episodes in flight; every finished episode has already been given to ``on_done``.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from multiprocessing.connection import wait as wait_any
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from simseam.runner.episodes import EpisodeResult, partial_video_path
+from simseam.seam import INFO_DIAGNOSTICS, CAP_RESTART, RolloutSpec, SidecarError, SimseamError, SimulationError
+
+#: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
+BOOT_TIMEOUT_S = 600.0
+
+
+@dataclass(frozen=True)
+class RolloutRecipe:
+    """How a worker builds its rollout: a scene config (``SceneConfig.model_dump()``), the scene
+    file's directory, and the options ``build_rollout`` takes. Picklable."""
+
+    scene: dict
+    base_dir: str
+    privileged: bool = False
+    render_images: bool = True
+    seed: int = 0
+
+    def build(self):
+        from simseam.runner.scene_config import SceneConfig, build_rollout
+
+        cfg = SceneConfig.model_validate(self.scene)
+        return build_rollout(cfg, Path(self.base_dir), privileged=self.privileged,
+                             render_images=self.render_images, seed=self.seed)
+
+
+def default_num_envs(episodes: int, cores: int | None = None) -> int:
+    """Sized to the cores this process may use and the episode count (at least 1)."""
+    if cores is None:
+        try:
+            cores = len(os.sched_getaffinity(0))
+        except AttributeError:  # not Linux
+            cores = os.cpu_count() or 1
+    return max(1, min(int(cores), int(episodes)))
+
+
+# ---------------------------------------------------------------------------------------------- worker
+def _worker_main(conn, recipe: RolloutRecipe) -> None:
+    """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    try:
+        rollout = recipe.build()
+        conn.send(("ready", rollout.spec.to_json()))
+    except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
+        conn.send(("fatal", _portable(exc)))
+        return
+    writer = None
+    video: Path | None = None
+
+    def drop_video():
+        nonlocal writer, video
+        if writer is not None:
+            writer.close()
+            partial_video_path(video).unlink(missing_ok=True)
+        writer, video = None, None
+
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except EOFError:  # the parent is gone
+                return
+            op = msg[0]
+            try:
+                if op == "reset":
+                    _, seed, request, video_path = msg
+                    drop_video()
+                    obs = rollout.reset(seed, request)
+                    if video_path is not None:
+                        frame = rollout.render()
+                        if frame is not None:
+                            from simseam.runner.video import VideoWriter
+
+                            video = Path(video_path)
+                            writer = VideoWriter(partial_video_path(video), fps=rollout.spec.control_hz)
+                            writer.append(frame)
+                    conn.send(("ok", obs))
+                elif op == "step":
+                    _, action, request = msg
+                    r = rollout.step(action, request)
+                    if writer is not None:
+                        writer.append(rollout.render())
+                    conn.send(("ok", (r.observation, r.reward, r.terminated, r.truncated, r.info)))
+                elif op == "finish":  # the episode ended normally: keep its video
+                    path = None
+                    if writer is not None:
+                        writer.close()
+                        os.replace(partial_video_path(video), video)
+                        path = str(video)
+                    writer, video = None, None
+                    conn.send(("ok", path))
+                elif op == "close":
+                    return
+                else:
+                    conn.send(("fatal", SimulationError(f"vector worker: unknown command {op!r}")))
+            except SidecarError as exc:
+                drop_video()
+                restart = rollout.spec.can(CAP_RESTART)
+                if restart:
+                    try:
+                        rollout.restart()
+                    except SimseamError as again:
+                        conn.send(("fatal", _portable(again)))
+                        return
+                conn.send(("episode_error", f"{type(exc).__name__}: {exc}",
+                           "restarting the sidecar" if restart else "continuing"))
+            except Exception as exc:  # noqa: BLE001
+                conn.send(("fatal", _portable(exc)))
+    finally:
+        drop_video()
+        rollout.close()
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """The exception if it survives pickling, else a SimulationError carrying its text."""
+    import pickle
+
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:  # noqa: BLE001
+        return SimulationError(f"{type(exc).__name__}: {exc}")
+
+
+# ---------------------------------------------------------------------------------------------- parent
+BOOTING, IDLE, RESETTING, ACTING, STEPPING = "booting", "idle", "resetting", "acting", "stepping"
+
+
+@dataclass
+class _Slot:
+    env: int
+    proc: Any = None
+    conn: Any = None
+    state: str = BOOTING
+    boot_deadline: float = 0.0
+    index: int | None = None
+    result: EpisodeResult | None = None
+    obs: Any = None
+    sent_at: float = 0.0
+    generation: int = 0
+    video: bool = False
+
+
+@dataclass
+class WorkerFailure:
+    """A worker that died: which one, in which episode, its exit code, and what happens next."""
+
+    env: int
+    index: int | None
+    exitcode: int | None
+    what_next: str
+    pids: list = field(default_factory=list)
+
+
+class VectorEnv:
+    """``num_envs`` worker processes each holding a rollout built from ``recipe`` (see the module
+    docstring). ``spec`` is the rollout's spec (from the first worker ready). Use as a context
+    manager, or call ``close()``."""
+
+    def __init__(self, recipe: RolloutRecipe, num_envs: int, *, start_method: str = "spawn",
+                 boot_timeout: float = BOOT_TIMEOUT_S):
+        if num_envs < 1:
+            raise SimulationError(f"num_envs must be >= 1, got {num_envs}")
+        self.recipe = recipe
+        self.num_envs = num_envs
+        self.boot_timeout = boot_timeout
+        self._ctx = mp.get_context(start_method)
+        self.slots = [_Slot(env=j) for j in range(num_envs)]
+        self.spec: RolloutSpec | None = None
+        self.restarts = 0  #: workers started again after one died
+        try:
+            for s in self.slots:
+                self._spawn(s)
+            self._wait_booted(self.slots[:1])  # the spec, and a config error before anything else starts
+        except BaseException:
+            self.close()
+            raise
+
+    # -- processes
+    def _spawn(self, s: _Slot) -> None:
+        parent, child = self._ctx.Pipe()
+        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe), daemon=True,
+                                 name=f"simseam-env-{s.env}")
+        proc.start()
+        child.close()
+        s.proc, s.conn, s.state = proc, parent, BOOTING
+        s.boot_deadline = time.monotonic() + self.boot_timeout
+        s.generation += 1
+
+    def _wait_booted(self, slots: Sequence[_Slot]) -> None:
+        for s in slots:
+            while s.state == BOOTING:
+                ready = wait_any([s.conn, s.proc.sentinel], timeout=max(0.0, s.boot_deadline - time.monotonic()))
+                if not ready:
+                    raise SimulationError(f"vector worker {s.env} did not build its rollout within "
+                                          f"{self.boot_timeout:g} s")
+                msg = self._recv(s)
+                if msg is None:
+                    raise SimulationError(f"vector worker {s.env} died while building its rollout "
+                                          f"(exit code {s.proc.exitcode})")
+                if msg[0] != "nothing":
+                    self._on_boot(s, msg)
+
+    def _on_boot(self, s: _Slot, msg) -> None:
+        if msg[0] == "fatal":
+            raise msg[1]
+        spec = RolloutSpec.from_json(msg[1], where=f"vector worker {s.env}")
+        if self.spec is None:
+            self.spec = spec
+        s.state = IDLE
+
+    def _recv(self, s: _Slot):
+        """The worker's next message, or None when it died (pipe closed)."""
+        try:
+            if s.conn.poll():
+                return s.conn.recv()
+        except (EOFError, OSError):
+            return None
+        if not s.proc.is_alive():
+            return None
+        return ("nothing",)
+
+    def pids(self) -> list[int]:
+        """The worker processes' ids, by environment."""
+        return [s.proc.pid for s in self.slots]
+
+    def close(self) -> None:
+        """End every worker (politely, then by force); idempotent."""
+        for s in self.slots:
+            if s.conn is not None:
+                try:
+                    s.conn.send(("close",))
+                except (OSError, ValueError):
+                    pass
+        deadline = time.monotonic() + 10.0
+        for s in self.slots:
+            if s.proc is None:
+                continue
+            s.proc.join(max(0.0, deadline - time.monotonic()))
+            if s.proc.is_alive():
+                s.proc.terminate()
+                s.proc.join(5.0)
+            if s.proc.is_alive():
+                s.proc.kill()
+                s.proc.join(5.0)
+            if s.conn is not None:
+                s.conn.close()
+            s.proc, s.conn = None, None
+
+    def __enter__(self) -> "VectorEnv":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- episodes
+    def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
+            max_attempts: int = 3,
+            on_start: Callable[[int, int], None] | None = None,
+            on_step: Callable[[int, int, int], None] | None = None,
+            on_done: Callable[[EpisodeResult], None] | None = None,
+            on_error: Callable[[EpisodeResult, str], None] | None = None,
+            on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
+        """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
+        ``num_envs`` environments). Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``,
+        ``on_done(result)`` (once per episode, as it finishes: order may differ from ``indices``),
+        ``on_error(result, what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
+        spec = self.spec
+        max_steps = spec.task.max_steps
+        key = spec.task.success_key
+        todo = deque(indices)
+        attempts: dict[int, int] = {}
+        results: list[EpisodeResult] = []
+
+        def finish(s: _Slot, res: EpisodeResult) -> None:
+            s.state, s.index, s.result, s.obs = IDLE, None, None, None
+            results.append(res)
+            if on_done:
+                on_done(res)
+
+        def worker_died(s: _Slot) -> None:
+            exitcode = s.proc.exitcode if s.proc is not None else None
+            i = s.index
+            try:
+                s.conn.close()
+            except OSError:
+                pass
+            if s.proc.is_alive():
+                s.proc.kill()
+            s.proc.join(5.0)
+            what = "no episode in flight"
+            if i is not None:
+                attempts[i] = attempts.get(i, 0) + 1
+                if attempts[i] < max_attempts:
+                    todo.appendleft(i)
+                    what = f"episode {i} goes back to the queue (attempt {attempts[i] + 1} of {max_attempts})"
+                else:
+                    what = f"episode {i} failed {attempts[i]} times; recorded as an error"
+            s.index, s.result, s.obs = None, None, None
+            self._spawn(s)
+            self.restarts += 1
+            if on_worker_failure:
+                on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
+            if i is not None and attempts[i] >= max_attempts:
+                res = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
+                                    error=f"worker process died {attempts[i]} times (last exit code {exitcode})")
+                results.append(res)
+                if on_done:
+                    on_done(res)
+
+        def handle(s: _Slot, msg) -> None:
+            if msg is None and s.state == BOOTING:
+                raise SimulationError(f"vector worker {s.env} died while building its rollout "
+                                      f"(exit code {s.proc.exitcode})")
+            if msg is None:
+                return worker_died(s)
+            if msg[0] == "nothing":
+                return
+            if s.state == BOOTING:
+                return self._on_boot(s, msg)
+            if msg[0] == "fatal":
+                raise msg[1]
+            if msg[0] == "episode_error":
+                res = EpisodeResult(index=s.index, seed=seed + s.index, success=False, steps=0, reward=0.0,
+                                    error=msg[1])
+                if on_error:
+                    on_error(res, msg[2])
+                return finish(s, res)
+            res = s.result
+            if s.state == RESETTING:
+                s.obs, s.state = msg[1], ACTING
+                return
+            # STEPPING
+            obs, reward, terminated, truncated, info = msg[1]
+            res.step_ms.append((time.perf_counter() - s.sent_at) * 1e3)
+            res.steps += 1
+            res.reward += float(reward)
+            res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
+            if info.get(key):
+                res.success = True
+            if on_step:
+                on_step(s.env, s.index, res.steps)
+            if terminated or truncated or res.steps >= max_steps:
+                if s.video:
+                    s.conn.send(("finish",))
+                    reply = s.conn.recv()
+                    if reply[0] == "fatal":
+                        raise reply[1]
+                    res.video = reply[1]
+                return finish(s, res)
+            s.obs, s.state = obs, ACTING
+
+        def start(s: _Slot, i: int) -> None:
+            policy.reset(s.env, spec)
+            video = str(video_dir / f"episode_{i:03d}.mp4") if video_dir is not None else None
+            s.index, s.state, s.video = i, RESETTING, video is not None
+            s.result = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0)
+            if on_start:
+                on_start(s.env, i)
+            self._send(s, ("reset", seed + i, policy.observe_next(s.env), video))
+
+        while True:
+            for s in self.slots:
+                if s.state == IDLE and todo:
+                    start(s, todo.popleft())
+            busy = [s for s in self.slots if s.state in (RESETTING, STEPPING)]
+            booting = [s for s in self.slots if s.state == BOOTING]
+            acting = [s for s in self.slots if s.state == ACTING]
+            if busy or (booting and not acting):
+                if not busy and not todo:  # nothing left for the booting workers to do
+                    break
+                watch = busy + booting
+                timeout = None
+                if booting:
+                    timeout = max(0.0, min(s.boot_deadline for s in booting) - time.monotonic())
+                ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)], timeout=timeout))
+                if not ready:
+                    late = [s.env for s in booting if time.monotonic() >= s.boot_deadline]
+                    raise SimulationError(f"vector worker(s) {late} did not build their rollout within "
+                                          f"{self.boot_timeout:g} s")
+                for s in watch:
+                    if s.conn in ready or s.proc.sentinel in ready:
+                        handle(s, self._recv(s))
+                continue
+            if acting:
+                t0 = time.perf_counter()
+                actions = np.asarray(policy.act_batch([s.env for s in acting], [s.obs for s in acting]),
+                                     dtype=np.float32)
+                ms = (time.perf_counter() - t0) * 1e3
+                if actions.shape[0] != len(acting):
+                    raise SimulationError(f"act_batch returned {actions.shape[0]} actions for {len(acting)} "
+                                          "environments")
+                for s, a in zip(acting, actions):
+                    s.result.policy_ms.append(ms)
+                    s.state, s.obs = STEPPING, None
+                    self._send(s, ("step", a, policy.observe_next(s.env)))
+                continue
+            break
+        return results
+
+    def _send(self, s: _Slot, msg) -> None:
+        s.sent_at = time.perf_counter()
+        try:
+            s.conn.send(msg)
+        except (OSError, ValueError):
+            pass  # a dead worker: its sentinel tells the loop
