@@ -29,7 +29,7 @@ import os
 import signal
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_any
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -187,7 +187,6 @@ class WorkerFailure:
     index: int | None
     exitcode: int | None
     what_next: str
-    pids: list = field(default_factory=list)
 
 
 class VectorEnv:
@@ -317,15 +316,16 @@ class VectorEnv:
                 on_done(res)
 
         def worker_died(s: _Slot) -> None:
-            exitcode = s.proc.exitcode if s.proc is not None else None
             i = s.index
             try:
                 s.conn.close()
             except OSError:
                 pass
+            s.proc.join(5.0)  # its pipe closed: it is gone or going
             if s.proc.is_alive():
                 s.proc.kill()
-            s.proc.join(5.0)
+                s.proc.join(5.0)
+            exitcode = s.proc.exitcode
             what = "no episode in flight"
             if i is not None:
                 attempts[i] = attempts.get(i, 0) + 1

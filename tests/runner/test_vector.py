@@ -1,0 +1,113 @@
+"""Vector rollouts: N worker processes with one batched policy give the same per-episode results as
+one process; a worker killed mid-episode costs nothing (its episode re-runs, counted once)."""
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from simseam.policies.base import make_policy
+from simseam.policies.batch import PerEnvPolicies, make_policy_batch
+from simseam.runner.scene_config import build_rollout, load_scene_config
+from simseam.runner.session import run_episodes
+from simseam.runner.vector import RolloutRecipe, VectorEnv, default_num_envs
+from simseam.seam import ConfigError
+
+SCENE = """robot: franka_panda
+task: lift_cube
+max_steps: {steps}
+{engine}
+"""
+
+
+def _scene(tmp_path: Path, steps: int = 40, engine: str = "") -> Path:
+    path = tmp_path / f"scene{steps}{'_sidecar' if engine else ''}.yaml"
+    path.write_text(SCENE.format(steps=steps, engine=engine))
+    return path
+
+
+def _outcome(res) -> tuple:
+    """What an episode did (timings aside)."""
+    d = res.to_json()
+    return d["index"], d["seed"], d["success"], d["steps"], round(d["reward"], 9), d["error"], \
+        {k: round(v, 9) for k, v in d["diagnostics"].items()}
+
+
+def _sequential(scene_path: Path, policy: str, indices, seed: int) -> dict[int, tuple]:
+    cfg, base = load_scene_config(scene_path)
+    pol = make_policy(policy)
+    rollout = build_rollout(cfg, base, privileged=pol.requires_privileged, render_images=pol.uses_images, seed=seed)
+    try:
+        return {r.index: _outcome(r) for r in run_episodes(rollout, pol, indices, seed=seed)}
+    finally:
+        rollout.close()
+
+
+def _recipe(scene_path: Path, policy, seed: int) -> RolloutRecipe:
+    cfg, base = load_scene_config(scene_path)
+    return RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=policy.requires_privileged,
+                         render_images=policy.uses_images, seed=seed)
+
+
+def test_vector_results_equal_one_process(tmp_path):
+    scene = _scene(tmp_path)
+    reference = _sequential(scene, "scripted", range(5), seed=7)
+    assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
+    pol = make_policy_batch("scripted", 3)
+    assert isinstance(pol, PerEnvPolicies)
+    done = []
+    with VectorEnv(_recipe(scene, pol, 7), 3) as vec:
+        assert vec.spec.task.name == "lift_cube"
+        results = vec.run(pol, range(5), seed=7, on_done=done.append)
+    assert sorted(r.index for r in done) == list(range(5))
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_a_worker_killed_mid_episode_reruns_it_counted_once(tmp_path):
+    scene = _scene(tmp_path)
+    reference = _sequential(scene, "scripted", range(4), seed=0)
+    pol = make_policy_batch("scripted", 2)
+    failures, done, killed = [], [], []
+    with VectorEnv(_recipe(scene, pol, 0), 2) as vec:
+        first_pids = vec.pids()
+
+        def on_step(env, index, steps):
+            if index == 1 and steps == 5 and not killed:  # episode 1, mid-way: SIGKILL its worker
+                killed.append(vec.pids()[env])
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(4), seed=0, on_step=on_step, on_done=done.append,
+                          on_worker_failure=failures.append)
+        assert vec.restarts == 1 and len(set(vec.pids()) - set(first_pids)) == 1
+    assert killed and len(failures) == 1
+    assert failures[0].index == 1 and failures[0].exitcode == -signal.SIGKILL
+    assert "episode 1 goes back to the queue" in failures[0].what_next
+    assert sorted(r.index for r in done) == [0, 1, 2, 3]  # each episode once
+    assert {r.index: _outcome(r) for r in results} == reference  # the re-run is the same episode
+
+
+def test_vector_through_the_sidecar_equals_in_process(tmp_path):
+    """Each worker owns a SidecarRollout (its own sidecar process); results equal in-process ones."""
+    inproc = _scene(tmp_path, steps=30)
+    sidecar = _scene(tmp_path, steps=30, engine="engine: {name: mujoco, process: sidecar}")
+    reference = _sequential(inproc, "scripted", range(3), seed=2)
+    pol = make_policy_batch("scripted", 2)
+    with VectorEnv(_recipe(sidecar, pol, 2), 2) as vec:
+        assert vec.spec.backend == "sidecar"
+        results = vec.run(pol, range(3), seed=2)
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_a_bad_scene_fails_in_the_parent_with_its_error(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("robot: franka_panda\ntask: no_such_task\n")
+    cfg, base = load_scene_config(path)
+    with pytest.raises(ConfigError, match="no_such_task"):
+        VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2)
+
+
+def test_default_num_envs_is_sized_to_cores_and_episodes():
+    assert default_num_envs(3, cores=16) == 3
+    assert default_num_envs(500, cores=16) == 16
+    assert default_num_envs(0, cores=4) == 1
