@@ -149,6 +149,9 @@ def run(
                                  "episodes; 1 with --record-dataset). Results do not depend on it."),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes e with e % K == i (batch "
                               "schedulers, e.g. Slurm arrays); combine the K run directories with simseam merge."),
+    ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
+                                    "machine), ray://HOST:PORT or HOST:PORT, or local (start a private one); "
+                                    "--num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
@@ -164,6 +167,9 @@ def run(
         shard_ik = parse_shard(shard) if shard is not None else None
         if record_dataset is not None and (num_envs or 1) > 1:
             raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
+        if ray_address is not None and (record_dataset is not None or video):
+            raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
+                              "to its own disk)")
         cfg, _ = load_scene_config(scene)
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": _redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
@@ -179,6 +185,10 @@ def run(
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
+    if ray_address is not None:
+        _run_ray(ray_address, scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
+                 num_workers=num_envs, planned=len(planned))
+        return
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
@@ -263,8 +273,9 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
                           f"on {num_envs} environments -> {escape(str(out))}")
             with EvalProgress(console, total=len(todo)) as progress:
                 def done(res):
-                    run_dir.append(res.to_json())
-                    progress.done(res)
+                    entry = res.to_json()
+                    run_dir.append(entry)
+                    progress.done(entry)
 
                 vec.run(pol, todo, seed=seed, video_dir=out if video else None, on_done=done,
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
@@ -281,6 +292,50 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             vec.close()
         if pol is not None:
             pol.close()
+        run_dir.close()
+    _finish_run(out, spec_json, interrupted, planned)
+
+
+def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
+             todo: list[int], *, num_workers: int | None, planned: int) -> None:
+    """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
+    from simseam.policies.base import make_policy
+    from simseam.runner.ray_eval import run_on_ray
+    from simseam.runner.run_dir import rebuild_summary
+    from simseam.runner.scene_config import load_scene_config
+    from simseam.runner.vector import RolloutRecipe
+
+    spec_json = None
+    interrupted = False
+    progress = EvalProgress(console, total=len(todo))
+
+    def on_spec(spec):
+        nonlocal spec_json
+        spec_json = spec
+        run_dir.write_spec(spec)
+
+    def done(entry):
+        run_dir.append(entry)
+        progress.done(entry)
+
+    try:
+        cfg, base_dir = load_scene_config(scene)
+        probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
+        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
+                               render_images=probe.uses_images, seed=seed)
+        _close_policy(probe)
+        console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
+                      f"{escape(str(out))}")
+        with _sigterm_as_interrupt(), progress:
+            run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
+                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        run_dir.close()
+        rebuild_summary(out, spec_json, interrupted=True)
+        _fail(exc)
+    finally:
         run_dir.close()
     _finish_run(out, spec_json, interrupted, planned)
 
@@ -327,16 +382,17 @@ class EvalProgress:
         rate = f"{self.n / hours:,.0f} episodes/h" if self.n and hours > 0 else "- episodes/h"
         return f"episodes  success {self.k}/{self.n}  {rate}"
 
-    def done(self, res) -> None:
+    def done(self, e: dict) -> None:
+        """One finished episode (its ``EpisodeResult.to_json()`` entry)."""
         self.n += 1
-        self.k += bool(res.success)
+        self.k += bool(e["success"])
         self._progress.update(self._task, completed=self.n, description=self._text())
-        step_ms = res.to_json()["step_latency_ms"]["mean"]
-        mark = "[green]success[/]" if res.success else "[red]failure[/]"
-        console.print(f"episode {res.index:3d}  seed {res.seed:5d}  {mark}  steps {res.steps:4d}  "
-                      f"reward {res.reward:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
-                      + (f"  video {escape(res.video)}" if res.video else "")
-                      + (f"  [red]{escape(res.error)}[/]" if res.error else ""))
+        step_ms = e["step_latency_ms"]["mean"]
+        mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
+        console.print(f"episode {e['index']:3d}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
+                      f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
+                      + (f"  video {escape(e['video'])}" if e.get("video") else "")
+                      + (f"  [red]{escape(e['error'])}[/]" if e.get("error") else ""))
 
     def episode_error(self, res, what_next: str) -> None:
         err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
@@ -344,8 +400,10 @@ class EvalProgress:
 
     def worker_failure(self, failure) -> None:
         where = f"in episode {failure.index}" if failure.index is not None else "between episodes"
-        err_console.print(f"worker {failure.env} died {where} (exit code {failure.exitcode}); {failure.what_next}; "
-                          "a fresh worker takes its place", style="red", markup=False, highlight=False)
+        who = f"worker {failure.env}" if failure.env >= 0 else "a Ray worker"
+        code = f" (exit code {failure.exitcode})" if failure.exitcode is not None else ""
+        err_console.print(f"{who} died {where}{code}; {failure.what_next}; a fresh worker takes its place",
+                          style="red", markup=False, highlight=False)
 
 
 @app.command()
