@@ -90,3 +90,30 @@ def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(tiny_act, panda_sp
             obs[e] = scenes[e].step(a, batch.observe_next(e)).observation
     for e in (0, 1):
         np.testing.assert_allclose(np.stack(got[e]), reference[e], rtol=1e-3, atol=2e-4)
+
+
+@pytest.mark.learning
+def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
+    """`simseam run --num-envs 2 --policy lerobot:...`'s loop: worker processes render, the parent batches."""
+    from simseam.runner.scene_config import build_rollout, load_scene_config
+    from simseam.runner.session import run_episodes
+    from simseam.runner.vector import RolloutRecipe, VectorEnv
+
+    out, _ = tiny_act
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [48, 48]\nmax_steps: 12\n")
+    cfg, base = load_scene_config(scene)
+    rollout = build_rollout(cfg, base, render_images=True)
+    try:
+        reference = run_episodes(rollout, make_policy(f"lerobot:{out}", device="cpu"), range(3), seed=4)
+    finally:
+        rollout.close()
+    batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
+    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2) as vec:
+        got = {r.index: r for r in vec.run(batch, range(3), seed=4)}
+    assert batch.forward_passes < batch.chunks_predicted  # the two environments shared forward passes
+    for ref in reference:
+        r = got[ref.index]
+        assert (r.seed, r.steps, r.success) == (ref.seed, ref.steps, ref.success)
+        for k, v in ref.diagnostics.items():
+            assert float(r.diagnostics[k]) == pytest.approx(float(v), abs=1e-3)

@@ -4,7 +4,8 @@
 rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` whose sidecar the
 worker owns) and answers ``reset`` / ``step`` / video commands over a pipe. ``run(policy, indices)``
 steps every busy worker together: it waits for all replies, asks the ``PolicyBatch`` for the
-actions of every environment at once (``act_batch``), and sends them out. A worker whose episode
+actions of every environment at once (``act_batch``), and sends them out (``sync=False``: it acts
+on whichever environments have answered, so no worker waits for a slower one). A worker whose episode
 ends takes the next episode index from the queue. Episode ``i`` always uses seed ``seed + i``, so
 the per-episode results do not depend on ``num_envs`` for a deterministic policy.
 
@@ -246,10 +247,10 @@ class VectorEnv:
             self.spec = spec
         s.state = IDLE
 
-    def _recv(self, s: _Slot):
+    def _recv(self, s: _Slot, readable: bool = False):
         """The worker's next message, or None when it died (pipe closed)."""
         try:
-            if s.conn.poll():
+            if readable or s.conn.poll():
                 return s.conn.recv()
         except (EOFError, OSError):
             return None
@@ -292,14 +293,16 @@ class VectorEnv:
 
     # -- episodes
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3,
+            max_attempts: int = 3, sync: bool = True,
             on_start: Callable[[int, int], None] | None = None,
             on_step: Callable[[int, int, int], None] | None = None,
             on_done: Callable[[EpisodeResult], None] | None = None,
             on_error: Callable[[EpisodeResult, str], None] | None = None,
             on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
         """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
-        ``num_envs`` environments). Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``,
+        ``num_envs`` environments). ``sync``: every busy worker answers before the policy acts on all of
+        them (the largest batches); else the policy acts on whichever environments have answered
+        (no worker waits for a slower one; smaller batches). Per-environment results are the same. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``,
         ``on_done(result)`` (once per episode, as it finishes: order may differ from ``indices``),
         ``on_error(result, what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
         spec = self.spec
@@ -404,7 +407,7 @@ class VectorEnv:
             busy = [s for s in self.slots if s.state in (RESETTING, STEPPING)]
             booting = [s for s in self.slots if s.state == BOOTING]
             acting = [s for s in self.slots if s.state == ACTING]
-            if busy or (booting and not acting):
+            if (busy and (sync or not acting)) or (booting and not acting):
                 if not busy and not todo:  # nothing left for the booting workers to do
                     break
                 watch = busy + booting
@@ -417,7 +420,9 @@ class VectorEnv:
                     raise SimulationError(f"vector worker(s) {late} did not build their rollout within "
                                           f"{self.boot_timeout:g} s")
                 for s in watch:
-                    if s.conn in ready or s.proc.sentinel in ready:
+                    if s.conn in ready:
+                        handle(s, self._recv(s, readable=True))
+                    elif s.proc.sentinel in ready:
                         handle(s, self._recv(s))
                 continue
             if acting:
