@@ -50,7 +50,8 @@ def _recipe(scene_path: Path, policy, seed: int) -> RolloutRecipe:
                          render_images=policy.uses_images, seed=seed)
 
 
-def test_vector_results_equal_one_process(tmp_path):
+@pytest.mark.parametrize("sync", [True, False], ids=["stepped-together", "asynchronous"])
+def test_vector_results_equal_one_process(tmp_path, sync):
     scene = _scene(tmp_path)
     reference = _sequential(scene, "scripted", range(5), seed=7)
     assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
@@ -59,7 +60,7 @@ def test_vector_results_equal_one_process(tmp_path):
     done = []
     with VectorEnv(_recipe(scene, pol, 7), 3) as vec:
         assert vec.spec.task.name == "lift_cube"
-        results = vec.run(pol, range(5), seed=7, on_done=done.append)
+        results = vec.run(pol, range(5), seed=7, on_done=done.append, sync=sync)
     assert sorted(r.index for r in done) == list(range(5))
     assert {r.index: _outcome(r) for r in results} == reference
 

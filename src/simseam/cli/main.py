@@ -249,7 +249,7 @@ def run(
 def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
                 num_envs: int, video: bool, planned: int) -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes with one batched policy."""
-    from simseam.policies.batch import make_policy_batch
+    from simseam.policies.batch import PerEnvPolicies, make_policy_batch
     from simseam.runner.run_dir import rebuild_summary
     from simseam.runner.scene_config import load_scene_config
     from simseam.runner.vector import RolloutRecipe, VectorEnv
@@ -277,7 +277,10 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
                     run_dir.append(entry)
                     progress.done(entry)
 
+                # one shared model batches best when every environment waits for the others; independent
+                # per-environment policies run fastest when no environment waits for a slower one
                 vec.run(pol, todo, seed=seed, video_dir=out if video else None, on_done=done,
+                        sync=not isinstance(pol, PerEnvPolicies),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
     except KeyboardInterrupt:
         interrupted = True
