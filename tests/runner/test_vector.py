@@ -112,3 +112,53 @@ def test_default_num_envs_is_sized_to_cores_and_episodes():
     assert default_num_envs(3, cores=16) == 3
     assert default_num_envs(500, cores=16) == 16
     assert default_num_envs(0, cores=4) == 1
+
+
+class _ImageLog(PerEnvPolicies):
+    """Zero actions; keeps every observation's images (the copies the policy was handed)."""
+
+    def __init__(self, n):
+        self.n, self.uses_images, self.requires_privileged = n, True, False
+        self.seen: dict[int, list] = {}
+
+    def reset(self, env, spec):
+        self.dim = spec.action_dim
+
+    def observe_next(self, env):
+        return None
+
+    def act_batch(self, envs, observations):
+        import numpy as np
+
+        for e, o in zip(envs, observations):
+            self.seen.setdefault(e, []).append(o["images"])
+        return np.zeros((len(envs), self.dim), np.float32)
+
+
+def test_images_reach_the_policy_intact_through_shared_memory(tmp_path):
+    """Workers hand images over in a shared memory block; the policy gets its own copies, equal to what an
+    in-process rollout renders for the same seed and actions."""
+    import numpy as np
+
+    path = tmp_path / "cams.yaml"
+    path.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [64, 80]\nmax_steps: 4\n")
+    cfg, base = load_scene_config(path)
+    pol = _ImageLog(1)
+    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 1) as vec:
+        vec.run(pol, [0, 1], seed=9)
+        assert vec.slots[0].mm is not None  # the images came through the shared block
+    frames = pol.seen[0]
+    assert len(frames) == 8 and set(frames[0]) == {"camera1", "camera2"}
+    assert frames[0]["camera1"].shape == (64, 80, 3) and frames[0]["camera1"].dtype == np.uint8
+    assert frames[0]["camera1"] is not frames[1]["camera1"]  # copies: a kept frame is never overwritten
+    rollout = build_rollout(cfg, base, render_images=True)
+    try:
+        expected = [rollout.reset(9)["images"]]
+        for _ in range(3):
+            expected.append(rollout.step(np.zeros(rollout.spec.action_dim, np.float32)).observation["images"])
+    finally:
+        rollout.close()
+    for got, want in zip(frames[:4], expected):
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key])
+    assert not np.array_equal(frames[0]["camera1"], frames[4]["camera1"])  # episode 1: another cube pose

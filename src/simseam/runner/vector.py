@@ -25,12 +25,14 @@ Failures:
 
 from __future__ import annotations
 
+import mmap
 import multiprocessing as mp
 import os
 import signal
 import time
 from collections import deque
 from dataclasses import dataclass
+from multiprocessing import reduction
 from multiprocessing.connection import wait as wait_any
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -38,7 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.seam import INFO_DIAGNOSTICS, CAP_RESTART, RolloutSpec, SidecarError, SimseamError, SimulationError
+from simseam.seam import INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, RolloutSpec, SidecarError, SimseamError, SimulationError
 
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
@@ -74,9 +76,55 @@ def default_num_envs(episodes: int, cores: int | None = None) -> int:
 
 
 # ---------------------------------------------------------------------------------------------- worker
-def _worker_main(conn, recipe: RolloutRecipe) -> None:
+class _SharedImages:
+    """Worker side of the image transport: an observation's images are written into one shared memory
+    block (an anonymous ``memfd``, handed to the parent once over the pipe), and only their layout
+    ``[(key, offset, shape, dtype)]`` travels in the message. Grown (a new block handed over) when an
+    observation needs more room. Without ``memfd_create`` (not Linux) images travel in the message."""
+
+    def __init__(self, conn, parent_pid: int):
+        self.conn, self.parent_pid = conn, parent_pid
+        self.mm: mmap.mmap | None = None
+        self.size = 0
+        self.enabled = hasattr(os, "memfd_create")
+
+    def detach(self, obs):
+        imgs = obs.get(OBS_IMAGES) if self.enabled else None
+        if not imgs:
+            return obs, None
+        arrays = {k: np.ascontiguousarray(a) for k, a in imgs.items()}
+        need = sum(a.nbytes for a in arrays.values())
+        if need > self.size:
+            fd = os.memfd_create("simseam-env-images")
+            try:
+                os.ftruncate(fd, need)
+                mm = mmap.mmap(fd, need)
+                self.conn.send(("shm", need))
+                reduction.send_handle(self.conn, fd, self.parent_pid)
+            finally:
+                os.close(fd)
+            if self.mm is not None:
+                self.mm.close()
+            self.mm, self.size = mm, need
+        layout, offset = [], 0
+        for key, a in arrays.items():
+            self.mm[offset:offset + a.nbytes] = a.data.cast("B")
+            layout.append((key, offset, a.shape, a.dtype.str))
+            offset += a.nbytes
+        return {**obs, OBS_IMAGES: {}}, layout
+
+
+def _attach_images(mm: mmap.mmap, obs, layout):
+    """Parent side: the observation with its images copied out of the shared block (the policy may keep them)."""
+    images = {key: np.frombuffer(mm, dtype=np.dtype(dt), count=int(np.prod(shape)), offset=off).reshape(shape).copy()
+              for key, off, shape, dt in layout}
+    return {**obs, OBS_IMAGES: images}
+
+
+def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    images = _SharedImages(conn, parent_pid or os.getppid())
     try:
         rollout = recipe.build()
         conn.send(("ready", rollout.spec.to_json()))
@@ -113,13 +161,15 @@ def _worker_main(conn, recipe: RolloutRecipe) -> None:
                             video = Path(video_path)
                             writer = VideoWriter(partial_video_path(video), fps=rollout.spec.control_hz)
                             writer.append(frame)
-                    conn.send(("ok", obs))
+                    obs, layout = images.detach(obs)
+                    conn.send(("obs", obs, None, layout))
                 elif op == "step":
                     _, action, request = msg
                     r = rollout.step(action, request)
                     if writer is not None:
                         writer.append(rollout.render())
-                    conn.send(("ok", (r.observation, r.reward, r.terminated, r.truncated, r.info)))
+                    obs, layout = images.detach(r.observation)
+                    conn.send(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout))
                 elif op == "finish":  # the episode ended normally: keep its video
                     path = None
                     if writer is not None:
@@ -178,6 +228,7 @@ class _Slot:
     sent_at: float = 0.0
     generation: int = 0
     video: bool = False
+    mm: Any = None  # the worker's shared image block, mapped here
 
 
 @dataclass
@@ -217,11 +268,14 @@ class VectorEnv:
     # -- processes
     def _spawn(self, s: _Slot) -> None:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe), daemon=True,
+        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe, os.getpid()), daemon=True,
                                  name=f"simseam-env-{s.env}")
         proc.start()
         child.close()
         s.proc, s.conn, s.state = proc, parent, BOOTING
+        if s.mm is not None:
+            s.mm.close()
+        s.mm = None
         s.boot_deadline = time.monotonic() + self.boot_timeout
         s.generation += 1
 
@@ -251,7 +305,19 @@ class VectorEnv:
         """The worker's next message, or None when it died (pipe closed)."""
         try:
             if readable or s.conn.poll():
-                return s.conn.recv()
+                msg = s.conn.recv()
+                if msg[0] == "shm":  # a (new) shared image block: its file descriptor follows
+                    fd = reduction.recv_handle(s.conn)
+                    try:
+                        if s.mm is not None:
+                            s.mm.close()
+                        s.mm = mmap.mmap(fd, msg[1])
+                    finally:
+                        os.close(fd)
+                    msg = s.conn.recv()
+                if msg[0] == "obs" and msg[3]:
+                    msg = (msg[0], _attach_images(s.mm, msg[1], msg[3]), msg[2], None)
+                return msg
         except (EOFError, OSError):
             return None
         if not s.proc.is_alive():
@@ -283,7 +349,9 @@ class VectorEnv:
                 s.proc.join(5.0)
             if s.conn is not None:
                 s.conn.close()
-            s.proc, s.conn = None, None
+            if s.mm is not None:
+                s.mm.close()
+            s.proc, s.conn, s.mm = None, None, None
 
     def __enter__(self) -> "VectorEnv":
         return self
@@ -372,7 +440,8 @@ class VectorEnv:
                 s.obs, s.state = msg[1], ACTING
                 return
             # STEPPING
-            obs, reward, terminated, truncated, info = msg[1]
+            obs = msg[1]
+            reward, terminated, truncated, info = msg[2]
             res.step_ms.append((time.perf_counter() - s.sent_at) * 1e3)
             res.steps += 1
             res.reward += float(reward)
