@@ -165,3 +165,8 @@ def test_bad_vector_options_are_one_line_errors(scene, tmp_path):
     r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--num-envs", "2", "--record-dataset",
                  tmp_path / "ds", "--out", tmp_path / "y")
     assert r.returncode == 2 and "--record-dataset records one episode at a time" in r.stderr
+    keep = tmp_path / "keep.yaml"
+    keep.write_text("robot: franka_panda\ntask: lift_cube\nmax_steps: 4\n"
+                    "engine: {name: mujoco, process: sidecar, keep_alive: true}\n")
+    r = _simseam("run", "--scene", keep, "--episodes", "2", "--num-envs", "2", "--out", tmp_path / "z")
+    assert r.returncode == 2 and "engine.keep_alive" in r.stderr and "--num-envs 1" in r.stderr

@@ -256,6 +256,12 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
 
     num_envs = max(1, min(num_envs, len(todo)))
     vec = pol = None
+    cfg, _ = load_scene_config(scene)
+    if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
+        run_dir.close()
+        _fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
+                          f"{num_envs} environment workers would each need their own; pass --num-envs 1 or "
+                          "drop keep_alive"))
     spec_json = None
     interrupted = False
     try:

@@ -373,6 +373,9 @@ class VectorEnv:
         (no worker waits for a slower one; smaller batches). Per-environment results are the same. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``,
         ``on_done(result)`` (once per episode, as it finishes: order may differ from ``indices``),
         ``on_error(result, what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
+        if getattr(policy, "n", self.num_envs) < self.num_envs:
+            raise SimulationError(f"the policy batch holds {policy.n} environment(s), the vector env "
+                                  f"{self.num_envs}")
         spec = self.spec
         max_steps = spec.task.max_steps
         key = spec.task.success_key
