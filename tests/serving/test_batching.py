@@ -137,3 +137,31 @@ def test_served_lerobot_batches_clients_into_one_forward_pass(batching_server, t
     served = server.batch
     assert type(served).__name__ == "LeRobotBatch"
     assert served.forward_passes < served.chunks_predicted  # clients shared forward passes
+
+
+def test_serve_policy_cli_serves_three_clients_at_once(cli, panda_spec, make_scene):
+    """The real `serve-policy` process: three concurrent clients, each its own episode."""
+    proc, url = cli("--policy", "scripted", "--max-clients", "3", "--max-wait-ms", "50")
+    reference = [_local_actions("scripted", make_scene(panda_spec, privileged=True, max_steps=40), seed)
+                 for seed in SEEDS]
+    scenes = [make_scene(panda_spec, privileged=True, max_steps=40) for _ in SEEDS]
+    got, errors = {}, []
+    start = threading.Barrier(3)
+
+    def client(k):
+        try:
+            with make_policy(f"remote:{url}") as pol:
+                assert pol.metadata["max_clients"] == 3
+                start.wait(timeout=60)
+                got[k] = _local_actions_from(pol, scenes[k], SEEDS[k])
+        except Exception as exc:  # noqa: BLE001
+            errors.append((k, exc))
+
+    threads = [threading.Thread(target=client, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=240)
+    assert not errors, errors
+    for k in range(3):
+        np.testing.assert_array_equal(got[k], reference[k])
