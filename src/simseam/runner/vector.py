@@ -455,8 +455,11 @@ class VectorEnv:
                 on_step(s.env, s.index, res.steps)
             if terminated or truncated or res.steps >= max_steps:
                 if s.video:
-                    s.conn.send(("finish",))
-                    reply = s.conn.recv()
+                    try:
+                        s.conn.send(("finish",))
+                        reply = s.conn.recv()
+                    except (EOFError, OSError):  # died before its video was complete: play it again
+                        return worker_died(s)
                     if reply[0] == "fatal":
                         raise reply[1]
                     res.video = reply[1]
