@@ -14,7 +14,8 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv`` (N worker processes stepped together by one
 batched policy in this process); ``async`` the same with ``sync=False`` (the policy acts on whichever
-workers have answered); ``bare`` is N plain independent processes, each running its share
+workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero`` policy inside
+each worker, whole episodes per command; state-only cases only); ``bare`` is N plain independent processes, each running its share
 of the episodes with ``run_episodes`` (the baseline the vector API must not fall behind). Timing
 starts once every worker has built its rollout and stops when the last episode ends. Efficiency =
 throughput(N) / (N x throughput(1)) of the same case and mode. Prints a table and writes JSON.
@@ -101,6 +102,17 @@ def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True) 
     return {"wall_s": wall, "env_steps": sum(r.steps for r in results), "episodes": len(results)}
 
 
+def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
+    """The policy inside each worker (``VectorEnv.run_local``): the built-in ``zero`` policy, state only."""
+    recipe = RolloutRecipe(scene_dict(case, steps), str(Path.cwd()), render_images=False)
+    with VectorEnv(recipe, n) as vec:
+        vec._wait_booted(vec.slots)
+        t0 = time.perf_counter()
+        results = vec.run_local("zero", {}, range(episodes))
+        wall = time.perf_counter() - t0
+    return {"wall_s": wall, "env_steps": sum(r.steps for r in results), "episodes": len(results)}
+
+
 def _bare_worker(case, steps, indices, ready, go, out):
     from simseam.runner.scene_config import SceneConfig, build_rollout
     from simseam.runner.session import run_episodes
@@ -144,7 +156,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "async", "bare"], choices=["vector", "async", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "async", "local", "bare"],
+                    choices=["vector", "async", "local", "bare"])
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
     args = ap.parse_args()
     rows = []
@@ -153,8 +166,12 @@ def main() -> None:
             base = None
             for n in args.n:
                 episodes = args.episodes_per_env * n
+                if mode == "local" and CASES[case][1]:
+                    continue  # the built-in zero policy reads no images
                 if mode == "bare":
                     r = run_bare(case, n, args.steps, episodes)
+                elif mode == "local":
+                    r = run_local(case, n, args.steps, episodes)
                 else:
                     r = run_vector(case, n, args.steps, episodes, sync=mode == "vector")
                 sps = r["env_steps"] / r["wall_s"]

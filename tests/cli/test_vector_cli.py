@@ -81,7 +81,7 @@ def test_num_envs_gives_the_same_episodes_as_one_process(scene, tmp_path):
 
 def test_a_worker_killed_mid_run_costs_nothing(scene, tmp_path):
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=60)),
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=200)),
                              "--policy", "zero", "--episodes", "6", "--num-envs", "2", "--out", str(out)],
                             cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -98,7 +98,7 @@ def test_a_worker_killed_mid_run_costs_nothing(scene, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert sorted(logged) == list(range(6))  # each episode once in the log ...
     assert summary["n_episodes"] == 6 and summary["complete"] is True  # ... and in the summary
-    assert all(e["steps"] == 60 and e["error"] is None for e in summary["episodes"])
+    assert all(e["steps"] == 200 and e["error"] is None for e in summary["episodes"])
 
 
 def test_interrupt_with_workers_keeps_finished_episodes_and_exits_130(scene, tmp_path):

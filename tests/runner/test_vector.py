@@ -162,3 +162,31 @@ def test_images_reach_the_policy_intact_through_shared_memory(tmp_path):
         for key in want:
             np.testing.assert_array_equal(got[key], want[key])
     assert not np.array_equal(frames[0]["camera1"], frames[4]["camera1"])  # episode 1: another cube pose
+
+
+def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_path):
+    """``run_local``: each worker builds its own policy and plays whole episodes; a worker killed
+    mid-episode has that episode re-run, counted once."""
+    scene = _scene(tmp_path, steps=60)
+    reference = _sequential(scene, "scripted", range(6), seed=1)
+    cfg, base = load_scene_config(scene)
+    recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=True, render_images=False)
+    failures, done, killed = [], [], []
+    with VectorEnv(recipe, 2) as vec:
+        def on_done(res):
+            done.append(res)
+            busy = [s for s in vec.slots if s.index is not None]
+            if not killed and busy:
+                pid = busy[0].proc.pid
+                os.kill(pid, signal.SIGSTOP)  # frozen: if it has sent nothing yet, it is mid-episode
+                if busy[0].conn.poll():
+                    os.kill(pid, signal.SIGCONT)  # its result is already on its way: try at the next one
+                else:
+                    killed.append(busy[0].index)
+                    os.kill(pid, signal.SIGKILL)
+
+        results = vec.run_local("scripted", {}, range(6), seed=1, on_done=on_done,
+                                on_worker_failure=failures.append)
+    assert killed and [f.index for f in failures] == killed
+    assert sorted(r.index for r in done) == list(range(6))
+    assert {r.index: _outcome(r) for r in results} == reference

@@ -249,7 +249,8 @@ def run(
 def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
                 num_envs: int, video: bool, planned: int) -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes with one batched policy."""
-    from simseam.policies.batch import PerEnvPolicies, make_policy_batch
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import shared_batch
     from simseam.runner.run_dir import rebuild_summary
     from simseam.runner.scene_config import load_scene_config
     from simseam.runner.vector import RolloutRecipe, VectorEnv
@@ -267,27 +268,33 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
     try:
         cfg, base_dir = load_scene_config(scene)
         with console.status(f"loading the policy for {num_envs} environments"):
-            pol = make_policy_batch(policy, num_envs, **policy_kwargs)
-        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=pol.requires_privileged,
-                               render_images=pol.uses_images or video, seed=seed)
+            probe = make_policy(policy, **policy_kwargs)
+            pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
+        uses_images, privileged = probe.uses_images, probe.requires_privileged
+        if pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
+            _close_policy(probe)
+        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
+                               render_images=uses_images or video, seed=seed)
         with _sigterm_as_interrupt():
             with console.status(f"starting {num_envs} environment workers"):
                 vec = VectorEnv(recipe, num_envs)
             spec_json = vec.spec.to_json()
             run_dir.write_spec(spec_json)
+            where = "one batched policy" if pol is not None else "a policy in each worker"
             console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
-                          f"on {num_envs} environments -> {escape(str(out))}")
+                          f"on {num_envs} environments ({where}) -> {escape(str(out))}")
             with EvalProgress(console, total=len(todo)) as progress:
                 def done(res):
                     entry = res.to_json()
                     run_dir.append(entry)
                     progress.done(entry)
 
-                # one shared model batches best when every environment waits for the others; independent
-                # per-environment policies run fastest when no environment waits for a slower one
-                vec.run(pol, todo, seed=seed, video_dir=out if video else None, on_done=done,
-                        sync=not isinstance(pol, PerEnvPolicies),
-                        on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+                common = dict(seed=seed, video_dir=out if video else None, on_done=done,
+                              on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+                if pol is not None:  # a shared model or server: all environments stepped together, batched
+                    vec.run(pol, todo, sync=True, **common)
+                else:
+                    vec.run_local(policy, policy_kwargs, todo, **common)
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:

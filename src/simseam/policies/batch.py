@@ -79,22 +79,30 @@ class PerEnvPolicies(PolicyBatch):
                 close()
 
 
-def make_policy_batch(name: str, n: int, **kwargs: Any) -> PolicyBatch:
-    """The batch for a policy spec: the policy's own ``make_batch(n)`` when its class has one
-    (``lerobot:`` shares one model), ``RemoteBatch`` for ``remote:``, else one instance per env."""
-    first = make_policy(name, **kwargs)
+def shared_batch(first: Policy, n: int, factory: Callable[[], Policy]) -> PolicyBatch | None:
+    """The batch that shares something across environments, for a policy already built: its own
+    ``make_batch(n)`` (``lerobot:``: one model), a ``RemoteBatch`` for ``remote:`` (``factory`` opens
+    the other connections; ``first`` is the first one); None when the policy shares nothing (then
+    one instance per environment, wherever they run)."""
     make_batch = getattr(first, "make_batch", None)
     if callable(make_batch):
         batch = make_batch(n)
         if batch is not None:
             return batch
-    made = [first]
-
-    def factory() -> Policy:
-        return made.pop() if made else make_policy(name, **kwargs)
-
     from simseam.policies.remote import RemoteBatch, RemotePolicy
 
     if isinstance(first, RemotePolicy):
-        return RemoteBatch(factory, n)
-    return PerEnvPolicies(factory, n)
+        made = [first]
+        return RemoteBatch(lambda: made.pop() if made else factory(), n)
+    return None
+
+
+def make_policy_batch(name: str, n: int, **kwargs: Any) -> PolicyBatch:
+    """The batch for a policy spec: ``shared_batch`` when the policy shares something across
+    environments (``lerobot:`` one model, ``remote:`` one server), else one instance per env."""
+    first = make_policy(name, **kwargs)
+    batch = shared_batch(first, n, lambda: make_policy(name, **kwargs))
+    if batch is not None:
+        return batch
+    made = [first]
+    return PerEnvPolicies(lambda: made.pop() if made else make_policy(name, **kwargs), n)

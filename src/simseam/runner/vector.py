@@ -5,7 +5,9 @@ rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` who
 worker owns) and answers ``reset`` / ``step`` / video commands over a pipe. ``run(policy, indices)``
 steps every busy worker together: it waits for all replies, asks the ``PolicyBatch`` for the
 actions of every environment at once (``act_batch``), and sends them out (``sync=False``: it acts
-on whichever environments have answered, so no worker waits for a slower one). A worker whose episode
+on whichever environments have answered, so no worker waits for a slower one). ``run_local`` puts
+the policy inside each worker instead (policies that share no model): workers play whole episodes
+and send back only their results. A worker whose episode
 ends takes the next episode index from the queue. Episode ``i`` always uses seed ``seed + i``, so
 the per-episode results do not depend on ``num_envs`` for a deterministic policy.
 
@@ -133,6 +135,7 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
         return
     writer = None
     video: Path | None = None
+    policy = policy_key = None  # the "episode" command's own policy (built on first use)
 
     def drop_video():
         nonlocal writer, video
@@ -178,6 +181,20 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
                         path = str(video)
                     writer, video = None, None
                     conn.send(("ok", path))
+                elif op == "episode":  # a whole episode with this worker's own policy instance
+                    _, index, seed, policy_spec, video_dir = msg
+                    if policy is None or policy_key != policy_spec:
+                        from simseam.policies.base import make_policy
+
+                        policy = make_policy(policy_spec[0], **dict(policy_spec[1]))
+                        policy_key = policy_spec
+                    from simseam.runner.session import run_episodes
+
+                    errors: list[str] = []
+                    res = run_episodes(rollout, policy, [index], seed=seed,
+                                       video_dir=Path(video_dir) if video_dir else None,
+                                       on_error=lambda r, what_next: errors.append(what_next))[0]
+                    conn.send(("episode", res, errors[0] if errors else None))
                 elif op == "close":
                     return
                 else:
@@ -198,6 +215,9 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     finally:
         drop_video()
         rollout.close()
+        close = getattr(policy, "close", None)
+        if callable(close):
+            close()
 
 
 def _portable(exc: BaseException) -> BaseException:
@@ -514,6 +534,81 @@ class VectorEnv:
                     self._send(s, ("step", a, policy.observe_next(s.env)))
                 continue
             break
+        return results
+
+    def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,
+                  video_dir: Path | None = None, max_attempts: int = 3,
+                  on_done: Callable[[EpisodeResult], None] | None = None,
+                  on_error: Callable[[EpisodeResult, str], None] | None = None,
+                  on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
+        """Like ``run``, with the policy inside each worker: every worker builds its own instance of the
+        policy spec (``make_policy(policy, **policy_kwargs)``) and plays whole episodes, sending back only
+        results, as N independent processes would (the fastest way for policies that share no model:
+        no round trip to this process per step). Same seeds, same failure handling as ``run``."""
+        spec_key = (policy, tuple(sorted((policy_kwargs or {}).items())))
+        todo = deque(indices)
+        attempts: dict[int, int] = {}
+        results: list[EpisodeResult] = []
+
+        def done(res: EpisodeResult) -> None:
+            results.append(res)
+            if on_done:
+                on_done(res)
+
+        while todo or any(s.state == STEPPING for s in self.slots):
+            for s in self.slots:
+                if s.state == IDLE and todo:
+                    s.index, s.state = todo.popleft(), STEPPING
+                    self._send(s, ("episode", s.index, seed, spec_key, str(video_dir) if video_dir else None))
+            watch = [s for s in self.slots if s.state in (STEPPING, BOOTING)]
+            if not any(s.state == STEPPING for s in watch) and not todo:
+                break
+            ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)]))
+            for s in watch:
+                if s.conn not in ready and s.proc.sentinel not in ready:
+                    continue
+                msg = self._recv(s, readable=s.conn in ready)
+                if msg is not None and msg[0] == "nothing":
+                    continue
+                if s.state == BOOTING:
+                    if msg is None:
+                        raise SimulationError(f"vector worker {s.env} died while building its rollout "
+                                              f"(exit code {s.proc.exitcode})")
+                    self._on_boot(s, msg)
+                    continue
+                if msg is None:  # the worker died mid-episode: the episode goes back to the queue
+                    i = s.index
+                    s.conn.close()
+                    s.proc.join(5.0)
+                    if s.proc.is_alive():
+                        s.proc.kill()
+                        s.proc.join(5.0)
+                    exitcode = s.proc.exitcode
+                    attempts[i] = attempts.get(i, 0) + 1
+                    again = attempts[i] < max_attempts
+                    if again:
+                        todo.appendleft(i)
+                    s.index = None
+                    self._spawn(s)
+                    self.restarts += 1
+                    if on_worker_failure:
+                        on_worker_failure(WorkerFailure(
+                            env=s.env, index=i, exitcode=exitcode,
+                            what_next=(f"episode {i} goes back to the queue (attempt {attempts[i] + 1} of "
+                                       f"{max_attempts})") if again else
+                            f"episode {i} failed {attempts[i]} times; recorded as an error"))
+                    if not again:
+                        done(EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
+                                           error=f"worker process died {attempts[i]} times (last exit code "
+                                                 f"{exitcode})"))
+                    continue
+                if msg[0] == "fatal":
+                    raise msg[1]
+                _, res, what_next = msg
+                s.index, s.state = None, IDLE
+                if what_next is not None and on_error:
+                    on_error(res, what_next)
+                done(res)
         return results
 
     def _send(self, s: _Slot, msg) -> None:
