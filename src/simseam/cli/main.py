@@ -145,8 +145,9 @@ def run(
     n_action_steps: int = typer.Option(None, "--n-action-steps", min=1,
                                        help="Chunked policies: actions executed per predicted chunk."),
     num_envs: int = typer.Option(None, "--num-envs", min=1, help="Environments run at once, each in its own "
-                                 "worker process, with one batched policy (default: sized to the cores and the "
-                                 "episodes; 1 with --record-dataset). Results do not depend on it."),
+                                 "worker process; lerobot:/remote: policies act for all of them in one batch, others "
+                                 "run inside each worker (default: sized to the cores and the episodes; 1 with "
+                                 "--record-dataset). Results do not depend on it."),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes e with e % K == i (batch "
                               "schedulers, e.g. Slurm arrays); combine the K run directories with simseam merge."),
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
@@ -248,7 +249,7 @@ def run(
 
 def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
                 num_envs: int, video: bool, planned: int) -> None:
-    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes with one batched policy."""
+    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import shared_batch
     from simseam.runner.run_dir import rebuild_summary
