@@ -123,8 +123,23 @@ def _attach_images(mm: mmap.mmap, obs, layout):
     return {**obs, OBS_IMAGES: images}
 
 
+def _die_with_parent(parent_pid: int) -> None:
+    """Linux: this process gets SIGKILL when its parent dies, even by SIGKILL (PR_SET_PDEATHSIG), so a
+    worker never finishes (and writes the video of) an episode that no log will record."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):  # not Linux: the worker ends at its next read of the closed pipe
+        return
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(1)
+
+
 def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends."""
+    if parent_pid:
+        _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     images = _SharedImages(conn, parent_pid or os.getppid())
     try:
