@@ -7,9 +7,10 @@ steps every busy worker together: it waits for all replies, asks the ``PolicyBat
 actions of every environment at once (``act_batch``), and sends them out (``sync=False``: it acts
 on whichever environments have answered, so no worker waits for a slower one). ``run_local`` puts
 the policy inside each worker instead (policies that share no model): workers play whole episodes
-and send back only their results. A worker whose episode
-ends takes the next episode index from the queue. Episode ``i`` always uses seed ``seed + i``, so
-the per-episode results do not depend on ``num_envs`` for a deterministic policy.
+and send back only their results. A worker whose episode ends takes the next episode index from
+the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
+on ``num_envs`` for a deterministic policy. Images cross from a worker through a shared memory
+block (``_SharedImages``), not through the pipe; a worker dies with this process (Linux).
 
 Failures:
 
