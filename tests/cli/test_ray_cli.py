@@ -93,9 +93,11 @@ class _Node:
         self.fh.close()
 
 
-@pytest.fixture
-def cluster(tmp_path):
-    """A head node and a second worker node on this machine, one CPU each; both stopped at the end."""
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A head node and a second worker node on this machine, one CPU each; both stopped at the end of
+    this module (the test that crashes the second node runs last)."""
+    tmp_path = tmp_path_factory.mktemp("ray-cluster")
     port = _free_port()
     nodes = []
     temp = tempfile.mkdtemp(prefix="ssray-", dir="/tmp")  # Ray's socket paths must stay under 108 bytes
@@ -112,6 +114,48 @@ def cluster(tmp_path):
         for node in reversed(nodes):
             node.stop()
         shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_ray_results_equal_the_vector_run(cluster, tmp_path):
+    address, _ = cluster
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(steps=40))
+    runs = {}
+    for name, extra in (("ray", ["--ray", address]), ("local", ["--num-envs", "1"])):
+        out = tmp_path / name
+        r = subprocess.run([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene), "--policy",
+                            "scripted", "--episodes", "4", "--seed", "5", "--out", str(out), *extra],
+                           cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
+        assert r.returncode == 0, r.stderr
+        runs[name] = {e["index"]: (e["seed"], e["success"], e["steps"], e["reward"]) for e in _log(out)}
+    assert runs["ray"] == runs["local"] and len(runs["ray"]) == 4
+
+
+def test_ray_workers_share_one_batching_policy_server(cluster, tmp_path):
+    """--policy remote: on Ray: every actor is a client of one serve-policy, which batches their requests."""
+    from simseam.policies.batch import make_policy_batch
+    from simseam.serving import PolicyServer
+
+    address, _ = cluster
+    batch = make_policy_batch("scripted", 2)
+    server = PolicyServer(batch.policies[0], port=0, verbose=False, batch=batch, max_wait_ms=50.0).start()
+    try:
+        scene = tmp_path / "scene.yaml"
+        scene.write_text(SCENE.format(steps=40))
+        runs = {}
+        for name, args in (("ray", ["--ray", address, "--num-envs", "2", "--policy", f"remote:{server.url}"]),
+                           ("local", ["--num-envs", "1", "--policy", "scripted"])):
+            out = tmp_path / name
+            r = subprocess.run([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene),
+                                "--episodes", "4", "--seed", "2", "--out", str(out), *args],
+                               cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
+            assert r.returncode == 0, r.stderr
+            runs[name] = {e["index"]: (e["seed"], e["success"], e["steps"], e["reward"]) for e in _log(out)}
+        assert runs["ray"] == runs["local"] and len(runs["ray"]) == 4
+        assert server.requests == sum(v[2] for v in runs["ray"].values())  # every step asked the server
+        assert max(server.batch_sizes) == 2  # the two Ray workers' requests shared policy calls
+    finally:
+        server.stop()
 
 
 def test_ray_run_survives_a_node_killed_mid_run(cluster, tmp_path):
@@ -140,18 +184,3 @@ def test_ray_run_survives_a_node_killed_mid_run(cluster, tmp_path):
     assert summary["n_episodes"] == 10 and summary["complete"] is True
     assert all(e["steps"] == 400 and e["error"] is None for e in summary["episodes"])
     assert summary["spec"]["task"]["name"] == "lift_cube"
-
-
-def test_ray_results_equal_the_vector_run(cluster, tmp_path):
-    address, _ = cluster
-    scene = tmp_path / "scene.yaml"
-    scene.write_text(SCENE.format(steps=40))
-    runs = {}
-    for name, extra in (("ray", ["--ray", address]), ("local", ["--num-envs", "1"])):
-        out = tmp_path / name
-        r = subprocess.run([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene), "--policy",
-                            "scripted", "--episodes", "4", "--seed", "5", "--out", str(out), *extra],
-                           cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
-        assert r.returncode == 0, r.stderr
-        runs[name] = {e["index"]: (e["seed"], e["success"], e["steps"], e["reward"]) for e in _log(out)}
-    assert runs["ray"] == runs["local"] and len(runs["ray"]) == 4
