@@ -241,7 +241,7 @@ def test_serve_policy_cli_contract_then_ctrl_c_exits_0(cli, panda_spec, make_sce
     server closes both connections (1001) and exits 0."""
     from websockets.exceptions import ConnectionClosed
 
-    proc, url = cli("--policy", "scripted", "--scene", "scenes/franka_lift.yaml")
+    proc, url = cli("--policy", "scripted", "--scene", "scenes/franka_lift.yaml", "--max-clients", "1")
     port = int(url.rsplit(":", 1)[1])
     pol = make_policy(f"remote:{url}")
     skill = SkillContract.from_json(pol.metadata["simseam_skill"])

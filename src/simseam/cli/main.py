@@ -149,8 +149,17 @@ def run(
     device: str = typer.Option(None, "--device", help="lerobot: policies: torch device (default: CUDA if present)."),
     n_action_steps: int = typer.Option(None, "--n-action-steps", min=1,
                                        help="Chunked policies: actions executed per predicted chunk."),
+    num_envs: int = typer.Option(None, "--num-envs", min=1, help="Environments run at once, each in its own "
+                                 "worker process; lerobot:/remote: policies act for all of them in one batch, others "
+                                 "run inside each worker (default: sized to the cores and the episodes; 1 with "
+                                 "--record-dataset). Results do not depend on it."),
+    shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes e with e % K == i (batch "
+                              "schedulers, e.g. Slurm arrays); combine the K run directories with simseam merge."),
+    ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
+                                    "machine), ray://HOST:PORT or HOST:PORT, or local (start a private one); "
+                                    "--num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
-    """Run a policy for N episodes; every finished episode is on disk before the next begins."""
+    """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
     from simseam.runner.scene_config import load_scene_config
 
@@ -161,18 +170,41 @@ def run(
         _fail(ConfigError("--resume needs --out (the run directory to continue)"))
     out = default_run_dir() if default_out else out
     try:
+        from simseam.runner.sharding import parse_shard, shard_indices
+
+        shard_ik = parse_shard(shard) if shard is not None else None
+        if record_dataset is not None and (num_envs or 1) > 1:
+            raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
+        if ray_address is not None and (record_dataset is not None or video):
+            raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
+                              "to its own disk)")
         cfg, _ = load_scene_config(scene)
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": _redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None}
+        if shard_ik is not None:
+            config["shard"] = list(shard_ik)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
     except SimseamError as exc:
         _fail(exc)
     if default_out:
         point_latest(out)
-    todo = [i for i in range(episodes) if i not in run_dir.done]
+    planned = shard_indices(episodes, shard_ik)
+    todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
+    if ray_address is not None:
+        _run_ray(ray_address, scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
+                 num_workers=num_envs, planned=len(planned))
+        return
+    if num_envs is None:
+        from simseam.runner.vector import default_num_envs
+
+        num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
+    if num_envs > 1:
+        _run_vector(scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
+                    num_envs=num_envs, video=video, planned=len(planned))
+        return
     try:
         cfg, pol, rollout = _open_run(scene, policy, seed, _policy_kwargs(device, n_action_steps),
                                       need_images=record_dataset is not None)
@@ -222,6 +254,182 @@ def run(
                       f"in {escape(str(record_dataset))}")
 
 
+def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
+                num_envs: int, video: bool, planned: int) -> None:
+    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import shared_batch
+    from simseam.runner.run_dir import rebuild_summary
+    from simseam.runner.scene_config import load_scene_config
+    from simseam.runner.vector import RolloutRecipe, VectorEnv
+
+    num_envs = max(1, min(num_envs, len(todo)))
+    vec = pol = None
+    cfg, _ = load_scene_config(scene)
+    if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
+        run_dir.close()
+        _fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
+                          f"{num_envs} environment workers would each need their own; pass --num-envs 1 or "
+                          "drop keep_alive"))
+    spec_json = None
+    interrupted = False
+    try:
+        cfg, base_dir = load_scene_config(scene)
+        with console.status(f"loading the policy for {num_envs} environments"):
+            probe = make_policy(policy, **policy_kwargs)
+            pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
+        uses_images, privileged = probe.uses_images, probe.requires_privileged
+        if pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
+            _close_policy(probe)
+        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
+                               render_images=uses_images or video, seed=seed)
+        with _sigterm_as_interrupt():
+            with console.status(f"starting {num_envs} environment workers"):
+                vec = VectorEnv(recipe, num_envs)
+            spec_json = vec.spec.to_json()
+            run_dir.write_spec(spec_json)
+            where = "one batched policy" if pol is not None else "a policy in each worker"
+            console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
+                          f"on {num_envs} environments ({where}) -> {escape(str(out))}")
+            with EvalProgress(console, total=len(todo)) as progress:
+                def done(res):
+                    entry = res.to_json()
+                    run_dir.append(entry)
+                    progress.done(entry)
+
+                common = dict(seed=seed, video_dir=out if video else None, on_done=done,
+                              on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+                if pol is not None:  # a shared model or server: all environments stepped together, batched
+                    vec.run(pol, todo, sync=True, **common)
+                else:
+                    vec.run_local(policy, policy_kwargs, todo, **common)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        if vec is not None:
+            vec.close()
+        run_dir.close()
+        rebuild_summary(out, spec_json, interrupted=True)
+        _fail(exc)
+    finally:
+        if vec is not None:
+            vec.close()
+        if pol is not None:
+            pol.close()
+        run_dir.close()
+    _finish_run(out, spec_json, interrupted, planned)
+
+
+def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
+             todo: list[int], *, num_workers: int | None, planned: int) -> None:
+    """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
+    from simseam.policies.base import make_policy
+    from simseam.runner.ray_eval import run_on_ray
+    from simseam.runner.run_dir import rebuild_summary
+    from simseam.runner.scene_config import load_scene_config
+    from simseam.runner.vector import RolloutRecipe
+
+    spec_json = None
+    interrupted = False
+    progress = EvalProgress(console, total=len(todo))
+
+    def on_spec(spec):
+        nonlocal spec_json
+        spec_json = spec
+        run_dir.write_spec(spec)
+
+    def done(entry):
+        run_dir.append(entry)
+        progress.done(entry)
+
+    try:
+        cfg, base_dir = load_scene_config(scene)
+        probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
+        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
+                               render_images=probe.uses_images, seed=seed)
+        _close_policy(probe)
+        console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
+                      f"{escape(str(out))}")
+        with _sigterm_as_interrupt(), progress:
+            run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
+                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        run_dir.close()
+        rebuild_summary(out, spec_json, interrupted=True)
+        _fail(exc)
+    finally:
+        run_dir.close()
+    _finish_run(out, spec_json, interrupted, planned)
+
+
+def _finish_run(out: Path, spec_json, interrupted: bool, planned: int) -> None:
+    from simseam.runner.run_dir import rebuild_summary
+
+    summary = rebuild_summary(out, spec_json, interrupted=interrupted)
+    if interrupted:
+        err_console.print(f"interrupted after {summary['n_episodes']} of {planned} episodes; "
+                          f"summary of the finished ones: {out / 'summary.json'}", markup=False, highlight=False)
+        raise typer.Exit(code=130)
+    lo, hi = summary["success_rate_wilson95"]
+    console.print(
+        f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
+        f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
+    )
+
+
+class EvalProgress:
+    """One progress bar over all workers: episodes done, success so far, episodes per hour; one line per
+    finished episode, and per-worker failures with the episode they hit."""
+
+    def __init__(self, console: Console, total: int):
+        import time
+
+        self._time = time
+        self.total = total
+        self.n = self.k = 0
+        self.t0 = time.monotonic()
+        self._progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                  TimeElapsedColumn(), console=console, transient=True)
+
+    def __enter__(self) -> "EvalProgress":
+        self._progress.__enter__()
+        self._task = self._progress.add_task(self._text(), total=self.total)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._progress.__exit__(*exc)
+
+    def _text(self) -> str:
+        hours = (self._time.monotonic() - self.t0) / 3600.0
+        rate = f"{self.n / hours:,.0f} episodes/h" if self.n and hours > 0 else "- episodes/h"
+        return f"episodes  success {self.k}/{self.n}  {rate}"
+
+    def done(self, e: dict) -> None:
+        """One finished episode (its ``EpisodeResult.to_json()`` entry)."""
+        self.n += 1
+        self.k += bool(e["success"])
+        self._progress.update(self._task, completed=self.n, description=self._text())
+        step_ms = e["step_latency_ms"]["mean"]
+        mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
+        console.print(f"episode {e['index']:3d}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
+                      f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
+                      + (f"  video {escape(e['video'])}" if e.get("video") else "")
+                      + (f"  [red]{escape(e['error'])}[/]" if e.get("error") else ""))
+
+    def episode_error(self, res, what_next: str) -> None:
+        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
+                          highlight=False)
+
+    def worker_failure(self, failure) -> None:
+        where = f"in episode {failure.index}" if failure.index is not None else "between episodes"
+        who = f"worker {failure.env}" if failure.env >= 0 else "a Ray worker"
+        code = f" (exit code {failure.exitcode})" if failure.exitcode is not None else ""
+        err_console.print(f"{who} died {where}{code}; {failure.what_next}; a fresh worker takes its place",
+                          style="red", markup=False, highlight=False)
+
+
 @app.command()
 def summarize(run: Path = typer.Argument(..., help="A run directory (holds episodes.jsonl).")) -> None:
     """Rebuild DIR/summary.json from its episode log (after a kill, or to re-read a run)."""
@@ -235,6 +443,30 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
     console.print(f"{summary['n_episodes']} episode(s), success {summary['n_success']}/{summary['n_episodes']} "
                   f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}]); {'complete' if summary['complete'] else 'incomplete'}; "
                   f"summary: {escape(str(run / 'summary.json'))}")
+
+
+@app.command()
+def merge(
+    out: Path = typer.Option(..., "--out", help="New run directory for the merged run."),
+    runs: list[Path] = typer.Argument(..., help="Run directories to merge (e.g. the K shards of --shard i/K)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a run already in --out."),
+    prefer_first: bool = typer.Option(False, "--prefer-first", help="An episode recorded with different results "
+                                      "in two directories keeps the first (default: refuse)."),
+) -> None:
+    """Merge run directories (shards of one evaluation) into one: configs must agree, each episode counts once."""
+    from simseam.runner.sharding import merge_runs
+
+    try:
+        summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
+    except SimseamError as exc:
+        _fail(exc)
+    lo, hi = summary["success_rate_wilson95"]
+    missing = summary["missing"]
+    console.print(f"merged {len(runs)} run(s): {summary['n_episodes']} episode(s), success {summary['n_success']}/"
+                  f"{summary['n_episodes']} (Wilson 95% \\[{lo:.2f}, {hi:.2f}]); "
+                  + ("complete" if not missing else f"[yellow]{len(missing)} planned episode(s) missing: "
+                     f"{missing[:20]}{' ...' if len(missing) > 20 else ''}[/]")
+                  + f"; summary: {escape(str(out / 'summary.json'))}")
 
 
 @app.command()

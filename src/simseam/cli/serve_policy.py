@@ -38,14 +38,21 @@ def serve_policy(
                                          "nothing for this long, freeing the one client slot (0: never)."),
     max_message_mb: float = typer.Option(64.0, "--max-message-mb", min=0.01, help="Largest request accepted, in "
                                          "MiB; a larger one closes that connection (code 1009)."),
+    max_clients: int = typer.Option(8, "--max-clients", min=1, help="Clients served at once, each with its own "
+                                    "episode state (one more waits, then is told busy)."),
+    max_batch_size: int = typer.Option(None, "--max-batch-size", min=1, help="Most requests answered by one "
+                                       "batched policy call (default: --max-clients)."),
+    max_wait_ms: float = typer.Option(2.0, "--max-wait-ms", min=0.0, help="How long a request waits for others "
+                                      "to join its batch."),
 ) -> None:
     """Serve a policy to `remote:ws://HOST:PORT` clients (openpi's policy-server protocol).
 
-    Prints the URL, serves one client at a time until Ctrl-C or SIGTERM, then exits 0.
+    Prints the URL, serves up to --max-clients clients at once (their requests batched) until Ctrl-C
+    or SIGTERM, then exits 0.
     Binds loopback only unless --allow-remote; off loopback every client needs the token.
     """
     from simseam.policies import openpi_wire as wire
-    from simseam.policies.base import make_policy
+    from simseam.policies.batch import make_policy_batch
     from simseam.policies.contract import SkillContract
     from simseam.serving import PolicyServer
 
@@ -55,7 +62,8 @@ def serve_policy(
                           "--allow-remote to serve other machines (clients then need the token)", highlight=False)
         raise typer.Exit(code=2)
     try:
-        pol = make_policy(policy)
+        batch = make_policy_batch(policy, max_clients)
+        pol = batch.policy if hasattr(batch, "policy") else batch.policies[0]  # metadata, contract
         contract = None
         if scene is not None:
             from simseam.runner.scene_config import build_rollout, load_scene_config
@@ -63,7 +71,7 @@ def serve_policy(
             cfg, base_dir = load_scene_config(scene)
             rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged, render_images=pol.uses_images)
             try:
-                pol.reset(rollout.spec)  # the policy's own fit checks, now rather than per client
+                batch.reset(0, rollout.spec)  # the policy's own fit checks, now rather than per client
                 contract = SkillContract.for_spec(policy, rollout.spec)
             finally:
                 rollout.close()
@@ -71,7 +79,8 @@ def serve_policy(
                 contract = dataclasses.replace(contract, images={})
         server = PolicyServer(pol, host=host, port=port, contract=contract, name=policy, allow_remote=allow_remote,
                               token=token or None, idle_timeout=idle_timeout_s or None,
-                              max_message_bytes=int(max_message_mb * 2**20)).start()
+                              max_message_bytes=int(max_message_mb * 2**20), batch=batch,
+                              max_batch_size=max_batch_size, max_wait_ms=max_wait_ms).start()
     except SimseamError as exc:
         err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(code=2) from None

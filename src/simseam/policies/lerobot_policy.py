@@ -22,12 +22,14 @@ the control mode is then unknown and not checked).
 
 from __future__ import annotations
 
+from collections import deque
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from simseam.policies.base import BasePolicy, register_policy_scheme
+from simseam.policies.batch import PolicyBatch
 from simseam.policies.contract import SkillContract, check_contract
 from simseam.seam import (
     FEATURE_ACTION as ACTION_KEY,
@@ -175,31 +177,102 @@ class LeRobotPolicy(BasePolicy):
         ``select_action`` refills its queue then); the others replay the queue and read nothing."""
         return None if self._acts % max(1, self.n_action_steps) == 0 else STATE_ONLY
 
-    def act(self, observation: Observation) -> np.ndarray:
+    def _frame(self, observation: Observation, spec: RolloutSpec, last_images: dict[str, Any] | None,
+               predicts: bool) -> dict[str, Any]:
+        """One observation as LeRobot's batch of one (images float32[1, 3, H, W] in [0, 1], state
+        float32[1, S]); ``last_images`` serves a replay step that rendered no image."""
         torch = self._torch
-        predicts = self._acts % max(1, self.n_action_steps) == 0  # select_action refills its queue now
-        self._acts += 1
         images = observation.get(OBS_IMAGES) or {}
         batch: dict[str, Any] = {}
         for name in self.image_names:
             key = self.contract.scene_key(name)
-            if key not in images and not predicts and name in self._last_images:
-                batch[IMAGE_PREFIX + name] = self._last_images[name]  # a replay step: the model reads nothing
+            if key not in images and not predicts and last_images is not None and name in last_images:
+                batch[IMAGE_PREFIX + name] = last_images[name]  # a replay step: the model reads nothing
                 continue
             if key not in images:
                 raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
                                   f"(cameras: {sorted(images)})")
             img = torch.from_numpy(np.ascontiguousarray(images[key]))
-            batch[IMAGE_PREFIX + name] = self._last_images[name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
+            batch[IMAGE_PREFIX + name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
+            if last_images is not None:
+                last_images[name] = batch[IMAGE_PREFIX + name]
         if STATE_KEY in self.config.input_features:
             batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
-        batch["task"] = observation.get(OBS_TASK) or self.spec.task.instruction
-        batch["robot_type"] = self.spec.robot.name
+        batch["task"] = observation.get(OBS_TASK) or spec.task.instruction
+        batch["robot_type"] = spec.robot.name
+        return batch
+
+    def act(self, observation: Observation) -> np.ndarray:
+        torch = self._torch
+        predicts = self._acts % max(1, self.n_action_steps) == 0  # select_action refills its queue now
+        self._acts += 1
+        batch = self._frame(observation, self.spec, self._last_images, predicts)
         with torch.inference_mode():
             batch = self.preprocessor(batch)
             action = self.policy.select_action(batch)
             action = self.postprocessor(action)
         return action.squeeze(0).to("cpu", torch.float32).numpy()
+
+    def make_batch(self, n: int) -> "LeRobotBatch | None":
+        """One model for ``n`` environments with per-environment chunk queues, when this policy's
+        ``select_action`` is a plain chunk queue (ACT without temporal ensembling); else None (the
+        caller then builds one instance per environment)."""
+        if self.config.type not in BATCHABLE_TYPES or getattr(self.config, "temporal_ensemble_coeff", None) is not None:
+            return None
+        return LeRobotBatch(self, n)
+
+
+#: LeRobot policy types whose ``select_action`` executes ``n_action_steps`` of each predicted chunk from a queue,
+#: so one batched ``predict_action_chunk`` with per-environment queues gives the same actions (verified: ACT)
+BATCHABLE_TYPES = frozenset({"act"})
+
+
+class LeRobotBatch(PolicyBatch):
+    """``lerobot:`` for N environments: one model, one chunk queue per environment; the environments
+    whose queue is empty get one forward pass together (a batch of B)."""
+
+    uses_images = True
+    requires_privileged = False
+
+    def __init__(self, policy: LeRobotPolicy, n: int):
+        self.policy = policy
+        self.n = n
+        self.queues: list[deque] = [deque() for _ in range(n)]
+        self.specs: list[RolloutSpec | None] = [None] * n
+        #: forward passes (batches) run, and chunks predicted over all environments
+        self.forward_passes = 0
+        self.chunks_predicted = 0
+
+    def reset(self, env: int, spec: RolloutSpec) -> None:
+        check_contract(self.policy.contract, spec)
+        self.specs[env] = spec
+        self.queues[env].clear()
+
+    def observe_next(self, env: int) -> ObsRequest | None:
+        return STATE_ONLY if self.queues[env] else None
+
+    def act_batch(self, envs, observations) -> np.ndarray:
+        p = self.policy
+        torch = p._torch
+        need = [k for k, e in enumerate(envs) if not self.queues[e]]
+        if need:
+            frames = [p._frame(observations[k], self.specs[envs[k]], None, True) for k in need]
+            batch: dict[str, Any] = {}
+            for key, value in frames[0].items():
+                if isinstance(value, str):
+                    batch[key] = [f[key] for f in frames] if len(frames) > 1 else value
+                else:
+                    batch[key] = torch.cat([f[key] for f in frames])
+            with torch.inference_mode():
+                batch = p.preprocessor(batch)
+                chunk = p.policy.predict_action_chunk(batch)[:, : p.n_action_steps]
+                chunk = p.postprocessor(chunk)
+            chunk = chunk.to("cpu", torch.float32).numpy()
+            self.forward_passes += 1
+            self.chunks_predicted += len(need)
+            for k, c in zip(need, chunk):
+                self.queues[envs[k]].extend(c)
+        return np.stack([self.queues[e].popleft() for e in envs]).astype(np.float32)
 
 
 @register_policy_scheme("lerobot")

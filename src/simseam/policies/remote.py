@@ -51,6 +51,7 @@ import numpy as np
 
 from simseam.policies import openpi_wire as wire
 from simseam.policies.base import ChunkedPolicy, register_policy_scheme
+from simseam.policies.batch import PolicyBatch
 from simseam.policies.contract import SkillContract, contract_mismatches
 from simseam.seam import (
     OBS_IMAGES,
@@ -292,6 +293,12 @@ class RemotePolicy(ChunkedPolicy):
 
     def predict_chunk(self, observation: Observation) -> np.ndarray:
         """One request: the observation in ``obs_format`` -> a validated ``float32[H, action_dim]``."""
+        self.send_request(observation)
+        return self.receive_chunk()
+
+    def send_request(self, observation: Observation) -> None:
+        """The first half of ``predict_chunk``: send the request without waiting for the reply
+        (``RemoteBatch`` sends every environment's request before reading any)."""
         if self._ws is None:
             raise RemotePolicyError(f"policy server {self.url}: the connection is closed (after an earlier error "
                                     "or close()); the next reset() reconnects")
@@ -312,6 +319,9 @@ class RemotePolicy(ChunkedPolicy):
             raise RemotePolicyError(f"policy server {self.url} closed the connection ({why})") from None
         self.requests += 1
         self._episode_start = False
+
+    def receive_chunk(self) -> np.ndarray:
+        """The second half of ``predict_chunk``: the reply to the request sent last, validated."""
         reply = self._receive(self.timeout, "an action chunk")
         if not isinstance(reply, dict) or "actions" not in reply:
             got = sorted(map(str, reply)) if isinstance(reply, dict) else type(reply).__name__
@@ -375,6 +385,44 @@ def _is_open(ws: Any) -> bool:
     from websockets.protocol import State
 
     return ws.protocol.state is State.OPEN
+
+
+class RemoteBatch(PolicyBatch):
+    """``remote:`` for N environments: one connection (one server-side episode) per environment;
+    the environments whose chunk queue is empty send their requests together, then read the
+    replies, so a batching server answers them in one forward pass."""
+
+    def __init__(self, factory: Any, n: int):
+        self.policies: list[RemotePolicy] = []
+        try:
+            for _ in range(n):
+                self.policies.append(factory())
+        except BaseException:
+            self.close()
+            raise
+        self.n = n
+        self.uses_images = self.policies[0].uses_images
+        self.requires_privileged = self.policies[0].requires_privileged
+
+    def reset(self, env: int, spec: RolloutSpec) -> None:
+        self.policies[env].reset(spec)
+
+    def observe_next(self, env: int):
+        return self.policies[env].observe_next()
+
+    def act_batch(self, envs, observations) -> np.ndarray:
+        need = [(e, o) for e, o in zip(envs, observations) if not self.policies[e]._queue]
+        for e, o in need:
+            self.policies[e].send_request(o)
+        for e, _ in need:
+            p = self.policies[e]
+            chunk = p.receive_chunk()
+            p._queue.extend(chunk[: p.n_action_steps or len(chunk)])
+        return np.stack([self.policies[e]._queue.popleft() for e in envs]).astype(np.float32)
+
+    def close(self) -> None:
+        for p in self.policies:
+            p.close()
 
 
 @register_policy_scheme("remote")

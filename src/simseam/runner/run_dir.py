@@ -188,7 +188,10 @@ def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: b
         except (OSError, ValueError):
             spec_json = None
     summary = build_summary(config, spec_json, episodes)
-    planned = config.get("episodes")
-    summary["complete"] = (not interrupted) and isinstance(planned, int) and summary["n_episodes"] >= planned
+    from simseam.runner.sharding import planned_indices
+
+    planned = planned_indices(config)  # a shard's (--shard i/K) own indices
+    have = {int(e["index"]) for e in episodes}
+    summary["complete"] = (not interrupted) and planned is not None and all(i in have for i in planned)
     write_json_atomic(path / SUMMARY_FILE, summary)
     return summary

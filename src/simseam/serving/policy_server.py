@@ -16,7 +16,14 @@ of a connection must carry them.
 
 Errors mirror openpi: the traceback goes to the client as a text frame, the connection is closed
 with code 1011, the error is logged to stderr, and the server goes on serving the next client.
-One client at a time (a policy keeps per-episode state): a second concurrent client waits up to
+
+Several clients at once: ``batch`` (a ``PolicyBatch`` of ``max_clients`` environments, e.g.
+``make_policy_batch(spec, n)``) gives every connected client its own episode state (its own slot:
+``reset`` per slot, its own chunk queue). Requests from all clients go to one batcher thread that
+collects up to ``max_batch_size`` of them, waiting at most ``max_wait_ms`` after the first, and answers
+them with one ``act_batch`` (one forward pass for ``lerobot:``); a request that fails is retried
+alone, so one client's bad observation costs only that client its connection. Without ``batch`` the
+server holds ``policy`` in one slot: one client at a time. A client beyond the free slots waits up to
 ``busy_wait`` seconds, then gets a "busy" text frame and close code 1013 (try again later).
 ``GET /healthz`` answers 200 (no token needed).
 
@@ -41,6 +48,7 @@ from __future__ import annotations
 
 import hmac
 import http
+import queue
 import secrets
 import sys
 import threading
@@ -98,7 +106,8 @@ class PolicyServer:
                  name: str | None = None, busy_wait: float = 3.0, verbose: bool = True,
                  allow_remote: bool = False, token: str | None = None,
                  max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
-                 idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT_S, close_timeout: float = 2.0):
+                 idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT_S, close_timeout: float = 2.0,
+                 batch: Any = None, max_batch_size: int | None = None, max_wait_ms: float = 2.0):
         if not wire.is_loopback(host) and not allow_remote:
             raise ConfigError(f"refusing to serve on {host!r}: not a loopback address, and the policy server runs "
                               "any client's observations through the policy over plain websockets; to serve other "
@@ -110,7 +119,19 @@ class PolicyServer:
             token = secrets.token_urlsafe(24)
         if max_message_bytes < 1024:
             raise ConfigError(f"max_message_bytes must be >= 1024, got {max_message_bytes}")
+        from simseam.policies.batch import PerEnvPolicies
+
+        if batch is None:
+            batch = PerEnvPolicies(lambda: policy, 1)
+        if max_batch_size is not None and max_batch_size < 1:
+            raise ConfigError(f"max_batch_size must be >= 1, got {max_batch_size}")
+        if max_wait_ms < 0:
+            raise ConfigError(f"max_wait_ms must be >= 0, got {max_wait_ms}")
         self.policy = policy
+        self.batch = batch
+        self.max_clients = int(batch.n)
+        self.max_batch_size = int(max_batch_size or batch.n)
+        self.max_wait_s = float(max_wait_ms) / 1e3
         self.host = host
         self.port = port
         self.busy_wait = busy_wait
@@ -126,7 +147,8 @@ class PolicyServer:
             "server": "simseam", "protocol": "openpi-websocket", "policy": name or type(policy).__name__,
             "requires_privileged": bool(getattr(policy, "requires_privileged", False)),
             "uses_images": bool(getattr(policy, "uses_images", True)), "chunked": self.chunked,
-            "max_message_bytes": self.max_message_bytes,
+            "max_message_bytes": self.max_message_bytes, "max_clients": self.max_clients,
+            "max_batch_size": self.max_batch_size,
         }
         n = getattr(policy, "n_action_steps", None) if self.chunked else None
         if n:
@@ -136,7 +158,14 @@ class PolicyServer:
         self.metadata = {**meta, **(metadata or {})}
         self._server: Any = None
         self._thread: threading.Thread | None = None
-        self._busy = threading.Lock()
+        self._free_slots: queue.Queue[int] = queue.Queue()
+        for slot in range(self.max_clients):
+            self._free_slots.put(slot)
+        self._requests: queue.Queue = queue.Queue()
+        self._batcher: threading.Thread | None = None
+        #: inference batches run, and the size of each (the last 1000)
+        self.batches = 0
+        self.batch_sizes: list[int] = []
         self._stopping = threading.Event()
         self._conns: set[Any] = set()
         self._handlers: set[threading.Thread] = set()
@@ -174,6 +203,8 @@ class PolicyServer:
         self._thread = threading.Thread(target=self._server.serve_forever, name=f"policy-server:{self.port}",
                                         daemon=True)
         self._thread.start()
+        self._batcher = threading.Thread(target=self._batch_loop, name=f"policy-batcher:{self.port}", daemon=True)
+        self._batcher.start()
         if self.verbose:
             _log(f"serving {self.metadata['policy']} on {self.url}")
         return self
@@ -212,6 +243,9 @@ class PolicyServer:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(max(0.5, deadline - time.monotonic()))  # ends once the listening socket is closed
         self._thread = None
+        if self._batcher is not None and self._batcher is not threading.current_thread():
+            self._batcher.join(1.0)
+        self._batcher = None
         busy = self.active_handlers()
         if busy and self.verbose:
             _log(f"stopped; {len(busy)} request(s) still inside the policy were not waited for")
@@ -242,18 +276,21 @@ class PolicyServer:
                                   f"printed, as remote:ws://HOST:PORT?{wire.TOKEN_QUERY}=TOKEN or the header "
                                   "'Authorization: Api-Key TOKEN' (openpi-client: api_key=TOKEN)\n")
 
-    def _acquire_slot(self) -> bool:
-        """Wait up to ``busy_wait`` s for the one client slot; False when busy or stopping."""
+    def _acquire_slot(self) -> int | None:
+        """Wait up to ``busy_wait`` s for a free client slot; None when all are taken or stopping."""
         deadline = time.monotonic() + self.busy_wait
         while not self._stopping.is_set():
-            if self._busy.acquire(timeout=max(0.0, min(0.1, deadline - time.monotonic()))):
-                if not self._stopping.is_set():
-                    return True
-                self._busy.release()
-                return False
-            if time.monotonic() >= deadline:
-                return False
-        return False
+            try:
+                slot = self._free_slots.get(timeout=max(0.0, min(0.1, deadline - time.monotonic())))
+            except queue.Empty:
+                if time.monotonic() >= deadline:
+                    return None
+                continue
+            if not self._stopping.is_set():
+                return slot
+            self._free_slots.put(slot)
+            return None
+        return None
 
     def _handle(self, conn: Any) -> None:
         with self._conns_lock:
@@ -270,15 +307,17 @@ class PolicyServer:
         from websockets.exceptions import ConnectionClosed
 
         peer = conn.remote_address
-        if not self._acquire_slot():
+        slot = self._acquire_slot()
+        if slot is None:
             if self._stopping.is_set():
                 _close_quietly(conn, 1001, "server shutting down")
                 return
-            _log(f"{peer}: refused, another client is connected")
+            n = self.max_clients
+            _log(f"{peer}: refused, all {n} client slot(s) are taken")
             try:
-                conn.send("simseam policy server busy: it serves one client at a time and another one is "
-                          "connected; retry when it disconnects")
-                conn.close(1013, "busy: one client at a time")
+                conn.send(f"simseam policy server busy: it serves {n} client(s) at a time and "
+                          f"{'another one is' if n == 1 else 'that many are'} connected; retry when one disconnects")
+                conn.close(1013, f"busy: {n} client(s) at a time")
             except ConnectionClosed:
                 pass
             return
@@ -297,9 +336,9 @@ class PolicyServer:
                     return
                 start = time.monotonic()
                 try:
-                    obs = self._observation(data, episode)
+                    obs = self._observation(data, episode, slot)
                     t0 = time.monotonic()
-                    actions = self._infer(obs)
+                    actions = self._submit(slot, obs)
                     timing = {"infer_ms": (time.monotonic() - t0) * 1e3}
                     if prev_total is not None:
                         timing["prev_total_ms"] = prev_total * 1e3
@@ -319,9 +358,9 @@ class PolicyServer:
             elif self.verbose:
                 _log(f"{peer}: disconnected")
         finally:
-            self._busy.release()
+            self._free_slots.put(slot)
 
-    def _observation(self, data: Any, episode: dict[str, Any]) -> dict[str, Any]:
+    def _observation(self, data: Any, episode: dict[str, Any], slot: int = 0) -> dict[str, Any]:
         """A request (bytes) -> the seam observation dict; resets the policy on ``simseam/reset``."""
         if isinstance(data, str):
             raise ProtocolError("got a text frame; requests are binary msgpack frames (openpi's msgpack_numpy)")
@@ -333,7 +372,7 @@ class PolicyServer:
             if wire.SPEC not in request:
                 raise ProtocolError(f"{wire.RESET!r} without {wire.SPEC!r} (RolloutSpec.to_json())")
             spec = RolloutSpec.from_json(request[wire.SPEC], where=f"request field {wire.SPEC!r}")
-            self.policy.reset(spec)
+            self.batch.reset(slot, spec)
             episode.update(spec=spec)
         elif "spec" not in episode:
             keys = ", ".join(sorted(map(str, request))) or "none"
@@ -353,12 +392,67 @@ class PolicyServer:
         obs[OBS_TASK] = str(prompt) if prompt is not None else episode["spec"].task.instruction
         return obs
 
-    def _infer(self, obs: dict[str, Any]) -> np.ndarray:
-        """The policy's chunk (chunked) or its one action as a chunk of one, float32[H, D]."""
-        if self.chunked:
-            chunk = np.asarray(self.policy.predict_chunk(obs), dtype=np.float32)
-            return chunk[None, :] if chunk.ndim == 1 else chunk
-        return np.asarray(self.policy.act(obs), dtype=np.float32)[None, :]
+    def _submit(self, slot: int, obs: dict[str, Any]) -> np.ndarray:
+        """Queue one request for the batcher and wait for its answer (or its exception)."""
+        job = _Job(slot, obs)
+        self._requests.put(job)
+        while not job.done.wait(0.25):
+            if self._stopping.is_set():
+                raise ConnectionError("server shutting down")
+        if job.error is not None:
+            raise job.error
+        return job.result
+
+    def _batch_loop(self) -> None:
+        """Collect up to ``max_batch_size`` requests (waiting ``max_wait_s`` after the first), answer them together."""
+        while not self._stopping.is_set():
+            try:
+                first = self._requests.get(timeout=0.25)
+            except queue.Empty:
+                continue
+            jobs = [first]
+            deadline = time.monotonic() + self.max_wait_s
+            while len(jobs) < self.max_batch_size:
+                try:
+                    jobs.append(self._requests.get(timeout=max(0.0, deadline - time.monotonic())))
+                except queue.Empty:
+                    break
+            self.batches += 1
+            self.batch_sizes = (self.batch_sizes + [len(jobs)])[-1000:]
+            try:
+                for job, out in zip(jobs, self._infer_many(jobs)):
+                    job.result = out
+            except Exception:  # noqa: BLE001  (one bad request: find it, answer the others)
+                for job in jobs:
+                    try:
+                        job.result = self._infer_many([job])[0]
+                    except Exception as exc:  # noqa: BLE001  (goes to that client)
+                        job.error = exc
+            for job in jobs:
+                job.done.set()
+
+    def _infer_many(self, jobs: list["_Job"]) -> list[np.ndarray]:
+        """Each request's chunk (a chunked policy's ``predict_chunk``) or its one action as a chunk of
+        one (``act_batch`` over the requests' slots), float32[H, D]."""
+        policies = getattr(self.batch, "policies", None)
+        if self.chunked and policies is not None:
+            out = []
+            for job in jobs:
+                chunk = np.asarray(policies[job.slot].predict_chunk(job.obs), dtype=np.float32)
+                out.append(chunk[None, :] if chunk.ndim == 1 else chunk)
+            return out
+        actions = np.asarray(self.batch.act_batch([j.slot for j in jobs], [j.obs for j in jobs]), dtype=np.float32)
+        return [a[None, :] for a in actions]
+
+
+class _Job:
+    """One client request waiting for the batcher."""
+
+    def __init__(self, slot: int, obs: dict[str, Any]):
+        self.slot, self.obs = slot, obs
+        self.done = threading.Event()
+        self.result: np.ndarray | None = None
+        self.error: BaseException | None = None
 
 
 def _close_quietly(conn: Any, code: int, reason: str) -> None:

@@ -1,0 +1,120 @@
+"""Shards and merges: one evaluation split over independent jobs (Slurm arrays, several machines).
+
+``simseam run --shard i/K`` runs the episodes ``e`` with ``e % K == i`` of the run's ``--episodes``
+(seed ``seed + e`` as always, so a shard's episode is the same episode the whole run would play)
+and records ``shard: [i, K]`` in its ``run.json``. ``simseam merge OUT DIR...`` combines run
+directories into one:
+
+- their configs must agree on everything but the shard (differences are listed: a ``ConfigError``);
+- each episode index is counted once: an index in several directories (a shard re-run, or the
+  same directory given twice) keeps one entry, and two entries that disagree on the result are a
+  ``ConfigError`` unless ``prefer_first``;
+- the merged ``summary.json`` is ``complete`` when every planned index is there; the missing ones
+  are listed.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Sequence
+
+from simseam.seam import ConfigError
+
+#: fields of an episode entry that say what happened (timings and video paths may differ between re-runs)
+RESULT_FIELDS = ("seed", "success", "steps", "reward", "error")
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """``"i/K"`` -> (i, K) with 0 <= i < K; anything else is a ``ConfigError``."""
+    i, sep, k = str(text).strip().partition("/")
+    try:
+        i_, k_ = int(i), int(k)
+    except ValueError:
+        i_ = k_ = -1
+    if not sep or k_ < 1 or not 0 <= i_ < k_:
+        raise ConfigError(f"--shard {text!r}: expected i/K with 0 <= i < K, e.g. 0/4")
+    return i_, k_
+
+
+def shard_indices(episodes: int, shard: tuple[int, int] | None) -> list[int]:
+    """The episode indices a shard runs (all of them without a shard)."""
+    if shard is None:
+        return list(range(episodes))
+    i, k = shard
+    return list(range(i, episodes, k))
+
+
+def planned_indices(config: dict) -> list[int] | None:
+    """The indices a run's config plans (its shard's), or None when the config does not say."""
+    n = config.get("episodes")
+    if not isinstance(n, int):
+        return None
+    shard = config.get("shard")
+    return shard_indices(n, tuple(shard) if shard else None)
+
+
+def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, prefer_first: bool = False) -> dict:
+    """Merge run directories into ``out`` (see the module docstring); returns the merged summary."""
+    from simseam.runner.run_dir import (CONFIG_FILE, LOG_FILE, RUN_FILES, SPEC_FILE, check_writable,
+                                        config_differences, read_log, rebuild_summary, write_json_atomic)
+
+    if not dirs:
+        raise ConfigError("simseam merge: name at least one run directory to merge")
+    out = Path(out)
+    configs, specs = [], []
+    for d in dirs:
+        d = Path(d)
+        try:
+            configs.append(json.loads((d / CONFIG_FILE).read_text()))
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"simseam merge: {d}: cannot read {CONFIG_FILE} ({exc})") from None
+        try:
+            specs.append(json.loads((d / SPEC_FILE).read_text()))
+        except (OSError, ValueError):
+            specs.append(None)
+    base = {k: v for k, v in configs[0].items() if k != "shard"}
+    for d, c in zip(dirs[1:], configs[1:]):
+        diff = config_differences(base, {k: v for k, v in c.items() if k != "shard"})
+        if diff:
+            raise ConfigError(f"simseam merge: {d} ran a different config than {dirs[0]}:\n"
+                              + "\n".join(f"  - {x}" for x in diff))
+    known = [s for s in specs if s is not None]
+    for d, s in zip(dirs, specs):
+        if s is not None and s != known[0]:
+            raise ConfigError(f"simseam merge: {d}: its spec.json differs from {dirs[specs.index(known[0])]}'s "
+                              "(a different simulator or robot behind the same scene file)")
+    merged: dict[int, dict] = {}
+    source: dict[int, Path] = {}
+    for d in dirs:
+        for e in read_log(Path(d)):
+            i = int(e["index"])
+            if i in merged:
+                a = {k: merged[i].get(k) for k in RESULT_FIELDS}
+                b = {k: e.get(k) for k in RESULT_FIELDS}
+                if a != b and not prefer_first:
+                    raise ConfigError(f"simseam merge: episode {i} is in {source[i]} and {d} with different results "
+                                      f"({a} vs {b}); pass --prefer-first to keep the first")
+                continue
+            merged[i], source[i] = e, Path(d)
+    check_writable(out)
+    held = [f for f in RUN_FILES if (out / f).exists()]
+    if held and not overwrite:
+        raise ConfigError(f"simseam merge: {out} already holds a run ({', '.join(held)}); pass --overwrite or "
+                          "choose another output directory")
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / CONFIG_FILE, base)
+    if known:
+        write_json_atomic(out / SPEC_FILE, known[0])
+    tmp = out / (LOG_FILE + ".merging")
+    with open(tmp, "w") as f:
+        for i in sorted(merged):
+            f.write(json.dumps(merged[i]) + "\n")
+        f.flush()
+    tmp.replace(out / LOG_FILE)
+    summary = rebuild_summary(out, known[0] if known else None)
+    planned = planned_indices(base) or []
+    summary["missing"] = [i for i in planned if i not in merged]
+    summary["merged_from"] = [str(d) for d in dirs]
+    write_json_atomic(out / "summary.json", summary)
+    return summary

@@ -1,0 +1,186 @@
+"""simseam run --ray on a real local Ray cluster started here (`ray start --head` plus a second node on this
+machine), including killing that second node mid-run: its episode re-runs, each episode counts once."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+import ray  # noqa: E402,F401  (a missing Ray must fail here, not skip)
+
+REPO = Path(__file__).resolve().parents[2]
+SCENE = """robot: franka_panda
+task: lift_cube
+max_steps: {steps}
+"""
+
+
+def _env():
+    return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1",
+                RAY_USAGE_STATS_ENABLED="0")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _log(out: Path) -> list[dict]:
+    path = out / "episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(x) for x in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+class _Node:
+    """`ray start --block` in a child process (its processes end with it); stopped by its pid."""
+
+    def __init__(self, args: list[str], log: Path):
+        self.log = log
+        self.fh = open(log, "w")
+        self.proc = subprocess.Popen([sys.executable, "-m", "ray.scripts.scripts", "start", "--block",
+                                      "--num-cpus=1", "--object-store-memory=80000000", *args],
+                                     env=_env(), stdout=self.fh, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def wait_ready(self, deadline_s: float = 180.0) -> None:
+        """Readiness signal: `ray start` says the runtime is up (hang guard only)."""
+        end = time.monotonic() + deadline_s
+        while "Ray runtime started" not in self.log.read_text():
+            assert self.proc.poll() is None, self.log.read_text()
+            assert time.monotonic() < end, self.log.read_text()
+            time.sleep(0.2)
+
+    def crash(self) -> None:
+        """The node dies at once: SIGKILL to `ray start`, its raylet and every worker process under it
+        (SIGTERM would drain the node, letting running tasks finish first)."""
+        tree = _descendants(self.proc.pid)
+        for pid in [self.proc.pid, *tree]:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        self.proc.wait(30)
+
+    def stop(self, sig=signal.SIGTERM) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(60)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)  # its own session: only what it started
+                self.proc.wait(30)
+        self.fh.close()
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A head node and a second worker node on this machine, one CPU each; both stopped at the end of
+    this module (the test that crashes the second node runs last)."""
+    tmp_path = tmp_path_factory.mktemp("ray-cluster")
+    port = _free_port()
+    nodes = []
+    temp = tempfile.mkdtemp(prefix="ssray-", dir="/tmp")  # Ray's socket paths must stay under 108 bytes
+    try:
+        head = _Node(["--head", f"--port={port}", "--include-dashboard=false", f"--temp-dir={temp}"],
+                     tmp_path / "head.log")
+        nodes.append(head)
+        head.wait_ready()
+        worker = _Node([f"--address=127.0.0.1:{port}"], tmp_path / "worker.log")
+        nodes.append(worker)
+        worker.wait_ready()
+        yield f"127.0.0.1:{port}", worker
+    finally:
+        for node in reversed(nodes):
+            node.stop()
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def test_ray_results_equal_the_vector_run(cluster, tmp_path):
+    address, _ = cluster
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(steps=40))
+    runs = {}
+    for name, extra in (("ray", ["--ray", address]), ("local", ["--num-envs", "1"])):
+        out = tmp_path / name
+        r = subprocess.run([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene), "--policy",
+                            "scripted", "--episodes", "4", "--seed", "5", "--out", str(out), *extra],
+                           cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
+        assert r.returncode == 0, r.stderr
+        runs[name] = {e["index"]: (e["seed"], e["success"], e["steps"], e["reward"]) for e in _log(out)}
+    assert runs["ray"] == runs["local"] and len(runs["ray"]) == 4
+
+
+def test_ray_workers_share_one_batching_policy_server(cluster, tmp_path):
+    """--policy remote: on Ray: every actor is a client of one serve-policy, which batches their requests."""
+    from simseam.policies.batch import make_policy_batch
+    from simseam.serving import PolicyServer
+
+    address, _ = cluster
+    batch = make_policy_batch("scripted", 2)
+    server = PolicyServer(batch.policies[0], port=0, verbose=False, batch=batch, max_wait_ms=50.0).start()
+    try:
+        scene = tmp_path / "scene.yaml"
+        scene.write_text(SCENE.format(steps=40))
+        runs = {}
+        for name, args in (("ray", ["--ray", address, "--num-envs", "2", "--policy", f"remote:{server.url}"]),
+                           ("local", ["--num-envs", "1", "--policy", "scripted"])):
+            out = tmp_path / name
+            r = subprocess.run([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene),
+                                "--episodes", "4", "--seed", "2", "--out", str(out), *args],
+                               cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
+            assert r.returncode == 0, r.stderr
+            runs[name] = {e["index"]: (e["seed"], e["success"], e["steps"], e["reward"]) for e in _log(out)}
+        assert runs["ray"] == runs["local"] and len(runs["ray"]) == 4
+        assert server.requests == sum(v[2] for v in runs["ray"].values())  # every step asked the server
+        assert max(server.batch_sizes) == 2  # the two Ray workers' requests shared policy calls
+    finally:
+        server.stop()
+
+
+def test_ray_run_survives_a_node_killed_mid_run(cluster, tmp_path):
+    address, worker_node = cluster
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(SCENE.format(steps=400))  # ~1 s per episode here: the kill lands mid-episode
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene), "--policy",
+                             "zero", "--episodes", "10", "--ray", address, "--num-envs", "2", "--out", str(out)],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        end = time.monotonic() + 240
+        while len({e["worker"]["ray_node"] for e in _log(out)}) < 2:  # both nodes finished an episode, run the next
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < end, "the run never logged its episodes"
+            time.sleep(0.05)
+        worker_node.crash()  # the second node dies with an episode in flight
+        stdout, stderr = proc.communicate(timeout=280)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "a Ray worker died in episode" in stderr and "goes back to the queue" in stderr, stderr
+    logged = [e["index"] for e in _log(out)]
+    assert sorted(logged) == list(range(10))  # each episode once: the lost one re-ran on the head node
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == 10 and summary["complete"] is True
+    assert all(e["steps"] == 400 and e["error"] is None for e in summary["episodes"])
+    assert summary["spec"]["task"]["name"] == "lift_cube"

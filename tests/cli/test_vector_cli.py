@@ -1,0 +1,172 @@
+"""simseam run --num-envs / --shard and simseam merge, end to end (real processes)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SCENE = """robot: franka_panda
+task: lift_cube
+image_size: [32, 32]
+max_steps: {steps}
+"""
+OUTCOME = ("index", "seed", "success", "steps", "reward", "error", "diagnostics")
+
+
+@pytest.fixture
+def scene(tmp_path):
+    def _make(steps=40):
+        path = tmp_path / f"scene{steps}.yaml"
+        path.write_text(SCENE.format(steps=steps))
+        return path
+
+    return _make
+
+
+def _env():
+    return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1")
+
+
+def _simseam(*args):
+    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=600)
+
+
+def _log(out: Path) -> list[dict]:
+    path = out / "episodes.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def _outcomes(out: Path) -> dict[int, dict]:
+    return {e["index"]: {k: e[k] for k in OUTCOME} for e in _log(out)}
+
+
+def _children(pid: int) -> list[int]:
+    """The environment workers of a run (multiprocessing's resource tracker left out)."""
+    kids = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        kids += [int(x) for x in (task / "children").read_text().split()]
+    return [k for k in kids if b"spawn_main" in Path(f"/proc/{k}/cmdline").read_bytes()]
+
+
+def _wait_for_episodes(proc, out: Path, n: int, deadline_s: float = 300.0) -> None:
+    """Readiness signal: the episode log holds ``n`` finished episodes (hang guard only)."""
+    end = time.monotonic() + deadline_s
+    while len(_log(out)) < n:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < end, "the run never logged its episodes"
+        time.sleep(0.05)
+
+
+def test_num_envs_gives_the_same_episodes_as_one_process(scene, tmp_path):
+    one, many = tmp_path / "one", tmp_path / "many"
+    a = _simseam("run", "--scene", scene(), "--policy", "scripted", "--episodes", "5", "--seed", "3",
+                 "--num-envs", "1", "--out", one)
+    b = _simseam("run", "--scene", scene(), "--policy", "scripted", "--episodes", "5", "--seed", "3",
+                 "--num-envs", "3", "--out", many)
+    assert a.returncode == 0, a.stderr
+    assert b.returncode == 0, b.stderr
+    assert "on 3 environments" in b.stdout
+    assert _outcomes(one) == _outcomes(many) and len(_outcomes(one)) == 5
+    s1, s2 = (json.loads((d / "summary.json").read_text()) for d in (one, many))
+    assert s1["n_success"] == s2["n_success"] >= 3 and s2["complete"] is True
+    assert s1["spec"] == s2["spec"]
+
+
+def test_a_worker_killed_mid_run_costs_nothing(scene, tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=200)),
+                             "--policy", "zero", "--episodes", "6", "--num-envs", "2", "--out", str(out)],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for_episodes(proc, out, 1)
+        workers = _children(proc.pid)
+        assert len(workers) == 2, workers
+        os.kill(workers[0], signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=600)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "died in episode" in stderr and "goes back to the queue" in stderr
+    logged = [e["index"] for e in _log(out)]
+    summary = json.loads((out / "summary.json").read_text())
+    assert sorted(logged) == list(range(6))  # each episode once in the log ...
+    assert summary["n_episodes"] == 6 and summary["complete"] is True  # ... and in the summary
+    assert all(e["steps"] == 200 and e["error"] is None for e in summary["episodes"])
+
+
+def test_interrupt_with_workers_keeps_finished_episodes_and_exits_130(scene, tmp_path):
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=40)),
+                             "--policy", "zero", "--episodes", "50", "--num-envs", "2", "--out", str(out)],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for_episodes(proc, out, 2)
+        workers = _children(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    k = len(_log(out))
+    assert k >= 2 and f"interrupted after {k} of 50 episodes" in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == k and summary["complete"] is False
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()]  # the workers are gone
+
+
+def test_shards_merge_into_the_whole_run(scene, tmp_path):
+    whole = tmp_path / "whole"
+    r = _simseam("run", "--scene", scene(), "--policy", "scripted", "--episodes", "5", "--num-envs", "1",
+                 "--out", whole)
+    assert r.returncode == 0, r.stderr
+    shards = [tmp_path / f"shard{i}" for i in range(2)]
+    for i, d in enumerate(shards):
+        r = _simseam("run", "--scene", scene(), "--policy", "scripted", "--episodes", "5", "--shard", f"{i}/2",
+                     "--out", d)
+        assert r.returncode == 0, r.stderr
+        s = json.loads((d / "summary.json").read_text())
+        assert [e["index"] for e in s["episodes"]] == list(range(i, 5, 2)) and s["complete"] is True
+    # a shard given twice still counts each episode once
+    merged = tmp_path / "merged"
+    r = _simseam("merge", "--out", merged, *shards, shards[0])
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((merged / "summary.json").read_text())
+    assert summary["complete"] is True and summary["missing"] == [] and summary["n_episodes"] == 5
+    assert _outcomes(merged) == _outcomes(whole)
+    assert "shard" not in summary["config"]
+    # one shard alone: incomplete, the missing episodes listed
+    part = tmp_path / "part"
+    r = _simseam("merge", "--out", part, shards[1])
+    assert r.returncode == 0 and "missing" in r.stdout
+    assert json.loads((part / "summary.json").read_text())["missing"] == [0, 2, 4]
+
+
+def test_merge_refuses_runs_of_different_configs(scene, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _simseam("run", "--scene", scene(steps=8), "--policy", "zero", "--episodes", "2", "--shard", "0/2",
+                    "--out", a).returncode == 0
+    assert _simseam("run", "--scene", scene(steps=8), "--policy", "random", "--episodes", "2", "--shard", "1/2",
+                    "--out", b).returncode == 0
+    r = _simseam("merge", "--out", tmp_path / "m", a, b)
+    assert r.returncode == 2 and "different config" in r.stderr and "policy: 'zero' -> 'random'" in r.stderr
+    assert not (tmp_path / "m").exists()
+
+
+def test_bad_vector_options_are_one_line_errors(scene, tmp_path):
+    r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--shard", "2/2", "--out", tmp_path / "x")
+    assert r.returncode == 2 and "--shard '2/2': expected i/K" in r.stderr
+    r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--num-envs", "2", "--record-dataset",
+                 tmp_path / "ds", "--out", tmp_path / "y")
+    assert r.returncode == 2 and "--record-dataset records one episode at a time" in r.stderr
+    keep = tmp_path / "keep.yaml"
+    keep.write_text("robot: franka_panda\ntask: lift_cube\nmax_steps: 4\n"
+                    "engine: {name: mujoco, process: sidecar, keep_alive: true}\n")
+    r = _simseam("run", "--scene", keep, "--episodes", "2", "--num-envs", "2", "--out", tmp_path / "z")
+    assert r.returncode == 2 and "engine.keep_alive" in r.stderr and "--num-envs 1" in r.stderr

@@ -1,0 +1,119 @@
+"""Batched policies act exactly as their unbatched selves, one environment at a time."""
+
+import math
+
+import numpy as np
+import pytest
+
+from simseam.policies.base import make_policy
+from simseam.policies.batch import PerEnvPolicies, make_policy_batch
+
+SEEDS = (3, 8, 11)
+
+
+def _unbatched(make, scenes, steps):
+    """Each environment driven alone by its own policy instance: the per-step actions."""
+    out = []
+    for scene, seed in zip(scenes, SEEDS):
+        policy = make()
+        policy.reset(scene.spec)
+        obs = scene.reset(seed, policy.observe_next())
+        actions = []
+        for _ in range(steps):
+            a = policy.act(obs)
+            actions.append(a)
+            obs = scene.step(a, policy.observe_next()).observation
+        out.append(np.stack(actions))
+    return out
+
+
+def _batched(batch, scenes, steps, envs=(0, 1, 2)):
+    obs = []
+    for env, scene, seed in zip(envs, scenes, SEEDS):
+        batch.reset(env, scene.spec)
+        obs.append(scene.reset(seed, batch.observe_next(env)))
+    actions = [[] for _ in scenes]
+    for _ in range(steps):
+        acts = batch.act_batch(list(envs), obs)
+        assert acts.shape == (len(scenes), scenes[0].spec.action_dim) and acts.dtype == np.float32
+        for k, (env, scene) in enumerate(zip(envs, scenes)):
+            actions[k].append(acts[k])
+            obs[k] = scene.step(acts[k], batch.observe_next(env)).observation
+    return [np.stack(a) for a in actions]
+
+
+def test_per_env_policies_equal_one_instance_per_episode(panda_spec, make_scene):
+    scenes = [make_scene(panda_spec, privileged=True, max_steps=30) for _ in SEEDS]
+    reference = _unbatched(lambda: make_policy("scripted"), scenes, 25)
+    batch = make_policy_batch("scripted", 3)
+    assert isinstance(batch, PerEnvPolicies) and batch.requires_privileged
+    got = _batched(batch, scenes, 25)
+    for a, b in zip(reference, got):
+        np.testing.assert_array_equal(a, b)
+    assert not np.allclose(got[0], got[1])  # different episodes, different actions: a real comparison
+
+
+@pytest.mark.learning
+def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(tiny_act, panda_spec, make_scene):
+    out, _ = tiny_act
+    steps = 10
+    scenes = [make_scene(panda_spec, image_size=(48, 48), max_steps=steps) for _ in SEEDS]
+    reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, steps)
+    batch = make_policy_batch(f"lerobot:{out}", 3, device="cpu")
+    assert type(batch).__name__ == "LeRobotBatch"
+    got = _batched(batch, scenes, steps)
+    for a, b in zip(reference, got):
+        np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-4)  # float32 sums in another order
+    n = batch.policy.n_action_steps
+    assert batch.forward_passes == math.ceil(steps / n)  # one model call per chunk boundary, for all 3 envs
+    assert batch.chunks_predicted == 3 * math.ceil(steps / n)
+    assert not np.allclose(got[0], got[1], atol=1e-2)
+
+
+@pytest.mark.learning
+def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(tiny_act, panda_spec, make_scene):
+    """Environments that start at different times (a vector env refilling a slot) each replay their own chunk."""
+    out, _ = tiny_act
+    scenes = [make_scene(panda_spec, image_size=(48, 48), max_steps=12) for _ in SEEDS[:2]]
+    reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, 7)
+    batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
+    obs = {}
+    for env in (0, 1):
+        batch.reset(env, scenes[env].spec)
+        obs[env] = scenes[env].reset(SEEDS[env], batch.observe_next(env))
+    got = {0: [], 1: []}
+    for t in range(9):
+        envs = [0] if t < 2 else ([0, 1] if t < 7 else [1])  # env 1 starts two steps late
+        acts = batch.act_batch(envs, [obs[e] for e in envs])
+        for e, a in zip(envs, acts):
+            got[e].append(a)
+            obs[e] = scenes[e].step(a, batch.observe_next(e)).observation
+    for e in (0, 1):
+        np.testing.assert_allclose(np.stack(got[e]), reference[e], rtol=1e-3, atol=2e-4)
+
+
+@pytest.mark.learning
+def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
+    """`simseam run --num-envs 2 --policy lerobot:...`'s loop: worker processes render, the parent batches."""
+    from simseam.runner.scene_config import build_rollout, load_scene_config
+    from simseam.runner.session import run_episodes
+    from simseam.runner.vector import RolloutRecipe, VectorEnv
+
+    out, _ = tiny_act
+    scene = tmp_path / "scene.yaml"
+    scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [48, 48]\nmax_steps: 12\n")
+    cfg, base = load_scene_config(scene)
+    rollout = build_rollout(cfg, base, render_images=True)
+    try:
+        reference = run_episodes(rollout, make_policy(f"lerobot:{out}", device="cpu"), range(3), seed=4)
+    finally:
+        rollout.close()
+    batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
+    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2) as vec:
+        got = {r.index: r for r in vec.run(batch, range(3), seed=4)}
+    assert batch.forward_passes < batch.chunks_predicted  # the two environments shared forward passes
+    for ref in reference:
+        r = got[ref.index]
+        assert (r.seed, r.steps, r.success) == (ref.seed, ref.steps, ref.success)
+        for k, v in ref.diagnostics.items():
+            assert float(r.diagnostics[k]) == pytest.approx(float(v), abs=1e-3)

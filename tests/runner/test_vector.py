@@ -1,0 +1,192 @@
+"""Vector rollouts: N worker processes with one batched policy give the same per-episode results as
+one process; a worker killed mid-episode costs nothing (its episode re-runs, counted once)."""
+
+import os
+import signal
+from pathlib import Path
+
+import pytest
+
+from simseam.policies.base import make_policy
+from simseam.policies.batch import PerEnvPolicies, make_policy_batch
+from simseam.runner.scene_config import build_rollout, load_scene_config
+from simseam.runner.session import run_episodes
+from simseam.runner.vector import RolloutRecipe, VectorEnv, default_num_envs
+from simseam.seam import ConfigError
+
+SCENE = """robot: franka_panda
+task: lift_cube
+max_steps: {steps}
+{engine}
+"""
+
+
+def _scene(tmp_path: Path, steps: int = 40, engine: str = "") -> Path:
+    path = tmp_path / f"scene{steps}{'_sidecar' if engine else ''}.yaml"
+    path.write_text(SCENE.format(steps=steps, engine=engine))
+    return path
+
+
+def _outcome(res) -> tuple:
+    """What an episode did (timings aside)."""
+    d = res.to_json()
+    return d["index"], d["seed"], d["success"], d["steps"], round(d["reward"], 9), d["error"], \
+        {k: round(v, 9) for k, v in d["diagnostics"].items()}
+
+
+def _sequential(scene_path: Path, policy: str, indices, seed: int) -> dict[int, tuple]:
+    cfg, base = load_scene_config(scene_path)
+    pol = make_policy(policy)
+    rollout = build_rollout(cfg, base, privileged=pol.requires_privileged, render_images=pol.uses_images, seed=seed)
+    try:
+        return {r.index: _outcome(r) for r in run_episodes(rollout, pol, indices, seed=seed)}
+    finally:
+        rollout.close()
+
+
+def _recipe(scene_path: Path, policy, seed: int) -> RolloutRecipe:
+    cfg, base = load_scene_config(scene_path)
+    return RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=policy.requires_privileged,
+                         render_images=policy.uses_images, seed=seed)
+
+
+@pytest.mark.parametrize("sync", [True, False], ids=["stepped-together", "asynchronous"])
+def test_vector_results_equal_one_process(tmp_path, sync):
+    scene = _scene(tmp_path)
+    reference = _sequential(scene, "scripted", range(5), seed=7)
+    assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
+    pol = make_policy_batch("scripted", 3)
+    assert isinstance(pol, PerEnvPolicies)
+    done = []
+    with VectorEnv(_recipe(scene, pol, 7), 3) as vec:
+        assert vec.spec.task.name == "lift_cube"
+        results = vec.run(pol, range(5), seed=7, on_done=done.append, sync=sync)
+    assert sorted(r.index for r in done) == list(range(5))
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_a_worker_killed_mid_episode_reruns_it_counted_once(tmp_path):
+    scene = _scene(tmp_path)
+    reference = _sequential(scene, "scripted", range(4), seed=0)
+    pol = make_policy_batch("scripted", 2)
+    failures, done, killed = [], [], []
+    with VectorEnv(_recipe(scene, pol, 0), 2) as vec:
+        first_pids = vec.pids()
+
+        def on_step(env, index, steps):
+            if index == 1 and steps == 5 and not killed:  # episode 1, mid-way: SIGKILL its worker
+                killed.append(vec.pids()[env])
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(4), seed=0, on_step=on_step, on_done=done.append,
+                          on_worker_failure=failures.append)
+        assert vec.restarts == 1 and len(set(vec.pids()) - set(first_pids)) == 1
+    assert killed and len(failures) == 1
+    assert failures[0].index == 1 and failures[0].exitcode == -signal.SIGKILL
+    assert "episode 1 goes back to the queue" in failures[0].what_next
+    assert sorted(r.index for r in done) == [0, 1, 2, 3]  # each episode once
+    assert {r.index: _outcome(r) for r in results} == reference  # the re-run is the same episode
+
+
+def test_vector_through_the_sidecar_equals_in_process(tmp_path):
+    """Each worker owns a SidecarRollout (its own sidecar process); results equal in-process ones."""
+    inproc = _scene(tmp_path, steps=30)
+    sidecar = _scene(tmp_path, steps=30, engine="engine: {name: mujoco, process: sidecar}")
+    reference = _sequential(inproc, "scripted", range(3), seed=2)
+    pol = make_policy_batch("scripted", 2)
+    with VectorEnv(_recipe(sidecar, pol, 2), 2) as vec:
+        assert vec.spec.backend == "sidecar"
+        results = vec.run(pol, range(3), seed=2)
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_a_bad_scene_fails_in_the_parent_with_its_error(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("robot: franka_panda\ntask: no_such_task\n")
+    cfg, base = load_scene_config(path)
+    with pytest.raises(ConfigError, match="no_such_task"):
+        VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2)
+
+
+def test_default_num_envs_is_sized_to_cores_and_episodes():
+    assert default_num_envs(3, cores=16) == 3
+    assert default_num_envs(500, cores=16) == 16
+    assert default_num_envs(0, cores=4) == 1
+
+
+class _ImageLog(PerEnvPolicies):
+    """Zero actions; keeps every observation's images (the copies the policy was handed)."""
+
+    def __init__(self, n):
+        self.n, self.uses_images, self.requires_privileged = n, True, False
+        self.seen: dict[int, list] = {}
+
+    def reset(self, env, spec):
+        self.dim = spec.action_dim
+
+    def observe_next(self, env):
+        return None
+
+    def act_batch(self, envs, observations):
+        import numpy as np
+
+        for e, o in zip(envs, observations):
+            self.seen.setdefault(e, []).append(o["images"])
+        return np.zeros((len(envs), self.dim), np.float32)
+
+
+def test_images_reach_the_policy_intact_through_shared_memory(tmp_path):
+    """Workers hand images over in a shared memory block; the policy gets its own copies, equal to what an
+    in-process rollout renders for the same seed and actions."""
+    import numpy as np
+
+    path = tmp_path / "cams.yaml"
+    path.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [64, 80]\nmax_steps: 4\n")
+    cfg, base = load_scene_config(path)
+    pol = _ImageLog(1)
+    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 1) as vec:
+        vec.run(pol, [0, 1], seed=9)
+        assert vec.slots[0].mm is not None  # the images came through the shared block
+    frames = pol.seen[0]
+    assert len(frames) == 8 and set(frames[0]) == {"camera1", "camera2"}
+    assert frames[0]["camera1"].shape == (64, 80, 3) and frames[0]["camera1"].dtype == np.uint8
+    assert frames[0]["camera1"] is not frames[1]["camera1"]  # copies: a kept frame is never overwritten
+    rollout = build_rollout(cfg, base, render_images=True)
+    try:
+        expected = [rollout.reset(9)["images"]]
+        for _ in range(3):
+            expected.append(rollout.step(np.zeros(rollout.spec.action_dim, np.float32)).observation["images"])
+    finally:
+        rollout.close()
+    for got, want in zip(frames[:4], expected):
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key])
+    assert not np.array_equal(frames[0]["camera1"], frames[4]["camera1"])  # episode 1: another cube pose
+
+
+def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_path):
+    """``run_local``: each worker builds its own policy and plays whole episodes; a worker killed
+    mid-episode has that episode re-run, counted once."""
+    scene = _scene(tmp_path, steps=60)
+    reference = _sequential(scene, "scripted", range(6), seed=1)
+    cfg, base = load_scene_config(scene)
+    recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=True, render_images=False)
+    failures, done, killed = [], [], []
+    with VectorEnv(recipe, 2) as vec:
+        def on_done(res):
+            done.append(res)
+            busy = [s for s in vec.slots if s.index is not None]
+            if not killed and busy:
+                pid = busy[0].proc.pid
+                os.kill(pid, signal.SIGSTOP)  # frozen: if it has sent nothing yet, it is mid-episode
+                if busy[0].conn.poll():
+                    os.kill(pid, signal.SIGCONT)  # its result is already on its way: try at the next one
+                else:
+                    killed.append(busy[0].index)
+                    os.kill(pid, signal.SIGKILL)
+
+        results = vec.run_local("scripted", {}, range(6), seed=1, on_done=on_done,
+                                on_worker_failure=failures.append)
+    assert killed and [f.index for f in failures] == killed
+    assert sorted(r.index for r in done) == list(range(6))
+    assert {r.index: _outcome(r) for r in results} == reference
