@@ -137,6 +137,24 @@ def provision(name: str, *, force: bool = False, progress: Callable[[str], None]
         return record
 
 
+def catalog(name: str, timeout: float = 300.0) -> dict:
+    """The backend's suites and tasks (``module.catalog()``), asked of its provisioned interpreter."""
+    import tempfile
+
+    python = require(name)
+    with tempfile.TemporaryDirectory(prefix="simseam-catalog-") as tmp:
+        os.symlink(Path(__file__).resolve().parents[1], Path(tmp) / "simseam")
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV")}
+        env.update(PYTHONPATH=tmp, PYGAME_HIDE_SUPPORT_PROMPT="1")
+        code = ("import json, sys\nfrom simseam.backends import backend_module\n"
+                "sys.stdout.write('\\n' + json.dumps(backend_module(sys.argv[1]).catalog()))")
+        out = subprocess.run([str(python), "-c", code, name], capture_output=True, text=True, env=env,
+                             timeout=timeout)
+    if out.returncode != 0:
+        raise BackendUnavailableError(f"{name}: listing its tasks failed: {out.stderr.strip()[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m simseam.backends.provision NAME...`` (what scripts/bootstrap.sh runs)."""
     import argparse
