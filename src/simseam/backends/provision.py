@@ -2,8 +2,10 @@
 
 Standard library only. The venv lives outside any checkout, keyed by its pins:
 ``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root),
-where ``<hash>`` covers ``pins/<name>.txt`` and the interpreter's minor version, so a
-changed pin builds a new venv and every checkout with the same pins shares one.
+where ``<hash>`` covers ``pins/<name>.txt``, so a changed pin builds a new venv and every
+checkout (and client interpreter: 3.11 and 3.12 alike) with the same pins shares one. It is
+built from the base installation of the interpreter that provisions it (the pins are resolved
+for CPython 3.11; 3.12 installs the same wheels).
 
 simseam itself is not installed there: the sidecar client puts its own ``simseam``
 package on the backend interpreter's path at launch (a symlink in its private
@@ -48,9 +50,7 @@ def pins_file(name: str) -> Path:
 
 
 def pins_key(name: str) -> str:
-    text = pins_file(name).read_bytes()
-    tag = f"py{sys.version_info[0]}.{sys.version_info[1]}".encode()
-    return hashlib.sha256(text + b"\0" + tag).hexdigest()[:12]
+    return hashlib.sha256(pins_file(name).read_bytes()).hexdigest()[:12]
 
 
 def venv_dir(name: str) -> Path:
