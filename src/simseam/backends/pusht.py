@@ -1,6 +1,8 @@
 """PushT behind the seam (``benchmark: {name: pusht}``), LeRobot's ``gym-pusht``.
 
-Native environment: ``gym_pusht.envs.PushTEnv(obs_type="pixels_agent_pos")``; episode
+Native environment: ``gym_pusht.envs.PushTEnv`` (built with ``obs_type="state"`` so that its
+step does not render; the ``pixels`` of ``obs_type="pixels_agent_pos"`` come from the same
+``env._render()`` call, made only when an image is requested); episode
 ``seed`` is ``env.reset(seed=seed)`` (the env rebuilds its pymunk space on every reset, so
 an episode depends on its seed alone).
 
@@ -71,7 +73,7 @@ class PushTRollout(BenchmarkRollout):
         from gym_pusht.envs import PushTEnv
 
         h, w = config["image_size"]
-        self.env = PushTEnv(obs_type="pixels_agent_pos", render_mode="rgb_array", observation_width=w,
+        self.env = PushTEnv(obs_type="state", render_mode="rgb_array", observation_width=w,
                             observation_height=h)
         joints = (JointFacts("agent_x", "arm", 0.0, WORKSPACE), JointFacts("agent_y", "arm", 0.0, WORKSPACE))
         sensors = (SensorFacts(name="top", kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0),
