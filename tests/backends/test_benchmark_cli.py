@@ -13,6 +13,8 @@ import imageio.v2 as imageio
 import pytest
 from conftest import backend_python
 
+pytestmark = pytest.mark.backends
+
 REPO = Path(__file__).resolve().parents[2]
 #: tasks whose Meta-World experts are known to be near-perfect (benchmarks/bench_backends.py measures 50 episodes)
 EXPERT_TASKS = ("reach-v3", "push-v3", "drawer-open-v3", "drawer-close-v3", "button-press-topdown-v3",
@@ -54,14 +56,14 @@ def test_metaworld_experts_reach_their_known_success_through_eval(tmp_path):
     ("scenes/pusht.yaml", "random", (96, 96, 3)),
     ("scenes/aloha_insertion.yaml", "zero", (480, 640, 3)),
     ("scenes/metaworld_reach.yaml", "random", (224, 224, 3)),
+    ("scenes/libero_spatial.yaml", "random", (256, 256, 3)),
 ])
 def test_random_and_zero_runs_write_summary_and_video(tmp_path, scene, policy, frame):
-    name = scene.split("/")[1].split("_")[0].split(".")[0]
-    backend_python({"pusht": "pusht", "aloha": "aloha", "metaworld": "metaworld"}[name])
+    backend_python(scene.split("/")[1].split("_")[0].split(".")[0])
     cfg = tmp_path / "scene.yaml"
     text = (REPO / scene).read_text()
     cfg.write_text(text.replace("max_steps: 500", "max_steps: 8").replace("max_steps: 300", "max_steps: 8")
-                   .replace("max_steps: 400", "max_steps: 8"))
+                   .replace("max_steps: 400", "max_steps: 8").replace("max_steps: 220", "max_steps: 8"))
     out = tmp_path / "run"
     proc = simseam("run", "--scene", str(cfg), "--policy", policy, "--episodes", "2", "--out", str(out), "--video")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -90,7 +92,8 @@ def test_bad_benchmark_input_is_one_line_naming_file_and_field(tmp_path):
             ("benchmark: {name: metaworld, task: reach}\n", "benchmark.task: a Meta-World v3 task name"),
             ("benchmark: {name: metaworld, task: reach-v3, camera: nope}\n", "benchmark.camera: 'nope'"),
             ("benchmark: {name: pusht, fps: 3}\n", "unknown field(s) ['fps']"),
-            ("benchmark: {name: libero, suite: libero_spatial}\n", "unknown benchmark backend 'libero'"),
+            ("benchmark: {name: robocasa, task: PnPCounterToCab}\n", "unknown benchmark backend 'robocasa' (cannot run offline"),
+            ("benchmark: {name: libero, suite: libero_100}\n", "benchmark.suite: LIBERO suites are"),
             ("benchmark: {name: pusht}\nrobot: franka_panda\n", "takes its robot from benchmark"),
     ):
         bad.write_text(text)
@@ -100,8 +103,10 @@ def test_bad_benchmark_input_is_one_line_naming_file_and_field(tmp_path):
     bad.write_text("benchmark: {name: aloha, task: insertion}\n")
     proc = simseam("run", "--scene", str(bad), "--policy", "scripted", "--out", str(tmp_path / "run"), "--overwrite")
     assert proc.returncode == 2 and "aloha ships no scripted expert" in proc.stderr
-    proc = simseam("eval", "libero_spatial", "--policy", "random")
-    assert proc.returncode == 2 and "unknown eval preset 'libero_spatial'" in proc.stderr
+    proc = simseam("eval", "robocasa_kitchen", "--policy", "random")
+    assert proc.returncode == 2 and "unknown eval preset 'robocasa_kitchen'" in proc.stderr
+    proc = simseam("eval", "libero_goal", "--policy", "random", "--tasks", "libero_goal/12")
+    assert proc.returncode == 2 and "--tasks: ['libero_goal/12'] not in preset 'libero_goal'" in proc.stderr
 
 
 def test_benchmarks_list_shows_tasks_and_instructions():
@@ -110,3 +115,49 @@ def test_benchmarks_list_shows_tasks_and_instructions():
     assert proc.returncode == 0, proc.stderr
     assert "pick-place-v3" in proc.stdout and "pick place" in proc.stdout and "MT10" in proc.stdout
     assert "metaworld_mt10" in proc.stdout
+
+
+def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path):
+    """simseam eval libero_spatial --policy remote:...?format=libero against an openpi-style server
+    (openpi_client's own packer): the keys, 224x224 resized upright images, 8-D state, the task's
+    instruction, one request per 5-action chunk; results through the run directory."""
+    import threading
+
+    import numpy as np
+    from openpi_client import msgpack_numpy
+    from websockets.sync.server import serve
+
+    backend_python("libero")
+    received = []
+    packer = msgpack_numpy.Packer()
+
+    def handle(conn):
+        conn.send(packer.pack({}))
+        for msg in conn:
+            received.append(msgpack_numpy.unpackb(msg))
+            conn.send(packer.pack({"actions": np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0], (10, 1))}))
+
+    srv = serve(handle, "127.0.0.1", 0, compression=None, max_size=None)
+    thread = threading.Thread(target=srv.serve_forever, daemon=True)
+    thread.start()
+    try:
+        url = f"ws://127.0.0.1:{srv.socket.getsockname()[1]}?format=libero&n_action_steps=5"
+        out = tmp_path / "eval"
+        proc = simseam("eval", "libero_spatial", "--policy", f"remote:{url}", "--episodes", "1",
+                       "--tasks", "libero_spatial/3", "--out", str(out))
+    finally:
+        srv.shutdown()
+        thread.join(5)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    (ep,) = summary["episodes"]
+    assert ep["task"] == "libero_spatial/3" and ep["steps"] == 220 and ep["success"] is False
+    assert summary["per_task"]["libero_spatial/3"]["n_episodes"] == 1
+    assert len(received) == 220 // 5
+    first = received[0]
+    assert set(first) == {"observation/image", "observation/wrist_image", "observation/state", "prompt"}
+    assert first["prompt"] == "pick up the black bowl on the cookie box and place it on the plate"
+    for key in ("observation/image", "observation/wrist_image"):
+        assert first[key].shape == (224, 224, 3) and first[key].dtype == np.uint8
+    assert first["observation/state"].shape == (8,)
+    assert summary["spec"]["observation"]["images"]["entries"]["camera1"]["shape"] == [256, 256, 3]

@@ -13,7 +13,8 @@ Mapping to the seam (the keys openpi's client builds, ``remote:...?format=libero
 
 - ``images``: ``camera1`` = ``agentview_image[::-1, ::-1]``, ``camera2`` =
   ``robot0_eye_in_hand_image[::-1, ::-1]`` (upright: robosuite renders them rotated by 180 degrees);
-  a camera not requested is switched off in robosuite for that step (not rendered at all);
+  a camera not requested gets a sensor that renders nothing for that step (robosuite's sampling
+  clock is untouched, so every observation is the native one);
 - ``state`` (8-D): ``robot0_eef_pos``, the axis-angle of ``robot0_eef_quat``, ``robot0_gripper_qpos``;
 - action: LIBERO's 7-D OSC_POSE delta ``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1]
   (CARTESIAN_DELTA, 0.05 m and 0.5 rad per unit; grip -1 open, +1 closed), clipped;
@@ -57,6 +58,7 @@ DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "set
 CAMERAS = {"camera1": "agentview_image", "camera2": "robot0_eye_in_hand_image"}
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
 N_INIT = 50
+_NO_FRAME = np.zeros((0, 0, 3), dtype=np.uint8)
 STATE_NAMES = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "finger_left", "finger_right")
 JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8)) + ("robot0_finger_joint1", "robot0_finger_joint2")
 
@@ -121,6 +123,7 @@ class LiberoRollout(BenchmarkRollout):
         self.env = OffScreenRenderEnv(bddl_file_name=bddl, camera_heights=h, camera_widths=w)
         self._settle = config["settle_steps"]
         self._enabled = {k: True for k in CAMERAS}
+        self._real_sensors: dict = {}
         self._obs: dict = {}
         self._native_reset(0)
         robot = self.env.env.robots[0]
@@ -148,17 +151,36 @@ class LiberoRollout(BenchmarkRollout):
         super().__init__(spec)
 
     def _cameras(self, request: ObsRequest) -> None:
-        """Switch robosuite's camera observables to exactly what the next observation needs."""
+        """Give robosuite's camera observables the real sensor only for the cameras the next observation
+        needs; the others get a sensor that renders nothing. The observables stay enabled, so robosuite
+        samples every one at the very moments it would natively (switching them off and on, or forcing an
+        update, shifts its sampling clock and the observations with it)."""
+        env = self.env.env
         for key, native in CAMERAS.items():
             want = request.wants_image(key)
             if want != self._enabled[key]:
-                self.env.env.modify_observable(observable_name=native, attribute="enabled", modifier=want)
+                obs = env._observables[native]
+                if native not in self._real_sensors:
+                    self._real_sensors[native] = obs._sensor
+                obs.set_sensor(self._real_sensors[native] if want else self._blank_sensor(obs._sensor))
                 self._enabled[key] = want
 
+    @staticmethod
+    def _blank_sensor(real):
+        from robosuite.utils.observables import sensor
+
+        @sensor(modality=real.__modality__)
+        def blank(obs_cache):
+            return _NO_FRAME
+
+        blank.__name__ = real.__name__
+        return blank
+
     def _native_reset(self, seed: int) -> None:
-        self._cameras(ObsRequest())  # a reset rebuilds the observables; every camera on, as built
+        self._cameras(ObsRequest())  # every camera real for the reset (a hard reset rebuilds the observables)
         self.env.seed(seed)
         self.env.reset()
+        self._real_sensors = {}
         self._obs = self.env.set_init_state(self._init_states[seed % N_INIT])
         for _ in range(self._settle):
             self._obs, _r, _done, _info = self.env.step(list(DUMMY_ACTION))
@@ -173,14 +195,7 @@ class LiberoRollout(BenchmarkRollout):
 
     def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
         o = self._obs
-        images = {}
-        for key, native in CAMERAS.items():
-            if request.wants_image(key):
-                if native not in o:  # switched off for this step by an earlier request: render it now
-                    self._cameras(ObsRequest())
-                    self.env.env._update_observables(force=True)
-                    o = self._obs = {**o, **self.env.env._get_observations()}
-                images[key] = np.ascontiguousarray(o[native][::-1, ::-1])
+        images = {key: self._render_camera(key) for key in CAMERAS if request.wants_image(key)}
         state = np.concatenate([o["robot0_eef_pos"], quat_to_axis_angle(o["robot0_eef_quat"]),
                                 o["robot0_gripper_qpos"]])
         return {
@@ -192,9 +207,10 @@ class LiberoRollout(BenchmarkRollout):
 
     def _render_camera(self, key: str) -> np.ndarray:
         native = CAMERAS[key]
-        if native not in self._obs:
-            self._observe_native(ObsRequest(images=frozenset({key})))
-        return np.ascontiguousarray(self._obs[native][::-1, ::-1])
+        frame = self._obs[native]
+        if frame.size == 0:  # blanked for this step (render() for a video after a state-only step): render now
+            frame = np.asarray(self._real_sensors[native]({}))
+        return np.ascontiguousarray(frame[::-1, ::-1])
 
     def _sim_time_s(self) -> float:
         return float(self.env.env.sim.data.time)
