@@ -9,7 +9,9 @@ insertion with its 480x640 top camera) and per observation kind:
 - ``pixels``: what a pixel policy needs each step: native ``env.step`` + ``env.render()``
   (Meta-World), native ``step`` with ``obs_type="pixels_agent_pos"`` (PushT, ALOHA; ALOHA's
   native task renders three 480x640 cameras per step whether read or not) vs the seam's
-  ``step(a)`` with its one camera.
+  ``step(a)`` with its one camera. LIBERO (libero_spatial task 3, 256x256, as openpi's client)
+  renders both cameras on every native step in both kinds (it has no state-only mode); the seam's
+  ``state`` step renders none.
 
 ``native`` runs in the backend's own venv (a subprocess that imports no simseam), ``seam``
 is a ``SidecarRollout`` on that venv driven from this process; the same seeded action
@@ -42,6 +44,7 @@ CASES = {
     "metaworld": {"task": "reach-v3", "camera": "corner2", "image_size": [224, 224]},
     "pusht": {"image_size": [96, 96]},
     "aloha": {"task": "insertion", "cameras": ["top"]},
+    "libero": {"suite": "libero_spatial", "task": 3, "image_size": [256, 256], "settle_steps": 10},
 }
 
 NATIVE = r'''
@@ -67,6 +70,17 @@ elif backend == "pusht":
                    observation_height=h)
     env.reset(seed=seed)
     step = env.step
+elif backend == "libero":  # as openpi's LIBERO client: both 256x256 cameras on every step (it has no other mode)
+    import os
+    from libero.libero import benchmark, get_libero_path
+    from libero.libero.envs import OffScreenRenderEnv
+    suite = benchmark.get_benchmark_dict()[cfg["suite"]]()
+    task = suite.get_task(cfg["task"])
+    h, w = cfg["image_size"]
+    env = OffScreenRenderEnv(bddl_file_name=os.path.join(get_libero_path("bddl_files"), task.problem_folder,
+                             task.bddl_file), camera_heights=h, camera_widths=w)
+    env.seed(seed); env.reset(); env.set_init_state(suite.get_task_init_states(cfg["task"])[seed % 50])
+    step = env.step
 else:
     from gym_aloha.env import AlohaEnv
     env = AlohaEnv(task=cfg["task"], obs_type="pixels_agent_pos")
@@ -88,6 +102,8 @@ def actions_for(backend: str, n: int, rng: np.random.Generator, start: np.ndarra
         return rng.uniform(-1, 1, (n, 4)).astype(np.float32)
     if backend == "pusht":
         return rng.uniform(60, 450, (n, 2)).astype(np.float32)
+    if backend == "libero":
+        return rng.uniform(-0.3, 0.3, (n, 7)).astype(np.float32)
     return (start + np.cumsum(rng.normal(0, 0.005, (n, 14)), axis=0)).astype(np.float32)
 
 
@@ -155,6 +171,8 @@ def main() -> None:
         start = np.asarray(rollout.reset(0)["state"], dtype=np.float64)
         for kind in ("state", "pixels"):
             steps = args.steps if kind == "state" or name == "pusht" else max(20, args.steps // 4)
+            if name == "libero":  # ~0.1-0.5 s per step on this CPU
+                steps = max(10, args.steps // 10)
             nat, sea = [], []
             for r in range(args.rounds):
                 acts = actions_for(name, steps, np.random.default_rng(r), start)

@@ -4,8 +4,8 @@
 #   2. a virtualenv (default .venv, Python >= 3.10) with simseam and the robot model packages;
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
-#   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO; src/simseam/backends/pins/), each
-#      under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~3.5 min and ~3.3 GB from PyPI, once);
+#   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite; backends/pins/), each
+#      under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~4.5 min and ~4.5 GB from PyPI, once);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
@@ -99,7 +99,7 @@ fi
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
 # benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent
-"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha libero \
+"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha libero robosuite \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 

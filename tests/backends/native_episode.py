@@ -111,6 +111,41 @@ def libero(cfg, seed, actions):
     return out
 
 
+def robosuite(cfg, seed, actions):
+    """robosuite 1.5, seeded per episode through its generator (the env's and its placement sampler's)."""
+    import math
+
+    import robosuite as suite
+
+    h, w = cfg["image_size"]
+    env = suite.make(cfg["task"], robots=cfg["robot"], has_renderer=False, has_offscreen_renderer=True,
+                     use_camera_obs=True, camera_names=["agentview", "robot0_eye_in_hand"], camera_heights=h,
+                     camera_widths=w, control_freq=20)
+    rng = np.random.default_rng(seed)
+    env.rng = rng
+    env.placement_initializer.rng = rng
+    obs = env.reset()
+
+    def record(o):
+        q = o["robot0_eef_quat"]
+        qw = min(1.0, max(-1.0, q[3]))
+        den = math.sqrt(1.0 - qw * qw)
+        aa = np.zeros(3) if math.isclose(den, 0.0) else q[:3] * 2.0 * math.acos(qw) / den
+        out["state"].append(np.concatenate([o["robot0_eef_pos"], aa, o["robot0_gripper_qpos"]]))
+        out["image"].append(o["agentview_image"][::-1])
+        out["wrist"].append(o["robot0_eye_in_hand_image"][::-1])
+        out["cube"].append(o["cube_pos"])
+
+    out = {"state": [], "image": [], "wrist": [], "cube": [], "reward": [], "success": []}
+    record(obs)
+    for a in actions:
+        obs, r, _, _ = env.step(a)
+        record(obs)
+        out["reward"].append(r)
+        out["success"].append(bool(env._check_success()))
+    return out
+
+
 if __name__ == "__main__":
     backend, cfg, seed, actions_path, out_path = sys.argv[1:6]
     result = globals()[backend](json.loads(cfg), int(seed), np.load(actions_path))

@@ -57,6 +57,7 @@ def test_metaworld_experts_reach_their_known_success_through_eval(tmp_path):
     ("scenes/aloha_insertion.yaml", "zero", (480, 640, 3)),
     ("scenes/metaworld_reach.yaml", "random", (224, 224, 3)),
     ("scenes/libero_spatial.yaml", "random", (256, 256, 3)),
+    ("scenes/robosuite_lift.yaml", "zero", (128, 128, 3)),
 ])
 def test_random_and_zero_runs_write_summary_and_video(tmp_path, scene, policy, frame):
     backend_python(scene.split("/")[1].split("_")[0].split(".")[0])

