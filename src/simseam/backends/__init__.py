@@ -45,7 +45,8 @@ BACKENDS: dict[str, BackendInfo] = {
 
 #: benchmarks users ask for that cannot run offline here (shown by ``simseam backends list``)
 NOT_AVAILABLE = {
-    "maniskill3": "not yet behind the seam (mani-skill 3.0.1, state-only on this CPU); see docs/benchmarks.md",
+    "maniskill3": "not yet behind the seam (mani-skill 3.0.1: SAPIEN renders nothing on this CPU's Mesa, "
+                  "state-only here); see docs/benchmarks.md",
     "robocasa": "cannot run offline: ~10 GB of assets downloaded behind an interactive prompt",
     "simplerenv": "cannot run offline here: not on PyPI (git install + ManiSkill2 real-to-sim assets)",
 }
