@@ -45,6 +45,7 @@ CASES = {
     "pusht": {"image_size": [96, 96]},
     "aloha": {"task": "insertion", "cameras": ["top"]},
     "libero": {"suite": "libero_spatial", "task": 3, "image_size": [256, 256], "settle_steps": 10},
+    "robosuite": {"task": "Lift", "robot": "Panda", "image_size": [128, 128]},
 }
 
 NATIVE = r'''
@@ -81,6 +82,14 @@ elif backend == "libero":  # as openpi's LIBERO client: both 256x256 cameras on 
                              task.bddl_file), camera_heights=h, camera_widths=w)
     env.seed(seed); env.reset(); env.set_init_state(suite.get_task_init_states(cfg["task"])[seed % 50])
     step = env.step
+elif backend == "robosuite":  # state: use_camera_obs=False (robosuite's own state-only mode)
+    import robosuite as suite
+    h, w = cfg["image_size"]
+    env = suite.make(cfg["task"], robots=cfg["robot"], has_renderer=False, has_offscreen_renderer=kind != "state",
+                     use_camera_obs=kind != "state", camera_names=["agentview", "robot0_eye_in_hand"],
+                     camera_heights=h, camera_widths=w, horizon=10**9)
+    env.reset()
+    step = env.step
 else:
     from gym_aloha.env import AlohaEnv
     env = AlohaEnv(task=cfg["task"], obs_type="pixels_agent_pos")
@@ -102,7 +111,7 @@ def actions_for(backend: str, n: int, rng: np.random.Generator, start: np.ndarra
         return rng.uniform(-1, 1, (n, 4)).astype(np.float32)
     if backend == "pusht":
         return rng.uniform(60, 450, (n, 2)).astype(np.float32)
-    if backend == "libero":
+    if backend in ("libero", "robosuite"):
         return rng.uniform(-0.3, 0.3, (n, 7)).astype(np.float32)
     return (start + np.cumsum(rng.normal(0, 0.005, (n, 14)), axis=0)).astype(np.float32)
 
@@ -173,6 +182,8 @@ def main() -> None:
             steps = args.steps if kind == "state" or name == "pusht" else max(20, args.steps // 4)
             if name == "libero":  # ~0.1-0.5 s per step on this CPU
                 steps = max(10, args.steps // 10)
+            if name == "robosuite":
+                steps = max(20, args.steps // 4)
             nat, sea = [], []
             for r in range(args.rounds):
                 acts = actions_for(name, steps, np.random.default_rng(r), start)
