@@ -83,7 +83,8 @@ class SceneConfig(BaseModel):
                 raise ValueError(f"a benchmark scene takes its {', '.join(given)} from benchmark: (e.g. "
                                  "benchmark: {name: metaworld, task: reach-v3, max_steps: 500}); remove them")
         elif self.robot is None or self.task is None:
-            raise ValueError("a scene needs robot: and task:, or benchmark: {name: ..., ...}")
+            missing = " and ".join(k + ":" for k in ("robot", "task") if getattr(self, k) is None)
+            raise ValueError(f"missing {missing} (a scene needs robot: and task:, or benchmark: {{name: ...}})")
         return self
 
     @field_validator("image_size")
