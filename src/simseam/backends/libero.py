@@ -36,6 +36,7 @@ from simseam.backends.base import BenchmarkRollout, check_image_size, check_int,
 from simseam.backends.robosuite_cameras import CameraSwitch, release_render_context
 from simseam.seam import (
     OBS_IMAGES,
+    STATE_ONLY,
     OBS_JOINT_POSITIONS,
     OBS_JOINT_VELOCITIES,
     OBS_STATE,
@@ -156,7 +157,8 @@ class LiberoRollout(BenchmarkRollout):
         self.env.reset()
         self._switch.reset()  # a hard reset rebuilt the observables
         self._obs = self.env.set_init_state(self._init_states[seed % N_INIT])
-        for _ in range(self._settle):
+        for i in range(self._settle):  # the cameras render on the last settle step only (what is observed)
+            self._switch.apply(self.env.env, ObsRequest() if i == self._settle - 1 else STATE_ONLY)
             self._obs, _r, _done, _info = self.env.step(list(DUMMY_ACTION))
 
     def _native_step(self, action: np.ndarray):
