@@ -10,17 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from backend_util import backend_python
 
 HERE = Path(__file__).resolve().parent
-
-
-def backend_python(name: str) -> str:
-    from simseam.backends.provision import marker, provision_command, python_of, venv_dir
-
-    if marker(name) is None:
-        pytest.fail(f"benchmark backend {name!r} is not provisioned ({venv_dir(name)}); scripts/bootstrap.sh does "
-                    f"it, or run `{provision_command(name)}`")
-    return str(python_of(name))
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import imageio.v2 as imageio
 import pytest
-from conftest import backend_python
+from backend_util import backend_python
 
 pytestmark = pytest.mark.backends
 

@@ -184,7 +184,7 @@ def test_robosuite_frames_survive_hard_resets_and_garbage_collection(tmp_path, n
     import subprocess
     from pathlib import Path
 
-    from conftest import backend_python
+    from backend_util import backend_python
 
     python = backend_python(name)
     (tmp_path / "simseam").symlink_to(Path(__import__("simseam").__file__).resolve().parent)
