@@ -41,7 +41,7 @@ def test_scene_file_unknown_key_names_file_and_field(tmp_path):
 def test_scene_file_bad_values(tmp_path):
     with pytest.raises(ConfigError, match="field 'image_size'"):
         load_scene_config(_write(tmp_path, "robot: franka_panda\nlayout: lift_cube\nimage_size: [2, 256]\n"))
-    with pytest.raises(ConfigError, match="field 'task': Field required"):
+    with pytest.raises(ConfigError, match="missing task: .a scene needs robot: and task:, or benchmark:"):
         load_scene_config(_write(tmp_path, "robot: franka_panda\n"))
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_scene_config(_write(tmp_path, "robot: [unclosed\n"))

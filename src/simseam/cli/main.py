@@ -1,4 +1,5 @@
-"""``simseam`` command line: run | summarize | collect | train | serve-policy | deploy | robots | sidecar | isaac | doctor."""
+"""``simseam`` command line: run | eval | summarize | collect | train | serve-policy | deploy | robots | backends |
+benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.serve_policy import serve_policy
@@ -28,6 +30,9 @@ app.add_typer(isaac_app, name="isaac")
 app.command("doctor")(doctor)
 app.command("deploy")(deploy)
 app.command("serve-policy")(serve_policy)
+app.add_typer(backends_app, name="backends")
+app.add_typer(benchmarks_app, name="benchmarks")
+app.command("eval")(eval_command)
 console = Console(soft_wrap=True)
 err_console = Console(stderr=True, soft_wrap=True)
 

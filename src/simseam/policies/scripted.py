@@ -16,8 +16,8 @@ from simseam.policies.base import BasePolicy, register_policy
 from simseam.policies.navigation import NavExpert
 from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
 from simseam.scene.kinematics import SerialChain
-from simseam.seam import (OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode, Observation,
-                          RolloutSpec)
+from simseam.seam import (OBS_EXPERT_ACTION, OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode,
+                          Observation, RolloutSpec)
 
 OPEN, CLOSE = -1.0, 1.0
 
@@ -195,12 +195,17 @@ _ANY_MODE = {"reach"}  # experts that drive joint_position too
 
 @register_policy("scripted")
 class ScriptedPolicy(BasePolicy):
-    """Dispatches to the expert of the rollout's task. Needs privileged observations."""
+    """Dispatches to the expert of the rollout's task. Needs privileged observations.
+    On a benchmark that ships its own experts (Meta-World) the rollout declares
+    ``expert_action``: the benchmark's expert, run beside the simulator, is replayed as is."""
 
     requires_privileged = True
 
     def reset(self, spec: RolloutSpec) -> None:
         super().reset(spec)
+        self._benchmark_expert = spec.observation.has(OBS_EXPERT_ACTION)
+        if self._benchmark_expert:
+            return
         if spec.task.name not in _EXPERTS:
             raise ConfigError(f"no scripted expert for task {spec.task.name!r}; experts exist for {sorted(_EXPERTS)}")
         if spec.control_mode != ControlMode.CARTESIAN_DELTA and spec.task.name not in _ANY_MODE:
@@ -209,6 +214,8 @@ class ScriptedPolicy(BasePolicy):
         self._expert = None
 
     def act(self, observation: Observation) -> np.ndarray:
+        if self._benchmark_expert:
+            return np.asarray(observation[OBS_EXPERT_ACTION], dtype=np.float32).copy()
         priv = observation.get(OBS_PRIVILEGED)
         if priv is None:
             raise ConfigError("the scripted expert needs privileged observations (build the scene with privileged=True)")

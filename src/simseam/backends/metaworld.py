@@ -1,0 +1,197 @@
+"""Meta-World v3 behind the seam (``benchmark: {name: metaworld, task: reach-v3}``).
+
+Native environment: ``metaworld.MT1(task, seed=goal_seed)`` gives the task's 50 fixed
+goal/object variations (``train_tasks``); episode ``seed`` uses variation ``seed % 50``
+and ``env.seed(seed)``, so 50 consecutive seeds cover every variation once (the MT1
+evaluation protocol, made deterministic). Each reset starts from freshly reset MuJoCo
+data (``mj_resetData``), so an episode is the same whether it is the first of its
+environment or the hundredth (MuJoCo's solver warm start would otherwise carry over).
+
+Mapping to the seam:
+
+- action: Meta-World's own ``[dx, dy, dz, grip]`` in [-1, 1] (CARTESIAN_DELTA, 1 cm per unit
+  per step of the mocap target; grip -1 open, +1 closed), clipped to the bounds;
+- ``images``: ``{"camera1": <camera>}`` (default ``corner2``) at ``image_size`` (default 224x224),
+  exactly what ``env.render()`` returns for that camera;
+- ``state``: the 39-D Meta-World observation (hand xyz, gripper opening, two object poses, the
+  previous frame of those, the goal), cast to float32 (native: float64);
+- ``joint_positions`` / ``joint_velocities``: the Sawyer's 7 arm joints and 2 finger joints;
+- ``expert_action`` (privileged rollouts only, i.e. ``--policy scripted``): the action of
+  Meta-World's scripted expert for this task (``metaworld.policies``) on the full-precision
+  observation; ``reward`` and ``success`` are the benchmark's own (``info["success"]``); the
+  other ``info`` values are the diagnostics.
+
+Imports numpy and simseam.seam at module level; metaworld and mujoco only in ``make_rollout``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.base import (
+    BenchmarkRollout,
+    check_image_size,
+    check_int,
+    check_keys,
+    mount_rpy,
+    observation_spec,
+)
+from simseam.seam import (
+    OBS_EXPERT_ACTION,
+    OBS_IMAGES,
+    OBS_JOINT_POSITIONS,
+    OBS_JOINT_VELOCITIES,
+    OBS_STATE,
+    ActionSlot,
+    ActionSpec,
+    ConfigError,
+    ControlMode,
+    FieldSpec,
+    JointFacts,
+    ObsRequest,
+    RobotFacts,
+    RolloutSpec,
+    SensorFacts,
+    TaskSpec,
+)
+
+NAME = "metaworld"
+HAS_EXPERT = True  # metaworld.policies: one scripted expert per task
+CAMERAS = ("corner", "corner2", "corner3", "topview", "behindGripper", "gripperPOV")
+DEFAULTS = {"camera": "corner2", "image_size": [224, 224], "max_steps": 500, "goal_seed": 0, "expert": False}
+DIAGNOSTICS = ("near_object", "grasp_success", "grasp_reward", "in_place_reward", "obj_to_target", "unscaled_reward")
+ROBOT_JOINTS = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "right_j5", "right_j6", "r_close",
+                "l_close")
+STATE_NAMES = tuple(
+    ["hand_x", "hand_y", "hand_z", "gripper_distance"]
+    + [f"obj1_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    + [f"obj2_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    + [f"prev_{i}" for i in range(18)] + ["goal_x", "goal_y", "goal_z"])
+N_GOALS = 50
+
+
+def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
+    check_keys(config, {"name", "task", *DEFAULTS}, where)
+    task = config.get("task")
+    if not isinstance(task, str) or not task.endswith("-v3"):
+        raise ConfigError(f"{where}.task: a Meta-World v3 task name such as 'reach-v3' is required, got {task!r} "
+                          "(`simseam benchmarks list metaworld` lists them)")
+    out = {**DEFAULTS, **{k: v for k, v in config.items() if k != "name"}}
+    if out["camera"] not in CAMERAS:
+        raise ConfigError(f"{where}.camera: {out['camera']!r} is not a Meta-World camera; one of {list(CAMERAS)}")
+    out["image_size"] = check_image_size(out["image_size"], where)
+    out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
+    out["goal_seed"] = check_int(out["goal_seed"], f"{where}.goal_seed", low=0)
+    if not isinstance(out["expert"], bool):
+        raise ConfigError(f"{where}.expert: expected true or false, got {out['expert']!r}")
+    return out
+
+
+def instruction(task: str) -> str:
+    """Meta-World has no language instructions: the task's name in words ("button press topdown")."""
+    return task.removesuffix("-v3").replace("-", " ")
+
+
+def catalog() -> dict[str, Any]:
+    """Suites and tasks (run in the backend's venv by ``simseam benchmarks list``)."""
+    import metaworld
+
+    tasks = list(metaworld.MT1.ENV_NAMES)
+    mt10 = list(metaworld.MT10().train_classes)
+    return {"suites": {"MT50": tasks, "MT10": mt10},
+            "tasks": {t: instruction(t) for t in tasks}}
+
+
+class MetaWorldRollout(BenchmarkRollout):
+    def __init__(self, config: dict[str, Any]):
+        import metaworld
+        import mujoco
+
+        self._mj = mujoco
+        self.config = config
+        name = config["task"]
+        if name not in metaworld.MT1.ENV_NAMES:
+            raise ConfigError(f"benchmark.task: unknown Meta-World task {name!r}; "
+                              f"known: {', '.join(metaworld.MT1.ENV_NAMES)}")
+        self._bench = metaworld.MT1(name, seed=config["goal_seed"])
+        h, w = config["image_size"]
+        self.env = self._bench.train_classes[name](render_mode="rgb_array", camera_name=config["camera"],
+                                                   width=w, height=h)
+        self.env.max_path_length = 10**9  # the seam truncates at max_steps; stepping on continues the physics
+        self._expert = None
+        if config["expert"]:
+            from metaworld.policies import ENV_POLICY_MAP
+
+            self._expert = ENV_POLICY_MAP[name]()
+        m = self.env.model
+        self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in ROBOT_JOINTS])
+        self._vadr = np.array([m.jnt_dofadr[m.joint(j).id] for j in ROBOT_JOINTS])
+        self._native_reset(0)  # camera poses and the first observation
+        cam = m.camera(config["camera"]).id
+        sensors = (SensorFacts(name=config["camera"], kind="rgb", parent="world",
+                               xyz=tuple(float(x) for x in self.env.data.cam_xpos[cam]),
+                               rpy=mount_rpy(self.env.data.cam_xmat[cam]), feature_key="camera1",
+                               width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),)
+        joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
+                                  float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
+                       for j in ROBOT_JOINTS)
+        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if self._expert else {}
+        step = float(self.env.action_scale)
+        spec = RolloutSpec(
+            robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=sensors),
+            task=TaskSpec(name=name, instruction=instruction(name), max_steps=config["max_steps"],
+                          diagnostics=DIAGNOSTICS),
+            observation=observation_spec({"camera1": (h, w)}, STATE_NAMES, ROBOT_JOINTS, extra),
+            action=ActionSpec(ControlMode.CARTESIAN_DELTA,
+                              (ActionSlot("dx", "arm", -1.0, 1.0, f"{step} m"),
+                               ActionSlot("dy", "arm", -1.0, 1.0, f"{step} m"),
+                               ActionSlot("dz", "arm", -1.0, 1.0, f"{step} m"),
+                               ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed")),
+                              max_translation=step),
+            engine=f"metaworld-{metaworld.__version__ if hasattr(metaworld, '__version__') else '3'}"
+                   f"/mujoco-{mujoco.__version__}",
+            control_hz=1.0 / (m.opt.timestep * self.env.frame_skip),
+            backend="inprocess",
+            capabilities=("privileged",) if self._expert else (),
+        )
+        super().__init__(spec)
+
+    def _native_reset(self, seed: int) -> None:
+        self._mj.mj_resetData(self.env.model, self.env.data)
+        self.env.set_task(self._bench.train_tasks[seed % N_GOALS])
+        self.env.seed(seed)
+        self._obs, _ = self.env.reset()
+
+    def _native_step(self, action: np.ndarray):
+        self._obs, reward, _term, _trunc, info = self.env.step(action)
+        return float(reward), bool(info["success"]), {k: float(info[k]) for k in DIAGNOSTICS}
+
+    def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
+        d = self.env.data
+        obs = {
+            OBS_IMAGES: {k: self._render_camera(k) for k in self.spec.observation.images if request.wants_image(k)},
+            OBS_STATE: np.asarray(self._obs, dtype=np.float32),
+            OBS_JOINT_POSITIONS: d.qpos[self._qadr].astype(np.float32),
+            OBS_JOINT_VELOCITIES: d.qvel[self._vadr].astype(np.float32),
+        }
+        if self._expert is not None:
+            obs[OBS_EXPERT_ACTION] = np.asarray(self._expert.get_action(self._obs), dtype=np.float32)
+        return obs
+
+    def _render_camera(self, key: str) -> np.ndarray:
+        return np.ascontiguousarray(self.env.render())
+
+    def _sim_time_s(self) -> float:
+        return float(self.env.data.time)
+
+    def _native_close(self) -> None:
+        self.env.close()
+
+
+def make_rollout(config: dict[str, Any]) -> MetaWorldRollout:
+    import warnings
+
+    warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")  # metaworld.policies, per step
+    return MetaWorldRollout(config)

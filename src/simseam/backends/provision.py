@@ -1,0 +1,177 @@
+"""Provisioning a benchmark backend's virtualenv (``simseam backends provision NAME``).
+
+Standard library only. The venv lives outside any checkout, keyed by its pins:
+``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root),
+where ``<hash>`` covers ``pins/<name>.txt``, so a changed pin builds a new venv and every
+checkout (and client interpreter: 3.11 and 3.12 alike) with the same pins shares one. It is
+built from the base installation of the interpreter that provisions it (the pins are resolved
+for CPython 3.11; 3.12 installs the same wheels).
+
+simseam itself is not installed there: the sidecar client puts its own ``simseam``
+package on the backend interpreter's path at launch (a symlink in its private
+directory), so the venv never holds a stale copy of simseam and serves any checkout.
+A venv counts as provisioned once ``simseam-backend.json`` is written, after pip
+succeeded and every module the backend needs imported; a half-built one is never used.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+from simseam.backends import backend_info
+from simseam.seam.errors import BackendUnavailableError
+
+MARKER = "simseam-backend.json"
+PINS_DIR = Path(__file__).resolve().parent / "pins"
+DIR_ENV = "SIMSEAM_BACKENDS_DIR"
+
+
+def root() -> Path:
+    return Path(os.environ.get(DIR_ENV) or Path.home() / ".cache" / "simseam" / "backends")
+
+
+def base_python() -> str:
+    """The interpreter new venvs are made from: the base installation of this one."""
+    return getattr(sys, "_base_executable", None) or sys.executable
+
+
+def pins_file(name: str) -> Path:
+    backend_info(name)
+    return PINS_DIR / f"{name}.txt"
+
+
+def pins_key(name: str) -> str:
+    return hashlib.sha256(pins_file(name).read_bytes()).hexdigest()[:12]
+
+
+def venv_dir(name: str) -> Path:
+    return root() / f"{name}-{pins_key(name)}"
+
+
+def python_of(name: str) -> Path:
+    return venv_dir(name) / "bin" / "python"
+
+
+def marker(name: str) -> dict | None:
+    """The provisioning record of ``name``'s venv, or None when it is not (fully) provisioned."""
+    try:
+        data = json.loads((venv_dir(name) / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if python_of(name).exists() else None
+
+
+def provision_command(name: str) -> str:
+    return f"simseam backends provision {name}"
+
+
+def require(name: str) -> Path:
+    """The backend's interpreter; ``BackendUnavailableError`` with the command to run when absent."""
+    if marker(name) is None:
+        raise BackendUnavailableError(
+            f"benchmark backend {name!r} is not provisioned here (no venv at {venv_dir(name)}); "
+            f"run `{provision_command(name)}` (needs PyPI once; then it runs offline)")
+    return python_of(name)
+
+
+def _du(path: Path) -> int:
+    total = 0
+    for dirpath, _dirs, files in os.walk(path):
+        for f in files:
+            try:
+                total += os.lstat(os.path.join(dirpath, f)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def provision(name: str, *, force: bool = False, progress: Callable[[str], None] = lambda s: None) -> dict:
+    """Create (or find) ``name``'s venv; returns its provisioning record (seconds, bytes, pins key).
+
+    Built in ``<dir>.partial`` and renamed when complete; a lock serialises concurrent calls.
+    Raises ``BackendUnavailableError`` with pip's output when an install or the import check fails.
+    """
+    info = backend_info(name)
+    target = venv_dir(name)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with open(target.parent / f".{target.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        have = marker(name)
+        if have is not None and not force:
+            progress(f"{name}: already provisioned at {target}")
+            return have
+        partial = target.with_name(target.name + ".partial")
+        shutil.rmtree(partial, ignore_errors=True)
+        t0 = time.monotonic()
+
+        def run(argv: list[str], what: str) -> None:
+            progress(f"{name}: {what}")
+            out = subprocess.run(argv, capture_output=True, text=True)
+            if out.returncode != 0:
+                tail = "\n".join((out.stdout + out.stderr).strip().splitlines()[-25:])
+                raise BackendUnavailableError(f"provisioning {name!r} failed at: {what} (exit {out.returncode})\n{tail}")
+
+        run([base_python(), "-m", "venv", str(partial)], f"creating a venv with {base_python()}")
+        py = str(partial / "bin" / "python")
+        run([py, "-m", "pip", "install", "-q", "--disable-pip-version-check", "--no-deps", "-r",
+             str(pins_file(name))], f"pip install -r {pins_file(name).name}")
+        run([py, "-c", "import importlib, sys\nfor m in sys.argv[1:]: importlib.import_module(m)", *info.imports],
+            f"import check ({', '.join(info.imports)})")
+        shutil.rmtree(target, ignore_errors=True)
+        os.replace(partial, target)
+        # (the venv's own scripts keep the .partial path in their shebangs: nothing here runs them)
+        record = {"name": name, "pins_key": pins_key(name), "pins": pins_file(name).read_text(),
+                  "python": base_python(), "seconds": round(time.monotonic() - t0, 1),
+                  "bytes": _du(target), "provisioned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        (target / MARKER).write_text(json.dumps(record, indent=2))
+        progress(f"{name}: provisioned in {record['seconds']:.0f} s, {record['bytes'] / 2**20:.0f} MiB at {target}")
+        return record
+
+
+def catalog(name: str, timeout: float = 300.0) -> dict:
+    """The backend's suites and tasks (``module.catalog()``), asked of its provisioned interpreter."""
+    import tempfile
+
+    python = require(name)
+    with tempfile.TemporaryDirectory(prefix="simseam-catalog-") as tmp:
+        os.symlink(Path(__file__).resolve().parents[1], Path(tmp) / "simseam")
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV")}
+        env.update(PYTHONPATH=tmp, PYGAME_HIDE_SUPPORT_PROMPT="1")
+        code = ("import json, sys\nfrom simseam.backends import backend_module\n"
+                "sys.stdout.write('\\n' + json.dumps(backend_module(sys.argv[1]).catalog()))")
+        out = subprocess.run([str(python), "-c", code, name], capture_output=True, text=True, env=env,
+                             timeout=timeout)
+    if out.returncode != 0:
+        raise BackendUnavailableError(f"{name}: listing its tasks failed: {out.stderr.strip()[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m simseam.backends.provision NAME...`` (what scripts/bootstrap.sh runs)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m simseam.backends.provision")
+    ap.add_argument("names", nargs="+")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    say = (lambda s: None) if args.quiet else (lambda s: print(f"[simseam] {s}", flush=True))
+    for n in args.names:
+        try:
+            provision(n, progress=say)
+        except Exception as exc:  # noqa: BLE001 - one line, exit 1
+            print(f"[simseam] FAILED: {exc}", file=sys.stderr)
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""``simseam backends list|provision``, ``simseam benchmarks list``, ``simseam eval PRESET``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from simseam.seam import ConfigError, SimseamError
+
+backends_app = typer.Typer(no_args_is_help=True, help="Benchmark backends: their own virtualenvs.")
+benchmarks_app = typer.Typer(no_args_is_help=True, help="Benchmarks behind the seam: suites and tasks.")
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+def _fail(exc: SimseamError) -> None:
+    err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
+    raise typer.Exit(code=2)
+
+
+@backends_app.command("list")
+def backends_list() -> None:
+    """Show every backend, whether its venv is provisioned here, its size and where it lives."""
+    from simseam.backends import BACKENDS, NOT_AVAILABLE
+    from simseam.backends.provision import marker, provision_command, venv_dir
+
+    table = Table("backend", "status", "size", "provisioning", "benchmark")
+    for name, info in BACKENDS.items():
+        m = marker(name)
+        if m is None:
+            table.add_row(name, "[yellow]missing[/]", "-", escape(provision_command(name)), escape(info.description))
+        else:
+            table.add_row(name, "[green]installed[/]", f"{m['bytes'] / 2**20:.0f} MiB",
+                          escape(f"{venv_dir(name)} ({m['seconds']:.0f} s)"), escape(info.description))
+    for name, why in NOT_AVAILABLE.items():
+        table.add_row(name, "[dim]not available[/]", "-", "-", escape(why))
+    console.print(table)
+
+
+@backends_app.command("provision")
+def backends_provision(
+    names: list[str] = typer.Argument(..., help="Backend names (simseam backends list)."),
+    force: bool = typer.Option(False, "--force", help="Rebuild the venv even if it is provisioned."),
+) -> None:
+    """Create each backend's virtualenv from its pins (PyPI once; afterwards everything runs offline)."""
+    from simseam.backends.provision import provision
+
+    for name in names:
+        try:
+            rec = provision(name, force=force, progress=lambda s: console.print(escape(s), highlight=False))
+        except SimseamError as exc:
+            _fail(exc)
+        console.print(f"[green]ok[/] {escape(name)}: {rec['bytes'] / 2**20:.0f} MiB, {rec['seconds']:.0f} s")
+
+
+@benchmarks_app.command("list")
+def benchmarks_list(name: str = typer.Argument(None, help="One backend (default: every provisioned one).")) -> None:
+    """Suites and tasks with their instructions (asked of each provisioned backend's own venv)."""
+    from simseam.backends import BACKENDS, backend_info
+    from simseam.backends.provision import catalog, marker, provision_command
+    from simseam.runner.evaluate import PRESETS
+
+    try:
+        names = [backend_info(name).name] if name else list(BACKENDS)
+        for n in names:
+            if marker(n) is None:
+                console.print(f"[bold]{n}[/]: not provisioned (run `{provision_command(n)}`)")
+                continue
+            cat = catalog(n)
+            table = Table("task", "instruction", "suites", title=f"{n}: {BACKENDS[n].description}")
+            for task, text in cat["tasks"].items():
+                suites = ", ".join(s for s, ts in cat["suites"].items() if task in ts)
+                table.add_row(escape(task), escape(text), escape(suites))
+            console.print(table)
+            presets = [p for p in PRESETS.values() if p.backend == n]
+            for p in presets:
+                console.print(f"  eval preset [bold]{p.name}[/]: {escape(p.protocol)}", highlight=False)
+    except SimseamError as exc:
+        _fail(exc)
+
+
+def eval_command(
+    preset_name: str = typer.Argument(..., metavar="PRESET", help="metaworld_mt10, metaworld_mt50, pusht, "
+                                      "aloha_insertion, aloha_transfer_cube."),
+    policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
+                               "lerobot:<dir or hub id>, remote:ws://host:port."),
+    out: Path = typer.Option(None, "--out", help="Run directory (default: a new runs/<timestamp>)."),
+    episodes: int = typer.Option(None, "--episodes", min=1, help="Episodes per task (default: the protocol's; "
+                                 "fewer is recorded as a non-standard run)."),
+    tasks: str = typer.Option(None, "--tasks", help="Comma-separated subset of the preset's tasks."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Episode e of each task uses seed + e."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config)."),
+    video: bool = typer.Option(False, "--video/--no-video", help="One MP4 per episode (first camera)."),
+    device: str = typer.Option(None, "--device", help="lerobot: policies: torch device."),
+    n_action_steps: int = typer.Option(None, "--n-action-steps", min=1, help="Chunked policies: actions per chunk."),
+) -> None:
+    """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
+    from simseam.cli.main import _close_policy, _policy_kwargs, _redacted, _sigterm_as_interrupt
+    from simseam.policies.base import make_policy
+    from simseam.runner.evaluate import eval_config, preset, resolve_tasks, run_eval
+    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
+
+    if resume and out is None:
+        _fail(ConfigError("--resume needs --out (the run directory to continue)"))
+    try:
+        p = preset(preset_name)
+        only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks else None
+        task_list = resolve_tasks(p, only)
+        n = episodes or p.episodes
+        default_out = out is None
+        out = default_run_dir() if default_out else out
+        config = eval_config(p, _redacted(policy), task_list, n, seed, video)
+        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)
+    except SimseamError as exc:
+        _fail(exc)
+    if default_out:
+        point_latest(out)
+    try:
+        pol = make_policy(policy, **_policy_kwargs(device, n_action_steps))
+    except SimseamError as exc:
+        run_dir.close()
+        _fail(exc)
+    console.print(f"eval [bold]{escape(p.name)}[/]: {len(task_list)} task(s) x {n} episode(s), policy "
+                  f"[bold]{escape(policy)}[/] -> {escape(str(out))}" + ("" if config["standard"] else
+                                                                      "  [yellow](non-standard: subset)[/]"))
+    if resume:
+        console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
+
+    def done(res, task):
+        mark = "[green]success[/]" if res.success else "[red]fail[/]"
+        console.print(f"  {escape(task)} episode {res.index % n}: {mark} in {res.steps} steps"
+                      + (f"  [red]{escape(res.error)}[/]" if res.error else ""), highlight=False)
+
+    def error(res, what_next):
+        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
+
+    interrupted = False
+    try:
+        with _sigterm_as_interrupt():
+            run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
+                     progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
+                     on_done=done, on_error=error)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        run_dir.close()
+        rebuild_summary(out, interrupted=True)
+        _close_policy(pol)
+        _fail(exc)
+    run_dir.close()
+    _close_policy(pol)
+    summary = rebuild_summary(out, interrupted=interrupted)
+    table = Table("task", "success", "rate", "Wilson 95%", title=f"{p.name} ({policy})")
+    for task, t in (summary.get("per_task") or {}).items():
+        lo, hi = t["success_rate_wilson95"]
+        table.add_row(escape(task), f"{t['n_success']}/{t['n_episodes']}", f"{t['success_rate']:.1%}",
+                      f"[{lo:.2f}, {hi:.2f}]")
+    lo, hi = summary["success_rate_wilson95"]
+    table.add_row("[bold]all (pooled)[/]", f"{summary['n_success']}/{summary['n_episodes']}",
+                  f"{summary['success_rate']:.1%}", f"[{lo:.2f}, {hi:.2f}]")
+    if summary.get("per_task"):
+        table.add_row("[bold]mean of tasks[/]", "", f"{summary['mean_task_success_rate']:.1%}", "")
+    console.print(table)
+    console.print(f"summary: {escape(str(out / 'summary.json'))}")
+    if interrupted:
+        raise typer.Exit(code=130)

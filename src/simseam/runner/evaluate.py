@@ -1,0 +1,120 @@
+"""Evaluation presets: a benchmark's standard protocol, run through the seam (``simseam eval``).
+
+A preset names a backend, its tasks, episodes per task and the per-task config (step
+limit ...). Episode ``e`` of every task uses seed ``seed + e`` (Meta-World: goal variation
+``e % 50``; PushT / ALOHA: the native ``reset(seed)``), so a run is reproducible and every
+policy sees the same initial states. Results go through ``run_dir.RunDir`` exactly as
+``simseam run`` writes them (``run.json``, ``episodes.jsonl`` fsynced per episode, atomic
+``summary.json``, ``--overwrite`` / ``--resume``); each episode line carries its ``task``,
+and the summary adds ``per_task`` success with Wilson 95 % intervals and
+``mean_task_success_rate`` (the mean of the per-task rates, as MT-style papers report)
+next to the pooled rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from simseam.seam import ConfigError
+
+METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
+                  "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    backend: str
+    tasks: tuple[str, ...] | None  # None: every task of the backend's ``suite`` (asked of its venv)
+    episodes: int
+    config: dict[str, Any] = field(default_factory=dict)
+    suite: str = ""
+    protocol: str = ""
+
+
+PRESETS: dict[str, Preset] = {p.name: p for p in (
+    Preset("metaworld_mt10", "metaworld", METAWORLD_MT10, 50, {"max_steps": 500},
+           protocol="MT10: 10 tasks x 50 episodes (MT1 goal variations 0..49), 500 steps, success = "
+                    "info['success'] (the episode ends at success); mean of per-task success"),
+    Preset("metaworld_mt50", "metaworld", None, 50, {"max_steps": 500}, suite="MT50",
+           protocol="MT50: 50 tasks x 50 episodes, as metaworld_mt10"),
+    *(Preset(suite, "libero", tuple(f"{suite}/{i}" for i in range(90 if suite == "libero_90" else 10)), 50,
+             {"max_steps": steps, "settle_steps": 10},
+             protocol=f"{90 if suite == 'libero_90' else 10} tasks x 50 episodes from LIBERO's fixed initial states, "
+                      f"{steps} steps after 10 settle steps, 256x256 cameras (openpi's LIBERO example)")
+      for suite, steps in (("libero_spatial", 220), ("libero_object", 280), ("libero_goal", 300), ("libero_10", 520),
+                           ("libero_90", 400))),
+    Preset("pusht", "pusht", ("pusht",), 50, {"max_steps": 300},
+           protocol="50 episodes, 300 steps at 10 Hz, success = coverage > 95 % (LeRobot's gym-pusht eval)"),
+    Preset("aloha_insertion", "aloha", ("insertion",), 50, {"task": "insertion", "max_steps": 400},
+           protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
+    Preset("aloha_transfer_cube", "aloha", ("transfer_cube",), 50, {"task": "transfer_cube", "max_steps": 400},
+           protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
+)}
+
+
+def preset(name: str) -> Preset:
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ConfigError(f"unknown eval preset {name!r}; presets: {', '.join(sorted(PRESETS))}") from None
+
+
+def resolve_tasks(p: Preset, only: list[str] | None) -> list[str]:
+    if p.tasks is None:
+        from simseam.backends.provision import catalog
+
+        tasks = list(catalog(p.backend)["suites"][p.suite])
+    else:
+        tasks = list(p.tasks)
+    if only:
+        unknown = [t for t in only if t not in tasks]
+        if unknown:
+            raise ConfigError(f"--tasks: {unknown} not in preset {p.name!r} (its tasks: {', '.join(tasks)})")
+        tasks = [t for t in tasks if t in only]
+    return tasks
+
+
+def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: int, video: bool) -> dict:
+    """What run.json records (``--resume`` requires the same)."""
+    return {"preset": p.name, "backend": p.backend, "protocol": p.protocol, "standard": episodes == p.episodes
+            and (p.tasks is None or list(p.tasks) == tasks), "policy": policy, "tasks": tasks,
+            "episodes": episodes * len(tasks), "episodes_per_task": episodes, "seed": seed, "video": video,
+            "task_config": p.config}
+
+
+def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: int, run_dir, *, seed: int = 0,
+             video_dir: Path | None = None, progress: Callable[[str], None] = lambda s: None,
+             on_start=None, on_done=None, on_error=None) -> None:
+    """Run the preset's episodes not yet in ``run_dir`` (a ``RunDir``); every finished one is
+    appended to its log (with ``task`` and ``episode``) before the next starts."""
+    from simseam.backends import open_benchmark
+    from simseam.runner.session import run_episodes
+
+    done = run_dir.done
+    spec_written = False
+    for ti, task in enumerate(tasks):
+        indices = [ti * episodes + e for e in range(episodes) if ti * episodes + e not in done]
+        if not indices:
+            continue
+        cfg = {**p.config, "task": task}
+        progress(f"{p.backend}: starting {task}")
+        rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
+                                 progress=lambda s: progress(f"{task}: {s}"))
+        try:
+            if not spec_written:
+                run_dir.write_spec(rollout.spec.to_json())
+                spec_written = True
+
+            def record(res, written, task=task, ti=ti):
+                run_dir.append({**res.to_json(), "task": task, "episode": res.index - ti * episodes})
+                if on_done:
+                    on_done(res, task)
+
+            # episode index i = ti * episodes + e runs with seed + e
+            run_episodes(rollout, policy, indices, seed=seed - ti * episodes, video_dir=video_dir,
+                         on_start=on_start, on_done=record, on_error=on_error)
+        finally:
+            rollout.close()
