@@ -1,0 +1,192 @@
+"""The GPU-batched engine (MuJoCo Warp) on warp's CPU device, with a handful of worlds.
+
+Everything here runs the real packages (``mujoco-warp``, ``warp-lang``; installed by set-up: a
+missing one fails these tests at import). The reference for every number is the CPU MuJoCo engine
+(``ManifestScene``) on the same robot, task, seed and actions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from simseam.engines.mujoco_warp import BatchedScene, WarpRollout, world_observations
+from simseam.policies.base import make_policy
+from simseam.robot.manifest import load_robot
+from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+from simseam.seam import STATE_ONLY, ConfigError, InvalidActionError, ObsRequest, check_rollout
+
+# Stated tolerances of one world against the CPU engine (float32 physics on the device, float64 on
+# the CPU; measured: 1e-6 m over the first steps, a few mm at the grasp's contact transients).
+EEF_TOL_FREE = 1e-4  # m, while the arm moves in free space (no contacts yet)
+EEF_TOL_EPISODE = 0.01  # m, over the whole scripted episode, contacts included
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return load_robot("franka_panda")
+
+
+@pytest.fixture(scope="module")
+def state_opts():
+    return SceneOptions(render_images=False, privileged=True)
+
+
+@pytest.fixture(scope="module")
+def batch3(panda, state_opts):
+    b = BatchedScene(panda, "lift_cube", 3, state_opts)
+    yield b
+    b.close()
+
+
+def _expert_episode_cpu(panda, opts, seed):
+    """The scripted expert on the CPU engine: (actions, eef positions, success step or None)."""
+    scene = ManifestScene(panda, "lift_cube", "mujoco", opts)
+    pol = make_policy("scripted")
+    pol.reset(scene.spec)
+    obs = scene.reset(seed, STATE_ONLY)
+    actions, eef, success_at = [], [], None
+    for k in range(scene.spec.task.max_steps):
+        a = pol.act(obs)
+        r = scene.step(a, STATE_ONLY)
+        actions.append(a)
+        eef.append(r.observation["state"][:3].copy())
+        obs = r.observation
+        if r.terminated:
+            success_at = k + 1
+            break
+    scene.close()
+    return np.array(actions), np.array(eef), success_at
+
+
+def test_one_world_replays_a_cpu_scripted_episode_within_tolerance(panda, state_opts, batch3):
+    """The CPU expert's actions, replayed on a world of the batch: same trajectory, same success step."""
+    actions, eef_cpu, success_at = _expert_episode_cpu(panda, state_opts, seed=11)
+    assert success_at is not None, "the CPU expert must succeed on this seed"
+    b = batch3
+    b.reset([0, 1, 2], [11, 11, 11])
+    first_contact = None
+    errs = []
+    for k, a in enumerate(actions):
+        r = b.step(np.tile(a, (3, 1)))
+        h = b.host_arrays()
+        errs.append(float(np.abs(h["state"][0, :3] - eef_cpu[k]).max()))
+        if first_contact is None and h["touching"][0]:
+            first_contact = k
+        # identical worlds stay identical
+        np.testing.assert_array_equal(h["state"][0], h["state"][1])
+        np.testing.assert_array_equal(h["state"][0], h["state"][2])
+    assert first_contact is not None
+    assert max(errs[:first_contact]) < EEF_TOL_FREE, errs[:first_contact]
+    assert max(errs) < EEF_TOL_EPISODE, max(errs)
+    assert bool(r.success[0]) and bool(r.terminated[0])
+    assert int(r.steps[0]) == success_at
+
+
+def test_scripted_expert_reaches_its_cpu_success_on_the_batch(panda, state_opts, batch3):
+    """Closed loop (each side's expert sees its own observations): the same seeds succeed."""
+    seeds = [0, 1, 2]
+    cpu = [_expert_episode_cpu(panda, state_opts, s)[2] for s in seeds]
+    b = batch3
+    b.reset([0, 1, 2], seeds)
+    pols = [make_policy("scripted") for _ in seeds]
+    for p in pols:
+        p.reset(b.spec)
+    done = [None] * 3
+    obs = world_observations(b, range(3), [STATE_ONLY] * 3)
+    for k in range(b.spec.task.max_steps):
+        r = b.step(np.stack([p.act(o) for p, o in zip(pols, obs)]))
+        obs = world_observations(b, range(3), [STATE_ONLY] * 3)
+        for w in range(3):
+            if done[w] is None and r.terminated[w]:
+                done[w] = k + 1
+        if all(d is not None for d in done):
+            break
+    assert [d is not None for d in done] == [c is not None for c in cpu], (done, cpu)
+    for d, c in zip(done, cpu):
+        if c is not None:
+            assert abs(d - c) <= 2, (done, cpu)
+
+
+def test_worlds_are_independent_and_resets_are_per_world(panda, state_opts, batch3):
+    """A world's trajectory does not depend on its neighbours or its index; resetting one world
+    leaves the others' trajectories bit-identical and starts it exactly at the CPU reset state."""
+    b = batch3
+    rng = np.random.default_rng(3)
+    acts = rng.uniform(-1, 1, size=(6, 3, b.action_dim)).astype(np.float32)
+
+    def run(seeds, perm, reset_world_at=None):
+        b.reset([0, 1, 2], seeds)
+        out = []
+        for k in range(6):
+            if reset_world_at is not None and k == 3:
+                b.reset([reset_world_at], [99])
+            b.step(acts[k][perm])
+            out.append(b.host_arrays()["state"].copy())
+        return np.array(out)
+
+    a = run([5, 6, 7], [0, 1, 2])
+    c = run([7, 5, 6], [2, 0, 1])  # the same episodes on permuted worlds
+    np.testing.assert_allclose(c[:, [1, 2, 0]], a, atol=1e-6)
+    d = run([5, 6, 7], [0, 1, 2], reset_world_at=1)
+    np.testing.assert_array_equal(d[:, 0], a[:, 0])
+    np.testing.assert_array_equal(d[:, 2], a[:, 2])
+    assert not np.allclose(d[3:, 1], a[3:, 1])
+    # a reset world starts at the CPU scene's reset state for its seed
+    b.reset([2], [99])
+    cpu = ManifestScene(panda, "lift_cube", "mujoco", state_opts)
+    o = cpu.reset(99, STATE_ONLY)
+    got = world_observations(b, [2], [STATE_ONLY])[0]
+    np.testing.assert_allclose(got["state"], o["state"], atol=1e-5)
+    np.testing.assert_allclose(got["privileged"]["objects"]["cube"], o["privileged"]["objects"]["cube"], atol=1e-5)
+    assert got["sim_time_ns"] == 0 and b.steps[2] == 0
+    cpu.close()
+
+
+def test_bad_actions_are_refused_and_device_observations_are_shared(batch3):
+    b = batch3
+    b.reset([0, 1, 2], [1, 2, 3])
+    before = b.host_arrays()["state"].copy()
+    bad = np.zeros((3, b.action_dim), np.float32)
+    bad[1, 2] = np.nan
+    with pytest.raises(InvalidActionError, match=r"worlds \[1\]"):
+        b.step(bad)
+    with pytest.raises(InvalidActionError, match="shape"):
+        b.step(np.zeros((2, b.action_dim), np.float32))
+    np.testing.assert_array_equal(b.host_arrays()["state"], before)
+    assert (b.steps == 0).all()
+    # device observations: warp arrays; DLPack hands out the same memory (no copy)
+    dev = b.device_observation()
+    assert isinstance(dev["state"], wp.array) and dev["state"].shape == (3, b.spec.state_dim)
+    view = np.from_dlpack(dev["state"])
+    assert view.ctypes.data == dev["state"].ptr
+    np.testing.assert_array_equal(view, before)
+    # device actions (any DLPack producer) are clipped to the slot bounds on the device, like host ones
+    big = np.full((3, b.action_dim), 5.0, np.float32)
+    b.reset([0, 1, 2], [1, 1, 1])
+    b.step(wp.array(big, dtype=float, device=b.device))
+    via_device = b.host_arrays()["state"].copy()
+    b.reset([0, 1, 2], [1, 1, 1])
+    b.step(np.ones((3, b.action_dim), np.float32))
+    np.testing.assert_allclose(b.host_arrays()["state"], via_device, atol=1e-6)
+
+
+def test_one_world_passes_the_seam_conformance_check_with_cameras(panda):
+    opts = SceneOptions(image_size=(24, 32), privileged=True)
+    rollout = WarpRollout(panda, "lift_cube", opts)
+    obs = rollout.reset(4)
+    assert set(obs["images"]) == set(rollout.spec.cameras) and len(obs["images"]) == 2
+    for img in obs["images"].values():
+        assert img.shape == (24, 32, 3) and img.dtype == np.uint8
+        assert img.std() > 5  # a rendered scene, not a blank frame
+    only = rollout.step(np.zeros(rollout.action_dim, np.float32), ObsRequest(images=frozenset()))
+    assert only.observation["images"] == {}
+    check_rollout(rollout)  # closes it
+
+
+def test_unsupported_configurations_are_clear_errors(panda, state_opts):
+    with pytest.raises(ConfigError, match="mujoco_warp.*lift_cube.*bowl_plate"):
+        BatchedScene(panda, "bowl_plate", 2, state_opts)
+    with pytest.raises(ConfigError, match="num_envs"):
+        BatchedScene(panda, "lift_cube", 0, state_opts)
