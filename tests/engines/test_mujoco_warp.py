@@ -133,7 +133,9 @@ def test_worlds_are_independent_and_resets_are_per_world(panda, state_opts, batc
     np.testing.assert_array_equal(d[:, 0], a[:, 0])
     np.testing.assert_array_equal(d[:, 2], a[:, 2])
     assert not np.allclose(d[3:, 1], a[3:, 1])
-    # a reset world starts at the CPU scene's reset state for its seed
+    # a reset world starts at the CPU scene's reset state for its seed (from the settled template,
+    # which the batch verified against the CPU reset when it was built)
+    assert b._template is not None
     b.reset([2], [99])
     cpu = ManifestScene(panda, "lift_cube", "mujoco", state_opts)
     o = cpu.reset(99, STATE_ONLY)
