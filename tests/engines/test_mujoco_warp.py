@@ -325,3 +325,39 @@ def test_batched_lift_expert_equals_the_per_world_expert(batch3):
         phases.update(vec.phase.tolist())
         b.step(want)
     assert phases == {0, 1, 2, 3}
+
+
+class _DevicePolicy:
+    """A batched policy that reads the batch's device arrays (DLPack; on a GPU, ``torch.from_dlpack``)."""
+
+    requires_privileged = True
+
+    def __init__(self, n):
+        from simseam.policies.batched_expert import LiftExpertBatch
+
+        self.n, self.expert, self.seen = n, None, []
+        self._make = LiftExpertBatch
+
+    def reset(self, env, spec):
+        if self.expert is None:
+            self.expert = self._make(spec.action, self.n)
+        self.expert.reset([env])
+
+    def act_device(self, obs):
+        self.seen.append(type(obs["privileged"]["eef_pose"]))
+        eef = np.from_dlpack(obs["privileged"]["eef_pose"])
+        cube = np.from_dlpack(obs["privileged"]["cube"])
+        return self.expert.act(eef, cube)
+
+
+def test_vector_runner_adapter_hands_device_arrays_to_a_device_policy(tmp_path):
+    from simseam.runner.scene_config import SceneConfig
+    from simseam.runner.warp_vector import WarpVectorEnv
+
+    cfg = SceneConfig.model_validate({"robot": "franka_panda", "task": "lift_cube", "max_steps": 60,
+                                      "engine": {"name": "mujoco_warp", "num_envs": 2}})
+    pol = _DevicePolicy(2)
+    with WarpVectorEnv.from_config(cfg, tmp_path, privileged=True, render_images=False) as env:
+        res = env.run(pol, range(4), seed=40)
+    assert sorted((r.index, r.seed) for r in res) == [(i, 40 + i) for i in range(4)]
+    assert all(r.success for r in res) and set(pol.seen) == {wp.array}

@@ -136,6 +136,7 @@ class BatchedScene:
         self.build_s = time.perf_counter() - t0
         self._graph = None
         self._render_graph = None
+        self._sense_graph = None
         self.steps = np.zeros(n, dtype=np.int64)
         self.seeds = np.full(n, -1, dtype=np.int64)
         self._host_obs: dict | None = None
@@ -338,7 +339,14 @@ class BatchedScene:
             for dst in (self.target, self.q_sent):
                 wp.launch(K.scatter_rows_kernel, dim=home.shape, inputs=[wp.array(home, dtype=float), rows, dst])
             wp.launch(K.reset_ref_kernel, dim=k, inputs=[rows, self.ref_ok])
-            self._sense()
+            if self._use_graph():  # sensing after a reset: one captured graph, like a step
+                if self._sense_graph is None:
+                    with wp.ScopedCapture() as cap:
+                        self._sense()
+                    self._sense_graph = cap.graph
+                wp.capture_launch(self._sense_graph)
+            else:
+                self._sense()
         self.steps[worlds] = 0
         self.seeds[worlds] = seeds
         self._host_obs = None
@@ -390,8 +398,6 @@ class BatchedScene:
         """Controllers, servo ramp, substeps, then sensing: all device launches (graph-capturable)."""
         n = self.num_envs
         rp, rr, rw = self._reanchor
-        from simseam.scene.kinematics import SerialChain  # noqa: F401  (the IK's defaults, below)
-
         wp.launch(self._arm_kernel, dim=n, inputs=[
             self.action, self.target, self.eef_pos, self.eef_rot, self.ref_pos, self.ref_rot, self.ref_ok,
             self._arm_idx, self._chain_q, self._fixed, self._axes, self._prism, self._tail, self._lower,
@@ -485,7 +491,7 @@ class BatchedScene:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._graph = self._render_graph = None
+            self._graph = self._render_graph = self._sense_graph = None
             self.host.close()
 
     def __enter__(self) -> "BatchedScene":
