@@ -134,9 +134,8 @@ class BatchedScene:
             self._make_buffers(host, mjm)
             self._make_cameras(host, mjm)
         self.build_s = time.perf_counter() - t0
-        self._graph = None
-        self._render_graph = None
-        self._sense_graph = None
+        self._graphs: dict = {}  # name -> captured CUDA graph
+        self._ran: set = set()
         self.steps = np.zeros(n, dtype=np.int64)
         self.seeds = np.full(n, -1, dtype=np.int64)
         self._host_obs: dict | None = None
@@ -339,14 +338,7 @@ class BatchedScene:
             for dst in (self.target, self.q_sent):
                 wp.launch(K.scatter_rows_kernel, dim=home.shape, inputs=[wp.array(home, dtype=float), rows, dst])
             wp.launch(K.reset_ref_kernel, dim=k, inputs=[rows, self.ref_ok])
-            if self._use_graph():  # sensing after a reset: one captured graph, like a step
-                if self._sense_graph is None:
-                    with wp.ScopedCapture() as cap:
-                        self._sense()
-                    self._sense_graph = cap.graph
-                wp.capture_launch(self._sense_graph)
-            else:
-                self._sense()
+            self._launch("sense", self._sense)  # sensing after a reset: one graph too
         self.steps[worlds] = 0
         self.seeds[worlds] = seeds
         self._host_obs = None
@@ -360,14 +352,7 @@ class BatchedScene:
         self._check_open()
         with wp.ScopedDevice(self.device):
             self._load_actions(actions)
-            if self._use_graph():
-                if self._graph is None:
-                    with wp.ScopedCapture() as cap:
-                        self._physics()
-                    self._graph = cap.graph
-                wp.capture_launch(self._graph)
-            else:
-                self._physics()
+            self._launch("step", self._physics)
             success = self.success.numpy().astype(bool)
         self.steps += 1
         self._host_obs = None
@@ -376,6 +361,23 @@ class BatchedScene:
 
     def _use_graph(self) -> bool:
         return bool(self.wopts.graph and self.device.is_cuda)
+
+    def _launch(self, name: str, fn) -> None:
+        """Run ``fn`` (device launches only). On CUDA its first call runs directly (kernels compile
+        and load outside any capture), later calls replay one CUDA graph captured on the second."""
+        if not self._use_graph():
+            fn()
+            return
+        graph = self._graphs.get(name)
+        if graph is None:
+            if name not in self._ran:
+                self._ran.add(name)
+                fn()
+                return
+            with wp.ScopedCapture() as cap:
+                fn()
+            self._graphs[name] = graph = cap.graph
+        wp.capture_launch(graph)
 
     def _load_actions(self, actions) -> None:
         n, adim = self.num_envs, self._adim
@@ -432,14 +434,7 @@ class BatchedScene:
         if self.rc is None:
             return {}
         with wp.ScopedDevice(self.device):
-            if self._use_graph():
-                if self._render_graph is None:
-                    with wp.ScopedCapture() as cap:
-                        self._render()
-                    self._render_graph = cap.graph
-                wp.capture_launch(self._render_graph)
-            else:
-                self._render()
+            self._launch("render", self._render)
         return self.images
 
     def _render(self) -> None:
@@ -491,7 +486,7 @@ class BatchedScene:
     def close(self) -> None:
         if not self._closed:
             self._closed = True
-            self._graph = self._render_graph = self._sense_graph = None
+            self._graphs.clear()
             self.host.close()
 
     def __enter__(self) -> "BatchedScene":
