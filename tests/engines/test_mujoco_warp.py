@@ -15,7 +15,7 @@ from simseam.engines.mujoco_warp import BatchedScene, WarpRollout, world_observa
 from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
-from simseam.seam import STATE_ONLY, ConfigError, InvalidActionError, ObsRequest, check_rollout
+from simseam.seam import INFO_DIAGNOSTICS, STATE_ONLY, ConfigError, InvalidActionError, ObsRequest, check_rollout
 
 # Stated tolerances of one world against the CPU engine (float32 physics on the device, float64 on
 # the CPU; measured on seeds 0, 5, 11: tool position within 0.7 um before contact, 2.4 um over the
@@ -193,7 +193,7 @@ def test_one_world_passes_the_seam_conformance_check_with_cameras(panda):
 
 
 def test_unsupported_configurations_are_clear_errors(panda, state_opts):
-    with pytest.raises(ConfigError, match="mujoco_warp.*lift_cube.*bowl_plate"):
+    with pytest.raises(ConfigError, match="mujoco_warp.*lift_cube.*reach.*bowl_plate"):
         BatchedScene(panda, "bowl_plate", 2, state_opts)
     with pytest.raises(ConfigError, match="num_envs"):
         BatchedScene(panda, "lift_cube", 0, state_opts)
@@ -366,3 +366,50 @@ def test_vector_runner_adapter_hands_device_arrays_to_a_device_policy(tmp_path):
         res = env.run(pol, range(4), seed=40)
     assert sorted((r.index, r.seed) for r in res) == [(i, 40 + i) for i in range(4)]
     assert all(r.success for r in res) and set(pol.seen) == {wp.array}
+
+
+@pytest.mark.parametrize("robot,mode", [("franka_panda", None), ("franka_panda", "joint_position"),
+                                        ("so101", "joint_position")])
+def test_reach_on_the_batch_matches_the_cpu_engine(robot, mode):
+    """A second task, both control modes, a second robot (the 5-joint SO-101, joint targets): the
+    reach expert succeeds on every world at the step it does on the CPU engine, with the same
+    diagnostics and privileged target."""
+    spec = load_robot(robot)
+    opts = SceneOptions(render_images=False, privileged=True, control_mode=mode)
+    seeds = [0, 1]
+    b = BatchedScene(spec, "reach", len(seeds), opts)
+    cpu = ManifestScene(spec, "reach", "mujoco", opts)
+    b.reset(range(len(seeds)), seeds)
+    obs = world_observations(b, range(len(seeds)), [STATE_ONLY] * len(seeds))
+    for w, s in enumerate(seeds):
+        pol = make_policy("scripted")
+        pol.reset(cpu.spec)
+        o = cpu.reset(s, STATE_ONLY)
+        np.testing.assert_allclose(obs[w]["privileged"]["objects"]["target"], o["privileged"]["objects"]["target"],
+                                   atol=1e-9)
+        cpu_steps = []
+        for k in range(cpu.spec.task.max_steps):
+            r = cpu.step(pol.act(o), STATE_ONLY)
+            o = r.observation
+            cpu_steps.append(r.info[INFO_DIAGNOSTICS])
+            if r.terminated:
+                break
+        # the same world on the batch, its own expert
+        b.reset([w], [s])
+        bpol = make_policy("scripted")
+        bpol.reset(b.spec)
+        ob = world_observations(b, [w], [STATE_ONLY])[0]
+        acts = np.zeros((len(seeds), b.action_dim), np.float32)
+        for k in range(b.spec.task.max_steps):
+            acts[w] = bpol.act(ob)
+            res = b.step(acts)
+            ob = world_observations(b, [w], [STATE_ONLY])[0]
+            if res.terminated[w]:
+                break
+        assert res.success[w] and abs(int(res.steps[w]) - len(cpu_steps)) <= 1, (res.steps[w], len(cpu_steps))
+        d = b.diagnostics(w)
+        assert set(d) == {"position_error", "orientation_error"}
+        if int(res.steps[w]) == len(cpu_steps):
+            assert abs(d["position_error"] - cpu_steps[-1]["position_error"]) < 1e-4
+    b.close()
+    cpu.close()

@@ -17,8 +17,8 @@ controllers (``kernels.make_arm_kernel``), the servo ramp, ``substeps`` MuJoCo W
 observation, success and diagnostics (``kernels.make_observe_kernel``) and the cameras (MuJoCo
 Warp's batched ray tracer). On a CUDA device one control step is one captured CUDA graph.
 
-Supported: the ``lift_cube`` task; fixed-base arms (CARTESIAN_DELTA with >= 6 arm joints, or
-JOINT_POSITION) with a gripper; RGB cameras. Other tasks, kinematic bases, lidars and depth
+Supported: the ``lift_cube`` and ``reach`` tasks; fixed-base arms (CARTESIAN_DELTA with >= 6 arm
+joints, or JOINT_POSITION with any); RGB cameras. Other tasks, kinematic bases, lidars and depth
 sensors are refused with a ``ConfigError``.
 """
 
@@ -52,7 +52,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the pack
 
 from simseam.engines.mujoco_warp import kernels as K
 
-SUPPORTED_TASKS = ("lift_cube",)
+SUPPORTED_TASKS = ("lift_cube", "reach")
 DEFAULT_NCONMAX = 96  # contacts per world (allocated for the whole batch)
 DEFAULT_NJMAX = 600  # constraint rows per world
 ROBOT, CUBE = 1, 2  # owner codes for the grasp test
@@ -111,8 +111,7 @@ class BatchedScene:
         if self._cartesian and n_arm < 6:
             raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 6 arm joints; robot "
                               f"{robot.name!r} has {n_arm} (use control_mode: joint_position)")
-        if host.gripper is None:
-            raise ConfigError(f"engine 'mujoco_warp': task {task!r} needs a gripper")
+        self.task_name = task
         mjm = host.engine.model
         self.mjm = mjm
         self.substeps = host._substeps
@@ -181,10 +180,10 @@ class BatchedScene:
         self._max_step = wp.array(np.minimum(arm.max_step, 1e6).astype(np.float32), dtype=float)
         self._q_home = wp.array(self._home[host._arm_idx], dtype=float)
         g = host.gripper
-        self._grip_open = wp.array(g.open.astype(np.float32), dtype=float)
-        self._grip_closed = wp.array(g.closed.astype(np.float32), dtype=float)
+        self._grip_open = wp.array((g.open if g else np.zeros(0)).astype(np.float32), dtype=float)
+        self._grip_closed = wp.array((g.closed if g else np.zeros(0)).astype(np.float32), dtype=float)
         names = [s.name for s in spec.action.slots]
-        self._grip_slot = names.index("grip")
+        self._grip_slot = names.index("grip") if "grip" in names else -1
         self._arm_kernel = K.make_arm_kernel(chain.n, self._cartesian, chain.n > 6, bool(chain._prism.any()))
         if self._cartesian:
             self._max_t, self._max_r = float(arm.max_translation), float(arm.max_rotation)
@@ -207,11 +206,20 @@ class BatchedScene:
         vadr[host._eidx] = eng._vadr
         self._jqadr, self._jvadr = wp.array(qadr, dtype=int), wp.array(vadr, dtype=int)
         self._gqadr = wp.array(eng._qadr[host._grip_idx].astype(np.int32), dtype=int)
-        self._cube_body = int(eng._obj_body["cube"])
-        from simseam.scene.tasks.lift_cube import CUBE_HALF, LIFT_HEIGHT
+        from simseam.scene.tasks import reach as reach_task
         from simseam.scene.tasks.base import TABLE_TOP
+        from simseam.scene.tasks.lift_cube import CUBE_HALF, LIFT_HEIGHT
 
-        self._rest_z, self._lift = float(TABLE_TOP + CUBE_HALF), float(LIFT_HEIGHT)
+        lift = self.task_name == "lift_cube"
+        # lift_cube: the cube; reach: nothing to track (the observe kernel reads the tool body instead)
+        self._cube_body = int(eng._obj_body["cube"]) if lift else self._tool_body
+        self._rest_z, self._lift = float(TABLE_TOP + CUBE_HALF), float(LIFT_HEIGHT) if lift else 1e9
+        self._reach_tol = (float(reach_task.POS_TOL), float(reach_task.ROT_TOL))
+        self.target_pos = wp.zeros(n, dtype=wp.vec3)  # reach: each world's target, base frame
+        self.target_rot = wp.zeros(n, dtype=wp.mat33)
+        self._target_np = np.zeros((n, 7))  # the same as [x y z qw qx qy qz] (privileged)
+        self.pos_err = wp.zeros(n, dtype=float)
+        self.rot_err = wp.zeros(n, dtype=float)
         ns = len(host._state_names)
         self.state = wp.zeros((n, ns), dtype=float)
         self.joint_pos = wp.zeros((n, len(manifest)), dtype=float)
@@ -225,7 +233,7 @@ class BatchedScene:
         self._observe_kernel = K.make_observe_kernel(ns - 6)
         owner = np.asarray(eng._geom_owner, dtype=np.int32).copy()
         self._geom_owner = wp.array(owner, dtype=int)
-        self._cube_code = int(eng._owner_code["cube"])
+        self._cube_code = int(eng._owner_code["cube"]) if lift else -1
 
     def _make_cameras(self, host, mjm) -> None:
         self.cameras: dict[str, tuple[int, int]] = {}  # feature key -> (H, W)
@@ -293,6 +301,22 @@ class BatchedScene:
             q[a + 3:a + 7] = quat
         return q, qvel, ctrl, warm
 
+    def _set_targets(self, worlds, seeds, rows) -> None:
+        """reach: each world's target pose, drawn by the task itself from the episode's seed."""
+        from simseam.math3d import matrix_to_quat
+
+        task = self.host.task
+        k = len(worlds)
+        tp, tr = np.empty((k, 1, 3), np.float32), np.empty((k, 1, 3, 3), np.float32)
+        for r, seed in enumerate(seeds.tolist()):
+            task.reset(None, np.random.default_rng(int(seed)))
+            tp[r, 0], tr[r, 0] = task.target_pos, task.target_rot
+            self._target_np[worlds[r]] = np.concatenate([task.target_pos, matrix_to_quat(task.target_rot)])
+        wp.launch(K.scatter_vec3_kernel, dim=(k, 1), inputs=[wp.array(tp, dtype=wp.vec3),
+                                                            rows, self.target_pos.reshape((self.num_envs, 1))])
+        wp.launch(K.scatter_mat33_kernel, dim=(k, 1), inputs=[wp.array(tr, dtype=wp.mat33),
+                                                             rows, self.target_rot.reshape((self.num_envs, 1))])
+
     # ---------------------------------------------------------------------------------------- spec
     @property
     def spec(self) -> RolloutSpec:
@@ -338,6 +362,8 @@ class BatchedScene:
             for dst in (self.target, self.q_sent):
                 wp.launch(K.scatter_rows_kernel, dim=home.shape, inputs=[wp.array(home, dtype=float), rows, dst])
             wp.launch(K.reset_ref_kernel, dim=k, inputs=[rows, self.ref_ok])
+            if self.task_name == "reach":
+                self._set_targets(worlds, seeds, rows)
             self._launch("sense", self._sense)  # sensing after a reset: one graph too
         self.steps[worlds] = 0
         self.seeds[worlds] = seeds
@@ -424,8 +450,13 @@ class BatchedScene:
             self.eef_pos, self.eef_rot, self.state, self.joint_pos, self.joint_vel, self.eef_pose, self.cube_pose,
             self.cube_height, self.eef_to_cube, self.success])
         self.touching.zero_()
-        wp.launch(K.grasp_kernel, dim=d.naconmax, inputs=[
-            d.nacon, d.contact.geom, d.contact.worldid, self._geom_owner, ROBOT, self._cube_code, self.touching])
+        if self.task_name == "lift_cube":
+            wp.launch(K.grasp_kernel, dim=d.naconmax, inputs=[
+                d.nacon, d.contact.geom, d.contact.worldid, self._geom_owner, ROBOT, self._cube_code, self.touching])
+        else:
+            wp.launch(K.reach_eval_kernel, dim=n, inputs=[
+                self.eef_pos, self.eef_rot, self.target_pos, self.target_rot, *self._reach_tol,
+                self.pos_err, self.rot_err, self.success])
 
     # ---------------------------------------------------------------------------------------- cameras
     def render(self) -> dict[str, "wp.array"]:
@@ -450,10 +481,13 @@ class BatchedScene:
     # ---------------------------------------------------------------------------------------- reading
     def device_observation(self) -> dict:
         """The batch's observation as device arrays (warp; ``wp.to_torch`` / DLPack share the memory):
-        ``state``, ``joint_positions``, ``joint_velocities``, ``privileged`` (``eef_pose``, ``cube``)
-        and ``success``. No host copy."""
+        ``state``, ``joint_positions``, ``joint_velocities``, ``privileged`` (``eef_pose``, and ``cube``
+        for lift_cube) and ``success``. No host copy."""
+        priv = {"eef_pose": self.eef_pose}
+        if self.task_name == "lift_cube":
+            priv["cube"] = self.cube_pose
         return {"state": self.state, "joint_positions": self.joint_pos, "joint_velocities": self.joint_vel,
-                "privileged": {"eef_pose": self.eef_pose, "cube": self.cube_pose}, "success": self.success}
+                "privileged": priv, "success": self.success}
 
     def host_arrays(self) -> dict[str, np.ndarray]:
         """One host copy of the batch's small observation arrays (numpy, one row per world)."""
@@ -463,11 +497,21 @@ class BatchedScene:
                 "joint_velocities": self.joint_vel.numpy(), "eef_pose": self.eef_pose.numpy().astype(np.float64),
                 "cube": self.cube_pose.numpy().astype(np.float64), "cube_height": self.cube_height.numpy(),
                 "eef_to_cube": self.eef_to_cube.numpy(), "touching": self.touching.numpy().astype(bool),
-                "success": self.success.numpy().astype(bool)}
+                "success": self.success.numpy().astype(bool), "position_error": self.pos_err.numpy(),
+                "orientation_error": self.rot_err.numpy()}
         return self._host_obs
+
+    def privileged_objects(self, world: int) -> dict[str, np.ndarray]:
+        """``privileged['objects']`` of one world (base frame [x y z qw qx qy qz])."""
+        if self.task_name == "reach":
+            return {"target": self._target_np[world].copy()}
+        return {"cube": self.host_arrays()["cube"][world].copy()}
 
     def diagnostics(self, world: int) -> dict[str, float | bool]:
         h = self.host_arrays()
+        if self.task_name == "reach":
+            return {"position_error": float(h["position_error"][world]),
+                    "orientation_error": float(h["orientation_error"][world])}
         height = float(h["cube_height"][world])
         return {"cube_height": height, "eef_to_cube": float(h["eef_to_cube"][world]),
                 "grasped": bool(h["touching"][world]) and height > 0.005}

@@ -442,6 +442,12 @@ def scatter_vec3_kernel(src: wp.array2d[wp.vec3], rows: wp.array[int], dst: wp.a
 
 
 @wp.kernel(enable_backward=False)
+def scatter_mat33_kernel(src: wp.array2d[wp.mat33], rows: wp.array[int], dst: wp.array2d[wp.mat33]):
+    k, j = wp.tid()
+    dst[rows[k], j] = src[k, j]
+
+
+@wp.kernel(enable_backward=False)
 def scatter_quat_kernel(src: wp.array2d[wp.quat], rows: wp.array[int], dst: wp.array2d[wp.quat]):
     k, j = wp.tid()
     dst[rows[k], j] = src[k, j]
@@ -470,3 +476,16 @@ def unpack_rgb_u8_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, ou
     out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
     out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
     out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+
+
+@wp.kernel(enable_backward=False)
+def reach_eval_kernel(eef_pos: wp.array[wp.vec3], eef_rot: wp.array[wp.mat33], target_pos: wp.array[wp.vec3],
+                      target_rot: wp.array[wp.mat33], pos_tol: float, rot_tol: float,
+                      pos_err: wp.array[float], rot_err: wp.array[float], success: wp.array[int]):
+    """``reach``'s evaluation: tool frame within ``pos_tol`` and ``rot_tol`` of the world's target."""
+    w = wp.tid()
+    ep = wp.length(eef_pos[w] - target_pos[w])
+    er = wp.length(rotation_error(target_rot[w], eef_rot[w]))
+    pos_err[w] = ep
+    rot_err[w] = er
+    success[w] = wp.where(ep < pos_tol and er < rot_tol, 1, 0)

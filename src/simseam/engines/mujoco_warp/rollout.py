@@ -54,7 +54,7 @@ def world_observations(batch, worlds, requests) -> list[Observation]:
         if req.link_poses:
             obs[OBS_LINK_POSES] = _link_poses(batch, w)
         if batch.options.privileged:
-            obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": {"cube": h["cube"][w].copy()}}
+            obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": batch.privileged_objects(w)}
         out.append(obs)
     return out
 
