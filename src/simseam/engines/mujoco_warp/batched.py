@@ -36,13 +36,11 @@ from simseam.seam import (
     ConfigError,
     ControlMode,
     InvalidActionError,
-    ObsRequest,
     RolloutSpec,
     SimulationError,
 )
 
 try:
-    import mujoco
     import mujoco_warp as mjw
     import warp as wp
 except ImportError as exc:  # pragma: no cover - exercised only without the packages
@@ -168,7 +166,7 @@ class BatchedScene:
         self.ref_pos = wp.zeros(n, dtype=wp.vec3)
         self.ref_rot = wp.zeros(n, dtype=wp.mat33)
         self.ref_ok = wp.zeros(n, dtype=int)
-        self._active = wp.ones(n, dtype=int)
+        self._active = wp.ones(n, dtype=int)  # every world's servo runs (idle worlds hold their targets)
         # chain constants (SerialChain), in chain order
         self._chain_q = wp.array(np.asarray(chain._q_from_names, dtype=np.int32), dtype=int)
         self._fixed = wp.array(chain._fixed_arr.astype(np.float32), dtype=wp.mat44)
@@ -539,11 +537,3 @@ class BatchedScene:
     def __exit__(self, *exc) -> None:
         self.close()
 
-
-def observation_request_images(requests) -> bool:
-    """Whether any of ``requests`` (ObsRequest | None each) wants an image."""
-    for r in requests:
-        r = r if r is not None else ObsRequest()
-        if r.images is None or r.images:
-            return True
-    return False

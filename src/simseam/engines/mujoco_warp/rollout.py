@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simseam.math3d import matrix_to_quat, quat_to_matrix
+from simseam.math3d import matrix_to_quat
 from simseam.seam import (
     INFO_DIAGNOSTICS,
     INFO_STEPS,
@@ -149,4 +149,4 @@ class WarpRollout:
         self.close()
 
 
-__all__ = ["WarpRollout", "world_observations", "quat_to_matrix"]
+__all__ = ["WarpRollout", "world_observations"]
