@@ -106,8 +106,8 @@ class BatchedScene:
         mode = spec.action.control_mode
         self._cartesian = mode == ControlMode.CARTESIAN_DELTA
         n_arm = len(host._arm_idx)
-        if self._cartesian and n_arm < 6:
-            raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 6 arm joints; robot "
+        if self._cartesian and n_arm < 3:
+            raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 3 arm joints; robot "
                               f"{robot.name!r} has {n_arm} (use control_mode: joint_position)")
         self.task_name = task
         mjm = host.engine.model

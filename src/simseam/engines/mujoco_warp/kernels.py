@@ -176,6 +176,64 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
                 dq[i] = dq[i] + zn[i] - s
         return dq
 
+    f64 = wp.float64
+    jp_t = wp.types.matrix(shape=(3, n), dtype=f64)
+    matnn = wp.types.matrix(shape=(n, n), dtype=f64)
+    vecn64 = wp.types.vector(length=n, dtype=f64)
+
+    @wp.func
+    def priority_step(jw: jac_t, e: wp.spatial_vector, damping: float):
+        """``SerialChain._priority_step`` (arms with fewer than 6 joints): position first, orientation
+        within the position task's null space. The projector uses the exact pseudo-inverse of the
+        position Jacobian (singular values below 1e-4 of the largest dropped, as numpy's pinv),
+        through the eigen-decomposition of jp jp^T: in float64, which squares the condition number."""
+        jp = jp_t()
+        jo = jp_t()
+        for r in range(3):
+            for i in range(n):
+                jp[r, i] = f64(jw[r, i])
+                jo[r, i] = f64(jw[3 + r, i])
+        d2 = f64(damping) * f64(damping)
+        eye = wp.identity(n=3, dtype=f64)
+        m = jp * wp.transpose(jp)
+        ep = wp.vec3d(f64(e[0]), f64(e[1]), f64(e[2]))
+        dq1 = wp.transpose(jp) * (wp.inverse(m + d2 * eye) * ep)
+        qm, lam = wp.eig3(m)
+        smax = wp.sqrt(wp.max(wp.max(lam[0], lam[1]), wp.max(lam[2], f64(0.0))))
+        inv = wp.mat33d()
+        for k in range(3):
+            sk = wp.sqrt(wp.max(lam[k], f64(0.0)))
+            if sk > f64(1e-4) * smax and sk > f64(0.0):
+                for a in range(3):
+                    for b in range(3):
+                        inv[a, b] = inv[a, b] + qm[a, k] * qm[b, k] / lam[k]
+        pinv_jp = wp.transpose(jp) * inv  # n x 3
+        null = matnn()
+        for i in range(n):
+            for j in range(n):
+                s = f64(0.0)
+                for r in range(3):
+                    s += pinv_jp[i, r] * jp[r, j]
+                one = f64(0.0)
+                if i == j:
+                    one = f64(1.0)
+                null[i, j] = one - s
+        jo_n = jo * null  # 3 x n
+        eo = wp.vec3d(f64(e[3]), f64(e[4]), f64(e[5])) - jo * dq1
+        dq2 = wp.transpose(jo_n) * (wp.inverse(jo_n * wp.transpose(jo_n) + d2 * eye) * eo)
+        dq64 = dq1 + null * dq2
+        dq = vecn()
+        for i in range(n):
+            dq[i] = float(dq64[i])
+        return dq
+
+    @wp.func
+    def step_fn(jw: jac_t, e: wp.spatial_vector, zn: vecn, damping: float):
+        if wp.static(n >= 6):
+            return dls_step(jw, e, zn, damping)
+        else:
+            return priority_step(jw, e, damping)
+
     @wp.kernel(module="unique", enable_backward=False)
     def arm_kernel(
         action: wp.array2d[float],  # (nworld, action_dim): already clipped to the slot bounds
@@ -281,7 +339,7 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
                 if wp.static(null_space):
                     for i in range(n):
                         zn[i] = rest_gain * (q_home[i] - q[i])
-                dq = dls_step(jw, e, zn, damping)
+                dq = step_fn(jw, e, zn, damping)
                 blocked = vecn()
                 any_blocked = int(0)
                 for i in range(n):
@@ -299,7 +357,7 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
                                 e[r] = e[r] - jw[r, i] * dqb[i]
                                 jw[r, i] = 0.0
                             zn[i] = 0.0
-                    dq = dls_step(jw, e, zn, damping)
+                    dq = step_fn(jw, e, zn, damping)
                     for i in range(n):
                         if blocked[i] > 0.0:
                             dq[i] = dqb[i]
