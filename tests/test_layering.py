@@ -11,7 +11,7 @@ FORBIDDEN = ["pydantic", "typer", "rich", "yaml", "simseam.cli", "simseam.runner
 def test_scene_and_engine_import_no_client_side_packages():
     code = (
         "import sys, simseam.seam, simseam.scene.manifest_scene, simseam.engines.mujoco.engine, "
-        "simseam.robot.spec\n"
+        "simseam.robot.spec, simseam.engines.mujoco_warp, simseam.engines.mujoco_warp.pose_renderer\n"
         "from simseam.scene.tasks.base import task_names; task_names()\n"
         f"bad = [m for m in {FORBIDDEN!r} if m in sys.modules]\n"
         "print(','.join(bad))"

@@ -147,6 +147,13 @@ def test_inertia_source(write):
     assert load_robot("franka_panda").inertia == "geometry"  # pybullet's Panda has placeholder inertias
 
 
+def test_collision_model(write):
+    assert load_manifest(write(TINY)).collision == "mesh"
+    assert load_manifest(write(edited(collision="primitives"))).collision == "primitives"
+    with pytest.raises(ConfigError, match="collision"):
+        load_manifest(write(edited(collision="spheres")))
+
+
 def test_spec_json_round_trip(write):
     """RobotSpec -> JSON text -> RobotSpec is lossless (it crosses process boundaries this way)."""
     specs = [load_manifest(write(TINY)), load_manifest(write(mobile_tiny(), "mobile.yaml"))]

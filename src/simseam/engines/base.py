@@ -35,6 +35,8 @@ class RobotModel:
     geometry at 1000 kg/m^3 (for models that ship placeholder inertias).
     ``link_shapes`` adds primitive geometry (visible, colliding, part of the
     robot: never hit by its own rays) to named links, e.g. a mobile chassis.
+    ``collision_primitives``: collision meshes collide as primitives fitted to them (capsules; boxes
+    on ``box_links``); the meshes keep their mass but stop colliding.
     """
 
     urdf_path: str
@@ -48,6 +50,8 @@ class RobotModel:
     inertia_from_geometry: bool = False
     color: tuple[float, float, float, float] | None = None
     link_shapes: dict[str, list["Shape"]] = field(default_factory=dict)
+    collision_primitives: bool = False
+    box_links: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

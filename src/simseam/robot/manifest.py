@@ -119,6 +119,8 @@ class ManifestModel(_Strict):
     sensors: list[SensorModel] = []
     action: ActionModel = ActionModel()
     inertia: Literal["urdf", "geometry"] = "urdf"
+    # "primitives": each link's collision meshes collide as fitted capsules (boxes for gripper fingers)
+    collision: Literal["mesh", "primitives"] = "mesh"
 
     @model_validator(mode="after")
     def _consistent(self) -> "ManifestModel":
@@ -284,6 +286,7 @@ def load_manifest(path: str | Path) -> RobotSpec:
         description=m.description,
         source=str(path),
         inertia=m.inertia,
+        collision=m.collision,
     )
 
 

@@ -142,6 +142,8 @@ class RobotSpec:
     #: "urdf": the URDF's masses/inertias; "geometry": computed from collision geometry
     inertia: str = "urdf"
     tcp: ToolFrameSpec | None = None
+    #: "mesh": the URDF's collision meshes; "primitives": fitted capsules (boxes for gripper fingers)
+    collision: str = "mesh"
 
     # ------------------------------------------------------------ derived views
     def joints_with_role(self, role: str) -> list[JointSpec]:

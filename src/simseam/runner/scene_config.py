@@ -5,6 +5,7 @@ Example::
     robot: franka_panda          # a built-in robot or a manifest path (relative to this file)
     engine: mujoco               # or {name: mujoco, render_quality: full, timestep: 0.002,
                                  #     process: sidecar, python: /path/to/venv/bin/python, transport: ipc}
+                                 # or {name: mujoco_warp, num_envs: 1024} (N worlds on a GPU, docs/engines.md)
     task: lift_cube              # (``layout:`` is accepted as an older name for ``task:``)
     image_size: [256, 256]       # (H, W) of every RGB camera; default: the layout's or the sensor's
     max_steps: 150
@@ -28,7 +29,7 @@ from pydantic import AliasChoices, BaseModel, ConfigDict, Field, field_validator
 
 from simseam.config_files import load_yaml_model
 from simseam.robot.manifest import find_manifest, load_manifest
-from simseam.seam import SimRollout
+from simseam.seam import ConfigError, SimRollout
 
 
 class EngineConfig(BaseModel):
@@ -46,6 +47,9 @@ class EngineConfig(BaseModel):
     boot_timeout_s: float = Field(default=120.0, gt=0)
     request_timeout_s: float = Field(default=30.0, gt=0)
     keep_alive: bool = False
+    # engine mujoco_warp (GPU-batched): worlds in one process, and the warp device (default: the preferred one)
+    num_envs: int | None = Field(default=None, ge=1)
+    device: str | None = None
 
 
 class BenchmarkConfig(BaseModel):
@@ -146,6 +150,12 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
         seed=seed,
     )
     eng = cfg.engine
+    if eng.name == "mujoco_warp":  # one world of the GPU-batched engine (runner.warp_vector runs N)
+        from simseam.engines.mujoco_warp import WarpOptions, WarpRollout
+
+        if eng.process != "inprocess":
+            raise ConfigError("engine 'mujoco_warp' runs in-process (process: sidecar is not supported)")
+        return WarpRollout(spec, cfg.task, options, WarpOptions(device=eng.device))
     if eng.process == "sidecar":
         from simseam.sidecar.client import SidecarRollout
 

@@ -210,7 +210,9 @@ class ManifestScene:
         engine.load_robot(RobotModel(
             urdf_path=self._urdf_path, joints=[j.sim_name for j in self._ejoints], kp=[j.kp for j in self._ejoints],
             kd=[j.kd for j in self._ejoints], base_pos=tuple(self._base_pos), base_quat=tuple(yaw_quat(base_yaw)),
-            fixed_base=True, inertia_from_geometry=robot.inertia == "geometry", link_shapes=link_shapes))
+            fixed_base=True, inertia_from_geometry=robot.inertia == "geometry", link_shapes=link_shapes,
+            collision_primitives=robot.collision == "primitives",
+            box_links=tuple(self._urdf.joint(self._ejoints[i].sim_name).child for i in self._grip_idx)))
         self.task.build(engine)
         size = opts.image_size or self.task.image_size
         self._rgb: list[tuple[str, str]] = []  # (sensor name, feature key)

@@ -288,6 +288,8 @@ class MujocoEngine:
                 if g.contype == 0 and g.conaffinity == 0:
                     g.density = 0.0  # visual geoms carry no mass
             spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE
+        if robot.collision_primitives:
+            _add_collision_primitives(robot, [g for g in geoms if not (g.contype == 0 and g.conaffinity == 0)])
 
         urdf = read_urdf(robot.urdf_path)
         for i, jn in enumerate(robot.joints):
@@ -536,6 +538,23 @@ class MujocoEngine:
             self._renderer = None
         self.data = None
         self.model = None
+
+
+def _add_collision_primitives(robot: RobotModel, collision_geoms: list) -> None:
+    """Each collision mesh gets a primitive fitted to it by MuJoCo's compiler (a capsule, a box on
+    ``robot.box_links``) that collides in its place; the mesh stays for mass and inertia only."""
+    for g in collision_geoms:
+        if g.type != mujoco.mjtGeom.mjGEOM_MESH:
+            continue
+        body = g.parent
+        kind = mujoco.mjtGeom.mjGEOM_BOX if body.name in robot.box_links else mujoco.mjtGeom.mjGEOM_CAPSULE
+        p = body.add_geom(type=kind, meshname=g.meshname, pos=list(g.pos), quat=list(g.quat), group=g.group,
+                          contype=g.contype, conaffinity=g.conaffinity, condim=g.condim,
+                          friction=list(g.friction), rgba=list(g.rgba))
+        p.density = 0.0
+        p.mass = 0.0
+        g.contype = 0
+        g.conaffinity = 0
 
 
 def _volume(shape) -> float:

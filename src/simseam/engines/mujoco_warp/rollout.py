@@ -1,0 +1,152 @@
+"""Per-world observations of a ``BatchedScene``, and ``WarpRollout``: one world as a ``SimRollout``.
+
+``world_observations`` turns the batch's arrays (one host copy per step) into the seam's per-world
+observation dicts, honouring each world's ``ObsRequest`` exactly as ``ManifestScene`` does.
+``WarpRollout`` is a batch of one behind the ``SimRollout`` seam (``check_rollout`` passes on it);
+``simseam run`` uses it when a scene names ``engine: mujoco_warp`` without a batch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simseam.math3d import matrix_to_quat
+from simseam.seam import (
+    INFO_DIAGNOSTICS,
+    INFO_STEPS,
+    OBS_IMAGES,
+    OBS_JOINT_POSITIONS,
+    OBS_JOINT_VELOCITIES,
+    OBS_LINK_POSES,
+    OBS_PRIVILEGED,
+    OBS_SIM_TIME_NS,
+    OBS_STATE,
+    OBS_TASK,
+    ObsRequest,
+    Observation,
+    RolloutSpec,
+    SimulationError,
+    StepResult,
+)
+
+_FULL = ObsRequest()
+
+
+def world_observations(batch, worlds, requests) -> list[Observation]:
+    """Observations of ``worlds`` (``requests``: one ObsRequest | None per world). Renders the batch's
+    cameras once if any world asks for an image."""
+    requests = [r or _FULL for r in requests]
+    h = batch.host_arrays()
+    images_host: dict[str, np.ndarray] = {}
+    if batch.rc is not None and any(r.images is None or r.images for r in requests):
+        images_host = {k: v.numpy() for k, v in batch.render().items()}
+    instruction = batch.spec.task.instruction
+    out = []
+    for w, req in zip(worlds, requests):
+        obs: Observation = {
+            OBS_IMAGES: {k: v[w] for k, v in images_host.items() if req.wants_image(k)},
+            OBS_STATE: h["state"][w].copy(),
+            OBS_TASK: instruction,
+            OBS_JOINT_POSITIONS: h["joint_positions"][w].copy(),
+            OBS_JOINT_VELOCITIES: h["joint_velocities"][w].copy(),
+            OBS_SIM_TIME_NS: batch.sim_time_ns(w),
+        }
+        if req.link_poses:
+            obs[OBS_LINK_POSES] = _link_poses(batch, w)
+        if batch.options.privileged:
+            obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": batch.privileged_objects(w)}
+        out.append(obs)
+    return out
+
+
+def _link_poses(batch, w: int) -> dict[str, np.ndarray]:
+    """Every link's pose in the base frame for world ``w`` (on request only): the host scene's own
+    ``link_in_base`` on this world's joint positions (MuJoCo kinematics on the CPU)."""
+    import mujoco
+
+    host = batch.host
+    data = host.engine.data
+    data.qpos[:] = batch.world_qpos(w)
+    mujoco.mj_kinematics(host.engine.model, data)
+    host.engine._stale = False
+    poses = {}
+    for link in batch.spec.robot.links:
+        rot, pos = host.link_in_base(link.name)
+        poses[link.name] = np.concatenate([pos, matrix_to_quat(rot)]).astype(np.float32)
+    return poses
+
+
+class WarpRollout:
+    """A ``SimRollout`` over one world of MuJoCo Warp (a ``BatchedScene`` of one)."""
+
+    def __init__(self, robot, task: str, options=None, warp_options=None):
+        from simseam.engines.mujoco_warp.batched import BatchedScene
+
+        self.batch = BatchedScene(robot, task, 1, options, warp_options)
+        self._seed_stream = np.random.default_rng(self.batch.options.seed)
+        self._ready = False
+        self._closed = False
+        self._frame = None
+
+    @property
+    def spec(self) -> RolloutSpec:
+        return self.batch.spec
+
+    @property
+    def action_dim(self) -> int:
+        return self.batch.action_dim
+
+    def reset(self, seed: int | None = None, observe: ObsRequest | None = None) -> Observation:
+        self._check_open()
+        if seed is None:
+            seed = int(self._seed_stream.integers(0, 2**31 - 1))
+        self.batch.reset([0], [seed])
+        self._ready = True
+        return self._observe(observe)
+
+    def step(self, action: np.ndarray, observe: ObsRequest | None = None) -> StepResult:
+        self._check_open()
+        if not self._ready:
+            raise SimulationError("step() called before reset()")
+        a = self.spec.action.validate(action)  # InvalidActionError before anything changes
+        r = self.batch.step(a[None, :])
+        obs = self._observe(observe)
+        info = {self.spec.task.success_key: bool(r.success[0]), INFO_STEPS: int(r.steps[0]),
+                INFO_DIAGNOSTICS: self.batch.diagnostics(0)}
+        return StepResult(obs, float(r.reward[0]), bool(r.terminated[0]), bool(r.truncated[0]), info)
+
+    def _observe(self, request) -> Observation:
+        obs = world_observations(self.batch, [0], [request])[0]
+        key = next(iter(self.batch.cameras), None)
+        self._frame = obs[OBS_IMAGES].get(key) if key else None
+        return obs
+
+    def render(self) -> np.ndarray | None:
+        self._check_open()
+        if self.batch.rc is None:
+            return None
+        if self._frame is None:
+            key = next(iter(self.batch.cameras))
+            self._frame = self.batch.render()[key].numpy()[0]
+        return self._frame
+
+    def sim_time_ns(self) -> int:
+        return self.batch.sim_time_ns(0)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.batch.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the rollout is closed")
+
+    def __enter__(self) -> "WarpRollout":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+__all__ = ["WarpRollout", "world_observations"]
