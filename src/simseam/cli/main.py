@@ -284,13 +284,22 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             probe = make_policy(policy, **policy_kwargs)
             pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
         uses_images, privileged = probe.uses_images, probe.requires_privileged
-        if pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
+        batched_engine = cfg.engine.name == "mujoco_warp"  # N worlds in this process: one policy batch
+        if pol is None and batched_engine:
+            from simseam.policies.batch import PerEnvPolicies
+
+            made = [probe]
+            pol = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **policy_kwargs), num_envs)
+        elif pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
             _close_policy(probe)
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
         with _sigterm_as_interrupt():
-            with console.status(f"starting {num_envs} environment workers"):
-                vec = VectorEnv(recipe, num_envs)
+            from simseam.runner.warp_vector import make_vector_env
+
+            with console.status(f"starting {num_envs} environments"):
+                vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs),
+                                      privileged=privileged, render_images=uses_images or video, seed=seed)
             spec_json = vec.spec.to_json()
             run_dir.write_spec(spec_json)
             where = "one batched policy" if pol is not None else "a policy in each worker"
@@ -304,7 +313,9 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
 
                 common = dict(seed=seed, video_dir=out if video else None, on_done=done,
                               on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
-                if pol is not None:  # a shared model or server: all environments stepped together, batched
+                if batched_engine:  # N worlds stepped together on the device
+                    vec.run(pol, todo, **common)
+                elif pol is not None:  # a shared model or server: all environments stepped together, batched
                     vec.run(pol, todo, sync=True, **common)
                 else:
                     vec.run_local(policy, policy_kwargs, todo, **common)

@@ -15,6 +15,11 @@ They mirror the scene's host code line by line (float32 on the device):
 
 import warp as wp
 
+# no per-module load lines on the console (set before any kernel loads; warp >= 1.19 reads log_level)
+wp.config.quiet = True
+if hasattr(wp, "LOG_WARNING"):
+    wp.config.log_level = wp.LOG_WARNING
+
 EPS_SMALL = 1e-12
 
 
