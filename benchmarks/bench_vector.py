@@ -47,11 +47,16 @@ CASES = {
 }
 
 
+# --robot: a built-in name or a manifest path (e.g. one with a file: URDF on a GPU machine); spawned
+# workers read it from the environment
+ROBOT = os.environ.get("SIMSEAM_BENCH_ROBOT", "franka_panda")
+
+
 def scene_dict(case: str, steps: int) -> dict:
     from simseam.runner.scene_config import SceneConfig
 
     engine, _ = CASES[case]
-    cfg = SceneConfig.model_validate({"robot": "franka_panda", "task": "lift_cube", "engine": engine,
+    cfg = SceneConfig.model_validate({"robot": ROBOT, "task": "lift_cube", "engine": engine,
                                       "image_size": [256, 256], "max_steps": steps, "control_hz": 20})
     return cfg.model_dump(mode="json")
 
@@ -161,7 +166,9 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=["vector", "async", "local", "bare"],
                     choices=["vector", "async", "local", "bare"])
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
+    ap.add_argument("--robot", default=ROBOT, help="built-in robot name or manifest path (absolute)")
     args = ap.parse_args()
+    globals()["ROBOT"] = os.environ["SIMSEAM_BENCH_ROBOT"] = args.robot
     rows = []
     for case in args.cases:
         for mode in args.modes:
