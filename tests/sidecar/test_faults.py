@@ -238,7 +238,7 @@ def test_cli_run_loop_restarts_a_crashed_sidecar(tmp_path, monkeypatch):
     monkeypatch.setattr(session, "run_episode", run_episode)  # the loop run_episodes calls
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["run", "--scene", str(_scene_file(tmp_path, "s.yaml", "{process: sidecar}")),
-                                   "--policy", "scripted", "--episodes", "2", "--out", str(out)])
+                                   "--policy", "scripted", "--episodes", "2", "--num-envs", "1", "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert "restarting the sidecar" in res.output
     summary = json.loads((out / "summary.json").read_text())
