@@ -244,16 +244,7 @@ def run(
             recorder.close()
         rollout.close()
         _close_policy(pol)
-    summary = rebuild_summary(out, spec_json, interrupted=interrupted)
-    if interrupted:
-        err_console.print(f"interrupted after {summary['n_episodes']} of {episodes} episodes; "
-                          f"summary of the finished ones: {out / 'summary.json'}", markup=False, highlight=False)
-        raise typer.Exit(code=130)
-    lo, hi = summary["success_rate_wilson95"]
-    console.print(
-        f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
-        f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
-    )
+    _finish_run(out, spec_json, interrupted, len(planned))
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
