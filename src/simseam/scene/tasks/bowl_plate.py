@@ -11,6 +11,8 @@ by the robot. Reward is sparse: 1.0 on success.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
@@ -81,7 +83,7 @@ class BowlPlate(Task):
         engine = scene.engine
         bowl, _ = engine.object_pose("bowl")
         plate, _ = engine.object_pose("plate")
-        offset = float(np.linalg.norm(bowl[:2] - plate[:2]))
+        offset = math.dist(bowl[:2].tolist(), plate[:2].tolist())  # plain floats: the same bits on any numpy
         centred = offset < PLATE_R - 0.02
         on_top = abs(bowl[2] - (plate[2] + 2 * PLATE_HALF_H)) < 0.015
         still = np.linalg.norm(engine.object_velocity("bowl")[:3]) < 0.05

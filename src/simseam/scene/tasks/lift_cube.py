@@ -7,6 +7,8 @@ from the episode seed. Reward is sparse: 1.0 on success.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
@@ -54,6 +56,6 @@ class LiftCube(Task):
         eef, _ = scene.eef_pose_world()
         return Evaluation(float(success), success, {
             "cube_height": height,  # m above its resting height
-            "eef_to_cube": float(np.linalg.norm(eef - pos)),  # m, tool frame to cube centre
+            "eef_to_cube": math.dist(eef.tolist(), pos.tolist()),  # m, tool frame to cube centre (plain floats)
             "grasped": bool(eng.contacts_between("cube", "robot")) and height > 0.005,
         })

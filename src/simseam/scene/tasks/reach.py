@@ -71,7 +71,7 @@ class Reach(Task):
 
     def evaluate(self, scene) -> Evaluation:
         pos, rot = scene.eef_pose_base()
-        e_pos = float(np.linalg.norm(pos - self.target_pos))
-        e_rot = float(np.linalg.norm(rotation_error(self.target_rot, rot)))
+        e_pos = math.dist(np.asarray(pos).tolist(), np.asarray(self.target_pos).tolist())
+        e_rot = math.hypot(*rotation_error(self.target_rot, rot).tolist())
         success = e_pos < POS_TOL and e_rot < ROT_TOL
         return Evaluation(float(success), success, {"position_error": e_pos, "orientation_error": e_rot})
