@@ -61,7 +61,12 @@ def test_full_episode_in_another_interpreter_matches_in_process(full_venv, tmp_p
         for a in actions(seed=9, n=100, dim=remote.action_dim):
             r, lo = remote.step(a), local.step(a)
             assert_same(r.observation, lo.observation, f"step {steps}")
-            assert (r.reward, r.terminated, r.truncated, r.info) == (lo.reward, lo.terminated, lo.truncated, lo.info)
+            assert (r.reward, r.terminated, r.truncated) == (lo.reward, lo.terminated, lo.truncated)
+            # float64 diagnostics: the two interpreters' numpy builds (IK's linear algebra) may differ in
+            # the last bits of the state, which float32 observations do not show
+            assert {k: v for k, v in r.info.items() if k != "diagnostics"} == {
+                k: v for k, v in lo.info.items() if k != "diagnostics"}
+            assert r.info["diagnostics"] == pytest.approx(lo.info["diagnostics"], rel=1e-9, abs=1e-12)
             steps += 1
             if r.terminated or r.truncated:
                 break
