@@ -59,12 +59,18 @@ def bench_one(robot, collision: str, cameras: bool, n: int, args) -> dict:
     b.step(acts[0])
     wp.synchronize_device(b.device)
     first_step_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    b.step(acts[0])  # the second call captures the CUDA graph (the engine captures on second use)
+    wp.synchronize_device(b.device)
+    capture_s = time.perf_counter() - t0
     first_render_s = None
     if cameras:
         t0 = time.perf_counter()
         b.render()
         wp.synchronize_device(b.device)
         first_render_s = time.perf_counter() - t0
+        b.render()  # a second untimed render, as for the step
+        wp.synchronize_device(b.device)
     t0 = time.perf_counter()
     for k in range(1, args.steps + 1):
         b.step(acts[k])
@@ -86,6 +92,7 @@ def bench_one(robot, collision: str, cameras: bool, n: int, args) -> dict:
     row = {
         "collision": collision, "observation": f"2x{args.image}x{args.image} rgb" if cameras else "state",
         "worlds": n, "substeps": b.substeps, "build_s": round(build_s, 3), "first_step_s": round(first_step_s, 3),
+        "capture_step_s": round(capture_s, 3),
         "first_render_s": None if first_render_s is None else round(first_render_s, 3),
         "step_ms": round(step_s * 1e3, 3), "env_steps_per_s": round(n / step_s, 1),
         "physics_steps_per_s": round(n * b.substeps / step_s, 1),

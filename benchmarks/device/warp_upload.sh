@@ -12,6 +12,7 @@
 #             bash benchmarks/device/warp_upload.sh install             (concatenate, sha256, pip --target)
 #             export PYTHONPATH=/tmp/site:/tmp/ww/src
 #             python3 /tmp/ww/bench_warp.py --robot-json /tmp/ww/panda.json --urdf /tmp/ww/franka_panda/panda.urdf
+#             python3 /tmp/ww/warp_conformance.py --robot /tmp/ww/franka_panda.yaml --robot /tmp/ww/so101.yaml
 # Paths carried in one call are removed in the next, hence the copy to /tmp/ww. warp's kernel cache
 # (~/.cache/warp) lives on that machine only: compile and benchmark in as few calls as possible.
 set -euo pipefail
@@ -33,7 +34,11 @@ case "$cmd" in
     mv "$DIR"/wheels/mujoco_core-*.whl "$DIR/c1/"
     mv "$DIR"/wheels/mujoco-*.whl "$DIR"/wheels/mujoco_warp-*.whl "$DIR/c2/"
     cp -r "$ROOT/src" "$DIR/c1/src"; find "$DIR/c1/src" -name __pycache__ -prune -exec rm -rf {} +
-    cp "$ROOT/benchmarks/bench_warp.py" "$DIR/c3/"
+    cp "$ROOT/benchmarks/bench_warp.py" "$ROOT/benchmarks/warp_conformance.py" "$DIR/c3/"
+    # warp_conformance.py loads manifests (pydantic) and needs the SO-101's URDF + meshes too
+    "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+      --platform manylinux2014_x86_64 -d "$DIR/c3" pydantic==2.14.4 pydantic-core==2.50.5 \
+      annotated-types==0.8.0 typing-inspection==0.4.5
     "$PY" - "$DIR" <<'PY'
 import json, shutil, sys
 from pathlib import Path
@@ -43,6 +48,16 @@ d = Path(sys.argv[1])
 r = load_robot("franka_panda")
 (d / "c3" / "panda.json").write_text(json.dumps(r.to_json()))
 shutil.copytree(Path(resolve_asset(r.urdf)).parent, d / "c2" / "franka_panda")
+import re, tarfile
+from simseam.robot.manifest import find_manifest
+for name, folder in (("franka_panda", "franka_panda"), ("so101", "SO101")):
+    urdf = Path(resolve_asset(load_robot(name).urdf))
+    text = Path(find_manifest(name)).read_text()
+    (d / "c3" / f"{name}.yaml").write_text(re.sub(r"(?m)^urdf: .*$", f"urdf: file:{folder}/{urdf.name}", text))
+so = Path(resolve_asset(load_robot("so101").urdf))
+with tarfile.open(d / "c3" / "so101.tar.xz", "w:xz") as tar:
+    tar.add(so, f"SO101/{so.name}")
+    tar.add(so.parent / "assets", "SO101/assets")
 PY
     rm -rf "$DIR/wheels"
     du -sh "$DIR"/c*
@@ -55,6 +70,7 @@ PY
     cat warp.part00 warp.part01 warp.part02 > "$(cat warp.name)"
     echo "$(cat warp.sha256)  $(cat warp.name)" | sha256sum -c -
     python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site ./*.whl
+    if [ -f so101.tar.xz ]; then tar xJf so101.tar.xz; fi
     PYTHONPATH=/tmp/site python3 -c "import warp, mujoco, mujoco_warp; print('warp', warp.config.version, 'mujoco', mujoco.__version__, 'mujoco_warp', mujoco_warp.__version__)"
     ;;
   *)
