@@ -140,7 +140,7 @@ def test_protocol_mismatch_at_hello_leaves_nothing_behind(panda_json, client_tmp
 
     monkeypatch.setattr(client, "PROTOCOL_VERSION", 99)
     before = _server_children()
-    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 2"):
+    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 3"):
         SidecarRollout(panda_json, "lift_cube", options=scene_options(render_images=False))
     assert _server_children() == before
     assert list(client_tmp.iterdir()) == []
@@ -216,7 +216,9 @@ def test_ipc_socket_lives_in_a_private_directory(make_sidecar):
     st = d.stat()
     assert stat.S_IMODE(st.st_mode) == 0o700 and st.st_uid == os.getuid()
     assert stat.S_ISSOCK(sock_path.stat().st_mode)
-    assert sorted(p.name for p in d.iterdir()) == ["scene.sock"]  # the boot file (it holds the token) is gone
+    # the boot file (it holds the token) is gone; beside the ZeroMQ socket, the local fast path's (owner-only)
+    assert sorted(p.name for p in d.iterdir()) == ["local.sock", "scene.sock"]
+    assert stat.S_IMODE((d / "local.sock").stat().st_mode) == 0o600 and rollout.fast
     rollout.close()
     assert not d.exists()
 

@@ -203,6 +203,10 @@ class SidecarRollout:
     on its path (a symlink in the private directory), so a backend venv needs no copy of it.
     """
 
+    _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
+    _slots: list | None = None
+    fast = False
+
     def __init__(self, spec_json: dict | None, task: str, engine: str = "mujoco", options: dict | None = None, *,
                  backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
@@ -215,7 +219,7 @@ class SidecarRollout:
         self._want_local = bool(local) and transport == "ipc"
         self._local_slots = local_slots
         self._slots: list | None = None  # the shared-memory ring's slots, when on the local path
-        self.local = False  # whether requests use the local fast path
+        self.fast = False  # whether requests use the local fast path
         self._spec_json = spec_json
         self._task = task
         self._engine = engine
@@ -370,7 +374,7 @@ class SidecarRollout:
         self._sock.close(0)
         self._sock = chan
         self._slots = chan.slots
-        self.local = True
+        self.fast = True
 
     def _adopt(self) -> bool:
         """Adopt a kept-alive sidecar of the same identity, if one is registered and alive."""
@@ -450,7 +454,8 @@ class SidecarRollout:
             raise SidecarCrashed("the sidecar rollout is closed")
         if self._sock is None:
             raise SidecarCrashed("the sidecar is gone (crashed earlier); call restart()")
-        body["token"] = self._token
+        if not self.fast:  # the local connection proved the token once, at attach
+            body["token"] = self._token
         during = during or f"during {op}"
         try:
             self._sock.send_multipart(encode(op, body), copy=False)
@@ -547,7 +552,7 @@ class SidecarRollout:
             self._sock.close(0)
             self._sock = None
         self._slots = None
-        self.local = False
+        self.fast = False
         self._frame = None
         if self._proc is not None and not self._keep_alive:
             self._proc.kill(graceful_s=2.0 if graceful else 0.2)

@@ -96,19 +96,22 @@ class Server:
         self.local_path: str | None = None  # the local fast path's socket, when this server offers one
         self.ring: local.SlotRing | None = None  # the attached local client's shared-memory ring
 
-    def handle(self, frames: list, ring: "local.SlotRing | None" = None) -> tuple[list, bool]:
+    def handle(self, frames: list, ring: "local.SlotRing | None" = None, attached: bool = False) -> tuple[list, bool]:
         """Reply frames for one request, and whether to stop serving. ``ring``: put the reply's
-        large arrays into this shared-memory ring (a request on the local fast path)."""
+        large arrays into this shared-memory ring; ``attached``: the request came on a local
+        connection that proved the token at attach (its requests carry none)."""
         try:
             op, body = decode(frames)
         except WireError as exc:
             return encode("error", {"kind": "WireError", "message": str(exc)}), False
-        return self._dispatch(op, body, ring)
+        return self._dispatch(op, body, ring, attached)
 
-    def _dispatch(self, op: str, body: Any, ring: "local.SlotRing | None") -> tuple[list, bool]:
+    def _dispatch(self, op: str, body: Any, ring: "local.SlotRing | None", attached: bool) -> tuple[list, bool]:
+        if attached and not isinstance(body, dict):
+            return encode("error", {"kind": "WireError", "message": f"body must be a map, got {type(body).__name__}"}), False
         # compare bytes: compare_digest raises TypeError on non-ASCII str (a peer could send one)
-        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
-                                                                 self.token.encode()):
+        if not attached and (not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
+                                                                                   self.token.encode())):
             return encode("error", {"kind": "AccessDenied", "message": "missing or wrong token"}), False
         self.requests += 1
         try:
@@ -308,7 +311,7 @@ def serve(boot: dict) -> int:
                             if not attached:
                                 msg = None
                         else:
-                            reply, stop = server.handle(msg[0], server.ring)
+                            reply, stop = server.handle(msg[0], server.ring, attached=True)
                             local.send_message(conn, reply)
                         if stop:
                             return 0

@@ -40,6 +40,7 @@ MAX_NDIM = 8
 MAX_DEPTH = 32  # nesting levels of a body (observations need 4)
 ND = "__nd__"
 SHM = "__shm__"
+_PLAIN = frozenset((bool, int, float, str, bytes, type(None)))
 ALIGN = 64  # byte alignment of arrays inside a shared-memory slot
 
 #: dtypes allowed on the wire (little-endian, fixed size, no objects)
@@ -72,10 +73,11 @@ def _pack_body(obj: Any, arrays: list[np.ndarray], shm: list | None = None, ring
             arr = np.ascontiguousarray(arr)
         arrays.append(arr)
         return {ND: len(arrays) - 1}
-    if isinstance(obj, dict):
-        return {str(k): _pack_body(v, arrays, shm, ring) for k, v in obj.items()}
+    if isinstance(obj, dict):  # scalars of the exact plain types are taken as they are (no call per leaf)
+        return {(k if type(k) is str else str(k)): (v if type(v) in _PLAIN else _pack_body(v, arrays, shm, ring))
+                for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_pack_body(v, arrays, shm, ring) for v in obj]
+        return [v if type(v) in _PLAIN else _pack_body(v, arrays, shm, ring) for v in obj]
     if isinstance(obj, np.generic):
         return obj.item()
     if obj is None or isinstance(obj, (bool, int, float, str, bytes)):
@@ -103,9 +105,14 @@ def encode(op: str, body: Any = None, ring: Any = None) -> list:
 
 def _unpack_body(obj: Any, arrays: list[np.ndarray], used: list[bool], depth: int = 0,
                  shm: list | None = None, shm_used: list[bool] | None = None) -> Any:
-    if isinstance(obj, (dict, list)) and depth >= MAX_DEPTH:
+    """The body with its array markers replaced, in place (``obj`` is freshly unpacked msgpack:
+    only dict, list and scalars)."""
+    t = type(obj)
+    if t is not dict and t is not list:
+        return obj
+    if depth >= MAX_DEPTH:
         raise WireError(f"body is nested deeper than {MAX_DEPTH} levels")
-    if isinstance(obj, dict):
+    if t is dict:
         if ND in obj:
             idx = obj[ND]
             if len(obj) != 1 or not isinstance(idx, int) or isinstance(idx, bool) or not 0 <= idx < len(arrays):
@@ -119,9 +126,15 @@ def _unpack_body(obj: Any, arrays: list[np.ndarray], used: list[bool], depth: in
                 raise WireError(f"bad shared-memory array reference {_repr.repr(obj)}")
             shm_used[idx] = True
             return shm[idx]
-        return {k: _unpack_body(v, arrays, used, depth + 1, shm, shm_used) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_unpack_body(v, arrays, used, depth + 1, shm, shm_used) for v in obj]
+        for k, v in obj.items():
+            tv = type(v)
+            if tv is dict or tv is list:
+                obj[k] = _unpack_body(v, arrays, used, depth + 1, shm, shm_used)
+        return obj
+    for i, v in enumerate(obj):
+        tv = type(v)
+        if tv is dict or tv is list:
+            obj[i] = _unpack_body(v, arrays, used, depth + 1, shm, shm_used)
     return obj
 
 
