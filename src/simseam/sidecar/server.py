@@ -181,10 +181,10 @@ class Server:
         if op != "attach":
             return encode("error", {"kind": "WireError",
                                     "message": f"the first message on the local socket must be 'attach', got {op!r}"}), []
-        self.detach()
         slots = body.get("slots", local.DEFAULT_SLOTS)
         if not isinstance(slots, int) or isinstance(slots, bool) or not 2 <= slots <= 64:
             return encode("error", {"kind": "WireError", "message": f"attach: slots must be 2..64, got {slots!r}"}), []
+        self.detach()  # the previous local client's ring (its connection is closed by the caller)
         size = local.slot_bytes_for(self.scene.spec.to_json())
         if size == 0:  # nothing large to share: the local socket alone
             return encode("ok", {"ring": None}), []
@@ -260,7 +260,8 @@ def serve(boot: dict) -> int:
     registry = None
     server: Server | None = None
     listener: socket.socket | None = None
-    conn: socket.socket | None = None
+    conn: socket.socket | None = None  # the attached local client
+    pending: list[socket.socket] = []  # local connections that have not attached yet
     try:
         sock.bind(boot["endpoint"])
         endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -293,39 +294,45 @@ def serve(boot: dict) -> int:
                     return 0
             if listener is not None and (listener in events or listener.fileno() in events):
                 new, _ = listener.accept()
-                if conn is not None:  # one local client at a time: the newest wins
-                    poller.unregister(conn)
-                    conn.close()
-                    server.detach()
-                conn, attached = new, False
-                conn.settimeout(10.0)  # a message that starts must finish: a stalled peer is dropped
-                poller.register(conn, zmq.POLLIN)
-            if conn is not None and (conn in events or conn.fileno() in events):
+                new.settimeout(10.0)  # a message that starts must finish: a stalled peer is dropped
+                pending.append(new)
+                poller.register(new, zmq.POLLIN)
+            for c in [c for c in (conn, *pending) if c is not None and (c in events or c.fileno() in events)]:
+                keep = True
                 try:
-                    msg = local.recv_message(conn)
-                    if msg is not None:
-                        if not attached:  # the first message: attach, or the connection goes
-                            reply, fds = server.attach(msg[0])
-                            local.send_message(conn, reply, fds)
-                            attached, stop = _is_ok(reply), False
-                            if not attached:
-                                msg = None
-                        else:
-                            reply, stop = server.handle(msg[0], server.ring, attached=True)
-                            local.send_message(conn, reply)
+                    msg = local.recv_message(c)
+                    if msg is None:
+                        keep = False
+                    elif c is conn:
+                        reply, stop = server.handle(msg[0], server.ring, attached=True)
+                        local.send_message(c, reply)
                         if stop:
                             return 0
+                    else:  # the first message of a new connection: attach, or the connection goes
+                        reply, fds = server.attach(msg[0])
+                        local.send_message(c, reply, fds)
+                        keep = _is_ok(reply)
+                        if keep:  # one local client at a time: the newest attached one
+                            pending.remove(c)
+                            if conn is not None:
+                                poller.unregister(conn)
+                                conn.close()
+                            conn = c
                 except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
                     sys.stderr.write(f"simseam sidecar: local connection dropped: {exc}\n")
-                    msg = None
-                if msg is None:
-                    poller.unregister(conn)
-                    conn.close()
-                    conn = None
-                    server.detach()
+                    keep = False
+                if not keep:
+                    poller.unregister(c)
+                    c.close()
+                    if c is conn:
+                        conn = None
+                        server.detach()
+                    else:
+                        pending.remove(c)
     finally:
-        if conn is not None:
-            conn.close()
+        for c in (conn, *pending):
+            if c is not None:
+                c.close()
         if listener is not None:
             listener.close()
             if server is not None and server.local_path:
