@@ -57,6 +57,7 @@ def test_kill9_mid_episode_is_reported_as_a_crash(make_sidecar):
     rollout = make_sidecar(options=scene_options(render_images=False), request_timeout=60)
     rollout.reset(seed=0)
     rollout.step(np.zeros(7, np.float32))
+    assert rollout.fast  # ipc: the local fast path (Unix socket); a crash is reported the same way
     pid = rollout.pid
     t_kill = _kill9(pid)
     with pytest.raises(SidecarCrashed) as ei:

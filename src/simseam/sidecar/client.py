@@ -23,8 +23,9 @@ Local fast path (``simseam.sidecar.local``): with the ``ipc`` transport (same ma
 ``hello`` offers a plain Unix socket and shared-memory ring slots; the client switches
 to them (``local=False`` keeps ZeroMQ). Large arrays of an observation (the camera
 images) are then read-only views into a ring slot, valid until the slot is reused:
-``local_slots - 1`` further replies (default 2 slots: an observation stays intact
-through the next ``step``/``reset``/``render``, not longer). Copy what you keep.
+``local_slots - 1`` further replies that carry large arrays (default 2 slots: an
+observation stays intact through the next ``step``/``reset``/``render``, not longer).
+Copy what you keep longer (``np.array(obs["images"][k])``).
 
 Reuse: one sidecar serves any number of episodes (reset does not rebuild the
 scene). With ``keep_alive=True`` the sidecar outlives this client and registers
@@ -201,6 +202,14 @@ class SidecarRollout:
     backend (``simseam.backends``) instead of a manifest scene; ``options`` is then its
     config and ``spec_json`` None. Its interpreter gets this process's ``simseam`` package
     on its path (a symlink in the private directory), so a backend venv needs no copy of it.
+
+    ``local`` (default True): with ``transport="ipc"``, use the local fast path the sidecar offers
+    (Unix socket + shared-memory ring of ``local_slots`` slots; ``self.fast`` says whether it was
+    taken). Lifetime contract there: the observation's large arrays (images, anything of 4 kB or
+    more) are read-only views into a ring slot, valid until that slot is reused, i.e. through
+    ``local_slots - 1`` further image-carrying replies (default: the previous observation stays
+    intact while the next step runs; the one before it does not). ``render()`` returns such a
+    view too. Copy what you keep longer; the episode loop's recorders do.
     """
 
     _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
