@@ -468,3 +468,13 @@ def test_ctrl_c_or_kill9_of_the_client_leaves_no_shared_memory(how, tmp_path):
             proc.wait(10)
         proc.stdout.close()
         proc.stderr.close()
+
+
+def test_a_sidecar_on_the_ring_keeps_the_seam_contract(make_sidecar):
+    """check_rollout keeps observations across steps (determinism, clipping): it must copy them, or the
+    ring's reused slots would make two different episodes look the same."""
+    from simseam.seam import check_rollout
+
+    r = make_sidecar(options=IMG)
+    assert r.fast and r._slots is not None
+    check_rollout(r)
