@@ -478,3 +478,20 @@ def test_a_sidecar_on_the_ring_keeps_the_seam_contract(make_sidecar):
     r = make_sidecar(options=IMG)
     assert r.fast and r._slots is not None
     check_rollout(r)
+
+
+def test_a_late_reply_after_a_timeout_is_dropped_not_taken_for_the_next(make_sidecar):
+    """ZeroMQ's REQ_CORRELATE, on the local socket: the reply to a request that timed out arrives
+    later and is discarded; the next request gets its own reply."""
+    from simseam.sidecar.errors import SidecarTimeout
+
+    r = make_sidecar(options=IMG, env={"SIMSEAM_SIDECAR_TEST_HOOKS": "1"}, request_timeout=30.0)
+    assert r.fast
+    r.reset(seed=0)
+    r.request_timeout = 0.2
+    with pytest.raises(SidecarTimeout):
+        r._request("_sleep", {"seconds": 1.0})
+    r.request_timeout = 30.0
+    got = r.step(np.zeros(7, np.float32))  # arrives after the late '_sleep' reply, which is dropped
+    assert got.info["steps"] == 1 and "camera1" in got.observation["images"]
+    assert r.step(np.zeros(7, np.float32)).info["steps"] == 2

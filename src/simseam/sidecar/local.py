@@ -101,6 +101,10 @@ def send_message(sock: socket.socket, frames: list, fds: list[int] | None = None
                 sent = 0
 
 
+class Truncated(WireError):
+    """The connection ended in the middle of a message (the peer died or gave up)."""
+
+
 def _recv_exact(sock: socket.socket, buf: memoryview) -> bool:
     """Fill ``buf``; False when the peer closed the connection before the first byte."""
     got = 0
@@ -109,7 +113,7 @@ def _recv_exact(sock: socket.socket, buf: memoryview) -> bool:
         if n == 0:
             if got == 0:
                 return False
-            raise WireError(f"connection closed mid-message ({got} of {len(buf)} bytes)")
+            raise Truncated(f"connection closed mid-message ({got} of {len(buf)} bytes)")
         got += n
     return True
 
@@ -130,7 +134,7 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
         head = bytearray(PREFIX.size)
         head[:len(data)] = data
         if len(data) < PREFIX.size and not _recv_exact(sock, memoryview(head)[len(data):]):
-            raise WireError("connection closed mid-message (in the prefix)")
+            raise Truncated("connection closed mid-message (in the prefix)")
     else:
         head = bytearray(PREFIX.size)
         if not _recv_exact(sock, memoryview(head)):
@@ -144,7 +148,7 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
         buf = bytearray(total)
         view = memoryview(buf)
         if not _recv_exact(sock, view):
-            raise WireError("connection closed mid-message (after the prefix)")
+            raise Truncated("connection closed mid-message (after the prefix)")
         frames, pos = [], count * LENGTH.size
         for i in range(count):
             (n,) = LENGTH.unpack_from(buf, i * LENGTH.size)
@@ -281,7 +285,7 @@ class LocalChannel:
                 raise
             self.slots = map_slots(fds[0], layout) if fds else None
             self.layout = layout
-            self.sock.settimeout(None)
+            self.sock.settimeout(timeout)  # a reply that starts must finish within the request timeout
         except BaseException:
             self.sock.close()
             raise
@@ -299,14 +303,20 @@ class LocalChannel:
         while self._poll.poll(timeout_ms):
             if self._outstanding <= 1:
                 return 1
-            if recv_message(self.sock) is None:  # a stale reply (its request timed out): drop it
+            try:
+                if recv_message(self.sock) is None:  # a stale reply (its request timed out): drop it
+                    return 1
+            except Truncated:  # the sidecar died mid-reply: recv_multipart reports the end
                 return 1
             self._outstanding -= 1
             timeout_ms = 0
         return 0
 
     def recv_multipart(self, copy: bool = False) -> list:
-        msg = recv_message(self.sock)
+        try:
+            msg = recv_message(self.sock)
+        except Truncated as exc:  # the sidecar died mid-reply: a crash, not a malformed message
+            raise PeerClosed(str(exc)) from None
         if msg is None:
             raise PeerClosed("the sidecar closed the local connection")
         self._outstanding -= 1
