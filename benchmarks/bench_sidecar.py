@@ -1,6 +1,7 @@
 """What the sidecar costs: per-step latency added by SidecarRollout, the wire codec, warm boot.
 
     .venv/bin/python benchmarks/bench_sidecar.py [--steps 300] [--rounds 5] [--boots 5] [--json PATH]
+        [--cases state,rgb2x256,rgb5x480x560] [--parts step,profile,codec,breakdown,boot]
 
 One run measures everything below on this machine (about 2-3 minutes with the defaults); nothing is
 asserted: the script prints a table and a goals line and exits 0 whether goals are met or not.
@@ -14,8 +15,10 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
      wrist camera2 at 256x256: 2 x 192 kB), ``rgb5x480x560`` (the manifest's two cameras plus
      three more around the table, added with ``dataclasses.replace``, all at 480x560:
      5 x 806 kB = 4.03 MB of images per observation);
-   - ways: ``inproc`` (``ManifestScene`` in this process), ``tcp`` and ``ipc``
-     (``SidecarRollout`` with that transport; the sidecar runs this venv's python).
+   - ways: ``inproc`` (``ManifestScene`` in this process), ``tcp`` and ``ipc`` (``SidecarRollout``
+     over ZeroMQ with that transport, ``local=False`` for ipc: the path before the local fast
+     path) and ``local`` (ipc with the local fast path: Unix socket + shared-memory slots);
+     the sidecar runs this venv's python. All four are interleaved in the same blocks.
    Within a round the three ways of one observation size are interleaved in blocks (10 / 5 / 2
    steps), rotating which goes first in each block, so the slow and fast phases of this shared
    VM hit all of them alike. Per round and case: p50 / p90 of the per-step wall time around
@@ -34,7 +37,8 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    map, ``np.load`` on decode. timeit-style: calls per measurement from ``Timer.autorange``, 7
    measurements per codec interleaved across codecs; reported: median (and min) per round trip.
 
-3. Where the added time goes, in situ: one more sidecar per observation size and transport,
+3. Where the added time goes, in situ: one more sidecar per observation size and path (ipc over
+   ZeroMQ, and the local fast path, whose socket calls are wrapped the same way),
    started with ``SidecarRollout(python=<wrapper>)`` where the wrapper runs this file as an
    instrumented server (the real ``simseam.sidecar.server.main``, with its ``decode`` /
    ``encode`` / ``scene.step`` / ``send_multipart`` wrapped to take timestamps; src untouched),
@@ -62,7 +66,8 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    warm-up boot (the step cases' six boots come before it as well, so the page cache is warm),
    then 5 boots per config, interleaved; each sidecar is closed before the next starts. Median.
 
-Goals: added p50 <= 0.3 ms state-only and <= 0.6 ms with 2x256x256 RGB (each transport);
+Goals: added p50 <= 0.3 ms state-only and <= 0.6 ms with 2x256x256 RGB (on the local fast path;
+tcp and ipc over ZeroMQ are reported for comparison);
 wire codec >= 5x faster than the blob codec on the 2x256x256 observation; warm boot <= 2 s.
 Writes JSON to benchmarks/results/sidecar.json (``--json`` to change). Every sidecar and stub
 process started here is closed at the end, and checked to be gone.
