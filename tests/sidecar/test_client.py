@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, running, scene_options
+from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, kept, running, scene_options
 
 from simseam.seam import ConfigError, InvalidActionError, SidecarError, SimRollout, SimseamError, SimulationError
 from simseam.sidecar.client import SidecarRollout, scene_identity
@@ -68,7 +68,7 @@ def test_same_results_as_in_process(make_sidecar, make_scene, panda_spec):
 def test_one_sidecar_serves_many_episodes(make_sidecar):
     rollout = make_sidecar()
     pid = rollout.pid
-    first = rollout.reset(seed=3)
+    first = kept(rollout.reset(seed=3))  # kept across episodes: a copy (the ring's slots are reused)
     spec = rollout.spec.observation.fields
     for key in ("state", "joint_positions", "joint_velocities"):  # hello's spec describes the data
         assert first[key].shape == spec[key].shape and first[key].dtype == np.dtype(spec[key].dtype)

@@ -37,7 +37,7 @@ from simseam.sidecar.wire import ALIGN, PROTOCOL_VERSION, WireError, decode, enc
 
 RING = "simseam-sidecar-ring"
 HANG_GUARD_S = 10.0
-IMG = scene_options(image_size=(64, 64))  # 12 kB per camera: above the 4 kB threshold, through the ring
+IMG = scene_options(image_size=(64, 64))  # 12 kB per camera: above the 1 kB threshold, through the ring
 
 
 def shm_entries() -> set[str]:

@@ -205,7 +205,7 @@ class SidecarRollout:
 
     ``local`` (default True): with ``transport="ipc"``, use the local fast path the sidecar offers
     (Unix socket + shared-memory ring of ``local_slots`` slots; ``self.fast`` says whether it was
-    taken). Lifetime contract there: the observation's large arrays (images, anything of 4 kB or
+    taken). Lifetime contract there: the observation's large arrays (images, anything of 1 kB or
     more) are read-only views into a ring slot, valid until that slot is reused, i.e. through
     ``local_slots - 1`` further image-carrying replies (default: the previous observation stays
     intact while the next step runs; the one before it does not). ``render()`` returns such a

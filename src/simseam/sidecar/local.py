@@ -39,7 +39,7 @@ PREFIX = struct.Struct("<IQ")  # frame count, bytes that follow (length table + 
 LENGTH = struct.Struct("<Q")
 MAX_MESSAGE_BYTES = MAX_HEADER_BYTES + (1 << 31)  # a header plus 2 GiB of inline arrays
 DEFAULT_SLOTS = 2
-DEFAULT_THRESHOLD = 4096  # arrays of at least this many bytes go through the ring
+DEFAULT_THRESHOLD = 1024  # arrays of at least this many bytes go through the ring
 MAX_SLOT_BYTES = 1 << 30
 SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 
