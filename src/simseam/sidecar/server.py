@@ -274,7 +274,7 @@ def serve(boot: dict) -> int:
         server = Server(scene, boot["token"], boot["identity"], test_hooks=os.environ.get(TEST_HOOKS_ENV) == "1")
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
-        if endpoint.startswith("ipc://") and hasattr(os, "memfd_create") and not boot.get("no_local"):
+        if endpoint.startswith("ipc://") and hasattr(os, "memfd_create"):  # same machine: offer the fast path
             listener = local_listener(os.path.join(os.path.dirname(endpoint[len("ipc://"):]), "local.sock"))
             server.local_path = listener.getsockname()
             poller.register(listener, zmq.POLLIN)
