@@ -1,6 +1,7 @@
 """What the seam costs on each benchmark backend, and what provisioning a backend costs.
 
     .venv/bin/python benchmarks/bench_backends.py [--steps 200] [--rounds 3] [--provision] [--json PATH]
+        [--backends pusht,metaworld] [--kinds state] [--paths local,zmq]
 
 Per backend (Meta-World reach-v3 with a 224x224 corner2 camera, PushT at 96x96, ALOHA
 insertion with its 480x640 top camera) and per observation kind:
@@ -171,36 +172,46 @@ def main() -> None:
     ap.add_argument("--backends", default=",".join(CASES))
     ap.add_argument("--provision", action="store_true", help="also provision each backend cold (minutes)")
     ap.add_argument("--json", type=Path, default=HERE / "results" / "backends.json")
+    ap.add_argument("--kinds", default="state,pixels", help="observation kinds (comma list)")
+    ap.add_argument("--paths", default="local", help="sidecar paths (comma list): local (the fast path: Unix socket "
+                    "+ shared-memory slots), zmq (ZeroMQ over ipc, the path before it); rounds alternate native / each")
     args = ap.parse_args()
     names = [n for n in args.backends.split(",") if n]
+    paths = [p for p in args.paths.split(",") if p]
     rows = []
     for name in names:
         cfg = CASES[name]
-        rollout = open_benchmark(name, cfg)
-        start = np.asarray(rollout.reset(0)["state"], dtype=np.float64)
-        for kind in ("state", "pixels"):
+        rollouts = {p: open_benchmark(name, cfg, local=p == "local") for p in paths}
+        for p, ro in rollouts.items():
+            assert ro.fast == (p == "local"), f"{name}: path {p} not taken"
+        start = np.asarray(next(iter(rollouts.values())).reset(0)["state"], dtype=np.float64)
+        for kind in [k for k in args.kinds.split(",") if k]:
             steps = args.steps if kind == "state" or name == "pusht" else max(20, args.steps // 4)
             if name == "libero":  # ~0.1-0.5 s per step on this CPU
                 steps = max(10, args.steps // 10)
             if name == "robosuite":
                 steps = max(20, args.steps // 4)
-            nat, sea = [], []
+            nat, sea = [], {p: [] for p in paths}
             for r in range(args.rounds):
                 acts = actions_for(name, steps, np.random.default_rng(r), start)
                 nat.append(statistics.median(native_times(name, cfg, kind, r, acts)))
-                sea.append(statistics.median(seam_times(rollout, kind, r, acts)))
-            n_ms, s_ms = statistics.median(nat) * 1e3, statistics.median(sea) * 1e3
-            rows.append({"backend": name, "obs": kind, "steps": steps, "rounds": args.rounds,
-                         "native_p50_ms": n_ms, "seam_p50_ms": s_ms, "overhead_pct": (s_ms / n_ms - 1) * 100,
-                         "added_ms": s_ms - n_ms})
-        rollout.close()
+                for p in (paths if r % 2 == 0 else paths[::-1]):
+                    sea[p].append(statistics.median(seam_times(rollouts[p], kind, r, acts)))
+            n_ms = statistics.median(nat) * 1e3
+            for p in paths:
+                s_ms = statistics.median(sea[p]) * 1e3
+                rows.append({"backend": name, "obs": kind, "path": p, "steps": steps, "rounds": args.rounds,
+                             "native_p50_ms": n_ms, "seam_p50_ms": s_ms, "overhead_pct": (s_ms / n_ms - 1) * 100,
+                             "added_ms": s_ms - n_ms})
+        for ro in rollouts.values():
+            ro.close()
     prov = {n: {"seconds": m["seconds"], "bytes": m["bytes"], "pip_cache": "as it was"}
             for n in names if (m := marker(n))}
     if args.provision:
         prov = provision_cold(names)
-    print(f"{'backend':10} {'obs':7} {'native p50':>11} {'seam p50':>10} {'added':>9} {'overhead':>9}")
+    print(f"{'backend':10} {'obs':7} {'path':6} {'native p50':>11} {'seam p50':>10} {'added':>9} {'overhead':>9}")
     for r in rows:
-        print(f"{r['backend']:10} {r['obs']:7} {r['native_p50_ms']:9.2f}ms {r['seam_p50_ms']:8.2f}ms "
+        print(f"{r['backend']:10} {r['obs']:7} {r['path']:6} {r['native_p50_ms']:9.2f}ms {r['seam_p50_ms']:8.2f}ms "
               f"{r['added_ms']:7.2f}ms {r['overhead_pct']:8.1f}%")
     print(f"\n{'backend':10} {'provisioning':>13} {'venv size':>10}  pip cache")
     for n, p in prov.items():

@@ -19,15 +19,17 @@ pytestmark = pytest.mark.backends
 
 
 def seam_episode(rollout, seed: int, actions: np.ndarray, camera: str) -> dict:
+    """The episode's observations, copied: this keeps every frame, and a sidecar's images are views
+    into shared-memory slots that its later replies reuse (the seam's lifetime contract)."""
     rollout.reset(seed + 1000)  # another episode first: nothing of it may leak into the next
     for a in actions[:5]:
         rollout.step(a, ObsRequest.state_only())
     obs = rollout.reset(seed)
-    out = {"state": [obs["state"]], "image": [obs["images"][camera]], "reward": [], "success": []}
+    out = {"state": [obs["state"]], "image": [np.array(obs["images"][camera])], "reward": [], "success": []}
     for a in actions:
         r = rollout.step(a)
         out["state"].append(r.observation["state"])
-        out["image"].append(r.observation["images"][camera])
+        out["image"].append(np.array(r.observation["images"][camera]))
         out["reward"].append(r.reward)
         out["success"].append(r.info["success"])
     return {k: np.asarray(v) for k, v in out.items()}

@@ -113,3 +113,21 @@ def actions(seed: int, n: int, dim: int) -> list[np.ndarray]:
     """A seeded action sequence in [-1, 1] (CARTESIAN_DELTA + gripper)."""
     rng = np.random.default_rng(seed)
     return [rng.uniform(-1.0, 1.0, dim).astype(np.float32) for _ in range(n)]
+
+
+def kept(x):
+    """A copy of observation-like data (or a StepResult) to keep across steps: a sidecar's images are
+    views into shared-memory slots that its later replies reuse (the seam's lifetime contract)."""
+    import dataclasses
+
+    if isinstance(x, np.ndarray):
+        return x.copy()
+    if isinstance(x, dict):
+        return {k: kept(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [kept(v) for v in x]
+    if dataclasses.is_dataclass(x) and hasattr(x, "observation"):
+        return dataclasses.replace(x, observation=kept(x.observation))
+    if isinstance(x, tuple) and hasattr(x, "_replace") and hasattr(x, "observation"):
+        return x._replace(observation=kept(x.observation))
+    return x

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zmq
-from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, running, scene_options
+from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, kept, running, scene_options
 
 from simseam.seam import ConfigError, InvalidActionError, SidecarError, SimRollout, SimseamError, SimulationError
 from simseam.sidecar.client import SidecarRollout, scene_identity
@@ -68,7 +68,7 @@ def test_same_results_as_in_process(make_sidecar, make_scene, panda_spec):
 def test_one_sidecar_serves_many_episodes(make_sidecar):
     rollout = make_sidecar()
     pid = rollout.pid
-    first = rollout.reset(seed=3)
+    first = kept(rollout.reset(seed=3))  # kept across episodes: a copy (the ring's slots are reused)
     spec = rollout.spec.observation.fields
     for key in ("state", "joint_positions", "joint_velocities"):  # hello's spec describes the data
         assert first[key].shape == spec[key].shape and first[key].dtype == np.dtype(spec[key].dtype)
@@ -140,7 +140,7 @@ def test_protocol_mismatch_at_hello_leaves_nothing_behind(panda_json, client_tmp
 
     monkeypatch.setattr(client, "PROTOCOL_VERSION", 99)
     before = _server_children()
-    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 2"):
+    with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 3"):
         SidecarRollout(panda_json, "lift_cube", options=scene_options(render_images=False))
     assert _server_children() == before
     assert list(client_tmp.iterdir()) == []
@@ -216,7 +216,9 @@ def test_ipc_socket_lives_in_a_private_directory(make_sidecar):
     st = d.stat()
     assert stat.S_IMODE(st.st_mode) == 0o700 and st.st_uid == os.getuid()
     assert stat.S_ISSOCK(sock_path.stat().st_mode)
-    assert sorted(p.name for p in d.iterdir()) == ["scene.sock"]  # the boot file (it holds the token) is gone
+    # the boot file (it holds the token) is gone; beside the ZeroMQ socket, the local fast path's (owner-only)
+    assert sorted(p.name for p in d.iterdir()) == ["local.sock", "scene.sock"]
+    assert stat.S_IMODE((d / "local.sock").stat().st_mode) == 0o600 and rollout.fast
     rollout.close()
     assert not d.exists()
 

@@ -51,6 +51,7 @@ def test_full_episode_in_another_interpreter_matches_in_process(full_venv, tmp_p
     try:
         assert isinstance(remote, SidecarRollout)
         assert remote.server_python.rsplit(".", 1)[0] == want  # hello reports the sidecar's Python
+        assert remote.fast and remote._slots is not None  # the local fast path, images in the shared ring
         exe = os.path.realpath(f"/proc/{remote.pid}/exe")
         assert os.path.basename(exe).startswith(f"python{want}") or exe == os.path.realpath(python)
         assert remote.spec.to_json() | {"backend": "", "capabilities": []} == local.spec.to_json() | {

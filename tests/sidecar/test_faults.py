@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sidecar_util import actions, assert_same, process_gone, running, scene_options
+from sidecar_util import actions, assert_same, kept, process_gone, running, scene_options
 from typer.testing import CliRunner
 
 from simseam.seam import SidecarError
@@ -57,6 +57,7 @@ def test_kill9_mid_episode_is_reported_as_a_crash(make_sidecar):
     rollout = make_sidecar(options=scene_options(render_images=False), request_timeout=60)
     rollout.reset(seed=0)
     rollout.step(np.zeros(7, np.float32))
+    assert rollout.fast  # ipc: the local fast path (Unix socket); a crash is reported the same way
     pid = rollout.pid
     t_kill = _kill9(pid)
     with pytest.raises(SidecarCrashed) as ei:
@@ -174,8 +175,8 @@ def test_hung_sidecar_hits_the_request_timeout(make_sidecar):
 def test_restart_after_a_crash_continues_with_the_next_episode(make_sidecar):
     rollout = make_sidecar()
     acts = actions(seed=4, n=5, dim=7)
-    ref_obs = rollout.reset(seed=11)
-    ref = [rollout.step(a).observation for a in acts]
+    ref_obs = kept(rollout.reset(seed=11))  # copies: kept across steps (the ring's slots are reused)
+    ref = [kept(rollout.step(a).observation) for a in acts]
     old = rollout.pid
     rollout.reset(seed=12)
     os.kill(old, signal.SIGKILL)

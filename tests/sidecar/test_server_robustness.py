@@ -14,7 +14,7 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
-from sidecar_util import actions, assert_same, running
+from sidecar_util import actions, assert_same, kept, running
 
 from simseam.sidecar.wire import PROTOCOL_VERSION, decode, encode
 
@@ -140,7 +140,7 @@ def test_hostile_peer_gets_typed_errors_and_changes_nothing(peer_and_rollout, pa
     acts = actions(seed=21, n=4, dim=rollout.action_dim)
     # the undisturbed run
     rollout.reset(seed=9)
-    expected = [rollout.step(a) for a in acts]
+    expected = [kept(rollout.step(a)) for a in acts]  # copies: kept across steps
     # the same episode with ~100 hostile messages in the middle
     rollout.reset(seed=9)
     rollout.step(acts[0])
@@ -180,7 +180,7 @@ def test_wrong_token_is_denied_and_changes_nothing(peer_and_rollout):
     peer, rollout = peer_and_rollout
     acts = actions(seed=5, n=3, dim=rollout.action_dim)
     rollout.reset(seed=2)
-    expected = [rollout.step(a) for a in acts]
+    expected = [kept(rollout.step(a)) for a in acts]  # copies: kept across steps
     rollout.reset(seed=2)
     rollout.step(acts[0])
     wrong = "0" * len(rollout._token)

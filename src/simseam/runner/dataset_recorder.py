@@ -93,8 +93,10 @@ class LeRobotRecorder:
         missing = [k for k in self._image_keys if k not in images]
         if missing:
             raise ConfigError(f"cannot record: observation has no image(s) {missing} (was rendering turned off?)")
-        frame: dict[str, Any] = {IMAGE_PREFIX + k: np.asarray(images[k], dtype=np.uint8) for k in self._image_keys}
-        frame[STATE_KEY] = np.asarray(observation[OBS_STATE], dtype=np.float32)
+        # copies: the frames are buffered (and written by background threads) after the rollout moved on, and a
+        # sidecar's images are views into shared-memory slots that its next replies overwrite
+        frame: dict[str, Any] = {IMAGE_PREFIX + k: np.array(images[k], dtype=np.uint8) for k in self._image_keys}
+        frame[STATE_KEY] = np.array(observation[OBS_STATE], dtype=np.float32)
         frame[ACTION_KEY] = np.asarray(action, dtype=np.float32)
         frame[FEATURE_TASK] = self.spec.task.instruction
         self.dataset.add_frame(frame)

@@ -107,6 +107,17 @@ def _sample_action(spec: RolloutSpec, rng: np.random.Generator) -> np.ndarray:
     return a.astype(np.float32)
 
 
+def _copied(x: Any) -> Any:
+    """A deep copy of observation-like data (arrays copied, containers rebuilt)."""
+    if isinstance(x, np.ndarray):
+        return x.copy()
+    if isinstance(x, dict):
+        return {k: _copied(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(_copied(v) for v in x)
+    return x
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, dict) and isinstance(b, dict):
         return set(a) == set(b) and all(_same(a[k], b[k]) for k in a)
@@ -140,7 +151,7 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
             obs = rollout.reset(seed, request)
             where = "reset" if request is None else f"reset({request})"
             problems.extend(f"{where}: {p}" for p in observation_problems(obs, spec, request))
-            trace = [obs]
+            trace = [_copied(obs)]  # kept across steps: copies (a sidecar's images are views into reused slots)
             for i, a in enumerate(actions):
                 r = rollout.step(first if (first is not None and i == 0) else a, request)
                 problems.extend(f"step {i}: {p}" for p in observation_problems(r.observation, spec, request))
@@ -152,7 +163,7 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
                 if not isinstance(diag, dict) or set(diag) != set(spec.task.diagnostics):
                     problems.append(f"step {i}: info['diagnostics'] is {diag!r}, the spec declares "
                                     f"{list(spec.task.diagnostics)}")
-                trace.append((r.observation, r.reward, r.terminated, r.truncated, r.info))
+                trace.append(_copied((r.observation, r.reward, r.terminated, r.truncated, r.info)))
             return trace
 
         first = episode()
@@ -174,10 +185,10 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
         big = actions[0] + np.where(np.arange(spec.action.dim) % 2 == 0, 100.0, -100.0).astype(np.float32)
         clipped = spec.action.clip(big).astype(np.float32)
         rollout.reset(seed)
-        r_big = rollout.step(big)
+        big_obs = _copied(rollout.step(big).observation)
         rollout.reset(seed)
         r_clip = rollout.step(clipped)
-        if not _same(r_big.observation, r_clip.observation):
+        if not _same(big_obs, r_clip.observation):
             problems.append("an action outside the bounds did not act as spec.action.clip() of it")
         # observation requests
         episode(ObsRequest.state_only())

@@ -19,6 +19,14 @@ a fraction of a second, during boot or mid-episode; a hung one raises
 exit and SIGTERM reap every sidecar this process started; ``restart()`` starts
 a fresh one after a crash.
 
+Local fast path (``simseam.sidecar.local``): with the ``ipc`` transport (same machine)
+``hello`` offers a plain Unix socket and shared-memory ring slots; the client switches
+to them (``local=False`` keeps ZeroMQ). Large arrays of an observation (the camera
+images) are then read-only views into a ring slot, valid until the slot is reused:
+``local_slots - 1`` further replies that carry large arrays (default 2 slots: an
+observation stays intact through the next ``step``/``reset``/``render``, not longer).
+Copy what you keep longer (``np.array(obs["images"][k])``).
+
 Reuse: one sidecar serves any number of episodes (reset does not rebuild the
 scene). With ``keep_alive=True`` the sidecar outlives this client and registers
 itself (endpoint, token, pid, identity) in a private per-user directory; a later
@@ -66,6 +74,7 @@ from simseam.sidecar.errors import (
     SidecarTimeout,
     remote_error,
 )
+from simseam.sidecar import local
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 SANITIZED_ENV = ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV", "PYTHONSTARTUP", "PYTHONUSERBASE",
@@ -193,14 +202,33 @@ class SidecarRollout:
     backend (``simseam.backends``) instead of a manifest scene; ``options`` is then its
     config and ``spec_json`` None. Its interpreter gets this process's ``simseam`` package
     on its path (a symlink in the private directory), so a backend venv needs no copy of it.
+
+    ``local`` (default True): with ``transport="ipc"``, use the local fast path the sidecar offers
+    (Unix socket + shared-memory ring of ``local_slots`` slots; ``self.fast`` says whether it was
+    taken). Lifetime contract there: the observation's large arrays (images, anything of 1 kB or
+    more) are read-only views into a ring slot, valid until that slot is reused, i.e. through
+    ``local_slots - 1`` further image-carrying replies (default: the previous observation stays
+    intact while the next step runs; the one before it does not). ``render()`` returns such a
+    view too. Copy what you keep longer; the episode loop's recorders do.
     """
+
+    _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
+    _slots: list | None = None
+    fast = False
 
     def __init__(self, spec_json: dict | None, task: str, engine: str = "mujoco", options: dict | None = None, *,
                  backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
-                 progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None):
+                 progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None,
+                 local: bool = True, local_slots: int = local.DEFAULT_SLOTS):
         if transport not in ("ipc", "tcp"):
             raise ConfigError(f"sidecar transport must be 'ipc' or 'tcp', got {transport!r}")
+        if not isinstance(local_slots, int) or not 2 <= local_slots <= 64:
+            raise ConfigError(f"sidecar local_slots must be an int in 2..64, got {local_slots!r}")
+        self._want_local = bool(local) and transport == "ipc"
+        self._local_slots = local_slots
+        self._slots: list | None = None  # the shared-memory ring's slots, when on the local path
+        self.fast = False  # whether requests use the local fast path
         self._spec_json = spec_json
         self._task = task
         self._engine = engine
@@ -323,7 +351,8 @@ class SidecarRollout:
         self.endpoint = endpoint
 
     def _hello(self) -> None:
-        info = self._request("hello", {"protocol": PROTOCOL_VERSION, "client_pid": os.getpid()}, during="hello")
+        info = self._request("hello", {"protocol": PROTOCOL_VERSION, "client_pid": os.getpid(),
+                                       "local": self._want_local}, during="hello")
         if info.get("identity") != self.identity:
             self._sock.close(0)
             self._sock = None
@@ -338,6 +367,23 @@ class SidecarRollout:
         self._spec = spec.replace(backend="sidecar", capabilities=caps)
         self.server_pid = int(info["pid"])
         self.server_python = info.get("python")
+        offer = info.get("local")
+        if self._want_local and isinstance(offer, dict) and isinstance(offer.get("path"), str):
+            self._attach(offer["path"])
+
+    def _attach(self, path: str) -> None:
+        """Switch to the local fast path the sidecar offered (Unix socket + shared-memory ring)."""
+        try:
+            chan = local.LocalChannel(path, self._token, self._local_slots, timeout=self.request_timeout)
+        except WireError as exc:
+            raise SidecarProtocolError(f"the sidecar's local fast path at {path}: {exc}") from None
+        except OSError as exc:  # e.g. another mount namespace: ZeroMQ still works
+            self._progress(f"local fast path unavailable ({exc}); staying on ZeroMQ")
+            return
+        self._sock.close(0)
+        self._sock = chan
+        self._slots = chan.slots
+        self.fast = True
 
     def _adopt(self) -> bool:
         """Adopt a kept-alive sidecar of the same identity, if one is registered and alive."""
@@ -377,6 +423,25 @@ class SidecarRollout:
                 return None
         return -1
 
+    def _local_lost(self, during: str) -> None:
+        """The local connection ended: a crash (the usual case: the process is exiting), else the
+        sidecar dropped us. Raises either way."""
+        deadline = time.monotonic() + 5.0  # the kernel closes the socket just before the exit is visible
+        while self._alive_code() is None and time.monotonic() < deadline:
+            if self._proc is not None:
+                try:
+                    self._proc.popen.wait(POLL_SLICE_MS / 1000)
+                except subprocess.TimeoutExpired:
+                    pass
+            else:
+                time.sleep(POLL_SLICE_MS / 1000)
+        if self._alive_code() is not None:
+            self._crashed(during)
+        self._sock.close(0)
+        self._sock = None
+        raise SidecarCrashed(f"the sidecar closed the local connection {during} while still running "
+                             "(another client attached to it?); call restart()")
+
     def _crashed(self, during: str) -> None:
         proc, self._proc = self._proc, None
         code = proc.exit_code() if proc is not None else None
@@ -398,21 +463,24 @@ class SidecarRollout:
             raise SidecarCrashed("the sidecar rollout is closed")
         if self._sock is None:
             raise SidecarCrashed("the sidecar is gone (crashed earlier); call restart()")
-        body["token"] = self._token
+        if not self.fast:  # the local connection proved the token once, at attach
+            body["token"] = self._token
         during = during or f"during {op}"
-        self._sock.send_multipart(encode(op, body), copy=False)
-        deadline = time.monotonic() + (self.request_timeout if timeout is None else timeout)
-        while not self._sock.poll(POLL_SLICE_MS):
-            if self._alive_code() is not None:
-                self._crashed(during)
-            if time.monotonic() > deadline:
-                raise SidecarTimeout(f"the sidecar did not answer {op!r} within "
-                                     f"{self.request_timeout if timeout is None else timeout:.1f} s (hung?)")
-        frames = self._sock.recv_multipart(copy=False)
         try:
-            kind, reply = decode(frames)
+            self._sock.send_multipart(encode(op, body), copy=False)
+            deadline = time.monotonic() + (self.request_timeout if timeout is None else timeout)
+            while not self._sock.poll(POLL_SLICE_MS):
+                if self._alive_code() is not None:
+                    self._crashed(during)
+                if time.monotonic() > deadline:
+                    raise SidecarTimeout(f"the sidecar did not answer {op!r} within "
+                                         f"{self.request_timeout if timeout is None else timeout:.1f} s (hung?)")
+            frames = self._sock.recv_multipart(copy=False)
+            kind, reply = decode(frames, self._slots)
         except WireError as exc:
             raise SidecarProtocolError(f"malformed reply to {op!r}: {exc}") from None
+        except OSError:  # the local connection broke (BrokenPipe, reset, closed): the sidecar died?
+            self._local_lost(during)
         if kind == "error":
             if reply.get("kind") == "AccessDenied":
                 raise SidecarAccessError(f"the sidecar refused {op!r}: {reply.get('message')}")
@@ -492,6 +560,9 @@ class SidecarRollout:
         if self._sock is not None:
             self._sock.close(0)
             self._sock = None
+        self._slots = None
+        self.fast = False
+        self._frame = None
         if self._proc is not None and not self._keep_alive:
             self._proc.kill(graceful_s=2.0 if graceful else 0.2)
         self._proc = None

@@ -16,6 +16,12 @@ stderr. Every request must carry the launch token; a request that fails to
 decode, or a handler that raises, gets a typed error reply and the server keeps
 serving. Unless ``keep_alive``, the server exits when its parent dies.
 
+Local fast path (``simseam.sidecar.local``): with an ``ipc://`` endpoint the server
+also listens on ``local.sock`` beside it; a client that asks for it at ``hello`` gets
+its path, connects, sends ``attach`` (with the token) and receives the shared-memory
+ring; its requests then arrive there. One local client at a time (a new attach
+replaces the previous one); the ZeroMQ socket keeps serving as before.
+
 Imports numpy, msgpack, pyzmq and the scene layer only (plus the engine's SDK
 when the scene is built): no pydantic, typer, rich or yaml.
 """
@@ -28,6 +34,7 @@ import hmac
 import json
 import os
 import signal
+import socket
 import sys
 import time
 import traceback
@@ -36,6 +43,7 @@ from typing import Any
 
 import zmq
 
+from simseam.sidecar import local
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 EXIT_BUSY = 3  # exit code: an exclusive engine is already running elsewhere
@@ -85,16 +93,25 @@ class Server:
         self.identity = identity
         self.test_hooks = test_hooks
         self.requests = 0
+        self.local_path: str | None = None  # the local fast path's socket, when this server offers one
+        self.ring: local.SlotRing | None = None  # the attached local client's shared-memory ring
 
-    def handle(self, frames: list) -> tuple[list, bool]:
-        """Reply frames for one request, and whether to stop serving."""
+    def handle(self, frames: list, ring: "local.SlotRing | None" = None, attached: bool = False) -> tuple[list, bool]:
+        """Reply frames for one request, and whether to stop serving. ``ring``: put the reply's
+        large arrays into this shared-memory ring; ``attached``: the request came on a local
+        connection that proved the token at attach (its requests carry none)."""
         try:
             op, body = decode(frames)
         except WireError as exc:
             return encode("error", {"kind": "WireError", "message": str(exc)}), False
+        return self._dispatch(op, body, ring, attached)
+
+    def _dispatch(self, op: str, body: Any, ring: "local.SlotRing | None", attached: bool) -> tuple[list, bool]:
+        if attached and not isinstance(body, dict):
+            return encode("error", {"kind": "WireError", "message": f"body must be a map, got {type(body).__name__}"}), False
         # compare bytes: compare_digest raises TypeError on non-ASCII str (a peer could send one)
-        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
-                                                                 self.token.encode()):
+        if not attached and (not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
+                                                                                   self.token.encode())):
             return encode("error", {"kind": "AccessDenied", "message": "missing or wrong token"}), False
         self.requests += 1
         try:
@@ -104,14 +121,14 @@ class Server:
                 seed = body.get("seed")
                 if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
                     raise WireError(f"reset: seed must be an int or null, got {seed!r}")
-                return encode("ok", {"obs": self.scene.reset(seed, self._request(body))}), False
+                return encode("ok", {"obs": self.scene.reset(seed, self._request(body))}, ring), False
             if op == "step":
                 r = self.scene.step(body.get("action"), self._request(body))
                 info = {k: v for k, v in r.info.items()}
                 return encode("ok", {"obs": r.observation, "reward": r.reward, "terminated": r.terminated,
-                                     "truncated": r.truncated, "info": info}), False
+                                     "truncated": r.truncated, "info": info}, ring), False
             if op == "render":
-                return encode("ok", {"frame": self.scene.render()}), False
+                return encode("ok", {"frame": self.scene.render()}, ring), False
             if op == "close":
                 return encode("ok", {"requests": self.requests}), True
             if self.test_hooks and op == "_sleep":
@@ -139,13 +156,68 @@ class Server:
     def hello(self, body: dict) -> dict:
         if body.get("protocol") != PROTOCOL_VERSION:
             raise WireError(f"client speaks protocol {body.get('protocol')!r}, server {PROTOCOL_VERSION}")
-        return {
+        out = {
             "protocol": PROTOCOL_VERSION,
             "identity": self.identity,
             "pid": os.getpid(),
             "python": sys.version.split()[0],
             "spec": self.scene.spec.to_json(),
         }
+        if body.get("local") is True and self.local_path is not None:
+            out["local"] = {"path": self.local_path}
+        return out
+
+    def attach(self, frames: list) -> tuple[list, list[int]]:
+        """Reply (and the ring's fd to pass) to the first message on a local connection:
+        ``attach`` with the token. Makes a fresh ring sized from the spec (the previous one,
+        if any, goes: one local client at a time)."""
+        try:
+            op, body = decode(frames)
+        except WireError as exc:
+            return encode("error", {"kind": "WireError", "message": str(exc)}), []
+        if not isinstance(body, dict) or not hmac.compare_digest(str(body.get("token", "")).encode(),
+                                                                 self.token.encode()):
+            return encode("error", {"kind": "AccessDenied", "message": "missing or wrong token"}), []
+        if op != "attach":
+            return encode("error", {"kind": "WireError",
+                                    "message": f"the first message on the local socket must be 'attach', got {op!r}"}), []
+        slots = body.get("slots", local.DEFAULT_SLOTS)
+        if not isinstance(slots, int) or isinstance(slots, bool) or not 2 <= slots <= 64:
+            return encode("error", {"kind": "WireError", "message": f"attach: slots must be 2..64, got {slots!r}"}), []
+        self.detach()  # the previous local client's ring (its connection is closed by the caller)
+        size = local.slot_bytes_for(self.scene.spec.to_json())
+        if size == 0:  # nothing large to share: the local socket alone
+            return encode("ok", {"ring": None}), []
+        self.ring = local.SlotRing(slots, size)
+        return encode("ok", {"ring": self.ring.layout()}), [self.ring.fd]
+
+    def detach(self) -> None:
+        if self.ring is not None:
+            self.ring.close()
+            self.ring = None
+
+
+def local_listener(path: str) -> socket.socket:
+    """The local fast path's listening Unix socket (owner-only, in the private directory)."""
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    lsock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    old = os.umask(0o177)
+    try:
+        lsock.bind(path)
+    finally:
+        os.umask(old)
+    lsock.listen(4)
+    return lsock
+
+
+def _is_ok(frames: list) -> bool:
+    try:
+        return decode(frames)[0] == "ok"
+    except WireError:
+        return False
 
 
 def build_scene(boot: dict):
@@ -186,6 +258,10 @@ def serve(boot: dict) -> int:
     sock = ctx.socket(zmq.REP)
     sock.setsockopt(zmq.LINGER, 0)
     registry = None
+    server: Server | None = None
+    listener: socket.socket | None = None
+    conn: socket.socket | None = None  # the attached local client
+    pending: list[socket.socket] = []  # local connections that have not attached yet
     try:
         sock.bind(boot["endpoint"])
         endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -196,19 +272,76 @@ def serve(boot: dict) -> int:
                 json.dump({"endpoint": endpoint, "token": boot["token"], "pid": os.getpid(),
                            "identity": boot["identity"]}, f)
         server = Server(scene, boot["token"], boot["identity"], test_hooks=os.environ.get(TEST_HOOKS_ENV) == "1")
+        poller = zmq.Poller()
+        poller.register(sock, zmq.POLLIN)
+        if endpoint.startswith("ipc://") and hasattr(os, "memfd_create"):  # same machine: offer the fast path
+            listener = local_listener(os.path.join(os.path.dirname(endpoint[len("ipc://"):]), "local.sock"))
+            server.local_path = listener.getsockname()
+            poller.register(listener, zmq.POLLIN)
         _emit("ready", endpoint=endpoint, pid=os.getpid(), identity=boot["identity"])
         while True:
-            if not sock.poll(500):
+            events = dict(poller.poll(500))
+            if not events:
                 if not keep_alive and os.getppid() != parent:
                     sys.stderr.write("simseam sidecar: parent process is gone, exiting\n")
                     return 0
                 continue
-            frames = sock.recv_multipart(copy=False)
-            reply, stop = server.handle(frames)
-            sock.send_multipart(reply, copy=False)
-            if stop:
-                return 0
+            if sock in events:
+                frames = sock.recv_multipart(copy=False)
+                reply, stop = server.handle(frames)
+                sock.send_multipart(reply, copy=False)
+                if stop:
+                    return 0
+            if listener is not None and (listener in events or listener.fileno() in events):
+                new, _ = listener.accept()
+                new.settimeout(10.0)  # a message that starts must finish: a stalled peer is dropped
+                pending.append(new)
+                poller.register(new, zmq.POLLIN)
+            for c in [c for c in (conn, *pending) if c is not None and (c in events or c.fileno() in events)]:
+                keep = True
+                try:
+                    msg = local.recv_message(c)
+                    if msg is None:
+                        keep = False
+                    elif c is conn:
+                        reply, stop = server.handle(msg[0], server.ring, attached=True)
+                        local.send_message(c, reply)
+                        if stop:
+                            return 0
+                    else:  # the first message of a new connection: attach, or the connection goes
+                        reply, fds = server.attach(msg[0])
+                        local.send_message(c, reply, fds)
+                        keep = _is_ok(reply)
+                        if keep:  # one local client at a time: the newest attached one
+                            pending.remove(c)
+                            if conn is not None:
+                                poller.unregister(conn)
+                                conn.close()
+                            conn = c
+                except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
+                    sys.stderr.write(f"simseam sidecar: local connection dropped: {exc}\n")
+                    keep = False
+                if not keep:
+                    poller.unregister(c)
+                    c.close()
+                    if c is conn:
+                        conn = None
+                        server.detach()
+                    else:
+                        pending.remove(c)
     finally:
+        for c in (conn, *pending):
+            if c is not None:
+                c.close()
+        if listener is not None:
+            listener.close()
+            if server is not None and server.local_path:
+                try:
+                    os.unlink(server.local_path)
+                except OSError:
+                    pass
+        if server is not None:
+            server.detach()
         if registry is not None:
             registry.unlink(missing_ok=True)
         sock.close(0)
