@@ -113,14 +113,15 @@ def test_maniskill_random_and_zero_runs_write_summary(tmp_path):
     for policy in ("random", "zero"):
         out = tmp_path / policy
         proc = simseam("run", "--scene", "scenes/maniskill_pickcube.yaml", "--policy", policy, "--episodes", "2",
-                       "--seed", "7", "--out", str(out))
+                       "--out", str(out))
         assert proc.returncode == 0, proc.stderr[-3000:]
         summary = json.loads((out / "summary.json").read_text())
         assert summary["n_episodes"] == 2 and summary["complete"]
         assert summary["spec"]["backend"] == "sidecar" and summary["spec"]["task"]["max_steps"] == 50
+        # seeds 0 and 1 put PickCube's goal 28 and 23 cm from the cube (seed 8: 1.5 cm, "solved" once the arm rests)
         for ep in summary["episodes"]:
             assert ep["steps"] == 50 and ep["error"] is None and ep["success"] is False
-        assert sorted(e["seed"] for e in summary["episodes"]) == [7, 8]
+        assert sorted(e["seed"] for e in summary["episodes"]) == [0, 1]
 
 
 def test_maniskill_motion_planning_expert_through_eval_matches_native(tmp_path, run_native):
