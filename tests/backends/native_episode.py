@@ -169,7 +169,9 @@ def _maniskill_env(task, control_mode):
 
 
 def maniskill(cfg, seed, actions):
-    """Actions in ManiSkill's own convention (gripper -1 closed, +1 open)."""
+    """Actions in ManiSkill's own convention (gripper -1 closed, +1 open); with cfg["solver"]: its expert."""
+    if "solver" in cfg:
+        return _maniskill_expert(cfg, seed)
     env = _maniskill_env(cfg["task"], cfg.get("control_mode", "pd_ee_delta_pose"))
     obs, _ = env.reset(seed=seed)
     out = {"state": [obs[0].numpy()], "reward": [], "success": []}
@@ -181,27 +183,30 @@ def maniskill(cfg, seed, actions):
     return out
 
 
-def maniskill_expert(cfg, seed, actions):
+def _maniskill_expert(cfg, seed):
     """ManiSkill's motion-planning solution (mani_skill.examples.motionplanning) for seeds seed..seed+n-1, as its
-    run.py drives it: its success flags and its actions (gripper in ManiSkill's convention)."""
+    run.py drives it (the solver steps the env itself, past the registered step limit): per episode, the step of
+    the first success (0: none), the solver's own verdict at its end, and how many actions it took."""
     from mani_skill.examples.motionplanning.panda import solutions
 
     env = _maniskill_env(cfg["task"], "pd_joint_pos")
     solve = getattr(solutions, cfg["solver"])
-    out = {"success": [], "n_actions": []}
+    out = {"first_success": [], "success": [], "n_actions": []}
     for s in range(seed, seed + cfg["episodes"]):
-        n = []
+        flags = []
         step = env.step
 
-        def count(a, step=step, n=n):
-            n.append(1)
-            return step(a)
+        def watch(a, step=step, flags=flags):
+            result = step(a)
+            flags.append(bool(result[4]["success"][0]))
+            return result
 
-        env.step = count
+        env.step = watch
         res = solve(env, seed=s)
         del env.step
+        out["first_success"].append(flags.index(True) + 1 if True in flags else 0)
         out["success"].append(res != -1 and bool(res[-1]["success"].item()))
-        out["n_actions"].append(len(n))
+        out["n_actions"].append(len(flags))
     return out
 
 

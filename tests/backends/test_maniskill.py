@@ -126,7 +126,8 @@ def test_maniskill_random_and_zero_runs_write_summary(tmp_path):
 
 def test_maniskill_motion_planning_expert_through_eval_matches_native(tmp_path, run_native):
     """ManiSkill's own motion-planning solutions (mplib), planned on a twin env and replayed through the seam
-    by `--policy scripted`: the same success, episode by episode, as the solver on ManiSkill's own env."""
+    by `--policy scripted` under the preset's step limits: episode by episode, the seam's episode succeeds at
+    exactly the step where the solver, on ManiSkill's own env, first succeeds (or fails where it has not by then)."""
     backend_python("maniskill")
     out = tmp_path / "eval"
     tasks = {"PickCube-v1": "solvePickCube", "StackCube-v1": "solveStackCube"}
@@ -136,10 +137,11 @@ def test_maniskill_motion_planning_expert_through_eval_matches_native(tmp_path, 
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_episodes"] == 6 and summary["spec"]["action"]["control_mode"] == "joint_position"
     for task, solver in tasks.items():
-        native = run_native("maniskill_expert", {"task": task, "solver": solver, "episodes": 3}, 0, np.zeros(1))
+        native = run_native("maniskill", {"task": task, "solver": solver, "episodes": 3}, 0, np.zeros(1))
+        assert native["success"].all(), (task, native)  # the solver works here: not a vacuous comparison
         seam = sorted((e["seed"], e["success"], e["steps"]) for e in summary["episodes"] if e["task"] == task)
         assert [s for s, _, _ in seam] == [0, 1, 2]
-        assert [ok for _, ok, _ in seam] == native["success"].tolist(), (task, seam, native)
-        assert native["success"].sum() >= 2, (task, native)  # the solver works here: not a vacuous comparison
-        for (_, ok, steps), n in zip(seam, native["n_actions"]):
-            assert not ok or steps <= n  # the replay ends at success, at the latest where the plan ended
+        for (_, ok, steps), first in zip(seam, native["first_success"]):
+            within = 0 < first <= 50
+            assert ok == within and (steps == first if ok else steps == 50), (task, seam, native)
+    assert any(e["success"] for e in summary["episodes"])
