@@ -208,7 +208,8 @@ class ManiSkillRollout(BenchmarkRollout):
         robot = self._u.agent.robot
         joints = [j.name for j in robot.get_active_joints()]
         limits = robot.get_qlimits()[0].cpu().numpy().astype(np.float64)
-        self._native_reset(0)
+        self._obs, self._info = self._flat(*self.env.reset(seed=0))  # the first observation (no plan yet)
+        self._t = 0
         names = state_names(self._u.get_obs(unflattened=True))
         if len(names) != self._obs.shape[0]:
             raise RuntimeError(f"maniskill {task}: {len(names)} state names for a {self._obs.shape[0]}-D state")
