@@ -152,3 +152,21 @@ def test_maniskill_benchmarks_list_shows_its_tasks_and_preset():
     assert proc.returncode == 0, proc.stderr
     assert "PegInsertionSide-v1" in proc.stdout and "peg insertion side (100 steps)" in proc.stdout
     assert "maniskill_tabletop" in proc.stdout
+
+
+def test_maniskill_bad_input_is_one_line_naming_the_field(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    for text, policy, expect in (
+            ("benchmark: {name: maniskill, task: PickSingleYCB-v1}\n", "zero",
+             "benchmark.task: one of ManiSkill's shipped-asset tasks"),
+            ("benchmark: {name: maniskill, task: PickCube-v1, control_mode: pd_joint_delta_pos}\n", "zero",
+             "benchmark.control_mode: 'pd_joint_delta_pos' is not supported"),
+            ("benchmark: {name: maniskill, task: PickCube-v1, control_mode: pd_ee_delta_pose}\n", "scripted",
+             "the motion-planning expert emits pd_joint_pos actions"),
+            ("benchmark: {name: maniskill, task: PokeCube-v1}\n", "scripted",
+             "ManiSkill ships no motion-planning solution for PokeCube-v1"),
+    ):
+        bad.write_text(text)
+        proc = simseam("run", "--scene", str(bad), "--policy", policy, "--out", str(tmp_path / "run"), "--overwrite")
+        assert proc.returncode == 2, (text, proc.stderr)
+        assert expect in proc.stderr and "Traceback" not in proc.stderr, (text, proc.stderr)
