@@ -4,7 +4,7 @@
         [--backends pusht,metaworld] [--kinds state] [--paths local,zmq]
 
 Per backend (Meta-World reach-v3 with a 224x224 corner2 camera, PushT at 96x96, ALOHA
-insertion with its 480x640 top camera) and per observation kind:
+insertion with its 480x640 top camera, ManiSkill PickCube-v1 state-only) and per observation kind:
 
 - ``state``: native ``env.step`` alone vs the seam's ``step(a, STATE_ONLY)``;
 - ``pixels``: what a pixel policy needs each step: native ``env.step`` + ``env.render()``
@@ -47,7 +47,10 @@ CASES = {
     "aloha": {"task": "insertion", "cameras": ["top"]},
     "libero": {"suite": "libero_spatial", "task": 3, "image_size": [256, 256], "settle_steps": 10},
     "robosuite": {"task": "Lift", "robot": "Panda", "image_size": [128, 128]},
+    "maniskill": {"task": "PickCube-v1"},
 }
+#: observation kinds per backend (ManiSkill: state only, SAPIEN cannot render on a CPU)
+KINDS = {"maniskill": ("state",)}
 
 NATIVE = r'''
 import json, sys, time
@@ -91,6 +94,24 @@ elif backend == "robosuite":  # state: use_camera_obs=False (robosuite's own sta
                      camera_heights=h, camera_widths=w, horizon=10**9)
     env.reset()
     step = env.step
+elif backend == "maniskill":  # obs_mode="state", PhysX CPU; physics-only where SAPIEN cannot render
+    import gymnasium as gym
+    import sapien
+    import sapien.wrapper.urdf_loader
+    try:
+        sapien.render.RenderMaterial()
+    except RuntimeError:
+        class Inert:
+            def __init__(self, *a, **k): pass
+        sapien.render.RenderMaterial = sapien.pysapien.render.RenderMaterial = Inert
+        sapien.wrapper.urdf_loader.RenderMaterial = Inert
+    import mani_skill.envs
+    import torch
+    torch.set_num_threads(1)  # as the backend does
+    env = gym.make(cfg["task"], obs_mode="state", control_mode="pd_ee_delta_pose", sim_backend="physx_cpu",
+                   num_envs=1, render_mode=None, render_backend="none")
+    env.reset(seed=seed)
+    step = env.step
 else:
     from gym_aloha.env import AlohaEnv
     env = AlohaEnv(task=cfg["task"], obs_type="pixels_agent_pos")
@@ -114,6 +135,8 @@ def actions_for(backend: str, n: int, rng: np.random.Generator, start: np.ndarra
         return rng.uniform(60, 450, (n, 2)).astype(np.float32)
     if backend in ("libero", "robosuite"):
         return rng.uniform(-0.3, 0.3, (n, 7)).astype(np.float32)
+    if backend == "maniskill":
+        return rng.uniform(-1, 1, (n, 7)).astype(np.float32)
     return (start + np.cumsum(rng.normal(0, 0.005, (n, 14)), axis=0)).astype(np.float32)
 
 
@@ -185,7 +208,7 @@ def main() -> None:
         for p, ro in rollouts.items():
             assert ro.fast == (p == "local"), f"{name}: path {p} not taken"
         start = np.asarray(next(iter(rollouts.values())).reset(0)["state"], dtype=np.float64)
-        for kind in [k for k in args.kinds.split(",") if k]:
+        for kind in [k for k in args.kinds.split(",") if k and k in KINDS.get(name, ("state", "pixels"))]:
             steps = args.steps if kind == "state" or name == "pusht" else max(20, args.steps // 4)
             if name == "libero":  # ~0.1-0.5 s per step on this CPU
                 steps = max(10, args.steps // 10)

@@ -8,8 +8,9 @@
 #      a reused venv is pointed at this clone's sources (editable install) before use;
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
-#   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite; backends/pins/), each
-#      under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~4.5 min and ~4.5 GB from PyPI, once);
+#   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite, ManiSkill3; backends/pins/),
+#      each under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~6.5 min and ~6.5 GB from PyPI, once;
+#      ManiSkill3 ~1.2-2 min and 2.0 GB of that, its CPU torch from the machine's wheel folder);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
@@ -121,7 +122,7 @@ fi
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
 # benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent
-"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha libero robosuite \
+"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha libero robosuite maniskill \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 

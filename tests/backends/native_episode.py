@@ -146,6 +146,70 @@ def robosuite(cfg, seed, actions):
     return out
 
 
+def _maniskill_env(task, control_mode):
+    """ManiSkill 3's own env, CPU physics, state observations. Where SAPIEN finds no Vulkan device to render
+    with (a CPU), ManiSkill builds no visuals but its task builders still construct RenderMaterial objects:
+    those become inert (the workaround simseam's backend applies too, in simseam/backends/maniskill.py)."""
+    import gymnasium as gym
+    import sapien
+    import sapien.wrapper.urdf_loader
+
+    try:
+        sapien.render.RenderMaterial()
+    except RuntimeError:
+        class Inert:
+            def __init__(self, *a, **k):
+                pass
+
+        sapien.render.RenderMaterial = sapien.pysapien.render.RenderMaterial = Inert
+        sapien.wrapper.urdf_loader.RenderMaterial = Inert
+    import mani_skill.envs  # noqa: F401  (registers the tasks)
+    return gym.make(task, obs_mode="state", control_mode=control_mode, sim_backend="physx_cpu", num_envs=1,
+                    render_mode=None, render_backend="none")
+
+
+def maniskill(cfg, seed, actions):
+    """Actions in ManiSkill's own convention (gripper -1 closed, +1 open); with cfg["solver"]: its expert."""
+    if "solver" in cfg:
+        return _maniskill_expert(cfg, seed)
+    env = _maniskill_env(cfg["task"], cfg.get("control_mode", "pd_ee_delta_pose"))
+    obs, _ = env.reset(seed=seed)
+    out = {"state": [obs[0].numpy()], "reward": [], "success": []}
+    for a in actions:
+        obs, r, _, _, info = env.step(a)
+        out["state"].append(obs[0].numpy())
+        out["reward"].append(float(r[0]))
+        out["success"].append(bool(info["success"][0]))
+    return out
+
+
+def _maniskill_expert(cfg, seed):
+    """ManiSkill's motion-planning solution (mani_skill.examples.motionplanning) for seeds seed..seed+n-1, as its
+    run.py drives it (the solver steps the env itself, past the registered step limit): per episode, the step of
+    the first success (0: none), the solver's own verdict at its end, and how many actions it took."""
+    from mani_skill.examples.motionplanning.panda import solutions
+
+    env = _maniskill_env(cfg["task"], "pd_joint_pos")
+    solve = getattr(solutions, cfg["solver"])
+    out = {"first_success": [], "success": [], "n_actions": []}
+    for s in range(seed, seed + cfg["episodes"]):
+        flags = []
+        step = env.step
+
+        def watch(a, step=step, flags=flags):
+            result = step(a)
+            flags.append(bool(result[4]["success"][0]))
+            return result
+
+        env.step = watch
+        res = solve(env, seed=s)
+        del env.step
+        out["first_success"].append(flags.index(True) + 1 if True in flags else 0)
+        out["success"].append(res != -1 and bool(res[-1]["success"].item()))
+        out["n_actions"].append(len(flags))
+    return out
+
+
 if __name__ == "__main__":
     backend, cfg, seed, actions_path, out_path = sys.argv[1:6]
     result = globals()[backend](json.loads(cfg), int(seed), np.load(actions_path))

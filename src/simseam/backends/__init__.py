@@ -1,8 +1,8 @@
 """Benchmark backends: the simulators papers report numbers on, behind the seam.
 
-Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``, ``robosuite``) is a ``SimRollout`` with its own
-``RolloutSpec`` in ``simseam.backends.<name>``. It runs in a sidecar whose interpreter is
-the backend's own virtualenv (``simseam backends provision NAME``, pins in
+Each backend (``metaworld``, ``pusht``, ``aloha``, ``libero``, ``robosuite``, ``maniskill``) is a
+``SimRollout`` with its own ``RolloutSpec`` in ``simseam.backends.<name>``. It runs in a sidecar whose
+interpreter is the backend's own virtualenv (``simseam backends provision NAME``, pins in
 ``simseam/backends/pins/NAME.txt``), because the benchmarks' pins conflict with each other
 and with simseam's own stack. simseam's own process never imports a benchmark package:
 a backend module imports its benchmark only inside the functions that build the rollout.
@@ -41,12 +41,14 @@ BACKENDS: dict[str, BackendInfo] = {
                              "robosuite 1.5 (Lift, Stack, PickPlace, NutAssembly, Door, Wipe, ToolHang; any robot)"),
     "aloha": BackendInfo("aloha", "simseam.backends.aloha", "gym-aloha", ("gym_aloha", "zmq", "msgpack"),
                          "ALOHA bimanual sim (insertion, transfer_cube; LeRobot's gym-aloha)"),
+    "maniskill": BackendInfo("maniskill", "simseam.backends.maniskill", "mani-skill",
+                             ("mani_skill.envs", "mplib", "zmq", "msgpack"),
+                             "ManiSkill3 (SAPIEN 3, PhysX CPU: PickCube, StackCube, PegInsertionSide ...; "
+                             "state-only without a GPU renderer; motion-planning experts)"),
 }
 
 #: benchmarks users ask for that cannot run offline here (shown by ``simseam backends list``)
 NOT_AVAILABLE = {
-    "maniskill3": "not yet behind the seam (mani-skill 3.0.1: SAPIEN renders nothing on this CPU's Mesa, "
-                  "state-only here); see docs/benchmarks.md",
     "robocasa": "cannot run offline: ~10 GB of assets downloaded behind an interactive prompt",
     "simplerenv": "cannot run offline here: not on PyPI (git install + ManiSkill2 real-to-sim assets)",
 }

@@ -2,7 +2,7 @@
 
 A preset names a backend, its tasks, episodes per task and the per-task config (step
 limit ...). Episode ``e`` of every task uses seed ``seed + e`` (Meta-World: goal variation
-``e % 50``; PushT / ALOHA: the native ``reset(seed)``), so a run is reproducible and every
+``e % 50``; PushT / ALOHA / ManiSkill: the native ``reset(seed)``), so a run is reproducible and every
 policy sees the same initial states. Results go through ``run_dir.RunDir`` exactly as
 ``simseam run`` writes them (``run.json``, ``episodes.jsonl`` fsynced per episode, atomic
 ``summary.json``, ``--overwrite`` / ``--resume``); each episode line carries its ``task``,
@@ -21,6 +21,8 @@ from simseam.seam import ConfigError
 
 METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
                   "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
+
+MANISKILL_TABLETOP = ("PickCube-v1", "PushCube-v1", "StackCube-v1", "PegInsertionSide-v1", "PullCube-v1")
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,10 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
            protocol="50 episodes, 300 steps at 10 Hz, success = coverage > 95 % (LeRobot's gym-pusht eval)"),
     Preset("aloha_insertion", "aloha", ("insertion",), 50, {"task": "insertion", "max_steps": 400},
            protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
+    Preset("maniskill_tabletop", "maniskill", MANISKILL_TABLETOP, 50, {},
+           protocol="ManiSkill3 (state, pd_ee_delta_pose, PhysX CPU): 5 shipped-asset Panda tasks x 50 episodes "
+                    "(env.reset(seed)), each at the step limit ManiSkill registers (PegInsertionSide 100, the others "
+                    "50), success = info['success'] at any step (the episode ends there: ManiSkill's success_once)"),
     Preset("aloha_transfer_cube", "aloha", ("transfer_cube",), 50, {"task": "transfer_cube", "max_steps": 400},
            protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
 )}
