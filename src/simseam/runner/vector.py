@@ -266,35 +266,38 @@ class _MainBlock:
 
     def __init__(self, mm: mmap.mmap, layout: dict):
         self.mm, self.layout = mm, layout
-        self.v = _block_views(mm, layout)
-        self.action = self.v["action"]
-        self.consts = dict(layout["consts"])
-        self.ints = layout["ints"][1]
-        self.floats = layout["floats"][1]
+        v = self.v = _block_views(mm, layout)
+        self.action = v["action"]
+        self._arrays, self._iv, self._fv, self._pose = v["arrays"], v["ints"], v["floats"], v["pose"]
+        self._obs = dict.fromkeys(layout["order"])  # templates: the key order of the worker's dicts
+        self._consts = [(k, c) for k, c in layout["consts"]]
+        self._diag = dict.fromkeys(layout["diag"])
+        self._info = dict.fromkeys(layout["info"])
+        self._has_diag = INFO_DIAGNOSTICS in self._info
+        where = {"obs": 0, "info": 1, "diag": 2}
+        self._ints = [(where[w], k, is_bool) for w, k, is_bool in layout["ints"][1]]
+        self._floats = [(where[w], k) for w, k in layout["floats"][1]]
 
     def read(self):
-        v, lay = self.v, self.layout
-        obs = dict.fromkeys(lay["order"])
-        for k, c in self.consts.items():
-            obs[k] = c if c is not None else {}
-        for k, arr in v["arrays"]:
+        obs, info, diag = self._obs.copy(), self._info.copy(), self._diag.copy()
+        for k, c in self._consts:
+            obs[k] = {} if c is None else c
+        for k, arr in self._arrays:
             obs[k] = arr.copy()
-        diag = dict.fromkeys(lay["diag"])
-        info = dict.fromkeys(lay["info"])
-        if INFO_DIAGNOSTICS in info:
+        if self._has_diag:
             info[INFO_DIAGNOSTICS] = diag
-        dst = {"obs": obs, "info": info, "diag": diag}
-        ints = v["ints"].tolist()
-        for (w, k, is_bool), x in zip(self.ints, ints[2:]):
+        dst = (obs, info, diag)
+        ints = self._iv.tolist()
+        for (w, k, is_bool), x in zip(self._ints, ints[2:]):
             dst[w][k] = bool(x) if is_bool else x
-        fl = v["floats"].tolist()
-        for (w, k), x in zip(self.floats, fl[1:]):
+        fl = self._fv.tolist()
+        for (w, k), x in zip(self._floats, fl[1:]):
             dst[w][k] = x
-        pose = v["pose"].copy() if v["pose"] is not None else None
+        pose = None if self._pose is None else self._pose.copy()
         return ("obs", obs, (fl[0], bool(ints[0]), bool(ints[1]), info), None, pose)
 
     def close(self) -> None:
-        self.v = self.action = None
+        self.v = self.action = self._arrays = self._iv = self._fv = self._pose = None
         try:
             self.mm.close()
         except BufferError:  # a view still alive: the GC frees the mapping
@@ -748,7 +751,7 @@ class VectorEnv:
             res.step_ms.append((time.perf_counter() - s.sent_at) * 1e3)
             res.steps += 1
             res.reward += float(reward)
-            res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
+            res.diagnostics = info.get(INFO_DIAGNOSTICS) or {}  # a fresh dict every step
             if info.get(key):
                 res.success = True
             if on_step:
