@@ -166,9 +166,9 @@ def _cpu() -> float:
 
 def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers") -> dict:
     images = CASES[case][0] is not None
-    with VectorEnv(recipe_for(case, steps), n, renderer=renderer) as vec:
+    with VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {})) as vec:
         vec._wait_booted(vec.slots)  # every worker ready before the clock starts
-        if vec.central is not None:  # compile the renderer's kernels before the clock starts
+        if getattr(vec, "central", None) is not None:  # compile the renderer's kernels before the clock starts
             state = vec.central.scene.engine.render_state()
             vec.central.render([state] * n)
         pol = ZeroBatch(n, images)
@@ -269,6 +269,8 @@ def main() -> None:
                                                      renderer=renderer))
                     r = sorted(rounds, key=lambda x: x["env_steps"] / x["wall_s"])[len(rounds) // 2]  # the median
                     r["rounds_env_steps_per_s"] = [x["env_steps"] / x["wall_s"] for x in rounds]
+                    if "main_cpu_us_per_env_step" in r:
+                        r["rounds_main_cpu_us_per_env_step"] = [x["main_cpu_us_per_env_step"] for x in rounds]
                     sps = r["env_steps"] / r["wall_s"]
                     base = sps if base is None else base
                     eff = sps / (n / args.n[0] * base)
