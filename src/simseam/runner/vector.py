@@ -33,6 +33,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -131,6 +132,39 @@ class _SharedImages:
 _FAST_REPLY = b"F"
 _FAST_STEP = b"S"
 _FAST_REQUESTS = (None, STATE_ONLY)  # the request byte after b"S" indexes this
+_FAST_FRAME = struct.pack("!i", 1) + _FAST_REPLY  # how multiprocessing's Connection frames b"F"
+
+
+def _read_message(fd: int) -> bytes:
+    """One message of a ``Connection`` (4-byte big-endian size, then the payload) read straight from its
+    file descriptor: a fast reply costs one ``read``. Reads exactly one message, never beyond it, so
+    ``recv_handle`` finds a handle sent after it."""
+    buf = os.read(fd, len(_FAST_FRAME))
+    if buf == _FAST_FRAME:
+        return _FAST_REPLY
+    while len(buf) < 4:
+        if not buf:
+            raise EOFError
+        more = os.read(fd, 4 - len(buf))
+        if not more:
+            raise EOFError
+        buf += more
+    size, = struct.unpack("!i", buf[:4])
+    body = bytearray(buf[4:])
+    if size == -1:  # over 2 GiB: an 8-byte size follows
+        while len(body) < 8:
+            more = os.read(fd, 8 - len(body))
+            if not more:
+                raise EOFError
+            body += more
+        size, = struct.unpack("!Q", bytes(body[:8]))
+        body = body[8:]
+    while len(body) < size:
+        more = os.read(fd, min(size - len(body), 1 << 20))
+        if not more:
+            raise EOFError
+        body += more
+    return bytes(body)
 
 
 def _signature(obs, info, pose) -> tuple | None:
@@ -561,8 +595,9 @@ class VectorEnv:
         """The worker's next message, or None when it died (pipe closed)."""
         try:
             if readable or s.conn.poll():
+                pipe = s.conn.fileno()
                 while True:
-                    buf = s.conn.recv_bytes()
+                    buf = _read_message(pipe)
                     if buf == _FAST_REPLY:  # a step reply waiting in the step block
                         return s.block.read()
                     msg = pickle.loads(buf)
