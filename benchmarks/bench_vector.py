@@ -18,7 +18,10 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
   workers``: its own EGL context) or by the parent in one MuJoCo Warp batch for all workers
   (``batched``: the workers send their render states; ``VectorEnv(renderer="batched")``);
 - ``sidecar_state``: the same scene behind the sidecar (each worker owns its own sidecar process),
-  state-only (needs pydantic, msgpack, pyzmq).
+  state-only (needs pydantic, msgpack, pyzmq);
+- ``overhead``: no physics: each worker's rollout answers at once with a state-only observation of
+  lift_cube's layout (the same keys, shapes, info and diagnostics), so the wall time per env-step is
+  the vector runner's own cost (pipes, wake-ups, the parent's per-env work), not a simulator's.
 
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process); ``async`` the same with ``sync=False`` (the policy
@@ -61,6 +64,7 @@ CASES = {
     "rgb128": (128, False),
     "rgb256": (256, False),
     "sidecar_state": (None, True),
+    "overhead": (None, False),
 }
 
 # the robot: a built-in name or a manifest path, or a RobotSpec JSON (machines without pydantic) with
@@ -107,7 +111,49 @@ class BenchRecipe:
         return ManifestScene(robot_spec(), "lift_cube", "mujoco", opts)
 
 
+class InstantRollout:
+    """``overhead`` case: lift_cube's spec and observation layout, no physics (answers at once)."""
+
+    def __init__(self, spec):
+        self.spec, self.k = spec, 0
+        self.state = np.zeros(spec.observation.state_dim, np.float32)
+        self.q = np.zeros(len(spec.robot.joints), np.float32)
+
+    def _obs(self):
+        return {"images": {}, "state": self.state.copy(), "task": self.spec.task.instruction,
+                "joint_positions": self.q.copy(), "joint_velocities": self.q.copy(), "sim_time_ns": self.k * 50_000_000}
+
+    def reset(self, seed, observe=None):
+        self.k = 0
+        return self._obs()
+
+    def step(self, action, observe=None):
+        from simseam.seam import StepResult
+
+        self.k += 1
+        info = {self.spec.task.success_key: False, "steps": self.k,
+                "diagnostics": {"cube_height": 0.0, "eef_to_cube": 0.3, "grasped": False}}
+        return StepResult(self._obs(), 0.0, False, self.k >= self.spec.task.max_steps, info)
+
+    def render(self):
+        return None
+
+    def close(self):
+        pass
+
+
+@dataclasses.dataclass(frozen=True)
+class InstantRecipe(BenchRecipe):
+    def build(self):
+        scene = BenchRecipe(None, self.steps).build()
+        spec = scene.spec
+        scene.close()
+        return InstantRollout(spec)
+
+
 def recipe_for(case: str, steps: int):
+    if case == "overhead":
+        return InstantRecipe(None, steps)
     image, sidecar = CASES[case]
     if not sidecar:
         return BenchRecipe(image, steps, render_images=image is not None)
