@@ -1,12 +1,12 @@
 """Evaluation throughput vs the number of environments: env-steps/s, episodes/hour, main-process cost.
 
     .venv/bin/python benchmarks/bench_vector.py [--n 1 2 4 8 16] [--steps 300] [--episodes-per-env 2]
-        [--cases state rgb128 rgb256 sidecar_state] [--modes vector async local bare]
+        [--cases state overhead rgb128 rgb256 sidecar_state] [--modes vector async local bare]
         [--renderers workers batched] [--rounds 1] [--robot-json panda.json --urdf .../panda.urdf]
         [--out benchmarks/results/vector.json]
 
     # the GPU machine's sweep (docs/evaluation.md; no pydantic there: --robot-json + --urdf):
-    python3 bench_vector.py --n 1 2 4 8 16 --cases state rgb128 rgb256 --modes vector local \
+    python3 bench_vector.py --n 1 2 4 8 16 --cases state overhead rgb128 rgb256 --modes vector local \
         --renderers workers batched --robot-json panda.json --urdf franka_panda/panda.urdf --out $OUT/vector.json
 
 Franka Panda, lift_cube, 20 Hz control, ``--steps`` control steps per episode (the episode never
