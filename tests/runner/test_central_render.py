@@ -193,3 +193,40 @@ def test_run_local_is_refused_with_the_central_renderer():
     with VectorEnv(_recipe(privileged=False), 1, renderer="batched") as vec:
         with pytest.raises(ConfigError, match="run_local"):
             vec.run_local("zero", {}, [0])
+
+
+def test_a_worker_killed_mid_episode_with_the_central_renderer(tmp_path):
+    """A worker dying mid-episode costs nothing with the central renderer either: the episode re-runs
+    (counted once, same result), its partial video is dropped and the re-run's video is complete."""
+    import os
+    import signal
+
+    import imageio.v2 as imageio
+
+    from simseam.policies.batch import make_policy_batch
+    from simseam.runner.session import run_episodes
+
+    scene = ManifestScene(load_robot("franka_panda"), "lift_cube", "mujoco",
+                          SceneOptions(image_size=SIZE, max_steps=STEPS, privileged=True, render_images=False))
+    try:
+        reference = {r.index: (r.success, r.steps, round(r.reward, 9))
+                     for r in run_episodes(scene, make_policy("scripted"), range(3), seed=0)}
+    finally:
+        scene.close()
+    pol = make_policy_batch("scripted", 2)
+    killed, failures = [], []
+    with VectorEnv(_recipe(), 2, renderer="batched") as vec:
+        def on_step(env, index, steps):
+            if index == 1 and steps == 5 and not killed:
+                killed.append(index)
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(3), seed=0, video_dir=tmp_path, on_step=on_step,
+                          on_worker_failure=failures.append)
+    assert killed and [f.index for f in failures] == [1]
+    assert sorted(r.index for r in results) == [0, 1, 2]
+    assert {r.index: (r.success, r.steps, round(r.reward, 9)) for r in results} == reference
+    for r in results:
+        with imageio.get_reader(r.video) as video:
+            assert sum(1 for _ in video) == r.steps + 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"episode_{i:03d}.mp4" for i in range(3)]

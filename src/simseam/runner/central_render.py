@@ -41,6 +41,10 @@ def unsupported(scene: dict) -> str | None:
 
 def cuda_available() -> bool:
     """Whether warp sees a CUDA device (False when warp or mujoco_warp cannot be imported)."""
+    import os
+
+    if not os.path.exists("/dev/nvidiactl") and not os.environ.get("CUDA_VISIBLE_DEVICES"):
+        return False  # no NVIDIA driver here: spare warp's start-up and its warning
     try:
         import mujoco_warp  # noqa: F401
         import warp as wp
