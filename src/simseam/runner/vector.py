@@ -133,6 +133,8 @@ _FAST_REPLY = b"F"
 _FAST_STEP = b"S"
 _FAST_REQUESTS = (None, STATE_ONLY)  # the request byte after b"S" indexes this
 _FAST_FRAME = struct.pack("!i", 1) + _FAST_REPLY  # how multiprocessing's Connection frames b"F"
+# the framed step commands (b"S" + the request's index), written straight to the pipe
+_FAST_STEP_FRAMES = tuple(struct.pack("!i", 2) + _FAST_STEP + bytes([i]) for i in range(len(_FAST_REQUESTS)))
 
 
 def _read_message(fd: int) -> bytes:
@@ -966,7 +968,7 @@ class VectorEnv:
             s.sent_at = time.perf_counter()
             block.action[:] = action
             try:
-                s.conn.send_bytes(b"S\x00" if request is None else b"S\x01")
+                os.write(s.conn.fileno(), _FAST_STEP_FRAMES[0 if request is None else 1])
             except (OSError, ValueError):
                 pass  # a dead worker: its sentinel tells the loop
             return
