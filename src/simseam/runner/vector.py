@@ -10,7 +10,11 @@ the policy inside each worker instead (policies that share no model): workers pl
 and send back only their results. A worker whose episode ends takes the next episode index from
 the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
 on ``num_envs`` for a deterministic policy. Images cross from a worker through a shared memory
-block (``_SharedImages``), not through the pipe; a worker dies with this process (Linux).
+block (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross
+through a second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no
+pickling). ``renderer="batched"``: the workers send their MuJoCo render state instead of images and
+this process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only.
+A worker dies with this process (Linux).
 
 Failures:
 
