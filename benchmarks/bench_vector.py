@@ -1,34 +1,52 @@
-"""Evaluation throughput vs the number of environments: env-steps/s and episodes/hour.
+"""Evaluation throughput vs the number of environments: env-steps/s, episodes/hour, main-process cost.
 
     .venv/bin/python benchmarks/bench_vector.py [--n 1 2 4 8 16] [--steps 300] [--episodes-per-env 2]
-        [--cases state rgb256 sidecar_state] [--modes vector async local bare] [--rounds 1]
+        [--cases state overhead rgb128 rgb256 sidecar_state] [--modes vector async local bare]
+        [--renderers workers batched] [--rounds 1] [--robot-json panda.json --urdf .../panda.urdf]
         [--out benchmarks/results/vector.json]
+
+    # the GPU machine's sweep (docs/evaluation.md; no pydantic there: --robot-json + --urdf):
+    python3 bench_vector.py --n 1 2 4 8 16 --cases state overhead rgb128 rgb256 --modes vector local \
+        --renderers workers batched --robot-json panda.json --urdf franka_panda/panda.urdf --out $OUT/vector.json
 
 Franka Panda, lift_cube, 20 Hz control, ``--steps`` control steps per episode (the episode never
 succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per point. Cases:
 
 - ``state``: in-process MuJoCo, state-only observations (no rendering);
-- ``rgb256``: in-process MuJoCo, both cameras (camera1 + wrist camera2) at 256x256 rendered into
-  every observation (EGL; the policy reads them every step);
+- ``rgb128`` / ``rgb256``: in-process MuJoCo, both cameras (camera1 + wrist camera2) at 128x128 /
+  256x256 in every observation (the policy reads them every step), drawn by each worker (``--renderers
+  workers``: its own EGL context) or by the parent in one MuJoCo Warp batch for all workers
+  (``batched``: the workers send their render states; ``VectorEnv(renderer="batched")``);
 - ``sidecar_state``: the same scene behind the sidecar (each worker owns its own sidecar process),
-  state-only.
+  state-only (needs pydantic, msgpack, pyzmq);
+- ``overhead``: no physics: each worker's rollout answers at once with a state-only observation of
+  lift_cube's layout (the same keys, shapes, info and diagnostics), so the wall time per env-step is
+  the vector runner's own cost (pipes, wake-ups, the parent's per-env work), not a simulator's.
 
-Modes: ``vector`` is ``simseam.runner.vector.VectorEnv`` (N worker processes stepped together by one
-batched policy in this process); ``async`` the same with ``sync=False`` (the policy acts on whichever
-workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero`` policy inside
-each worker, whole episodes per command; state-only cases only); ``bare`` is N plain independent processes, each running its share
-of the episodes with ``run_episodes`` (the baseline the vector API must not fall behind). Timing
-starts once every worker has built its rollout and stops when the last episode ends. Efficiency =
-throughput(N) / (N x throughput(1)) of the same case and mode. Prints a table and writes JSON.
+Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
+together by one batched policy in this process); ``async`` the same with ``sync=False`` (the policy
+acts on whichever workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
+independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
+vector API must not fall behind). Timing starts once every worker has built its rollout (and the
+batched renderer has compiled its kernels) and stops when the last episode ends. Efficiency =
+throughput(N) / (N x throughput(first N)) of the same case, mode and renderer. ``main_us`` is this
+process's own CPU time (user + system) per env-step in the vector modes: what bounds lockstep
+efficiency at large N. Prints a table and writes JSON.
+
+Scenes are built without pydantic (``BenchRecipe``: a RobotSpec, the task, SceneOptions), so the GPU
+machine needs only numpy, mujoco (+ PyOpenGL for EGL), and warp-lang + mujoco-warp for ``batched``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import multiprocessing as mp
 import os
 import platform
+import resource
 import sys
 import time
 from pathlib import Path
@@ -38,44 +56,134 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from simseam.policies.batch import PolicyBatch  # noqa: E402
-from simseam.runner.vector import RolloutRecipe, VectorEnv  # noqa: E402
+from simseam.runner.vector import VectorEnv  # noqa: E402
 
+# case -> (image size or None, behind a sidecar)
 CASES = {
-    "state": ({"name": "mujoco"}, False),
-    "rgb256": ({"name": "mujoco"}, True),
-    "sidecar_state": ({"name": "mujoco", "process": "sidecar"}, False),
+    "state": (None, False),
+    "rgb128": (128, False),
+    "rgb256": (256, False),
+    "sidecar_state": (None, True),
+    "overhead": (None, False),
 }
 
-
-# --robot: a built-in name or a manifest path (e.g. one with a file: URDF on a GPU machine); spawned
-# workers read it from the environment
+# the robot: a built-in name or a manifest path, or a RobotSpec JSON (machines without pydantic) with
+# its URDF; spawned workers read them from the environment
 ROBOT = os.environ.get("SIMSEAM_BENCH_ROBOT", "franka_panda")
+ROBOT_JSON = os.environ.get("SIMSEAM_BENCH_ROBOT_JSON") or None
+URDF = os.environ.get("SIMSEAM_BENCH_URDF") or None
 
 
-def scene_dict(case: str, steps: int) -> dict:
+def robot_spec():
+    from simseam.robot.spec import RobotSpec
+
+    if ROBOT_JSON:
+        spec = RobotSpec.from_json(json.loads(Path(ROBOT_JSON).read_text()))
+    else:
+        from simseam.robot.manifest import load_robot
+
+        spec = load_robot(ROBOT)
+    if URDF:
+        spec = dataclasses.replace(spec, urdf="file:" + str(Path(URDF).resolve()))
+    return spec
+
+
+@dataclasses.dataclass(frozen=True)
+class BenchRecipe:
+    """A worker's rollout without the scene-file layer (no pydantic): the vector runner only calls
+    ``build()`` and reads ``scene`` (the central renderer's support check), ``render_images`` and
+    ``pose_states``."""
+
+    image: int | None
+    steps: int
+    render_images: bool = False
+    pose_states: bool = False
+    privileged: bool = False
+    seed: int = 0
+    scene: dict = dataclasses.field(default_factory=lambda: {"engine": {"name": "mujoco"}})
+
+    def build(self):
+        from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+
+        size = (self.image, self.image) if self.image else None
+        opts = SceneOptions(control_hz=20, image_size=size, max_steps=self.steps, render_images=self.render_images,
+                            privileged=self.privileged, seed=self.seed)
+        return ManifestScene(robot_spec(), "lift_cube", "mujoco", opts)
+
+
+class InstantRollout:
+    """``overhead`` case: lift_cube's spec and observation layout, no physics (answers at once)."""
+
+    def __init__(self, spec):
+        self.spec, self.k = spec, 0
+        self.state = np.zeros(spec.observation.state_dim, np.float32)
+        self.q = np.zeros(len(spec.robot.joints), np.float32)
+
+    def _obs(self):
+        return {"images": {}, "state": self.state.copy(), "task": self.spec.task.instruction,
+                "joint_positions": self.q.copy(), "joint_velocities": self.q.copy(), "sim_time_ns": self.k * 50_000_000}
+
+    def reset(self, seed, observe=None):
+        self.k = 0
+        return self._obs()
+
+    def step(self, action, observe=None):
+        from simseam.seam import StepResult
+
+        self.k += 1
+        info = {self.spec.task.success_key: False, "steps": self.k,
+                "diagnostics": {"cube_height": 0.0, "eef_to_cube": 0.3, "grasped": False}}
+        return StepResult(self._obs(), 0.0, False, self.k >= self.spec.task.max_steps, info)
+
+    def render(self):
+        return None
+
+    def close(self):
+        pass
+
+
+@dataclasses.dataclass(frozen=True)
+class InstantRecipe(BenchRecipe):
+    def build(self):
+        scene = BenchRecipe(None, self.steps).build()
+        spec = scene.spec
+        scene.close()
+        return InstantRollout(spec)
+
+
+def recipe_for(case: str, steps: int):
+    if case == "overhead":
+        return InstantRecipe(None, steps)
+    image, sidecar = CASES[case]
+    if not sidecar:
+        return BenchRecipe(image, steps, render_images=image is not None)
     from simseam.runner.scene_config import SceneConfig
+    from simseam.runner.vector import RolloutRecipe
 
-    engine, _ = CASES[case]
-    cfg = SceneConfig.model_validate({"robot": ROBOT, "task": "lift_cube", "engine": engine,
-                                      "image_size": [256, 256], "max_steps": steps, "control_hz": 20})
-    return cfg.model_dump(mode="json")
+    cfg = SceneConfig.model_validate({"robot": ROBOT, "task": "lift_cube", "engine": {"name": "mujoco", "process": "sidecar"},
+                                      "max_steps": steps, "control_hz": 20})
+    return RolloutRecipe(cfg.model_dump(mode="json"), str(Path.cwd()), render_images=False)
 
 
 class ZeroBatch(PolicyBatch):
     """Zero Cartesian deltas for every environment; reads images every step when ``images``."""
 
     def __init__(self, n: int, images: bool):
+        from simseam.seam import STATE_ONLY
+
         self.n, self.uses_images = n, images
+        self.request = None if images else STATE_ONLY
+        self.seen = 0
 
     def reset(self, env, spec):
         self.dim = spec.action_dim
 
     def observe_next(self, env):
-        from simseam.seam import STATE_ONLY
-
-        return None if self.uses_images else STATE_ONLY
+        return self.request
 
     def act_batch(self, envs, observations):
+        if self.uses_images:  # the images are there, every camera, every step
+            self.seen += sum(len(o["images"]) for o in observations)
         return np.zeros((len(envs), self.dim), np.float32)
 
 
@@ -97,21 +205,32 @@ class ZeroPolicy:
         return np.zeros(self.dim, np.float32)
 
 
-def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True) -> dict:
-    _, images = CASES[case]
-    recipe = RolloutRecipe(scene_dict(case, steps), str(Path.cwd()), render_images=images)
-    with VectorEnv(recipe, n) as vec:
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers") -> dict:
+    images = CASES[case][0] is not None
+    with VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {})) as vec:
         vec._wait_booted(vec.slots)  # every worker ready before the clock starts
-        t0 = time.perf_counter()
-        results = vec.run(ZeroBatch(n, images), range(episodes), sync=sync)
-        wall = time.perf_counter() - t0
-    return {"wall_s": wall, "env_steps": sum(r.steps for r in results), "episodes": len(results)}
+        if getattr(vec, "central", None) is not None:  # compile the renderer's kernels before the clock starts
+            state = vec.central.scene.engine.render_state()
+            vec.central.render([state] * n)
+        pol = ZeroBatch(n, images)
+        t0, c0 = time.perf_counter(), _cpu()
+        results = vec.run(pol, range(episodes), sync=sync)
+        wall, cpu = time.perf_counter() - t0, _cpu() - c0
+    steps_done = sum(r.steps for r in results)
+    if images:
+        assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
+    return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
+            "main_cpu_us_per_env_step": cpu / steps_done * 1e6}
 
 
 def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
     """The policy inside each worker (``VectorEnv.run_local``): the built-in ``zero`` policy, state only."""
-    recipe = RolloutRecipe(scene_dict(case, steps), str(Path.cwd()), render_images=False)
-    with VectorEnv(recipe, n) as vec:
+    with VectorEnv(recipe_for(case, steps), n) as vec:
         vec._wait_booted(vec.slots)
         t0 = time.perf_counter()
         results = vec.run_local("zero", {}, range(episodes))
@@ -120,11 +239,10 @@ def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
 
 
 def _bare_worker(case, steps, indices, ready, go, out):
-    from simseam.runner.scene_config import SceneConfig, build_rollout
     from simseam.runner.session import run_episodes
 
-    _, images = CASES[case]
-    rollout = build_rollout(SceneConfig.model_validate(scene_dict(case, steps)), Path.cwd(), render_images=images)
+    images = CASES[case][0] is not None
+    rollout = recipe_for(case, steps).build()
     try:
         ready.put(os.getpid())
         go.wait()
@@ -162,45 +280,60 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
-    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "async", "local", "bare"],
-                    choices=["vector", "async", "local", "bare"])
+    ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "async", "local", "bare"])
+    ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
+                    help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
     ap.add_argument("--robot", default=ROBOT, help="built-in robot name or manifest path (absolute)")
+    ap.add_argument("--robot-json", default=None, help="a RobotSpec as JSON (machines without pydantic)")
+    ap.add_argument("--urdf", default=None, help="override the robot's URDF path")
     args = ap.parse_args()
     globals()["ROBOT"] = os.environ["SIMSEAM_BENCH_ROBOT"] = args.robot
+    for name, value in (("ROBOT_JSON", args.robot_json), ("URDF", args.urdf)):
+        if value:
+            value = str(Path(value).resolve())
+            globals()[name] = os.environ[f"SIMSEAM_BENCH_{name}"] = value
     rows = []
     for case in args.cases:
+        images = CASES[case][0] is not None
         for mode in args.modes:
-            base = None
-            for n in args.n:
-                episodes = args.episodes_per_env * n
-                if mode == "local" and CASES[case][1]:
-                    continue  # the built-in zero policy reads no images
-                rounds = []
-                for _ in range(args.rounds):
-                    if mode == "bare":
-                        rounds.append(run_bare(case, n, args.steps, episodes))
-                    elif mode == "local":
-                        rounds.append(run_local(case, n, args.steps, episodes))
-                    else:
-                        rounds.append(run_vector(case, n, args.steps, episodes, sync=mode == "vector"))
-                r = sorted(rounds, key=lambda x: x["env_steps"] / x["wall_s"])[len(rounds) // 2]  # the median round
-                r["rounds_env_steps_per_s"] = [x["env_steps"] / x["wall_s"] for x in rounds]
-                sps = r["env_steps"] / r["wall_s"]
-                base = sps if n == args.n[0] and base is None else base
-                eff = sps / (n / args.n[0] * base) if base else None
-                row = {"case": case, "mode": mode, "n": n, **r, "env_steps_per_s": sps,
-                       "episodes_per_hour": r["episodes"] / r["wall_s"] * 3600, "efficiency": eff}
-                rows.append(row)
-                print(f"{case:14s} {mode:7s} N={n:3d}  {sps:9.1f} env-steps/s  {row['episodes_per_hour']:9.0f} "
-                      f"episodes/h  efficiency {eff:.2f}", flush=True)
+            if mode == "local" and images:
+                continue  # the built-in zero policy reads no images
+            for renderer in (args.renderers if images and mode in ("vector", "async") else ["workers"]):
+                base = None
+                for n in args.n:
+                    episodes = args.episodes_per_env * n
+                    rounds = []
+                    for _ in range(args.rounds):
+                        if mode == "bare":
+                            rounds.append(run_bare(case, n, args.steps, episodes))
+                        elif mode == "local":
+                            rounds.append(run_local(case, n, args.steps, episodes))
+                        else:
+                            rounds.append(run_vector(case, n, args.steps, episodes, sync=mode == "vector",
+                                                     renderer=renderer))
+                    r = sorted(rounds, key=lambda x: x["env_steps"] / x["wall_s"])[len(rounds) // 2]  # the median
+                    r["rounds_env_steps_per_s"] = [x["env_steps"] / x["wall_s"] for x in rounds]
+                    if "main_cpu_us_per_env_step" in r:
+                        r["rounds_main_cpu_us_per_env_step"] = [x["main_cpu_us_per_env_step"] for x in rounds]
+                    sps = r["env_steps"] / r["wall_s"]
+                    base = sps if base is None else base
+                    eff = sps / (n / args.n[0] * base)
+                    row = {"case": case, "mode": mode, "renderer": renderer, "n": n, **r, "env_steps_per_s": sps,
+                           "episodes_per_hour": r["episodes"] / r["wall_s"] * 3600, "efficiency": eff}
+                    rows.append(row)
+                    main_us = r.get("main_cpu_us_per_env_step")
+                    print(f"{case:14s} {mode:7s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
+                          f"{row['episodes_per_hour']:9.0f} episodes/h  efficiency {eff:.2f}"
+                          + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else ""), flush=True)
     print()
-    print(f"| case | mode | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency |")
-    print("|---|---|---:|---:|---:|---:|")
+    print(f"| case | mode | renderer | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency | main us/env-step |")
+    print("|---|---|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['case']} | {r['mode']} | {r['n']} | {r['env_steps_per_s']:.0f} | {r['episodes_per_hour']:.0f} | "
-              f"{r['efficiency']:.2f} |")
+        main_us = r.get("main_cpu_us_per_env_step")
+        print(f"| {r['case']} | {r['mode']} | {r['renderer']} | {r['n']} | {r['env_steps_per_s']:.0f} | "
+              f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if main_us is None else f'{main_us:.1f}'} |")
     machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
                "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL")}
     try:

@@ -5,7 +5,8 @@
 #           -> DIR/c1, DIR/c2, DIR/c3: what three consecutive calls carry (each < 62 MB):
 #              the warp-lang wheel (149 MB) split in three chunks + SHA256, the cp312 wheels of
 #              mujoco / mujoco-core / mujoco-warp, simseam's src/, this benchmark, the Panda
-#              as a RobotSpec JSON and its URDF + meshes (no pydantic / pybullet needed there)
+#              as a RobotSpec JSON and its URDF + meshes (no pydantic / pybullet needed there);
+#              for bench_vector.py also the PyOpenGL and msgpack wheels (EGL cameras, built-in policies)
 #   there:  call k (k = 1, 2, 3, while the machine stays warm), carrying DIR/ck:
 #             bash benchmarks/device/warp_upload.sh receive DIR/ck      (copies to /tmp/ww)
 #           the last call then:
@@ -13,6 +14,7 @@
 #             export PYTHONPATH=/tmp/site:/tmp/ww/src
 #             python3 /tmp/ww/bench_warp.py --robot-json /tmp/ww/panda.json --urdf /tmp/ww/franka_panda/panda.urdf
 #             python3 /tmp/ww/warp_conformance.py --robot /tmp/ww/franka_panda.yaml --robot /tmp/ww/so101.yaml
+#             python3 /tmp/ww/bench_vector.py --robot-json /tmp/ww/panda.json --urdf /tmp/ww/franka_panda/panda.urdf ...
 # Paths carried in one call are removed in the next, hence the copy to /tmp/ww. warp's kernel cache
 # (~/.cache/warp) lives on that machine only: compile and benchmark in as few calls as possible.
 set -euo pipefail
@@ -25,7 +27,8 @@ case "$cmd" in
     rm -rf "$DIR"; mkdir -p "$DIR/c1" "$DIR/c2" "$DIR/c3" "$DIR/wheels"
     "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
       --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux2014_x86_64 \
-      -d "$DIR/wheels" warp-lang==1.19.0 mujoco==4.0.0 mujoco-core==4.0.0 mujoco-warp==4.0.0
+      -d "$DIR/wheels" warp-lang==1.19.0 mujoco==4.0.0 mujoco-core==4.0.0 mujoco-warp==4.0.0 \
+      PyOpenGL==3.1.10 msgpack==1.1.2
     W="$(ls "$DIR"/wheels/warp_lang-*.whl)"
     split -n 3 -d "$W" "$DIR/warp.part"
     sha256sum "$W" | awk '{print $1}' > "$DIR/c1/warp.sha256"
@@ -34,7 +37,8 @@ case "$cmd" in
     mv "$DIR"/wheels/mujoco_core-*.whl "$DIR/c1/"
     mv "$DIR"/wheels/mujoco-*.whl "$DIR"/wheels/mujoco_warp-*.whl "$DIR/c2/"
     cp -r "$ROOT/src" "$DIR/c1/src"; find "$DIR/c1/src" -name __pycache__ -prune -exec rm -rf {} +
-    cp "$ROOT/benchmarks/bench_warp.py" "$ROOT/benchmarks/warp_conformance.py" "$DIR/c3/"
+    mv "$DIR"/wheels/pyopengl-*.whl "$DIR"/wheels/msgpack-*.whl "$DIR/c3/"
+    cp "$ROOT/benchmarks/bench_warp.py" "$ROOT/benchmarks/bench_vector.py" "$ROOT/benchmarks/warp_conformance.py" "$DIR/c3/"
     # warp_conformance.py loads manifests (pydantic) and needs the SO-101's URDF + meshes too
     "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
       --platform manylinux2014_x86_64 -d "$DIR/c3" pydantic==2.14.4 pydantic-core==2.50.5 \

@@ -170,3 +170,34 @@ def test_bad_vector_options_are_one_line_errors(scene, tmp_path):
                     "engine: {name: mujoco, process: sidecar, keep_alive: true}\n")
     r = _simseam("run", "--scene", keep, "--episodes", "2", "--num-envs", "2", "--out", tmp_path / "z")
     assert r.returncode == 2 and "engine.keep_alive" in r.stderr and "--num-envs 1" in r.stderr
+
+
+def test_batched_renderer_gives_the_same_episodes_and_writes_the_videos(scene, tmp_path):
+    """--renderer batched (the workers' cameras drawn in the parent, one MuJoCo Warp batch; warp's CPU
+    device here): per-episode results equal --renderer workers and --num-envs 1; every video holds the
+    reset frame and one frame per step."""
+    import imageio.v2 as imageio
+
+    runs = {"one": ["--num-envs", "1"], "workers": ["--num-envs", "2", "--renderer", "workers"],
+            "batched": ["--num-envs", "2", "--renderer", "batched", "--video"]}
+    for name, extra in runs.items():
+        r = _simseam("run", "--scene", scene(), "--policy", "scripted", "--episodes", "3", "--seed", "3",
+                     "--out", tmp_path / name, *extra)
+        assert r.returncode == 0, r.stderr
+    assert "cameras drawn here in one batch" in r.stdout
+    one = _outcomes(tmp_path / "one")
+    assert one == _outcomes(tmp_path / "workers") == _outcomes(tmp_path / "batched") and len(one) == 3
+    for e in _log(tmp_path / "batched"):
+        with imageio.get_reader(e["video"]) as video:
+            frames = [f for f in video]
+        assert len(frames) == e["steps"] + 1 and frames[0].shape == (32, 32, 3)
+    assert json.loads((tmp_path / "batched" / "run.json").read_text())["renderer"] == "batched"
+
+
+def test_batched_renderer_refuses_a_sidecar_scene_in_one_line(tmp_path):
+    path = tmp_path / "sidecar.yaml"
+    path.write_text("robot: franka_panda\ntask: lift_cube\nengine: {name: mujoco, process: sidecar}\n")
+    r = _simseam("run", "--scene", path, "--policy", "zero", "--episodes", "2", "--num-envs", "2",
+                 "--renderer", "batched", "--out", tmp_path / "out")
+    assert r.returncode == 2
+    assert "--renderer batched: engine.process: sidecar" in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -190,3 +190,62 @@ def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_pa
     assert killed and [f.index for f in failures] == killed
     assert sorted(r.index for r in done) == list(range(6))
     assert {r.index: _outcome(r) for r in results} == reference
+
+
+class _StateFollower:
+    """A deterministic state-only policy whose actions depend on what it observes: it drives the tool
+    towards a point, then closes the gripper; it logs every observation it reads."""
+
+    requires_privileged = False
+    uses_images = False
+
+    def __init__(self):
+        self.seen = []
+
+    def reset(self, spec):
+        self.dim, self.k = spec.action_dim, 0
+
+    def observe_next(self):
+        from simseam.seam import STATE_ONLY
+
+        return STATE_ONLY
+
+    def act(self, obs):
+        import numpy as np
+
+        self.seen.append(obs)
+        self.k += 1
+        a = np.zeros(self.dim, np.float32)
+        a[:3] = np.clip(8.0 * (np.array([0.45, 0.05, 0.15]) - obs["state"][:3]), -1, 1)
+        a[-1] = 1.0 if self.k > 15 else -1.0
+        return a
+
+
+@pytest.mark.parametrize("sync", [True, False], ids=["stepped-together", "asynchronous"])
+def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path, sync):
+    """State-only replies travel through the shared step block (no pickling): every observation,
+    reward, flag and diagnostic the policy and the results see equals the in-process rollout's, types
+    included (a bool diagnostic stays a bool)."""
+    import numpy as np
+
+    scene = _scene(tmp_path, steps=25)
+    cfg, base = load_scene_config(scene)
+    ref_pol = _StateFollower()
+    rollout = build_rollout(cfg, base, render_images=False)
+    try:
+        reference = {r.index: _outcome(r) for r in run_episodes(rollout, ref_pol, range(4), seed=2)}
+    finally:
+        rollout.close()
+    pol = PerEnvPolicies(_StateFollower, 2)
+    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2) as vec:
+        results = vec.run(pol, range(4), seed=2, sync=sync)
+        assert all(s.block is not None for s in vec.slots)  # the replies came through the step blocks
+    assert {r.index: _outcome(r) for r in results} == reference
+    assert all(type(r.diagnostics["grasped"]) is bool for r in results)
+    seen = sorted((o["sim_time_ns"], o["state"].tobytes(), o["joint_positions"].tobytes(), o["task"])
+                  for p in pol.policies for o in p.seen)
+    want = sorted((o["sim_time_ns"], o["state"].tobytes(), o["joint_positions"].tobytes(), o["task"])
+                  for o in ref_pol.seen)
+    assert seen == want and len(seen) == sum(r.steps for r in results)
+    o = pol.policies[0].seen[-1]
+    assert o["images"] == {} and o["state"].dtype == np.float32 and type(o["sim_time_ns"]) is int

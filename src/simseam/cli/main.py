@@ -163,6 +163,10 @@ def run(
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
                                     "machine), ray://HOST:PORT or HOST:PORT, or local (start a private one); "
                                     "--num-envs then counts Ray workers (default: the cluster's CPUs)."),
+    renderer: str = typer.Option("workers", "--renderer", help="Who draws the cameras of --num-envs workers: "
+                                 "workers (each its own EGL context), batched (this process, one MuJoCo Warp batch "
+                                 "for all workers; in-process MuJoCo scenes, RGB cameras), auto (batched when a "
+                                 "CUDA device is present and the scene is supported). docs/evaluation.md"),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
@@ -184,11 +188,22 @@ def run(
             raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
                               "to its own disk)")
         cfg, _ = load_scene_config(scene)
+        from simseam.runner.central_render import RENDERERS, unsupported
+
+        if renderer not in RENDERERS:
+            raise ConfigError(f"--renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+        if renderer == "batched" and (record_dataset is not None or ray_address is not None):
+            raise ConfigError("--renderer batched serves the --num-envs workers; --record-dataset and --ray render "
+                              "in their own processes (use --renderer workers)")
+        if renderer == "batched" and unsupported(cfg.model_dump(mode="json")):
+            raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": _redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None}
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
+        if renderer != "workers":
+            config["renderer"] = renderer
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
     except SimseamError as exc:
         _fail(exc)
@@ -206,9 +221,9 @@ def run(
         from simseam.runner.vector import default_num_envs
 
         num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
-    if num_envs > 1:
+    if num_envs > 1 or renderer == "batched":
         _run_vector(scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                    num_envs=num_envs, video=video, planned=len(planned))
+                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer)
         return
     try:
         cfg, pol, rollout = _open_run(scene, policy, seed, _policy_kwargs(device, n_action_steps),
@@ -251,7 +266,7 @@ def run(
 
 
 def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
-                num_envs: int, video: bool, planned: int) -> None:
+                num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import shared_batch
@@ -276,7 +291,10 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
         uses_images, privileged = probe.uses_images, probe.requires_privileged
         batched_engine = cfg.engine.name == "mujoco_warp"  # N worlds in this process: one policy batch
-        if pol is None and batched_engine:
+        from simseam.runner.central_render import choose_renderer
+
+        renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
+        if pol is None and (batched_engine or renderer == "batched"):  # the policies act here, for all workers
             from simseam.policies.batch import PerEnvPolicies
 
             made = [probe]
@@ -289,11 +307,13 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             from simseam.runner.warp_vector import make_vector_env
 
             with console.status(f"starting {num_envs} environments"):
-                vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs),
+                vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
                                       privileged=privileged, render_images=uses_images or video, seed=seed)
             spec_json = vec.spec.to_json()
             run_dir.write_spec(spec_json)
             where = "one batched policy" if pol is not None else "a policy in each worker"
+            if renderer == "batched":
+                where += ", cameras drawn here in one batch"
             console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
                           f"on {num_envs} environments ({where}) -> {escape(str(out))}")
             with EvalProgress(console, total=len(todo)) as progress:

@@ -10,7 +10,11 @@ the policy inside each worker instead (policies that share no model): workers pl
 and send back only their results. A worker whose episode ends takes the next episode index from
 the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
 on ``num_envs`` for a deterministic policy. Images cross from a worker through a shared memory
-block (``_SharedImages``), not through the pipe; a worker dies with this process (Linux).
+block (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross
+through a second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no
+pickling). ``renderer="batched"``: the workers send their MuJoCo render state instead of images and
+this process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only.
+A worker dies with this process (Linux).
 
 Failures:
 
@@ -31,7 +35,9 @@ from __future__ import annotations
 import mmap
 import multiprocessing as mp
 import os
+import pickle
 import signal
+import struct
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -43,7 +49,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.seam import INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, RolloutSpec, SidecarError, SimseamError, SimulationError
+from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
+                          SimseamError, SimulationError)
 
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
@@ -59,6 +66,9 @@ class RolloutRecipe:
     privileged: bool = False
     render_images: bool = True
     seed: int = 0
+    #: workers add their MuJoCo render state (``engine.render_state()``) to every observation they send,
+    #: for the central renderer (``renderer="batched"``)
+    pose_states: bool = False
 
     def build(self):
         from simseam.runner.scene_config import SceneConfig, build_rollout
@@ -117,6 +127,223 @@ class _SharedImages:
         return {**obs, OBS_IMAGES: {}}, layout
 
 
+# The step fast path. A state-only step's reply (the observation's arrays and scalars, reward, flags, info
+# scalars and diagnostics, the render state) is written into a second shared block with a fixed layout,
+# and only one byte travels in the pipe; the action goes the other way through the same block. The layout
+# is sent (pickled, with the block's file descriptor) whenever the shape of a reply changes; a reply
+# that does not fit one (images, nested dicts such as privileged or link poses, numpy scalars) travels
+# pickled as before. Nothing is pickled on the hot path of a state-only lockstep run.
+_FAST_REPLY = b"F"
+_FAST_STEP = b"S"
+_FAST_REQUESTS = (None, STATE_ONLY)  # the request byte after b"S" indexes this
+_FAST_FRAME = struct.pack("!i", 1) + _FAST_REPLY  # how multiprocessing's Connection frames b"F"
+# the framed step commands (b"S" + the request's index), written straight to the pipe
+_FAST_STEP_FRAMES = tuple(struct.pack("!i", 2) + _FAST_STEP + bytes([i]) for i in range(len(_FAST_REQUESTS)))
+
+
+def _read_message(fd: int) -> bytes:
+    """One message of a ``Connection`` (4-byte big-endian size, then the payload) read straight from its
+    file descriptor: a fast reply costs one ``read``. Reads exactly one message, never beyond it, so
+    ``recv_handle`` finds a handle sent after it."""
+    buf = os.read(fd, len(_FAST_FRAME))
+    if buf == _FAST_FRAME:
+        return _FAST_REPLY
+    while len(buf) < 4:
+        if not buf:
+            raise EOFError
+        more = os.read(fd, 4 - len(buf))
+        if not more:
+            raise EOFError
+        buf += more
+    size, = struct.unpack("!i", buf[:4])
+    body = bytearray(buf[4:])
+    if size == -1:  # over 2 GiB: an 8-byte size follows
+        while len(body) < 8:
+            more = os.read(fd, 8 - len(body))
+            if not more:
+                raise EOFError
+            body += more
+        size, = struct.unpack("!Q", bytes(body[:8]))
+        body = body[8:]
+    while len(body) < size:
+        more = os.read(fd, min(size - len(body), 1 << 20))
+        if not more:
+            raise EOFError
+        body += more
+    return bytes(body)
+
+
+def _signature(obs, info, pose) -> tuple | None:
+    """The shape of a step reply for the fast path, or None when it has no fixed layout."""
+    arrays, consts, ints, floats, order = [], [], [], [], []
+    for k, v in obs.items():
+        t = type(v)
+        order.append(k)
+        if t is np.ndarray:
+            arrays.append((k, v.shape, v.dtype.str))
+        elif t is bool or t is int:
+            ints.append(("obs", k, t is bool))
+        elif t is float:
+            floats.append(("obs", k))
+        elif t is str or (t is dict and not v):
+            consts.append((k, v if t is str else None))
+        else:
+            return None
+    diag = []
+    for k, v in info.items():
+        t = type(v)
+        if t is dict and k == INFO_DIAGNOSTICS:
+            for dk, dv in v.items():
+                dt = type(dv)
+                if dt is bool or dt is int:
+                    ints.append(("diag", dk, dt is bool))
+                elif dt is float:
+                    floats.append(("diag", dk))
+                else:
+                    return None
+                diag.append(dk)
+        elif t is bool or t is int:
+            ints.append(("info", k, t is bool))
+        elif t is float:
+            floats.append(("info", k))
+        else:
+            return None
+    return (tuple(order), tuple(arrays), tuple(consts), tuple(ints), tuple(floats), tuple(diag),
+            tuple(info), 0 if pose is None else pose.size)
+
+
+def _block_views(mm: mmap.mmap, layout: dict) -> dict:
+    view = lambda off, n, dt, shape=None: np.frombuffer(mm, dtype=dt, count=n, offset=off).reshape(shape or (n,))  # noqa: E731
+    a_off, a_dim = layout["action"]
+    i_off, ints = layout["ints"]
+    f_off, floats = layout["floats"]
+    p_off, p_n = layout["pose"]
+    return {"action": view(a_off, a_dim, np.float32),
+            "arrays": [(k, view(off, int(np.prod(shape, dtype=np.int64)), np.dtype(dt), shape))
+                       for k, off, shape, dt in layout["arrays"]],
+            "ints": view(i_off, 2 + len(ints), np.int64), "floats": view(f_off, 1 + len(floats), np.float64),
+            "pose": view(p_off, p_n, np.float32) if p_n else None}
+
+
+class _StepBlock:
+    """Worker side of the step fast path (see ``_signature``)."""
+
+    def __init__(self, conn, parent_pid: int, action_dim: int):
+        self.conn, self.parent_pid, self.action_dim = conn, parent_pid, action_dim
+        self.enabled = hasattr(os, "memfd_create")
+        self.sig = None
+        self.mm: mmap.mmap | None = None
+        self.v: dict = {}
+
+    def action(self) -> np.ndarray:
+        return self.v["action"].copy()
+
+    def _new_layout(self, sig) -> None:
+        order, arrays, consts, ints, floats, diag, info_keys, pose_n = sig
+        off = 0
+
+        def take(nbytes: int) -> int:
+            nonlocal off
+            at, off = off, off + (nbytes + 7) // 8 * 8
+            return at
+
+        layout = {"action": (take(4 * self.action_dim), self.action_dim),
+                  "arrays": [(k, take(int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize), shape, dt)
+                             for k, shape, dt in arrays],
+                  "consts": consts, "order": order, "diag": diag, "info": info_keys}
+        layout["ints"] = (take(8 * (2 + len(ints))), ints)
+        layout["floats"] = (take(8 * (1 + len(floats))), floats)
+        layout["pose"] = (take(4 * pose_n), pose_n)
+        size = max(off, 8)
+        fd = os.memfd_create("simseam-env-step")
+        try:
+            os.ftruncate(fd, size)
+            mm = mmap.mmap(fd, size)
+            self.conn.send(("block", size, layout))
+            reduction.send_handle(self.conn, fd, self.parent_pid)
+        finally:
+            os.close(fd)
+        old = self.mm
+        self.v = _block_views(mm, layout)
+        self.mm, self.sig = mm, sig
+        self._ints = [(w, k) for w, k, _ in ints]
+        self._floats = floats
+        if old is not None:
+            try:
+                old.close()
+            except BufferError:  # views of the old block still alive somewhere: the GC frees it
+                pass
+
+    def write(self, obs, result, pose) -> bool:
+        """Write a step's reply into the block (True), or False when it has no fixed layout."""
+        if not self.enabled:
+            return False
+        sig = _signature(obs, result.info, pose)
+        if sig is None:
+            return False
+        if sig != self.sig:
+            self._new_layout(sig)
+        v = self.v
+        for k, arr in v["arrays"]:
+            arr[...] = obs[k]
+        info, diag = result.info, result.info.get(INFO_DIAGNOSTICS)
+        src = {"obs": obs, "info": info, "diag": diag}
+        ints = v["ints"]
+        ints[0], ints[1] = result.terminated, result.truncated
+        for j, (w, k) in enumerate(self._ints):
+            ints[2 + j] = src[w][k]
+        fl = v["floats"]
+        fl[0] = result.reward
+        for j, (w, k) in enumerate(self._floats):
+            fl[1 + j] = src[w][k]
+        if pose is not None:
+            v["pose"][...] = pose
+        return True
+
+
+class _MainBlock:
+    """This process's side of a worker's step block: the reply rebuilt without unpickling."""
+
+    def __init__(self, mm: mmap.mmap, layout: dict):
+        self.mm, self.layout = mm, layout
+        v = self.v = _block_views(mm, layout)
+        self.action = v["action"]
+        self._arrays, self._iv, self._fv, self._pose = v["arrays"], v["ints"], v["floats"], v["pose"]
+        self._obs = dict.fromkeys(layout["order"])  # templates: the key order of the worker's dicts
+        self._consts = [(k, c) for k, c in layout["consts"]]
+        self._diag = dict.fromkeys(layout["diag"])
+        self._info = dict.fromkeys(layout["info"])
+        self._has_diag = INFO_DIAGNOSTICS in self._info
+        where = {"obs": 0, "info": 1, "diag": 2}
+        self._ints = [(where[w], k, is_bool) for w, k, is_bool in layout["ints"][1]]
+        self._floats = [(where[w], k) for w, k in layout["floats"][1]]
+
+    def read(self):
+        obs, info, diag = self._obs.copy(), self._info.copy(), self._diag.copy()
+        for k, c in self._consts:
+            obs[k] = {} if c is None else c
+        for k, arr in self._arrays:
+            obs[k] = arr.copy()
+        if self._has_diag:
+            info[INFO_DIAGNOSTICS] = diag
+        dst = (obs, info, diag)
+        ints = self._iv.tolist()
+        for (w, k, is_bool), x in zip(self._ints, ints[2:]):
+            dst[w][k] = bool(x) if is_bool else x
+        fl = self._fv.tolist()
+        for (w, k), x in zip(self._floats, fl[1:]):
+            dst[w][k] = x
+        pose = None if self._pose is None else self._pose.copy()
+        return ("obs", obs, (fl[0], bool(ints[0]), bool(ints[1]), info), None, pose)
+
+    def close(self) -> None:
+        self.v = self.action = self._arrays = self._iv = self._fv = self._pose = None
+        try:
+            self.mm.close()
+        except BufferError:  # a view still alive: the GC frees the mapping
+            pass
+
+
 def _attach_images(mm: mmap.mmap, obs, layout):
     """Parent side: the observation with its images copied out of the shared block (the policy may keep them)."""
     images = {key: np.frombuffer(mm, dtype=np.dtype(dt), count=int(np.prod(shape)), offset=off).reshape(shape).copy()
@@ -145,10 +372,14 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     images = _SharedImages(conn, parent_pid or os.getppid())
     try:
         rollout = recipe.build()
+        if recipe.pose_states and not callable(getattr(getattr(rollout, "engine", None), "render_state", None)):
+            raise ConfigError("renderer 'batched': the workers' rollouts have no MuJoCo render state")
+        block = _StepBlock(conn, parent_pid or os.getppid(), rollout.spec.action_dim)
         conn.send(("ready", rollout.spec.to_json()))
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("fatal", _portable(exc)))
         return
+    render_state = rollout.engine.render_state if recipe.pose_states else (lambda: None)
     writer = None
     video: Path | None = None
     policy = policy_key = None  # the "episode" command's own policy (built on first use)
@@ -163,10 +394,14 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     try:
         while True:
             try:
-                msg = conn.recv()
+                buf = conn.recv_bytes()
             except EOFError:  # the parent is gone
                 return
-            op = msg[0]
+            if buf[:1] == _FAST_STEP:  # a step whose action waits in the step block
+                op, msg = "step", ("step", block.action(), _FAST_REQUESTS[buf[1]])
+            else:
+                msg = pickle.loads(buf)
+                op = msg[0]
             try:
                 if op == "reset":
                     _, seed, request, video_path = msg
@@ -181,14 +416,18 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
                             writer = VideoWriter(partial_video_path(video), fps=rollout.spec.control_hz)
                             writer.append(frame)
                     obs, layout = images.detach(obs)
-                    conn.send(("obs", obs, None, layout))
+                    conn.send(("obs", obs, None, layout, render_state()))
                 elif op == "step":
                     _, action, request = msg
                     r = rollout.step(action, request)
                     if writer is not None:
                         writer.append(rollout.render())
                     obs, layout = images.detach(r.observation)
-                    conn.send(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout))
+                    pose = render_state()
+                    if layout is None and block.write(obs, r, pose):
+                        conn.send_bytes(_FAST_REPLY)
+                    else:
+                        conn.send(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
                 elif op == "finish":  # the episode ended normally: keep its video
                     path = None
                     if writer is not None:
@@ -265,6 +504,14 @@ class _Slot:
     generation: int = 0
     video: bool = False
     mm: Any = None  # the worker's shared image block, mapped here
+    block: Any = None  # the worker's step block (_MainBlock)
+    # the central renderer (renderer="batched"): what the policy asked for, the worker's render state,
+    # whether its frame is still to be drawn, and this episode's video (written here)
+    want: Any = None
+    pose: Any = None
+    frame_due: bool = False
+    writer: Any = None
+    video_path: Any = None
 
 
 @dataclass
@@ -283,16 +530,27 @@ class VectorEnv:
     manager, or call ``close()``."""
 
     def __init__(self, recipe: RolloutRecipe, num_envs: int, *, start_method: str = "spawn",
-                 boot_timeout: float = BOOT_TIMEOUT_S):
+                 boot_timeout: float = BOOT_TIMEOUT_S, renderer: str = "workers", render_device: str | None = None):
         if num_envs < 1:
             raise SimulationError(f"num_envs must be >= 1, got {num_envs}")
-        self.recipe = recipe
+        if renderer not in ("workers", "batched"):
+            raise ConfigError(f"VectorEnv: renderer must be 'workers' or 'batched', got {renderer!r}")
         self.num_envs = num_envs
         self.boot_timeout = boot_timeout
         self._ctx = mp.get_context(start_method)
         self.slots = [_Slot(env=j) for j in range(num_envs)]
         self.spec: RolloutSpec | None = None
         self.restarts = 0  #: workers started again after one died
+        self.renderer = renderer
+        self.central = None  #: the central renderer (runner.central_render.CentralRenderer) with "batched"
+        if renderer == "batched":  # workers observe no images but send their render state
+            import dataclasses
+
+            from simseam.runner.central_render import CentralRenderer
+
+            recipe = dataclasses.replace(recipe, render_images=True, pose_states=True)
+            self.central = CentralRenderer(recipe, num_envs, device=render_device)
+        self.recipe = recipe
         try:
             for s in self.slots:
                 self._spawn(s)
@@ -311,7 +569,9 @@ class VectorEnv:
         s.proc, s.conn, s.state = proc, parent, BOOTING
         if s.mm is not None:
             s.mm.close()
-        s.mm = None
+        if s.block is not None:
+            s.block.close()
+        s.mm = s.block = None
         s.boot_deadline = time.monotonic() + self.boot_timeout
         s.generation += 1
 
@@ -341,18 +601,29 @@ class VectorEnv:
         """The worker's next message, or None when it died (pipe closed)."""
         try:
             if readable or s.conn.poll():
-                msg = s.conn.recv()
-                if msg[0] == "shm":  # a (new) shared image block: its file descriptor follows
-                    fd = reduction.recv_handle(s.conn)
+                pipe = s.conn.fileno()
+                while True:
+                    buf = _read_message(pipe)
+                    if buf == _FAST_REPLY:  # a step reply waiting in the step block
+                        return s.block.read()
+                    msg = pickle.loads(buf)
+                    if msg[0] not in ("shm", "block"):
+                        break
+                    fd = reduction.recv_handle(s.conn)  # a (new) shared block: its file descriptor follows
                     try:
-                        if s.mm is not None:
-                            s.mm.close()
-                        s.mm = mmap.mmap(fd, msg[1])
+                        mm = mmap.mmap(fd, msg[1])
                     finally:
                         os.close(fd)
-                    msg = s.conn.recv()
+                    if msg[0] == "shm":
+                        if s.mm is not None:
+                            s.mm.close()
+                        s.mm = mm
+                    else:
+                        if s.block is not None:
+                            s.block.close()
+                        s.block = _MainBlock(mm, msg[2])
                 if msg[0] == "obs" and msg[3]:
-                    msg = (msg[0], _attach_images(s.mm, msg[1], msg[3]), msg[2], None)
+                    msg = (msg[0], _attach_images(s.mm, msg[1], msg[3]), msg[2], None, msg[4])
                 return msg
         except (EOFError, OSError):
             return None
@@ -387,7 +658,15 @@ class VectorEnv:
                 s.conn.close()
             if s.mm is not None:
                 s.mm.close()
-            s.proc, s.conn, s.mm = None, None, None
+            if s.block is not None:
+                s.block.close()
+            if s.writer is not None:
+                s.writer.close()
+                partial_video_path(s.video_path).unlink(missing_ok=True)
+            s.proc, s.conn, s.mm, s.block, s.writer = None, None, None, None, None
+        if self.central is not None:
+            self.central.close()
+            self.central = None
 
     def __enter__(self) -> "VectorEnv":
         return self
@@ -418,8 +697,32 @@ class VectorEnv:
         todo = deque(indices)
         attempts: dict[int, int] = {}
         results: list[EpisodeResult] = []
+        central = self.central
+        if central is not None:
+            from simseam.runner.central_render import worker_request
+
+        def drop_video(s: _Slot) -> None:  # the central renderer's video of an episode that did not finish
+            if s.writer is not None:
+                s.writer.close()
+                partial_video_path(s.video_path).unlink(missing_ok=True)
+            s.writer = s.video_path = None
+
+        def draw(slots: list[_Slot]) -> None:
+            """The central renderer: every due frame of ``slots`` in one call, into the observations the
+            policy reads next (the keys it asked for) and the videos."""
+            if not slots:
+                return
+            images = central.render([s.pose for s in slots])
+            for j, s in enumerate(slots):
+                s.frame_due = False
+                if s.writer is not None:
+                    s.writer.append(images[central.video_key][j])
+                if s.obs is not None:
+                    s.obs[OBS_IMAGES] = {k: images[k][j] for k in central.keys
+                                         if s.want is None or s.want.wants_image(k)}
 
         def finish(s: _Slot, res: EpisodeResult) -> None:
+            drop_video(s)
             s.state, s.index, s.result, s.obs = IDLE, None, None, None
             results.append(res)
             if on_done:
@@ -445,6 +748,7 @@ class VectorEnv:
                 else:
                     what = f"episode {i} failed {attempts[i]} times; recorded as an error"
             s.index, s.result, s.obs = None, None, None
+            drop_video(s)
             self._spawn(s)
             self.restarts += 1
             if on_worker_failure:
@@ -475,6 +779,10 @@ class VectorEnv:
                     on_error(res, msg[2])
                 return finish(s, res)
             res = s.result
+            if central is not None:
+                s.pose = msg[4]
+                w = s.want
+                s.frame_due = s.writer is not None or w is None or w.images is None or bool(w.images)
             if s.state == RESETTING:
                 s.obs, s.state = msg[1], ACTING
                 return
@@ -484,13 +792,20 @@ class VectorEnv:
             res.step_ms.append((time.perf_counter() - s.sent_at) * 1e3)
             res.steps += 1
             res.reward += float(reward)
-            res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
+            res.diagnostics = info.get(INFO_DIAGNOSTICS) or {}  # a fresh dict every step
             if info.get(key):
                 res.success = True
             if on_step:
                 on_step(s.env, s.index, res.steps)
             if terminated or truncated or res.steps >= max_steps:
-                if s.video:
+                if s.writer is not None:  # the central renderer's video: its last frame, then done
+                    s.obs = None
+                    draw([s])
+                    s.writer.close()
+                    os.replace(partial_video_path(s.video_path), s.video_path)
+                    res.video = str(s.video_path)
+                    s.writer = s.video_path = None
+                elif s.video:
                     try:
                         s.conn.send(("finish",))
                         reply = s.conn.recv()
@@ -509,7 +824,16 @@ class VectorEnv:
             s.result = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0)
             if on_start:
                 on_start(s.env, i)
-            self._send(s, ("reset", seed + i, policy.observe_next(s.env), video))
+            want = policy.observe_next(s.env)
+            if central is not None:  # this process draws the frames (and writes the video)
+                s.want = want
+                if video is not None:
+                    from simseam.runner.video import VideoWriter
+
+                    s.video_path = Path(video)
+                    s.writer = VideoWriter(partial_video_path(s.video_path), fps=spec.control_hz)
+                want, video = worker_request(want), None
+            self._send(s, ("reset", seed + i, want, video))
 
         while True:
             for s in self.slots:
@@ -521,6 +845,10 @@ class VectorEnv:
             if (busy and (sync or not acting)) or (booting and not acting):
                 if not busy and not todo:  # nothing left for the booting workers to do
                     break
+                if sync and not booting:  # lockstep: every busy worker's reply, in turn (a dead one's is None)
+                    for s in busy:
+                        handle(s, self._recv(s, readable=True))
+                    continue
                 watch = busy + booting
                 timeout = None
                 if booting:
@@ -537,6 +865,8 @@ class VectorEnv:
                         handle(s, self._recv(s))
                 continue
             if acting:
+                if central is not None:
+                    draw([s for s in acting if s.frame_due])
                 t0 = time.perf_counter()
                 actions = np.asarray(policy.act_batch([s.env for s in acting], [s.obs for s in acting]),
                                      dtype=np.float32)
@@ -547,7 +877,10 @@ class VectorEnv:
                 for s, a in zip(acting, actions):
                     s.result.policy_ms.append(ms)
                     s.state, s.obs = STEPPING, None
-                    self._send(s, ("step", a, policy.observe_next(s.env)))
+                    want = policy.observe_next(s.env)
+                    if central is not None:
+                        s.want, want = want, worker_request(want)
+                    self._step(s, a, want)
                 continue
             break
         return results
@@ -561,6 +894,9 @@ class VectorEnv:
         policy spec (``make_policy(policy, **policy_kwargs)``) and plays whole episodes, sending back only
         results, as N independent processes would (the fastest way for policies that share no model:
         no round trip to this process per step). Same seeds, same failure handling as ``run``."""
+        if self.central is not None:
+            raise ConfigError("renderer 'batched' draws the frames in this process, so it steps the workers "
+                              "together (run); run_local keeps the policy and its cameras inside each worker")
         spec_key = (policy, tuple(sorted((policy_kwargs or {}).items())))
         todo = deque(indices)
         attempts: dict[int, int] = {}
@@ -626,6 +962,21 @@ class VectorEnv:
                     on_error(res, what_next)
                 done(res)
         return results
+
+    def _step(self, s: _Slot, action: np.ndarray, request) -> None:
+        """A step command: through the step block (one byte in the pipe) when the worker has one and the
+        request is one of the two it knows by number, else pickled."""
+        block = s.block
+        if (block is not None and (request is None or request is STATE_ONLY or request == STATE_ONLY)
+                and getattr(action, "shape", None) == block.action.shape):
+            s.sent_at = time.perf_counter()
+            block.action[:] = action
+            try:
+                os.write(s.conn.fileno(), _FAST_STEP_FRAMES[0 if request is None else 1])
+            except (OSError, ValueError):
+                pass  # a dead worker: its sentinel tells the loop
+            return
+        self._send(s, ("step", action, request))
 
     def _send(self, s: _Slot, msg) -> None:
         s.sent_at = time.perf_counter()

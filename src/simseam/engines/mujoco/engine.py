@@ -519,6 +519,12 @@ class MujocoEngine:
         self._sync()
         return self._renderers().depth(self.data, camera)
 
+    def render_state(self) -> np.ndarray:
+        """What a renderer needs to draw this state (float32): ``qpos`` then each mocap body's pos and
+        quat; camera and geom poses follow from it by kinematics (``PoseRenderer``)."""
+        d = self.data
+        return np.concatenate([d.qpos, d.mocap_pos.reshape(-1), d.mocap_quat.reshape(-1)]).astype(np.float32)
+
     def cast_rays(self, origin: np.ndarray, directions: np.ndarray, max_dist: float) -> np.ndarray:
         self._sync_poses()  # rays test geom poses only
         dirs = np.ascontiguousarray(directions, dtype=np.float64)

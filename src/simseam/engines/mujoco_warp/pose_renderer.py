@@ -24,8 +24,7 @@ from simseam.engines.mujoco_warp import kernels as K  # noqa: E402
 
 def pose_state(scene) -> np.ndarray:
     """A MuJoCo-engine scene's render state: ``qpos`` then each mocap body's pos and quat (float32)."""
-    data = scene.engine.data
-    return np.concatenate([data.qpos, data.mocap_pos.reshape(-1), data.mocap_quat.reshape(-1)]).astype(np.float32)
+    return scene.engine.render_state()
 
 
 class PoseRenderer:
@@ -91,4 +90,6 @@ class PoseRenderer:
                           inputs=[self.rc.rgb_data, adr, width, out])
         if not host:
             return self.images
+        if self.device.is_cpu:  # numpy() is a view of the device buffer there: the next render would overwrite it
+            return {key: img.numpy()[:k].copy() for key, img in self.images.items()}
         return {key: img.numpy()[:k] for key, img in self.images.items()}
