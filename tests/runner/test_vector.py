@@ -173,23 +173,38 @@ def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_pa
     recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=True, render_images=False)
     failures, done, killed = [], [], []
     with VectorEnv(recipe, 2) as vec:
-        def on_done(res):
-            done.append(res)
-            busy = [s for s in vec.slots if s.index is not None]
-            if not killed and busy:
-                pid = busy[0].proc.pid
-                os.kill(pid, signal.SIGSTOP)  # frozen: if it has sent nothing yet, it is mid-episode
-                if busy[0].conn.poll():
-                    os.kill(pid, signal.SIGCONT)  # its result is already on its way: try at the next one
-                else:
-                    killed.append(busy[0].index)
-                    os.kill(pid, signal.SIGKILL)
+        send = vec._send
 
+        def send_then_kill(s, msg):
+            """After an episode is handed to a worker: once the worker has spent CPU time on it (it is
+            stepping), freeze it; if it has sent nothing, it is mid-episode: kill it. Otherwise try
+            again at the next episode (the two workers run in phase, so on_done never sees one busy)."""
+            send(s, msg)
+            if killed or msg[0] != "episode":
+                return
+            pid, start = s.proc.pid, _cpu_ticks(s.proc.pid)
+            while _cpu_ticks(pid) < start + 2 and not s.conn.poll():  # 2 ticks: 20 ms of its CPU
+                s.proc.join(0.005)
+            os.kill(pid, signal.SIGSTOP)
+            if s.conn.poll():
+                os.kill(pid, signal.SIGCONT)  # it already finished: try at the next episode
+            else:
+                killed.append(msg[1])
+                os.kill(pid, signal.SIGKILL)
+
+        vec._send = send_then_kill
+        on_done = done.append
         results = vec.run_local("scripted", {}, range(6), seed=1, on_done=on_done,
                                 on_worker_failure=failures.append)
     assert killed and [f.index for f in failures] == killed
     assert sorted(r.index for r in done) == list(range(6))
     assert {r.index: _outcome(r) for r in results} == reference
+
+
+def _cpu_ticks(pid: int) -> int:
+    """utime + stime of a process, in clock ticks (/proc/PID/stat fields 14 and 15)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])
 
 
 class _StateFollower:
