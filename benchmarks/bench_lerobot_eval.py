@@ -91,7 +91,8 @@ def make_policies(work: Path) -> tuple[Path, Path]:
 def run_lerobot(policy: Path, n: int, episodes: int, seed: int, site: Path, work: Path, use_async: bool) -> dict:
     out = work / f"lerobot_n{n}_{'async' if use_async else 'sync'}"
     # what the lerobot-eval console script runs (its module's main), with this interpreter
-    argv = [sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={policy}", "--env.type=pusht", f"--eval.batch_size={n}",
+    argv = [sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={policy}", "--env.type=pusht",
+            f"--eval.batch_size={n}",
             f"--eval.n_episodes={episodes}", "--policy.device=cpu", f"--seed={seed}", f"--output_dir={out}"]
     if use_async:
         argv.append("--eval.use_async_envs=true")

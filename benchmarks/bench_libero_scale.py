@@ -113,8 +113,8 @@ def main() -> None:
 
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
-    head = f"| {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} | " \
-           f"{'step ms':>7} | {'success':>7} | {'errors':>6} |"
+    head = (f"| {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+            f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:

@@ -192,6 +192,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len(task_list) * n - len(run_dir.done)
     interrupted = False
+    error = None
     try:
         with _sigterm_as_interrupt(), EvalProgress(console, total=todo) as progress:
             def start(vec):
@@ -205,14 +206,14 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
+        error = exc
+    finally:
         run_dir.close()
-        rebuild_summary(out, interrupted=True)
         if batch is not None:
             batch.close()
-        _fail(exc)
-    run_dir.close()
-    if batch is not None:
-        batch.close()
+    if error is not None:
+        rebuild_summary(out, interrupted=True)
+        _fail(error)
     return interrupted
 
 

@@ -197,7 +197,8 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
     if policy_batch is None:
         n = max(1, min(num_envs, len(todo)))
-        recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged, first_task=todo[0] // episodes)
+        recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged,
+                            first_task=todo[0] // episodes)
         with VectorEnv(recipe, n) as vec:
             write_spec(vec)
             if on_start:

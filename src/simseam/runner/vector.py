@@ -11,8 +11,9 @@ and send back only their results. A worker whose episode ends takes the next epi
 the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
 on ``num_envs`` for a deterministic policy. A recipe may define ``rollout_for(rollout, index, seed)
 -> (rollout, seed)``: ``run_local`` workers then ask it for each episode's rollout and seed base
-(``simseam eval``: a worker rebuilds its sidecar when the next episode's task differs). Images cross from a worker through a shared memory
-block (``_SharedImages``), not through the pipe; a worker dies with this process (Linux).
+(``simseam eval``: a worker rebuilds its sidecar when the next episode's task differs). Images
+cross from a worker through a shared memory block (``_SharedImages``), not through the pipe; a
+worker dies with this process (Linux).
 
 Failures:
 
