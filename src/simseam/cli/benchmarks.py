@@ -98,6 +98,10 @@ def eval_command(
     video: bool = typer.Option(False, "--video/--no-video", help="One MP4 per episode (first camera)."),
     device: str = typer.Option(None, "--device", help="lerobot: policies: torch device."),
     n_action_steps: int = typer.Option(None, "--n-action-steps", min=1, help="Chunked policies: actions per chunk."),
+    num_envs: int = typer.Option(None, "--num-envs", min=1, help="Episodes run at once, each worker process "
+                                 "owning a sidecar of the backend; lerobot:/remote: policies act for all of them in "
+                                 "one batch, others run inside each worker (default: sized to the cores and the "
+                                 "episodes). Results do not depend on it."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.cli.main import _close_policy, _policy_kwargs, _redacted, _sigterm_as_interrupt
@@ -120,8 +124,20 @@ def eval_command(
         _fail(exc)
     if default_out:
         point_latest(out)
+    todo = [i for i in range(len(task_list) * n) if i not in run_dir.done]
+    if num_envs is None:
+        from simseam.runner.vector import default_num_envs
+
+        num_envs = default_num_envs(len(todo))
+    num_envs = max(1, min(num_envs, len(todo) or 1))
+    kwargs = _policy_kwargs(device, n_action_steps)
+    batch = None
     try:
-        pol = make_policy(policy, **_policy_kwargs(device, n_action_steps))
+        pol = make_policy(policy, **kwargs)
+        if num_envs > 1:
+            from simseam.policies.batch import shared_batch
+
+            batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
     except SimseamError as exc:
         run_dir.close()
         _fail(exc)
@@ -130,6 +146,11 @@ def eval_command(
                                                                       "  [yellow](non-standard: subset)[/]"))
     if resume:
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
+    if num_envs > 1:
+        interrupted = _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
+                                   seed=seed, video=video)
+        _eval_summary(p, policy, out, interrupted)
+        return
 
     def done(res, task):
         mark = "[green]success[/]" if res.success else "[red]fail[/]"
@@ -154,6 +175,51 @@ def eval_command(
         _fail(exc)
     run_dir.close()
     _close_policy(pol)
+    _eval_summary(p, policy, out, interrupted)
+
+
+def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
+                 num_envs: int, *, seed: int, video: bool) -> bool:
+    """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``); returns
+    whether it was interrupted. Progress as ``simseam run --num-envs``."""
+    from simseam.cli.main import EvalProgress, _close_policy, _sigterm_as_interrupt
+    from simseam.runner.evaluate import run_eval_vector
+    from simseam.runner.run_dir import rebuild_summary
+
+    privileged = pol.requires_privileged
+    if batch is None:  # nothing shared: each worker runs its own instance
+        _close_policy(pol)
+    where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
+    todo = len(task_list) * n - len(run_dir.done)
+    interrupted = False
+    error = None
+    try:
+        with _sigterm_as_interrupt(), EvalProgress(console, total=todo) as progress:
+            def start(vec):
+                console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
+
+            run_eval_vector(p, task_list, n, run_dir, num_envs, policy=policy, policy_kwargs=kwargs,
+                            policy_batch=batch, privileged=privileged, seed=seed,
+                            video_dir=out if video else None, on_start=start,
+                            on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
+                            on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        error = exc
+    finally:
+        run_dir.close()
+        if batch is not None:
+            batch.close()
+    if error is not None:
+        rebuild_summary(out, interrupted=True)
+        _fail(error)
+    return interrupted
+
+
+def _eval_summary(p, policy: str, out: Path, interrupted: bool) -> None:
+    from simseam.runner.run_dir import rebuild_summary
+
     summary = rebuild_summary(out, interrupted=interrupted)
     table = Table("task", "success", "rate", "Wilson 95%", title=f"{p.name} ({policy})")
     for task, t in (summary.get("per_task") or {}).items():

@@ -440,7 +440,8 @@ class EvalProgress:
         self._progress.update(self._task, completed=self.n, description=self._text())
         step_ms = e["step_latency_ms"]["mean"]
         mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
-        console.print(f"episode {e['index']:3d}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
+        task = f"  {escape(e['task'])}" if e.get("task") else ""  # simseam eval: the preset's task
+        console.print(f"episode {e['index']:3d}{task}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
                       f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
                       + (f"  video {escape(e['video'])}" if e.get("video") else "")
                       + (f"  [red]{escape(e['error'])}[/]" if e.get("error") else ""))

@@ -124,3 +124,101 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
                          on_start=on_start, on_done=record, on_error=on_error)
         finally:
             rollout.close()
+
+
+@dataclass
+class EvalRecipe:
+    """How a vector worker builds the rollout of a preset's task (``runner.vector``): the backend's
+    sidecar for ``tasks[first_task]`` at boot; ``rollout_for`` gives each episode index its task's
+    rollout (closing the worker's sidecar and starting one for the new task only when the task changes)
+    and its seed base (episode ``i = ti * episodes + e`` runs with ``seed + e``). Picklable."""
+
+    backend: str
+    config: dict
+    tasks: tuple[str, ...]
+    episodes: int
+    privileged: bool = False
+    first_task: int = 0
+
+    def _open(self, ti: int):
+        from simseam.backends import open_benchmark
+
+        rollout = open_benchmark(self.backend, {**self.config, "task": self.tasks[ti]}, privileged=self.privileged)
+        self._task = ti
+        return rollout
+
+    def build(self):
+        return self._open(self.first_task)
+
+    def rollout_for(self, rollout, index: int, seed: int):
+        ti = index // self.episodes
+        if ti != getattr(self, "_task", None):
+            self._task = None
+            rollout.close()
+            rollout = self._open(ti)
+        return rollout, seed - ti * self.episodes
+
+
+def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
+                    policy_kwargs: dict, policy_batch=None, privileged: bool = False, seed: int = 0,
+                    video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
+                    on_done=None, on_error=None, on_worker_failure=None) -> None:
+    """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
+    backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
+    task 1, ...), so a worker changes task (closes its sidecar and starts one for the next task) at
+    most once per task boundary.
+
+    - ``policy_batch`` None (scripted, zero, random: nothing shared): one policy instance inside each
+      worker, whole episodes at a time (``VectorEnv.run_local``), all tasks on one set of workers;
+    - a ``PolicyBatch`` (``lerobot:``, ``remote:``): stepped together in this process, one vector env
+      per task (each task's spec, its instruction included, reaches the policy at every reset).
+
+    Every finished episode is appended to the log with ``task`` and ``episode`` (index within its
+    task) as it ends, whatever the order; ``on_start(vec)`` gets each ``VectorEnv`` once its first worker
+    is ready.
+    """
+    from simseam.runner.vector import VectorEnv
+
+    done = run_dir.done
+    todo = [i for i in range(len(tasks) * episodes) if i not in done]
+    if not todo:
+        return
+    spec_written = False
+
+    def record(res):
+        ti, e = divmod(res.index, episodes)
+        entry = res.to_json()
+        if res.error and res.steps == 0:  # recorded by the parent (a worker died too often): the task's seed
+            entry["seed"] = seed + e
+        run_dir.append({**entry, "task": tasks[ti], "episode": e})
+        if on_done:
+            on_done(res, tasks[ti])
+
+    def write_spec(vec):
+        nonlocal spec_written
+        if not spec_written:
+            run_dir.write_spec(vec.spec.to_json())
+            spec_written = True
+
+    common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
+    if policy_batch is None:
+        n = max(1, min(num_envs, len(todo)))
+        recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged,
+                            first_task=todo[0] // episodes)
+        with VectorEnv(recipe, n) as vec:
+            write_spec(vec)
+            if on_start:
+                on_start(vec)
+            vec.run_local(policy, policy_kwargs, todo, seed=seed, **common)
+        return
+    for ti in range(len(tasks)):
+        indices = [i for i in todo if i // episodes == ti]
+        if not indices:
+            continue
+        n = max(1, min(num_envs, len(indices)))
+        with VectorEnv(EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged, first_task=ti),
+                       n) as vec:
+            write_spec(vec)
+            if on_start:
+                on_start(vec)
+            vec.run(policy_batch, indices, seed=seed - ti * episodes, sync=True, **common)

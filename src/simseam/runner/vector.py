@@ -9,12 +9,15 @@ on whichever environments have answered, so no worker waits for a slower one). `
 the policy inside each worker instead (policies that share no model): workers play whole episodes
 and send back only their results. A worker whose episode ends takes the next episode index from
 the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
-on ``num_envs`` for a deterministic policy. Images cross from a worker through a shared memory
-block (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross
-through a second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no
-pickling). ``renderer="batched"``: the workers send their MuJoCo render state instead of images and
-this process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only.
-A worker dies with this process (Linux).
+on ``num_envs`` for a deterministic policy. A recipe may define ``rollout_for(rollout, index, seed)
+-> (rollout, seed)``: ``run_local`` workers then ask it for each episode's rollout and seed base
+(``simseam eval``: a worker rebuilds its sidecar when the next episode's task differs). Images
+cross from a worker through a shared memory block (``_SharedImages``), not through the pipe; a
+state-only step's reply and its action cross through a second one with a fixed layout
+(``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no pickling). ``renderer="batched"``: the
+workers send their MuJoCo render state instead of images and this process draws every worker's
+cameras in one batch (``runner.central_render``), in ``run`` only. A worker dies with this process
+(Linux).
 
 Failures:
 
@@ -438,6 +441,9 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
                     conn.send(("ok", path))
                 elif op == "episode":  # a whole episode with this worker's own policy instance
                     _, index, seed, policy_spec, video_dir = msg
+                    rollout_for = getattr(recipe, "rollout_for", None)
+                    if rollout_for is not None:  # a multi-task recipe (simseam eval): this episode's task
+                        rollout, seed = rollout_for(rollout, index, seed)
                     if policy is None or policy_key != policy_spec:
                         from simseam.policies.base import make_policy
 

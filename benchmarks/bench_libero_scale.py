@@ -1,0 +1,128 @@
+"""LIBERO at scale: ``simseam eval libero_spatial --num-envs N`` timed end to end, for several N.
+
+Each case runs the real command line in a subprocess (``python -m simseam.cli.main eval PRESET
+--policy zero --num-envs N ...`` into a fresh run directory) and measures its wall time: the workers'
+sidecar boots, task changes, every episode (state + the preset's two 256x256 cameras each step) and
+the summary. From the run's own episode log it reports episodes/hour and env-steps/s (the policy's
+steps; the preset's 10 settle steps per episode are counted separately as ``settle_steps``).
+
+    python benchmarks/bench_libero_scale.py --n 1 2 --episodes 2 --tasks libero_spatial/0,libero_spatial/1
+    python benchmarks/bench_libero_scale.py --n 8 16 --episodes 5 --full 16     # the GPU machine
+
+``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. Prints a table and writes JSON
+(default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
+backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` on the GPU machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def machine() -> dict:
+    info = {"host": platform.node(), "python": platform.python_version(), "cores": len(os.sched_getaffinity(0)),
+            "cpu": "", "gpu": "", "mujoco_gl": os.environ.get("MUJOCO_GL", "")}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                info["cpu"] = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    if shutil.which("nvidia-smi"):
+        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                             text=True)
+        info["gpu"] = out.stdout.strip()
+    return info
+
+
+def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
+             log_dir: Path | None) -> dict:
+    out = workdir / f"{preset}_n{n}_{episodes or 'full'}"
+    argv = [sys.executable, "-m", "simseam.cli.main", "eval", preset, "--policy", policy, "--num-envs", str(n),
+            "--out", str(out), "--overwrite"]
+    if episodes:
+        argv += ["--episodes", str(episodes)]
+    if tasks:
+        argv += ["--tasks", tasks]
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), *filter(None, [env.get("PYTHONPATH")])])
+    t0 = time.perf_counter()
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if log_dir is not None:
+        (log_dir / f"{out.name}.log").write_text(proc.stdout + proc.stderr)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed (exit {proc.returncode}):\n{(proc.stdout + proc.stderr)[-4000:]}")
+    summary = json.loads((out / "summary.json").read_text())
+    rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
+    steps = sum(e["steps"] for e in rows)
+    settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
+    step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
+    return {"preset": preset, "policy": policy, "num_envs": n, "tasks": len(summary["config"]["tasks"]),
+            "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
+            "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
+            "episodes_per_hour": round(len(rows) / wall * 3600.0, 1), "env_steps_per_s": round(steps / wall, 1),
+            "mean_step_ms": round(sum(step_ms) / len(step_ms), 2) if step_ms else None,
+            "complete": summary["complete"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--preset", default="libero_spatial")
+    ap.add_argument("--policy", default="zero")
+    ap.add_argument("--n", type=int, nargs="+", default=[1, 2], help="--num-envs values for the subset cases")
+    ap.add_argument("--episodes", type=int, default=2, help="episodes per task in the subset cases")
+    ap.add_argument("--tasks", default=None, help="comma-separated task subset for the subset cases (default: all)")
+    ap.add_argument("--full", type=int, nargs="*", default=[], help="also run the whole protocol at these N")
+    ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
+    ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
+    ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
+    args = ap.parse_args()
+
+    info = machine()
+    results = []
+    work = args.keep_runs or Path(tempfile.mkdtemp(prefix="simseam-libero-scale-"))
+    work.mkdir(parents=True, exist_ok=True)
+    if args.logs:
+        args.logs.mkdir(parents=True, exist_ok=True)
+    cases = [(n, args.episodes, args.tasks) for n in args.n] + [(n, None, None) for n in args.full]
+    try:
+        for n, episodes, tasks in cases:
+            r = run_case(args.preset, args.policy, n, episodes, tasks, work, args.logs)
+            results.append(r)
+            print(f"  N={n:3d}  {r['episodes']} episodes in {r['wall_s']:.1f} s: {r['episodes_per_hour']:,.0f} "
+                  f"episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
+            args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
+            args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
+    finally:
+        if args.keep_runs is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+    print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
+          + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
+    head = (f"| {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+            f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
+    print(head)
+    print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
+    for r in results:
+        print(f"| {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+              f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
+              f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
+    print(f"\nJSON: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

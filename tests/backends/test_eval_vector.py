@@ -1,0 +1,185 @@
+"""``simseam eval --num-envs N``: a preset's episodes on N workers, each owning a backend sidecar that
+changes task between episodes. Per-episode results equal the sequential path's (``--num-envs 1``);
+a worker killed mid-episode has its episode re-run, logged once; a run killed outright continues with
+``--resume``. Meta-World's scripted experts (deterministic) on two tasks x 3 episodes: the cheapest
+backend with a per-episode-deterministic policy (real sidecars in the backend's own venv)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from backend_util import backend_python
+
+pytestmark = pytest.mark.backends
+
+REPO = Path(__file__).resolve().parents[2]
+TASKS = ("reach-v3", "push-v3")
+EPISODES = 3
+ARGS = ("eval", "metaworld_mt10", "--policy", "scripted", "--episodes", str(EPISODES), "--tasks", ",".join(TASKS))
+
+
+def _env() -> dict:
+    return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1")
+
+
+def simseam(*args):
+    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *args], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=280)
+
+
+def outcomes(run: Path) -> dict:
+    """(task, episode) -> what a deterministic policy must reproduce, from the episode log."""
+    rows = [json.loads(line) for line in (run / "episodes.jsonl").read_text().splitlines() if line.strip()]
+    out = {}
+    for e in rows:
+        key = (e["task"], e["episode"])
+        assert key not in out, f"{key} logged twice"
+        out[key] = (e["index"], e["seed"], e["success"], e["steps"], round(e["reward"], 9), e["error"],
+                    {k: round(v, 9) if isinstance(v, float) else v for k, v in e["diagnostics"].items()})
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The sequential path (``--num-envs 1``: one sidecar per task, one after another)."""
+    backend_python("metaworld")
+    out = tmp_path_factory.mktemp("seq") / "run"
+    proc = simseam(*ARGS, "--num-envs", "1", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "environments (a policy in each worker)" not in proc.stdout  # really the sequential path
+    res = outcomes(out)
+    assert sorted(res) == sorted((t, e) for t in TASKS for e in range(EPISODES))
+    assert sum(r[2] for r in res.values()) >= 5  # the experts succeed: episodes that mean something
+    return res, json.loads((out / "summary.json").read_text())
+
+
+def test_two_workers_across_tasks_equal_the_sequential_run(reference, tmp_path):
+    want, want_summary = reference
+    out = tmp_path / "run"
+    proc = simseam(*ARGS, "--num-envs", "2", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "metaworld: 2 environments (a policy in each worker)" in proc.stdout
+    assert outcomes(out) == want
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["per_task"] == want_summary["per_task"]  # the one summary code path: same Wilson intervals
+    assert summary["mean_task_success_rate"] == want_summary["mean_task_success_rate"]
+    assert summary["config"] == want_summary["config"]  # --num-envs is not part of the run's config
+    assert "push-v3" in proc.stdout and "mean of tasks" in proc.stdout
+
+
+def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path):
+    """The vector tests' technique: freeze a busy worker; if it has sent nothing, it is mid-episode: kill it."""
+    from simseam.runner.evaluate import preset, run_eval_vector
+    from simseam.runner.run_dir import RunDir, rebuild_summary
+
+    want, _ = reference
+    p = preset("metaworld_mt10")
+    out = tmp_path / "run"
+    run_dir = RunDir(out, {"test": "worker kill"})
+    vecs, killed, failures, done = [], [], [], []
+
+    def on_done(res, task):
+        done.append((res.index, task))
+        vec = vecs[0]
+        busy = [s for s in vec.slots if s.index is not None]
+        if not killed and busy:
+            pid = busy[0].proc.pid
+            os.kill(pid, signal.SIGSTOP)
+            if busy[0].conn.poll():
+                os.kill(pid, signal.SIGCONT)  # its result is already on its way: try at the next one
+            else:
+                killed.append((busy[0].index, pid, _descendants(pid)))
+                os.kill(pid, signal.SIGKILL)
+
+    try:
+        run_eval_vector(p, list(TASKS), EPISODES, run_dir, 2, policy="scripted", policy_kwargs={}, privileged=True,
+                        on_start=vecs.append, on_done=on_done, on_worker_failure=failures.append)
+    finally:
+        run_dir.close()
+    assert killed, "no worker was caught mid-episode"
+    index, pid, sidecars = killed[0]
+    assert [f.index for f in failures] == [index] and failures[0].exitcode == -signal.SIGKILL
+    assert sidecars and all(_gone(s) for s in sidecars)  # the dead worker's sidecar followed it
+    assert sorted(i for i, _ in done) == list(range(len(TASKS) * EPISODES))  # each episode handed on once
+    assert outcomes(out) == want
+    assert rebuild_summary(out)["n_episodes"] == len(TASKS) * EPISODES
+
+
+def test_resume_after_the_run_is_killed_continues(reference, tmp_path):
+    """SIGKILL to ``simseam eval`` itself after its first recorded episode: its workers and their sidecars
+    go with it; ``--resume`` (also with 2 workers) runs only what is missing, each episode once."""
+    want, _ = reference
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", *ARGS, "--num-envs", "2", "--out", str(out)],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    tree: list[int] = []
+    try:
+        for line in proc.stdout:  # readiness: the first finished episode's line (written to the log before it)
+            if line.startswith("episode "):
+                tree = _descendants(proc.pid)
+                proc.kill()
+                break
+        proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+    assert tree, "the run ended before its first episode line"
+    assert all(_gone(p) for p in tree), "workers or sidecars outlived the killed run"
+    first = outcomes(out)
+    assert 1 <= len(first) < len(want)
+    proc = simseam(*ARGS, "--num-envs", "2", "--out", str(out), "--resume")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"resuming: {len(first)} episode(s) already recorded" in proc.stdout
+    assert outcomes(out) == want  # each (task, episode) once, the same results
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == len(want) and summary["complete"] is True
+
+
+# ---------------------------------------------------------------------------------------------- /proc
+def _children(pid: int) -> list[int]:
+    out = []
+    for p in os.listdir("/proc"):
+        if not p.isdigit():
+            continue
+        try:
+            text = Path(f"/proc/{p}/stat").read_text()
+        except OSError:
+            continue
+        fields = text[text.rindex(")") + 2:].split()
+        if int(fields[1]) == pid and fields[0] not in ("Z", "X"):
+            out.append(int(p))
+    return out
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        for c in _children(todo.pop()):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _gone(pid: int, timeout: float = 60.0) -> bool:
+    """The process exits (or is a zombie) within ``timeout`` (a hang guard; it normally takes milliseconds)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            text = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            return True
+        if text[text.rindex(")") + 2:].split()[0] in ("Z", "X"):
+            return True
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)  # never leave it behind; the test fails
+            return False
+        time.sleep(0.02)
