@@ -144,6 +144,38 @@ def test_resume_after_the_run_is_killed_continues(reference, tmp_path):
     assert summary["n_episodes"] == len(want) and summary["complete"] is True
 
 
+def test_a_batched_remote_policy_steps_every_task_together_with_the_same_results(tmp_path):
+    """``remote:`` (a shared server): the lockstep path, one vector env per task, both workers' requests to
+    one ``serve-policy``; a deterministic served policy (zero) gives the sequential path's results."""
+    import threading
+
+    backend_python("metaworld")
+    server = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "serve-policy", "--policy", "zero",
+                               "--port", "0", "--max-clients", "2"], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True)
+    try:
+        url = None
+        for line in server.stdout:  # readiness: the URL line (pytest-timeout guards a hang)
+            if line.startswith("serving "):
+                url = line.split("--policy remote:", 1)[1].split(";", 1)[0].strip()
+                break
+        assert url, "serve-policy ended without printing its URL"
+        threading.Thread(target=lambda: [None for _ in server.stdout], daemon=True).start()  # keep draining
+        args = ("eval", "metaworld_mt10", "--policy", f"remote:{url}", "--episodes", "2", "--tasks", ",".join(TASKS))
+        runs = {}
+        for n in (1, 2):
+            proc = simseam(*args, "--num-envs", str(n), "--out", str(tmp_path / f"n{n}"))
+            assert proc.returncode == 0, proc.stderr[-3000:]
+            runs[n] = outcomes(tmp_path / f"n{n}")
+        assert "2 environments (one batched policy, one task at a time)" in proc.stdout
+    finally:
+        server.terminate()
+        server.wait(timeout=60)
+    assert sorted(runs[1]) == sorted((t, e) for t in TASKS for e in range(2))
+    assert runs[2] == runs[1]
+    assert all(r[3] == 500 and r[5] is None for r in runs[1].values())  # zero actions: full-length episodes
+
+
 # ---------------------------------------------------------------------------------------------- /proc
 def _children(pid: int) -> list[int]:
     out = []
