@@ -171,3 +171,50 @@ def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, 
         remote.close()
     finally:
         server.stop()
+
+
+def _single_camera_act(tmp_path):
+    """A LeRobot ACT (random weights) whose one image is ``observation.image``, as LeRobot's PushT
+    policies name it, saved with its processors like any checkpoint."""
+    import torch
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.act.configuration_act import ACTConfig
+    from lerobot.policies.act.modeling_act import ACTPolicy
+    from lerobot.policies.factory import make_pre_post_processors
+
+    cfg = ACTConfig(input_features={"observation.image": PolicyFeature(FeatureType.VISUAL, (3, 48, 48)),
+                                    "observation.state": PolicyFeature(FeatureType.STATE, (8,))},
+                    output_features={"action": PolicyFeature(FeatureType.ACTION, (7,))},
+                    chunk_size=4, n_action_steps=1, dim_model=32, dim_feedforward=64, n_encoder_layers=1,
+                    n_decoder_layers=1, n_heads=2, use_vae=False, pretrained_backbone_weights=None, device="cpu")
+    torch.manual_seed(0)
+    policy = ACTPolicy(cfg)
+    stats = {"observation.image": {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.25)},
+             "observation.state": {"mean": torch.zeros(8), "std": torch.ones(8)},
+             "action": {"mean": torch.zeros(7), "std": torch.ones(7)}}
+    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
+    out = tmp_path / "single_camera_act"
+    for obj in (policy, pre, post):
+        obj.save_pretrained(out)
+    return out
+
+
+def test_a_single_camera_policy_reads_camera1_unless_mapped(tmp_path, panda_spec, make_scene):
+    """LeRobot's single-camera checkpoints (``observation.image``) run: the image is the scene's
+    ``camera1`` by default and whatever ``image_map`` names otherwise."""
+    ckpt = _single_camera_act(tmp_path)
+    plain = make_policy(f"lerobot:{ckpt}", device="cpu")
+    assert plain.contract.images == {"image": (48, 48)} and plain.contract.scene_key("image") == "camera1"
+    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=4)
+    res = run_episode(scene, plain, index=0, seed=2)
+    assert res.steps == 4 and res.error is None
+    obs = scene.reset(1)
+    assert not np.array_equal(obs["images"]["camera1"], obs["images"]["camera2"])
+    mapped = make_policy(f"lerobot:{ckpt}", device="cpu", image_map={"image": "camera2"})
+    plain.reset(scene.spec)
+    mapped.reset(scene.spec)
+    a, b = plain.act(obs), mapped.act(obs)
+    assert not np.allclose(a, b)  # another camera, another action
+    swapped = {**obs, "images": {"camera1": obs["images"]["camera2"], "camera2": obs["images"]["camera1"]}}
+    plain.reset(scene.spec)
+    np.testing.assert_allclose(plain.act(swapped), b, rtol=1e-5, atol=1e-5)

@@ -7,7 +7,8 @@ normalization statistics. Hub ids download through ``huggingface_hub`` (needs a
 network; everything else here runs offline).
 
 Per step: the seam observation is mapped to LeRobot keys through the camera
-feature keys (``observation.images.<image>`` <- ``images[scene_key]``,
+feature keys (``observation.images.<image>`` <- ``images[scene_key]``; a
+single-camera policy's ``observation.image`` <- ``images["camera1"]`` unless mapped),
 ``observation.state`` <- ``state``, ``task`` <- the instruction), images become
 ``float32[1, 3, H, W]`` in [0, 1], the preprocessor normalizes and moves them to
 the device, ``select_action`` runs (it executes ``n_action_steps`` actions of each
@@ -73,19 +74,34 @@ def _import_lerobot():
     return PreTrainedConfig, get_policy_class, make_pre_post_processors
 
 
+#: LeRobot's single-camera policies (Diffusion / ACT trained on PushT, say) read one image named
+#: ``observation.image``: here that is the policy image ``image``, fed by the scene's first camera
+#: (``camera1``) unless ``image_map`` names another
+SINGLE_IMAGE_KEY = "observation.image"
+SINGLE_IMAGE = "image"
+
+
+def image_keys(cfg: Any) -> dict[str, str]:
+    """Policy image name -> the LeRobot feature key it travels under (``observation.images.<name>``,
+    or ``observation.image`` for a single-camera policy's one image)."""
+    keys = {k[len(IMAGE_PREFIX):]: k for k in cfg.input_features if k.startswith(IMAGE_PREFIX)}
+    if SINGLE_IMAGE_KEY in cfg.input_features and SINGLE_IMAGE not in keys:
+        keys[SINGLE_IMAGE] = SINGLE_IMAGE_KEY
+    return keys
+
+
 def contract_from_config(cfg: Any, name: str) -> SkillContract:
     """What a LeRobot policy config declares: image names and sizes, state and action length."""
     images: dict[str, tuple[int, int]] = {}
-    state_dim = None
-    for key, ft in cfg.input_features.items():
-        if key.startswith(IMAGE_PREFIX):
-            c, h, w = ft.shape
-            images[key[len(IMAGE_PREFIX):]] = (int(h), int(w))
-        elif key == STATE_KEY:
-            state_dim = int(ft.shape[0])
+    for image, key in image_keys(cfg).items():
+        c, h, w = cfg.input_features[key].shape
+        images[image] = (int(h), int(w))
+    state = cfg.input_features.get(STATE_KEY)
     action = cfg.output_features.get(ACTION_KEY)
-    return SkillContract(name=name, images=images, state_dim=state_dim,
-                         action_dim=int(action.shape[0]) if action is not None else None)
+    single = image_keys(cfg).get(SINGLE_IMAGE) == SINGLE_IMAGE_KEY
+    return SkillContract(name=name, images=images, state_dim=int(state.shape[0]) if state is not None else None,
+                         action_dim=int(action.shape[0]) if action is not None else None,
+                         image_map={SINGLE_IMAGE: "camera1"} if single else {})
 
 
 class LeRobotPolicy(BasePolicy):
@@ -149,6 +165,7 @@ class LeRobotPolicy(BasePolicy):
             contract = SkillContract(**{**contract.__dict__, "image_map": {**contract.image_map, **image_map}})
         self.contract = contract
         self.image_names = list(derived.images)
+        self._feature_keys = image_keys(cfg)  # policy image name -> its LeRobot batch key
         self._torch = torch
         #: number of chunks predicted in the current episode (one model call each)
         self.chunks_predicted = 0
@@ -187,15 +204,15 @@ class LeRobotPolicy(BasePolicy):
         for name in self.image_names:
             key = self.contract.scene_key(name)
             if key not in images and not predicts and last_images is not None and name in last_images:
-                batch[IMAGE_PREFIX + name] = last_images[name]  # a replay step: the model reads nothing
+                batch[self._feature_keys[name]] = last_images[name]  # a replay step: the model reads nothing
                 continue
             if key not in images:
                 raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
                                   f"(cameras: {sorted(images)})")
             img = torch.from_numpy(np.ascontiguousarray(images[key]))
-            batch[IMAGE_PREFIX + name] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
+            batch[self._feature_keys[name]] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
             if last_images is not None:
-                last_images[name] = batch[IMAGE_PREFIX + name]
+                last_images[name] = batch[self._feature_keys[name]]
         if STATE_KEY in self.config.input_features:
             batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
         batch["task"] = observation.get(OBS_TASK) or spec.task.instruction
