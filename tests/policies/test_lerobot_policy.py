@@ -218,3 +218,20 @@ def test_a_single_camera_policy_reads_camera1_unless_mapped(tmp_path, panda_spec
     swapped = {**obs, "images": {"camera1": obs["images"]["camera2"], "camera2": obs["images"]["camera1"]}}
     plain.reset(scene.spec)
     np.testing.assert_allclose(plain.act(swapped), b, rtol=1e-5, atol=1e-5)
+
+
+def test_a_single_camera_policy_follows_a_scene_whose_only_camera_is_not_camera1(tmp_path, panda_spec, make_scene):
+    """PushT's camera is ``top``: a one-camera scene feeds its one camera, whatever its key."""
+    import dataclasses
+
+    ckpt = _single_camera_act(tmp_path)
+    wrist_only = dataclasses.replace(panda_spec, sensors=[s for s in panda_spec.sensors if s.name == "camera2"])
+    scene = make_scene(wrist_only, image_size=(48, 48), max_steps=3)
+    assert list(scene.spec.cameras) == ["camera2"]
+    policy = make_policy(f"lerobot:{ckpt}", device="cpu")
+    res = run_episode(scene, policy, index=0, seed=0)
+    assert res.error is None and res.steps == 3
+    assert policy.contract.scene_key("image") == "camera2"
+    pinned = make_policy(f"lerobot:{ckpt}", device="cpu", image_map={"image": "camera1"})  # the caller's map wins
+    with pytest.raises(ConfigError, match="camera1"):
+        run_episode(scene, pinned, index=0, seed=0)

@@ -75,8 +75,8 @@ def _import_lerobot():
 
 
 #: LeRobot's single-camera policies (Diffusion / ACT trained on PushT, say) read one image named
-#: ``observation.image``: here that is the policy image ``image``, fed by the scene's first camera
-#: (``camera1``) unless ``image_map`` names another
+#: ``observation.image``: here that is the policy image ``image``, fed by the scene's only camera when
+#: it has one, else by ``camera1``, unless ``image_map`` names another
 SINGLE_IMAGE_KEY = "observation.image"
 SINGLE_IMAGE = "image"
 
@@ -164,6 +164,9 @@ class LeRobotPolicy(BasePolicy):
         if image_map:
             contract = SkillContract(**{**contract.__dict__, "image_map": {**contract.image_map, **image_map}})
         self.contract = contract
+        #: the single-camera default is ours (not the checkpoint's nor the caller's): reset may follow the scene
+        self._default_single = (saved is None and SINGLE_IMAGE in derived.image_map
+                                and SINGLE_IMAGE not in (image_map or {}))
         self.image_names = list(derived.images)
         self._feature_keys = image_keys(cfg)  # policy image name -> its LeRobot batch key
         self._torch = torch
@@ -181,7 +184,17 @@ class LeRobotPolicy(BasePolicy):
     def n_action_steps(self) -> int:
         return int(self.config.n_action_steps)
 
+    def contract_for(self, spec: RolloutSpec) -> SkillContract:
+        """The contract against ``spec``: a single-camera policy's default follows a scene whose only
+        camera is not ``camera1`` (PushT's ``top``, say)."""
+        cams = list(spec.cameras)
+        if self._default_single and len(cams) == 1 and cams[0] != self.contract.scene_key(SINGLE_IMAGE):
+            return SkillContract(**{**self.contract.__dict__,
+                                    "image_map": {**self.contract.image_map, SINGLE_IMAGE: cams[0]}})
+        return self.contract
+
     def reset(self, spec: RolloutSpec) -> None:
+        self.contract = self.contract_for(spec)
         check_contract(self.contract, spec)
         super().reset(spec)
         self.policy.reset()
@@ -261,6 +274,7 @@ class LeRobotBatch(PolicyBatch):
         self.chunks_predicted = 0
 
     def reset(self, env: int, spec: RolloutSpec) -> None:
+        self.policy.contract = self.policy.contract_for(spec)
         check_contract(self.policy.contract, spec)
         self.specs[env] = spec
         self.queues[env].clear()
