@@ -109,7 +109,7 @@ def test_libero_matches_native_as_openpi_drives_it(open_backend, run_native):
         assert set(obs["images"]) == (set() if i % 3 else ({"camera1", "camera2"} if i % 2 else {"camera2"}))
         np.testing.assert_array_equal(obs["state"], native["state"][i + 1].astype(np.float32))
         if "camera2" in obs["images"]:
-            wrist[i] = obs["images"]["camera2"]
+            wrist[i] = np.array(obs["images"]["camera2"])  # a copy: sidecar frames live in reused slots
             assert obs["images"]["camera2"].dtype == np.uint8
     assert sorted(wrist) == [0, 3, 6]
     for i, frame in wrist.items():
@@ -161,7 +161,7 @@ r = make_backend_rollout(name, cfg)
 a = np.zeros(7, np.float32)
 
 def frames():
-    return [r.step(a).observation["images"]["camera1"] for _ in range(2)]
+    return [np.array(r.step(a).observation["images"]["camera1"]) for _ in range(2)]
 
 r.reset(4)
 first = frames()

@@ -254,7 +254,11 @@ def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path, syn
     pol = PerEnvPolicies(_StateFollower, 2)
     with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2) as vec:
         results = vec.run(pol, range(4), seed=2, sync=sync)
-        assert all(s.block is not None for s in vec.slots)  # the replies came through the step blocks
+        # the replies came through the step blocks, in every worker that stepped (asynchronously, on a
+        # loaded machine, one worker may play every episode while the other is still booting)
+        stepped = [k for k, p in enumerate(pol.policies) if p.seen]
+        blocks = {s.env: s.block for s in vec.slots}
+        assert stepped and all(blocks[k] is not None for k in stepped), (stepped, blocks)
     assert {r.index: _outcome(r) for r in results} == reference
     assert all(type(r.diagnostics["grasped"]) is bool for r in results)
     seen = sorted((o["sim_time_ns"], o["state"].tobytes(), o["joint_positions"].tobytes(), o["task"])
