@@ -139,7 +139,6 @@ class EvalRecipe:
     episodes: int
     privileged: bool = False
     first_task: int = 0
-    pose_states: bool = False  # the central renderer (runner.vector) serves in-process scenes only
 
     def _open(self, ti: int):
         from simseam.backends import open_benchmark

@@ -375,14 +375,15 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
     images = _SharedImages(conn, parent_pid or os.getppid())
     try:
         rollout = recipe.build()
-        if recipe.pose_states and not callable(getattr(getattr(rollout, "engine", None), "render_state", None)):
+        pose_states = getattr(recipe, "pose_states", False)  # optional, as rollout_for: a recipe needs only build()
+        if pose_states and not callable(getattr(getattr(rollout, "engine", None), "render_state", None)):
             raise ConfigError("renderer 'batched': the workers' rollouts have no MuJoCo render state")
         block = _StepBlock(conn, parent_pid or os.getppid(), rollout.spec.action_dim)
         conn.send(("ready", rollout.spec.to_json()))
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("fatal", _portable(exc)))
         return
-    render_state = rollout.engine.render_state if recipe.pose_states else (lambda: None)
+    render_state = rollout.engine.render_state if pose_states else (lambda: None)
     writer = None
     video: Path | None = None
     policy = policy_key = None  # the "episode" command's own policy (built on first use)
