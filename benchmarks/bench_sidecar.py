@@ -96,7 +96,6 @@ import mujoco
 import numpy as np
 import zmq
 
-from simseam.robot.manifest import load_robot
 from simseam.robot.spec import RobotSpec
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.sidecar.client import SidecarRollout
@@ -110,6 +109,9 @@ WAYS = ("inproc", "tcp", "ipc", "local")  # local: ipc + the local fast path (Un
 GOAL_ADDED_MS = {"state": 0.3, "rgb2x256": 0.6}
 GOAL_CODEC_SPEEDUP = 5.0
 GOAL_BOOT_S = 2.0
+# a sidecar gets a sanitized environment; a machine whose packages come from PYTHONPATH (the GPU
+# machine: wheels unpacked with pip --target) passes it on explicitly
+SIDECAR_ENV = {"PYTHONPATH": os.environ["PYTHONPATH"]} if os.environ.get("PYTHONPATH") else {}
 BIG = (480, 560)  # 5 cameras x 480 x 560 x 3 = 4.03 MB per observation
 
 
@@ -619,7 +621,7 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
             clog: list[dict] = []
             n = steps[g]
             sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
-                                env={PROF_ENV: str(log_path)}, local=transport == "local")
+                                env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport == "local")
             pids.append(sc.pid)
             try:
                 sc._sock = _TimedSocket(sc._sock, cur)
@@ -706,13 +708,22 @@ def main() -> None:
     ap.add_argument("--json", default=str(HERE / "results" / "sidecar.json"))
     ap.add_argument("--cases", default="state,rgb2x256,rgb5x480x560", help="observation sizes to run (comma list)")
     ap.add_argument("--parts", default="step,profile,codec,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--robot-json", help="the Panda as a RobotSpec JSON (machines without pydantic), with --urdf")
+    ap.add_argument("--urdf", help="the URDF path for --robot-json")
     ap.add_argument("--stub-server", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.stub_server:
         sys.exit(stub_server(json.loads(args.stub_server)))
 
     t_start = time.perf_counter()
-    spec = load_robot("franka_panda")
+    if args.robot_json:
+        spec = RobotSpec.from_json(json.loads(Path(args.robot_json).read_text()))
+        if args.urdf:
+            spec = dataclasses.replace(spec, urdf="file:" + str(Path(args.urdf).resolve()))
+    else:
+        from simseam.robot.manifest import load_robot  # pydantic
+
+        spec = load_robot("franka_panda")
     configs = {k: v for k, v in obs_configs(spec).items() if k in args.cases.split(",")}
     parts = set(args.parts.split(","))
     steps = {"state": args.steps, "rgb2x256": max(30, args.steps // 5), "rgb5x480x560": max(15, args.steps // 10)}
@@ -737,7 +748,7 @@ def main() -> None:
                     ro = ManifestScene(cspec, LAYOUT, "mujoco", scene_options(opts))
                 else:
                     ro = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="tcp" if way == "tcp" else "ipc",
-                                        local=way == "local")
+                                        local=way == "local", env=SIDECAR_ENV)
                     assert ro.fast == (way == "local"), f"{way}: fast path {'not ' if not ro.fast else ''}taken"
                     pids.append(ro.pid)
                 rollouts.append(ro)

@@ -30,7 +30,10 @@ policy inside each worker, whole episodes per command; state-only cases only); `
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
 batched renderer has compiled its kernels) and stops when the last episode ends. Efficiency =
-throughput(N) / (N x throughput(first N)) of the same case, mode and renderer. ``main_us`` is this
+throughput(N) / (N x throughput(first N)) of the same case, mode and renderer; ``vs bare`` =
+throughput(N) / throughput of ``bare`` at the same N (with ``--modes ... bare``). Every mode of a case
+runs at one N back to back, ``--rounds`` times, before the next N (a drift in the machine's speed hits
+them alike); the median round is reported. ``main_us`` is this
 process's own CPU time (user + system) per env-step in the vector modes: what bounds lockstep
 efficiency at large N. Prints a table and writes JSON.
 
@@ -294,46 +297,67 @@ def main() -> None:
         if value:
             value = str(Path(value).resolve())
             globals()[name] = os.environ[f"SIMSEAM_BENCH_{name}"] = value
-    rows = []
+    # every (mode, renderer) of a case at one N runs back to back, round after round, so a drift in
+    # this machine's speed (a shared VM, turbo with few cores busy) hits every mode alike
+    points = []
     for case in args.cases:
         images = CASES[case][0] is not None
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
             for renderer in (args.renderers if images and mode in ("vector", "async") else ["workers"]):
-                base = None
-                for n in args.n:
-                    episodes = args.episodes_per_env * n
-                    rounds = []
-                    for _ in range(args.rounds):
-                        if mode == "bare":
-                            rounds.append(run_bare(case, n, args.steps, episodes))
-                        elif mode == "local":
-                            rounds.append(run_local(case, n, args.steps, episodes))
-                        else:
-                            rounds.append(run_vector(case, n, args.steps, episodes, sync=mode == "vector",
-                                                     renderer=renderer))
-                    r = sorted(rounds, key=lambda x: x["env_steps"] / x["wall_s"])[len(rounds) // 2]  # the median
-                    r["rounds_env_steps_per_s"] = [x["env_steps"] / x["wall_s"] for x in rounds]
-                    if "main_cpu_us_per_env_step" in r:
-                        r["rounds_main_cpu_us_per_env_step"] = [x["main_cpu_us_per_env_step"] for x in rounds]
-                    sps = r["env_steps"] / r["wall_s"]
-                    base = sps if base is None else base
-                    eff = sps / (n / args.n[0] * base)
-                    row = {"case": case, "mode": mode, "renderer": renderer, "n": n, **r, "env_steps_per_s": sps,
-                           "episodes_per_hour": r["episodes"] / r["wall_s"] * 3600, "efficiency": eff}
-                    rows.append(row)
-                    main_us = r.get("main_cpu_us_per_env_step")
-                    print(f"{case:14s} {mode:7s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
-                          f"{row['episodes_per_hour']:9.0f} episodes/h  efficiency {eff:.2f}"
-                          + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else ""), flush=True)
+                points.append((case, mode, renderer))
+    measured: dict[tuple, list] = {}
+    for case in args.cases:
+        for n in args.n:
+            episodes = args.episodes_per_env * n
+            for _ in range(args.rounds):
+                for (c, mode, renderer) in points:
+                    if c != case:
+                        continue
+                    if mode == "bare":
+                        r = run_bare(case, n, args.steps, episodes)
+                    elif mode == "local":
+                        r = run_local(case, n, args.steps, episodes)
+                    else:
+                        r = run_vector(case, n, args.steps, episodes, sync=mode == "vector", renderer=renderer)
+                    measured.setdefault((case, mode, renderer, n), []).append(r)
+                    print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
+                          file=sys.stderr, flush=True)
+    rows = []
+    for (case, mode, renderer) in points:
+        base = None
+        for n in args.n:
+            rounds = measured[(case, mode, renderer, n)]
+            r = dict(sorted(rounds, key=lambda x: x["env_steps"] / x["wall_s"])[len(rounds) // 2])  # the median
+            r["rounds_env_steps_per_s"] = [x["env_steps"] / x["wall_s"] for x in rounds]
+            if "main_cpu_us_per_env_step" in r:
+                r["rounds_main_cpu_us_per_env_step"] = [x["main_cpu_us_per_env_step"] for x in rounds]
+            sps = r["env_steps"] / r["wall_s"]
+            base = sps if base is None else base
+            eff = sps / (n / args.n[0] * base)
+            row = {"case": case, "mode": mode, "renderer": renderer, "n": n, **r, "env_steps_per_s": sps,
+                   "episodes_per_hour": r["episodes"] / r["wall_s"] * 3600, "efficiency": eff}
+            bare = measured.get((case, "bare", "workers", n))
+            if bare and mode != "bare":  # this mode's throughput over N bare processes' at the same N
+                bare_sps = sorted(x["env_steps"] / x["wall_s"] for x in bare)[len(bare) // 2]
+                row["vs_bare"] = sps / bare_sps
+            rows.append(row)
+            main_us = r.get("main_cpu_us_per_env_step")
+            print(f"{case:14s} {mode:7s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
+                  f"{row['episodes_per_hour']:9.0f} episodes/h  efficiency {eff:.2f}"
+                  + (f"  vs bare {row['vs_bare']:.2f}" if "vs_bare" in row else "")
+                  + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else ""), flush=True)
     print()
-    print(f"| case | mode | renderer | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency | main us/env-step |")
-    print("|---|---|---|---:|---:|---:|---:|---:|")
+    print(f"| case | mode | renderer | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency | vs bare | "
+          "main us/env-step |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         main_us = r.get("main_cpu_us_per_env_step")
+        vs = r.get("vs_bare")
         print(f"| {r['case']} | {r['mode']} | {r['renderer']} | {r['n']} | {r['env_steps_per_s']:.0f} | "
-              f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if main_us is None else f'{main_us:.1f}'} |")
+              f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if vs is None else f'{vs:.2f}'} | "
+              f"{'' if main_us is None else f'{main_us:.1f}'} |")
     machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
                "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL")}
     try:
