@@ -495,3 +495,82 @@ def test_a_late_reply_after_a_timeout_is_dropped_not_taken_for_the_next(make_sid
     got = r.step(np.zeros(7, np.float32))  # arrives after the late '_sleep' reply, which is dropped
     assert got.info["steps"] == 1 and "camera1" in got.observation["images"]
     assert r.step(np.zeros(7, np.float32)).info["steps"] == 2
+
+
+# ------------------------------------------------------------------------------ busy-poll
+def test_default_spin_follows_the_cores_and_the_environment(monkeypatch):
+    monkeypatch.delenv(local.SPIN_ENV, raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)))
+    assert local.default_spin_us() == local.DEFAULT_SPIN_US
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    assert local.default_spin_us() == 0  # two spinning processes on two cores starve the simulator
+    monkeypatch.setenv(local.SPIN_ENV, "250")
+    assert local.default_spin_us() == 250
+    for bad in ("-1", "abc", str(local.MAX_SPIN_US + 1)):
+        monkeypatch.setenv(local.SPIN_ENV, bad)
+        with pytest.raises(ValueError, match=local.SPIN_ENV):
+            local.default_spin_us()
+
+
+def test_a_bad_spin_is_a_config_error_naming_it(monkeypatch):
+    from simseam.seam import ConfigError
+    from simseam.sidecar.client import SidecarRollout
+
+    with pytest.raises(ConfigError, match="spin_us"):
+        SidecarRollout({}, "lift_cube", spin_us=local.MAX_SPIN_US + 1)
+    monkeypatch.setenv(local.SPIN_ENV, "soon")
+    with pytest.raises(ConfigError, match=local.SPIN_ENV):
+        SidecarRollout({}, "lift_cube")
+
+
+def test_busy_polling_sides_serve_the_same_trajectory_and_take_messages_spinning(make_sidecar, make_scene, panda_spec,
+                                                                                 monkeypatch):
+    caught = []
+    real = local.spin_until_readable
+
+    def spy(poller, spin_s):
+        got = real(poller, spin_s)
+        caught.append(got)
+        return got
+
+    monkeypatch.setattr(local, "spin_until_readable", spy)
+    # 20 ms each side: far longer than a state-only step or this loop's turn, so the sidecar takes the
+    # next request in its busy-poll loop (not its poller) and the client its replies in its own
+    r = make_sidecar(options=scene_options(render_images=False), spin_us=local.MAX_SPIN_US)
+    assert r.fast
+    ref = make_scene(panda_spec, "lift_cube", image_size=(32, 32), render_images=False)
+    assert_same(r.reset(seed=5), ref.reset(seed=5))
+    for a in actions(seed=3, n=20, dim=7):
+        e, got = ref.step(a), r.step(a)
+        assert_same(got.observation, e.observation)
+        assert (got.reward, got.terminated, got.truncated) == (e.reward, e.terminated, e.truncated)
+    assert len(caught) == 21 and sum(caught) >= 10, caught  # replies taken while spinning
+    reply = r._request("close", {})
+    assert reply["requests"] >= 21 and reply["spun"] >= 10, reply  # requests taken while spinning
+
+
+def test_without_spin_nothing_is_taken_busy_polling(make_sidecar):
+    r = make_sidecar(spin_us=0)
+    r.reset(seed=0)
+    for a in actions(seed=1, n=5, dim=7):
+        r.step(a)
+    reply = r._request("close", {})
+    assert reply["requests"] >= 6 and reply["spun"] == 0, reply
+
+
+def test_the_client_leaving_while_the_sidecar_spins_drops_the_connection_and_it_keeps_serving(make_sidecar):
+    r = make_sidecar(spin_us=local.MAX_SPIN_US)
+    r.reset(seed=0)
+    r.step(np.zeros(7, np.float32))
+    path = os.path.join(os.path.dirname(r.endpoint[len("ipc://"):]), "local.sock")
+    r._sock.close()  # the local connection ends while the sidecar busy-polls for the next request
+    chan = local.LocalChannel(path, r._token, spin_us=0, timeout=HANG_GUARD_S)  # a new client attaches
+    try:
+        chan.send_multipart(encode("step", {"action": np.zeros(7, np.float32)}))
+        assert chan.poll(int(HANG_GUARD_S * 1000))
+        op, body = decode(chan.recv_multipart(), chan.slots)
+        assert op == "ok" and body["obs"]["joint_positions"].shape == (9,)
+    finally:
+        chan.close()
+    assert running(r.pid)
+    r._sock = None

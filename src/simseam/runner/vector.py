@@ -55,6 +55,7 @@ from simseam.runner.episodes import EpisodeResult, partial_video_path
 from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
 
+SIDECAR_SPIN_ENV = "SIMSEAM_SIDECAR_SPIN_US"  # simseam.sidecar.local.SPIN_ENV (not imported: no zmq needed here)
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
 
@@ -79,6 +80,13 @@ class RolloutRecipe:
         cfg = SceneConfig.model_validate(self.scene)
         return build_rollout(cfg, Path(self.base_dir), privileged=self.privileged,
                              render_images=self.render_images, seed=self.seed)
+
+
+def sidecar_spin_us(num_envs: int, cores: int) -> int | None:
+    """The workers' sidecar busy-poll budget: the sidecar's own default (None) when every worker, its
+    sidecar and this process have a core of their own, else 0 (spinning would steal the cores the
+    simulators need)."""
+    return None if 2 * num_envs + 1 <= cores else 0
 
 
 def default_num_envs(episodes: int, cores: int | None = None) -> int:
@@ -367,8 +375,12 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0) -> None:
-    """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends."""
+def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None) -> None:
+    """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends.
+    ``sidecar_spin_us``: the busy-poll budget of a sidecar rollout's local path (unless the user's
+    environment sets it)."""
+    if sidecar_spin_us is not None:
+        os.environ.setdefault(SIDECAR_SPIN_ENV, str(sidecar_spin_us))
     if parent_pid:
         _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
@@ -558,6 +570,7 @@ class VectorEnv:
             recipe = dataclasses.replace(recipe, render_images=True, pose_states=True)
             self.central = CentralRenderer(recipe, num_envs, device=render_device)
         self.recipe = recipe
+        self.sidecar_spin_us = sidecar_spin_us(num_envs, len(os.sched_getaffinity(0)))
         try:
             for s in self.slots:
                 self._spawn(s)
@@ -569,7 +582,8 @@ class VectorEnv:
     # -- processes
     def _spawn(self, s: _Slot) -> None:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe, os.getpid()), daemon=True,
+        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe, os.getpid(), self.sidecar_spin_us),
+                                 daemon=True,
                                  name=f"simseam-env-{s.env}")
         proc.start()
         child.close()

@@ -75,6 +75,7 @@ from simseam.sidecar.errors import (
     remote_error,
 )
 from simseam.sidecar import local
+from simseam.sidecar.local import MAX_SPIN_US, default_spin_us
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 SANITIZED_ENV = ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV", "PYTHONSTARTUP", "PYTHONUSERBASE",
@@ -209,10 +210,13 @@ class SidecarRollout:
     more) are read-only views into a ring slot, valid until that slot is reused, i.e. through
     ``local_slots - 1`` further image-carrying replies (default: the previous observation stays
     intact while the next step runs; the one before it does not). ``render()`` returns such a
-    view too. Copy what you keep longer; the episode loop's recorders do.
+    view too. Copy what you keep longer; the episode loop's recorders do. ``spin_us``: on the local
+    path, how long each side busy-polls for the other's next message before sleeping (default:
+    ``local.default_spin_us()``: 1000 with at least 4 usable cores, else 0; ``$SIMSEAM_SIDECAR_SPIN_US``).
     """
 
     _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
+    _spin_us = 0
     _slots: list | None = None
     fast = False
 
@@ -220,13 +224,19 @@ class SidecarRollout:
                  backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
                  progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None,
-                 local: bool = True, local_slots: int = local.DEFAULT_SLOTS):
+                 local: bool = True, local_slots: int = local.DEFAULT_SLOTS, spin_us: int | None = None):
         if transport not in ("ipc", "tcp"):
             raise ConfigError(f"sidecar transport must be 'ipc' or 'tcp', got {transport!r}")
         if not isinstance(local_slots, int) or not 2 <= local_slots <= 64:
             raise ConfigError(f"sidecar local_slots must be an int in 2..64, got {local_slots!r}")
         self._want_local = bool(local) and transport == "ipc"
         self._local_slots = local_slots
+        try:
+            self._spin_us = default_spin_us() if spin_us is None else int(spin_us)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        if not 0 <= self._spin_us <= MAX_SPIN_US:
+            raise ConfigError(f"sidecar spin_us must be 0..{MAX_SPIN_US}, got {spin_us!r}")
         self._slots: list | None = None  # the shared-memory ring's slots, when on the local path
         self.fast = False  # whether requests use the local fast path
         self._spec_json = spec_json
@@ -374,7 +384,8 @@ class SidecarRollout:
     def _attach(self, path: str) -> None:
         """Switch to the local fast path the sidecar offered (Unix socket + shared-memory ring)."""
         try:
-            chan = local.LocalChannel(path, self._token, self._local_slots, timeout=self.request_timeout)
+            chan = local.LocalChannel(path, self._token, self._local_slots, timeout=self.request_timeout,
+                                      spin_us=self._spin_us)
         except WireError as exc:
             raise SidecarProtocolError(f"the sidecar's local fast path at {path}: {exc}") from None
         except OSError as exc:  # e.g. another mount namespace: ZeroMQ still works

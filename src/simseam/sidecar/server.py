@@ -33,6 +33,7 @@ import ctypes
 import hmac
 import json
 import os
+import select
 import signal
 import socket
 import sys
@@ -95,6 +96,8 @@ class Server:
         self.requests = 0
         self.local_path: str | None = None  # the local fast path's socket, when this server offers one
         self.ring: local.SlotRing | None = None  # the attached local client's shared-memory ring
+        self.spin_s = 0.0  # the attached local client's busy-poll budget for its next request (attach)
+        self.spun = 0  # local messages that arrived while busy-polling (reported by close)
 
     def handle(self, frames: list, ring: "local.SlotRing | None" = None, attached: bool = False) -> tuple[list, bool]:
         """Reply frames for one request, and whether to stop serving. ``ring``: put the reply's
@@ -130,7 +133,7 @@ class Server:
             if op == "render":
                 return encode("ok", {"frame": self.scene.render()}, ring), False
             if op == "close":
-                return encode("ok", {"requests": self.requests}), True
+                return encode("ok", {"requests": self.requests, "spun": self.spun}), True
             if self.test_hooks and op == "_sleep":
                 time.sleep(float(body.get("seconds", 0)))
                 return encode("ok", {}), False
@@ -184,6 +187,11 @@ class Server:
         slots = body.get("slots", local.DEFAULT_SLOTS)
         if not isinstance(slots, int) or isinstance(slots, bool) or not 2 <= slots <= 64:
             return encode("error", {"kind": "WireError", "message": f"attach: slots must be 2..64, got {slots!r}"}), []
+        spin = body.get("spin_us", 0)
+        if not isinstance(spin, int) or isinstance(spin, bool) or not 0 <= spin <= local.MAX_SPIN_US:
+            return encode("error", {"kind": "WireError",
+                                    "message": f"attach: spin_us must be 0..{local.MAX_SPIN_US}, got {spin!r}"}), []
+        self.spin_s = spin * 1e-6
         self.detach()  # the previous local client's ring (its connection is closed by the caller)
         size = local.slot_bytes_for(self.scene.spec.to_json())
         if size == 0:  # nothing large to share: the local socket alone
@@ -262,6 +270,7 @@ def serve(boot: dict) -> int:
     listener: socket.socket | None = None
     conn: socket.socket | None = None  # the attached local client
     pending: list[socket.socket] = []  # local connections that have not attached yet
+    conn_poll = None  # a select.poll on conn alone: the busy-poll between its requests
     try:
         sock.bind(boot["endpoint"])
         endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -298,37 +307,45 @@ def serve(boot: dict) -> int:
                 pending.append(new)
                 poller.register(new, zmq.POLLIN)
             for c in [c for c in (conn, *pending) if c is not None and (c in events or c.fileno() in events)]:
-                keep = True
-                try:
-                    msg = local.recv_message(c)
-                    if msg is None:
+                while True:  # the attached client's requests, as long as the next comes within its spin
+                    keep = spin = True
+                    try:
+                        msg = local.recv_message(c)
+                        if msg is None:
+                            keep = False
+                        elif c is conn:
+                            reply, stop = server.handle(msg[0], server.ring, attached=True)
+                            local.send_message(c, reply)
+                            if stop:
+                                return 0
+                        else:  # the first message of a new connection: attach, or the connection goes
+                            spin = False
+                            reply, fds = server.attach(msg[0])
+                            local.send_message(c, reply, fds)
+                            keep = _is_ok(reply)
+                            if keep:  # one local client at a time: the newest attached one
+                                pending.remove(c)
+                                if conn is not None:
+                                    poller.unregister(conn)
+                                    conn.close()
+                                conn = c
+                                conn_poll = select.poll()
+                                conn_poll.register(conn, select.POLLIN)
+                    except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
+                        sys.stderr.write(f"simseam sidecar: local connection dropped: {exc}\n")
                         keep = False
-                    elif c is conn:
-                        reply, stop = server.handle(msg[0], server.ring, attached=True)
-                        local.send_message(c, reply)
-                        if stop:
-                            return 0
-                    else:  # the first message of a new connection: attach, or the connection goes
-                        reply, fds = server.attach(msg[0])
-                        local.send_message(c, reply, fds)
-                        keep = _is_ok(reply)
-                        if keep:  # one local client at a time: the newest attached one
+                    if not keep:
+                        poller.unregister(c)
+                        c.close()
+                        if c is conn:
+                            conn = None
+                            server.detach()
+                        else:
                             pending.remove(c)
-                            if conn is not None:
-                                poller.unregister(conn)
-                                conn.close()
-                            conn = c
-                except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
-                    sys.stderr.write(f"simseam sidecar: local connection dropped: {exc}\n")
-                    keep = False
-                if not keep:
-                    poller.unregister(c)
-                    c.close()
-                    if c is conn:
-                        conn = None
-                        server.detach()
-                    else:
-                        pending.remove(c)
+                        break
+                    if not (spin and local.spin_until_readable(conn_poll, server.spin_s)):
+                        break
+                    server.spun += 1
     finally:
         for c in (conn, *pending):
             if c is not None:
