@@ -11,6 +11,12 @@ directories into one:
   ``ConfigError`` unless ``prefer_first``;
 - the merged ``summary.json`` is ``complete`` when every planned index is there; the missing ones
   are listed.
+
+``simseam eval --shard i/K`` shards the same way over the global episode index ``task_index *
+episodes_per_task + e`` (its config's ``episodes`` is the total); the merged summary is rebuilt by
+the one summary code path, so it holds the eval summary (``per_task`` with Wilson intervals,
+``mean_task_success_rate``) one unsharded run writes, and the missing episodes are also listed per
+task (``missing_by_task``: ``{task: [e, ...]}``).
 """
 
 from __future__ import annotations
@@ -115,6 +121,12 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
     summary = rebuild_summary(out, known[0] if known else None)
     planned = planned_indices(base) or []
     summary["missing"] = [i for i in planned if i not in merged]
+    tasks, per_task = base.get("tasks"), base.get("episodes_per_task")
+    if isinstance(tasks, list) and isinstance(per_task, int) and per_task > 0:  # shards of simseam eval
+        by_task: dict[str, list[int]] = {}
+        for i in summary["missing"]:
+            by_task.setdefault(str(tasks[i // per_task]), []).append(i % per_task)
+        summary["missing_by_task"] = by_task
     summary["merged_from"] = [str(d) for d in dirs]
     write_json_atomic(out / "summary.json", summary)
     return summary
