@@ -103,7 +103,8 @@ def eval_command(
                                  "one batch, others run inside each worker (default: sized to the cores and the "
                                  "episodes). Results do not depend on it."),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes whose global index "
-                              "(task_index * episodes + e) % K == i; combine the K run directories with simseam merge."),
+                              "(task_index * episodes + e) % K == i; combine the K run directories with "
+                              "simseam merge."),
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto, ray://HOST:PORT or "
                                     "HOST:PORT, or local; each Ray worker owns a sidecar of the backend and its own "
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
