@@ -75,6 +75,17 @@ def test_a_merge_missing_a_shard_names_the_missing_episodes_per_task(runs, tmp_p
     assert got["missing_by_task"] == {"reach-v3": [1], "push-v3": [1]}
     assert "2 planned episode(s) missing" in proc.stdout
     assert "reach-v3: episode(s) [1] missing" in proc.stdout and "push-v3: episode(s) [1] missing" in proc.stdout
+    # more shards than episodes per task: shard 3/4 holds one push-v3 episode only, so its spec.json is
+    # push-v3's; it merges with shard 0/2 (global indices: K may differ), the spec kept is the first task's
+    s3 = tmp_path / "s3of4"
+    proc = simseam(*ARGS, "--shard", "3/4", "--num-envs", "1", "--out", str(s3))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert summary(s3)["spec"]["task"]["name"] == "push-v3"
+    three = tmp_path / "three"
+    proc = simseam("merge", "--out", str(three), str(s3), str(runs["s0"]))
+    assert proc.returncode == 0, proc.stderr
+    got = summary(three)
+    assert got["missing_by_task"] == {"reach-v3": [1]} and got["spec"] == summary(runs["whole"])["spec"]
 
 
 def test_a_shard_resumes_alone(runs, tmp_path):
@@ -95,3 +106,8 @@ def test_a_shard_resumes_alone(runs, tmp_path):
     assert "push-v3 episode 1" in proc.stdout and "reach-v3 episode" not in proc.stdout  # only the missing one
     assert outcomes(d) == outcomes(runs["s1"])
     assert summary(d)["complete"] is True
+    # it resumed with push-v3; its spec.json stays the one it started with (reach-v3's), so it still merges
+    assert summary(d)["spec"] == summary(runs["s1"])["spec"] and summary(d)["spec"]["task"]["name"] == "reach-v3"
+    merged = tmp_path / "merged"
+    assert simseam("merge", "--out", str(merged), str(runs["s0"]), str(d)).returncode == 0
+    assert outcomes(merged) == outcomes(runs["whole"]) and summary(merged)["spec"] == summary(runs["whole"])["spec"]

@@ -103,6 +103,22 @@ def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | N
     return shard_indices(len(tasks) * episodes, shard)
 
 
+def _spec_writer(run_dir) -> Callable[[dict], None]:
+    """Writes an eval run's ``spec.json`` once: the spec of the task the run started with. A resumed run
+    keeps the one it has (the task it resumes with may be another), so a run's, a shard's and a merge's
+    ``spec.json`` do not depend on where it was interrupted."""
+    from simseam.runner.run_dir import SPEC_FILE
+
+    written = [(Path(run_dir.path) / SPEC_FILE).exists()]
+
+    def write(spec_json: dict) -> None:
+        if not written[0]:
+            run_dir.write_spec(spec_json)
+            written[0] = True
+
+    return write
+
+
 def _todo(tasks: Sequence[str], episodes: int, run_dir, indices: Sequence[int] | None) -> list[int]:
     done = run_dir.done
     planned = range(len(tasks) * episodes) if indices is None else sorted(indices)
@@ -119,7 +135,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
     from simseam.runner.session import run_episodes
 
     todo = _todo(tasks, episodes, run_dir, indices)
-    spec_written = False
+    write_spec = _spec_writer(run_dir)
     for ti, task in enumerate(tasks):
         indices = [i for i in todo if i // episodes == ti]
         if not indices:
@@ -129,9 +145,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
         rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
                                  progress=lambda s: progress(f"{task}: {s}"))
         try:
-            if not spec_written:
-                run_dir.write_spec(rollout.spec.to_json())
-                spec_written = True
+            write_spec(rollout.spec.to_json())
 
             def record(res, written, task=task, ti=ti):
                 run_dir.append({**res.to_json(), "task": task, "episode": res.index - ti * episodes})
@@ -209,7 +223,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     todo = _todo(tasks, episodes, run_dir, indices)
     if not todo:
         return
-    spec_written = False
+    spec_once = _spec_writer(run_dir)
 
     def record(res):
         entry = _eval_entry(res.to_json(), tasks, episodes, seed)
@@ -218,10 +232,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
             on_done(res, entry["task"])
 
     def write_spec(vec):
-        nonlocal spec_written
-        if not spec_written:
-            run_dir.write_spec(vec.spec.to_json())
-            spec_written = True
+        spec_once(vec.spec.to_json())
 
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
     if policy_batch is None:
@@ -271,4 +282,4 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
             on_done(entry)
 
     run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-               on_spec=run_dir.write_spec, on_done=record, on_worker_failure=on_worker_failure)
+               on_spec=_spec_writer(run_dir), on_done=record, on_worker_failure=on_worker_failure)
