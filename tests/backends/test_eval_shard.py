@@ -111,3 +111,11 @@ def test_a_shard_resumes_alone(runs, tmp_path):
     merged = tmp_path / "merged"
     assert simseam("merge", "--out", str(merged), str(runs["s0"]), str(d)).returncode == 0
     assert outcomes(merged) == outcomes(runs["whole"]) and summary(merged)["spec"] == summary(runs["whole"])["spec"]
+
+
+def test_bad_shard_and_ray_with_video_are_one_line_errors(tmp_path):
+    r = simseam(*ARGS, "--shard", "2/2", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "--shard '2/2': expected i/K with 0 <= i < K" in r.stderr
+    r = simseam(*ARGS, "--ray", "auto", "--video", "--out", str(tmp_path / "y"))
+    assert r.returncode == 2 and "--ray cannot be combined with --video" in r.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()  # refused before anything was written
