@@ -1,5 +1,6 @@
-"""simseam run --ray on a real local Ray cluster started here (`ray start --head` plus a second node on this
-machine), including killing that second node mid-run: its episode re-runs, each episode counts once."""
+"""simseam run --ray and simseam eval --ray on a real local Ray cluster started here (`ray start --head` plus
+a second node on this machine), including killing that second node mid-run (and, for eval, one Ray worker
+process mid-episode): the lost episode re-runs, each episode counts once."""
 
 import json
 import os
@@ -24,8 +25,10 @@ max_steps: {steps}
 
 
 def _env():
+    # RAY_AUTH_MODE: a ~/.ray/auth_token left by any `ray.init()` of a private cluster (`--ray local`; Ray 2.60 here)
+    # would otherwise turn token auth on for the head node only, and the second node could not join
     return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1",
-                RAY_USAGE_STATS_ENABLED="0")
+                RAY_USAGE_STATS_ENABLED="0", RAY_AUTH_MODE="disabled")
 
 
 def _free_port() -> int:
@@ -156,6 +159,102 @@ def test_ray_workers_share_one_batching_policy_server(cluster, tmp_path):
         assert max(server.batch_sizes) == 2  # the two Ray workers' requests shared policy calls
     finally:
         server.stop()
+
+
+EVAL = ("eval", "metaworld_mt10", "--tasks", "reach-v3,push-v3")
+
+
+def _eval_outcomes(out: Path) -> dict:
+    """(task, episode) -> what a deterministic policy must reproduce; each logged once."""
+    got = {}
+    for e in _log(out):
+        key = (e["task"], e["episode"])
+        assert key not in got, f"{key} logged twice"
+        got[key] = (e["index"], e["seed"], e["success"], e["steps"], e["reward"], e["error"])
+    return got
+
+
+@pytest.mark.backends
+def test_ray_eval_equals_the_sequential_eval(cluster, tmp_path):
+    """simseam eval --ray: one Meta-World sidecar per Ray actor, switching task between episodes; the
+    scripted experts' results and the per-task summary equal the sequential eval's."""
+    address, _ = cluster
+    runs, summaries = {}, {}
+    for name, extra in (("ray", ["--ray", address, "--num-envs", "2"]), ("seq", ["--num-envs", "1"])):
+        out = tmp_path / name
+        r = subprocess.run([sys.executable, "-m", "simseam.cli.main", *EVAL, "--policy", "scripted", "--episodes",
+                            "2", "--seed", "3", "--out", str(out), *extra],
+                           cwd=REPO, env=_env(), capture_output=True, text=True, timeout=280)
+        assert r.returncode == 0, r.stderr
+        runs[name] = _eval_outcomes(out)
+        summaries[name] = json.loads((out / "summary.json").read_text())
+    assert sorted(runs["seq"]) == [("push-v3", 0), ("push-v3", 1), ("reach-v3", 0), ("reach-v3", 1)]
+    assert runs["ray"] == runs["seq"]
+    assert sum(v[2] for v in runs["seq"].values()) >= 3  # the experts succeed: results that mean something
+    for key in ("per_task", "mean_task_success_rate", "success_rate_wilson95", "config", "spec", "complete"):
+        assert summaries["ray"][key] == summaries["seq"][key], key
+    assert all(e["worker"]["ray_node"] for e in summaries["ray"]["episodes"])  # each played by a Ray actor
+
+
+@pytest.mark.backends
+def test_ray_eval_reruns_the_episode_of_a_worker_killed_mid_episode(cluster, tmp_path):
+    """SIGKILL to the Ray worker process of the actor on the second node while it runs an episode (its
+    process title is ``ray::EpisodeWorker.run`` only then): the episode goes back to the queue and re-runs,
+    each (task, episode) is logged once with its task's seed, and the dead actor's sidecar goes with it.
+    The node itself survives (the next test crashes it)."""
+    address, worker_node = cluster
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", *EVAL, "--policy", "zero", "--episodes", "3",
+                             "--seed", "7", "--ray", address, "--num-envs", "2", "--out", str(out)],
+                            cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    killed = None
+    try:
+        end = time.monotonic() + 240
+        while killed is None:
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < end, "no Ray worker on the second node was caught running an episode"
+            if _log(out):  # readiness: episodes are being played
+                for pid in _descendants(worker_node.proc.pid):
+                    try:
+                        title = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]
+                    except OSError:
+                        continue
+                    if title == b"ray::EpisodeWorker.run":
+                        sidecars = _descendants(pid)
+                        os.kill(pid, signal.SIGKILL)
+                        killed = (pid, sidecars)
+                        break
+            time.sleep(0.05)
+        stdout, stderr = proc.communicate(timeout=280)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, stderr
+    assert "a Ray worker died in episode" in stderr and "goes back to the queue" in stderr, stderr
+    assert killed[1] and all(_gone(p) for p in killed[1])  # the killed actor's sidecar followed it
+    got = _eval_outcomes(out)
+    assert sorted(got) == [(t, e) for t in ("push-v3", "reach-v3") for e in range(3)]  # each once, none lost
+    for (task, e), (index, seed, success, steps, reward, error) in got.items():
+        assert index == ("reach-v3", "push-v3").index(task) * 3 + e and seed == 7 + e
+        assert steps == 500 and error is None  # zero actions: full-length episodes, the lost one re-run whole
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is True and summary["n_episodes"] == 6
+    assert {t: v["n_episodes"] for t, v in summary["per_task"].items()} == {"reach-v3": 3, "push-v3": 3}
+
+
+def _gone(pid: int, timeout: float = 60.0) -> bool:
+    """The process exits (or is a zombie) within ``timeout`` (a hang guard)."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            text = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            return True
+        if text[text.rindex(")") + 2:].split()[0] in ("Z", "X"):
+            return True
+        if time.monotonic() > end:
+            os.kill(pid, signal.SIGKILL)  # never leave it behind; the test fails
+            return False
+        time.sleep(0.02)
 
 
 def test_ray_run_survives_a_node_killed_mid_run(cluster, tmp_path):

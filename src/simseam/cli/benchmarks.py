@@ -102,16 +102,26 @@ def eval_command(
                                  "owning a sidecar of the backend; lerobot:/remote: policies act for all of them in "
                                  "one batch, others run inside each worker (default: sized to the cores and the "
                                  "episodes). Results do not depend on it."),
+    shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes whose global index "
+                              "(task_index * episodes + e) % K == i; combine the K run directories with "
+                              "simseam merge."),
+    ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto, ray://HOST:PORT or "
+                                    "HOST:PORT, or local; each Ray worker owns a sidecar of the backend and its own "
+                                    "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.cli.main import _close_policy, _policy_kwargs, _redacted, _sigterm_as_interrupt
     from simseam.policies.base import make_policy
-    from simseam.runner.evaluate import eval_config, preset, resolve_tasks, run_eval
+    from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
+    from simseam.runner.sharding import parse_shard
 
     if resume and out is None:
         _fail(ConfigError("--resume needs --out (the run directory to continue)"))
     try:
+        shard_ik = parse_shard(shard) if shard is not None else None
+        if ray_address is not None and video:
+            raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
         p = preset(preset_name)
         only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks else None
         task_list = resolve_tasks(p, only)
@@ -119,12 +129,19 @@ def eval_command(
         default_out = out is None
         out = default_run_dir() if default_out else out
         config = eval_config(p, _redacted(policy), task_list, n, seed, video)
+        if shard_ik is not None:
+            config["shard"] = list(shard_ik)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)
     except SimseamError as exc:
         _fail(exc)
     if default_out:
         point_latest(out)
-    todo = [i for i in range(len(task_list) * n) if i not in run_dir.done]
+    planned = eval_indices(task_list, n, shard_ik)
+    todo = [i for i in planned if i not in run_dir.done]
+    if ray_address is not None:
+        _eval_ray(p, policy, _policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,
+                  num_workers=num_envs, seed=seed, indices=planned)
+        return
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
@@ -143,12 +160,13 @@ def eval_command(
         _fail(exc)
     console.print(f"eval [bold]{escape(p.name)}[/]: {len(task_list)} task(s) x {n} episode(s), policy "
                   f"[bold]{escape(policy)}[/] -> {escape(str(out))}" + ("" if config["standard"] else
-                                                                      "  [yellow](non-standard: subset)[/]"))
+                                                                      "  [yellow](non-standard: subset)[/]")
+                  + (f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else ""))
     if resume:
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
     if num_envs > 1:
         interrupted = _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
-                                   seed=seed, video=video)
+                                   seed=seed, video=video, indices=planned)
         _eval_summary(p, policy, out, interrupted)
         return
 
@@ -165,7 +183,7 @@ def eval_command(
         with _sigterm_as_interrupt():
             run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                      progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
-                     on_done=done, on_error=error)
+                     on_done=done, on_error=error, indices=planned)
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
@@ -179,7 +197,7 @@ def eval_command(
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
-                 num_envs: int, *, seed: int, video: bool) -> bool:
+                 num_envs: int, *, seed: int, video: bool, indices: list[int]) -> bool:
     """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``); returns
     whether it was interrupted. Progress as ``simseam run --num-envs``."""
     from simseam.cli.main import EvalProgress, _close_policy, _sigterm_as_interrupt
@@ -190,7 +208,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
     if batch is None:  # nothing shared: each worker runs its own instance
         _close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
-    todo = len(task_list) * n - len(run_dir.done)
+    todo = len([i for i in indices if i not in run_dir.done])
     interrupted = False
     error = None
     try:
@@ -202,7 +220,8 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
                             policy_batch=batch, privileged=privileged, seed=seed,
                             video_dir=out if video else None, on_start=start,
                             on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
-                            on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+                            on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
+                            indices=indices)
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
@@ -217,11 +236,53 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
     return interrupted
 
 
+def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,
+              num_workers: int | None, seed: int, indices: list[int]) -> None:
+    """``simseam eval --ray ADDRESS``: the episodes on Ray actors (``run_eval_ray``), each owning a sidecar
+    of the backend and its own policy; results streamed into the episode log. Progress as ``run --ray``."""
+    from simseam.cli.main import EvalProgress, _close_policy, _sigterm_as_interrupt
+    from simseam.policies.base import make_policy
+    from simseam.runner.evaluate import run_eval_ray
+    from simseam.runner.run_dir import rebuild_summary
+
+    todo = [i for i in indices if i not in run_dir.done]
+    interrupted = False
+    try:
+        probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
+        privileged = probe.requires_privileged
+        _close_policy(probe)
+        console.print(f"eval [bold]{escape(p.name)}[/]: {len(todo)} episode(s) of {len(task_list)} task(s), policy "
+                      f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
+        if run_dir.done:
+            console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
+        with _sigterm_as_interrupt(), EvalProgress(console, total=len(todo)) as progress:
+            run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
+                         privileged=privileged, seed=seed, num_workers=num_workers, indices=indices,
+                         on_done=progress.done, on_worker_failure=progress.worker_failure)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:
+        run_dir.close()
+        rebuild_summary(out, interrupted=True)
+        _fail(exc)
+    finally:
+        run_dir.close()
+    _eval_summary(p, policy, out, interrupted)
+
+
 def _eval_summary(p, policy: str, out: Path, interrupted: bool) -> None:
     from simseam.runner.run_dir import rebuild_summary
 
     summary = rebuild_summary(out, interrupted=interrupted)
-    table = Table("task", "success", "rate", "Wilson 95%", title=f"{p.name} ({policy})")
+    print_task_table(summary, f"{p.name} ({policy})")
+    console.print(f"summary: {escape(str(out / 'summary.json'))}")
+    if interrupted:
+        raise typer.Exit(code=130)
+
+
+def print_task_table(summary: dict, title: str) -> None:
+    """An eval summary's per-task success, the pooled rate and the mean of the tasks' rates."""
+    table = Table("task", "success", "rate", "Wilson 95%", title=escape(title))
     for task, t in (summary.get("per_task") or {}).items():
         lo, hi = t["success_rate_wilson95"]
         table.add_row(escape(task), f"{t['n_success']}/{t['n_episodes']}", f"{t['success_rate']:.1%}",
@@ -232,6 +293,3 @@ def _eval_summary(p, policy: str, out: Path, interrupted: bool) -> None:
     if summary.get("per_task"):
         table.add_row("[bold]mean of tasks[/]", "", f"{summary['mean_task_success_rate']:.1%}", "")
     console.print(table)
-    console.print(f"summary: {escape(str(out / 'summary.json'))}")
-    if interrupted:
-        raise typer.Exit(code=130)

@@ -488,6 +488,10 @@ def merge(
         summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
     except SimseamError as exc:
         _fail(exc)
+    if summary.get("per_task"):  # shards of simseam eval: the eval summary's per-task table
+        from simseam.cli.benchmarks import print_task_table
+
+        print_task_table(summary, f"{summary['config'].get('preset')} ({summary['config'].get('policy')}), merged")
     lo, hi = summary["success_rate_wilson95"]
     missing = summary["missing"]
     console.print(f"merged {len(runs)} run(s): {summary['n_episodes']} episode(s), success {summary['n_success']}/"
@@ -495,6 +499,9 @@ def merge(
                   + ("complete" if not missing else f"[yellow]{len(missing)} planned episode(s) missing: "
                      f"{missing[:20]}{' ...' if len(missing) > 20 else ''}[/]")
                   + f"; summary: {escape(str(out / 'summary.json'))}")
+    for task, es in (summary.get("missing_by_task") or {}).items():  # eval shards: which task's episodes
+        console.print(f"  [yellow]{escape(task)}: episode(s) {escape(str(es[:20]))}{' ...' if len(es) > 20 else ''} "
+                      "missing[/]")
 
 
 @app.command()

@@ -9,13 +9,18 @@ policy sees the same initial states. Results go through ``run_dir.RunDir`` exact
 and the summary adds ``per_task`` success with Wilson 95 % intervals and
 ``mean_task_success_rate`` (the mean of the per-task rates, as MT-style papers report)
 next to the pooled rate.
+
+Episode ``e`` of task ``ti`` has the global index ``ti * episodes + e``. ``--shard i/K`` runs the
+indices with ``index % K == i`` (``eval_indices``), so every shard gets a share of every task (when
+``K`` does not exceed the episodes per task); ``simseam merge`` rebuilds the eval summary from the
+shards. ``run_eval_ray`` runs them on a Ray cluster (``runner.ray_eval``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from simseam.seam import ConfigError
 
@@ -91,18 +96,48 @@ def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: i
             "task_config": p.config}
 
 
+def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | None = None) -> list[int]:
+    """The global episode indices a run (or its shard ``(i, K)``: ``index % K == i``) plans, task-major."""
+    from simseam.runner.sharding import shard_indices
+
+    return shard_indices(len(tasks) * episodes, shard)
+
+
+def _spec_writer(run_dir) -> Callable[[dict], None]:
+    """Writes an eval run's ``spec.json`` once: the spec of the task the run started with. A resumed run
+    keeps the one it has (the task it resumes with may be another), so a run's, a shard's and a merge's
+    ``spec.json`` do not depend on where it was interrupted."""
+    from simseam.runner.run_dir import SPEC_FILE
+
+    written = [(Path(run_dir.path) / SPEC_FILE).exists()]
+
+    def write(spec_json: dict) -> None:
+        if not written[0]:
+            run_dir.write_spec(spec_json)
+            written[0] = True
+
+    return write
+
+
+def _todo(tasks: Sequence[str], episodes: int, run_dir, indices: Sequence[int] | None) -> list[int]:
+    done = run_dir.done
+    planned = range(len(tasks) * episodes) if indices is None else sorted(indices)
+    return [i for i in planned if i not in done]
+
+
 def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: int, run_dir, *, seed: int = 0,
              video_dir: Path | None = None, progress: Callable[[str], None] = lambda s: None,
-             on_start=None, on_done=None, on_error=None) -> None:
-    """Run the preset's episodes not yet in ``run_dir`` (a ``RunDir``); every finished one is
-    appended to its log (with ``task`` and ``episode``) before the next starts."""
+             on_start=None, on_done=None, on_error=None, indices: Sequence[int] | None = None) -> None:
+    """Run the preset's episodes not yet in ``run_dir`` (a ``RunDir``; of ``indices`` only, when given:
+    a shard's); every finished one is appended to its log (with ``task`` and ``episode``) before the
+    next starts."""
     from simseam.backends import open_benchmark
     from simseam.runner.session import run_episodes
 
-    done = run_dir.done
-    spec_written = False
+    todo = _todo(tasks, episodes, run_dir, indices)
+    write_spec = _spec_writer(run_dir)
     for ti, task in enumerate(tasks):
-        indices = [ti * episodes + e for e in range(episodes) if ti * episodes + e not in done]
+        indices = [i for i in todo if i // episodes == ti]
         if not indices:
             continue
         cfg = {**p.config, "task": task}
@@ -110,9 +145,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
         rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
                                  progress=lambda s: progress(f"{task}: {s}"))
         try:
-            if not spec_written:
-                run_dir.write_spec(rollout.spec.to_json())
-                spec_written = True
+            write_spec(rollout.spec.to_json())
 
             def record(res, written, task=task, ti=ti):
                 run_dir.append({**res.to_json(), "task": task, "episode": res.index - ti * episodes})
@@ -124,6 +157,14 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
                          on_start=on_start, on_done=record, on_error=on_error)
         finally:
             rollout.close()
+
+
+def _eval_entry(entry: dict, tasks: Sequence[str], episodes: int, seed: int) -> dict:
+    """An episode's log line with its ``task`` and ``episode`` (index within the task)."""
+    ti, e = divmod(int(entry["index"]), episodes)
+    if entry.get("error") and entry.get("steps") == 0:  # recorded by a parent (its worker was lost too often):
+        entry = {**entry, "seed": seed + e}             # the task's seed, not seed + the global index
+    return {**entry, "task": tasks[ti], "episode": e}
 
 
 @dataclass
@@ -162,7 +203,7 @@ class EvalRecipe:
 def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
                     policy_kwargs: dict, policy_batch=None, privileged: bool = False, seed: int = 0,
                     video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
-                    on_done=None, on_error=None, on_worker_failure=None) -> None:
+                    on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None) -> None:
     """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
     backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
     task 1, ...), so a worker changes task (closes its sidecar and starts one for the next task) at
@@ -175,30 +216,23 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
 
     Every finished episode is appended to the log with ``task`` and ``episode`` (index within its
     task) as it ends, whatever the order; ``on_start(vec)`` gets each ``VectorEnv`` once its first worker
-    is ready.
+    is ready. ``indices``: run only these (a shard's), as ``run_eval``.
     """
     from simseam.runner.vector import VectorEnv
 
-    done = run_dir.done
-    todo = [i for i in range(len(tasks) * episodes) if i not in done]
+    todo = _todo(tasks, episodes, run_dir, indices)
     if not todo:
         return
-    spec_written = False
+    spec_once = _spec_writer(run_dir)
 
     def record(res):
-        ti, e = divmod(res.index, episodes)
-        entry = res.to_json()
-        if res.error and res.steps == 0:  # recorded by the parent (a worker died too often): the task's seed
-            entry["seed"] = seed + e
-        run_dir.append({**entry, "task": tasks[ti], "episode": e})
+        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
+        run_dir.append(entry)
         if on_done:
-            on_done(res, tasks[ti])
+            on_done(res, entry["task"])
 
     def write_spec(vec):
-        nonlocal spec_written
-        if not spec_written:
-            run_dir.write_spec(vec.spec.to_json())
-            spec_written = True
+        spec_once(vec.spec.to_json())
 
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
     if policy_batch is None:
@@ -222,3 +256,30 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
             if on_start:
                 on_start(vec)
             vec.run(policy_batch, indices, seed=seed - ti * episodes, sync=True, **common)
+
+
+def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: str, *, policy: str,
+                 policy_kwargs: dict, privileged: bool = False, seed: int = 0, num_workers: int | None = None,
+                 indices: Sequence[int] | None = None, on_done: Callable[[dict], None] | None = None,
+                 on_worker_failure=None) -> None:
+    """``run_eval`` on the Ray cluster at ``address`` (``runner.ray_eval.run_on_ray``): each actor holds
+    its own policy instance (``policy`` is a spec) and one sidecar of the backend (an ``EvalRecipe``,
+    replaced when the next episode's task differs). Each finished episode is appended to the log with
+    ``task`` and ``episode`` as it arrives (``on_done(entry)`` after); a lost actor's episode re-runs
+    elsewhere. ``indices``: run only these (a shard's)."""
+    from simseam.runner.ray_eval import run_on_ray
+
+    todo = _todo(tasks, episodes, run_dir, indices)
+    if not todo:
+        return
+    recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged,
+                        first_task=todo[0] // episodes)
+
+    def record(entry):
+        entry = _eval_entry(entry, tasks, episodes, seed)
+        run_dir.append(entry)
+        if on_done:
+            on_done(entry)
+
+    run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
+               on_spec=_spec_writer(run_dir), on_done=record, on_worker_failure=on_worker_failure)

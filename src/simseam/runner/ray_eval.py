@@ -6,6 +6,11 @@ included: the actor owns it) and its own policy instance (a ``remote:`` policy s
 idle actors and writes each result into the run's episode log as it arrives; episode ``i`` uses seed
 ``seed + i`` wherever it runs.
 
+A recipe may define ``rollout_for(rollout, index, seed) -> (rollout, seed)`` as for the vector workers
+(``runner.vector``): the actor then asks it for each episode's rollout and seed base. ``simseam eval
+--ray`` passes an ``EvalRecipe``: an actor owns one sidecar of the benchmark's backend and replaces it
+only when the next episode's task differs (episode ``i = ti * n + e`` runs with ``seed + e``).
+
 Fault tolerance: an actor that dies (its process, or the node under it) fails its task with a Ray
 actor/node error; the driver puts that episode back at the front of the queue (at most
 ``max_attempts`` tries, then it is recorded with its error), starts a replacement actor (Ray places
@@ -37,11 +42,13 @@ def _import_ray():
 
 
 class EpisodeWorker:
-    """A Ray actor: one rollout and one policy; ``run(i, seed)`` plays episode ``i`` (seed ``seed + i``)."""
+    """A Ray actor: one rollout and one policy; ``run(i, seed)`` plays episode ``i`` (seed ``seed + i``,
+    or the recipe's ``rollout_for`` says which rollout and seed base)."""
 
     def __init__(self, recipe: RolloutRecipe, policy: str, policy_kwargs: dict):
         from simseam.policies.base import make_policy
 
+        self.recipe = recipe
         self.policy = make_policy(policy, **policy_kwargs)
         self.rollout = recipe.build()
 
@@ -55,6 +62,9 @@ class EpisodeWorker:
     def run(self, index: int, seed: int) -> dict:
         from simseam.runner.session import run_episodes
 
+        rollout_for = getattr(self.recipe, "rollout_for", None)
+        if rollout_for is not None:  # a multi-task recipe (simseam eval): this episode's task
+            self.rollout, seed = rollout_for(self.rollout, index, seed)
         return run_episodes(self.rollout, self.policy, [index], seed=seed)[0].to_json()
 
     def close(self) -> None:

@@ -11,6 +11,14 @@ directories into one:
   ``ConfigError`` unless ``prefer_first``;
 - the merged ``summary.json`` is ``complete`` when every planned index is there; the missing ones
   are listed.
+
+``simseam eval --shard i/K`` shards the same way over the global episode index ``task_index *
+episodes_per_task + e`` (its config's ``episodes`` is the total); the merged summary is rebuilt by
+the one summary code path, so it holds the eval summary (``per_task`` with Wilson intervals,
+``mean_task_success_rate``) one unsharded run writes, and the missing episodes are also listed per
+task (``missing_by_task``: ``{task: [e, ...]}``). An eval run's ``spec.json`` is the spec of the task
+it started with, so the shards' specs are compared without their ``task`` part and the merge keeps
+the spec of the run holding the lowest index (the first task's, as an unsharded run's).
 """
 
 from __future__ import annotations
@@ -79,9 +87,14 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
         if diff:
             raise ConfigError(f"simseam merge: {d} ran a different config than {dirs[0]}:\n"
                               + "\n".join(f"  - {x}" for x in diff))
+    multi_task = isinstance(base.get("tasks"), list)  # simseam eval: each run's spec is its first task's
+
+    def comparable(spec: dict) -> dict:
+        return {k: v for k, v in spec.items() if k != "task"} if multi_task else spec
+
     known = [s for s in specs if s is not None]
     for d, s in zip(dirs, specs):
-        if s is not None and s != known[0]:
+        if s is not None and comparable(s) != comparable(known[0]):
             raise ConfigError(f"simseam merge: {d}: its spec.json differs from {dirs[specs.index(known[0])]}'s "
                               "(a different simulator or robot behind the same scene file)")
     merged: dict[int, dict] = {}
@@ -104,17 +117,27 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
                           "choose another output directory")
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / CONFIG_FILE, base)
-    if known:
-        write_json_atomic(out / SPEC_FILE, known[0])
+    spec = known[0] if known else None
+    if multi_task and merged:  # the spec of the run holding the first episode: the first task's, as one run's
+        first = specs[[Path(d) for d in dirs].index(source[min(merged)])]
+        spec = first if first is not None else spec
+    if spec is not None:
+        write_json_atomic(out / SPEC_FILE, spec)
     tmp = out / (LOG_FILE + ".merging")
     with open(tmp, "w") as f:
         for i in sorted(merged):
             f.write(json.dumps(merged[i]) + "\n")
         f.flush()
     tmp.replace(out / LOG_FILE)
-    summary = rebuild_summary(out, known[0] if known else None)
+    summary = rebuild_summary(out, spec)
     planned = planned_indices(base) or []
     summary["missing"] = [i for i in planned if i not in merged]
+    tasks, per_task = base.get("tasks"), base.get("episodes_per_task")
+    if isinstance(tasks, list) and isinstance(per_task, int) and per_task > 0:  # shards of simseam eval
+        by_task: dict[str, list[int]] = {}
+        for i in summary["missing"]:
+            by_task.setdefault(str(tasks[i // per_task]), []).append(i % per_task)
+        summary["missing_by_task"] = by_task
     summary["merged_from"] = [str(d) for d in dirs]
     write_json_atomic(out / "summary.json", summary)
     return summary
