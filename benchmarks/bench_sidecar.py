@@ -17,8 +17,10 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
      5 x 806 kB = 4.03 MB of images per observation);
    - ways: ``inproc`` (``ManifestScene`` in this process), ``tcp`` and ``ipc`` (``SidecarRollout``
      over ZeroMQ with that transport, ``local=False`` for ipc: the path before the local fast
-     path) and ``local`` (ipc with the local fast path: Unix socket + shared-memory slots);
-     the sidecar runs this venv's python. All four are interleaved in the same blocks.
+     path), ``local`` (ipc with the local fast path: Unix socket + shared-memory slots, neither
+     side busy-polling: ``spin_us=0``) and ``spin`` (the same, each side busy-polling up to
+     ``local.DEFAULT_SPIN_US`` for the other's next message: the default with >= 4 usable cores);
+     the sidecar runs this venv's python. All five are interleaved in the same blocks.
    Within a round the three ways of one observation size are interleaved in blocks (10 / 5 / 2
    steps), rotating which goes first in each block, so the slow and fast phases of this shared
    VM hit all of them alike. Per round and case: p50 / p90 of the per-step wall time around
@@ -29,6 +31,10 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    sidecar minus step i in process: the same state, the same work), which is less noisy when
    rendering dominates. Also checked: every sidecar ends each round on bit-identical joint
    positions to the in-process scene.
+   ``alone`` (part 1b): the same ways, each stepping its round's steps in a row with the others
+   idle (the order rotated every round): a policy loop's steady state, where the blocks above
+   start every tenth step on caches another rollout just used. Added = the way's p50 minus the
+   in-process p50 of the same round, median over rounds.
 
 2. Codec alone: encode + decode of a real step reply (``{"obs": <observation>, "reward", ...}``,
    taken from the in-process scenes) with ``simseam.sidecar.wire`` (zero-copy: decode reads the
@@ -184,6 +190,35 @@ class StepCase:
 
     def step(self, i: int) -> None:
         self.last = self.rollout.step(self.actions[WARMUP + i])
+
+
+def bench_alone(groups: dict[str, dict[str, StepCase]], steps: dict[str, int], rounds: int) -> dict:
+    """Each way steps ``steps`` times in a row with nothing in between (the other rollouts idle), the
+    ways taking turns in an order rotated every round; per round and way the p50, and the added
+    latency = the way's p50 - the in-process p50 of the same round, median over rounds. Unlike the
+    interleaved blocks, no step follows another rollout's work: this is a policy loop's steady state
+    (on a shared machine it is more exposed to drift, hence the rotation and the rounds)."""
+    out = {}
+    for g, group in groups.items():
+        names = list(group)
+        per_round: dict[str, list[float]] = {w: [] for w in names}
+        for r in range(rounds):
+            k = r % len(names)
+            for w in names[k:] + names[:k]:
+                c = group[w]
+                c.start()
+                t = np.empty(steps[g])
+                for i in range(steps[g]):
+                    t0 = time.perf_counter()
+                    c.step(i)
+                    t[i] = (time.perf_counter() - t0) * 1e3
+                per_round[w].append(float(np.percentile(t, 50)))
+        for w in names:
+            row = {"p50_ms": med(per_round[w]), "rounds_p50_ms": per_round[w]}
+            if w != "inproc":
+                row["added_p50_ms"] = med(x - b for x, b in zip(per_round[w], per_round["inproc"]))
+            out[f"{g}/{w}"] = row
+    return out
 
 
 def interleaved(cases: dict[str, StepCase], steps: int, block: int) -> dict[str, np.ndarray]:
@@ -718,7 +753,7 @@ def main() -> None:
     ap.add_argument("--boots", type=int, default=5, help="timed warm boots per config")
     ap.add_argument("--json", default=str(HERE / "results" / "sidecar.json"))
     ap.add_argument("--cases", default="state,rgb2x256,rgb5x480x560", help="observation sizes to run (comma list)")
-    ap.add_argument("--parts", default="step,profile,codec,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--parts", default="step,alone,profile,codec,breakdown,boot", help="what to run (comma list)")
     ap.add_argument("--robot-json", help="the Panda as a RobotSpec JSON (machines without pydantic), with --urdf")
     ap.add_argument("--urdf", help="the URDF path for --robot-json")
     ap.add_argument("--stub-server", help=argparse.SUPPRESS)
@@ -802,6 +837,11 @@ def main() -> None:
             step_res[key] = row
         results["step"] = step_res
 
+        # ---- 1b. each way alone: consecutive steps of one rollout, as a user's loop runs them
+        if "alone" in parts:
+            print("alone ...")
+            results["alone"] = bench_alone(groups, steps, args.rounds)
+
         # ---- 3. in-situ profile (with the in-process scenes, interleaved)
         if "profile" in parts:
             print("profile ...")
@@ -850,6 +890,11 @@ def main() -> None:
         added = f"{row['added_p50_ms']:+10.3f}" if "added_p50_ms" in row else f"{'':>10s}"
         pair = f"{row['added_paired_ms']:+13.3f}" if "added_paired_ms" in row else f"{'':>13s}"
         print(f"{key:24s} {row['p50_ms']:9.3f} {row['p90_ms']:9.3f} {added} {pair}  {row['obs_bytes'] / 1e6:.3f} MB")
+    if results.get("alone"):
+        print(f"\n{'alone (consecutive steps)':24s} {'p50 ms':>9s} {'added p50':>10s}")
+        for key, row in results["alone"].items():
+            added = f"{row['added_p50_ms']:+10.3f}" if "added_p50_ms" in row else f"{'':>10s}"
+            print(f"{key:24s} {row['p50_ms']:9.3f} {added}")
     bad = [k for k, r in results["step"].items() if r.get("same_trajectory_as_inproc") is False]
     print("trajectories: " + ("all sidecars bit-identical to in-process" if not bad else f"DIFFER: {bad}"))
 
@@ -888,6 +933,8 @@ def main() -> None:
         if f"{g}/local" in results["step"]:  # the goals are the local fast path's (tcp/ipc: ZeroMQ, for reference)
             for w in ("local", "spin"):
                 goals[f"added_p50_{g}_{w}_le_{limit}ms"] = results["step"][f"{g}/{w}"]["added_p50_ms"] <= limit
+                if results.get("alone"):
+                    goals[f"alone_added_p50_{g}_{w}_le_{limit}ms"] = results["alone"][f"{g}/{w}"]["added_p50_ms"] <= limit
     if "rgb2x256" in results.get("codec", {}):
         goals[f"wire_codec_ge_{GOAL_CODEC_SPEEDUP:g}x_blob_rgb2x256"] = (
             results["codec"]["rgb2x256"]["speedup_wire_vs_blob"] >= GOAL_CODEC_SPEEDUP)

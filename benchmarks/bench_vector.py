@@ -24,7 +24,8 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
   the vector runner's own cost (pipes, wake-ups, the parent's per-env work), not a simulator's.
 
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
-together by one batched policy in this process); ``async`` the same with ``sync=False`` (the policy
+together by one batched policy in this process; each side busy-polls its pipe when every process has
+a core, ``vector_spin_us``); ``vector0`` the same with the busy-poll off (``SIMSEAM_VECTOR_SPIN_US=0``); ``async`` the same with ``sync=False`` (the policy
 acts on whichever workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
@@ -213,9 +214,20 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers") -> dict:
+def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers",
+               spin: bool = True) -> dict:
     images = CASES[case][0] is not None
-    with VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {})) as vec:
+    saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
+    if not spin:
+        os.environ["SIMSEAM_VECTOR_SPIN_US"] = "0"
+    try:
+        vec = VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {}))
+    finally:
+        if saved is None:
+            os.environ.pop("SIMSEAM_VECTOR_SPIN_US", None)
+        else:
+            os.environ["SIMSEAM_VECTOR_SPIN_US"] = saved
+    with vec:
         vec._wait_booted(vec.slots)  # every worker ready before the clock starts
         if getattr(vec, "central", None) is not None:  # compile the renderer's kernels before the clock starts
             state = vec.central.scene.engine.render_state()
@@ -284,7 +296,7 @@ def main() -> None:
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
     ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "async", "local", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "async", "local", "bare"])
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
@@ -305,7 +317,7 @@ def main() -> None:
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
-            for renderer in (args.renderers if images and mode in ("vector", "async") else ["workers"]):
+            for renderer in (args.renderers if images and mode in ("vector", "vector0", "async") else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
     for case in args.cases:
@@ -320,7 +332,8 @@ def main() -> None:
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
                     else:
-                        r = run_vector(case, n, args.steps, episodes, sync=mode == "vector", renderer=renderer)
+                        r = run_vector(case, n, args.steps, episodes, sync=mode in ("vector", "vector0"),
+                                       renderer=renderer, spin=mode != "vector0")
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)

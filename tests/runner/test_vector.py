@@ -277,3 +277,32 @@ def test_workers_sidecars_busy_poll_only_when_every_process_has_a_core():
     assert SIDECAR_SPIN_ENV == SPIN_ENV
     assert sidecar_spin_us(1, 16) is None and sidecar_spin_us(7, 16) is None  # 7 workers + 7 sidecars + this one
     assert sidecar_spin_us(8, 16) == 0 and sidecar_spin_us(16, 16) == 0 and sidecar_spin_us(1, 2) == 0
+
+
+def test_lockstep_busy_polls_only_with_a_core_per_process_beyond_the_load(monkeypatch):
+    from simseam.runner.vector import DEFAULT_VECTOR_SPIN_US, VECTOR_SPIN_ENV, vector_spin_us
+
+    monkeypatch.delenv(VECTOR_SPIN_ENV, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
+    assert vector_spin_us(8, 16) == DEFAULT_VECTOR_SPIN_US
+    assert vector_spin_us(15, 16) == 0 and vector_spin_us(16, 16) == 0 and vector_spin_us(1, 2) == 0
+    monkeypatch.setattr(os, "getloadavg", lambda: (8.0, 0.0, 0.0))
+    assert vector_spin_us(8, 16) == 0  # the machine's other work needs its cores
+    monkeypatch.setenv(VECTOR_SPIN_ENV, "500")
+    assert vector_spin_us(16, 16) == 500
+    monkeypatch.setenv(VECTOR_SPIN_ENV, "lots")
+    with pytest.raises(ConfigError, match=VECTOR_SPIN_ENV):
+        vector_spin_us(2, 16)
+
+
+def test_lockstep_with_busy_polling_equals_one_process(tmp_path, monkeypatch):
+    """Both sides busy-polling (forced on: the workers wait for commands, this process for replies,
+    spinning first): the same per-episode results as one process."""
+    monkeypatch.setenv("SIMSEAM_VECTOR_SPIN_US", "5000")
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(3), seed=2)
+    pol = make_policy_batch("scripted", 2)
+    with VectorEnv(_recipe(scene, pol, 2), 2) as vec:
+        assert vec.spin_us == 5000 and all(s.pipe_poll is not None for s in vec.slots)
+        results = vec.run(pol, range(3), seed=2, sync=True)
+    assert {r.index: _outcome(r) for r in results} == reference

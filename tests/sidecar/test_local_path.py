@@ -501,7 +501,11 @@ def test_a_late_reply_after_a_timeout_is_dropped_not_taken_for_the_next(make_sid
 def test_default_spin_follows_the_cores_and_the_environment(monkeypatch):
     monkeypatch.delenv(local.SPIN_ENV, raising=False)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)))
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.0, 1.0, 1.0))
     assert local.default_spin_us() == local.DEFAULT_SPIN_US
+    monkeypatch.setattr(os, "getloadavg", lambda: (14.5, 1.0, 1.0))
+    assert local.default_spin_us() == 0  # a busy machine: no two cores to spin on
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
     assert local.default_spin_us() == 0  # two spinning processes on two cores starve the simulator
     monkeypatch.setenv(local.SPIN_ENV, "250")

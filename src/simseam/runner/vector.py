@@ -39,6 +39,7 @@ import mmap
 import multiprocessing as mp
 import os
 import pickle
+import select
 import signal
 import struct
 import time
@@ -80,6 +81,39 @@ class RolloutRecipe:
         cfg = SceneConfig.model_validate(self.scene)
         return build_rollout(cfg, Path(self.base_dir), privileged=self.privileged,
                              render_images=self.render_images, seed=self.seed)
+
+
+VECTOR_SPIN_ENV = "SIMSEAM_VECTOR_SPIN_US"
+DEFAULT_VECTOR_SPIN_US = 2000  # about two state-only physics steps
+
+
+def vector_spin_us(num_envs: int, cores: int) -> int:
+    """How long a lockstep worker busy-polls its pipe for the next command, and this process each
+    worker's pipe for its reply, before sleeping: ``$SIMSEAM_VECTOR_SPIN_US`` when set, else
+    ``DEFAULT_VECTOR_SPIN_US`` when every worker and this process have a core of their own besides the
+    machine's current load (1-minute average), else 0. A process that sleeps between steps pays the
+    wake-up and then runs on cold caches; with a core each, spinning costs nothing but that core's
+    idle time, while on a busy machine it takes the cores the simulators need."""
+    raw = os.environ.get(VECTOR_SPIN_ENV, "").strip()
+    if raw:
+        try:
+            value = int(raw)
+        except ValueError:
+            value = -1
+        if not 0 <= value <= 100_000:
+            raise ConfigError(f"{VECTOR_SPIN_ENV}={raw!r}: expected an integer number of microseconds, 0..100000")
+        return value
+    return DEFAULT_VECTOR_SPIN_US if num_envs + 1 + os.getloadavg()[0] <= cores else 0
+
+
+def _spin_readable(poller, spin_s: float) -> bool:
+    """Busy-poll ``poller`` (a ``select.poll`` on one descriptor) for up to ``spin_s`` seconds."""
+    deadline = time.perf_counter() + spin_s
+    while True:
+        if poller.poll(0):
+            return True
+        if time.perf_counter() >= deadline:
+            return False
 
 
 def sidecar_spin_us(num_envs: int, cores: int) -> int | None:
@@ -375,10 +409,11 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None) -> None:
+def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None,
+                 spin_us: int = 0) -> None:
     """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends.
     ``sidecar_spin_us``: the busy-poll budget of a sidecar rollout's local path (unless the user's
-    environment sets it)."""
+    environment sets it); ``spin_us``: this worker's busy-poll for its next command."""
     if sidecar_spin_us is not None:
         os.environ.setdefault(SIDECAR_SPIN_ENV, str(sidecar_spin_us))
     if parent_pid:
@@ -407,8 +442,14 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_
             partial_video_path(video).unlink(missing_ok=True)
         writer, video = None, None
 
+    spin_s = spin_us * 1e-6
+    if spin_s:
+        pipe_poll = select.poll()
+        pipe_poll.register(conn.fileno(), select.POLLIN)
     try:
         while True:
+            if spin_s:
+                _spin_readable(pipe_poll, spin_s)
             try:
                 buf = conn.recv_bytes()
             except EOFError:  # the parent is gone
@@ -531,6 +572,7 @@ class _Slot:
     frame_due: bool = False
     writer: Any = None
     video_path: Any = None
+    pipe_poll: Any = None  # a select.poll on conn: the busy-poll for its reply (lockstep)
 
 
 @dataclass
@@ -570,7 +612,9 @@ class VectorEnv:
             recipe = dataclasses.replace(recipe, render_images=True, pose_states=True)
             self.central = CentralRenderer(recipe, num_envs, device=render_device)
         self.recipe = recipe
-        self.sidecar_spin_us = sidecar_spin_us(num_envs, len(os.sched_getaffinity(0)))
+        cores = len(os.sched_getaffinity(0))
+        self.sidecar_spin_us = sidecar_spin_us(num_envs, cores)
+        self.spin_us = vector_spin_us(num_envs, cores)  # lockstep (run) only: run_local workers wait for whole episodes
         try:
             for s in self.slots:
                 self._spawn(s)
@@ -582,12 +626,15 @@ class VectorEnv:
     # -- processes
     def _spawn(self, s: _Slot) -> None:
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker_main, args=(child, self.recipe, os.getpid(), self.sidecar_spin_us),
-                                 daemon=True,
+        proc = self._ctx.Process(target=_worker_main, daemon=True,
+                                 args=(child, self.recipe, os.getpid(), self.sidecar_spin_us, self.spin_us),
                                  name=f"simseam-env-{s.env}")
         proc.start()
         child.close()
         s.proc, s.conn, s.state = proc, parent, BOOTING
+        if self.spin_us:
+            s.pipe_poll = select.poll()
+            s.pipe_poll.register(parent.fileno(), select.POLLIN)
         if s.mm is not None:
             s.mm.close()
         if s.block is not None:
@@ -867,7 +914,10 @@ class VectorEnv:
                 if not busy and not todo:  # nothing left for the booting workers to do
                     break
                 if sync and not booting:  # lockstep: every busy worker's reply, in turn (a dead one's is None)
+                    spin_s = self.spin_us * 1e-6
                     for s in busy:
+                        if spin_s and s.pipe_poll is not None:
+                            _spin_readable(s.pipe_poll, spin_s)
                         handle(s, self._recv(s, readable=True))
                     continue
                 watch = busy + booting

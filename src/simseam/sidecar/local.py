@@ -94,8 +94,9 @@ def slot_bytes_for(spec_json: dict, threshold: int = DEFAULT_THRESHOLD) -> int:
 def default_spin_us() -> int:
     """Microseconds to busy-poll before sleeping: ``$SIMSEAM_SIDECAR_SPIN_US`` when set (an
     integer 0..20000, else ``ValueError`` naming it), else ``DEFAULT_SPIN_US`` on a machine where
-    this process may use at least ``SPIN_MIN_CPUS`` cores and 0 on a smaller one (two spinning
-    processes would take the cores the simulator needs)."""
+    this process may use at least ``SPIN_MIN_CPUS`` cores with two of them free of the current load
+    (1-minute average), and 0 otherwise (two spinning processes would take the cores the simulator
+    and the machine's other work need)."""
     raw = os.environ.get(SPIN_ENV)
     if raw is not None and raw.strip() != "":
         try:
@@ -105,7 +106,8 @@ def default_spin_us() -> int:
         if not 0 <= value <= MAX_SPIN_US:
             raise ValueError(f"{SPIN_ENV}={raw!r}: expected an integer number of microseconds, 0..{MAX_SPIN_US}")
         return value
-    return DEFAULT_SPIN_US if len(os.sched_getaffinity(0)) >= SPIN_MIN_CPUS else 0
+    cores = len(os.sched_getaffinity(0))
+    return DEFAULT_SPIN_US if cores >= SPIN_MIN_CPUS and os.getloadavg()[0] + 2 <= cores else 0
 
 
 def spin_until_readable(poller, spin_s: float) -> bool:
