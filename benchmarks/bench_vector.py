@@ -25,7 +25,8 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process; each side busy-polls its pipe when every process has
-a core, ``vector_spin_us``); ``vector0`` the same with the busy-poll off (``SIMSEAM_VECTOR_SPIN_US=0``); ``async`` the same with ``sync=False`` (the policy
+a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
+(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``); ``async`` the same with ``sync=False`` (the policy
 acts on whichever workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
@@ -209,17 +210,21 @@ class ZeroPolicy:
         return np.zeros(self.dim, np.float32)
 
 
+# lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
+SPIN_MODES = {"vector0": 0, "vector_spin": 2000}
+
+
 def _cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
 
 
 def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers",
-               spin: bool = True) -> dict:
+               spin_us: int | None = None) -> dict:
     images = CASES[case][0] is not None
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
-    if not spin:
-        os.environ["SIMSEAM_VECTOR_SPIN_US"] = "0"
+    if spin_us is not None:
+        os.environ["SIMSEAM_VECTOR_SPIN_US"] = str(spin_us)
     try:
         vec = VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {}))
     finally:
@@ -228,6 +233,7 @@ def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, 
         else:
             os.environ["SIMSEAM_VECTOR_SPIN_US"] = saved
     with vec:
+        spin = vec.spin_us
         vec._wait_booted(vec.slots)  # every worker ready before the clock starts
         if getattr(vec, "central", None) is not None:  # compile the renderer's kernels before the clock starts
             state = vec.central.scene.engine.render_state()
@@ -240,7 +246,7 @@ def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, 
     if images:
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
-            "main_cpu_us_per_env_step": cpu / steps_done * 1e6}
+            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin}
 
 
 def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
@@ -296,7 +302,7 @@ def main() -> None:
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
     ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "async", "local", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "vector_spin", "async", "local", "bare"])
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
@@ -317,7 +323,7 @@ def main() -> None:
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
-            for renderer in (args.renderers if images and mode in ("vector", "vector0", "async") else ["workers"]):
+            for renderer in (args.renderers if images and mode in ("vector", "vector0", "vector_spin", "async") else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
     for case in args.cases:
@@ -332,8 +338,8 @@ def main() -> None:
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
                     else:
-                        r = run_vector(case, n, args.steps, episodes, sync=mode in ("vector", "vector0"),
-                                       renderer=renderer, spin=mode != "vector0")
+                        r = run_vector(case, n, args.steps, episodes, sync=mode in ("vector", "vector0", "vector_spin"),
+                                       renderer=renderer, spin_us=SPIN_MODES.get(mode))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)

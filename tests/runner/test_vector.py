@@ -284,9 +284,9 @@ def test_lockstep_busy_polls_only_with_a_core_per_process_beyond_the_load(monkey
 
     monkeypatch.delenv(VECTOR_SPIN_ENV, raising=False)
     monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
-    assert vector_spin_us(8, 16) == DEFAULT_VECTOR_SPIN_US
-    assert vector_spin_us(15, 16) == 0 and vector_spin_us(16, 16) == 0 and vector_spin_us(1, 2) == 0
-    monkeypatch.setattr(os, "getloadavg", lambda: (8.0, 0.0, 0.0))
+    assert vector_spin_us(8, 16) == DEFAULT_VECTOR_SPIN_US and vector_spin_us(15, 16) == DEFAULT_VECTOR_SPIN_US
+    assert vector_spin_us(16, 16) == 0 and vector_spin_us(2, 2) == 0 and vector_spin_us(17, 16) == 0
+    monkeypatch.setattr(os, "getloadavg", lambda: (8.5, 0.0, 0.0))
     assert vector_spin_us(8, 16) == 0  # the machine's other work needs its cores
     monkeypatch.setenv(VECTOR_SPIN_ENV, "500")
     assert vector_spin_us(16, 16) == 500

@@ -90,10 +90,11 @@ DEFAULT_VECTOR_SPIN_US = 2000  # about two state-only physics steps
 def vector_spin_us(num_envs: int, cores: int) -> int:
     """How long a lockstep worker busy-polls its pipe for the next command, and this process each
     worker's pipe for its reply, before sleeping: ``$SIMSEAM_VECTOR_SPIN_US`` when set, else
-    ``DEFAULT_VECTOR_SPIN_US`` when every worker and this process have a core of their own besides the
-    machine's current load (1-minute average), else 0. A process that sleeps between steps pays the
-    wake-up and then runs on cold caches; with a core each, spinning costs nothing but that core's
-    idle time, while on a busy machine it takes the cores the simulators need."""
+    ``DEFAULT_VECTOR_SPIN_US`` when every worker has a core of its own besides the machine's current
+    load (1-minute average), else 0. A process that sleeps between steps pays the wake-up and then
+    runs on cold caches; with a core each, spinning costs nothing but that core's idle time (a
+    spinning process yields its core between polls, so this process still gets one when it shares),
+    while on a busy machine it takes the cores the simulators need."""
     raw = os.environ.get(VECTOR_SPIN_ENV, "").strip()
     if raw:
         try:
@@ -103,17 +104,19 @@ def vector_spin_us(num_envs: int, cores: int) -> int:
         if not 0 <= value <= 100_000:
             raise ConfigError(f"{VECTOR_SPIN_ENV}={raw!r}: expected an integer number of microseconds, 0..100000")
         return value
-    return DEFAULT_VECTOR_SPIN_US if num_envs + 1 + os.getloadavg()[0] <= cores else 0
+    return DEFAULT_VECTOR_SPIN_US if num_envs + os.getloadavg()[0] <= cores else 0
 
 
 def _spin_readable(poller, spin_s: float) -> bool:
-    """Busy-poll ``poller`` (a ``select.poll`` on one descriptor) for up to ``spin_s`` seconds."""
+    """Busy-poll ``poller`` (a ``select.poll`` on one descriptor) for up to ``spin_s`` seconds, yielding
+    the core between polls to any other runnable process on it."""
     deadline = time.perf_counter() + spin_s
     while True:
         if poller.poll(0):
             return True
         if time.perf_counter() >= deadline:
             return False
+        os.sched_yield()
 
 
 def sidecar_spin_us(num_envs: int, cores: int) -> int | None:

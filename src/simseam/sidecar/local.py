@@ -112,7 +112,8 @@ def default_spin_us() -> int:
 
 def spin_until_readable(poller, spin_s: float) -> bool:
     """Busy-poll ``poller`` (a ``select.poll`` with one socket registered) for up to ``spin_s``
-    seconds; True as soon as it reports an event (data, or the peer's end)."""
+    seconds, yielding the core between polls; True as soon as it reports an event (data, or the
+    peer's end)."""
     if spin_s <= 0:
         return False
     deadline = time.perf_counter() + spin_s
@@ -121,6 +122,7 @@ def spin_until_readable(poller, spin_s: float) -> bool:
             return True
         if time.perf_counter() >= deadline:
             return False
+        os.sched_yield()  # another runnable process on this core goes first
 
 
 # ----------------------------------------------------------------------------- framing
