@@ -11,11 +11,11 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from backend_util import backend_python
+from proc_util import descendants, exited
 
 pytestmark = pytest.mark.backends
 
@@ -95,7 +95,7 @@ def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path)
             if busy[0].conn.poll():
                 os.kill(pid, signal.SIGCONT)  # its result is already on its way: try at the next one
             else:
-                killed.append((busy[0].index, pid, _descendants(pid)))
+                killed.append((busy[0].index, pid, descendants(pid)))
                 os.kill(pid, signal.SIGKILL)
 
     try:
@@ -106,7 +106,7 @@ def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path)
     assert killed, "no worker was caught mid-episode"
     index, pid, sidecars = killed[0]
     assert [f.index for f in failures] == [index] and failures[0].exitcode == -signal.SIGKILL
-    assert sidecars and all(_gone(s) for s in sidecars)  # the dead worker's sidecar followed it
+    assert sidecars and all(exited(s) for s in sidecars)  # the dead worker's sidecar followed it
     assert sorted(i for i, _ in done) == list(range(len(TASKS) * EPISODES))  # each episode handed on once
     assert outcomes(out) == want
     assert rebuild_summary(out)["n_episodes"] == len(TASKS) * EPISODES
@@ -123,7 +123,7 @@ def test_resume_after_the_run_is_killed_continues(reference, tmp_path):
     try:
         for line in proc.stdout:  # readiness: the first finished episode's line (written to the log before it)
             if line.startswith("episode "):
-                tree = _descendants(proc.pid)
+                tree = descendants(proc.pid)
                 proc.kill()
                 break
         proc.wait(timeout=120)
@@ -133,7 +133,7 @@ def test_resume_after_the_run_is_killed_continues(reference, tmp_path):
             proc.wait()
         proc.stdout.close()
     assert tree, "the run ended before its first episode line"
-    assert all(_gone(p) for p in tree), "workers or sidecars outlived the killed run"
+    assert all(exited(p) for p in tree), "workers or sidecars outlived the killed run"
     first = outcomes(out)
     assert 1 <= len(first) < len(want)
     proc = simseam(*ARGS, "--num-envs", "2", "--out", str(out), "--resume")
@@ -174,44 +174,3 @@ def test_a_batched_remote_policy_steps_every_task_together_with_the_same_results
     assert sorted(runs[1]) == sorted((t, e) for t in TASKS for e in range(2))
     assert runs[2] == runs[1]
     assert all(r[3] == 500 and r[5] is None for r in runs[1].values())  # zero actions: full-length episodes
-
-
-# ---------------------------------------------------------------------------------------------- /proc
-def _children(pid: int) -> list[int]:
-    out = []
-    for p in os.listdir("/proc"):
-        if not p.isdigit():
-            continue
-        try:
-            text = Path(f"/proc/{p}/stat").read_text()
-        except OSError:
-            continue
-        fields = text[text.rindex(")") + 2:].split()
-        if int(fields[1]) == pid and fields[0] not in ("Z", "X"):
-            out.append(int(p))
-    return out
-
-
-def _descendants(pid: int) -> list[int]:
-    out, todo = [], [pid]
-    while todo:
-        for c in _children(todo.pop()):
-            out.append(c)
-            todo.append(c)
-    return out
-
-
-def _gone(pid: int, timeout: float = 60.0) -> bool:
-    """The process exits (or is a zombie) within ``timeout`` (a hang guard; it normally takes milliseconds)."""
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            text = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            return True
-        if text[text.rindex(")") + 2:].split()[0] in ("Z", "X"):
-            return True
-        if time.monotonic() > deadline:
-            os.kill(pid, signal.SIGKILL)  # never leave it behind; the test fails
-            return False
-        time.sleep(0.02)

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from proc_util import descendants, exited
 
 import ray  # noqa: E402,F401  (a missing Ray must fail here, not skip)
 
@@ -42,20 +43,6 @@ def _log(out: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
 
 
-def _descendants(pid: int) -> list[int]:
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            try:
-                kids = [int(x) for x in (task / "children").read_text().split()]
-            except OSError:
-                continue
-            out += kids
-            todo += kids
-    return out
-
-
 class _Node:
     """`ray start --block` in a child process (its processes end with it); stopped by its pid."""
 
@@ -77,7 +64,7 @@ class _Node:
     def crash(self) -> None:
         """The node dies at once: SIGKILL to `ray start`, its raylet and every worker process under it
         (SIGTERM would drain the node, letting running tasks finish first)."""
-        tree = _descendants(self.proc.pid)
+        tree = descendants(self.proc.pid)
         for pid in [self.proc.pid, *tree]:
             try:
                 os.kill(pid, signal.SIGKILL)
@@ -214,13 +201,13 @@ def test_ray_eval_reruns_the_episode_of_a_worker_killed_mid_episode(cluster, tmp
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < end, "no Ray worker on the second node was caught running an episode"
             if _log(out):  # readiness: episodes are being played
-                for pid in _descendants(worker_node.proc.pid):
+                for pid in descendants(worker_node.proc.pid):
                     try:
                         title = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]
                     except OSError:
                         continue
                     if title == b"ray::EpisodeWorker.run":
-                        sidecars = _descendants(pid)
+                        sidecars = descendants(pid)
                         os.kill(pid, signal.SIGKILL)
                         killed = (pid, sidecars)
                         break
@@ -230,7 +217,7 @@ def test_ray_eval_reruns_the_episode_of_a_worker_killed_mid_episode(cluster, tmp
         proc.kill()
     assert proc.returncode == 0, stderr
     assert "a Ray worker died in episode" in stderr and "goes back to the queue" in stderr, stderr
-    assert killed[1] and all(_gone(p) for p in killed[1])  # the killed actor's sidecar followed it
+    assert killed[1] and all(exited(p) for p in killed[1])  # the killed actor's sidecar followed it
     got = _eval_outcomes(out)
     assert sorted(got) == [(t, e) for t in ("push-v3", "reach-v3") for e in range(3)]  # each once, none lost
     for (task, e), (index, seed, success, steps, reward, error) in got.items():
@@ -239,22 +226,6 @@ def test_ray_eval_reruns_the_episode_of_a_worker_killed_mid_episode(cluster, tmp
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is True and summary["n_episodes"] == 6
     assert {t: v["n_episodes"] for t, v in summary["per_task"].items()} == {"reach-v3": 3, "push-v3": 3}
-
-
-def _gone(pid: int, timeout: float = 60.0) -> bool:
-    """The process exits (or is a zombie) within ``timeout`` (a hang guard)."""
-    end = time.monotonic() + timeout
-    while True:
-        try:
-            text = Path(f"/proc/{pid}/stat").read_text()
-        except OSError:
-            return True
-        if text[text.rindex(")") + 2:].split()[0] in ("Z", "X"):
-            return True
-        if time.monotonic() > end:
-            os.kill(pid, signal.SIGKILL)  # never leave it behind; the test fails
-            return False
-        time.sleep(0.02)
 
 
 def test_ray_run_survives_a_node_killed_mid_run(cluster, tmp_path):

@@ -271,10 +271,7 @@ def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path, syn
 
 
 def test_workers_sidecars_busy_poll_only_when_every_process_has_a_core():
-    from simseam.runner.vector import SIDECAR_SPIN_ENV, sidecar_spin_us
-    from simseam.sidecar.local import SPIN_ENV
-
-    assert SIDECAR_SPIN_ENV == SPIN_ENV
+    from simseam.runner.vector import sidecar_spin_us
     assert sidecar_spin_us(1, 16) is None and sidecar_spin_us(7, 16) is None  # 7 workers + 7 sidecars + this one
     assert sidecar_spin_us(8, 16) == 0 and sidecar_spin_us(16, 16) == 0 and sidecar_spin_us(1, 2) == 0
 

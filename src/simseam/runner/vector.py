@@ -55,8 +55,8 @@ import numpy as np
 from simseam.runner.episodes import EpisodeResult, partial_video_path
 from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
+from simseam.sidecar.local import SPIN_ENV, spin_until_readable
 
-SIDECAR_SPIN_ENV = "SIMSEAM_SIDECAR_SPIN_US"  # simseam.sidecar.local.SPIN_ENV (not imported: no zmq needed here)
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
 
@@ -105,18 +105,6 @@ def vector_spin_us(num_envs: int, cores: int) -> int:
             raise ConfigError(f"{VECTOR_SPIN_ENV}={raw!r}: expected an integer number of microseconds, 0..100000")
         return value
     return DEFAULT_VECTOR_SPIN_US if num_envs + os.getloadavg()[0] <= cores else 0
-
-
-def _spin_readable(poller, spin_s: float) -> bool:
-    """Busy-poll ``poller`` (a ``select.poll`` on one descriptor) for up to ``spin_s`` seconds, yielding
-    the core between polls to any other runnable process on it."""
-    deadline = time.perf_counter() + spin_s
-    while True:
-        if poller.poll(0):
-            return True
-        if time.perf_counter() >= deadline:
-            return False
-        os.sched_yield()
 
 
 def sidecar_spin_us(num_envs: int, cores: int) -> int | None:
@@ -418,7 +406,7 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_
     ``sidecar_spin_us``: the busy-poll budget of a sidecar rollout's local path (unless the user's
     environment sets it); ``spin_us``: this worker's busy-poll for its next command."""
     if sidecar_spin_us is not None:
-        os.environ.setdefault(SIDECAR_SPIN_ENV, str(sidecar_spin_us))
+        os.environ.setdefault(SPIN_ENV, str(sidecar_spin_us))
     if parent_pid:
         _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
@@ -452,7 +440,7 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_
     try:
         while True:
             if spin_s:
-                _spin_readable(pipe_poll, spin_s)
+                spin_until_readable(pipe_poll, spin_s)
             try:
                 buf = conn.recv_bytes()
             except EOFError:  # the parent is gone
@@ -920,7 +908,7 @@ class VectorEnv:
                     spin_s = self.spin_us * 1e-6
                     for s in busy:
                         if spin_s and s.pipe_poll is not None:
-                            _spin_readable(s.pipe_poll, spin_s)
+                            spin_until_readable(s.pipe_poll, spin_s)
                         handle(s, self._recv(s, readable=True))
                     continue
                 watch = busy + booting
