@@ -302,16 +302,20 @@ class LocalChannel:
     after a timeout are read and dropped (ZeroMQ's REQ_CORRELATE, by counting)."""
 
     def __init__(self, path: str, token: str, slots: int = DEFAULT_SLOTS, timeout: float = 30.0,
-                 spin_us: int = 0):
+                 spin_us: int = 0, compact: bool = False):
         import select
 
+        from simseam.sidecar.compact import COMPACT_VERSION
         from simseam.sidecar.wire import decode, encode
 
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             self.sock.settimeout(timeout)
             self.sock.connect(path)
-            send_message(self.sock, encode("attach", {"token": token, "slots": slots, "spin_us": int(spin_us)}))
+            ask = {"token": token, "slots": slots, "spin_us": int(spin_us)}
+            if compact:
+                ask["compact"] = COMPACT_VERSION
+            send_message(self.sock, encode("attach", ask))
             msg = recv_message(self.sock, want_fds=1)
             if msg is None:
                 raise PeerClosed("the sidecar closed the local connection during attach")
@@ -326,12 +330,17 @@ class LocalChannel:
                 if (layout is None) != (not fds):
                     raise WireError(f"attach: ring layout {layout!r:.200} does not match the {len(fds)} "
                                     "descriptor(s) passed")
+                granted = body.get("compact")  # an older sidecar does not answer: msgpack only
+                if granted is not None and (not compact or granted != COMPACT_VERSION):
+                    raise WireError(f"attach: compact messages version {granted!r}, asked for "
+                                    f"{COMPACT_VERSION if compact else 'none'}")
             except BaseException:
                 for fd in fds:
                     os.close(fd)
                 raise
             self.slots = map_slots(fds[0], layout) if fds else None
             self.layout = layout
+            self.compact = granted is not None  # step messages may travel compact (simseam.sidecar.compact)
             self.sock.settimeout(timeout)  # a reply that starts must finish within the request timeout
         except BaseException:
             self.sock.close()
@@ -342,6 +351,7 @@ class LocalChannel:
         self._spin_s = spin_us * 1e-6
         self._spin_due = False
         self.closed = False
+        self.on_stale = None  # called with each stale reply's frames before it is dropped (compact templates)
 
     def send_multipart(self, frames: list, copy: bool = False) -> None:
         send_message(self.sock, frames)
@@ -359,10 +369,13 @@ class LocalChannel:
             if self._outstanding <= 1:
                 return 1
             try:
-                if recv_message(self.sock) is None:  # a stale reply (its request timed out): drop it
+                stale = recv_message(self.sock)  # a stale reply (its request timed out): drop it
+                if stale is None:
                     return 1
             except Truncated:  # the sidecar died mid-reply: recv_multipart reports the end
                 return 1
+            if self.on_stale is not None:
+                self.on_stale(stale[0])
             self._outstanding -= 1
             timeout_ms = 0
         return 0
