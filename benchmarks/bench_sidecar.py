@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_sidecar.py [--steps 300] [--rounds 5] [--boots 5] [--json PATH]
         [--cases state,rgb2x256,rgb5x480x560] [--parts step,profile,codec,breakdown,boot]
+        [--ways inproc,tcp,ipc,local,spin,compact,cspin]
 
 One run measures everything below on this machine (about 2-3 minutes with the defaults); nothing is
 asserted: the script prints a table and a goals line and exits 0 whether goals are met or not.
@@ -10,7 +11,7 @@ Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, JOINT_POSITION act
 smooth, seeded stream around the home pose, the same in every case; every case resets with
 seed 0 at the start of every round, so all of them run the very same trajectory):
 
-1. Step latency, three observation sizes x three ways to run the scene:
+1. Step latency, three observation sizes x up to seven ways to run the scene (``--ways``):
    - observations: ``state`` (render_images=False, ~0.1 kB of arrays), ``rgb2x256`` (camera1 +
      wrist camera2 at 256x256: 2 x 192 kB), ``rgb5x480x560`` (the manifest's two cameras plus
      three more around the table, added with ``dataclasses.replace``, all at 480x560:
@@ -19,9 +20,11 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
      over ZeroMQ with that transport, ``local=False`` for ipc: the path before the local fast
      path), ``local`` (ipc with the local fast path: Unix socket + shared-memory slots, neither
      side busy-polling: ``spin_us=0``) and ``spin`` (the same, each side busy-polling up to
-     ``local.DEFAULT_SPIN_US`` for the other's next message: the default with >= 4 usable cores);
-     the sidecar runs this venv's python. All five are interleaved in the same blocks.
-   Within a round the three ways of one observation size are interleaved in blocks (10 / 5 / 2
+     ``local.DEFAULT_SPIN_US`` for the other's next message: the default with >= 4 usable cores),
+     both with msgpack messages (``compact=False``); ``compact`` and ``cspin``: ``local`` and ``spin``
+     with compact step messages (``simseam.sidecar.compact``, the default on the local path);
+     the sidecar runs this venv's python. All of them are interleaved in the same blocks.
+   Within a round the ways of one observation size are interleaved in blocks (10 / 5 / 2
    steps), rotating which goes first in each block, so the slow and fast phases of this shared
    VM hit all of them alike. Per round and case: p50 / p90 of the per-step wall time around
    ``step()``. Reported: the median over rounds of those, and the *added* latency of a sidecar,
@@ -44,7 +47,9 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    measurements per codec interleaved across codecs; reported: median (and min) per round trip.
 
 3. Where the added time goes, in situ: one more sidecar per observation size and path (ipc over
-   ZeroMQ, and the local fast path, whose socket calls are wrapped the same way),
+   ZeroMQ, and each local-path way, whose socket calls are wrapped the same way; with compact
+   messages the wrapped codec calls are ``compact.encode_step`` / ``decode_step`` /
+   ``ReplyTemplates.encode`` / ``ReplyDecoder.decode``),
    started with ``SidecarRollout(python=<wrapper>)`` where the wrapper runs this file as an
    instrumented server (the real ``simseam.sidecar.server.main``, with its ``decode`` /
    ``encode`` / ``scene.step`` / ``send_multipart`` wrapped to take timestamps; src untouched),
@@ -111,10 +116,13 @@ HERE = Path(__file__).resolve().parent
 LAYOUT = "lift_cube"
 MODE = "joint_position"
 WARMUP = 5
-# local: ipc + the local fast path (Unix socket, shared-memory slots), never busy-polling (spin_us=0);
-# spin: the same with each side busy-polling DEFAULT_SPIN_US before it sleeps (the default on >= 4 cores)
-WAYS = ("inproc", "tcp", "ipc", "local", "spin")
-SPIN_US = {"local": 0, "spin": None}  # None: local.DEFAULT_SPIN_US
+# local: ipc + the local fast path (Unix socket, shared-memory slots) with msgpack messages, never
+# busy-polling (spin_us=0); spin: the same with each side busy-polling DEFAULT_SPIN_US before it sleeps
+# (the default on >= 4 cores); compact / cspin: local / spin with compact step messages (the default)
+WAYS = ("inproc", "tcp", "ipc", "local", "spin", "compact", "cspin")
+SPIN_US = {"local": 0, "spin": None, "compact": 0, "cspin": None}  # the local-path ways; None: local.DEFAULT_SPIN_US
+COMPACT_WAYS = ("compact", "cspin")
+LOCAL_WAYS = tuple(SPIN_US)
 GOAL_ADDED_MS = {"state": 0.3, "rgb2x256": 0.6}
 GOAL_CODEC_SPEEDUP = 5.0
 GOAL_BOOT_S = 2.0
@@ -586,6 +594,22 @@ def instrumented_server(argv: list[str]) -> int:
         Path(os.environ[PROF_ENV]).write_text(json.dumps(log))
 
     srv.decode, srv.encode, srv.build_scene = t_decode, t_encode, t_build
+    # compact step messages: the request's decode_step, the reply's templated encode (whose plain msgpack
+    # fallback calls wire.encode directly, never srv.encode: one pair of timestamps per reply)
+    dec_step, tpl_encode = srv.decode_step, srv.ReplyTemplates.encode
+
+    def t_decode_step(frames):
+        r = dec_step(frames)
+        cur["s_dec1"] = time.perf_counter()
+        return r
+
+    def t_tpl_encode(self, body, ring=None):
+        cur["s_enc0"] = time.perf_counter()
+        r = tpl_encode(self, body, ring)
+        cur["s_enc1"] = time.perf_counter()
+        return r
+
+    srv.decode_step, srv.ReplyTemplates.encode = t_decode_step, t_tpl_encode
     zmq.Socket.send_multipart, zmq.Socket.recv_multipart = t_send, t_recv
     lsend, lrecv = srv.local.send_message, srv.local.recv_message  # the local fast path's framing
 
@@ -637,15 +661,17 @@ class _ProfCase(StepCase):
 
 
 def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndarray, steps: dict, blocks: dict,
-                    tmpdir: Path, pids: list) -> dict:
-    """Per observation size and transport: an instrumented sidecar, interleaved with the
-    in-process scene, its steps split into parts (see PROF_PARTS)."""
+                    tmpdir: Path, pids: list, ways: tuple = ("ipc", *LOCAL_WAYS)) -> dict:
+    """Per observation size and transport (``ways``: ipc and the local-path ways): an instrumented
+    sidecar, interleaved with the in-process scene, its steps split into parts (see PROF_PARTS)."""
     import simseam.sidecar.client as client_mod
+    import simseam.sidecar.compact as compact_mod
 
     wrapper = tmpdir / "instrumented-python"
     wrapper.write_text(f'#!/bin/sh\nexec "{sys.executable}" "{Path(__file__).resolve()}" --instrumented-server "$@"\n')
     wrapper.chmod(0o700)
     enc, dec = client_mod.encode, client_mod.decode
+    enc_step, rdec = client_mod.encode_step, compact_mod.ReplyDecoder.decode
     cur: dict = {}
 
     def t_encode(op, body=None):
@@ -659,22 +685,36 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
         cur["c_dec1"] = time.perf_counter()
         return r
 
+    def t_encode_step(action, state_only):
+        cur["c_enc0"] = time.perf_counter()
+        r = enc_step(action, state_only)
+        cur["c_enc1"] = time.perf_counter()
+        return r
+
+    def t_rdecode(self, frames):
+        r = rdec(self, frames)
+        cur["c_dec1"] = time.perf_counter()
+        return r
+
     out = {}
     for g, (cspec, opts) in configs.items():
-        for transport in ("ipc", "local", "spin"):
+        for transport in ways:
             log_path = tmpdir / f"profile-{g}-{transport}.json"
             clog: list[dict] = []
             n = steps[g]
             sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
                                 env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
-                                spin_us=spin_us(transport))
+                                spin_us=spin_us(transport), compact=transport in COMPACT_WAYS)
+            assert sc.compact == (transport in COMPACT_WAYS)
             pids.append(sc.pid)
             try:
                 sc._sock = _TimedSocket(sc._sock, cur)
-                client_mod.encode, client_mod.decode = t_encode, t_decode
+                client_mod.encode, client_mod.decode, client_mod.encode_step = t_encode, t_decode, t_encode_step
+                compact_mod.ReplyDecoder.decode = t_rdecode
                 times = interleaved({"inproc": inproc[g], "sidecar": _ProfCase(sc, actions, cur, clog)}, n, blocks[g])
             finally:
-                client_mod.encode, client_mod.decode = enc, dec
+                client_mod.encode, client_mod.decode, client_mod.encode_step = enc, dec, enc_step
+                compact_mod.ReplyDecoder.decode = rdec
                 if isinstance(sc._sock, _TimedSocket):
                     sc._sock = sc._sock._s
                 sc.close()
@@ -754,6 +794,8 @@ def main() -> None:
     ap.add_argument("--json", default=str(HERE / "results" / "sidecar.json"))
     ap.add_argument("--cases", default="state,rgb2x256,rgb5x480x560", help="observation sizes to run (comma list)")
     ap.add_argument("--parts", default="step,alone,profile,codec,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--ways", default=",".join(WAYS),
+                    help=f"ways to run the scene, interleaved (comma list of {', '.join(WAYS)}; inproc always runs)")
     ap.add_argument("--robot-json", help="the Panda as a RobotSpec JSON (machines without pydantic), with --urdf")
     ap.add_argument("--urdf", help="the URDF path for --robot-json")
     ap.add_argument("--stub-server", help=argparse.SUPPRESS)
@@ -772,6 +814,10 @@ def main() -> None:
         spec = load_robot("franka_panda")
     configs = {k: v for k, v in obs_configs(spec).items() if k in args.cases.split(",")}
     parts = set(args.parts.split(","))
+    unknown = set(args.ways.split(",")) - set(WAYS)
+    if unknown:
+        ap.error(f"--ways: unknown {sorted(unknown)} (known: {', '.join(WAYS)})")
+    ways = tuple(w for w in WAYS if w == "inproc" or w in args.ways.split(","))
     steps = {"state": args.steps, "rgb2x256": max(30, args.steps // 5), "rgb5x480x560": max(15, args.steps // 10)}
     blocks = {"state": 10, "rgb2x256": 5, "rgb5x480x560": 2}
     profile_steps = {"state": 200, "rgb2x256": 40, "rgb5x480x560": 15}
@@ -789,13 +835,15 @@ def main() -> None:
         groups: dict[str, dict[str, StepCase]] = {}
         for name, (cspec, opts) in configs.items():
             group = {}
-            for way in WAYS:
+            for way in ways:
                 if way == "inproc":
                     ro = ManifestScene(cspec, LAYOUT, "mujoco", scene_options(opts))
                 else:
                     ro = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="tcp" if way == "tcp" else "ipc",
-                                        local=way in SPIN_US, env=SIDECAR_ENV, spin_us=spin_us(way))
+                                        local=way in SPIN_US, env=SIDECAR_ENV, spin_us=spin_us(way),
+                                        compact=way in COMPACT_WAYS)
                     assert ro.fast == (way in SPIN_US), f"{way}: fast path {'not ' if not ro.fast else ''}taken"
+                    assert ro.compact == (way in COMPACT_WAYS), f"{way}: compact messages {ro.compact}"
                     pids.append(ro.pid)
                 rollouts.append(ro)
                 group[way] = StepCase(ro, actions)
@@ -804,16 +852,16 @@ def main() -> None:
         print(f"scenes up ({len(rollouts)}, {len(pids)} sidecars) in {time.perf_counter() - t_start:.1f} s; "
               f"steps per round {steps}, {args.rounds} rounds")
 
-        per_round = {f"{g}/{w}": [] for g in groups for w in WAYS}
-        paired = {f"{g}/{w}": [] for g in groups for w in WAYS if w != "inproc"}
-        same_traj = {f"{g}/{w}": True for g in groups for w in WAYS if w != "inproc"}
+        per_round = {f"{g}/{w}": [] for g in groups for w in ways}
+        paired = {f"{g}/{w}": [] for g in groups for w in ways if w != "inproc"}
+        same_traj = {f"{g}/{w}": True for g in groups for w in ways if w != "inproc"}
         obs_bytes = {}
         for r in range(args.rounds):
             t0 = time.perf_counter()
             for g, group in groups.items():
                 times = interleaved(group, steps[g], blocks[g])
                 ref = group["inproc"].last.observation
-                for w in WAYS:
+                for w in ways:
                     per_round[f"{g}/{w}"].append(stats(times[w]))
                     if w != "inproc":
                         paired[f"{g}/{w}"].append(float(np.median(times[w] - times["inproc"])))
@@ -846,7 +894,8 @@ def main() -> None:
         if "profile" in parts:
             print("profile ...")
             results["profile"] = profile_in_situ(configs, {g: grp["inproc"] for g, grp in groups.items()}, actions,
-                                             profile_steps, blocks, tmpdir, pids)
+                                             profile_steps, blocks, tmpdir, pids,
+                                             tuple(w for w in ("ipc", *LOCAL_WAYS) if w in ways))
 
         # real observations (copied) for the codec and the breakdown, then the scenes go
         obs_by_case = {}
@@ -930,8 +979,8 @@ def main() -> None:
 
     goals = {}
     for g, limit in GOAL_ADDED_MS.items():
-        if f"{g}/local" in results["step"]:  # the goals are the local fast path's (tcp/ipc: ZeroMQ, for reference)
-            for w in ("local", "spin"):
+        for w in LOCAL_WAYS:  # the goals are the local fast path's (tcp/ipc: ZeroMQ, for reference)
+            if f"{g}/{w}" in results["step"]:
                 goals[f"added_p50_{g}_{w}_le_{limit}ms"] = results["step"][f"{g}/{w}"]["added_p50_ms"] <= limit
                 if results.get("alone"):
                     goals[f"alone_added_p50_{g}_{w}_le_{limit}ms"] = results["alone"][f"{g}/{w}"]["added_p50_ms"] <= limit

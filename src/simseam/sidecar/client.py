@@ -597,6 +597,8 @@ class SidecarRollout:
         self._slots = None
         self.fast = False
         self.compact = False
+        if self._decoder is not None:
+            self._decoder.slots = None  # the mapping goes with the last observation that views it
         self._decoder = None
         self._frame = None
         if self._proc is not None and not self._keep_alive:

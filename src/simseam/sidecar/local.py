@@ -395,3 +395,4 @@ class LocalChannel:
             self.closed = True
             self.sock.close()
             self.slots = None  # the mapping goes with the last observation that views it
+            self.on_stale = None  # (the client's decoder holds the slots too)
