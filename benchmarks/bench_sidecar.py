@@ -591,6 +591,9 @@ def instrumented_server(argv: list[str]) -> int:
         return scene
 
     def dump():
+        import signal
+
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the client's reaping SIGTERM must not cut the log short
         Path(os.environ[PROF_ENV]).write_text(json.dumps(log))
 
     srv.decode, srv.encode, srv.build_scene = t_decode, t_encode, t_build
