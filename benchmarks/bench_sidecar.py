@@ -58,8 +58,9 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    into: client pre-work, client encode, client send + request transfer + server wake-up, server
    decode, ``scene.step``, server encode, server send + reply transfer + client wake-up, client
    decode, the rest (the send calls are folded into the transfer legs: on 2 cores the sender is
-   often preempted by the woken receiver before its send call returns). The instrumented sidecar
-   is interleaved with the in-process scene (same blocks, same actions, one round). Reported:
+   often preempted by the woken receiver before its send call returns). The instrumented sidecars
+   of all ways are interleaved with each other and the in-process scene (same blocks, same actions,
+   one round). Reported:
    the median of each part; ``overhead`` = their sum minus ``scene.step``; ``work+`` = the
    sidecar's ``scene.step`` minus the in-process step (the same work, slower or faster over
    there); ``added`` = sidecar p50 - in-process p50 in this round (about overhead + work+).
@@ -666,7 +667,8 @@ class _ProfCase(StepCase):
 def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndarray, steps: dict, blocks: dict,
                     tmpdir: Path, pids: list, ways: tuple = ("ipc", *LOCAL_WAYS)) -> dict:
     """Per observation size and transport (``ways``: ipc and the local-path ways): an instrumented
-    sidecar, interleaved with the in-process scene, its steps split into parts (see PROF_PARTS)."""
+    sidecar, all of them interleaved with each other and the in-process scene, their steps split into
+    parts (see PROF_PARTS)."""
     import simseam.sidecar.client as client_mod
     import simseam.sidecar.compact as compact_mod
 
@@ -701,26 +703,33 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
 
     out = {}
     for g, (cspec, opts) in configs.items():
-        for transport in ways:
-            log_path = tmpdir / f"profile-{g}-{transport}.json"
-            clog: list[dict] = []
-            n = steps[g]
-            sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
-                                env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
-                                spin_us=spin_us(transport), compact=transport in COMPACT_WAYS)
-            assert sc.compact == (transport in COMPACT_WAYS)
-            pids.append(sc.pid)
-            try:
+        # every way's instrumented sidecar of this size, interleaved with each other and the in-process scene
+        n = steps[g]
+        cases: dict[str, _ProfCase] = {}
+        logs: dict[str, tuple[Path, list]] = {}
+        try:
+            for transport in ways:
+                log_path = tmpdir / f"profile-{g}-{transport}.json"
+                sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
+                                    env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
+                                    spin_us=spin_us(transport), compact=transport in COMPACT_WAYS)
+                pids.append(sc.pid)
+                assert sc.compact == (transport in COMPACT_WAYS)
                 sc._sock = _TimedSocket(sc._sock, cur)
-                client_mod.encode, client_mod.decode, client_mod.encode_step = t_encode, t_decode, t_encode_step
-                compact_mod.ReplyDecoder.decode = t_rdecode
-                times = interleaved({"inproc": inproc[g], "sidecar": _ProfCase(sc, actions, cur, clog)}, n, blocks[g])
-            finally:
-                client_mod.encode, client_mod.decode, client_mod.encode_step = enc, dec, enc_step
-                compact_mod.ReplyDecoder.decode = rdec
-                if isinstance(sc._sock, _TimedSocket):
-                    sc._sock = sc._sock._s
-                sc.close()
+                logs[transport] = (log_path, [])
+                cases[transport] = _ProfCase(sc, actions, cur, logs[transport][1])
+            client_mod.encode, client_mod.decode, client_mod.encode_step = t_encode, t_decode, t_encode_step
+            compact_mod.ReplyDecoder.decode = t_rdecode
+            times = interleaved({"inproc": inproc[g], **cases}, n, blocks[g])
+        finally:
+            client_mod.encode, client_mod.decode, client_mod.encode_step = enc, dec, enc_step
+            compact_mod.ReplyDecoder.decode = rdec
+            for c in cases.values():
+                if isinstance(c.rollout._sock, _TimedSocket):
+                    c.rollout._sock = c.rollout._sock._s
+                c.rollout.close()
+        inproc_p50 = float(np.percentile(times["inproc"], 50))
+        for transport, (log_path, clog) in logs.items():
             try:
                 slog = json.loads(log_path.read_text())[-n:]  # the timed steps come last
             except (OSError, ValueError):
@@ -728,8 +737,7 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
                 continue
             rows = [{**c, **sv} for c, sv in zip(clog, slog)]
             parts = {name: med((r[b] - r[a]) * 1e3 for r in rows) for name, a, b in PROF_PARTS}
-            sidecar_p50 = float(np.percentile(times["sidecar"], 50))
-            inproc_p50 = float(np.percentile(times["inproc"], 50))
+            sidecar_p50 = float(np.percentile(times[transport], 50))
             out[f"{g}/{transport}"] = {
                 "parts_p50_ms": parts,
                 "overhead_sum_ms": sum(v for k, v in parts.items() if k != "scene_step"),

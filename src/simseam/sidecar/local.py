@@ -7,7 +7,9 @@ launch token; the sidecar answers with the ring's layout and passes the ring's f
 descriptor along (``SCM_RIGHTS``). From then on every request goes over this socket.
 
 Messages: the ``simseam.sidecar.wire`` frames, framed as ``<u32 frame count><u64 byte
-count>`` + one u64 length per frame + the frames, sent with one ``sendmsg``.
+count>`` + one u64 length per frame + the frames, sent with one ``sendmsg``; a client that asks
+at attach (``compact``) sends and gets most step messages as one compact frame instead
+(``simseam.sidecar.compact``).
 
 The ring: one anonymous ``memfd`` (never a name under ``/dev/shm``: nothing can leak,
 whichever side dies; the memory is freed when the last mapping goes) of ``slots x
@@ -124,8 +126,16 @@ def spin_until_readable(poller, spin_s: float) -> bool:
 
 
 # ----------------------------------------------------------------------------- framing
+ONE_FRAME = struct.Struct("<IQQ")  # the prefix and length table of a one-frame message
+SMALL = 1 << 16
+
+
 def send_message(sock: socket.socket, frames: list, fds: list[int] | None = None) -> None:
     """Send wire frames (bytes / memoryviews / zmq-free buffers) as one framed message."""
+    if len(frames) == 1 and not fds and type(frames[0]) is bytes and len(frames[0]) < SMALL:  # a compact frame
+        n = len(frames[0])
+        sock.sendall(ONE_FRAME.pack(1, LENGTH.size + n, n) + frames[0])
+        return
     views = [f if isinstance(f, (bytes, bytearray)) else memoryview(f).cast("B") for f in frames]
     lengths = b"".join(LENGTH.pack(len(v)) for v in views)
     total = len(lengths) + sum(len(v) for v in views)
@@ -182,9 +192,13 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
         if len(data) < PREFIX.size and not _recv_exact(sock, memoryview(head)[len(data):]):
             raise Truncated("connection closed mid-message (in the prefix)")
     else:
-        head = bytearray(PREFIX.size)
-        if not _recv_exact(sock, memoryview(head)):
-            return None
+        head = sock.recv(PREFIX.size)  # all of it, nearly always: one call
+        if len(head) < PREFIX.size:
+            if not head:
+                return None
+            got, head = len(head), bytearray(head) + bytes(PREFIX.size - len(head))
+            if not _recv_exact(sock, memoryview(head)[got:]):
+                raise Truncated(f"connection closed mid-message ({got} of {PREFIX.size} bytes of the prefix)")
     try:
         count, total = PREFIX.unpack(head)
         if not 1 <= count <= MAX_ARRAYS + 1:
@@ -193,8 +207,9 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
             raise WireError(f"message announces {total} bytes for {count} frames (at most {MAX_MESSAGE_BYTES})")
         buf = bytearray(total)
         view = memoryview(buf)
-        if not _recv_exact(sock, view):
-            raise Truncated("connection closed mid-message (after the prefix)")
+        got = sock.recv_into(view)  # all of it, nearly always: one call
+        if got < total and (got == 0 or not _recv_exact(sock, view[got:])):
+            raise Truncated(f"connection closed mid-message ({got} of {total} bytes after the prefix)")
         frames, pos = [], count * LENGTH.size
         for i in range(count):
             (n,) = LENGTH.unpack_from(buf, i * LENGTH.size)

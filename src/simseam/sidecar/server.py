@@ -20,7 +20,8 @@ Local fast path (``simseam.sidecar.local``): with an ``ipc://`` endpoint the ser
 also listens on ``local.sock`` beside it; a client that asks for it at ``hello`` gets
 its path, connects, sends ``attach`` (with the token) and receives the shared-memory
 ring; its requests then arrive there. One local client at a time (a new attach
-replaces the previous one); the ZeroMQ socket keeps serving as before.
+replaces the previous one); the ZeroMQ socket keeps serving as before. A client that
+asks at attach gets compact step messages there (``simseam.sidecar.compact``).
 
 Imports numpy, msgpack, pyzmq and the scene layer only (plus the engine's SDK
 when the scene is built): no pydantic, typer, rich or yaml.
@@ -109,7 +110,7 @@ class Server:
         compact messages (``simseam.sidecar.compact``) apply when it negotiated them."""
         tpl = self.templates if attached else None
         try:
-            if tpl is not None and len(frames[0]) and frames[0][0] == MAGIC:  # a compact step request
+            if tpl is not None and frames and len(frames[0]) and frames[0][0] == MAGIC:  # a compact step request
                 action, state_only = decode_step(frames)
                 return self._dispatch("step", {"action": action, "observe": STATE_ONLY if state_only else None},
                                       ring, attached, tpl)

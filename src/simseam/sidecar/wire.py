@@ -20,6 +20,9 @@ slot, offset]``; ``encode(..., ring=...)`` puts arrays of at least ``ring.thresh
 bytes there (when they fit), ``decode(..., slots=[memoryview, ...])`` returns read-only
 views into the slot, after checking the slot index, the byte range and the alignment.
 
+Compact step messages (``simseam.sidecar.compact``, negotiated on the local fast path): a
+header may carry ``"tpl": id``, announcing that the body's structure is compact template ``id``.
+
 Imports: numpy and msgpack only.
 """
 
