@@ -217,7 +217,7 @@ class _SendTemplate:
         self.tid = tid
         self.scalars = struct.Struct("<" + "".join(_CODE[type(x)] for x in scal))
         offsets = ring_plan(ring, [a.nbytes for a in arrs])
-        self.plan = []  # per array: ("ring", offset) or ("inline", pad before it)
+        self.plan = []  # per array: (True, its offset in the slot) or (False, the padding before it)
         pos = REPLY_HEAD.size + self.scalars.size
         for a, off in zip(arrs, offsets):
             if off is not None:
