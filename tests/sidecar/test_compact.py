@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from sidecar_util import actions, assert_same, scene_options
 
-from simseam.seam import STATE_ONLY, ObsRequest
+from simseam.seam import FULL, STATE_ONLY, ObsRequest
 from simseam.sidecar import compact, local
 from simseam.sidecar.compact import MAGIC, REPLY_HEAD, ReplyDecoder, ReplyTemplates
 from simseam.sidecar.errors import RemoteError
@@ -402,7 +402,7 @@ def test_compact_and_msgpack_sidecars_give_identical_episodes(make_sidecar, make
     opts["image_size"] = tuple(opts["image_size"])
     ref = make_scene(panda_spec, "lift_cube", **opts)
     images = bool(options["render_images"])
-    requests = [None, None, STATE_ONLY, STATE_ONLY, None, ObsRequest(images=frozenset({"camera1"}), depth=False),
+    requests = [None, None, STATE_ONLY, STATE_ONLY, FULL, ObsRequest(images=frozenset({"camera1"}), depth=False),
                 STATE_ONLY, None] * 3
     for ep, seed in enumerate((11, 12)):
         exp = ref.reset(seed)
@@ -418,7 +418,9 @@ def test_compact_and_msgpack_sidecars_give_identical_episodes(make_sidecar, make
                                for s in r._slots), "images through the ring"
     assert np.array_equal(fast.render(), ref.render())
     used = fast._request("close", {})
-    assert used["compact"] >= 30, used  # the steps did travel compact (all but the announcements and the subset)
+    # every reply but each structure's first (its announcement: reset, full, state-only, camera subset,
+    # render, close) travelled compact
+    assert used["requests"] >= 51 and used["compact"] >= used["requests"] - 6, used
     assert slow._request("close", {})["compact"] == 0
 
 

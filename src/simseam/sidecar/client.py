@@ -59,6 +59,7 @@ import zmq
 
 from simseam.seam import (
     CAP_RESTART,
+    FULL,
     STATE_ONLY,
     ConfigError,
     ObsRequest,
@@ -541,8 +542,8 @@ class SidecarRollout:
 
     def step(self, action: np.ndarray, observe: ObsRequest | None = None) -> StepResult:
         a = check_action(action, self.action_dim)  # fail fast, locally, before a round trip
-        if self._decoder is not None and (observe is None or observe == STATE_ONLY):  # one binary frame
-            r = self._request("step", None, frames=encode_step(a, observe is not None))
+        if self._decoder is not None and (observe is None or observe == STATE_ONLY or observe == FULL):
+            r = self._request("step", None, frames=encode_step(a, observe == STATE_ONLY))  # one binary frame
         else:
             body = {"action": a}
             if observe is not None:

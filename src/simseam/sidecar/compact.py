@@ -5,9 +5,9 @@ pack, unpack, replace the markers), and in situ, on caches the other process jus
 is most of the local path's overhead. The two messages of a step keep one layout step after
 step, so on the local path they travel as single binary frames instead:
 
-- **Request** (client -> sidecar): a step whose ``observe`` is None or ``STATE_ONLY`` is one
-  frame: ``<B 0xC1><B op 1 = step><B observe: 0 None, 1 STATE_ONLY><B 0>`` + the action as
-  little-endian float32. Any other request travels as msgpack.
+- **Request** (client -> sidecar): a step whose ``observe`` is None (or ``FULL``, the same) or
+  ``STATE_ONLY`` is one frame: ``<B 0xC1><B op 1 = step><B observe: 0 None, 1 STATE_ONLY><B 0>``
+  + the action as little-endian float32. Any other request travels as msgpack.
 - **Reply** (sidecar -> client), *templated*: the sidecar computes a structural signature of
   each ``ok`` body (keys in order, leaf types, array dtypes and shapes, and the values of
   strings, bytes and None, which belong to the template). The first body of a signature travels
