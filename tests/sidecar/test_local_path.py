@@ -271,6 +271,36 @@ def test_framing_round_trip_and_fd_passing():
         b.close()
 
 
+class _Trickle:
+    """A socket whose every read returns at most ``k`` bytes (a message arriving in pieces)."""
+
+    def __init__(self, sock: socket.socket, k: int):
+        self.sock, self.k = sock, k
+
+    def recv(self, n: int) -> bytes:
+        return self.sock.recv(min(n, self.k))
+
+    def recv_into(self, buf, nbytes: int = 0) -> int:
+        return self.sock.recv_into(buf, min(nbytes or len(buf), self.k))
+
+
+@pytest.mark.parametrize("k", [1, 5, 13, 1 << 16])
+@pytest.mark.parametrize("frames", [[b"\xc1" + bytes(range(40))], [b"head", b"", bytes(300)]], ids=["one", "three"])
+def test_a_message_arriving_in_pieces_is_reassembled(frames, k):
+    """The prefix and the rest are each read with one call when they arrive whole; in pieces of k
+    bytes, the reader keeps reading until each is complete."""
+    a, b = _pair()
+    try:
+        local.send_message(a, frames)
+        local.send_message(a, [b"next"])
+        got = local.recv_message(_Trickle(b, k))
+        assert [bytes(f) for f in got[0]] == [bytes(f) for f in frames]
+        assert [bytes(f) for f in local.recv_message(_Trickle(b, k))[0]] == [b"next"]  # nothing read beyond it
+    finally:
+        a.close()
+        b.close()
+
+
 @pytest.mark.parametrize("name, data, expect", [
     ("no frames", local.PREFIX.pack(0, 0), "announces 0 frames"),
     ("too many frames", local.PREFIX.pack(10_000, 80_000), "announces 10000 frames"),
