@@ -1,7 +1,7 @@
 """What the sidecar costs: per-step latency added by SidecarRollout, the wire codec, warm boot.
 
     .venv/bin/python benchmarks/bench_sidecar.py [--steps 300] [--rounds 5] [--boots 5] [--json PATH]
-        [--cases state,rgb2x256,rgb5x480x560] [--parts step,profile,codec,breakdown,boot]
+        [--cases state,rgb2x256,rgb5x480x560] [--parts step,alone,profile,codec,messages,breakdown,boot]
         [--ways inproc,tcp,ipc,local,spin,compact,cspin]
 
 One run measures everything below on this machine (about 2-3 minutes with the defaults); nothing is
@@ -64,6 +64,11 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    the median of each part; ``overhead`` = their sum minus ``scene.step``; ``work+`` = the
    sidecar's ``scene.step`` minus the in-process step (the same work, slower or faster over
    there); ``added`` = sidecar p50 - in-process p50 in this round (about overhead + work+).
+
+2b. Step messages (``messages``), warm, in process: one step's request and reply on the local path,
+   msgpack vs compact (``simseam.sidecar.compact``; images through a real ring): each side's encode
+   and decode, and the framing (``local.send_message`` + ``recv_message`` over a socketpair) of the
+   request and of the reply; timeit, best of 5. The in-situ profile (3.) shows what they cost cold.
 
 4. The same with no physics and everything hot: the component costs of one step request
    measured in process (client encode of the request, server decode of it, server encode of the
@@ -461,6 +466,66 @@ class Stub:
             self.proc.stdout.close()
 
 
+def bench_messages(obs_by_case: dict[str, dict], dim: int) -> dict:
+    """Warm, in process: what one step's messages cost on the local path, msgpack vs compact
+    (``simseam.sidecar.compact``): each side's encode / decode (images through a real ring), and
+    the framing (``local.send_message`` + ``recv_message`` of the request and of the reply over a
+    socketpair). timeit: calls per measurement from ``autorange`` / 4, the best of 5."""
+    import socket
+
+    from simseam.sidecar import compact, local
+
+    def best(f) -> float:
+        t = timeit.Timer(f)
+        n = max(1, t.autorange()[0] // 4)
+        return min(t.repeat(5, n)) / n * 1e3
+
+    out = {}
+    action = np.zeros(dim, dtype=np.float32)
+    for g, obs in obs_by_case.items():
+        body = reply_body(obs)
+        size = sum((a.nbytes + 63) // 64 * 64 for a in obs["images"].values() if a.nbytes >= local.DEFAULT_THRESHOLD)
+        ring = local.SlotRing(2, size) if size else None
+        slots = local.map_slots(os.dup(ring.fd), ring.layout()) if ring is not None else None
+        tx, rx = compact.ReplyTemplates(), compact.ReplyDecoder(slots)
+        rx.decode([bytes(f) for f in tx.encode(body, ring)])  # the announcement: later replies go compact
+        a_sock, b_sock = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            req = {"msgpack": encode("step", {"action": action}), "compact": compact.encode_step(action, False)}
+            rep = {"msgpack": encode("ok", body, ring), "compact": tx.encode(body, ring)}
+            assert compact.is_compact(rep["compact"]) and compact.is_compact(req["compact"])
+            got = {k: [bytes(f) for f in v] for k, v in rep.items()}
+            rin = {k: [bytes(f) for f in v] for k, v in req.items()}
+
+            def framing(frames):
+                def f():
+                    local.send_message(a_sock, frames)
+                    local.recv_message(b_sock)
+                return f
+
+            row = {}
+            for way, enc_req, dec_req, enc_rep, dec_rep in (
+                    ("msgpack", lambda: encode("step", {"action": action}), lambda: decode(rin["msgpack"]),
+                     lambda: encode("ok", body, ring), lambda: decode(got["msgpack"], slots)),
+                    ("compact", lambda: compact.encode_step(action, False), lambda: compact.decode_step(rin["compact"]),
+                     lambda: tx.encode(body, ring), lambda: rx.decode(got["compact"]))):
+                comp = {"client_encode_request": best(enc_req), "server_decode_request": best(dec_req),
+                        "server_encode_reply": best(enc_rep), "client_decode_reply": best(dec_rep),
+                        "framing_request": best(framing(req[way])), "framing_reply": best(framing(rep[way]))}
+                row[way] = {**comp, "total_ms": sum(comp.values()),
+                            "bytes": {"request": sum(len(bytes(f)) for f in req[way]),
+                                      "reply": sum(len(bytes(f)) for f in rep[way])},
+                            "frames": {"request": len(req[way]), "reply": len(rep[way])}}
+            out[g] = row
+        finally:
+            a_sock.close()
+            b_sock.close()
+            rx.slots = slots = None
+            if ring is not None:
+                ring.close()
+    return out
+
+
 def component_times(obs: dict, dim: int) -> dict:
     """In-process cost (ms) of each codec step of one request/reply, as frames arrive (zmq.Frame)."""
     token = "0" * 32
@@ -804,7 +869,7 @@ def main() -> None:
     ap.add_argument("--boots", type=int, default=5, help="timed warm boots per config")
     ap.add_argument("--json", default=str(HERE / "results" / "sidecar.json"))
     ap.add_argument("--cases", default="state,rgb2x256,rgb5x480x560", help="observation sizes to run (comma list)")
-    ap.add_argument("--parts", default="step,alone,profile,codec,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--parts", default="step,alone,profile,codec,messages,breakdown,boot", help="what to run (comma list)")
     ap.add_argument("--ways", default=",".join(WAYS),
                     help=f"ways to run the scene, interleaved (comma list of {', '.join(WAYS)}; inproc always runs)")
     ap.add_argument("--robot-json", help="the Panda as a RobotSpec JSON (machines without pydantic), with --urdf")
@@ -925,6 +990,10 @@ def main() -> None:
                                              if g in obs_by_case})
 
         # ---- 4. breakdown (no physics)
+        if "messages" in parts:
+            print("messages ...")
+            results["messages"] = bench_messages(obs_by_case, dim)
+
         if "breakdown" in parts:
             print("breakdown ...")
             results["breakdown"] = bench_breakdown(obs_by_case, dim, args.rounds, tmpdir, pids)
@@ -965,6 +1034,16 @@ def main() -> None:
             print(f"{g + ' ' + k:24s} {res[k]['median_ms']:10.4f} {res[k]['min_ms']:9.4f} {size:10d}")
         print(f"{g + ' speedup':24s} wire {res['speedup_wire_vs_blob']:.1f}x, "
               f"wire+copy {res['speedup_wire_copy_vs_blob']:.1f}x vs blob")
+
+    if results.get("messages"):
+        names = ("client_encode_request", "server_decode_request", "server_encode_reply", "client_decode_reply",
+                 "framing_request", "framing_reply")
+        print(f"\nstep messages, warm (ms)  {'cli-enc':>8s} {'srv-dec':>8s} {'srv-enc':>8s} {'cli-dec':>8s} "
+              f"{'frm-req':>8s} {'frm-rep':>8s} {'total':>8s}   bytes (frames) request / reply")
+        for g, row in results["messages"].items():
+            for way, r in row.items():
+                print(f"{g + ' ' + way:24s}  {' '.join(f'{r[n]:8.4f}' for n in names)} {r['total_ms']:8.4f}   "
+                      f"{r['bytes']['request']} ({r['frames']['request']}) / {r['bytes']['reply']} ({r['frames']['reply']})")
 
     print(f"\nbreakdown (no physics, ms)   {'codec':>7s} {'zmq tcp':>8s} {'zmq ipc':>8s} {'stub tcp':>9s} "
           f"{'stub ipc':>9s}   codec: cli-enc / srv-dec / srv-enc / cli-dec")
