@@ -374,6 +374,22 @@ def test_the_server_in_process_serves_compact_and_msgpack_alike_through_a_templa
             s.detach()
 
 
+def test_attach_negotiates_compact_by_version_and_refuses_a_bad_one(make_scene, panda_spec):
+    s = Server(make_scene(panda_spec, "lift_cube", render_images=False), "t" * 32, "x")
+    try:
+        for asked, granted in ((0, None), (1, 1), (7, 1)):  # a newer client's version: the sidecar speaks 1
+            op, body = decode(s.attach(encode("attach", {"token": s.token, "compact": asked}))[0])
+            assert op == "ok" and body.get("compact") == granted and (s.templates is not None) == bool(granted)
+        for bad in (True, -1, "1", 1.0):
+            op, body = decode(s.attach(encode("attach", {"token": s.token, "compact": bad}))[0])
+            assert (op, body["kind"]) == ("error", "WireError") and "attach: compact must be a version number" in \
+                body["message"], body
+        assert s.templates is not None  # a refused attach leaves the attached client as it was
+    finally:
+        s.detach()
+    assert s.templates is None
+
+
 def test_a_compact_frame_where_none_was_negotiated_gets_a_wire_error_reply(make_scene, panda_spec):
     s = Server(make_scene(panda_spec, "lift_cube", render_images=False), "t" * 32, "x")
     _attached(s, want_compact=False)
