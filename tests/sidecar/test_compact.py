@@ -529,3 +529,15 @@ def test_a_reply_dropped_after_a_timeout_still_teaches_its_template(make_sidecar
     assert len(r._decoder.templates) == len(known) + 2  # {} (learnt from the dropped reply) and the step's
     assert r._request("_sleep", {"seconds": 0.0}) == {}  # compact now: its template was learnt
     assert r._request("close", {})["compact"] >= 3
+
+
+def test_the_codec_modules_import_only_the_standard_library_numpy_and_msgpack():
+    """wire, local and compact run in any sidecar interpreter: nothing of simseam beyond them, no ZeroMQ."""
+    import subprocess
+    import sys
+
+    code = ("import sys, simseam.sidecar.wire, simseam.sidecar.local, simseam.sidecar.compact\n"
+            "print(','.join(sorted(m for m in sys.modules if m.startswith(('simseam.', 'zmq', 'pydantic')))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out.split(",") == ["simseam.sidecar", "simseam.sidecar.compact", "simseam.sidecar.local",
+                              "simseam.sidecar.wire"], out
