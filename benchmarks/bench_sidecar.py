@@ -1,7 +1,8 @@
 """What the sidecar costs: per-step latency added by SidecarRollout, the wire codec, warm boot.
 
     .venv/bin/python benchmarks/bench_sidecar.py [--steps 300] [--rounds 5] [--boots 5] [--json PATH]
-        [--cases state,rgb2x256,rgb5x480x560] [--parts step,profile,codec,breakdown,boot]
+        [--cases state,rgb2x256,rgb5x480x560] [--parts step,alone,profile,codec,messages,breakdown,boot]
+        [--ways inproc,tcp,ipc,local,spin,compact,cspin]
 
 One run measures everything below on this machine (about 2-3 minutes with the defaults); nothing is
 asserted: the script prints a table and a goals line and exits 0 whether goals are met or not.
@@ -10,7 +11,7 @@ Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, JOINT_POSITION act
 smooth, seeded stream around the home pose, the same in every case; every case resets with
 seed 0 at the start of every round, so all of them run the very same trajectory):
 
-1. Step latency, three observation sizes x three ways to run the scene:
+1. Step latency, three observation sizes x up to seven ways to run the scene (``--ways``):
    - observations: ``state`` (render_images=False, ~0.1 kB of arrays), ``rgb2x256`` (camera1 +
      wrist camera2 at 256x256: 2 x 192 kB), ``rgb5x480x560`` (the manifest's two cameras plus
      three more around the table, added with ``dataclasses.replace``, all at 480x560:
@@ -19,9 +20,11 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
      over ZeroMQ with that transport, ``local=False`` for ipc: the path before the local fast
      path), ``local`` (ipc with the local fast path: Unix socket + shared-memory slots, neither
      side busy-polling: ``spin_us=0``) and ``spin`` (the same, each side busy-polling up to
-     ``local.DEFAULT_SPIN_US`` for the other's next message: the default with >= 4 usable cores);
-     the sidecar runs this venv's python. All five are interleaved in the same blocks.
-   Within a round the three ways of one observation size are interleaved in blocks (10 / 5 / 2
+     ``local.DEFAULT_SPIN_US`` for the other's next message: the default with >= 4 usable cores),
+     both with msgpack messages (``compact=False``); ``compact`` and ``cspin``: ``local`` and ``spin``
+     with compact step messages (``simseam.sidecar.compact``, the default on the local path);
+     the sidecar runs this venv's python. All of them are interleaved in the same blocks.
+   Within a round the ways of one observation size are interleaved in blocks (10 / 5 / 2
    steps), rotating which goes first in each block, so the slow and fast phases of this shared
    VM hit all of them alike. Per round and case: p50 / p90 of the per-step wall time around
    ``step()``. Reported: the median over rounds of those, and the *added* latency of a sidecar,
@@ -44,7 +47,9 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    measurements per codec interleaved across codecs; reported: median (and min) per round trip.
 
 3. Where the added time goes, in situ: one more sidecar per observation size and path (ipc over
-   ZeroMQ, and the local fast path, whose socket calls are wrapped the same way),
+   ZeroMQ, and each local-path way, whose socket calls are wrapped the same way; with compact
+   messages the wrapped codec calls are ``compact.encode_step`` / ``decode_step`` /
+   ``ReplyTemplates.encode`` / ``ReplyDecoder.decode``),
    started with ``SidecarRollout(python=<wrapper>)`` where the wrapper runs this file as an
    instrumented server (the real ``simseam.sidecar.server.main``, with its ``decode`` /
    ``encode`` / ``scene.step`` / ``send_multipart`` wrapped to take timestamps; src untouched),
@@ -53,11 +58,17 @@ seed 0 at the start of every round, so all of them run the very same trajectory)
    into: client pre-work, client encode, client send + request transfer + server wake-up, server
    decode, ``scene.step``, server encode, server send + reply transfer + client wake-up, client
    decode, the rest (the send calls are folded into the transfer legs: on 2 cores the sender is
-   often preempted by the woken receiver before its send call returns). The instrumented sidecar
-   is interleaved with the in-process scene (same blocks, same actions, one round). Reported:
+   often preempted by the woken receiver before its send call returns). The instrumented sidecars
+   of all ways are interleaved with each other and the in-process scene (same blocks, same actions,
+   one round). Reported:
    the median of each part; ``overhead`` = their sum minus ``scene.step``; ``work+`` = the
    sidecar's ``scene.step`` minus the in-process step (the same work, slower or faster over
    there); ``added`` = sidecar p50 - in-process p50 in this round (about overhead + work+).
+
+2b. Step messages (``messages``), warm, in process: one step's request and reply on the local path,
+   msgpack vs compact (``simseam.sidecar.compact``; images through a real ring): each side's encode
+   and decode, and the framing (``local.send_message`` + ``recv_message`` over a socketpair) of the
+   request and of the reply; timeit, best of 5. The in-situ profile (3.) shows what they cost cold.
 
 4. The same with no physics and everything hot: the component costs of one step request
    measured in process (client encode of the request, server decode of it, server encode of the
@@ -111,10 +122,13 @@ HERE = Path(__file__).resolve().parent
 LAYOUT = "lift_cube"
 MODE = "joint_position"
 WARMUP = 5
-# local: ipc + the local fast path (Unix socket, shared-memory slots), never busy-polling (spin_us=0);
-# spin: the same with each side busy-polling DEFAULT_SPIN_US before it sleeps (the default on >= 4 cores)
-WAYS = ("inproc", "tcp", "ipc", "local", "spin")
-SPIN_US = {"local": 0, "spin": None}  # None: local.DEFAULT_SPIN_US
+# local: ipc + the local fast path (Unix socket, shared-memory slots) with msgpack messages, never
+# busy-polling (spin_us=0); spin: the same with each side busy-polling DEFAULT_SPIN_US before it sleeps
+# (the default on >= 4 cores); compact / cspin: local / spin with compact step messages (the default)
+WAYS = ("inproc", "tcp", "ipc", "local", "spin", "compact", "cspin")
+SPIN_US = {"local": 0, "spin": None, "compact": 0, "cspin": None}  # the local-path ways; None: local.DEFAULT_SPIN_US
+COMPACT_WAYS = ("compact", "cspin")
+LOCAL_WAYS = tuple(SPIN_US)
 GOAL_ADDED_MS = {"state": 0.3, "rgb2x256": 0.6}
 GOAL_CODEC_SPEEDUP = 5.0
 GOAL_BOOT_S = 2.0
@@ -452,6 +466,66 @@ class Stub:
             self.proc.stdout.close()
 
 
+def bench_messages(obs_by_case: dict[str, dict], dim: int) -> dict:
+    """Warm, in process: what one step's messages cost on the local path, msgpack vs compact
+    (``simseam.sidecar.compact``): each side's encode / decode (images through a real ring), and
+    the framing (``local.send_message`` + ``recv_message`` of the request and of the reply over a
+    socketpair). timeit: calls per measurement from ``autorange`` / 4, the best of 5."""
+    import socket
+
+    from simseam.sidecar import compact, local
+
+    def best(f) -> float:
+        t = timeit.Timer(f)
+        n = max(1, t.autorange()[0] // 4)
+        return min(t.repeat(5, n)) / n * 1e3
+
+    out = {}
+    action = np.zeros(dim, dtype=np.float32)
+    for g, obs in obs_by_case.items():
+        body = reply_body(obs)
+        size = sum((a.nbytes + 63) // 64 * 64 for a in obs["images"].values() if a.nbytes >= local.DEFAULT_THRESHOLD)
+        ring = local.SlotRing(2, size) if size else None
+        slots = local.map_slots(os.dup(ring.fd), ring.layout()) if ring is not None else None
+        tx, rx = compact.ReplyTemplates(), compact.ReplyDecoder(slots)
+        rx.decode([bytes(f) for f in tx.encode(body, ring)])  # the announcement: later replies go compact
+        a_sock, b_sock = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            req = {"msgpack": encode("step", {"action": action}), "compact": compact.encode_step(action, False)}
+            rep = {"msgpack": encode("ok", body, ring), "compact": tx.encode(body, ring)}
+            assert compact.is_compact(rep["compact"]) and compact.is_compact(req["compact"])
+            got = {k: [bytes(f) for f in v] for k, v in rep.items()}
+            rin = {k: [bytes(f) for f in v] for k, v in req.items()}
+
+            def framing(frames):
+                def f():
+                    local.send_message(a_sock, frames)
+                    local.recv_message(b_sock)
+                return f
+
+            row = {}
+            for way, enc_req, dec_req, enc_rep, dec_rep in (
+                    ("msgpack", lambda: encode("step", {"action": action}), lambda: decode(rin["msgpack"]),
+                     lambda: encode("ok", body, ring), lambda: decode(got["msgpack"], slots)),
+                    ("compact", lambda: compact.encode_step(action, False), lambda: compact.decode_step(rin["compact"]),
+                     lambda: tx.encode(body, ring), lambda: rx.decode(got["compact"]))):
+                comp = {"client_encode_request": best(enc_req), "server_decode_request": best(dec_req),
+                        "server_encode_reply": best(enc_rep), "client_decode_reply": best(dec_rep),
+                        "framing_request": best(framing(req[way])), "framing_reply": best(framing(rep[way]))}
+                row[way] = {**comp, "total_ms": sum(comp.values()),
+                            "bytes": {"request": sum(len(bytes(f)) for f in req[way]),
+                                      "reply": sum(len(bytes(f)) for f in rep[way])},
+                            "frames": {"request": len(req[way]), "reply": len(rep[way])}}
+            out[g] = row
+        finally:
+            a_sock.close()
+            b_sock.close()
+            rx.slots = slots = None
+            if ring is not None:
+                ring.close()
+    return out
+
+
 def component_times(obs: dict, dim: int) -> dict:
     """In-process cost (ms) of each codec step of one request/reply, as frames arrive (zmq.Frame)."""
     token = "0" * 32
@@ -583,9 +657,28 @@ def instrumented_server(argv: list[str]) -> int:
         return scene
 
     def dump():
+        import signal
+
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the client's reaping SIGTERM must not cut the log short
         Path(os.environ[PROF_ENV]).write_text(json.dumps(log))
 
     srv.decode, srv.encode, srv.build_scene = t_decode, t_encode, t_build
+    # compact step messages: the request's decode_step, the reply's templated encode (whose plain msgpack
+    # fallback calls wire.encode directly, never srv.encode: one pair of timestamps per reply)
+    dec_step, tpl_encode = srv.decode_step, srv.ReplyTemplates.encode
+
+    def t_decode_step(frames):
+        r = dec_step(frames)
+        cur["s_dec1"] = time.perf_counter()
+        return r
+
+    def t_tpl_encode(self, body, ring=None):
+        cur["s_enc0"] = time.perf_counter()
+        r = tpl_encode(self, body, ring)
+        cur["s_enc1"] = time.perf_counter()
+        return r
+
+    srv.decode_step, srv.ReplyTemplates.encode = t_decode_step, t_tpl_encode
     zmq.Socket.send_multipart, zmq.Socket.recv_multipart = t_send, t_recv
     lsend, lrecv = srv.local.send_message, srv.local.recv_message  # the local fast path's framing
 
@@ -637,15 +730,18 @@ class _ProfCase(StepCase):
 
 
 def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndarray, steps: dict, blocks: dict,
-                    tmpdir: Path, pids: list) -> dict:
-    """Per observation size and transport: an instrumented sidecar, interleaved with the
-    in-process scene, its steps split into parts (see PROF_PARTS)."""
+                    tmpdir: Path, pids: list, ways: tuple = ("ipc", *LOCAL_WAYS)) -> dict:
+    """Per observation size and transport (``ways``: ipc and the local-path ways): an instrumented
+    sidecar, all of them interleaved with each other and the in-process scene, their steps split into
+    parts (see PROF_PARTS)."""
     import simseam.sidecar.client as client_mod
+    import simseam.sidecar.compact as compact_mod
 
     wrapper = tmpdir / "instrumented-python"
     wrapper.write_text(f'#!/bin/sh\nexec "{sys.executable}" "{Path(__file__).resolve()}" --instrumented-server "$@"\n')
     wrapper.chmod(0o700)
     enc, dec = client_mod.encode, client_mod.decode
+    enc_step, rdec = client_mod.encode_step, compact_mod.ReplyDecoder.decode
     cur: dict = {}
 
     def t_encode(op, body=None):
@@ -659,25 +755,46 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
         cur["c_dec1"] = time.perf_counter()
         return r
 
+    def t_encode_step(action, state_only):
+        cur["c_enc0"] = time.perf_counter()
+        r = enc_step(action, state_only)
+        cur["c_enc1"] = time.perf_counter()
+        return r
+
+    def t_rdecode(self, frames):
+        r = rdec(self, frames)
+        cur["c_dec1"] = time.perf_counter()
+        return r
+
     out = {}
     for g, (cspec, opts) in configs.items():
-        for transport in ("ipc", "local", "spin"):
-            log_path = tmpdir / f"profile-{g}-{transport}.json"
-            clog: list[dict] = []
-            n = steps[g]
-            sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
-                                env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
-                                spin_us=spin_us(transport))
-            pids.append(sc.pid)
-            try:
+        # every way's instrumented sidecar of this size, interleaved with each other and the in-process scene
+        n = steps[g]
+        cases: dict[str, _ProfCase] = {}
+        logs: dict[str, tuple[Path, list]] = {}
+        try:
+            for transport in ways:
+                log_path = tmpdir / f"profile-{g}-{transport}.json"
+                sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
+                                    env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
+                                    spin_us=spin_us(transport), compact=transport in COMPACT_WAYS)
+                pids.append(sc.pid)
+                assert sc.compact == (transport in COMPACT_WAYS)
                 sc._sock = _TimedSocket(sc._sock, cur)
-                client_mod.encode, client_mod.decode = t_encode, t_decode
-                times = interleaved({"inproc": inproc[g], "sidecar": _ProfCase(sc, actions, cur, clog)}, n, blocks[g])
-            finally:
-                client_mod.encode, client_mod.decode = enc, dec
-                if isinstance(sc._sock, _TimedSocket):
-                    sc._sock = sc._sock._s
-                sc.close()
+                logs[transport] = (log_path, [])
+                cases[transport] = _ProfCase(sc, actions, cur, logs[transport][1])
+            client_mod.encode, client_mod.decode, client_mod.encode_step = t_encode, t_decode, t_encode_step
+            compact_mod.ReplyDecoder.decode = t_rdecode
+            times = interleaved({"inproc": inproc[g], **cases}, n, blocks[g])
+        finally:
+            client_mod.encode, client_mod.decode, client_mod.encode_step = enc, dec, enc_step
+            compact_mod.ReplyDecoder.decode = rdec
+            for c in cases.values():
+                if isinstance(c.rollout._sock, _TimedSocket):
+                    c.rollout._sock = c.rollout._sock._s
+                c.rollout.close()
+        inproc_p50 = float(np.percentile(times["inproc"], 50))
+        for transport, (log_path, clog) in logs.items():
             try:
                 slog = json.loads(log_path.read_text())[-n:]  # the timed steps come last
             except (OSError, ValueError):
@@ -685,8 +802,7 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
                 continue
             rows = [{**c, **sv} for c, sv in zip(clog, slog)]
             parts = {name: med((r[b] - r[a]) * 1e3 for r in rows) for name, a, b in PROF_PARTS}
-            sidecar_p50 = float(np.percentile(times["sidecar"], 50))
-            inproc_p50 = float(np.percentile(times["inproc"], 50))
+            sidecar_p50 = float(np.percentile(times[transport], 50))
             out[f"{g}/{transport}"] = {
                 "parts_p50_ms": parts,
                 "overhead_sum_ms": sum(v for k, v in parts.items() if k != "scene_step"),
@@ -753,7 +869,9 @@ def main() -> None:
     ap.add_argument("--boots", type=int, default=5, help="timed warm boots per config")
     ap.add_argument("--json", default=str(HERE / "results" / "sidecar.json"))
     ap.add_argument("--cases", default="state,rgb2x256,rgb5x480x560", help="observation sizes to run (comma list)")
-    ap.add_argument("--parts", default="step,alone,profile,codec,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--parts", default="step,alone,profile,codec,messages,breakdown,boot", help="what to run (comma list)")
+    ap.add_argument("--ways", default=",".join(WAYS),
+                    help=f"ways to run the scene, interleaved (comma list of {', '.join(WAYS)}; inproc always runs)")
     ap.add_argument("--robot-json", help="the Panda as a RobotSpec JSON (machines without pydantic), with --urdf")
     ap.add_argument("--urdf", help="the URDF path for --robot-json")
     ap.add_argument("--stub-server", help=argparse.SUPPRESS)
@@ -772,6 +890,10 @@ def main() -> None:
         spec = load_robot("franka_panda")
     configs = {k: v for k, v in obs_configs(spec).items() if k in args.cases.split(",")}
     parts = set(args.parts.split(","))
+    unknown = set(args.ways.split(",")) - set(WAYS)
+    if unknown:
+        ap.error(f"--ways: unknown {sorted(unknown)} (known: {', '.join(WAYS)})")
+    ways = tuple(w for w in WAYS if w == "inproc" or w in args.ways.split(","))
     steps = {"state": args.steps, "rgb2x256": max(30, args.steps // 5), "rgb5x480x560": max(15, args.steps // 10)}
     blocks = {"state": 10, "rgb2x256": 5, "rgb5x480x560": 2}
     profile_steps = {"state": 200, "rgb2x256": 40, "rgb5x480x560": 15}
@@ -789,13 +911,15 @@ def main() -> None:
         groups: dict[str, dict[str, StepCase]] = {}
         for name, (cspec, opts) in configs.items():
             group = {}
-            for way in WAYS:
+            for way in ways:
                 if way == "inproc":
                     ro = ManifestScene(cspec, LAYOUT, "mujoco", scene_options(opts))
                 else:
                     ro = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="tcp" if way == "tcp" else "ipc",
-                                        local=way in SPIN_US, env=SIDECAR_ENV, spin_us=spin_us(way))
+                                        local=way in SPIN_US, env=SIDECAR_ENV, spin_us=spin_us(way),
+                                        compact=way in COMPACT_WAYS)
                     assert ro.fast == (way in SPIN_US), f"{way}: fast path {'not ' if not ro.fast else ''}taken"
+                    assert ro.compact == (way in COMPACT_WAYS), f"{way}: compact messages {ro.compact}"
                     pids.append(ro.pid)
                 rollouts.append(ro)
                 group[way] = StepCase(ro, actions)
@@ -804,16 +928,16 @@ def main() -> None:
         print(f"scenes up ({len(rollouts)}, {len(pids)} sidecars) in {time.perf_counter() - t_start:.1f} s; "
               f"steps per round {steps}, {args.rounds} rounds")
 
-        per_round = {f"{g}/{w}": [] for g in groups for w in WAYS}
-        paired = {f"{g}/{w}": [] for g in groups for w in WAYS if w != "inproc"}
-        same_traj = {f"{g}/{w}": True for g in groups for w in WAYS if w != "inproc"}
+        per_round = {f"{g}/{w}": [] for g in groups for w in ways}
+        paired = {f"{g}/{w}": [] for g in groups for w in ways if w != "inproc"}
+        same_traj = {f"{g}/{w}": True for g in groups for w in ways if w != "inproc"}
         obs_bytes = {}
         for r in range(args.rounds):
             t0 = time.perf_counter()
             for g, group in groups.items():
                 times = interleaved(group, steps[g], blocks[g])
                 ref = group["inproc"].last.observation
-                for w in WAYS:
+                for w in ways:
                     per_round[f"{g}/{w}"].append(stats(times[w]))
                     if w != "inproc":
                         paired[f"{g}/{w}"].append(float(np.median(times[w] - times["inproc"])))
@@ -846,7 +970,8 @@ def main() -> None:
         if "profile" in parts:
             print("profile ...")
             results["profile"] = profile_in_situ(configs, {g: grp["inproc"] for g, grp in groups.items()}, actions,
-                                             profile_steps, blocks, tmpdir, pids)
+                                             profile_steps, blocks, tmpdir, pids,
+                                             tuple(w for w in ("ipc", *LOCAL_WAYS) if w in ways))
 
         # real observations (copied) for the codec and the breakdown, then the scenes go
         obs_by_case = {}
@@ -865,6 +990,10 @@ def main() -> None:
                                              if g in obs_by_case})
 
         # ---- 4. breakdown (no physics)
+        if "messages" in parts:
+            print("messages ...")
+            results["messages"] = bench_messages(obs_by_case, dim)
+
         if "breakdown" in parts:
             print("breakdown ...")
             results["breakdown"] = bench_breakdown(obs_by_case, dim, args.rounds, tmpdir, pids)
@@ -906,6 +1035,16 @@ def main() -> None:
         print(f"{g + ' speedup':24s} wire {res['speedup_wire_vs_blob']:.1f}x, "
               f"wire+copy {res['speedup_wire_copy_vs_blob']:.1f}x vs blob")
 
+    if results.get("messages"):
+        names = ("client_encode_request", "server_decode_request", "server_encode_reply", "client_decode_reply",
+                 "framing_request", "framing_reply")
+        print(f"\nstep messages, warm (ms)  {'cli-enc':>8s} {'srv-dec':>8s} {'srv-enc':>8s} {'cli-dec':>8s} "
+              f"{'frm-req':>8s} {'frm-rep':>8s} {'total':>8s}   bytes (frames) request / reply")
+        for g, row in results["messages"].items():
+            for way, r in row.items():
+                print(f"{g + ' ' + way:24s}  {' '.join(f'{r[n]:8.4f}' for n in names)} {r['total_ms']:8.4f}   "
+                      f"{r['bytes']['request']} ({r['frames']['request']}) / {r['bytes']['reply']} ({r['frames']['reply']})")
+
     print(f"\nbreakdown (no physics, ms)   {'codec':>7s} {'zmq tcp':>8s} {'zmq ipc':>8s} {'stub tcp':>9s} "
           f"{'stub ipc':>9s}   codec: cli-enc / srv-dec / srv-enc / cli-dec")
     for g, row in results.get("breakdown", {}).items():
@@ -930,8 +1069,8 @@ def main() -> None:
 
     goals = {}
     for g, limit in GOAL_ADDED_MS.items():
-        if f"{g}/local" in results["step"]:  # the goals are the local fast path's (tcp/ipc: ZeroMQ, for reference)
-            for w in ("local", "spin"):
+        for w in LOCAL_WAYS:  # the goals are the local fast path's (tcp/ipc: ZeroMQ, for reference)
+            if f"{g}/{w}" in results["step"]:
                 goals[f"added_p50_{g}_{w}_le_{limit}ms"] = results["step"][f"{g}/{w}"]["added_p50_ms"] <= limit
                 if results.get("alone"):
                     goals[f"alone_added_p50_{g}_{w}_le_{limit}ms"] = results["alone"][f"{g}/{w}"]["added_p50_ms"] <= limit

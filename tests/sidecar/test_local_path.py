@@ -4,7 +4,7 @@ Negotiation (ipc gets it, tcp and ``local=False`` keep ZeroMQ, the same numbers 
 in process), the lifetime contract of the slot views (read-only, the previous observation
 intact while the next is computed, a slot reused after ``slots`` replies), the new frames under
 garbage (slot out of range, a layout that does not match, a truncated or resizable segment,
-truncated framing; fuzzed), a hostile second peer on the local socket, and no shared memory
+truncated framing; fuzzed, and so are the compact step frames of simseam.sidecar.compact), a hostile second peer on the local socket, and no shared memory
 left behind: nothing under /dev/shm and no mapping of the ring after close, after kill -9 of
 the sidecar, and after SIGINT / SIGKILL of the client.
 """
@@ -31,7 +31,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sidecar_util import SERVER_MODULE, actions, assert_same, cmdline, process_gone, running, scene_options
 
-from simseam.sidecar import local
+from simseam.sidecar import compact, local
 from simseam.sidecar.errors import SidecarCrashed
 from simseam.sidecar.wire import ALIGN, PROTOCOL_VERSION, WireError, decode, encode
 
@@ -271,6 +271,36 @@ def test_framing_round_trip_and_fd_passing():
         b.close()
 
 
+class _Trickle:
+    """A socket whose every read returns at most ``k`` bytes (a message arriving in pieces)."""
+
+    def __init__(self, sock: socket.socket, k: int):
+        self.sock, self.k = sock, k
+
+    def recv(self, n: int) -> bytes:
+        return self.sock.recv(min(n, self.k))
+
+    def recv_into(self, buf, nbytes: int = 0) -> int:
+        return self.sock.recv_into(buf, min(nbytes or len(buf), self.k))
+
+
+@pytest.mark.parametrize("k", [1, 5, 13, 1 << 16])
+@pytest.mark.parametrize("frames", [[b"\xc1" + bytes(range(40))], [b"head", b"", bytes(300)]], ids=["one", "three"])
+def test_a_message_arriving_in_pieces_is_reassembled(frames, k):
+    """The prefix and the rest are each read with one call when they arrive whole; in pieces of k
+    bytes, the reader keeps reading until each is complete."""
+    a, b = _pair()
+    try:
+        local.send_message(a, frames)
+        local.send_message(a, [b"next"])
+        got = local.recv_message(_Trickle(b, k))
+        assert [bytes(f) for f in got[0]] == [bytes(f) for f in frames]
+        assert [bytes(f) for f in local.recv_message(_Trickle(b, k))[0]] == [b"next"]  # nothing read beyond it
+    finally:
+        a.close()
+        b.close()
+
+
 @pytest.mark.parametrize("name, data, expect", [
     ("no frames", local.PREFIX.pack(0, 0), "announces 0 frames"),
     ("too many frames", local.PREFIX.pack(10_000, 80_000), "announces 10000 frames"),
@@ -340,6 +370,107 @@ def test_fuzz_mutated_ring_messages_only_raise_wire_error(data):
             pass
     finally:
         ring.close()
+
+
+def _compact_pair():
+    """A sidecar's ReplyTemplates and a client's ReplyDecoder over one small ring, the decoder already
+    holding two templates (one with an array in the ring), and a valid compact frame of each."""
+    ring = local.SlotRing(2, 1024, threshold=256)
+    slots = local.map_slots(os.dup(ring.fd), ring.layout())
+    tx, rx = compact.ReplyTemplates(), compact.ReplyDecoder(slots)
+    bodies = [{"x": 1.5, "n": 3, "ok": True, "s": "task", "a": np.arange(5, dtype=np.float32), "l": [None, 2.0]},
+              {"img": np.ones((8, 8, 3), np.uint8), "d": {"e": np.zeros(2, "<i8")}, "r": -1.0}]
+    good = []
+    for body in bodies:
+        rx.decode([bytes(f) for f in tx.encode(body, ring)])  # announces
+        (frame,) = tx.encode(body, ring)
+        assert frame[0] == compact.MAGIC
+        good.append(bytes(frame))
+    return ring, slots, rx, good
+
+
+@_FUZZ
+@given(st.binary(max_size=300))
+def test_fuzz_random_compact_frames_only_raise_wire_error(data):
+    ring, _slots, rx, _good = _compact_pair()
+    try:
+        for frame in (bytes([compact.MAGIC]) + data, bytes([compact.MAGIC, compact.OP_REPLY]) + data):
+            try:
+                rx.decode([frame])
+            except WireError:
+                pass
+        for frame in (bytes([compact.MAGIC]) + data, bytes([compact.MAGIC, compact.OP_STEP]) + data):
+            try:
+                compact.decode_step([frame])
+            except WireError:
+                pass
+    finally:
+        ring.close()
+
+
+@_FUZZ
+@given(st.data())
+def test_fuzz_mutated_compact_replies_only_raise_wire_error(data):
+    ring, _slots, rx, good = _compact_pair()
+    try:
+        frame = bytearray(good[data.draw(st.integers(0, len(good) - 1))])
+        for _ in range(data.draw(st.integers(1, 4))):
+            frame[data.draw(st.integers(1, len(frame) - 1))] = data.draw(st.integers(0, 255))
+        cut = data.draw(st.integers(-8, 8))
+        frame = frame[:len(frame) + cut] if cut < 0 else frame + bytes(cut)
+        try:
+            op, body = rx.decode([bytes(frame)])
+            assert op == "ok" and isinstance(body, dict)  # a mutation of a value only: a body of its template
+        except WireError:
+            pass
+    finally:
+        ring.close()
+
+
+@_FUZZ
+@given(st.data())
+def test_fuzz_mutated_template_announcements_only_raise_wire_error(data):
+    ring = local.SlotRing(2, 1024, threshold=256)
+    try:
+        body = {"x": 1.5, "img": np.ones((8, 8, 3), np.uint8), "a": np.arange(5, dtype=np.float32), "l": [None, "s", 2]}
+        frames = [bytes(f) for f in compact.ReplyTemplates().encode(body, ring)]
+        head = bytearray(frames[0])
+        for _ in range(data.draw(st.integers(1, 4))):
+            head[data.draw(st.integers(0, len(head) - 1))] = data.draw(st.integers(0, 255))
+        slots = [memoryview(bytearray(1024)) for _ in range(data.draw(st.integers(1, 3)))]
+        rx = compact.ReplyDecoder(slots)
+        try:
+            rx.decode([bytes(head), *frames[1:]])
+        except WireError:
+            pass
+    finally:
+        ring.close()
+
+
+class _StubScene:
+    """What Server.handle needs of a scene for a step: check_action, as every scene does."""
+
+    def step(self, action, request=None):
+        from simseam.seam import StepResult, check_action
+
+        a = check_action(action, 7)
+        return StepResult({"state": a, "task": "t", "images": {}}, float(a[0]), False, False,
+                          {"success": False, "steps": 1, "diagnostics": {}})
+
+
+@_FUZZ
+@given(st.binary(max_size=64), st.integers(0, 3))
+def test_fuzz_compact_requests_to_the_server_always_get_a_reply(data, prefix):
+    from simseam.sidecar.server import Server
+
+    server = Server(_StubScene(), "t" * 32, "x")
+    server.templates = compact.ReplyTemplates()
+    head = bytes([compact.MAGIC, compact.OP_STEP, 1, 0])[:prefix]
+    reply, stop = server.handle([head + data], None, attached=True)
+    op, body = decode(reply)
+    assert not stop and op in ("ok", "error"), body
+    if op == "error":
+        assert body["kind"] in ("WireError", "InvalidActionError"), body
 
 
 # ------------------------------------------------------------------- a hostile local peer

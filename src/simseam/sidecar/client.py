@@ -59,6 +59,8 @@ import zmq
 
 from simseam.seam import (
     CAP_RESTART,
+    FULL,
+    STATE_ONLY,
     ConfigError,
     ObsRequest,
     Observation,
@@ -75,6 +77,7 @@ from simseam.sidecar.errors import (
     remote_error,
 )
 from simseam.sidecar import local
+from simseam.sidecar.compact import ReplyDecoder, encode_step
 from simseam.sidecar.local import MAX_SPIN_US, default_spin_us
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
@@ -213,23 +216,30 @@ class SidecarRollout:
     view too. Copy what you keep longer; the episode loop's recorders do. ``spin_us``: on the local
     path, how long each side busy-polls for the other's next message before sleeping (default:
     ``local.default_spin_us()``: 1000 with at least 4 usable cores, else 0; ``$SIMSEAM_SIDECAR_SPIN_US``).
+    ``compact`` (default True): on the local path, ask the sidecar for compact step messages
+    (``simseam.sidecar.compact``: a state-only or default step request as one binary frame, replies
+    as templates; ``self.compact`` says whether it agreed); the observations are the same either way.
     """
 
     _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
     _spin_us = 0
     _slots: list | None = None
+    _decoder: ReplyDecoder | None = None
     fast = False
+    compact = False
 
     def __init__(self, spec_json: dict | None, task: str, engine: str = "mujoco", options: dict | None = None, *,
                  backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
                  progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None,
-                 local: bool = True, local_slots: int = local.DEFAULT_SLOTS, spin_us: int | None = None):
+                 local: bool = True, local_slots: int = local.DEFAULT_SLOTS, spin_us: int | None = None,
+                 compact: bool = True):
         if transport not in ("ipc", "tcp"):
             raise ConfigError(f"sidecar transport must be 'ipc' or 'tcp', got {transport!r}")
         if not isinstance(local_slots, int) or not 2 <= local_slots <= 64:
             raise ConfigError(f"sidecar local_slots must be an int in 2..64, got {local_slots!r}")
         self._want_local = bool(local) and transport == "ipc"
+        self._want_compact = bool(compact)
         self._local_slots = local_slots
         try:
             self._spin_us = default_spin_us() if spin_us is None else int(spin_us)
@@ -239,6 +249,8 @@ class SidecarRollout:
             raise ConfigError(f"sidecar spin_us must be 0..{MAX_SPIN_US}, got {spin_us!r}")
         self._slots: list | None = None  # the shared-memory ring's slots, when on the local path
         self.fast = False  # whether requests use the local fast path
+        self.compact = False  # whether step messages may travel compact on it
+        self._decoder = None
         self._spec_json = spec_json
         self._task = task
         self._engine = engine
@@ -385,7 +397,7 @@ class SidecarRollout:
         """Switch to the local fast path the sidecar offered (Unix socket + shared-memory ring)."""
         try:
             chan = local.LocalChannel(path, self._token, self._local_slots, timeout=self.request_timeout,
-                                      spin_us=self._spin_us)
+                                      spin_us=self._spin_us, compact=self._want_compact)
         except WireError as exc:
             raise SidecarProtocolError(f"the sidecar's local fast path at {path}: {exc}") from None
         except OSError as exc:  # e.g. another mount namespace: ZeroMQ still works
@@ -395,6 +407,10 @@ class SidecarRollout:
         self._sock = chan
         self._slots = chan.slots
         self.fast = True
+        if chan.compact:
+            self._decoder = ReplyDecoder(chan.slots)
+            chan.on_stale = self._decoder.learn  # a dropped reply may announce a template
+            self.compact = True
 
     def _adopt(self) -> bool:
         """Adopt a kept-alive sidecar of the same identity, if one is registered and alive."""
@@ -469,16 +485,21 @@ class SidecarRollout:
         raise SidecarCrashed(f"sidecar crashed {during} ({how})" + (f"; its stderr ends with:\n{tail}" if tail else ""),
                              exit_code=code, stderr_tail=tail)
 
-    def _request(self, op: str, body: dict, during: str | None = None, timeout: float | None = None) -> Any:
+    def _request(self, op: str, body: dict | None, during: str | None = None, timeout: float | None = None,
+                 frames: list | None = None) -> Any:
+        """The reply body to request ``op`` with ``body`` (or the request's ready ``frames``: a compact
+        step request)."""
         if self._closed:
             raise SidecarCrashed("the sidecar rollout is closed")
         if self._sock is None:
             raise SidecarCrashed("the sidecar is gone (crashed earlier); call restart()")
-        if not self.fast:  # the local connection proved the token once, at attach
-            body["token"] = self._token
+        if frames is None:
+            if not self.fast:  # the local connection proved the token once, at attach
+                body["token"] = self._token
+            frames = encode(op, body)
         during = during or f"during {op}"
         try:
-            self._sock.send_multipart(encode(op, body), copy=False)
+            self._sock.send_multipart(frames, copy=False)
             deadline = time.monotonic() + (self.request_timeout if timeout is None else timeout)
             while not self._sock.poll(POLL_SLICE_MS):
                 if self._alive_code() is not None:
@@ -487,7 +508,7 @@ class SidecarRollout:
                     raise SidecarTimeout(f"the sidecar did not answer {op!r} within "
                                          f"{self.request_timeout if timeout is None else timeout:.1f} s (hung?)")
             frames = self._sock.recv_multipart(copy=False)
-            kind, reply = decode(frames, self._slots)
+            kind, reply = decode(frames, self._slots) if self._decoder is None else self._decoder.decode(frames)
         except WireError as exc:
             raise SidecarProtocolError(f"malformed reply to {op!r}: {exc}") from None
         except OSError:  # the local connection broke (BrokenPipe, reset, closed): the sidecar died?
@@ -521,10 +542,13 @@ class SidecarRollout:
 
     def step(self, action: np.ndarray, observe: ObsRequest | None = None) -> StepResult:
         a = check_action(action, self.action_dim)  # fail fast, locally, before a round trip
-        body = {"action": a}
-        if observe is not None:
-            body["observe"] = observe.to_json()
-        r = self._request("step", body)
+        if self._decoder is not None and (observe is None or observe == STATE_ONLY or observe == FULL):
+            r = self._request("step", None, frames=encode_step(a, observe == STATE_ONLY))  # one binary frame
+        else:
+            body = {"action": a}
+            if observe is not None:
+                body["observe"] = observe.to_json()
+            r = self._request("step", body)
         obs = r["obs"]
         self._sim_time = int(obs["sim_time_ns"])
         self._frame = self._first_image(obs)
@@ -573,6 +597,10 @@ class SidecarRollout:
             self._sock = None
         self._slots = None
         self.fast = False
+        self.compact = False
+        if self._decoder is not None:
+            self._decoder.slots = None  # the mapping goes with the last observation that views it
+        self._decoder = None
         self._frame = None
         if self._proc is not None and not self._keep_alive:
             self._proc.kill(graceful_s=2.0 if graceful else 0.2)

@@ -7,7 +7,9 @@ launch token; the sidecar answers with the ring's layout and passes the ring's f
 descriptor along (``SCM_RIGHTS``). From then on every request goes over this socket.
 
 Messages: the ``simseam.sidecar.wire`` frames, framed as ``<u32 frame count><u64 byte
-count>`` + one u64 length per frame + the frames, sent with one ``sendmsg``.
+count>`` + one u64 length per frame + the frames, sent with one ``sendmsg``; a client that asks
+at attach (``compact``) sends and gets most step messages as one compact frame instead
+(``simseam.sidecar.compact``).
 
 The ring: one anonymous ``memfd`` (never a name under ``/dev/shm``: nothing can leak,
 whichever side dies; the memory is freed when the last mapping goes) of ``slots x
@@ -126,8 +128,16 @@ def spin_until_readable(poller, spin_s: float) -> bool:
 
 
 # ----------------------------------------------------------------------------- framing
+ONE_FRAME = struct.Struct("<IQQ")  # the prefix and length table of a one-frame message
+SMALL = 1 << 16
+
+
 def send_message(sock: socket.socket, frames: list, fds: list[int] | None = None) -> None:
     """Send wire frames (bytes / memoryviews / zmq-free buffers) as one framed message."""
+    if len(frames) == 1 and not fds and type(frames[0]) is bytes and len(frames[0]) < SMALL:  # a compact frame
+        n = len(frames[0])
+        sock.sendall(ONE_FRAME.pack(1, LENGTH.size + n, n) + frames[0])
+        return
     views = [f if isinstance(f, (bytes, bytearray)) else memoryview(f).cast("B") for f in frames]
     lengths = b"".join(LENGTH.pack(len(v)) for v in views)
     total = len(lengths) + sum(len(v) for v in views)
@@ -184,9 +194,13 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
         if len(data) < PREFIX.size and not _recv_exact(sock, memoryview(head)[len(data):]):
             raise Truncated("connection closed mid-message (in the prefix)")
     else:
-        head = bytearray(PREFIX.size)
-        if not _recv_exact(sock, memoryview(head)):
-            return None
+        head = sock.recv(PREFIX.size)  # all of it, nearly always: one call
+        if len(head) < PREFIX.size:
+            if not head:
+                return None
+            got, head = len(head), bytearray(head) + bytes(PREFIX.size - len(head))
+            if not _recv_exact(sock, memoryview(head)[got:]):
+                raise Truncated(f"connection closed mid-message ({got} of {PREFIX.size} bytes of the prefix)")
     try:
         count, total = PREFIX.unpack(head)
         if not 1 <= count <= MAX_ARRAYS + 1:
@@ -195,8 +209,9 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
             raise WireError(f"message announces {total} bytes for {count} frames (at most {MAX_MESSAGE_BYTES})")
         buf = bytearray(total)
         view = memoryview(buf)
-        if not _recv_exact(sock, view):
-            raise Truncated("connection closed mid-message (after the prefix)")
+        got = sock.recv_into(view)  # all of it, nearly always: one call
+        if got < total and (got == 0 or not _recv_exact(sock, view[got:])):
+            raise Truncated(f"connection closed mid-message ({got} of {total} bytes after the prefix)")
         frames, pos = [], count * LENGTH.size
         for i in range(count):
             (n,) = LENGTH.unpack_from(buf, i * LENGTH.size)
@@ -304,16 +319,20 @@ class LocalChannel:
     after a timeout are read and dropped (ZeroMQ's REQ_CORRELATE, by counting)."""
 
     def __init__(self, path: str, token: str, slots: int = DEFAULT_SLOTS, timeout: float = 30.0,
-                 spin_us: int = 0):
+                 spin_us: int = 0, compact: bool = False):
         import select
 
+        from simseam.sidecar.compact import COMPACT_VERSION
         from simseam.sidecar.wire import decode, encode
 
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             self.sock.settimeout(timeout)
             self.sock.connect(path)
-            send_message(self.sock, encode("attach", {"token": token, "slots": slots, "spin_us": int(spin_us)}))
+            ask = {"token": token, "slots": slots, "spin_us": int(spin_us)}
+            if compact:
+                ask["compact"] = COMPACT_VERSION
+            send_message(self.sock, encode("attach", ask))
             msg = recv_message(self.sock, want_fds=1)
             if msg is None:
                 raise PeerClosed("the sidecar closed the local connection during attach")
@@ -328,12 +347,17 @@ class LocalChannel:
                 if (layout is None) != (not fds):
                     raise WireError(f"attach: ring layout {layout!r:.200} does not match the {len(fds)} "
                                     "descriptor(s) passed")
+                granted = body.get("compact")  # an older sidecar does not answer: msgpack only
+                if granted is not None and (not compact or granted != COMPACT_VERSION):
+                    raise WireError(f"attach: compact messages version {granted!r}, asked for "
+                                    f"{COMPACT_VERSION if compact else 'none'}")
             except BaseException:
                 for fd in fds:
                     os.close(fd)
                 raise
             self.slots = map_slots(fds[0], layout) if fds else None
             self.layout = layout
+            self.compact = granted is not None  # step messages may travel compact (simseam.sidecar.compact)
             self.sock.settimeout(timeout)  # a reply that starts must finish within the request timeout
         except BaseException:
             self.sock.close()
@@ -344,6 +368,7 @@ class LocalChannel:
         self._spin_s = spin_us * 1e-6
         self._spin_due = False
         self.closed = False
+        self.on_stale = None  # called with each stale reply's frames before it is dropped (compact templates)
 
     def send_multipart(self, frames: list, copy: bool = False) -> None:
         send_message(self.sock, frames)
@@ -361,10 +386,13 @@ class LocalChannel:
             if self._outstanding <= 1:
                 return 1
             try:
-                if recv_message(self.sock) is None:  # a stale reply (its request timed out): drop it
+                stale = recv_message(self.sock)  # a stale reply (its request timed out): drop it
+                if stale is None:
                     return 1
             except Truncated:  # the sidecar died mid-reply: recv_multipart reports the end
                 return 1
+            if self.on_stale is not None:
+                self.on_stale(stale[0])
             self._outstanding -= 1
             timeout_ms = 0
         return 0
@@ -384,3 +412,4 @@ class LocalChannel:
             self.closed = True
             self.sock.close()
             self.slots = None  # the mapping goes with the last observation that views it
+            self.on_stale = None  # (the client's decoder holds the slots too)

@@ -20,7 +20,8 @@ Local fast path (``simseam.sidecar.local``): with an ``ipc://`` endpoint the ser
 also listens on ``local.sock`` beside it; a client that asks for it at ``hello`` gets
 its path, connects, sends ``attach`` (with the token) and receives the shared-memory
 ring; its requests then arrive there. One local client at a time (a new attach
-replaces the previous one); the ZeroMQ socket keeps serving as before.
+replaces the previous one); the ZeroMQ socket keeps serving as before. A client that
+asks at attach gets compact step messages there (``simseam.sidecar.compact``).
 
 Imports numpy, msgpack, pyzmq and the scene layer only (plus the engine's SDK
 when the scene is built): no pydantic, typer, rich or yaml.
@@ -44,7 +45,9 @@ from typing import Any
 
 import zmq
 
+from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
 from simseam.sidecar import local
+from simseam.sidecar.compact import COMPACT_VERSION, MAGIC, ReplyTemplates, decode_step
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 EXIT_BUSY = 3  # exit code: an exclusive engine is already running elsewhere
@@ -98,18 +101,27 @@ class Server:
         self.ring: local.SlotRing | None = None  # the attached local client's shared-memory ring
         self.spin_s = 0.0  # the attached local client's busy-poll budget for its next request (attach)
         self.spun = 0  # local messages that arrived while busy-polling (reported by close)
+        self.templates: ReplyTemplates | None = None  # the attached client's compact replies (attach)
 
     def handle(self, frames: list, ring: "local.SlotRing | None" = None, attached: bool = False) -> tuple[list, bool]:
         """Reply frames for one request, and whether to stop serving. ``ring``: put the reply's
         large arrays into this shared-memory ring; ``attached``: the request came on a local
-        connection that proved the token at attach (its requests carry none)."""
+        connection that proved the token at attach (its requests carry none), and that connection's
+        compact messages (``simseam.sidecar.compact``) apply when it negotiated them."""
+        tpl = self.templates if attached else None
         try:
+            if tpl is not None and frames and len(frames[0]) and frames[0][0] == MAGIC:  # a compact step request
+                action, state_only = decode_step(frames)
+                return self._dispatch("step", {"action": action, "observe": STATE_ONLY if state_only else None},
+                                      ring, attached, tpl)
             op, body = decode(frames)
         except WireError as exc:
             return encode("error", {"kind": "WireError", "message": str(exc)}), False
-        return self._dispatch(op, body, ring, attached)
+        return self._dispatch(op, body, ring, attached, tpl)
 
-    def _dispatch(self, op: str, body: Any, ring: "local.SlotRing | None", attached: bool) -> tuple[list, bool]:
+    def _dispatch(self, op: str, body: Any, ring: "local.SlotRing | None", attached: bool,
+                  tpl: ReplyTemplates | None = None) -> tuple[list, bool]:
+        ok = tpl.encode if tpl is not None else _encode_ok  # ok(body, ring): an "ok" reply
         if attached and not isinstance(body, dict):
             return encode("error", {"kind": "WireError", "message": f"body must be a map, got {type(body).__name__}"}), False
         # compare bytes: compare_digest raises TypeError on non-ASCII str (a peer could send one)
@@ -119,24 +131,25 @@ class Server:
         self.requests += 1
         try:
             if op == "hello":
-                return encode("ok", self.hello(body)), False
+                return ok(self.hello(body)), False
             if op == "reset":
                 seed = body.get("seed")
                 if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
                     raise WireError(f"reset: seed must be an int or null, got {seed!r}")
-                return encode("ok", {"obs": self.scene.reset(seed, self._request(body))}, ring), False
+                return ok({"obs": self.scene.reset(seed, self._request(body))}, ring), False
             if op == "step":
                 r = self.scene.step(body.get("action"), self._request(body))
                 info = {k: v for k, v in r.info.items()}
-                return encode("ok", {"obs": r.observation, "reward": r.reward, "terminated": r.terminated,
-                                     "truncated": r.truncated, "info": info}, ring), False
+                return ok({"obs": r.observation, "reward": r.reward, "terminated": r.terminated,
+                           "truncated": r.truncated, "info": info}, ring), False
             if op == "render":
-                return encode("ok", {"frame": self.scene.render()}, ring), False
+                return ok({"frame": self.scene.render()}, ring), False
             if op == "close":
-                return encode("ok", {"requests": self.requests, "spun": self.spun}), True
+                return ok({"requests": self.requests, "spun": self.spun,
+                           "compact": 0 if tpl is None else tpl.compact}), True
             if self.test_hooks and op == "_sleep":
                 time.sleep(float(body.get("seconds", 0)))
-                return encode("ok", {}), False
+                return ok({}), False
             if self.test_hooks and op == "_exit":
                 sys.stderr.write("simseam sidecar: exiting on request (test hook)\n")
                 sys.stderr.flush()
@@ -147,12 +160,14 @@ class Server:
                                     "traceback": traceback.format_exc()}), False
 
     @staticmethod
-    def _request(body: dict):
-        """The ``observe`` field of a reset/step body as an ``ObsRequest`` (None: everything)."""
-        from simseam.seam import ConfigError, ObsRequest
-
+    def _request(body: dict) -> ObsRequest:
+        """The ``observe`` field of a reset/step body as an ``ObsRequest`` (None: everything; a
+        compact step request's is one already)."""
+        observe = body.get("observe")
+        if type(observe) is ObsRequest:
+            return observe
         try:
-            return ObsRequest.from_json(body.get("observe"))
+            return ObsRequest.from_json(observe)
         except ConfigError as exc:
             raise WireError(str(exc)) from None
 
@@ -187,22 +202,36 @@ class Server:
         slots = body.get("slots", local.DEFAULT_SLOTS)
         if not isinstance(slots, int) or isinstance(slots, bool) or not 2 <= slots <= 64:
             return encode("error", {"kind": "WireError", "message": f"attach: slots must be 2..64, got {slots!r}"}), []
+        compact = body.get("compact", 0)
+        if not isinstance(compact, int) or isinstance(compact, bool) or compact < 0:
+            return encode("error", {"kind": "WireError",
+                                    "message": f"attach: compact must be a version number >= 0, got {compact!r}"}), []
         spin = body.get("spin_us", 0)
         if not isinstance(spin, int) or isinstance(spin, bool) or not 0 <= spin <= local.MAX_SPIN_US:
             return encode("error", {"kind": "WireError",
                                     "message": f"attach: spin_us must be 0..{local.MAX_SPIN_US}, got {spin!r}"}), []
         self.spin_s = spin * 1e-6
         self.detach()  # the previous local client's ring (its connection is closed by the caller)
+        reply: dict = {"ring": None}
+        if compact >= COMPACT_VERSION:  # the client asked for compact step messages: confirm the version spoken
+            self.templates = ReplyTemplates()
+            reply["compact"] = COMPACT_VERSION
         size = local.slot_bytes_for(self.scene.spec.to_json())
         if size == 0:  # nothing large to share: the local socket alone
-            return encode("ok", {"ring": None}), []
+            return encode("ok", reply), []
         self.ring = local.SlotRing(slots, size)
-        return encode("ok", {"ring": self.ring.layout()}), [self.ring.fd]
+        reply["ring"] = self.ring.layout()
+        return encode("ok", reply), [self.ring.fd]
 
     def detach(self) -> None:
+        self.templates = None
         if self.ring is not None:
             self.ring.close()
             self.ring = None
+
+
+def _encode_ok(body: Any, ring: "local.SlotRing | None" = None) -> list:
+    return encode("ok", body, ring)
 
 
 def local_listener(path: str) -> socket.socket:

@@ -20,6 +20,9 @@ slot, offset]``; ``encode(..., ring=...)`` puts arrays of at least ``ring.thresh
 bytes there (when they fit), ``decode(..., slots=[memoryview, ...])`` returns read-only
 views into the slot, after checking the slot index, the byte range and the alignment.
 
+Compact step messages (``simseam.sidecar.compact``, negotiated on the local fast path): a
+header may carry ``"tpl": id``, announcing that the body's structure is compact template ``id``.
+
 Imports: numpy and msgpack only.
 """
 
@@ -85,12 +88,13 @@ def _pack_body(obj: Any, arrays: list[np.ndarray], shm: list | None = None, ring
     raise WireError(f"value of type {type(obj).__name__} cannot travel on the wire")
 
 
-def encode(op: str, body: Any = None, ring: Any = None) -> list:
+def encode(op: str, body: Any = None, ring: Any = None, tpl: int | None = None) -> list:
     """Message frames for ``op`` with ``body`` (JSON-like data and ndarrays).
 
     ``ring`` (server side of the local fast path: a ``simseam.sidecar.local.SlotRing``):
     arrays of at least ``ring.threshold`` bytes are copied into the ring's next slot
-    instead of travelling as frames."""
+    instead of travelling as frames. ``tpl``: the header field announcing that this body's
+    structure is compact template ``tpl`` (``simseam.sidecar.compact``)."""
     arrays: list[np.ndarray] = []
     shm: list = []
     if ring is not None:
@@ -99,6 +103,8 @@ def encode(op: str, body: Any = None, ring: Any = None) -> list:
     head = {"v": PROTOCOL_VERSION, "op": op, "body": packed, "arrays": [[a.dtype.str, list(a.shape)] for a in arrays]}
     if shm:
         head["shm"] = shm
+    if tpl is not None:
+        head["tpl"] = tpl
     header = msgpack.packb(head, use_bin_type=True)
     return [header, *(memoryview(a).cast("B") if a.size else b"" for a in arrays)]
 
@@ -143,6 +149,12 @@ def decode(frames: list, slots: list | None = None) -> tuple[str, Any]:
 
     ``slots``: the shared-memory slots (memoryviews) a message may reference (client
     side of the local fast path); without them a message referencing one is refused."""
+    _header, op, body, _arrays, _shm = _decode(frames, slots)
+    return op, body
+
+
+def _decode(frames: list, slots: list | None = None) -> tuple[dict, str, Any, list, list]:
+    """``decode``, also giving the header and the decoded arrays (inline, then shared-memory)."""
     if not frames:
         raise WireError("empty message")
     head = frames[0]
@@ -180,7 +192,7 @@ def decode(frames: list, slots: list | None = None) -> tuple[str, Any]:
         raise WireError(f"array frame {used.index(False) + 1} is not referenced by the body")
     if not all(shm_used):
         raise WireError(f"shared-memory array {shm_used.index(False)} is not referenced by the body")
-    return op, body
+    return header, op, body, arrays, shm
 
 
 def _dtype_shape(what: str, dtype_str: Any, shape: Any) -> tuple[np.dtype, list, int, int]:
