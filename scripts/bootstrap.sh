@@ -13,6 +13,8 @@
 #      ManiSkill3 ~1.2-2 min and 2.0 GB of that, its CPU torch from the machine's wheel folder);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
+# Every cache below lives under one root, $SIMSEAM_CACHE (default ~/.cache/simseam): point it at a scratch
+# directory to build (or time) a cold set-up without touching the warm caches.
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
 set -euo pipefail
 SIMSEAM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -1,7 +1,8 @@
 """Provisioning a benchmark backend's virtualenv (``simseam backends provision NAME``).
 
 Standard library only. The venv lives outside any checkout, keyed by its pins:
-``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root),
+``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root;
+otherwise ``$SIMSEAM_CACHE/backends``, the cache root scripts/bootstrap.sh uses for everything),
 where ``<hash>`` covers ``pins/<name>.txt``, so a changed pin builds a new venv and every
 checkout (and client interpreter: 3.11 and 3.12 alike) with the same pins shares one. It is
 built from the base installation of the interpreter that provisions it (the pins are resolved
@@ -33,10 +34,13 @@ from simseam.seam.errors import BackendUnavailableError
 MARKER = "simseam-backend.json"
 PINS_DIR = Path(__file__).resolve().parent / "pins"
 DIR_ENV = "SIMSEAM_BACKENDS_DIR"
+CACHE_ENV = "SIMSEAM_CACHE"  # the root of every simseam cache (scripts/bootstrap.sh, setup_ros_peers.sh)
 
 
 def root() -> Path:
-    return Path(os.environ.get(DIR_ENV) or Path.home() / ".cache" / "simseam" / "backends")
+    if os.environ.get(DIR_ENV):
+        return Path(os.environ[DIR_ENV]).expanduser()
+    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "simseam").expanduser() / "backends"
 
 
 def base_python() -> str:
