@@ -1,7 +1,7 @@
 """What a cold CI set-up costs, piece by piece, built in a scratch cache root (the warm one is never touched).
 
     .venv/bin/python benchmarks/bench_cold_setup.py [--root /tmp/coldcache] [--pieces all|NAME,...]
-        [--pip-cache] [--parallel-backends] [--keep] [--json PATH]
+        [--pip-cache] [--backend-jobs N] [--keep] [--json PATH]
 
 CI runs ``bash .ci/run`` (= ``scripts/test``) on a fresh clone; ``scripts/bootstrap.sh`` builds
 everything it needs under one cache root, ``SIMSEAM_CACHE`` (default ``~/.cache/simseam``). This
@@ -11,8 +11,8 @@ it), builds each piece in turn, timing each one (wall clock) and the disk it add
 
 - ``isaac``: Isaac Sim 6.0.1's wheel sources (``python -m simseam.engines.isaac.sdk_sources``);
 - ``backend:<name>``: each benchmark backend's venv (``python -m simseam.backends.provision NAME``),
-  one after the other as bootstrap does; ``--parallel-backends`` provisions the six at once instead
-  (one row, their common wall time);
+  one after the other; ``--backend-jobs N`` provisions the six in one row instead, N at once
+  (``python -m simseam.backends.provision --jobs N``, as bootstrap does);
 - ``ros-peers``: the ROS 2 Jazzy venv and the Foxglove client (``scripts/setup_ros_peers.sh``);
 - ``venv-3.11``: ``source scripts/bootstrap.sh python3 .venv learning`` (the main venv with the
   LeRobot/PyTorch stack; everything above is found built, so this is the venv);
@@ -59,14 +59,14 @@ def python312() -> str | None:
 
 
 def commands(piece: str, clone: Path) -> list[list[str]]:
-    """The command(s) of a piece; several run at once (their common wall time is the piece's)."""
+    """The command(s) of a piece (several would run at once: their common wall time is the piece's)."""
     py = [sys.executable]  # this interpreter, with the clone's sources first on its path (env below)
     if piece == "isaac":
         return [[*py, "-m", "simseam.engines.isaac.sdk_sources", "--quiet"]]
     if piece.startswith("backend:"):
         return [[*py, "-m", "simseam.backends.provision", piece.split(":", 1)[1]]]
-    if piece == "backends-parallel":
-        return [[*py, "-m", "simseam.backends.provision", b] for b in BACKENDS]
+    if piece.startswith("backends-jobs"):
+        return [[*py, "-m", "simseam.backends.provision", "--jobs", piece[len("backends-jobs"):], *BACKENDS]]
     if piece == "ros-peers":
         return [["bash", str(clone / "scripts" / "setup_ros_peers.sh")]]
     if piece == "venv-3.11":
@@ -79,7 +79,7 @@ def commands(piece: str, clone: Path) -> list[list[str]]:
     if piece.startswith("sidecar-venvs-"):
         venv = ".venv" if piece.endswith("3.11") else ".venv-py312"
         return [[str(clone / venv / "bin" / "python"), "tests/sidecar/sidecar_venvs.py"]]
-    raise SystemExit(f"unknown piece {piece!r} (one of {', '.join(PIECES)}, backends-parallel)")
+    raise SystemExit(f"unknown piece {piece!r} (one of {', '.join(PIECES)}, backends-jobsN)")
 
 
 def main() -> int:
@@ -87,7 +87,8 @@ def main() -> int:
     ap.add_argument("--root", type=Path, default=Path("/tmp/simseam-coldcache"))
     ap.add_argument("--pieces", default="all", help="comma list, or all")
     ap.add_argument("--pip-cache", action="store_true", help="keep pip's own cache (default: disabled, as cold)")
-    ap.add_argument("--parallel-backends", action="store_true", help="provision the six backends at once")
+    ap.add_argument("--backend-jobs", type=int, default=0,
+                    help="provision the six backends in one row, N at once (default: one row each, in turn)")
     ap.add_argument("--keep", action="store_true", help="keep the scratch root")
     ap.add_argument("--json", type=Path, default=HERE / "results" / "cold_setup.json")
     args = ap.parse_args()
@@ -96,9 +97,9 @@ def main() -> int:
     if root == warm or warm.is_relative_to(root):
         raise SystemExit(f"--root {root} would touch the warm cache {warm}")
     pieces = list(PIECES) if args.pieces == "all" else args.pieces.split(",")
-    if args.parallel_backends:
+    if args.backend_jobs:
         pieces = [p for p in pieces if not p.startswith("backend:")]
-        pieces.insert(1 if pieces and pieces[0] == "isaac" else 0, "backends-parallel")
+        pieces.insert(1 if pieces and pieces[0] == "isaac" else 0, f"backends-jobs{args.backend_jobs}")
 
     root.mkdir(parents=True, exist_ok=True)
     clone = root / "clone"
@@ -134,7 +135,7 @@ def main() -> int:
     print(f"| **all** | **{total / 60:.1f} min** | {sum(r['bytes'] for r in rows) / 2**30:.2f} GiB | |")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps({"pieces": rows, "total_seconds": round(total, 1), "pip_cache": args.pip_cache,
-                                     "parallel_backends": args.parallel_backends, "nproc": os.cpu_count(),
+                                     "backend_jobs": args.backend_jobs, "nproc": os.cpu_count(),
                                      "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}, indent=2))
     print(f"\nwrote {args.json}")
     if not args.keep:

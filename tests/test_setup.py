@@ -1,8 +1,9 @@
-"""One cache root for everything set-up builds: ``SIMSEAM_CACHE`` (default ``~/.cache/simseam``).
+"""Set-up (scripts/bootstrap.sh): one cache root, and the backends provisioned several at once.
 
-scripts/bootstrap.sh puts the venvs under it; the benchmark backends' venvs, Isaac Sim's wheel
-sources and the ROS 2 / Foxglove test peers must follow it too, so a cold set-up can be built (and
-timed) in a scratch root without touching the warm one.
+One cache root for everything set-up builds: ``SIMSEAM_CACHE`` (default ``~/.cache/simseam``).
+bootstrap puts the venvs under it; the benchmark backends' venvs, Isaac Sim's wheel sources and the
+ROS 2 / Foxglove test peers follow it too, so a cold set-up can be built (and timed) in a scratch
+root without touching the warm one.
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 import hashlib
 import os
 import subprocess
+import threading
+import time
 from pathlib import Path
 
 from simseam.backends import provision
@@ -54,3 +57,33 @@ def test_ros_peers_follow_simseam_cache(tmp_path):
                          env=env, timeout=60)
     assert out.returncode == 0, out.stderr
     assert dict(line.split("=", 1) for line in out.stdout.split()) == dirs
+
+
+def test_provision_jobs_attempts_every_backend_and_reports_each_failure(monkeypatch, capsys):
+    """``--jobs``: backends run concurrently, one failure neither stops the others nor goes unreported."""
+    running, peak, seen = set(), [0], []
+    lock = threading.Lock()
+    both_started = threading.Barrier(2, timeout=60)  # the first two run at the same time, or this times out
+    meet = {"pusht", "aloha"}
+
+    def fake_provision(name, progress):  # the real one runs pip; here only the scheduling is under test
+        with lock:
+            running.add(name)
+            peak[0] = max(peak[0], len(running))
+            seen.append(name)
+        if name in meet:
+            both_started.wait()
+        time.sleep(0.01)
+        with lock:
+            running.discard(name)
+        if name == "aloha":
+            raise provision.BackendUnavailableError("provisioning 'aloha' failed at: pip install (exit 1)")
+        return {}
+
+    monkeypatch.setattr(provision, "provision", fake_provision)
+    assert provision.main(["--jobs", "2", "pusht", "aloha", "metaworld"]) == 1
+    err = capsys.readouterr().err
+    assert sorted(seen) == ["aloha", "metaworld", "pusht"] and peak[0] == 2
+    assert err.count("FAILED") == 1 and "provisioning 'aloha' failed" in err
+    meet.clear()
+    assert provision.main(["--jobs", "2", "pusht", "metaworld"]) == 0
