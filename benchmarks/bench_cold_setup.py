@@ -17,8 +17,8 @@ it), builds each piece in turn, timing each one (wall clock) and the disk it add
 - ``venv-3.11``: ``source scripts/bootstrap.sh python3 .venv learning`` (the main venv with the
   LeRobot/PyTorch stack; everything above is found built, so this is the venv);
 - ``venv-3.12``: ``source scripts/bootstrap.sh python3.12 .venv-py312`` (scripts/test's second pass);
-- ``sidecar-venvs-3.11`` / ``sidecar-venvs-3.12``: the two venvs ``tests/sidecar`` builds under the
-  clone's ``.cache/`` on first use (inside the test run, so inside the warm test time too).
+- ``sidecar-venvs-3.11`` / ``sidecar-venvs-3.12``: the two venvs ``tests/sidecar`` builds on first use
+  (inside the test run): their packages under ``<root>/sidecar-venvs/`` (pip), the clone's layer without pip.
 
 The apt packages bootstrap installs when missing (GL, FFmpeg, node/npm) are not timed: this machine
 has them. Prints a table and writes JSON (default benchmarks/results/cold_setup.json). The scratch
