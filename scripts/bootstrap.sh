@@ -9,10 +9,12 @@
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
 #   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite, ManiSkill3; backends/pins/),
-#      each under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~6.5 min and ~6.5 GB from PyPI, once;
-#      ManiSkill3 ~1.2-2 min and 2.0 GB of that, its CPU torch from the machine's wheel folder);
+#      each under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~3.7 min with the six provisioned at once,
+#      ~6.5 GB from PyPI, once; ManiSkill3 2.0 GB of that, its CPU torch from the machine's wheel folder);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
+# Every cache below lives under one root, $SIMSEAM_CACHE (default ~/.cache/simseam): point it at a scratch
+# directory to build (or time) a cold set-up without touching the warm caches.
 # Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
 set -euo pipefail
 SIMSEAM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -121,8 +123,9 @@ fi
 # the tests fail with the command to run if this could not fetch them)
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
-# benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent
-"$VENV/bin/python" -m simseam.backends.provision metaworld pusht aloha libero robosuite maniskill \
+# benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent.
+# All six at once: cold, 3.7 min instead of 5.6 one after the other (docs/performance.md, "CI time")
+"$VENV/bin/python" -m simseam.backends.provision --jobs 6 metaworld pusht aloha libero robosuite maniskill \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 

@@ -2,9 +2,10 @@
 when the machine has one (3.12 <-> 3.11), selected by a scene file; and the server needs
 nothing but numpy, msgpack and pyzmq (plus the engine SDK).
 
-The venvs are built once by ``sidecar_venvs.py`` under ``.cache/`` (first run: pip, from
-its cache or the package registry; later runs: a stamp file, nothing installed). The
-build happens in session fixtures, outside every test's own work.
+The venvs are built once by ``sidecar_venvs.py``: their packages in a venv cached outside the
+clone (first run: pip, from its cache or the package registry), the venv the sidecar runs in per
+clone under ``.cache/`` without pip (later runs: stamp files, nothing made). The build happens in
+session fixtures, outside every test's own work.
 """
 
 from __future__ import annotations

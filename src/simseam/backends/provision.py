@@ -1,7 +1,8 @@
 """Provisioning a benchmark backend's virtualenv (``simseam backends provision NAME``).
 
 Standard library only. The venv lives outside any checkout, keyed by its pins:
-``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root),
+``~/.cache/simseam/backends/<name>-<hash>/`` (``SIMSEAM_BACKENDS_DIR`` moves the root;
+otherwise ``$SIMSEAM_CACHE/backends``, the cache root scripts/bootstrap.sh uses for everything),
 where ``<hash>`` covers ``pins/<name>.txt``, so a changed pin builds a new venv and every
 checkout (and client interpreter: 3.11 and 3.12 alike) with the same pins shares one. It is
 built from the base installation of the interpreter that provisions it (the pins are resolved
@@ -33,10 +34,13 @@ from simseam.seam.errors import BackendUnavailableError
 MARKER = "simseam-backend.json"
 PINS_DIR = Path(__file__).resolve().parent / "pins"
 DIR_ENV = "SIMSEAM_BACKENDS_DIR"
+CACHE_ENV = "SIMSEAM_CACHE"  # the root of every simseam cache (scripts/bootstrap.sh, setup_ros_peers.sh)
 
 
 def root() -> Path:
-    return Path(os.environ.get(DIR_ENV) or Path.home() / ".cache" / "simseam" / "backends")
+    if os.environ.get(DIR_ENV):
+        return Path(os.environ[DIR_ENV]).expanduser()
+    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "simseam").expanduser() / "backends"
 
 
 def base_python() -> str:
@@ -156,21 +160,43 @@ def catalog(name: str, timeout: float = 300.0) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m simseam.backends.provision NAME...`` (what scripts/bootstrap.sh runs)."""
+    """``python -m simseam.backends.provision [--jobs N] NAME...`` (what scripts/bootstrap.sh runs).
+
+    ``--jobs N`` provisions up to N backends at once (their pip downloads overlap); every one is
+    attempted, each failure is printed, and the exit status is 1 if any failed (a failed backend has
+    no marker: its tests fail with the command to run).
+    """
     import argparse
+    from concurrent.futures import ThreadPoolExecutor
 
     ap = argparse.ArgumentParser(prog="python -m simseam.backends.provision")
     ap.add_argument("names", nargs="+")
     ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--jobs", type=int, default=1, help="backends provisioned at once (default 1)")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error("--jobs: at least 1")
     say = (lambda s: None) if args.quiet else (lambda s: print(f"[simseam] {s}", flush=True))
-    for n in args.names:
+
+    def one(n: str) -> str | None:
         try:
             provision(n, progress=say)
-        except Exception as exc:  # noqa: BLE001 - one line, exit 1
-            print(f"[simseam] FAILED: {exc}", file=sys.stderr)
-            return 1
-    return 0
+        except Exception as exc:  # noqa: BLE001 - reported below, one line each
+            return f"{exc}"
+        return None
+
+    if args.jobs == 1:
+        for n in args.names:
+            err = one(n)
+            if err is not None:
+                print(f"[simseam] FAILED: {err}", file=sys.stderr)
+                return 1
+        return 0
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        errors = [e for e in pool.map(one, args.names) if e is not None]
+    for err in errors:
+        print(f"[simseam] FAILED: {err}", file=sys.stderr)
+    return 1 if errors else 0
 
 
 if __name__ == "__main__":

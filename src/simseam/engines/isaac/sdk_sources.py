@@ -5,7 +5,7 @@ extensions the adapter calls (5.1 is only a stub there that fetches from NVIDIA'
 index). ``fetch()`` puts what the adapter's checks need into a cache outside the
 repository, keyed by version::
 
-    ~/.cache/simseam/isaacsim-wheels/6.0.1.0/
+    ~/.cache/simseam/isaacsim-wheels/6.0.1.0/   ($SIMSEAM_CACHE/isaacsim-wheels/... when set)
         isaacsim_core-6.0.1.0-*.whl      whole wheel (pip download)
         isaacsim_asset-6.0.1.0-*.whl     whole wheel (pip download)
         isaacsim_extscache_physics-6.0.1.0-members.zip
@@ -56,12 +56,15 @@ PARTIAL_WHEELS = {
     ),
 }
 ENV_CACHE = "SIMSEAM_ISAAC_SOURCES"  # overrides the cache directory (the version directory itself)
+ENV_ROOT = "SIMSEAM_CACHE"  # else <root>/isaacsim-wheels/<version>: the cache root scripts/bootstrap.sh uses
 MARKER = "COMPLETE"
 
 
 def cache_dir(version: str = SDK_VERSION) -> Path:
     if os.environ.get(ENV_CACHE):
         return Path(os.environ[ENV_CACHE]).expanduser()
+    if os.environ.get(ENV_ROOT):
+        return Path(os.environ[ENV_ROOT]).expanduser() / "isaacsim-wheels" / version
     base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     return base / "simseam" / "isaacsim-wheels" / version
 

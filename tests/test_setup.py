@@ -1,0 +1,89 @@
+"""Set-up (scripts/bootstrap.sh): one cache root, and the backends provisioned several at once.
+
+One cache root for everything set-up builds: ``SIMSEAM_CACHE`` (default ``~/.cache/simseam``).
+bootstrap puts the venvs under it; the benchmark backends' venvs, Isaac Sim's wheel sources and the
+ROS 2 / Foxglove test peers follow it too, so a cold set-up can be built (and timed) in a scratch
+root without touching the warm one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+from simseam.backends import provision
+from simseam.engines.isaac import sdk_sources
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_backends_follow_simseam_cache(monkeypatch, tmp_path):
+    monkeypatch.delenv(provision.DIR_ENV, raising=False)
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))
+    assert provision.root() == tmp_path / "backends"
+    assert provision.venv_dir("pusht") == tmp_path / "backends" / f"pusht-{provision.pins_key('pusht')}"
+    # the backends' own override still wins
+    monkeypatch.setenv(provision.DIR_ENV, str(tmp_path / "elsewhere"))
+    assert provision.root() == tmp_path / "elsewhere"
+    monkeypatch.delenv(provision.DIR_ENV)
+    monkeypatch.delenv("SIMSEAM_CACHE")
+    assert provision.root() == Path.home() / ".cache" / "simseam" / "backends"
+
+
+def test_isaac_sources_follow_simseam_cache(monkeypatch, tmp_path):
+    monkeypatch.delenv(sdk_sources.ENV_CACHE, raising=False)
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))
+    assert sdk_sources.cache_dir() == tmp_path / "isaacsim-wheels" / sdk_sources.SDK_VERSION
+    monkeypatch.setenv(sdk_sources.ENV_CACHE, str(tmp_path / "v"))
+    assert sdk_sources.cache_dir() == tmp_path / "v"
+
+
+def test_ros_peers_follow_simseam_cache(tmp_path):
+    # peers already built (their stamps) under the scratch root: the script reports those, builds nothing
+    dirs = {}
+    for key, prefix, pins in (("SIMSEAM_ROS_PEER_VENV", "ros-jazzy", "ros-peer-pins.txt"),
+                              ("SIMSEAM_FOXGLOVE_CLIENT", "foxglove-client", "foxglove-client-pins.json")):
+        h = hashlib.sha256((REPO / "scripts" / pins).read_bytes()).hexdigest()[:12]
+        d = tmp_path / f"{prefix}-{h}"
+        d.mkdir()
+        (d / ".ready").touch()
+        dirs[key] = str(d)
+    env = dict(os.environ, SIMSEAM_CACHE=str(tmp_path))
+    out = subprocess.run(["bash", str(REPO / "scripts" / "setup_ros_peers.sh")], capture_output=True, text=True,
+                         env=env, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert dict(line.split("=", 1) for line in out.stdout.split()) == dirs
+
+
+def test_provision_jobs_attempts_every_backend_and_reports_each_failure(monkeypatch, capsys):
+    """``--jobs``: backends run concurrently, one failure neither stops the others nor goes unreported."""
+    running, peak, seen = set(), [0], []
+    lock = threading.Lock()
+    both_started = threading.Barrier(2, timeout=60)  # the first two run at the same time, or this times out
+    meet = {"pusht", "aloha"}
+
+    def fake_provision(name, progress):  # the real one runs pip; here only the scheduling is under test
+        with lock:
+            running.add(name)
+            peak[0] = max(peak[0], len(running))
+            seen.append(name)
+        if name in meet:
+            both_started.wait()
+        time.sleep(0.01)
+        with lock:
+            running.discard(name)
+        if name == "aloha":
+            raise provision.BackendUnavailableError("provisioning 'aloha' failed at: pip install (exit 1)")
+        return {}
+
+    monkeypatch.setattr(provision, "provision", fake_provision)
+    assert provision.main(["--jobs", "2", "pusht", "aloha", "metaworld"]) == 1
+    err = capsys.readouterr().err
+    assert sorted(seen) == ["aloha", "metaworld", "pusht"] and peak[0] == 2
+    assert err.count("FAILED") == 1 and "provisioning 'aloha' failed" in err
+    meet.clear()
+    assert provision.main(["--jobs", "2", "pusht", "metaworld"]) == 0
