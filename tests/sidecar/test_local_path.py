@@ -36,7 +36,7 @@ from simseam.sidecar.errors import SidecarCrashed
 from simseam.sidecar.wire import ALIGN, PROTOCOL_VERSION, WireError, decode, encode
 
 RING = "simseam-sidecar-ring"
-HANG_GUARD_S = 10.0
+HANG_GUARD_S = 60.0  # a hang guard only: a process normally goes within a second
 IMG = scene_options(image_size=(64, 64))  # 12 kB per camera: above the 1 kB threshold, through the ring
 
 

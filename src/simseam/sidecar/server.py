@@ -300,6 +300,7 @@ def serve(boot: dict) -> int:
     conn: socket.socket | None = None  # the attached local client
     pending: list[socket.socket] = []  # local connections that have not attached yet
     conn_poll = None  # a select.poll on conn alone: the busy-poll between its requests
+    parent_checked = time.monotonic()  # when the loop last checked that its parent is alive
     try:
         sock.bind(boot["endpoint"])
         endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
@@ -319,10 +320,13 @@ def serve(boot: dict) -> int:
         _emit("ready", endpoint=endpoint, pid=os.getpid(), identity=boot["identity"])
         while True:
             events = dict(poller.poll(500))
-            if not events:
+            now = time.monotonic()
+            if not events or now - parent_checked >= 0.5:  # also while events keep coming
+                parent_checked = now
                 if not keep_alive and os.getppid() != parent:
                     sys.stderr.write("simseam sidecar: parent process is gone, exiting\n")
                     return 0
+            if not events:
                 continue
             if sock in events:
                 frames = sock.recv_multipart(copy=False)
