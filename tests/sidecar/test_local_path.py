@@ -352,6 +352,14 @@ def test_fuzz_random_bytes_on_the_local_socket_only_raise_wire_error(data):
         b.close()
 
 
+def _mutated(data, frame: bytes, first: int = 0) -> bytearray:
+    """``frame`` with 1-4 of its bytes from ``first`` on replaced by drawn ones."""
+    out = bytearray(frame)
+    for _ in range(data.draw(st.integers(1, 4))):
+        out[data.draw(st.integers(first, len(out) - 1))] = data.draw(st.integers(0, 255))
+    return out
+
+
 @_FUZZ
 @given(st.data())
 def test_fuzz_mutated_ring_messages_only_raise_wire_error(data):
@@ -359,10 +367,7 @@ def test_fuzz_mutated_ring_messages_only_raise_wire_error(data):
     try:
         frames = [bytes(f) for f in encode("ok", {"a": np.ones(40, np.float32), "b": {"c": np.zeros(30, "<i4")},
                                                   "d": np.arange(3)}, ring)]
-        head = bytearray(frames[0])
-        for _ in range(data.draw(st.integers(1, 4))):
-            i = data.draw(st.integers(0, len(head) - 1))
-            head[i] = data.draw(st.integers(0, 255))
+        head = _mutated(data, frames[0])
         slots = [memoryview(bytearray(1024)) for _ in range(data.draw(st.integers(1, 3)))]
         try:
             decode([bytes(head), *frames[1:]], slots)
@@ -413,9 +418,7 @@ def test_fuzz_random_compact_frames_only_raise_wire_error(data):
 def test_fuzz_mutated_compact_replies_only_raise_wire_error(data):
     ring, _slots, rx, good = _compact_pair()
     try:
-        frame = bytearray(good[data.draw(st.integers(0, len(good) - 1))])
-        for _ in range(data.draw(st.integers(1, 4))):
-            frame[data.draw(st.integers(1, len(frame) - 1))] = data.draw(st.integers(0, 255))
+        frame = _mutated(data, good[data.draw(st.integers(0, len(good) - 1))], first=1)
         cut = data.draw(st.integers(-8, 8))
         frame = frame[:len(frame) + cut] if cut < 0 else frame + bytes(cut)
         try:
@@ -434,9 +437,7 @@ def test_fuzz_mutated_template_announcements_only_raise_wire_error(data):
     try:
         body = {"x": 1.5, "img": np.ones((8, 8, 3), np.uint8), "a": np.arange(5, dtype=np.float32), "l": [None, "s", 2]}
         frames = [bytes(f) for f in compact.ReplyTemplates().encode(body, ring)]
-        head = bytearray(frames[0])
-        for _ in range(data.draw(st.integers(1, 4))):
-            head[data.draw(st.integers(0, len(head) - 1))] = data.draw(st.integers(0, 255))
+        head = _mutated(data, frames[0])
         slots = [memoryview(bytearray(1024)) for _ in range(data.draw(st.integers(1, 3)))]
         rx = compact.ReplyDecoder(slots)
         try:
