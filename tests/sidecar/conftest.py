@@ -84,7 +84,7 @@ def make_sidecar(panda_json):
                 popen.wait(5)
             except Exception:
                 pass
-    stuck = [pid for pid in sorted(pids) if not process_gone(pid, timeout=10.0)]
+    stuck = [pid for pid in sorted(pids) if not process_gone(pid, timeout=60.0)]  # a hang guard only
     for pid in stuck:
         try:
             os.kill(pid, signal.SIGKILL)

@@ -46,6 +46,20 @@ def process_gone(pid: int, timeout: float) -> bool:
     return True
 
 
+def end_client(proc, sock_dir: Path | None) -> None:
+    """A test's client subprocess: its sidecar's private directory removed (a SIGKILLed client cannot
+    clean up after itself), the process killed if still running, its pipes closed."""
+    if sock_dir is not None:
+        import shutil
+
+        shutil.rmtree(sock_dir, ignore_errors=True)
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait(10)
+    proc.stdout.close()
+    proc.stderr.close()
+
+
 def cmdline(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()

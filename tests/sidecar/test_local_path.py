@@ -29,11 +29,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from sidecar_util import SERVER_MODULE, actions, assert_same, cmdline, process_gone, running, scene_options
+from sidecar_util import (SERVER_MODULE, actions, assert_same, cmdline, end_client, process_gone, running,
+                          scene_options)
 
 from simseam.sidecar import compact, local
 from simseam.sidecar.errors import SidecarCrashed
-from simseam.sidecar.wire import ALIGN, PROTOCOL_VERSION, WireError, decode, encode
+from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 RING = "simseam-sidecar-ring"
 HANG_GUARD_S = 60.0  # a hang guard only: a process normally goes within a second
@@ -591,15 +592,7 @@ def test_ctrl_c_or_kill9_of_the_client_leaves_no_shared_memory(how, tmp_path):
         assert process_gone(sidecar, timeout=HANG_GUARD_S), f"sidecar {sidecar} outlived its client ({how})"
         assert shm_entries() <= before  # both processes gone: the ring's memory is gone with them
     finally:
-        if sock_dir is not None:
-            import shutil
-
-            shutil.rmtree(sock_dir, ignore_errors=True)  # a SIGKILLed client cannot clean up after itself
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        proc.stdout.close()
-        proc.stderr.close()
+        end_client(proc, sock_dir)
 
 
 def test_a_sidecar_on_the_ring_keeps_the_seam_contract(make_sidecar):

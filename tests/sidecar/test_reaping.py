@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -13,7 +12,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from sidecar_util import SERVER_MODULE, children, cmdline, proc_stat, process_gone, running, scene_options
+from sidecar_util import (SERVER_MODULE, children, cmdline, end_client, proc_stat, process_gone, running,
+                          scene_options)
 
 CLIENT = textwrap.dedent("""
     import sys, time
@@ -71,12 +71,7 @@ def test_client_exit_and_signals_reap_the_sidecar(how, tmp_path):
         if how != "sigkill":  # the client itself killed and waited for it before exiting (atexit / SIGTERM hook)
             assert proc_stat(sidecar) is None, f"sidecar {sidecar} outlived its client ({how})"
             assert not sock_dir.exists()
-        assert process_gone(sidecar, timeout=5.0), f"sidecar {sidecar} outlived its client ({how})"
+        # a hang guard only (on a loaded machine the sidecar's exit can take seconds); it normally goes at once
+        assert process_gone(sidecar, timeout=60.0), f"sidecar {sidecar} outlived its client ({how})"
     finally:
-        if how == "sigkill" and "sock_dir" in locals():
-            shutil.rmtree(sock_dir, ignore_errors=True)  # a SIGKILLed client cannot clean up after itself
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(10)
-        proc.stdout.close()
-        proc.stderr.close()
+        end_client(proc, sock_dir if how == "sigkill" and "sock_dir" in locals() else None)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 
 import typer
 from rich.console import Console
@@ -110,10 +112,10 @@ def eval_command(
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.cli.main import _close_policy, _policy_kwargs, _redacted, _sigterm_as_interrupt
+    from simseam.cli.main import _close_policy, _policy_kwargs, _redacted
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
-    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
+    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest
     from simseam.runner.sharding import parse_shard
 
     if resume and out is None:
@@ -178,76 +180,76 @@ def eval_command(
     def error(res, what_next):
         err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
 
-    interrupted = False
+    with _eval_guard(run_dir, out, lambda: _close_policy(pol)) as guard:
+        run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
+                 progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
+                 on_done=done, on_error=error, indices=planned)
+    _eval_summary(p, policy, out, guard.interrupted)
+
+
+@contextmanager
+def _eval_guard(run_dir, out: Path, cleanup=None):
+    """Around an eval's episodes: SIGTERM counts as Ctrl-C; Ctrl-C ends the run as interrupted
+    (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode log (every
+    finished episode kept) and fails with its one-line message (exit 2). The run directory is closed
+    and ``cleanup`` (the policy's close) called whichever way it ends."""
+    from simseam.cli.main import _sigterm_as_interrupt
+    from simseam.runner.run_dir import rebuild_summary
+
+    guard = SimpleNamespace(interrupted=False)
+    error = None
     try:
         with _sigterm_as_interrupt():
-            run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
-                     progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
-                     on_done=done, on_error=error, indices=planned)
+            yield guard
     except KeyboardInterrupt:
-        interrupted = True
+        guard.interrupted = True
     except SimseamError as exc:
+        error = exc
+    finally:
         run_dir.close()
+        if cleanup is not None:
+            cleanup()
+    if error is not None:
         rebuild_summary(out, interrupted=True)
-        _close_policy(pol)
-        _fail(exc)
-    run_dir.close()
-    _close_policy(pol)
-    _eval_summary(p, policy, out, interrupted)
+        _fail(error)
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
                  num_envs: int, *, seed: int, video: bool, indices: list[int]) -> bool:
     """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``); returns
     whether it was interrupted. Progress as ``simseam run --num-envs``."""
-    from simseam.cli.main import EvalProgress, _close_policy, _sigterm_as_interrupt
+    from simseam.cli.main import EvalProgress, _close_policy
     from simseam.runner.evaluate import run_eval_vector
-    from simseam.runner.run_dir import rebuild_summary
 
     privileged = pol.requires_privileged
     if batch is None:  # nothing shared: each worker runs its own instance
         _close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len([i for i in indices if i not in run_dir.done])
-    interrupted = False
-    error = None
-    try:
-        with _sigterm_as_interrupt(), EvalProgress(console, total=todo) as progress:
-            def start(vec):
-                console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
+    with _eval_guard(run_dir, out, batch.close if batch is not None else None) as guard, \
+            EvalProgress(console, total=todo) as progress:
+        def start(vec):
+            console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
 
-            run_eval_vector(p, task_list, n, run_dir, num_envs, policy=policy, policy_kwargs=kwargs,
-                            policy_batch=batch, privileged=privileged, seed=seed,
-                            video_dir=out if video else None, on_start=start,
-                            on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
-                            on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
-                            indices=indices)
-    except KeyboardInterrupt:
-        interrupted = True
-    except SimseamError as exc:
-        error = exc
-    finally:
-        run_dir.close()
-        if batch is not None:
-            batch.close()
-    if error is not None:
-        rebuild_summary(out, interrupted=True)
-        _fail(error)
-    return interrupted
+        run_eval_vector(p, task_list, n, run_dir, num_envs, policy=policy, policy_kwargs=kwargs,
+                        policy_batch=batch, privileged=privileged, seed=seed,
+                        video_dir=out if video else None, on_start=start,
+                        on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
+                        on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
+                        indices=indices)
+    return guard.interrupted
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,
               num_workers: int | None, seed: int, indices: list[int]) -> None:
     """``simseam eval --ray ADDRESS``: the episodes on Ray actors (``run_eval_ray``), each owning a sidecar
     of the backend and its own policy; results streamed into the episode log. Progress as ``run --ray``."""
-    from simseam.cli.main import EvalProgress, _close_policy, _sigterm_as_interrupt
+    from simseam.cli.main import EvalProgress, _close_policy
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import run_eval_ray
-    from simseam.runner.run_dir import rebuild_summary
 
     todo = [i for i in indices if i not in run_dir.done]
-    interrupted = False
-    try:
+    with _eval_guard(run_dir, out) as guard:
         probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
         privileged = probe.requires_privileged
         _close_policy(probe)
@@ -255,19 +257,11 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
                       f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
         if run_dir.done:
             console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
-        with _sigterm_as_interrupt(), EvalProgress(console, total=len(todo)) as progress:
+        with EvalProgress(console, total=len(todo)) as progress:
             run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
                          privileged=privileged, seed=seed, num_workers=num_workers, indices=indices,
                          on_done=progress.done, on_worker_failure=progress.worker_failure)
-    except KeyboardInterrupt:
-        interrupted = True
-    except SimseamError as exc:
-        run_dir.close()
-        rebuild_summary(out, interrupted=True)
-        _fail(exc)
-    finally:
-        run_dir.close()
-    _eval_summary(p, policy, out, interrupted)
+    _eval_summary(p, policy, out, guard.interrupted)
 
 
 def _eval_summary(p, policy: str, out: Path, interrupted: bool) -> None:
