@@ -71,14 +71,27 @@ def axis_angle_to_matrix(v) -> np.ndarray:
                      [c * x * z - s * y, c * y * z + s * x, 1.0 + c * (z * z - 1.0)]])
 
 
-def matrix_to_axis_angle(m: np.ndarray) -> np.ndarray:
-    """Matrix -> rotation vector (axis * angle), angle in [0, pi]."""
-    cos = min(max((m[0, 0] + m[1, 1] + m[2, 2] - 1.0) * 0.5, -1.0), 1.0)
-    if -0.99 < cos < 0.999:  # well away from 0 and pi: the log map from the skew part
-        angle = math.acos(cos)
-        v = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
-        return v * (angle / (2.0 * math.sin(angle)))
-    return quat_to_axis_angle(matrix_to_quat(m))
+def sign_reference(q) -> np.ndarray:
+    """``q`` (or ``-q``, the same rotation) with its largest-magnitude component positive: a fixed
+    choice of sign for a reference orientation, see ``matrix_to_axis_angle``."""
+    q = np.asarray(q, dtype=np.float64)
+    return q if q[int(np.argmax(np.abs(q)))] >= 0 else -q
+
+
+def matrix_to_axis_angle(m: np.ndarray, reference) -> np.ndarray:
+    """Matrix -> rotation vector (axis * angle, angle in [0, 2 pi)), continuous around ``reference``
+    (a unit quaternion [w, x, y, z]).
+
+    A 3-vector cannot be continuous over every rotation; the common [0, pi] choice jumps at pi, which
+    is exactly where a top-down gripper sits (rx flips between +3.1 and -3.1 under millimetre
+    motions). Here the quaternion's sign follows ``reference`` (a robot's home tool orientation), so
+    the vector runs smoothly through pi near it, as LIBERO's ``quat2axisangle`` of MuJoCo's body
+    quaternion does; the jump moves to the rotations half a turn away from the reference.
+    """
+    q = matrix_to_quat(m)
+    if float(np.dot(q, reference)) < 0.0:
+        q = -q
+    return quat_to_axis_angle(q)
 
 
 def quat_to_axis_angle(q) -> np.ndarray:

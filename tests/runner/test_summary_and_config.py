@@ -75,3 +75,16 @@ def test_scene_file_robot_manifest_relative_to_scene(tmp_path):
         assert rollout.reset(0)["images"]["camera1"].shape == (32, 32, 3)
     finally:
         rollout.close()
+
+
+def test_scene_file_environment_state_reaches_the_rollout_and_not_a_benchmark(tmp_path):
+    p = _write(tmp_path, "robot: franka_panda\ntask: lift_cube\nenvironment_state: true\n")
+    cfg, base = load_scene_config(p)
+    rollout = build_rollout(cfg, base, render_images=False)
+    try:
+        assert rollout.spec.env_state_dim == 7 and rollout.reset(0)["environment_state"].shape == (7,)
+    finally:
+        rollout.close()
+    bench = _write(tmp_path, "benchmark: {name: pusht}\nenvironment_state: true\n")
+    with pytest.raises(ConfigError, match="takes its environment_state from benchmark"):
+        load_scene_config(bench)

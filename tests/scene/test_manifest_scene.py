@@ -214,6 +214,26 @@ def test_bowl_plate_is_the_libero_contract(panda_spec, make_scene):
     assert np.linalg.norm(obs["state"][3:6]) == pytest.approx(np.pi, abs=0.05)
 
 
+
+def test_the_state_orientation_runs_continuously_through_a_half_turn(panda_spec, make_scene):
+    """A top-down gripper sits at a half turn about x, where an axis-angle in [0, pi] flips sign
+    under millimetre motions. The state's follows the home orientation's quaternion sign, as LIBERO's
+    does: rolling the tool back and forth about x moves it smoothly across pi, never by ~2 pi."""
+    from simseam.math3d import axis_angle_to_matrix
+
+    scene = make_scene(panda_spec, render_images=False)
+    obs = scene.reset(0)
+    seen = [obs["state"][3:6].copy()]
+    for t in range(30):
+        a = np.zeros(7, np.float32)
+        a[3] = 0.4 if t < 8 else -0.4  # roll one way, then back past the start
+        seen.append(scene.step(a).observation["state"][3:6].copy())
+    seen = np.array(seen)
+    assert np.abs(np.diff(seen, axis=0)).max() < 0.3  # no jump
+    assert seen[:, 0].max() > np.pi + 0.05 and seen[:, 0].min() < np.pi - 0.05  # it crossed pi
+    _, rot = scene.eef_pose_base()
+    np.testing.assert_allclose(axis_angle_to_matrix(seen[-1]), rot, atol=1e-5)  # the same rotation
+
 # ------------------------------------------------------------------ bad input
 @pytest.mark.parametrize("bad, fragment", [
     (np.zeros(6, np.float32), "expected (7,)"),
@@ -256,3 +276,23 @@ def test_layout_rejects_robot_missing_required_cameras(panda_spec):
 def test_layout_forced_control_mode_conflict(panda_spec):
     with pytest.raises(ConfigError, match="requires control mode 'cartesian_delta'"):
         ManifestScene(panda_spec, "bowl_plate", options=SceneOptions(control_mode="joint_position"))
+
+
+def test_environment_state_is_the_tasks_object_poses_declared_in_the_spec(panda_spec, make_scene):
+    scene = make_scene(panda_spec, render_images=False, privileged=True, environment_state=True)
+    field = scene.spec.observation.fields["environment_state"]
+    assert scene.spec.env_state_dim == 7 and field.names[:4] == ("cube.x", "cube.y", "cube.z", "cube.qw")
+    obs = scene.reset(3)
+    env = obs["environment_state"]
+    assert env.dtype == np.float32 and env.shape == (7,)
+    np.testing.assert_allclose(env, obs["privileged"]["objects"]["cube"], atol=1e-6)
+    other = scene.reset(4)["environment_state"]
+    assert np.linalg.norm(env[:2] - other[:2]) > 0.005  # the seed moves the cube, and the state sees it
+    plain = make_scene(panda_spec, render_images=False)
+    assert plain.spec.env_state_dim is None and "environment_state" not in plain.reset(3)
+
+
+def test_environment_state_of_a_task_with_a_target_lists_it(so101_spec, make_scene):
+    scene = make_scene(so101_spec, task="reach", render_images=False, environment_state=True)
+    names = scene.spec.observation.fields["environment_state"].names
+    assert names[0].split(".")[0] == "target" and len(names) == scene.spec.env_state_dim

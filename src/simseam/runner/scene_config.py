@@ -11,6 +11,7 @@ Example::
     max_steps: 150
     control_hz: 20
     control_mode: cartesian_delta   # optional; default: the task's or the robot's
+    environment_state: true      # optional: observe the task's object poses (state-based policies)
 
 A benchmark backend instead of a robot and a task (docs/benchmarks.md)::
 
@@ -72,6 +73,8 @@ class SceneConfig(BaseModel):
     max_steps: int | None = Field(default=None, gt=0)
     control_hz: float = Field(default=20.0, gt=0, le=1000)
     control_mode: Literal["joint_position", "cartesian_delta"] | None = None
+    #: observe the task's object state (``environment_state``), what a state-based learned policy reads
+    environment_state: bool = False
 
     @field_validator("engine", mode="before")
     @classmethod
@@ -82,7 +85,7 @@ class SceneConfig(BaseModel):
     def _robot_task_or_benchmark(self):
         if self.benchmark is not None:
             given = [k for k in ("robot", "task", "image_size", "max_steps", "control_mode")
-                     if getattr(self, k) is not None]
+                     if getattr(self, k) is not None] + (["environment_state"] if self.environment_state else [])
             if given:
                 raise ValueError(f"a benchmark scene takes its {', '.join(given)} from benchmark: (e.g. "
                                  "benchmark: {name: metaworld, task: reach-v3, max_steps: 500}); remove them")
@@ -118,6 +121,16 @@ def resolve_robot(cfg: SceneConfig, base_dir: Path):
     return load_manifest(find_manifest(ref))
 
 
+def scene_options(cfg: SceneConfig, *, privileged: bool, render_images: bool, seed: int):
+    """The ``SceneOptions`` a (robot + task) scene file gives, for any engine."""
+    from simseam.scene.manifest_scene import SceneOptions
+
+    return SceneOptions(control_hz=cfg.control_hz, image_size=cfg.image_size, max_steps=cfg.max_steps,
+                        control_mode=cfg.control_mode, render_images=render_images, privileged=privileged,
+                        environment_state=cfg.environment_state, render_quality=cfg.engine.render_quality,
+                        timestep=cfg.engine.timestep, seed=seed)
+
+
 def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
                   seed: int = 0, progress=None) -> SimRollout:
     """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar;
@@ -135,20 +148,10 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
 
     from simseam.engines.base import EngineOptions
     from simseam.engines.registry import make_engine
-    from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+    from simseam.scene.manifest_scene import ManifestScene
 
     spec = resolve_robot(cfg, base_dir)
-    options = SceneOptions(
-        control_hz=cfg.control_hz,
-        image_size=cfg.image_size,
-        max_steps=cfg.max_steps,
-        control_mode=cfg.control_mode,
-        render_images=render_images,
-        privileged=privileged,
-        render_quality=cfg.engine.render_quality,
-        timestep=cfg.engine.timestep,
-        seed=seed,
-    )
+    options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
     eng = cfg.engine
     if eng.name == "mujoco_warp":  # one world of the GPU-batched engine (runner.warp_vector runs N)
         from simseam.engines.mujoco_warp import WarpOptions, WarpRollout

@@ -28,8 +28,7 @@ def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, pri
                         render_images: bool = True, seed: int = 0, device: str | None = None):
     """The ``BatchedScene`` a scene file with ``engine: {name: mujoco_warp, num_envs: N}`` describes."""
     from simseam.engines.mujoco_warp import BatchedScene, WarpOptions
-    from simseam.runner.scene_config import resolve_robot
-    from simseam.scene.manifest_scene import SceneOptions
+    from simseam.runner.scene_config import resolve_robot, scene_options
 
     eng = cfg.engine
     if eng.name != "mujoco_warp":
@@ -37,9 +36,7 @@ def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, pri
     if eng.process != "inprocess":
         raise ConfigError("engine 'mujoco_warp' runs in-process (process: sidecar is not supported)")
     n = num_envs or eng.num_envs or 1
-    options = SceneOptions(control_hz=cfg.control_hz, image_size=cfg.image_size, max_steps=cfg.max_steps,
-                           control_mode=cfg.control_mode, render_images=render_images, privileged=privileged,
-                           render_quality=eng.render_quality, timestep=eng.timestep, seed=seed)
+    options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
     return BatchedScene(resolve_robot(cfg, base_dir), cfg.task, n, options,
                         WarpOptions(device=device or eng.device))
 

@@ -14,6 +14,7 @@ from simseam.seam import (
     CAP_PRIVILEGED,
     OBS_BASE_POSE,
     OBS_DEPTH_POINTS,
+    OBS_ENV_STATE,
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
     OBS_JOINT_VELOCITIES,
@@ -63,10 +64,12 @@ def robot_facts(spec: RobotSpec, urdf: UrdfModel, image_sizes: dict[str, tuple[i
 
 
 def observation_spec(robot: RobotFacts, cameras: dict[str, tuple[int, int]], state_names: tuple[str, ...],
-                     privileged_objects: tuple[str, ...] | None, *, renders: bool) -> ObservationSpec:
+                     privileged_objects: tuple[str, ...] | None, *, renders: bool,
+                     env_state_names: tuple[str, ...] | None = None) -> ObservationSpec:
     """The keys a manifest scene observes. ``cameras``: feature key -> (H, W) of its RGB images;
     ``renders``: False for a state-only scene (no images, no depth clouds); ``privileged_objects``:
-    names in ``privileged['objects']``, or None when the scene is not privileged."""
+    names in ``privileged['objects']``, or None when the scene is not privileged; ``env_state_names``:
+    the slots of ``environment_state``, or None when the scene does not observe it."""
     cameras = cameras if renders else {}
     n = len(robot.joints)
     f32 = "float32"
@@ -90,6 +93,9 @@ def observation_spec(robot: RobotFacts, cameras: dict[str, tuple[int, int]], sta
                                              entries={s.name: FieldSpec(f32, (-1, 3)) for s in depth})
     fields[OBS_LINK_POSES] = FieldSpec("dict", (), "on_request", "m, quaternion wxyz (base_link)",
                                        entries={link.name: FieldSpec(f32, (7,)) for link in robot.links})
+    if env_state_names is not None:
+        fields[OBS_ENV_STATE] = FieldSpec(f32, (len(env_state_names),), "declared", "m, quaternion wxyz (base_link)",
+                                          env_state_names)
     if privileged_objects is not None:
         fields[OBS_PRIVILEGED] = FieldSpec("dict", (), "declared", "m, quaternion wxyz (base_link)", entries={
             "eef_pose": FieldSpec("float64", (7,)),

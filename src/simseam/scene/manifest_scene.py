@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from simseam.engines.base import CameraModel, Engine, EngineOptions, RobotModel, Shape
-from simseam.math3d import make_transform, matrix_to_quat, quat_to_matrix, rpy_to_matrix, rpy_to_quat, yaw_quat
+from simseam.math3d import (make_transform, matrix_to_quat, quat_to_matrix, rpy_to_matrix, rpy_to_quat, sign_reference,
+                            yaw_quat)
 from simseam.robot.assets import resolve_asset
 from simseam.robot.spec import RobotSpec
 from simseam.robot.urdf import read_urdf
@@ -40,6 +41,7 @@ from simseam.seam import (
     INFO_STEPS,
     OBS_BASE_POSE,
     OBS_DEPTH_POINTS,
+    OBS_ENV_STATE,
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
     OBS_JOINT_VELOCITIES,
@@ -70,8 +72,9 @@ _FULL = ObsRequest()
 class SceneOptions:
     """Scene knobs. ``image_size`` (H, W) overrides every RGB sensor's size;
     ``render_images=False`` builds a state-only scene (no images, no depth clouds);
-    ``privileged=True`` adds ground truth for scripted experts; ``seed`` seeds
-    the stream used when ``reset(seed=None)``."""
+    ``privileged=True`` adds ground truth for scripted experts; ``environment_state=True``
+    adds the task's object state (``environment_state``, what a state-based learned policy
+    reads); ``seed`` seeds the stream used when ``reset(seed=None)``."""
 
     control_hz: float = 20.0
     image_size: tuple[int, int] | None = None
@@ -79,6 +82,7 @@ class SceneOptions:
     control_mode: str | None = None
     render_images: bool = True
     privileged: bool = False
+    environment_state: bool = False
     render_quality: str = "lean"
     timestep: float = 0.002
     ik_iters: int = 1
@@ -113,6 +117,9 @@ class ManifestScene:
                                  [self._ejoints[i].sim_name for i in self._arm_idx],
                                  self._arm_bounds(self._lower), self._arm_bounds(self._upper, +1),
                                  tip_offset=make_transform(self._tool_pos, self._tool_rot) if tcp else None)
+        #: the home tool orientation (base frame, a quaternion of fixed sign): the state's axis-angle
+        #: is continuous around it (``math3d.matrix_to_axis_angle``)
+        self.rot_reference = sign_reference(matrix_to_quat(self.chain.forward(self._home[self._arm_idx])[0][:3, :3]))
         self.task = task_cls(robot, self.chain.tabletop_reach(), self.chain)
         self.task.check_robot()
         self._make_controllers(mode)
@@ -238,10 +245,13 @@ class ManifestScene:
         opts = self.options
         facts = describe.robot_facts(self.robot, self._urdf, self._sizes)
         t = self.task
-        privileged = (tuple(t.tracked_objects) + tuple(t.privileged_extras)) if opts.privileged else None
+        privileged = t.object_names() if opts.privileged else None
         self._state_names = t.state_names()
+        env_state = t.env_state_names() if opts.environment_state else None
+        if env_state == ():
+            raise ConfigError(f"task {task!r} tracks no object: it has no environment_state to observe")
         obs = describe.observation_spec(facts, self._cameras, self._state_names, privileged,
-                                        renders=opts.render_images)
+                                        renders=opts.render_images, env_state_names=env_state)
         task_spec = TaskSpec(task, t.instruction, max_steps=opts.max_steps or t.max_steps,
                              diagnostics=tuple(t.diagnostics))
         return describe.rollout_spec(robot=facts, observation=obs, action=self.action_spec, task=task_spec,
@@ -408,7 +418,7 @@ class ManifestScene:
         q = eng.joint_positions()
         self._eef = pos, rot = self.eef_pose_base()
         state = np.empty(len(self._state_names), dtype=np.float32)
-        self.task.state(pos, rot, q[self._grip_idx], state)
+        self.task.state(pos, rot, q[self._grip_idx], state, self.rot_reference)
         images = {}
         self._frame = None
         if self.options.render_images:
@@ -446,10 +456,10 @@ class ManifestScene:
                 rot_l, pos_l = self.link_in_base(link.name)
                 poses[link.name] = np.concatenate([pos_l, matrix_to_quat(rot_l)]).astype(np.float32)
             obs[OBS_LINK_POSES] = poses
-        if self.options.privileged:
-            t = self.task
-            obs[OBS_PRIVILEGED] = {
-                "eef_pose": np.concatenate([pos, matrix_to_quat(rot)]),
-                "objects": {**{n: self.to_base(*eng.object_pose(n)) for n in t.tracked_objects}, **t.privileged(self)},
-            }
+        if self.options.privileged or self.options.environment_state:
+            objects = self.task.object_poses(self)
+            if self.options.environment_state:
+                obs[OBS_ENV_STATE] = np.concatenate([objects[n] for n in self.task.object_names()]).astype(np.float32)
+            if self.options.privileged:
+                obs[OBS_PRIVILEGED] = {"eef_pose": np.concatenate([pos, matrix_to_quat(rot)]), "objects": objects}
         return obs

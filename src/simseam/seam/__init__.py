@@ -28,6 +28,10 @@ The observation contract, key by key (shapes in ``rollout.spec.observation``):
 - on request: ``link_poses`` ``{link: float32[7]}`` (xyz + quaternion wxyz in base_link).
 - privileged rollouts (scripted experts, data collection): ``privileged`` =
   ``{"eef_pose": float64[7], "objects": {name: float64[7]}}`` in base_link.
+- asked for by the scene (``environment_state: true``): ``environment_state``
+  ``float32[E]``, the task's object state (each tracked object's base_link pose
+  [x, y, z, qw, qx, qy, qz], names in the spec): what a state-based policy reads
+  beside ``state`` (LeRobot's ``observation.environment_state``).
 """
 
 from simseam.seam.checker import RolloutContractError, check_rollout, observation_problems

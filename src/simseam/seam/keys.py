@@ -20,11 +20,13 @@ OBS_SCAN = "scan"  # float32[beams] ranges, base_link
 OBS_LINK_POSES = "link_poses"  # {link: float32[7]} xyz + quat wxyz in base_link (on request)
 OBS_PRIVILEGED = "privileged"  # {"eef_pose": float64[7], "objects": {name: float64[7]}}
 OBS_EXPERT_ACTION = "expert_action"  # float32[action_dim]: a benchmark's own scripted expert (privileged rollouts)
+OBS_ENV_STATE = "environment_state"  # float32[E]: the task's object state (base_link), when the scene asks for it
 
 #: Keys present in every observation.
 REQUIRED_OBS_KEYS = (OBS_IMAGES, OBS_STATE, OBS_TASK, OBS_JOINT_POSITIONS, OBS_JOINT_VELOCITIES, OBS_SIM_TIME_NS)
 #: Keys present only when the rollout's spec declares them (and, for requestable ones, when asked for).
-OPTIONAL_OBS_KEYS = (OBS_BASE_POSE, OBS_DEPTH_POINTS, OBS_SCAN, OBS_LINK_POSES, OBS_PRIVILEGED, OBS_EXPERT_ACTION)
+OPTIONAL_OBS_KEYS = (OBS_BASE_POSE, OBS_DEPTH_POINTS, OBS_SCAN, OBS_LINK_POSES, OBS_PRIVILEGED, OBS_EXPERT_ACTION,
+                     OBS_ENV_STATE)
 
 # ---------------------------------------------------------------------- info keys
 INFO_SUCCESS = "success"  # bool (the default TaskSpec.success_key)
@@ -34,6 +36,7 @@ INFO_DIAGNOSTICS = "diagnostics"  # {name: float | bool}, the task's evaluate() 
 # --------------------------------------------------------- LeRobot feature names
 FEATURE_IMAGE_PREFIX = "observation.images."
 FEATURE_STATE = "observation.state"
+FEATURE_ENV_STATE = "observation.environment_state"
 FEATURE_ACTION = "action"
 FEATURE_TASK = "task"
 

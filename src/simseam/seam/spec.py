@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from simseam.seam.errors import ConfigError, InvalidActionError
-from simseam.seam.keys import OBS_IMAGES, OBS_STATE
+from simseam.seam.keys import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 
 class ControlMode(str, enum.Enum):
@@ -133,6 +133,12 @@ class ObservationSpec:
     @property
     def state_names(self) -> tuple[str, ...]:
         return self.fields[OBS_STATE].names
+
+    @property
+    def env_state_dim(self) -> int | None:
+        """Length of ``environment_state``, or None when the rollout does not declare it."""
+        f = self.fields.get(OBS_ENV_STATE)
+        return f.shape[0] if f is not None else None
 
     def has(self, key: str) -> bool:
         return key in self.fields
@@ -570,6 +576,10 @@ class RolloutSpec:
     @property
     def state_dim(self) -> int:
         return self.observation.state_dim
+
+    @property
+    def env_state_dim(self) -> int | None:
+        return self.observation.env_state_dim
 
     def can(self, capability: str) -> bool:
         return capability in self.capabilities

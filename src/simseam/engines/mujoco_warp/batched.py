@@ -197,6 +197,7 @@ class BatchedScene:
         self._tool_rot = wp.mat33(*host._tool_rot.astype(np.float32).reshape(-1).tolist())
         self._base_pos = wp.vec3(*host._base_pos.astype(np.float32).tolist())
         self._base_rot = wp.mat33(*host._base_rot.astype(np.float32).reshape(-1).tolist())
+        self._rot_reference = wp.vec4(*host.rot_reference.astype(np.float32).tolist())
         manifest = robot.joint_names
         qadr = np.zeros(len(manifest), dtype=np.int32)
         vadr = np.zeros(len(manifest), dtype=np.int32)
@@ -444,7 +445,8 @@ class BatchedScene:
         mjw.collision(m, d)
         wp.launch(self._observe_kernel, dim=n, inputs=[
             d.qpos, d.qvel, d.xpos, d.xmat, self._tool_body, self._tool_pos, self._tool_rot, self._base_pos,
-            self._base_rot, self._jqadr, self._jvadr, self._gqadr, self._cube_body, self._rest_z, self._lift,
+            self._base_rot, self._rot_reference, self._jqadr, self._jvadr, self._gqadr, self._cube_body,
+            self._rest_z, self._lift,
             self.eef_pos, self.eef_rot, self.state, self.joint_pos, self.joint_vel, self.eef_pose, self.cube_pose,
             self.cube_height, self.eef_to_cube, self.success])
         self.touching.zero_()

@@ -63,13 +63,12 @@ def quat_wxyz_to_axis_angle(q: wp.vec4) -> wp.vec3:
 
 
 @wp.func
-def mat_to_axis_angle(m: wp.mat33) -> wp.vec3:
-    """``math3d.matrix_to_axis_angle``."""
-    c = wp.clamp((m[0, 0] + m[1, 1] + m[2, 2] - 1.0) * 0.5, -1.0, 1.0)
-    if c > -0.99 and c < 0.999:
-        angle = wp.acos(c)
-        return skew_vee(m) * (angle / (2.0 * wp.sin(angle)))
-    return quat_wxyz_to_axis_angle(mat_to_quat_wxyz(m))
+def mat_to_axis_angle(m: wp.mat33, reference: wp.vec4) -> wp.vec3:
+    """``math3d.matrix_to_axis_angle``: the quaternion's sign follows ``reference``."""
+    q = mat_to_quat_wxyz(m)
+    if wp.dot(q, reference) < 0.0:
+        q = -q
+    return quat_wxyz_to_axis_angle(q)
 
 
 @wp.func
@@ -421,6 +420,7 @@ def make_observe_kernel(n_state_grip: int):
         tool_rot: wp.mat33,
         base_pos: wp.vec3,
         base_rot: wp.mat33,
+        rot_reference: wp.vec4,
         joint_qadr: wp.array[int],  # manifest order
         joint_vadr: wp.array[int],
         grip_qadr: wp.array[int],
@@ -448,7 +448,7 @@ def make_observe_kernel(n_state_grip: int):
         rb = bt * r_world
         eef_pos[w] = p
         eef_rot[w] = rb
-        aa = mat_to_axis_angle(rb)
+        aa = mat_to_axis_angle(rb, rot_reference)
         for a in range(3):
             state[w, a] = p[a]
             state[w, 3 + a] = aa[a]

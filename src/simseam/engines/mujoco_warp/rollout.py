@@ -18,6 +18,7 @@ from simseam.seam import (
     OBS_JOINT_POSITIONS,
     OBS_JOINT_VELOCITIES,
     OBS_LINK_POSES,
+    OBS_ENV_STATE,
     OBS_PRIVILEGED,
     OBS_SIM_TIME_NS,
     OBS_STATE,
@@ -53,8 +54,13 @@ def world_observations(batch, worlds, requests) -> list[Observation]:
         }
         if req.link_poses:
             obs[OBS_LINK_POSES] = _link_poses(batch, w)
-        if batch.options.privileged:
-            obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": batch.privileged_objects(w)}
+        if batch.options.privileged or batch.options.environment_state:
+            objects = batch.privileged_objects(w)
+            if batch.options.environment_state:
+                obs[OBS_ENV_STATE] = np.concatenate([objects[n] for n in batch.host.task.object_names()]
+                                                    ).astype(np.float32)
+            if batch.options.privileged:
+                obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": objects}
         out.append(obs)
     return out
 

@@ -101,19 +101,35 @@ class Task:
         """Extra ground truth for ``privileged['objects']`` (base frame [x, y, z, qw, qx, qy, qz])."""
         return {}
 
+    def object_names(self) -> tuple[str, ...]:
+        """The objects whose poses the task reports: tracked props, then its extras (a target, a goal)."""
+        return tuple(self.tracked_objects) + tuple(self.privileged_extras)
+
+    def object_poses(self, scene: "ManifestScene") -> dict[str, np.ndarray]:
+        """Each of ``object_names()`` as a base-frame pose [x, y, z, qw, qx, qy, qz] (float64[7]): the one
+        source of ``privileged['objects']`` and of ``environment_state``."""
+        eng = scene.engine
+        return {**{n: scene.to_base(*eng.object_pose(n)) for n in self.tracked_objects}, **self.privileged(scene)}
+
+    def env_state_names(self) -> tuple[str, ...]:
+        """Slot names of ``environment_state``: each object's base-frame pose, in ``object_names()`` order."""
+        return tuple(f"{n}.{c}" for n in self.object_names() for c in ("x", "y", "z", "qw", "qx", "qy", "qz"))
+
     def state_names(self) -> tuple[str, ...]:
         """Slot names of the observation's ``state`` vector. Default (the LIBERO convention):
-        tool position (m) and axis-angle orientation (rad) in the base frame, then each
-        gripper finger's position."""
+        tool position (m) and axis-angle orientation (rad, angle in [0, 2 pi), continuous through pi
+        around the home orientation) in the base frame, then each gripper finger's position."""
         grip = self.spec.gripper.joints if self.spec.gripper else []
         return ("eef_pos.x", "eef_pos.y", "eef_pos.z", "eef_axis_angle.x", "eef_axis_angle.y",
                 "eef_axis_angle.z", *(f"gripper_qpos.{n}" for n in grip))
 
-    def state(self, eef_pos: np.ndarray, eef_rot: np.ndarray, gripper_q: np.ndarray, out: np.ndarray) -> None:
+    def state(self, eef_pos: np.ndarray, eef_rot: np.ndarray, gripper_q: np.ndarray, out: np.ndarray,
+              rot_reference: np.ndarray) -> None:
         """Fill ``out`` (float32[len(state_names())]) from the measured tool pose (base frame) and
-        the gripper finger positions."""
+        the gripper finger positions; the axis-angle is continuous around ``rot_reference`` (the
+        robot's home tool orientation, a quaternion: ``math3d.matrix_to_axis_angle``)."""
         out[:3] = eef_pos
-        out[3:6] = matrix_to_axis_angle(eef_rot)
+        out[3:6] = matrix_to_axis_angle(eef_rot, rot_reference)
         out[6:] = gripper_q
 
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
