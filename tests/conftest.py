@@ -79,6 +79,7 @@ class RecordingPolicy:
         self.requires_privileged = inner.requires_privileged
         self.uses_images = True
         self.log = []
+        self.env_states = []  # environment_state per step, when the scene observes it
 
     def reset(self, spec):
         self.inner.reset(spec)
@@ -88,19 +89,22 @@ class RecordingPolicy:
 
     def act(self, obs):
         action = self.inner.act(obs)
-        self.log.append((obs["state"].copy(), {k: v.copy() for k, v in obs["images"].items()}, action.copy()))
+        self.log.append((obs["state"].copy(), {k: v.copy() for k, v in obs.get("images", {}).items()},
+                         action.copy()))
+        if "environment_state" in obs:
+            self.env_states.append(obs["environment_state"].copy())
         return action
 
 
 @pytest.fixture(scope="session")
 def scripted_dataset(tmp_path_factory, panda_spec):
-    """3 scripted lift_cube episodes (48x48 cameras, AV1 video) recorded through ``collect_dataset``;
+    """3 scripted lift_cube episodes (40x56 (HxW) cameras: non-square, so a height/width swap shows; AV1 video) recorded through ``collect_dataset``;
     returns (root, CollectResult, the RecordingPolicy's log)."""
     from simseam.policies.base import make_policy
     from simseam.runner.collect import collect_dataset
 
     root = tmp_path_factory.mktemp("lerobot") / "lift"
-    scene = ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(image_size=(48, 48), privileged=True,
+    scene = ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(image_size=(40, 56), privileged=True,
                                                                           max_steps=60))
     policy = RecordingPolicy(make_policy("scripted"))
     try:
@@ -118,6 +122,34 @@ def tiny_act(scripted_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("act") / "ckpt"
     result = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, device="cpu", **TINY_ACT))
     return out, result
+
+
+@pytest.fixture(scope="session")
+def state_dataset(tmp_path_factory, panda_spec):
+    """3 scripted lift_cube episodes recorded from state alone (proprioception + the cube's pose as
+    ``environment_state``, no camera); returns (root, CollectResult, the RecordingPolicy)."""
+    from simseam.policies.base import make_policy
+    from simseam.runner.collect import collect_dataset
+
+    root = tmp_path_factory.mktemp("lerobot") / "lift_state"
+    scene = ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(render_images=False, privileged=True,
+                                                                          environment_state=True, max_steps=60))
+    policy = RecordingPolicy(make_policy("scripted"))
+    try:
+        result = collect_dataset(scene, policy, root, episodes=3)
+    finally:
+        scene.close()
+    return root, result, policy
+
+
+@pytest.fixture(scope="session")
+def state_act(state_dataset, tmp_path_factory):
+    """A tiny ACT (no VAE) trained for 3 optimizer steps on ``state_dataset``; returns the checkpoint dir."""
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    out = tmp_path_factory.mktemp("act") / "state_ckpt"
+    train_act(state_dataset[0], out, ActTrainConfig(steps=3, device="cpu", use_vae=False, **TINY_ACT))
+    return out
 
 
 @pytest.fixture

@@ -11,29 +11,38 @@ from simseam.policies.batch import PerEnvPolicies, make_policy_batch
 SEEDS = (3, 8, 11)
 
 
-def _unbatched(make, scenes, steps):
-    """Each environment driven alone by its own policy instance: the per-step actions."""
+def _unbatched(make, scenes, steps, seen=None):
+    """Each environment driven alone by its own policy instance: the per-step actions (and, into
+    ``seen``, the observations each action answered)."""
     out = []
     for scene, seed in zip(scenes, SEEDS):
         policy = make()
         policy.reset(scene.spec)
         obs = scene.reset(seed, policy.observe_next())
-        actions = []
+        actions, observations = [], []
         for _ in range(steps):
+            observations.append(obs)
             a = policy.act(obs)
             actions.append(a)
             obs = scene.step(a, policy.observe_next()).observation
         out.append(np.stack(actions))
+        if seen is not None:
+            seen.append(observations)
     return out
 
 
-def _batched(batch, scenes, steps, envs=(0, 1, 2)):
+def _batched(batch, scenes, steps, envs=(0, 1, 2), replay=None):
+    """The batch's per-step actions; with ``replay`` (per environment, the observations of an unbatched run)
+    it answers those observations instead of its own rollouts', so floats summed in another order cannot
+    compound through the closed loop (a rendered pixel that flips) and only the batching is compared."""
     obs = []
     for env, scene, seed in zip(envs, scenes, SEEDS):
         batch.reset(env, scene.spec)
         obs.append(scene.reset(seed, batch.observe_next(env)))
     actions = [[] for _ in scenes]
-    for _ in range(steps):
+    for t in range(steps):
+        if replay is not None:
+            obs = [r[t] for r in replay]
         acts = batch.act_batch(list(envs), obs)
         assert acts.shape == (len(scenes), scenes[0].spec.action_dim) and acts.dtype == np.float32
         for k, (env, scene) in enumerate(zip(envs, scenes)):
@@ -57,11 +66,12 @@ def test_per_env_policies_equal_one_instance_per_episode(panda_spec, make_scene)
 def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(tiny_act, panda_spec, make_scene):
     out, _ = tiny_act
     steps = 10
-    scenes = [make_scene(panda_spec, image_size=(48, 48), max_steps=steps) for _ in SEEDS]
-    reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, steps)
+    scenes = [make_scene(panda_spec, image_size=(40, 56), max_steps=steps) for _ in SEEDS]
+    seen = []
+    reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, steps, seen)
     batch = make_policy_batch(f"lerobot:{out}", 3, device="cpu")
     assert type(batch).__name__ == "LeRobotBatch"
-    got = _batched(batch, scenes, steps)
+    got = _batched(batch, scenes, steps, replay=seen)
     for a, b in zip(reference, got):
         np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-4)  # float32 sums in another order
     n = batch.policy.n_action_steps
@@ -74,7 +84,7 @@ def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(tiny_act, panda_
 def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(tiny_act, panda_spec, make_scene):
     """Environments that start at different times (a vector env refilling a slot) each replay their own chunk."""
     out, _ = tiny_act
-    scenes = [make_scene(panda_spec, image_size=(48, 48), max_steps=12) for _ in SEEDS[:2]]
+    scenes = [make_scene(panda_spec, image_size=(40, 56), max_steps=12) for _ in SEEDS[:2]]
     reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, 7)
     batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
     obs = {}
@@ -101,7 +111,7 @@ def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
 
     out, _ = tiny_act
     scene = tmp_path / "scene.yaml"
-    scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [48, 48]\nmax_steps: 12\n")
+    scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [40, 56]\nmax_steps: 12\n")
     cfg, base = load_scene_config(scene)
     rollout = build_rollout(cfg, base, render_images=True)
     try:

@@ -65,6 +65,7 @@ def test_json_round_trip_and_file(tmp_path):
     ({"image_map": {"a": 3}}, "image_map"),
     ({"control_mode": "teleport"}, "unknown control mode"),
     ({"control_hz": 0}, "control_hz"),
+    ({"env_state_dim": "7"}, "env_state_dim"),
     ({"surprise": 1}, "unknown field(s) surprise"),
 ])
 def test_malformed_documents_name_the_field(doc, field):
@@ -82,3 +83,16 @@ def test_unreadable_file_names_its_path(tmp_path):
     (tmp_path / SKILL_FILE).write_text(json.dumps({"state_dim": "eight"}))
     with pytest.raises(ConfigError, match="state_dim"):
         SkillContract.load(tmp_path)
+
+
+def test_a_policy_of_object_state_needs_a_scene_that_observes_it():
+    reads = SkillContract(name="state", state_dim=8, action_dim=7, env_state_dim=7)
+    assert contract_mismatches(reads, _scene(env_state_dim=7)) == []
+    [missing] = contract_mismatches(reads, _scene())
+    assert "environment_state: the policy reads 7-D object state, the scene provides none" in missing
+    assert "`environment_state: true`" in missing
+    [other] = contract_mismatches(reads, _scene(env_state_dim=14))
+    assert "provides 14-D" in other and "the task the policy was trained on" in other
+    # a policy that reads no object state fits a scene that offers it
+    assert contract_mismatches(FITS, _scene(env_state_dim=7)) == []
+    assert SkillContract.from_json(reads.to_json()) == reads

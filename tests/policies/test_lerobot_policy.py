@@ -20,7 +20,7 @@ def test_trained_act_runs_an_episode_through_the_lerobot_spec(tiny_act, panda_sp
     policy = make_policy(f"lerobot:{out}", device="cpu")
     assert policy.uses_images and not policy.requires_privileged
     assert policy.device == "cpu" and policy.n_action_steps == 4
-    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=10)
+    scene = make_scene(panda_spec, image_size=(40, 56), max_steps=10)
     res = run_episode(scene, policy, index=0, seed=3)
     assert res.steps == 10 and res.error is None
     assert policy.chunks_predicted == math.ceil(10 / 4)  # one model call per 4 executed actions
@@ -45,7 +45,7 @@ def test_actions_are_the_models_output_unnormalized_with_the_dataset_statistics(
         return action
 
     policy.policy.select_action = recording
-    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=10)
+    scene = make_scene(panda_spec, image_size=(40, 56), max_steps=10)
     obs = scene.reset(4)
     policy.reset(scene.spec)
     for _ in range(3):
@@ -58,10 +58,32 @@ def test_actions_are_the_models_output_unnormalized_with_the_dataset_statistics(
     assert len(normalized) == 3
 
 
+def test_each_camera_reaches_its_own_key_as_channels_height_width(tiny_act, panda_spec, make_scene):
+    """The model sees ``images[camera]`` as float[1, 3, H, W] in [0, 1] under its own key: non-square
+    (40x56) and distinct per camera, so a height/width swap, a transpose or crossed cameras all fail."""
+    out, _ = tiny_act
+    policy = make_policy(f"lerobot:{out}", device="cpu")
+    scene = make_scene(panda_spec, image_size=(40, 56), max_steps=3)
+    obs = scene.reset(5)
+    assert not np.array_equal(obs["images"]["camera1"], obs["images"]["camera2"])
+    policy.reset(scene.spec)
+    captured = []
+    pre = policy.preprocessor
+    policy.preprocessor = lambda batch: (captured.append(dict(batch)), pre(batch))[1]  # what the adapter built
+    policy.act(obs)
+    [raw] = captured
+    for cam in ("camera1", "camera2"):
+        got = raw[f"observation.images.{cam}"]
+        assert tuple(got.shape) == (1, 3, 40, 56)
+        expected = obs["images"][cam].astype(np.float32).transpose(2, 0, 1)[None] / 255.0
+        np.testing.assert_allclose(got.numpy(), expected, atol=1e-6)
+    np.testing.assert_array_equal(raw["observation.state"].numpy()[0], obs["state"])
+
+
 def test_n_action_steps_override_changes_how_often_the_model_runs(tiny_act, panda_spec, make_scene):
     out, _ = tiny_act
     policy = make_policy(f"lerobot:{out}", device="cpu", n_action_steps=1)
-    scene = make_scene(panda_spec, image_size=(48, 48), max_steps=5)
+    scene = make_scene(panda_spec, image_size=(40, 56), max_steps=5)
     run_episode(scene, policy, index=0, seed=0)
     assert policy.chunks_predicted == 5
     with pytest.raises(ConfigError, match=r"n_action_steps must be in \[1, 8\]"):
@@ -74,7 +96,7 @@ def test_image_map_routes_scene_cameras_to_policy_images(tiny_act, panda_spec, m
     out, _ = tiny_act
     plain = make_policy(f"lerobot:{out}", device="cpu")
     swapped = make_policy(f"lerobot:{out}", device="cpu", image_map={"camera1": "camera2", "camera2": "camera1"})
-    scene = make_scene(panda_spec, image_size=(48, 48))
+    scene = make_scene(panda_spec, image_size=(40, 56))
     obs = scene.reset(1)
     plain.reset(scene.spec)
     swapped.reset(scene.spec)
@@ -92,7 +114,7 @@ def test_a_misfit_scene_fails_before_the_first_step(tiny_act, panda_spec, make_s
     with pytest.raises(ConfigError) as err:
         run_episode(scene, policy, index=0, seed=0)
     text = str(err.value)
-    assert "5 mismatches" in text and "`image_size: [48, 48]`" in text
+    assert "5 mismatches" in text and "`image_size: [40, 56]`" in text
     assert "`control_mode: cartesian_delta`" in text and "`control_hz: 20`" in text
     assert scene.sim_time_ns() == 0  # reset, then refused: no step was taken
 
@@ -104,9 +126,9 @@ def test_contract_derived_from_config_when_no_skill_file(tiny_act, tmp_path, pan
     (copy / "simseam_skill.json").unlink()
     policy = make_policy(f"lerobot:{copy}", device="cpu")
     c = policy.contract
-    assert c.images == {"camera1": (48, 48), "camera2": (48, 48)} and c.state_dim == 8 and c.action_dim == 7
+    assert c.images == {"camera1": (40, 56), "camera2": (40, 56)} and c.state_dim == 8 and c.action_dim == 7
     assert c.control_mode is None  # LeRobot configs do not say; not checked
-    with pytest.raises(ConfigError, match="expects 48x48"):
+    with pytest.raises(ConfigError, match="expects 40x56"):
         policy.reset(make_scene(panda_spec, image_size=(32, 32)).spec)
 
 
@@ -156,7 +178,7 @@ def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, 
     server = PolicyServer(served, port=0).start()
     try:
         remote = make_policy(f"remote:{server.url}")
-        scene = make_scene(panda_spec, image_size=(48, 48), max_steps=6)
+        scene = make_scene(panda_spec, image_size=(40, 56), max_steps=6)
         obs = scene.reset(2)
         remote.reset(scene.spec)
         local.reset(scene.spec)
@@ -166,7 +188,7 @@ def test_a_lerobot_policy_served_over_the_openpi_protocol(tiny_act, panda_spec, 
             obs = scene.step(a_remote).observation
         assert served.chunks_predicted == local.chunks_predicted == 2  # chunks run server-side, 4 actions each
         misfit = make_scene(panda_spec, image_size=(64, 64))
-        with pytest.raises(ConfigError, match="expects 48x48"):
+        with pytest.raises(ConfigError, match="expects 40x56"):
             remote.reset(misfit.spec)  # the contract travelled in the server's metadata
         remote.close()
     finally:
@@ -235,3 +257,30 @@ def test_a_single_camera_policy_follows_a_scene_whose_only_camera_is_not_camera1
     pinned = make_policy(f"lerobot:{ckpt}", device="cpu", image_map={"image": "camera1"})  # the caller's map wins
     with pytest.raises(ConfigError, match="camera1"):
         run_episode(scene, pinned, index=0, seed=0)
+
+
+def test_a_state_policy_reads_the_object_state_and_never_asks_for_an_image(state_act, panda_spec, make_scene):
+    policy = make_policy(f"lerobot:{state_act}", device="cpu")
+    assert not policy.uses_images and policy.contract.env_state_dim == 7 and policy.contract.images == {}
+    scene = make_scene(panda_spec, render_images=False, environment_state=True, max_steps=6)
+    captured = []
+    pre = policy.preprocessor
+    policy.preprocessor = lambda batch: (captured.append(dict(batch)), pre(batch))[1]
+    obs = scene.reset(8)
+    policy.reset(scene.spec)
+    assert policy.observe_next().images == frozenset() and not policy.observe_next().renders
+    a = policy.act(obs)
+    np.testing.assert_array_equal(captured[0]["observation.environment_state"].numpy()[0], obs["environment_state"])
+    moved = {**obs, "environment_state": obs["environment_state"] + np.float32(0.05)}
+    policy.reset(scene.spec)
+    assert not np.allclose(policy.act(moved), a)  # the object state drives the action
+    res = run_episode(scene, make_policy(f"lerobot:{state_act}", device="cpu"), index=0, seed=1)
+    assert res.error is None and res.steps == 6
+
+
+def test_a_state_policy_in_a_scene_without_object_state_is_refused_with_the_fix(state_act, panda_spec, make_scene):
+    policy = make_policy(f"lerobot:{state_act}", device="cpu")
+    scene = make_scene(panda_spec, render_images=False, max_steps=6)
+    with pytest.raises(ConfigError, match=r"environment_state.*provides none.*`environment_state: true`"):
+        run_episode(scene, policy, index=0, seed=0)
+    assert scene.sim_time_ns() == 0

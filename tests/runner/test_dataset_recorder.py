@@ -24,14 +24,14 @@ def test_dataset_loads_with_the_scene_features(scripted_dataset):
     assert ds.fps == 20 and ds.meta.robot_type == "franka_panda"
     feats = ds.meta.features
     assert feats["observation.images.camera1"]["dtype"] == "video"
-    assert tuple(feats["observation.images.camera1"]["shape"]) == (48, 48, 3)
+    assert tuple(feats["observation.images.camera1"]["shape"]) == (40, 56, 3)
     assert tuple(feats["observation.state"]["shape"]) == (8,)
     assert feats["action"]["names"] == ["dx", "dy", "dz", "dax", "day", "daz", "grip"]
     item = ds[5]
-    assert tuple(item["observation.images.camera2"].shape) == (3, 48, 48)
+    assert tuple(item["observation.images.camera2"].shape) == (3, 40, 56)
     assert item["task"] == "lift the red cube"
     skill = json.loads((root / "meta" / "simseam_skill.json").read_text())
-    assert skill["control_mode"] == "cartesian_delta" and skill["images"]["camera1"] == [48, 48]
+    assert skill["control_mode"] == "cartesian_delta" and skill["images"]["camera1"] == [40, 56]
 
 
 def test_frames_pair_each_observation_with_the_action_taken(scripted_dataset):
@@ -95,3 +95,18 @@ def test_recording_needs_images_and_an_integer_rate(panda_spec, make_scene, tmp_
     odd = make_scene(panda_spec, image_size=(32, 32), control_hz=12.5)
     with pytest.raises(ConfigError, match="integer fps"):
         LeRobotRecorder(tmp_path / "b", odd.spec)
+
+
+def test_a_state_dataset_holds_the_object_state_each_action_followed(state_dataset):
+    root, result, policy = state_dataset
+    ds = _load(root)
+    feats = ds.meta.features
+    assert not any(k.startswith("observation.images.") for k in feats)
+    assert tuple(feats["observation.environment_state"]["shape"]) == (7,)
+    assert feats["observation.environment_state"]["names"][:3] == ["cube.x", "cube.y", "cube.z"]
+    table = ds.hf_dataset.with_format("numpy")
+    assert ds.num_frames == len(policy.env_states) == result.frames_written
+    np.testing.assert_array_equal(np.stack(table["observation.environment_state"]), np.stack(policy.env_states))
+    np.testing.assert_array_equal(np.stack(table["action"]), np.stack([a for _, _, a in policy.log]))
+    skill = json.loads((root / "meta" / "simseam_skill.json").read_text())
+    assert skill["env_state_dim"] == 7 and skill["images"] == {}

@@ -113,3 +113,29 @@ def test_an_interrupt_saves_a_checkpoint_of_the_steps_done(scripted_dataset, tmp
     res = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, device="cpu", **tiny_act_config),
                     resume=True)
     assert res.resumed_from == 2 and res.steps == 3
+
+
+def test_the_cosine_schedule_decays_every_rate_to_zero_at_the_last_step():
+    from simseam.runner.training import ActTrainConfig, lr_factor
+
+    cosine = ActTrainConfig(steps=100, lr_schedule="cosine")
+    assert [lr_factor(cosine, s) for s in (0, 50, 100, 150)] == pytest.approx([1.0, 0.5, 0.0, 0.0], abs=1e-12)
+    assert all(lr_factor(cosine, s) > lr_factor(cosine, s + 1) for s in range(99))
+    assert {lr_factor(ActTrainConfig(steps=100), s) for s in range(0, 120, 7)} == {1.0}
+
+
+def test_training_with_the_cosine_schedule_ends_at_rate_zero_and_a_bad_schedule_is_refused(
+        state_dataset, tmp_path, tiny_act_config):
+    import torch
+
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    cfg = ActTrainConfig(steps=4, device="cpu", use_vae=False, lr=1e-3, lr_schedule="cosine", checkpoint_every=2,
+                         **tiny_act_config)
+    train_act(state_dataset[0], tmp_path / "act", cfg)
+    state = torch.load(tmp_path / "act" / "checkpoints" / "step_0000002" / "training_state.pt", weights_only=False)
+    # step 2 of 4 ran at factor lr_factor(1) (steps are 0-based): 0.5 * (1 + cos(pi / 4))
+    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-3 * 0.5 * (1 + np.cos(np.pi / 4)))
+    with pytest.raises(ConfigError, match="learning-rate schedule 'linear'"):
+        train_act(state_dataset[0], tmp_path / "bad", ActTrainConfig(steps=1, lr_schedule="linear", **tiny_act_config))
+    assert not (tmp_path / "bad").exists()

@@ -14,12 +14,15 @@ SEEDS = (3, 8, 11)
 STEPS = 20
 
 
-def _local_actions(policy_spec, scene, seed, steps=STEPS, **kw):
+def _local_actions(policy_spec, scene, seed, steps=STEPS, seen=None, **kw):
+    """The policy's per-step actions alone on ``scene`` (and, into ``seen``, the observations they answered)."""
     policy = make_policy(policy_spec, **kw)
     policy.reset(scene.spec)
     obs = scene.reset(seed, policy.observe_next())
     out = []
     for _ in range(steps):
+        if seen is not None:
+            seen.append(obs)
         a = policy.act(obs)
         out.append(a)
         obs = scene.step(a, policy.observe_next()).observation
@@ -92,13 +95,18 @@ def _local_actions_from(pol, scene, seed, steps=STEPS):
     return np.stack(out)
 
 
-def _drive_batch(batch, scenes):
+def _drive_batch(batch, scenes, replay=None):
+    """The batch's per-step actions; with ``replay`` (per environment, an unbatched run's observations) it
+    answers those instead of its own rollouts' (floats summed in another order then cannot compound
+    through the closed loop: only the batching is compared)."""
     obs = []
     for env, (scene, seed) in enumerate(zip(scenes, SEEDS)):
         batch.reset(env, scene.spec)
         obs.append(scene.reset(seed, batch.observe_next(env)))
     out = [[] for _ in scenes]
-    for _ in range(STEPS):
+    for t in range(STEPS):
+        if replay is not None:
+            obs = [r[t] for r in replay]
         acts = batch.act_batch(list(range(len(scenes))), obs)
         for env, scene in enumerate(scenes):
             out[env].append(acts[env])
@@ -125,14 +133,16 @@ def test_remote_batch_equals_unbatched_and_sends_one_batch_per_step(batching_ser
 def test_served_lerobot_batches_clients_into_one_forward_pass(batching_server, tiny_act, panda_spec, make_scene):
     out, _ = tiny_act
     server = batching_server(f"lerobot:{out}", device="cpu")
+    seen = [[] for _ in SEEDS]
+    refs = [_local_actions(f"lerobot:{out}", make_scene(panda_spec, image_size=(40, 56), max_steps=40), seed,
+                           seen=seen[env], device="cpu") for env, seed in enumerate(SEEDS)]
     batch = make_policy_batch(f"remote:{server.url}", 3)
     try:
-        got = _drive_batch(batch, [make_scene(panda_spec, image_size=(48, 48), max_steps=40) for _ in SEEDS])
+        got = _drive_batch(batch, [make_scene(panda_spec, image_size=(40, 56), max_steps=40) for _ in SEEDS],
+                           replay=seen)
     finally:
         batch.close()
-    for env, seed in enumerate(SEEDS):
-        ref = _local_actions(f"lerobot:{out}", make_scene(panda_spec, image_size=(48, 48), max_steps=40), seed,
-                             device="cpu")
+    for env, ref in enumerate(refs):
         np.testing.assert_allclose(got[env], ref, rtol=1e-3, atol=2e-4)  # float32 sums in another order
     served = server.batch
     assert type(served).__name__ == "LeRobotBatch"

@@ -514,6 +514,13 @@ def collect(
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
     videos: bool = typer.Option(True, "--videos/--images", help="Camera frames as AV1 video or PNG images."),
+    cameras: bool = typer.Option(True, "--cameras/--no-cameras",
+                                 help="Record the cameras, or state alone (a state-based policy's data: fast, "
+                                      "nothing rendered)."),
+    action_noise: float = typer.Option(0.0, "--action-noise", min=0.0,
+                                       help="Execute each action with Gaussian noise of this standard deviation "
+                                            "(action units; gripper untouched) while recording the policy's own "
+                                            "action: demonstrations that show recoveries (0: off)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace --out if it exists."),
 ) -> None:
     """Collect demonstrations as a LeRobot dataset (images, state, action, task, fps = control rate).
@@ -527,7 +534,11 @@ def collect(
         check_writable(out)
         if out.exists() and any(out.iterdir()) and not overwrite:
             raise ConfigError(f"dataset directory {out} already exists; pick a new --out or pass --overwrite")
-        _, pol, rollout = _open_run(scene, policy, seed, {}, need_images=True)
+        _, pol, rollout = _open_run(scene, policy, seed, {}, need_images=cameras)
+        if action_noise > 0:
+            from simseam.runner.action_noise import ActionNoise
+
+            rollout = ActionNoise(rollout, action_noise)
     except SimseamError as exc:
         _fail(exc)
     results: list = []
@@ -537,7 +548,8 @@ def collect(
         with _sigterm_as_interrupt():
             rec = LeRobotRecorder(out, rollout.spec, use_videos=videos, overwrite=overwrite)
             console.print(f"collecting {episodes} episode(s) of [bold]{escape(policy)}[/] on "
-                          f"{escape(rollout.spec.describe())} into {escape(str(out))}")
+                          f"{escape(rollout.spec.describe())} into {escape(str(out))}"
+                          + (f" (action noise {action_noise:g})" if action_noise > 0 else ""))
             _episodes(rollout, pol, range(episodes), seed=seed, video_dir=None, recorder=rec,
                       keep_failures=keep_failures, on_result=results.append)
     except KeyboardInterrupt:
@@ -571,8 +583,15 @@ def train(
     time_budget_s: float = typer.Option(None, "--time-budget-s", help="Stop after this many seconds."),
     batch_size: int = typer.Option(8, "--batch-size", min=1),
     lr: float = typer.Option(1e-5, "--lr", help="AdamW learning rate (backbone too)."),
+    lr_schedule: str = typer.Option("constant", "--lr-schedule",
+                                    help="constant, or cosine: decays the rate to 0 at --steps."),
     chunk_size: int = typer.Option(20, "--chunk-size", min=1, help="Actions predicted per chunk."),
     n_action_steps: int = typer.Option(10, "--n-action-steps", min=1, help="Actions executed per chunk."),
+    dim_model: int = typer.Option(512, "--dim-model", min=8, help="Transformer width (ACT's default 512)."),
+    ff_dim: int = typer.Option(3200, "--ff-dim", min=8, help="Transformer feed-forward width (ACT's default 3200)."),
+    encoder_layers: int = typer.Option(4, "--encoder-layers", min=1, help="Transformer encoder layers."),
+    vae: bool = typer.Option(True, "--vae/--no-vae", help="ACT's VAE objective (off: plain regression of the "
+                             "chunk, for one-mode demonstrations such as a scripted expert's)."),
     device: str = typer.Option(None, "--device", help="torch device (default: CUDA if present, else CPU)."),
     workers: int = typer.Option(4, "--workers", min=0, help="Data-loading worker processes."),
     cache: bool = typer.Option(False, "--cache/--no-cache", help="Decode the dataset once and keep it on the "
@@ -594,7 +613,10 @@ def train(
     if n_action_steps > chunk_size:
         _fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))
     cfg = ActTrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
-                         chunk_size=chunk_size, n_action_steps=n_action_steps, device=device, num_workers=workers,
+                         lr_schedule=lr_schedule,
+                         chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
+                         dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
+                         device=device, num_workers=workers,
                          cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
                          checkpoint_every=checkpoint_every)
     try:

@@ -2,8 +2,8 @@
 
 A ``SkillContract`` is the "skill manifest" of a policy: the images it reads
 (policy-side name -> (height, width) in pixels, and which scene camera feeds
-each one), the state vector length, and the action length and control mode it
-emits. ``check_contract`` compares it with a rollout's ``RolloutSpec`` before the
+each one), the state vector length, the object-state (``environment_state``) length
+when it reads one, and the action length and control mode it emits. ``check_contract`` compares it with a rollout's ``RolloutSpec`` before the
 first step and raises one ``ConfigError`` listing every mismatch with its fix,
 so a misfit never surfaces as a shape error mid-episode.
 
@@ -36,6 +36,8 @@ class SkillContract:
     images: dict[str, tuple[int, int]] = field(default_factory=dict)
     image_map: dict[str, str] = field(default_factory=dict)
     control_hz: float | None = None
+    #: length of the ``environment_state`` the policy reads (None: it reads none)
+    env_state_dim: int | None = None
 
     def scene_key(self, image: str) -> str:
         """The scene camera feature key that feeds policy image ``image``."""
@@ -50,6 +52,7 @@ class SkillContract:
             "images": {k: list(v) for k, v in self.images.items()},
             "image_map": dict(self.image_map),
             "control_hz": self.control_hz,
+            "env_state_dim": self.env_state_dim,
         }
 
     @classmethod
@@ -57,7 +60,8 @@ class SkillContract:
         """Parse the JSON form; a malformed document raises ``ConfigError`` naming ``where`` and the field."""
         if not isinstance(data, dict):
             raise ConfigError(f"{where}: expected a JSON object, got {type(data).__name__}")
-        unknown = set(data) - {"name", "action_dim", "control_mode", "state_dim", "images", "image_map", "control_hz"}
+        unknown = set(data) - {"name", "action_dim", "control_mode", "state_dim", "images", "image_map", "control_hz",
+                               "env_state_dim"}
         if unknown:
             raise ConfigError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
 
@@ -92,6 +96,7 @@ class SkillContract:
             images=images,
             image_map={str(k): v for k, v in image_map.items()},
             control_hz=float(hz) if hz is not None else None,
+            env_state_dim=opt_int("env_state_dim"),
         )
 
     def save(self, directory: str | Path) -> Path:
@@ -115,7 +120,8 @@ class SkillContract:
     def for_spec(cls, name: str, spec: RolloutSpec) -> "SkillContract":
         """The contract a policy trained on rollouts of ``spec`` has (used when saving a trained policy)."""
         return cls(name=name, action_dim=spec.action_dim, control_mode=spec.control_mode,
-                   state_dim=spec.state_dim, images=dict(spec.cameras), control_hz=spec.control_hz)
+                   state_dim=spec.state_dim, images=dict(spec.cameras), control_hz=spec.control_hz,
+                   env_state_dim=spec.env_state_dim)
 
 
 def contract_mismatches(contract: SkillContract, scene: RolloutSpec) -> list[str]:
@@ -140,6 +146,13 @@ def contract_mismatches(contract: SkillContract, scene: RolloutSpec) -> list[str
         problems.append(
             f"state: the policy expects {contract.state_dim}-D, the scene provides {scene.state_dim}-D ({where}); "
             f"fix: use the robot and task the policy was trained on")
+    if contract.env_state_dim is not None and contract.env_state_dim != scene.env_state_dim:
+        have = f"{scene.env_state_dim}-D" if scene.env_state_dim is not None else "none"
+        fix = ("set `environment_state: true` in the scene file" if scene.env_state_dim is None
+               else "use the task the policy was trained on")
+        problems.append(
+            f"environment_state: the policy reads {contract.env_state_dim}-D object state, the scene provides "
+            f"{have} ({where}); fix: {fix}")
     mode_differs = contract.control_mode is not None and contract.control_mode != scene.control_mode
     if mode_differs:
         problems.append(

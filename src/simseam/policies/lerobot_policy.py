@@ -9,7 +9,8 @@ network; everything else here runs offline).
 Per step: the seam observation is mapped to LeRobot keys through the camera
 feature keys (``observation.images.<image>`` <- ``images[scene_key]``; a
 single-camera policy's ``observation.image`` <- ``images["camera1"]`` unless mapped),
-``observation.state`` <- ``state``, ``task`` <- the instruction), images become
+``observation.state`` <- ``state``, ``observation.environment_state`` <- ``environment_state``
+when the policy reads object state, ``task`` <- the instruction), images become
 ``float32[1, 3, H, W]`` in [0, 1], the preprocessor normalizes and moves them to
 the device, ``select_action`` runs (it executes ``n_action_steps`` actions of each
 predicted chunk before predicting again), and the postprocessor unnormalizes the
@@ -35,7 +36,9 @@ from simseam.policies.contract import SkillContract, check_contract
 from simseam.seam import (
     FEATURE_ACTION as ACTION_KEY,
     FEATURE_IMAGE_PREFIX as IMAGE_PREFIX,
+    FEATURE_ENV_STATE as ENV_STATE_KEY,
     FEATURE_STATE as STATE_KEY,
+    OBS_ENV_STATE,
     OBS_IMAGES,
     OBS_STATE,
     OBS_TASK,
@@ -97,11 +100,13 @@ def contract_from_config(cfg: Any, name: str) -> SkillContract:
         c, h, w = cfg.input_features[key].shape
         images[image] = (int(h), int(w))
     state = cfg.input_features.get(STATE_KEY)
+    env_state = cfg.input_features.get(ENV_STATE_KEY)
     action = cfg.output_features.get(ACTION_KEY)
     single = image_keys(cfg).get(SINGLE_IMAGE) == SINGLE_IMAGE_KEY
     return SkillContract(name=name, images=images, state_dim=int(state.shape[0]) if state is not None else None,
                          action_dim=int(action.shape[0]) if action is not None else None,
-                         image_map={SINGLE_IMAGE: "camera1"} if single else {})
+                         image_map={SINGLE_IMAGE: "camera1"} if single else {},
+                         env_state_dim=int(env_state.shape[0]) if env_state is not None else None)
 
 
 class LeRobotPolicy(BasePolicy):
@@ -168,6 +173,8 @@ class LeRobotPolicy(BasePolicy):
         self._default_single = (saved is None and SINGLE_IMAGE in derived.image_map
                                 and SINGLE_IMAGE not in (image_map or {}))
         self.image_names = list(derived.images)
+        #: a policy of state alone (object state included) never asks the scene for an image
+        self.uses_images = bool(self.image_names)
         self._feature_keys = image_keys(cfg)  # policy image name -> its LeRobot batch key
         self._torch = torch
         #: number of chunks predicted in the current episode (one model call each)
@@ -205,6 +212,8 @@ class LeRobotPolicy(BasePolicy):
     def observe_next(self) -> ObsRequest | None:
         """Images only for the calls that predict a chunk (every ``n_action_steps``-th: LeRobot's
         ``select_action`` refills its queue then); the others replay the queue and read nothing."""
+        if not self.uses_images:
+            return STATE_ONLY
         return None if self._acts % max(1, self.n_action_steps) == 0 else STATE_ONLY
 
     def _frame(self, observation: Observation, spec: RolloutSpec, last_images: dict[str, Any] | None,
@@ -228,6 +237,12 @@ class LeRobotPolicy(BasePolicy):
                 last_images[name] = batch[self._feature_keys[name]]
         if STATE_KEY in self.config.input_features:
             batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
+        if ENV_STATE_KEY in self.config.input_features:
+            if OBS_ENV_STATE not in observation:
+                raise ConfigError(f"lerobot:{self.source}: the policy reads environment_state and the observation "
+                                  "has none (set `environment_state: true` in the scene file)")
+            env = np.asarray(observation[OBS_ENV_STATE], dtype=np.float32)
+            batch[ENV_STATE_KEY] = torch.from_numpy(env).unsqueeze(0)
         batch["task"] = observation.get(OBS_TASK) or spec.task.instruction
         batch["robot_type"] = spec.robot.name
         return batch
@@ -266,6 +281,7 @@ class LeRobotBatch(PolicyBatch):
 
     def __init__(self, policy: LeRobotPolicy, n: int):
         self.policy = policy
+        self.uses_images = policy.uses_images
         self.n = n
         self.queues: list[deque] = [deque() for _ in range(n)]
         self.specs: list[RolloutSpec | None] = [None] * n
@@ -280,7 +296,7 @@ class LeRobotBatch(PolicyBatch):
         self.queues[env].clear()
 
     def observe_next(self, env: int) -> ObsRequest | None:
-        return STATE_ONLY if self.queues[env] else None
+        return STATE_ONLY if self.queues[env] or not self.uses_images else None
 
     def act_batch(self, envs, observations) -> np.ndarray:
         p = self.policy

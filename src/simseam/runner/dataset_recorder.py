@@ -5,6 +5,8 @@ Features come from the rollout's ``RolloutSpec``:
 - ``observation.images.<feature_key>``: ``uint8[H, W, 3]`` per RGB camera, stored as
   AV1 video (``use_videos=True``, default) or as PNG images;
 - ``observation.state``: ``float32[state_dim]``;
+- ``observation.environment_state``: ``float32[E]``, the task's object state, when the
+  scene observes it (``environment_state: true``);
 - ``action``: ``float32[action_dim]``, named by the action spec's slots;
 - the task string per frame, and ``fps`` = the scene's control rate;
 - ``meta/simseam_skill.json``: the scene contract (control mode included), which
@@ -26,8 +28,9 @@ import numpy as np
 from simseam.policies.contract import SkillContract
 from simseam.seam import FEATURE_ACTION as ACTION_KEY
 from simseam.seam import FEATURE_IMAGE_PREFIX as IMAGE_PREFIX
+from simseam.seam import FEATURE_ENV_STATE as ENV_STATE_KEY
 from simseam.seam import FEATURE_STATE as STATE_KEY
-from simseam.seam import FEATURE_TASK, OBS_IMAGES, OBS_STATE, ConfigError, Observation, RolloutSpec
+from simseam.seam import FEATURE_TASK, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE, ConfigError, Observation, RolloutSpec
 
 
 def _require_lerobot():
@@ -49,6 +52,9 @@ def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str,
     features[STATE_KEY] = {"dtype": "float32", "shape": (spec.state_dim,),
                            "names": list(spec.observation.state_names)
                            or [f"state_{i}" for i in range(spec.state_dim)]}
+    if spec.env_state_dim is not None:
+        features[ENV_STATE_KEY] = {"dtype": "float32", "shape": (spec.env_state_dim,),
+                                   "names": list(spec.observation.fields[OBS_ENV_STATE].names)}
     features[ACTION_KEY] = {"dtype": "float32", "shape": (spec.action_dim,), "names": list(spec.action.names)}
     return features
 
@@ -97,6 +103,8 @@ class LeRobotRecorder:
         # sidecar's images are views into shared-memory slots that its next replies overwrite
         frame: dict[str, Any] = {IMAGE_PREFIX + k: np.array(images[k], dtype=np.uint8) for k in self._image_keys}
         frame[STATE_KEY] = np.array(observation[OBS_STATE], dtype=np.float32)
+        if ENV_STATE_KEY in self.features:
+            frame[ENV_STATE_KEY] = np.array(observation[OBS_ENV_STATE], dtype=np.float32)
         frame[ACTION_KEY] = np.asarray(action, dtype=np.float32)
         frame[FEATURE_TASK] = self.spec.task.instruction
         self.dataset.add_frame(frame)

@@ -24,6 +24,7 @@ under a temporary name and renamed when complete (the two newest are kept).
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,6 +32,7 @@ from typing import Callable
 
 from simseam.policies.contract import SkillContract
 from simseam.seam import FEATURE_ACTION as ACTION_KEY
+from simseam.seam import FEATURE_ENV_STATE as ENV_STATE_KEY
 from simseam.seam import FEATURE_IMAGE_PREFIX as IMAGE_PREFIX
 from simseam.seam import FEATURE_STATE as STATE_KEY
 from simseam.seam import ConfigError
@@ -46,6 +48,10 @@ class ActTrainConfig:
     batch_size: int = 8
     lr: float = 1e-5
     lr_backbone: float = 1e-5
+    #: "constant" (LeRobot ACT's own) or "cosine": decays every learning rate to 0 at ``steps`` (half a cosine),
+    #: so the last weights are not one noisy iterate of a constant-rate run; a ``time_budget_s`` that ends the
+    #: run first leaves the rate where it was
+    lr_schedule: str = "constant"
     weight_decay: float = 1e-4
     grad_clip_norm: float = 10.0
     chunk_size: int = 20
@@ -86,6 +92,16 @@ class TrainResult:
     #: the step a resumed run started from (0: a fresh run)
     resumed_from: int = 0
     interrupted: bool = False
+
+
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def lr_factor(cfg: ActTrainConfig, step: int) -> float:
+    """The learning rate of optimizer step ``step`` (0-based), as a fraction of ``cfg.lr``."""
+    if cfg.lr_schedule == "constant":
+        return 1.0
+    return 0.5 * (1.0 + math.cos(math.pi * min(step, cfg.steps) / cfg.steps))
 
 
 CHECKPOINTS = "checkpoints"
@@ -175,8 +191,9 @@ class _DeviceCache:
         for batch in loader:
             for k in self.image_keys:
                 parts.setdefault(k, []).append((batch[k] * 255).round().to(torch.uint8))
-            for k in (STATE_KEY, ACTION_KEY, "episode_index"):
-                parts.setdefault(k, []).append(batch[k])
+            for k in (STATE_KEY, ENV_STATE_KEY, ACTION_KEY, "episode_index"):
+                if k in batch:
+                    parts.setdefault(k, []).append(batch[k])
         data = {k: torch.cat(v).to(device) for k, v in parts.items()}
         ep = data.pop("episode_index")
         n = ep.shape[0]
@@ -201,7 +218,9 @@ class _DeviceCache:
             for i in range(0, self.n - self.batch_size + 1 if self.n >= self.batch_size else 1, self.batch_size):
                 b = order[i:i + self.batch_size]
                 out = {k: self.data[k][b].float() / 255.0 for k in self.image_keys}
-                out[STATE_KEY] = self.data[STATE_KEY][b]
+                for k in (STATE_KEY, ENV_STATE_KEY):
+                    if k in self.data:
+                        out[k] = self.data[k][b]
                 out[ACTION_KEY] = self.data[ACTION_KEY][self.chunk_idx[b]]
                 out["action_is_pad"] = self.chunk_pad[b]
                 yield out
@@ -214,12 +233,14 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     A KeyboardInterrupt (Ctrl-C, or SIGTERM turned into one) saves a checkpoint of the steps done,
     then propagates."""
     cfg = cfg or ActTrainConfig()
+    if cfg.lr_schedule not in LR_SCHEDULES:
+        raise ConfigError(f"learning-rate schedule {cfg.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
     t_start = time.perf_counter()
     out = Path(out_dir)
     resume_from = _prepare_out(out, overwrite, resume)
     try:
         import torch
-        from lerobot.configs.types import FeatureType
+        from lerobot.configs.types import FeatureType, NormalizationMode
         from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
         from lerobot.datasets.utils import dataset_to_policy_features
         from lerobot.policies.act.configuration_act import ACTConfig
@@ -241,8 +262,9 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     features = dataset_to_policy_features(meta.features)
     outputs = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
     inputs = {k: f for k, f in features.items() if k not in outputs}
-    if not any(f.type is FeatureType.VISUAL for f in inputs.values()):
-        raise ConfigError(f"{root}: ACT needs at least one camera; the dataset has none")
+    if not any(f.type in (FeatureType.VISUAL, FeatureType.ENV) for f in inputs.values()):
+        raise ConfigError(f"{root}: ACT needs a camera or the object state (observation.environment_state); the "
+                          "dataset has neither: collect with cameras, or from a scene with `environment_state: true`")
     act_cfg = ACTConfig(
         input_features=inputs, output_features=outputs, device=device,
         chunk_size=cfg.chunk_size, n_action_steps=cfg.n_action_steps, dim_model=cfg.dim_model,
@@ -251,6 +273,9 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         pretrained_backbone_weights=cfg.pretrained_backbone_weights,
         optimizer_lr=cfg.lr, optimizer_lr_backbone=cfg.lr_backbone, optimizer_weight_decay=cfg.weight_decay,
     )
+    # ACT's default mapping names VISUAL, STATE and ACTION only: without this, LeRobot's normalizer passes
+    # environment_state through raw (a cube's y spans +-0.1 m beside inputs of unit spread)
+    act_cfg.normalization_mapping = {**act_cfg.normalization_mapping, FeatureType.ENV.value: NormalizationMode.MEAN_STD}
     policy = ACTPolicy(act_cfg)
     state = None
     if resume_from is not None:
@@ -279,6 +304,7 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
 
         batches = _epochs()
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    base_lrs = [g["lr"] for g in optimizer.param_groups]
     result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
                          frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
     if state is not None:
@@ -301,6 +327,8 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
+            for group, base in zip(optimizer.param_groups, base_lrs):
+                group["lr"] = base * lr_factor(cfg, result.steps)
             optimizer.step()
             result.steps += 1
             since_log += 1
