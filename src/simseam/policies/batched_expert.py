@@ -98,7 +98,8 @@ class LiftExpertBatch:
         adv = adv0 | adv1 | adv2
         self.phase[adv] += 1
         self.timer[adv] = 0
-        dpos = np.clip(GAIN * (target - pos) / self.max_t, -speed[:, None], speed[:, None])
+        dpos = GAIN * (target - pos) / self.max_t
+        dpos *= np.minimum(1.0, speed / np.maximum(np.abs(dpos).max(axis=1), 1e-12))[:, None]  # straight lines
         drot = np.clip(ROT_GAIN * rotation_errors(_rz(yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
         out = np.zeros((eef_pose.shape[0], self.action.dim), np.float32)
         out[:, self._arm[:3]] = dpos

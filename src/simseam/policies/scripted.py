@@ -33,7 +33,14 @@ def _nearest_equivalent(angle: float, reference: float, period: float) -> float:
 
 
 class _CartesianExpert:
-    """Waypoint following with a P-controller saturated at the action bounds."""
+    """Waypoint following with a P-controller saturated at the action bounds.
+
+    A saturated command is scaled as a whole, not clipped per axis, so the tool moves in a straight
+    line to the waypoint: a lateral error shrinks in proportion over the whole approach instead of
+    vanishing in the first step or two while the long axis is still saturated. Demonstrations then
+    hold, at every step of the approach, the lateral correction that matches the lateral error, which
+    is what a policy cloned from them must reproduce when its own approach drifts.
+    """
 
     gain = 0.5  # per-step fraction of the position error to close
     rot_gain = 0.2  # same for orientation (the wrist lags more: keep it calm)
@@ -54,7 +61,8 @@ class _CartesianExpert:
     def command(self, eef: np.ndarray, target_pos: np.ndarray, target_yaw: float, grip: float,
                 speed: float = 1.0) -> np.ndarray:
         pos, rot = eef[:3], quat_to_matrix(eef[3:])
-        dpos = np.clip(self.gain * (target_pos - pos) / self.max_t, -speed, speed)
+        dpos = self.gain * (target_pos - pos) / self.max_t
+        dpos *= min(1.0, speed / max(float(np.abs(dpos).max()), 1e-12))  # a straight line to the target
         drot = np.clip(self.rot_gain * rotation_error(_rz(target_yaw) @ self.down, rot) / self.max_r, -0.5, 0.5)
         return self.action.pack(arm=np.concatenate([dpos, drot]), grip=grip)
 
