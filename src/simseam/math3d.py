@@ -122,10 +122,3 @@ def make_transform(pos, rot: np.ndarray) -> np.ndarray:
     t[:3, :3] = rot
     t[:3, 3] = pos
     return t
-
-
-def invert_transform(t: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = t[:3, :3].T
-    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
-    return out

@@ -77,3 +77,11 @@ def test_robots_check_good_and_bad(tmp_path):
     assert res.exit_code == 2
     out = " ".join(res.stderr.split())
     assert "panda_joint77" in out and "panda_joint1" in out and "movable joints" in out
+
+
+def test_eval_help_names_every_preset():
+    from simseam.runner.evaluate import PRESETS
+
+    res = runner.invoke(app, ["eval", "--help"], env={"COLUMNS": "400"})
+    assert res.exit_code == 0
+    assert len(PRESETS) >= 11 and all(name in res.output for name in PRESETS), res.output

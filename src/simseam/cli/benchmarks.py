@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
 
 backends_app = typer.Typer(no_args_is_help=True, help="Benchmark backends: their own virtualenvs.")
@@ -64,7 +65,6 @@ def benchmarks_list(name: str = typer.Argument(None, help="One backend (default:
     """Suites and tasks with their instructions (asked of each provisioned backend's own venv)."""
     from simseam.backends import BACKENDS, backend_info
     from simseam.backends.provision import catalog, marker, provision_command
-    from simseam.runner.evaluate import PRESETS
 
     try:
         names = [backend_info(name).name] if name else list(BACKENDS)
@@ -86,8 +86,7 @@ def benchmarks_list(name: str = typer.Argument(None, help="One backend (default:
 
 
 def eval_command(
-    preset_name: str = typer.Argument(..., metavar="PRESET", help="metaworld_mt10, metaworld_mt50, pusht, "
-                                      "aloha_insertion, aloha_transfer_cube."),
+    preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     out: Path = typer.Option(None, "--out", help="Run directory (default: a new runs/<timestamp>)."),

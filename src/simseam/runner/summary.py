@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import platform
 from importlib import metadata
-from pathlib import Path
 from typing import Any
 
 
@@ -72,13 +71,3 @@ def per_task(episodes: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         out[name] = {"n_episodes": n, "n_success": k, "success_rate": k / n, "success_rate_wilson95":
                      list(wilson_interval(k, n))}
     return out
-
-
-def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
-    """Write ``out_dir/summary.json`` atomically."""
-    from simseam.runner.run_dir import write_json_atomic
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "summary.json"
-    write_json_atomic(path, summary)
-    return path

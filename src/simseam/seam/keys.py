@@ -39,8 +39,3 @@ FEATURE_STATE = "observation.state"
 FEATURE_ENV_STATE = "observation.environment_state"
 FEATURE_ACTION = "action"
 FEATURE_TASK = "task"
-
-
-def image_feature(feature_key: str) -> str:
-    """LeRobot feature name of a camera: ``observation.images.<feature_key>``."""
-    return FEATURE_IMAGE_PREFIX + feature_key

@@ -511,18 +511,6 @@ def scatter_mat33_kernel(src: wp.array2d[wp.mat33], rows: wp.array[int], dst: wp
 
 
 @wp.kernel(enable_backward=False)
-def scatter_quat_kernel(src: wp.array2d[wp.quat], rows: wp.array[int], dst: wp.array2d[wp.quat]):
-    k, j = wp.tid()
-    dst[rows[k], j] = src[k, j]
-
-
-@wp.kernel(enable_backward=False)
-def scatter_scalar_kernel(src: wp.array[float], rows: wp.array[int], dst: wp.array[float]):
-    k = wp.tid()
-    dst[rows[k]] = src[k]
-
-
-@wp.kernel(enable_backward=False)
 def reset_ref_kernel(rows: wp.array[int], ref_ok: wp.array[int]):
     k = wp.tid()
     ref_ok[rows[k]] = 0
