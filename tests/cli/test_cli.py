@@ -1,9 +1,6 @@
 """The command line, end to end: a real subprocess writes a playable MP4 and a valid summary."""
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import imageio.v2 as imageio
@@ -11,15 +8,10 @@ import numpy as np
 from typer.testing import CliRunner
 
 from simseam.cli.main import app
+from cli_util import simseam as _simseam
 
 REPO = Path(__file__).resolve().parents[2]
 runner = CliRunner()
-
-
-def _simseam(*args, cwd=REPO):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
 
 
 def test_run_writes_summary_and_playable_videos(tmp_path):

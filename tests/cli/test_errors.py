@@ -1,19 +1,11 @@
 """Errors, not tracebacks: each bad input gets one literal line naming what and where, exit code 2."""
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_util import simseam as _simseam
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _simseam(*args, cwd=REPO):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=300)
 
 
 def _one_line_error(proc, *fragments):

@@ -7,15 +7,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_util import simseam as _simseam
 
 pytestmark = pytest.mark.learning
 REPO = Path(__file__).resolve().parents[2]
-
-
-def _simseam(*args, cwd):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), HF_HUB_OFFLINE="1")
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
 
 
 def test_collect_train_run_record(tmp_path):

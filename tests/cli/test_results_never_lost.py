@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_util import simseam as _simseam
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = """robot: franka_panda
@@ -31,11 +32,6 @@ def scene(tmp_path):
 
 def _env():
     return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1")
-
-
-def _simseam(*args, cwd=REPO):
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=cwd, env=_env(),
-                          capture_output=True, text=True, timeout=600)
 
 
 def _log(out: Path) -> list[dict]:
@@ -163,7 +159,7 @@ def test_after_sigkill_the_log_has_every_finished_episode_and_summarize_rebuilds
 
 
 def test_a_token_in_a_remote_policy_url_is_never_written_to_disk():
-    from simseam.cli.main import _redacted
+    from simseam.cli.common import redacted as _redacted
 
     assert _redacted("remote:ws://h:1?token=s3cret&x=1") == "remote:ws://h:1?token=<redacted>&x=1"
     assert _redacted("scripted") == "scripted"

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_util import simseam as _simseam
 
 REPO = Path(__file__).resolve().parents[2]
 SCENE = """robot: franka_panda
@@ -31,11 +32,6 @@ def scene(tmp_path):
 
 def _env():
     return dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"), PYTHONUNBUFFERED="1")
-
-
-def _simseam(*args):
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=REPO, env=_env(),
-                          capture_output=True, text=True, timeout=600)
 
 
 def _log(out: Path) -> list[dict]:

@@ -4,10 +4,7 @@
 without a tool link). check -> run -> joint tracking -> video; and what ``robots check`` catches."""
 
 import json
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import imageio.v2 as imageio
@@ -21,18 +18,13 @@ from simseam.policies.base import make_policy
 from simseam.robot.assets import resolve_asset
 from simseam.robot.manifest import load_manifest
 from simseam.seam import ConfigError, ObsRequest, check_rollout
+from cli_util import simseam as _simseam
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
 KUKA = ASSETS / "kuka_iiwa.yaml"
 XARM = ASSETS / "xarm6.yaml"
 TINY_URDF = ASSETS / "tiny_arm.urdf"
 runner = CliRunner()
-
-
-def _simseam(*args):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    return subprocess.run([sys.executable, "-m", "simseam.cli.main", *args], env=env,
-                          capture_output=True, text=True, timeout=280)
 
 
 def _check(path):

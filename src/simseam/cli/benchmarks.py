@@ -7,22 +7,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from simseam.cli.common import EvalProgress, close_policy, console, err_console, fail, policy_kwargs, redacted, \
+    sigterm_as_interrupt
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
 
 backends_app = typer.Typer(no_args_is_help=True, help="Benchmark backends: their own virtualenvs.")
 benchmarks_app = typer.Typer(no_args_is_help=True, help="Benchmarks behind the seam: suites and tasks.")
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True, soft_wrap=True)
-
-
-def _fail(exc: SimseamError) -> None:
-    err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
-    raise typer.Exit(code=2)
 
 
 @backends_app.command("list")
@@ -56,7 +50,7 @@ def backends_provision(
         try:
             rec = provision(name, force=force, progress=lambda s: console.print(escape(s), highlight=False))
         except SimseamError as exc:
-            _fail(exc)
+            fail(exc)
         console.print(f"[green]ok[/] {escape(name)}: {rec['bytes'] / 2**20:.0f} MiB, {rec['seconds']:.0f} s")
 
 
@@ -82,7 +76,7 @@ def benchmarks_list(name: str = typer.Argument(None, help="One backend (default:
             for p in presets:
                 console.print(f"  eval preset [bold]{p.name}[/]: {escape(p.protocol)}", highlight=False)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
 
 
 def eval_command(
@@ -111,14 +105,13 @@ def eval_command(
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.cli.main import _close_policy, _policy_kwargs, _redacted
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest
     from simseam.runner.sharding import parse_shard
 
     if resume and out is None:
-        _fail(ConfigError("--resume needs --out (the run directory to continue)"))
+        fail(ConfigError("--resume needs --out (the run directory to continue)"))
     try:
         shard_ik = parse_shard(shard) if shard is not None else None
         if ray_address is not None and video:
@@ -129,18 +122,18 @@ def eval_command(
         n = episodes or p.episodes
         default_out = out is None
         out = default_run_dir() if default_out else out
-        config = eval_config(p, _redacted(policy), task_list, n, seed, video)
+        config = eval_config(p, redacted(policy), task_list, n, seed, video)
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     if default_out:
         point_latest(out)
     planned = eval_indices(task_list, n, shard_ik)
     todo = [i for i in planned if i not in run_dir.done]
     if ray_address is not None:
-        _eval_ray(p, policy, _policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,
+        _eval_ray(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,
                   num_workers=num_envs, seed=seed, indices=planned)
         return
     if num_envs is None:
@@ -148,7 +141,7 @@ def eval_command(
 
         num_envs = default_num_envs(len(todo))
     num_envs = max(1, min(num_envs, len(todo) or 1))
-    kwargs = _policy_kwargs(device, n_action_steps)
+    kwargs = policy_kwargs(device, n_action_steps)
     batch = None
     try:
         pol = make_policy(policy, **kwargs)
@@ -158,7 +151,7 @@ def eval_command(
             batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
     except SimseamError as exc:
         run_dir.close()
-        _fail(exc)
+        fail(exc)
     console.print(f"eval [bold]{escape(p.name)}[/]: {len(task_list)} task(s) x {n} episode(s), policy "
                   f"[bold]{escape(policy)}[/] -> {escape(str(out))}" + ("" if config["standard"] else
                                                                       "  [yellow](non-standard: subset)[/]")
@@ -179,7 +172,7 @@ def eval_command(
     def error(res, what_next):
         err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
 
-    with _eval_guard(run_dir, out, lambda: _close_policy(pol)) as guard:
+    with _eval_guard(run_dir, out, lambda: close_policy(pol)) as guard:
         run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                  progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
                  on_done=done, on_error=error, indices=planned)
@@ -192,13 +185,12 @@ def _eval_guard(run_dir, out: Path, cleanup=None):
     (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode log (every
     finished episode kept) and fails with its one-line message (exit 2). The run directory is closed
     and ``cleanup`` (the policy's close) called whichever way it ends."""
-    from simseam.cli.main import _sigterm_as_interrupt
     from simseam.runner.run_dir import rebuild_summary
 
     guard = SimpleNamespace(interrupted=False)
     error = None
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             yield guard
     except KeyboardInterrupt:
         guard.interrupted = True
@@ -210,19 +202,18 @@ def _eval_guard(run_dir, out: Path, cleanup=None):
             cleanup()
     if error is not None:
         rebuild_summary(out, interrupted=True)
-        _fail(error)
+        fail(error)
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
                  num_envs: int, *, seed: int, video: bool, indices: list[int]) -> bool:
     """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``); returns
     whether it was interrupted. Progress as ``simseam run --num-envs``."""
-    from simseam.cli.main import EvalProgress, _close_policy
     from simseam.runner.evaluate import run_eval_vector
 
     privileged = pol.requires_privileged
     if batch is None:  # nothing shared: each worker runs its own instance
-        _close_policy(pol)
+        close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len([i for i in indices if i not in run_dir.done])
     with _eval_guard(run_dir, out, batch.close if batch is not None else None) as guard, \
@@ -243,7 +234,6 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
               num_workers: int | None, seed: int, indices: list[int]) -> None:
     """``simseam eval --ray ADDRESS``: the episodes on Ray actors (``run_eval_ray``), each owning a sidecar
     of the backend and its own policy; results streamed into the episode log. Progress as ``run --ray``."""
-    from simseam.cli.main import EvalProgress, _close_policy
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import run_eval_ray
 
@@ -251,7 +241,7 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
     with _eval_guard(run_dir, out) as guard:
         probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
         privileged = probe.requires_privileged
-        _close_policy(probe)
+        close_policy(probe)
         console.print(f"eval [bold]{escape(p.name)}[/]: {len(todo)} episode(s) of {len(task_list)} task(s), policy "
                       f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
         if run_dir.done:

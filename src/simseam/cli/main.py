@@ -3,19 +3,18 @@ benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
-import contextlib
 import json
-import signal
 import sys
 from pathlib import Path
 
 import typer
-from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
+from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, err_console, fail, policy_kwargs,
+                                redacted, sigterm_as_interrupt)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.serve_policy import serve_policy
@@ -33,53 +32,6 @@ app.command("serve-policy")(serve_policy)
 app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True, soft_wrap=True)
-
-
-def _fail(exc: SimseamError) -> None:
-    """Print the error literally (no Rich markup: brackets in messages stay) and exit with code 2."""
-    err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
-    raise typer.Exit(code=2)
-
-
-def _check_seed(seed: int) -> None:
-    if seed < 0:
-        _fail(ConfigError(f"--seed {seed}: seeds are non-negative integers (episode i uses seed + i)"))
-
-
-def _policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
-    kwargs = {}
-    if device:
-        kwargs["device"] = device
-    if n_action_steps:
-        kwargs["n_action_steps"] = n_action_steps
-    return kwargs
-
-
-def _redacted(policy: str) -> str:
-    """The policy spec as recorded in run.json: a ``token=`` in a remote: URL is never written to disk."""
-    import re
-
-    return re.sub(r"(token=)[^&#]*", r"\1<redacted>", policy)
-
-
-class _Terminated(KeyboardInterrupt):
-    """SIGTERM, handled like Ctrl-C: the episode in flight is dropped, the finished ones are kept."""
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    def on_term(signum, frame):
-        raise _Terminated()
-
-    old = signal.signal(signal.SIGTERM, on_term)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
 def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
               keep_failures: bool = True, on_result=None) -> list:
     """``runner.session.run_episodes`` with a progress bar and one line per episode."""
@@ -126,12 +78,6 @@ def _open_run(scene: Path, policy: str, seed: int, policy_kwargs: dict, *, need_
     return cfg, pol, rollout
 
 
-def _close_policy(pol) -> None:
-    close = getattr(pol, "close", None)
-    if callable(close):
-        close()
-
-
 @app.command()
 def run(
     scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, task, image size, max steps)."),
@@ -172,11 +118,11 @@ def run(
     from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
     from simseam.runner.scene_config import load_scene_config
 
-    _check_seed(seed)
+    check_seed(seed)
 
     default_out = out is None
     if default_out and resume:
-        _fail(ConfigError("--resume needs --out (the run directory to continue)"))
+        fail(ConfigError("--resume needs --out (the run directory to continue)"))
     out = default_run_dir() if default_out else out
     try:
         from simseam.runner.sharding import parse_shard, shard_indices
@@ -197,7 +143,7 @@ def run(
                               "in their own processes (use --renderer workers)")
         if renderer == "batched" and unsupported(cfg.model_dump(mode="json")):
             raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
-        config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": _redacted(policy),
+        config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None}
         if shard_ik is not None:
@@ -206,7 +152,7 @@ def run(
             config["renderer"] = renderer
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     if default_out:
         point_latest(out)
     planned = shard_indices(episodes, shard_ik)
@@ -214,7 +160,7 @@ def run(
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
     if ray_address is not None:
-        _run_ray(ray_address, scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
+        _run_ray(ray_address, scene, policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
         return
     if num_envs is None:
@@ -222,15 +168,15 @@ def run(
 
         num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
     if num_envs > 1 or renderer == "batched":
-        _run_vector(scene, policy, seed, _policy_kwargs(device, n_action_steps), run_dir, out, todo,
+        _run_vector(scene, policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                     num_envs=num_envs, video=video, planned=len(planned), renderer=renderer)
         return
     try:
-        cfg, pol, rollout = _open_run(scene, policy, seed, _policy_kwargs(device, n_action_steps),
+        cfg, pol, rollout = _open_run(scene, policy, seed, policy_kwargs(device, n_action_steps),
                                       need_images=record_dataset is not None)
     except SimseamError as exc:
         run_dir.close()
-        _fail(exc)
+        fail(exc)
     spec_json = rollout.spec.to_json()
     run_dir.write_spec(spec_json)
     if video and not rollout.spec.robot.sensors_of("rgb"):
@@ -239,7 +185,7 @@ def run(
     recorder = None
     interrupted = False
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             if record_dataset is not None:
                 from simseam.runner.dataset_recorder import LeRobotRecorder
 
@@ -252,13 +198,13 @@ def run(
         interrupted = True
     except SimseamError as exc:
         rebuild_summary(out, spec_json, interrupted=True)
-        _fail(exc)
+        fail(exc)
     finally:
         run_dir.close()
         if recorder is not None:
             recorder.close()
         rollout.close()
-        _close_policy(pol)
+        close_policy(pol)
     _finish_run(out, spec_json, interrupted, len(planned))
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
@@ -279,7 +225,7 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
     cfg, _ = load_scene_config(scene)
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
         run_dir.close()
-        _fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
+        fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
                           f"{num_envs} environment workers would each need their own; pass --num-envs 1 or "
                           "drop keep_alive"))
     spec_json = None
@@ -300,10 +246,10 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             made = [probe]
             pol = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **policy_kwargs), num_envs)
         elif pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
-            _close_policy(probe)
+            close_policy(probe)
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             from simseam.runner.warp_vector import make_vector_env
 
             with console.status(f"starting {num_envs} environments"):
@@ -337,7 +283,7 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
             vec.close()
         run_dir.close()
         rebuild_summary(out, spec_json, interrupted=True)
-        _fail(exc)
+        fail(exc)
     finally:
         if vec is not None:
             vec.close()
@@ -374,10 +320,10 @@ def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: d
         probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
-        _close_policy(probe)
+        close_policy(probe)
         console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
                       f"{escape(str(out))}")
-        with _sigterm_as_interrupt(), progress:
+        with sigterm_as_interrupt(), progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
                        on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure)
     except KeyboardInterrupt:
@@ -385,7 +331,7 @@ def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: d
     except SimseamError as exc:
         run_dir.close()
         rebuild_summary(out, spec_json, interrupted=True)
-        _fail(exc)
+        fail(exc)
     finally:
         run_dir.close()
     _finish_run(out, spec_json, interrupted, planned)
@@ -406,58 +352,6 @@ def _finish_run(out: Path, spec_json, interrupted: bool, planned: int) -> None:
     )
 
 
-class EvalProgress:
-    """One progress bar over all workers: episodes done, success so far, episodes per hour; one line per
-    finished episode, and per-worker failures with the episode they hit."""
-
-    def __init__(self, console: Console, total: int):
-        import time
-
-        self._time = time
-        self.total = total
-        self.n = self.k = 0
-        self.t0 = time.monotonic()
-        self._progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                  TimeElapsedColumn(), console=console, transient=True)
-
-    def __enter__(self) -> "EvalProgress":
-        self._progress.__enter__()
-        self._task = self._progress.add_task(self._text(), total=self.total)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._progress.__exit__(*exc)
-
-    def _text(self) -> str:
-        hours = (self._time.monotonic() - self.t0) / 3600.0
-        rate = f"{self.n / hours:,.0f} episodes/h" if self.n and hours > 0 else "- episodes/h"
-        return f"episodes  success {self.k}/{self.n}  {rate}"
-
-    def done(self, e: dict) -> None:
-        """One finished episode (its ``EpisodeResult.to_json()`` entry)."""
-        self.n += 1
-        self.k += bool(e["success"])
-        self._progress.update(self._task, completed=self.n, description=self._text())
-        step_ms = e["step_latency_ms"]["mean"]
-        mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
-        task = f"  {escape(e['task'])}" if e.get("task") else ""  # simseam eval: the preset's task
-        console.print(f"episode {e['index']:3d}{task}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
-                      f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
-                      + (f"  video {escape(e['video'])}" if e.get("video") else "")
-                      + (f"  [red]{escape(e['error'])}[/]" if e.get("error") else ""))
-
-    def episode_error(self, res, what_next: str) -> None:
-        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
-                          highlight=False)
-
-    def worker_failure(self, failure) -> None:
-        where = f"in episode {failure.index}" if failure.index is not None else "between episodes"
-        who = f"worker {failure.env}" if failure.env >= 0 else "a Ray worker"
-        code = f" (exit code {failure.exitcode})" if failure.exitcode is not None else ""
-        err_console.print(f"{who} died {where}{code}; {failure.what_next}; a fresh worker takes its place",
-                          style="red", markup=False, highlight=False)
-
-
 @app.command()
 def summarize(run: Path = typer.Argument(..., help="A run directory (holds episodes.jsonl).")) -> None:
     """Rebuild DIR/summary.json from its episode log (after a kill, or to re-read a run)."""
@@ -466,7 +360,7 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
     try:
         summary = rebuild_summary(run)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     lo, hi = summary["success_rate_wilson95"]
     console.print(f"{summary['n_episodes']} episode(s), success {summary['n_success']}/{summary['n_episodes']} "
                   f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}]); {'complete' if summary['complete'] else 'incomplete'}; "
@@ -487,7 +381,7 @@ def merge(
     try:
         summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     if summary.get("per_task"):  # shards of simseam eval: the eval summary's per-task table
         from simseam.cli.benchmarks import print_task_table
 
@@ -528,7 +422,7 @@ def collect(
     from simseam.runner.dataset_recorder import LeRobotRecorder
     from simseam.runner.run_dir import check_writable
 
-    _check_seed(seed)
+    check_seed(seed)
 
     try:
         check_writable(out)
@@ -540,12 +434,12 @@ def collect(
 
             rollout = ActionNoise(rollout, action_noise)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     results: list = []
     interrupted = False
     rec = None
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             rec = LeRobotRecorder(out, rollout.spec, use_videos=videos, overwrite=overwrite)
             console.print(f"collecting {episodes} episode(s) of [bold]{escape(policy)}[/] on "
                           f"{escape(rollout.spec.describe())} into {escape(str(out))}"
@@ -555,12 +449,12 @@ def collect(
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     finally:
         if rec is not None:
             rec.close()
         rollout.close()
-        _close_policy(pol)
+        close_policy(pol)
     n_ok = sum(r.success for r in results)
     written = rec.episodes_written if rec is not None else 0
     console.print(f"dataset {escape(str(out))}: {written} episode(s), "
@@ -587,6 +481,10 @@ def train(
                                     help="constant, or cosine: decays the rate to 0 at --steps."),
     chunk_size: int = typer.Option(20, "--chunk-size", min=1, help="Actions predicted per chunk."),
     n_action_steps: int = typer.Option(10, "--n-action-steps", min=1, help="Actions executed per chunk."),
+    temporal_ensemble: float = typer.Option(None, "--temporal-ensemble", min=0.0,
+                                            help="ACT's temporal ensembling coefficient for inference (e.g. 0.01; "
+                                                 "needs --n-action-steps 1): each step averages the overlapping "
+                                                 "chunks' actions."),
     dim_model: int = typer.Option(512, "--dim-model", min=8, help="Transformer width (ACT's default 512)."),
     ff_dim: int = typer.Option(3200, "--ff-dim", min=8, help="Transformer feed-forward width (ACT's default 3200)."),
     encoder_layers: int = typer.Option(4, "--encoder-layers", min=1, help="Transformer encoder layers."),
@@ -608,23 +506,24 @@ def train(
     Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
     from simseam.runner.training import ActTrainConfig, train_act
 
-    _check_seed(seed)
+    check_seed(seed)
 
     if n_action_steps > chunk_size:
-        _fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))
+        fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))
     cfg = ActTrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
                          lr_schedule=lr_schedule,
                          chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
+                         temporal_ensemble_coeff=temporal_ensemble,
                          dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
                          device=device, num_workers=workers,
                          cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
                          checkpoint_every=checkpoint_every)
     try:
-        with _sigterm_as_interrupt():
+        with sigterm_as_interrupt():
             res = train_act(dataset, out, cfg, overwrite=overwrite, resume=resume,
                             on_log=lambda s, loss: console.print(f"step {s:7d}  loss {loss:.4f}"))
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     except KeyboardInterrupt:
         from simseam.runner.training import latest_checkpoint
 
@@ -669,7 +568,7 @@ def robots_show(name: str = typer.Argument(..., help="Built-in robot name or man
     try:
         spec = load_robot(name)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     sys.stdout.write(json.dumps(spec.to_json(), indent=2) + "\n")
 
 
@@ -683,7 +582,7 @@ def robots_check(path: Path = typer.Argument(..., help="Manifest file to check a
     try:
         report = check_robot(path)
     except SimseamError as exc:
-        _fail(exc)
+        fail(exc)
     spec = report.spec
     for w in report.warnings:
         console.print(f"[yellow]warning[/] {path}: {w}", soft_wrap=True)

@@ -1,0 +1,118 @@
+"""What every ``simseam`` command shares: the consoles, the one-line error exit, seeds, policy options, SIGTERM
+as Ctrl-C, and the progress of many episodes."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from simseam.seam import ConfigError, SimseamError
+
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
+
+
+def fail(exc: SimseamError) -> None:
+    """Print the error literally (no Rich markup: brackets in messages stay) and exit with code 2."""
+    err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
+    raise typer.Exit(code=2)
+
+
+def check_seed(seed: int) -> None:
+    if seed < 0:
+        fail(ConfigError(f"--seed {seed}: seeds are non-negative integers (episode i uses seed + i)"))
+
+
+def policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
+    kwargs = {}
+    if device:
+        kwargs["device"] = device
+    if n_action_steps:
+        kwargs["n_action_steps"] = n_action_steps
+    return kwargs
+
+
+def redacted(policy: str) -> str:
+    """The policy spec as recorded in run.json: a ``token=`` in a remote: URL is never written to disk."""
+    import re
+
+    return re.sub(r"(token=)[^&#]*", r"\1<redacted>", policy)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: the episode in flight is dropped, the finished ones are kept."""
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    def on_term(signum, frame):
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def close_policy(pol) -> None:
+    close = getattr(pol, "close", None)
+    if callable(close):
+        close()
+
+
+class EvalProgress:
+    """One progress bar over all workers: episodes done, success so far, episodes per hour; one line per
+    finished episode, and per-worker failures with the episode they hit."""
+
+    def __init__(self, console: Console, total: int):
+        import time
+
+        self._time = time
+        self.total = total
+        self.n = self.k = 0
+        self.t0 = time.monotonic()
+        self._progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                  TimeElapsedColumn(), console=console, transient=True)
+
+    def __enter__(self) -> "EvalProgress":
+        self._progress.__enter__()
+        self._task = self._progress.add_task(self._text(), total=self.total)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._progress.__exit__(*exc)
+
+    def _text(self) -> str:
+        hours = (self._time.monotonic() - self.t0) / 3600.0
+        rate = f"{self.n / hours:,.0f} episodes/h" if self.n and hours > 0 else "- episodes/h"
+        return f"episodes  success {self.k}/{self.n}  {rate}"
+
+    def done(self, e: dict) -> None:
+        """One finished episode (its ``EpisodeResult.to_json()`` entry)."""
+        self.n += 1
+        self.k += bool(e["success"])
+        self._progress.update(self._task, completed=self.n, description=self._text())
+        step_ms = e["step_latency_ms"]["mean"]
+        mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
+        task = f"  {escape(e['task'])}" if e.get("task") else ""  # simseam eval: the preset's task
+        console.print(f"episode {e['index']:3d}{task}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
+                      f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
+                      + (f"  video {escape(e['video'])}" if e.get("video") else "")
+                      + (f"  [red]{escape(e['error'])}[/]" if e.get("error") else ""))
+
+    def episode_error(self, res, what_next: str) -> None:
+        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
+                          highlight=False)
+
+    def worker_failure(self, failure) -> None:
+        where = f"in episode {failure.index}" if failure.index is not None else "between episodes"
+        who = f"worker {failure.env}" if failure.env >= 0 else "a Ray worker"
+        code = f" (exit code {failure.exitcode})" if failure.exitcode is not None else ""
+        err_console.print(f"{who} died {where}{code}; {failure.what_next}; a fresh worker takes its place",
+                          style="red", markup=False, highlight=False)
