@@ -138,3 +138,11 @@ def test_scripted_reach_succeeds_in_at_least_9_of_10_seeds(request, make_scene, 
     scene = make_scene(request.getfixturevalue(robot), task="reach", render_images=False, privileged=True,
                        control_mode=mode)
     assert count_successes(scene, make_policy("scripted"), range(10)) >= 9
+
+
+@pytest.mark.parametrize("spec", ["scripted", "zero", "remote:ws://127.0.0.1:9"])
+def test_an_option_a_policy_does_not_take_is_one_configerror_naming_it(spec):
+    from simseam.seam import ConfigError
+
+    with pytest.raises(ConfigError, match=r"does not take --device \(it takes: "):
+        make_policy(spec, device="cpu")

@@ -17,6 +17,8 @@ Action chunks: a policy that predicts several actions at once subclasses
 
 from __future__ import annotations
 
+import inspect
+
 from collections import deque
 from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 
@@ -121,13 +123,29 @@ def make_policy(name: str, **kwargs: Any) -> Policy:
     if sep and scheme in _SCHEMES:
         if not target:
             raise ConfigError(f"policy spec {name!r} names no target after '{scheme}:'")
+        check_policy_options(name, _SCHEMES[scheme], kwargs, positional=1)
         return _SCHEMES[scheme](target, **kwargs)
     try:
         factory = _POLICIES[name]
     except KeyError:
         known = ", ".join(sorted(_POLICIES)) + ", " + ", ".join(f"{s}:<target>" for s in sorted(_SCHEMES))
         raise ConfigError(f"unknown policy {name!r}; known policies: {known}") from None
+    check_policy_options(name, factory, kwargs)
     return factory(**kwargs)
+
+
+def check_policy_options(name: str, factory: Callable[..., Any], kwargs: dict[str, Any], positional: int = 0) -> None:
+    """A ``ConfigError`` naming the options policy ``name`` does not take (e.g. ``--device`` for a ``remote:``
+    policy, which runs on its server's device), instead of a ``TypeError`` from deep inside; ``factory``'s
+    first ``positional`` parameters are not options."""
+    params = list(inspect.signature(factory).parameters.values())[positional:]
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return
+    takes = [p.name for p in params if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    unknown = sorted(k for k in kwargs if k not in takes)
+    if unknown:
+        shown = ", ".join(f"--{k.replace('_', '-')}" for k in unknown)
+        raise ConfigError(f"policy {name!r} does not take {shown} (it takes: {', '.join(takes) or 'no options'})")
 
 
 def _load_builtin() -> None:

@@ -50,7 +50,7 @@ from urllib.parse import parse_qsl, urlsplit, urlunsplit
 import numpy as np
 
 from simseam.policies import openpi_wire as wire
-from simseam.policies.base import ChunkedPolicy, register_policy_scheme
+from simseam.policies.base import ChunkedPolicy, check_policy_options, register_policy_scheme
 from simseam.policies.batch import PolicyBatch
 from simseam.policies.contract import SkillContract, contract_mismatches
 from simseam.seam import (
@@ -429,4 +429,5 @@ class RemoteBatch(PolicyBatch):
 def make_remote_policy(target: str, **kwargs: Any) -> RemotePolicy:
     """``remote:<target>``: see ``parse_target``; keyword arguments override query options."""
     url, options = parse_target(target)
+    check_policy_options(f"remote:{target}", RemotePolicy, kwargs, positional=1)
     return RemotePolicy(url, **{**options, **kwargs})
