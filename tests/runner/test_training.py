@@ -139,3 +139,20 @@ def test_training_with_the_cosine_schedule_ends_at_rate_zero_and_a_bad_schedule_
     with pytest.raises(ConfigError, match="learning-rate schedule 'linear'"):
         train_act(state_dataset[0], tmp_path / "bad", ActTrainConfig(steps=1, lr_schedule="linear", **tiny_act_config))
     assert not (tmp_path / "bad").exists()
+
+
+def test_temporal_ensembling_is_saved_in_the_checkpoint_and_needs_one_action_per_chunk(
+        state_dataset, tmp_path, tiny_act_config):
+    from simseam.policies.base import make_policy
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    cfg = {**tiny_act_config, "n_action_steps": 1}
+    with pytest.raises(ConfigError, match="needs n_action_steps 1, not 4"):
+        train_act(state_dataset[0], tmp_path / "bad",
+                  ActTrainConfig(steps=1, use_vae=False, temporal_ensemble_coeff=0.01, **tiny_act_config))
+    train_act(state_dataset[0], tmp_path / "te",
+              ActTrainConfig(steps=2, device="cpu", use_vae=False, temporal_ensemble_coeff=0.01, **cfg))
+    assert json.loads((tmp_path / "te" / "config.json").read_text())["temporal_ensemble_coeff"] == 0.01
+    policy = make_policy(f"lerobot:{tmp_path / 'te'}", device="cpu")
+    assert policy.policy.config.temporal_ensemble_coeff == 0.01 and policy.n_action_steps == 1
+    assert policy.policy.temporal_ensembler is not None

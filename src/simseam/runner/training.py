@@ -56,6 +56,9 @@ class ActTrainConfig:
     grad_clip_norm: float = 10.0
     chunk_size: int = 20
     n_action_steps: int = 20
+    #: ACT's temporal ensembling at inference (needs n_action_steps 1): every step averages the actions that the
+    #: overlapping chunks predicted for it, weighted exp(-coeff * age); saved in the checkpoint's config
+    temporal_ensemble_coeff: float | None = None
     dim_model: int = 512
     n_heads: int = 8
     dim_feedforward: int = 3200
@@ -235,6 +238,9 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     cfg = cfg or ActTrainConfig()
     if cfg.lr_schedule not in LR_SCHEDULES:
         raise ConfigError(f"learning-rate schedule {cfg.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
+    if cfg.temporal_ensemble_coeff is not None and cfg.n_action_steps != 1:
+        raise ConfigError(f"temporal ensembling queries the policy every step: it needs n_action_steps 1, "
+                          f"not {cfg.n_action_steps}")
     t_start = time.perf_counter()
     out = Path(out_dir)
     resume_from = _prepare_out(out, overwrite, resume)
@@ -268,6 +274,7 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     act_cfg = ACTConfig(
         input_features=inputs, output_features=outputs, device=device,
         chunk_size=cfg.chunk_size, n_action_steps=cfg.n_action_steps, dim_model=cfg.dim_model,
+        temporal_ensemble_coeff=cfg.temporal_ensemble_coeff,
         n_heads=cfg.n_heads, dim_feedforward=cfg.dim_feedforward, n_encoder_layers=cfg.n_encoder_layers,
         n_decoder_layers=cfg.n_decoder_layers, use_vae=cfg.use_vae, kl_weight=cfg.kl_weight,
         pretrained_backbone_weights=cfg.pretrained_backbone_weights,
