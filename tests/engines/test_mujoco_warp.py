@@ -475,3 +475,22 @@ def test_simseam_run_num_envs_steps_n_worlds_in_one_process(tmp_path):
     log = [json.loads(line) for line in (tmp_path / "out" / "episodes.jsonl").read_text().splitlines()]
     assert sorted(e["index"] for e in log) == [0, 1] and all(e["success"] for e in log)
     assert json.loads((tmp_path / "out" / "spec.json").read_text())["engine"] == "mujoco_warp"
+
+
+def test_environment_state_is_the_object_poses_and_matches_the_cpu_scene(panda):
+    opts = SceneOptions(render_images=False, environment_state=True)
+    b = BatchedScene(panda, "lift_cube", 2, opts)
+    cpu = ManifestScene(panda, "lift_cube", "mujoco", opts)
+    try:
+        b.reset([0, 1], [4, 9])
+        obs = world_observations(b, range(2), [STATE_ONLY] * 2)
+        for w, seed in enumerate((4, 9)):
+            ref = cpu.reset(seed, STATE_ONLY)["environment_state"]
+            got = obs[w]["environment_state"]
+            assert got.dtype == np.float32 and got.shape == (7,) == ref.shape
+            np.testing.assert_allclose(got, ref, atol=1e-4)
+            np.testing.assert_allclose(obs[w]["state"], cpu.reset(seed, STATE_ONLY)["state"], atol=1e-4)
+        assert not np.allclose(obs[0]["environment_state"], obs[1]["environment_state"])
+        assert "privileged" not in obs[0]
+    finally:
+        cpu.close()

@@ -459,7 +459,7 @@ class ManifestScene:
         if self.options.privileged or self.options.environment_state:
             objects = self.task.object_poses(self)
             if self.options.environment_state:
-                obs[OBS_ENV_STATE] = np.concatenate([objects[n] for n in self.task.object_names()]).astype(np.float32)
+                obs[OBS_ENV_STATE] = self.task.environment_state(objects)
             if self.options.privileged:
                 obs[OBS_PRIVILEGED] = {"eef_pose": np.concatenate([pos, matrix_to_quat(rot)]), "objects": objects}
         return obs

@@ -57,8 +57,7 @@ def world_observations(batch, worlds, requests) -> list[Observation]:
         if batch.options.privileged or batch.options.environment_state:
             objects = batch.privileged_objects(w)
             if batch.options.environment_state:
-                obs[OBS_ENV_STATE] = np.concatenate([objects[n] for n in batch.host.task.object_names()]
-                                                    ).astype(np.float32)
+                obs[OBS_ENV_STATE] = batch.host.task.environment_state(objects)
             if batch.options.privileged:
                 obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": objects}
         out.append(obs)

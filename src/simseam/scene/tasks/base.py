@@ -111,6 +111,11 @@ class Task:
         eng = scene.engine
         return {**{n: scene.to_base(*eng.object_pose(n)) for n in self.tracked_objects}, **self.privileged(scene)}
 
+    def environment_state(self, objects: dict[str, np.ndarray]) -> np.ndarray:
+        """The ``environment_state`` observation from ``object_poses``' result: the poses concatenated
+        in ``object_names()`` order (float32)."""
+        return np.concatenate([objects[n] for n in self.object_names()]).astype(np.float32)
+
     def env_state_names(self) -> tuple[str, ...]:
         """Slot names of ``environment_state``: each object's base-frame pose, in ``object_names()`` order."""
         return tuple(f"{n}.{c}" for n in self.object_names() for c in ("x", "y", "z", "qw", "qx", "qy", "qz"))
