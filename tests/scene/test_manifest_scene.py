@@ -296,3 +296,9 @@ def test_environment_state_of_a_task_with_a_target_lists_it(so101_spec, make_sce
     scene = make_scene(so101_spec, task="reach", render_images=False, environment_state=True)
     names = scene.spec.observation.fields["environment_state"].names
     assert names[0].split(".")[0] == "target" and len(names) == scene.spec.env_state_dim
+
+
+def test_a_scene_with_environment_state_passes_check_rollout(panda_spec, make_scene):
+    from simseam.seam import check_rollout
+
+    check_rollout(make_scene(panda_spec, render_images=False, environment_state=True, max_steps=10))
