@@ -61,6 +61,25 @@ def _emit(event: str, **fields: Any) -> None:
     sys.stdout.flush()
 
 
+EXIT_GRACE_S = 10  # after SIGTERM, cleanup gets this long before SIGALRM's default action ends the process
+
+
+def _say(message: str) -> None:
+    """One line to stderr; the client reading it may already be gone (a broken pipe is not an error)."""
+    try:
+        sys.stderr.write(message + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass
+
+
+def _exit_on_sigterm(*_: Any) -> None:
+    """SIGTERM (the client's close, or its death through PR_SET_PDEATHSIG): unwind through ``serve``'s
+    cleanup, which may not hang past EXIT_GRACE_S (SIGALRM's default action ends the process)."""
+    signal.alarm(EXIT_GRACE_S)
+    sys.exit(0)
+
+
 def _die_with_parent() -> None:
     """Linux: get SIGTERM when the parent dies (the poll loop also checks getppid)."""
     try:
@@ -80,10 +99,8 @@ def _take_engine_lock(engine: str):
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
-        sys.stderr.write(
-            f"simseam sidecar: engine {engine!r} is already running in another sidecar (pid {holder}); "
-            f"it must be alone on this machine. Close that one first (lock file {path}).\n"
-        )
+        _say(f"simseam sidecar: engine {engine!r} is already running in another sidecar (pid {holder}); "
+             f"it must be alone on this machine. Close that one first (lock file {path}).")
         sys.exit(EXIT_BUSY)
     os.ftruncate(fd, 0)
     os.pwrite(fd, str(os.getpid()).encode(), 0)
@@ -151,7 +168,7 @@ class Server:
                 time.sleep(float(body.get("seconds", 0)))
                 return ok({}), False
             if self.test_hooks and op == "_exit":
-                sys.stderr.write("simseam sidecar: exiting on request (test hook)\n")
+                _say("simseam sidecar: exiting on request (test hook)")
                 sys.stderr.flush()
                 os._exit(int(body.get("code", 1)))
             return encode("error", {"kind": "UnknownOp", "message": f"unknown op {op!r}"}), False
@@ -277,7 +294,7 @@ def serve(boot: dict) -> int:
     parent = os.getppid()
     if not keep_alive:
         _die_with_parent()
-    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     lock = None
     if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
         lock = _take_engine_lock(boot.get("engine", "mujoco"))
@@ -289,7 +306,7 @@ def serve(boot: dict) -> int:
         scene = build_scene(boot)
     except Exception as exc:  # reported to the client as a typed error, then exit
         _emit("error", kind=type(exc).__name__, message=str(exc), traceback=traceback.format_exc())
-        sys.stderr.write(f"simseam sidecar: cannot build the scene: {type(exc).__name__}: {exc}\n")
+        _say(f"simseam sidecar: cannot build the scene: {type(exc).__name__}: {exc}")
         return EXIT_BOOT_ERROR
     ctx = zmq.Context()
     sock = ctx.socket(zmq.REP)
@@ -324,7 +341,7 @@ def serve(boot: dict) -> int:
             if not events or now - parent_checked >= 0.5:  # also while events keep coming
                 parent_checked = now
                 if not keep_alive and os.getppid() != parent:
-                    sys.stderr.write("simseam sidecar: parent process is gone, exiting\n")
+                    _say("simseam sidecar: parent process is gone, exiting")
                     return 0
             if not events:
                 continue
@@ -365,7 +382,7 @@ def serve(boot: dict) -> int:
                                 conn_poll = select.poll()
                                 conn_poll.register(conn, select.POLLIN)
                     except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
-                        sys.stderr.write(f"simseam sidecar: local connection dropped: {exc}\n")
+                        _say(f"simseam sidecar: local connection dropped: {exc}")
                         keep = False
                     if not keep:
                         poller.unregister(c)
@@ -379,7 +396,10 @@ def serve(boot: dict) -> int:
                     if not (spin and local.spin_until_readable(conn_poll, server.spin_s)):
                         break
                     server.spun += 1
-    finally:
+    finally:  # a second SIGTERM must not cut this short: a context left unterminated hangs the exit
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        sock.close(0)
+        ctx.destroy(0)
         for c in (conn, *pending):
             if c is not None:
                 c.close()
@@ -394,8 +414,6 @@ def serve(boot: dict) -> int:
             server.detach()
         if registry is not None:
             registry.unlink(missing_ok=True)
-        sock.close(0)
-        ctx.term()
         scene.close()
         if lock is not None:
             os.close(lock)
@@ -409,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         boot = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        sys.stderr.write(f"simseam sidecar: cannot read boot file {path}: {exc}\n")
+        _say(f"simseam sidecar: cannot read boot file {path}: {exc}")
         return 2
     path.unlink(missing_ok=True)
     return serve(boot)
