@@ -186,7 +186,7 @@ def provision_cold(names: list[str]) -> dict:
 
 
 def main() -> None:
-    from simseam.backends import open_benchmark
+    from simseam.sidecar.benchmark import open_benchmark
     from simseam.backends.provision import marker
 
     ap = argparse.ArgumentParser()

@@ -79,7 +79,7 @@ def native(task: str, solver: str, n: int) -> dict:
 
 
 def seam(task: str, n: int, max_steps: int) -> list[dict]:
-    from simseam.backends import open_benchmark
+    from simseam.sidecar.benchmark import open_benchmark
 
     r = open_benchmark("maniskill", {"task": task, "max_steps": max_steps}, privileged=True)
     out = []

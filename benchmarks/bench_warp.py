@@ -43,7 +43,7 @@ def bench_one(robot, collision: str, cameras: bool, n: int, args) -> dict:
     import numpy as np
     import warp as wp
 
-    from simseam.engines.mujoco_warp import BatchedScene, WarpOptions
+    from simseam.scene.warp import BatchedScene, WarpOptions
     from simseam.scene.manifest_scene import SceneOptions
 
     size = (args.image, args.image)
@@ -110,7 +110,7 @@ def bench_expert(robot, collision: str, n: int, args) -> dict:
     import numpy as np
     import warp as wp
 
-    from simseam.engines.mujoco_warp import BatchedScene, WarpOptions
+    from simseam.scene.warp import BatchedScene, WarpOptions
     from simseam.policies.batched_expert import LiftExpertBatch
     from simseam.scene.manifest_scene import SceneOptions
 

@@ -59,7 +59,7 @@ def _cpu_episode(robot, task, opts, seed):
 
 
 def replay(robot, n, device):
-    from simseam.engines.mujoco_warp import BatchedScene, WarpOptions
+    from simseam.scene.warp import BatchedScene, WarpOptions
     from simseam.scene.manifest_scene import SceneOptions
 
     opts = SceneOptions(render_images=False, privileged=True)
@@ -88,7 +88,7 @@ def replay(robot, n, device):
 
 
 def expert(robot, task, n, cpu_seeds, device, mode=None):
-    from simseam.engines.mujoco_warp import BatchedScene, WarpOptions, world_observations
+    from simseam.scene.warp import BatchedScene, WarpOptions, world_observations
     from simseam.policies.base import make_policy
     from simseam.scene.manifest_scene import SceneOptions
     from simseam.seam import STATE_ONLY

@@ -1,8 +1,19 @@
-"""Layering (docs/ARCHITECTURE.md): scenes, engines and the seam import nothing heavier than numpy
-(+ the engine SDK), so an Isaac Sim or sidecar interpreter can host them."""
+"""Layering (docs/ARCHITECTURE.md): no module imports a layer above its own, and scenes, engines and the
+seam import nothing heavier than numpy (+ the engine SDK), so an Isaac Sim or sidecar interpreter can host
+them."""
 
+import ast
 import subprocess
 import sys
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "simseam"
+
+#: simseam's packages from the bottom up, as docs/ARCHITECTURE.md draws them; a module imports its own
+#: package or a package of a lower rank, never one of its rank or above
+LAYERS = [("seam", "math3d"), ("config_files",), ("robot",), ("policies",), ("engines",), ("scene",),
+          ("backends",), ("sidecar",), ("runner",), ("gym", "hal", "ros2", "serving"), ("cli",)]
+RANK = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}
 
 FORBIDDEN = ["pydantic", "typer", "rich", "yaml", "simseam.cli", "simseam.runner", "simseam.policies",
              "simseam.robot.manifest"]
@@ -44,3 +55,43 @@ def test_benchmark_backends_import_neither_client_side_nor_benchmark_packages():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"benchmark backend layer imported: {out.stdout.strip()}"
+
+
+def _imports(source: str, package: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(line, module) for every simseam import in a module of ``package``, at any depth (imports inside
+    functions too), relative ones resolved."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[: len(package) - node.level + 1]) if node.level else ""
+            found.append((node.lineno, ".".join(p for p in (base, node.module or "") if p)))
+    return [(line, m) for line, m in found if m.split(".")[0] == "simseam" and m != "simseam"]
+
+
+def _package(path: Path) -> str:
+    return path.relative_to(SRC).with_suffix("").parts[0]
+
+
+def test_every_package_has_a_layer():
+    packages = {_package(p) for p in SRC.rglob("*.py")} - {"__init__"}
+    assert packages == set(RANK), "docs/ARCHITECTURE.md and LAYERS must name every package of src/simseam"
+
+
+def test_no_module_imports_a_layer_above_its_own():
+    upward = []
+    for path in sorted(SRC.rglob("*.py")):
+        own = _package(path)
+        rel = path.relative_to(SRC.parent).with_suffix("").parts
+        for line, module in _imports(path.read_text(), rel if path.name == "__init__.py" else rel[:-1]):
+            target = module.split(".")[1]
+            if target != own and RANK[target] >= RANK[own]:
+                upward.append(f"{path.relative_to(SRC.parent)}:{line}: {own} imports {module}")
+    assert not upward, "imports that go up (or across) a layer:\n" + "\n".join(upward)
+
+
+def test_the_walk_sees_imports_inside_functions_and_relative_ones():
+    """(Without them the layering check above would pass vacuously on lazy imports.)"""
+    source = "import numpy\ndef f():\n    from ..scene import manifest_scene\n    import simseam.cli.main\n"
+    assert [m for _, m in _imports(source, ("simseam", "engines"))] == ["simseam.scene", "simseam.cli.main"]

@@ -38,7 +38,7 @@ def run_native(tmp_path):
 @pytest.fixture
 def open_backend():
     """``open_backend(name, config, privileged=False)``: a SidecarRollout, closed after the test."""
-    from simseam.backends import open_benchmark
+    from simseam.sidecar.benchmark import open_benchmark
 
     opened = []
 

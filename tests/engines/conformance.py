@@ -30,7 +30,7 @@ from simseam.math3d import make_transform, quat_to_matrix, rpy_to_matrix, rpy_to
 from simseam.robot.assets import resolve_asset
 from simseam.robot.manifest import load_robot
 from simseam.robot.urdf import read_urdf
-from simseam.scene.kinematics import SerialChain
+from simseam.robot.kinematics import SerialChain
 from simseam.seam import ConfigError
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"

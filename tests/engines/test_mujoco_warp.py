@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from simseam.engines.mujoco_warp import BatchedScene, WarpRollout, world_observations
+from simseam.scene.warp import BatchedScene, WarpRollout, world_observations
 from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions

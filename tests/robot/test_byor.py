@@ -224,7 +224,7 @@ def test_tcp_is_in_the_ros2_tf_tree(xarm, make_scene):
 
 @pytest.mark.parametrize("name", ["franka_panda", "so101", "panda_mobile", "stretch"])
 def test_builtin_robots_pass_check(name):
-    from simseam.robot.check import check_robot
+    from simseam.runner.robot_check import check_robot
     from simseam.robot.manifest import builtin_manifests
 
     report = check_robot(builtin_manifests()[name])

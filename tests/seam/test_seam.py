@@ -58,3 +58,28 @@ def test_rollout_spec_json_is_plain_and_round_trips(lift):
     assert RolloutSpec.from_json(j) == spec
     with pytest.raises(ConfigError, match="rollout spec: missing field 'task'"):
         RolloutSpec.from_json({k: v for k, v in j.items() if k != "task"})
+
+
+def test_a_task_publishes_its_props_sizes_in_the_spec_for_privileged_experts(panda_spec):
+    """The bowl-and-plate expert reads the bowl's and plate's sizes from ``spec.task.geometry`` (policies
+    know only the seam); the sizes are the scene's own and cross the JSON boundary."""
+    import dataclasses
+    import json
+
+    from simseam.policies.scripted import BowlPlateExpert
+    from simseam.scene.manifest_scene import ManifestScene
+    from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
+    from simseam.seam import RolloutSpec
+
+    scene = ManifestScene(panda_spec, "bowl_plate", "mujoco")
+    try:
+        spec = RolloutSpec.from_json(json.loads(json.dumps(scene.spec.to_json())))
+    finally:
+        scene.close()
+    assert dict(spec.task.geometry) == {"bowl_wall_radius": BOWL_WALL_R, "bowl_height": BOWL_HEIGHT,
+                                        "plate_height": 2 * PLATE_HALF_H}
+    expert = BowlPlateExpert(spec, np.eye(3))
+    assert (expert.wall_r, expert.bowl_h, expert.plate_h) == (BOWL_WALL_R, BOWL_HEIGHT, 2 * PLATE_HALF_H)
+    bare = dataclasses.replace(spec, task=dataclasses.replace(spec.task, geometry=()))
+    with pytest.raises(ConfigError, match="task 'bowl_plate' publishes no size 'bowl_wall_radius'"):
+        BowlPlateExpert(bare, np.eye(3))

@@ -76,29 +76,3 @@ def normalize_config(name: str, config: dict[str, Any], where: str = "benchmark"
 def make_backend_rollout(name: str, config: dict[str, Any]):
     """Build the backend's rollout (in the backend's own interpreter: the sidecar calls this)."""
     return backend_module(name).make_rollout(normalize_config(name, config))
-
-
-def open_benchmark(name: str, config: dict[str, Any], *, privileged: bool = False, progress=None,
-                   boot_timeout: float = 300.0, request_timeout: float = 120.0, where: str = "benchmark",
-                   local: bool = True):
-    """A ``SidecarRollout`` serving backend ``name`` from its provisioned venv (client side).
-
-    ``privileged``: the policy needs the benchmark's own scripted expert (``expert_action``);
-    a backend without one is a ``ConfigError``. Fails closed with ``BackendUnavailableError``
-    (naming ``simseam backends provision NAME``) when the venv is absent. ``local=False``: ZeroMQ
-    instead of the sidecar's local fast path (for comparisons).
-    """
-    from simseam.backends.provision import require
-    from simseam.sidecar.client import SidecarRollout
-
-    module = backend_module(name)
-    config = {k: v for k, v in config.items() if k != "name"}
-    if privileged:
-        if not getattr(module, "HAS_EXPERT", False):
-            raise ConfigError(f"{where}: {name} ships no scripted expert; use another policy "
-                              "(random, zero, lerobot:..., remote:...)")
-        config["expert"] = True
-    config = module.normalize_config(config, where)
-    python = require(name)
-    return SidecarRollout(None, str(config.get("task", name)), name, config, backend=name, python=str(python),
-                          boot_timeout=boot_timeout, request_timeout=request_timeout, progress=progress, local=local)

@@ -577,7 +577,7 @@ def robots_check(path: Path = typer.Argument(..., help="Manifest file to check a
     """Validate a manifest: schema, assets, every joint/link against its URDF, home and gripper positions
     within the joint limits; then build the robot headless in MuJoCo as `run` does (meshes, inertias,
     cameras, holding still) and warn about what would surprise (no visual geometry, unreadable meshes)."""
-    from simseam.robot.check import check_robot
+    from simseam.runner.robot_check import check_robot
 
     try:
         report = check_robot(path)

@@ -14,8 +14,7 @@ import numpy as np
 from simseam.math3d import quat_to_matrix, rotation_error
 from simseam.policies.base import BasePolicy, register_policy
 from simseam.policies.navigation import NavExpert
-from simseam.scene.tasks.bowl_plate import BOWL_HEIGHT, BOWL_WALL_R, PLATE_HALF_H
-from simseam.scene.kinematics import SerialChain
+from simseam.robot.kinematics import SerialChain
 from simseam.seam import (OBS_EXPERT_ACTION, OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode,
                           Observation, RolloutSpec)
 
@@ -100,7 +99,14 @@ class LiftExpert(_CartesianExpert):
 
 
 class BowlPlateExpert(_CartesianExpert):
-    """Grip the bowl's wall on the side facing the robot, carry it over the plate, set it down, let go."""
+    """Grip the bowl's wall on the side facing the robot, carry it over the plate, set it down, let go.
+    The props' sizes come from the task's spec (``spec.task.geometry``)."""
+
+    def __init__(self, spec: RolloutSpec, down_rot: np.ndarray):
+        super().__init__(spec.action, down_rot)
+        task = spec.task
+        self.wall_r, self.bowl_h, self.plate_h = (task.size(k) for k in ("bowl_wall_radius", "bowl_height",
+                                                                          "plate_height"))
 
     def act(self, priv: dict, obs: dict | None = None) -> np.ndarray:
         eef = priv["eef_pose"]
@@ -114,7 +120,7 @@ class BowlPlateExpert(_CartesianExpert):
             y_axis = self.down @ np.array([0.0, 1.0, 0.0])
             base_yaw = np.arctan2(u[1], u[0]) - np.arctan2(y_axis[1], y_axis[0])
             self.yaw = _nearest_equivalent(base_yaw, cur_yaw, np.pi)
-            self.grasp = np.array([*(bowl[:2] + BOWL_WALL_R * u), bowl[2] + BOWL_HEIGHT - 0.017])
+            self.grasp = np.array([*(bowl[:2] + self.wall_r * u), bowl[2] + self.bowl_h - 0.017])
         if self.phase == 0:  # above the wall
             above = self.grasp + [0.0, 0.0, 0.08]
             if (err(above) < 0.01 and abs(cur_yaw - self.yaw) < 0.05) or self.timer > 60:
@@ -129,7 +135,7 @@ class BowlPlateExpert(_CartesianExpert):
                 self.advance()
                 self.hold = eef[:3] - bowl[:3]  # bowl -> hand offset while carried
             return self.command(eef, eef[:3], self.yaw, CLOSE)
-        plate_top = plate[2] + 2 * PLATE_HALF_H
+        plate_top = plate[2] + self.plate_h
         over = np.array([*(plate[:2] + self.hold[:2]), plate_top + self.hold[2] + 0.12])
         if self.phase == 3:  # lift
             lift = np.array([*eef[:2], over[2]])
@@ -196,7 +202,7 @@ def _cartesian(cls):
     return lambda spec, down: cls(spec.action, down)
 
 
-_EXPERTS = {"lift_cube": _cartesian(LiftExpert), "bowl_plate": _cartesian(BowlPlateExpert),
+_EXPERTS = {"lift_cube": _cartesian(LiftExpert), "bowl_plate": BowlPlateExpert,
             "nav_obstacles": _cartesian(NavExpert), "reach": lambda spec, down: ReachExpert(spec)}
 _ANY_MODE = {"reach"}  # experts that drive joint_position too
 

@@ -131,7 +131,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
     """Run the preset's episodes not yet in ``run_dir`` (a ``RunDir``; of ``indices`` only, when given:
     a shard's); every finished one is appended to its log (with ``task`` and ``episode``) before the
     next starts."""
-    from simseam.backends import open_benchmark
+    from simseam.sidecar.benchmark import open_benchmark
     from simseam.runner.session import run_episodes
 
     todo = _todo(tasks, episodes, run_dir, indices)
@@ -182,7 +182,7 @@ class EvalRecipe:
     first_task: int = 0
 
     def _open(self, ti: int):
-        from simseam.backends import open_benchmark
+        from simseam.sidecar.benchmark import open_benchmark
 
         rollout = open_benchmark(self.backend, {**self.config, "task": self.tasks[ti]}, privileged=self.privileged)
         self._task = ti

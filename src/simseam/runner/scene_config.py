@@ -138,7 +138,8 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     import dataclasses
 
     if cfg.benchmark is not None:
-        from simseam.backends import normalize_config, open_benchmark
+        from simseam.backends import normalize_config
+        from simseam.sidecar.benchmark import open_benchmark
 
         b = cfg.benchmark
         normalize_config(b.name, b.backend_config(), "benchmark")  # bad fields fail before any process starts
@@ -154,7 +155,7 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
     eng = cfg.engine
     if eng.name == "mujoco_warp":  # one world of the GPU-batched engine (runner.warp_vector runs N)
-        from simseam.engines.mujoco_warp import WarpOptions, WarpRollout
+        from simseam.scene.warp import WarpOptions, WarpRollout
 
         if eng.process != "inprocess":
             raise ConfigError("engine 'mujoco_warp' runs in-process (process: sidecar is not supported)")

@@ -27,7 +27,7 @@ from simseam.seam import ConfigError, SimulationError
 def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, privileged: bool = False,
                         render_images: bool = True, seed: int = 0, device: str | None = None):
     """The ``BatchedScene`` a scene file with ``engine: {name: mujoco_warp, num_envs: N}`` describes."""
-    from simseam.engines.mujoco_warp import BatchedScene, WarpOptions
+    from simseam.scene.warp import BatchedScene, WarpOptions
     from simseam.runner.scene_config import resolve_robot, scene_options
 
     eng = cfg.engine
@@ -71,7 +71,7 @@ class WarpVectorEnv:
             on_error: Callable[[EpisodeResult, str], None] | None = None,
             on_worker_failure=None) -> list[EpisodeResult]:
         """Run episodes ``indices`` (see the module docstring); callbacks as the vector runner's."""
-        from simseam.engines.mujoco_warp import world_observations
+        from simseam.scene.warp import world_observations
 
         if video_dir is not None:
             raise ConfigError("engine 'mujoco_warp': videos are not recorded in batched runs (drop --video)")

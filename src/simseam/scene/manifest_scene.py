@@ -33,7 +33,7 @@ from simseam.robot.urdf import read_urdf
 from simseam.scene import describe
 from simseam.scene.base_motion import KinematicBase
 from simseam.scene.controllers import ArmController, CartesianDeltaArm, Gripper, JointPositionArm, TwistBase
-from simseam.scene.kinematics import SerialChain
+from simseam.robot.kinematics import SerialChain
 from simseam.scene.sensors import DepthCloud, Lidar2D
 from simseam.scene.tasks.base import get_task
 from simseam.seam import (
@@ -253,7 +253,7 @@ class ManifestScene:
         obs = describe.observation_spec(facts, self._cameras, self._state_names, privileged,
                                         renders=opts.render_images, env_state_names=env_state)
         task_spec = TaskSpec(task, t.instruction, max_steps=opts.max_steps or t.max_steps,
-                             diagnostics=tuple(t.diagnostics))
+                             diagnostics=tuple(t.diagnostics), geometry=tuple(t.geometry.items()))
         return describe.rollout_spec(robot=facts, observation=obs, action=self.action_spec, task=task_spec,
                                      engine=self.engine.name, control_hz=opts.control_hz, privileged=opts.privileged)
 

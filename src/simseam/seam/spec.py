@@ -520,22 +520,32 @@ class RobotFacts:
 class TaskSpec:
     """What the rollout asks of the policy: ``name`` (e.g. ``lift_cube``), the instruction,
     ``info[success_key]`` is the success flag, ``max_steps`` truncates an episode,
-    ``diagnostics``: names of the values ``info["diagnostics"]`` carries after each step."""
+    ``diagnostics``: names of the values ``info["diagnostics"]`` carries after each step;
+    ``geometry``: sizes of the task's props in metres (e.g. ``bowl_height``), for privileged experts."""
 
     name: str
     instruction: str
     success_key: str = "success"
     max_steps: int = 300
     diagnostics: tuple[str, ...] = ()
+    geometry: tuple[tuple[str, float], ...] = ()
+
+    def size(self, name: str) -> float:
+        """One of ``geometry``'s sizes (metres); a ``ConfigError`` naming the task when it has none."""
+        for key, value in self.geometry:
+            if key == name:
+                return value
+        raise ConfigError(f"task {self.name!r} publishes no size {name!r} (it has {[k for k, _ in self.geometry]})")
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "instruction": self.instruction, "success_key": self.success_key,
-                "max_steps": self.max_steps, "diagnostics": list(self.diagnostics)}
+                "max_steps": self.max_steps, "diagnostics": list(self.diagnostics), "geometry": dict(self.geometry)}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "TaskSpec":
         return cls(str(d["name"]), str(d["instruction"]), str(d.get("success_key", "success")),
-                   int(d.get("max_steps", 300)), tuple(str(x) for x in d.get("diagnostics", ())))
+                   int(d.get("max_steps", 300)), tuple(str(x) for x in d.get("diagnostics", ())),
+                   tuple((str(k), float(v)) for k, v in (d.get("geometry") or {}).items()))
 
 
 # ======================================================================== rollout

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from simseam.math3d import axis_angle_to_matrix, rotation_error
-from simseam.scene.kinematics import IKResult, SerialChain
+from simseam.robot.kinematics import IKResult, SerialChain
 from simseam.seam import ActionSlot, ControlMode
 
 CARTESIAN_NAMES = ("dx", "dy", "dz", "dax", "day", "daz")

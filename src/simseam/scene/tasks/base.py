@@ -22,7 +22,7 @@ from simseam.robot.spec import RobotSpec
 from simseam.seam import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from simseam.scene.kinematics import SerialChain
+    from simseam.robot.kinematics import SerialChain
     from simseam.scene.manifest_scene import ManifestScene
 
 TABLE_TOP = 0.8  # world z of the table surface (m)
@@ -56,6 +56,8 @@ class Task:
     privileged_extras: ClassVar[tuple[str, ...]] = ()
     #: names of the values ``evaluate`` reports besides reward and success
     diagnostics: ClassVar[tuple[str, ...]] = ()
+    #: sizes of the props (metres) that privileged experts read from ``spec.task.geometry``
+    geometry: ClassVar[dict[str, float]] = {}
 
     def __init__(self, spec: RobotSpec, reach: float, chain: "SerialChain | None" = None):
         self.spec = spec

@@ -56,6 +56,7 @@ class BowlPlate(Task):
     control_mode = "cartesian_delta"
     tracked_objects = ("bowl", "plate")
     diagnostics = ("bowl_to_plate", "bowl_on_plate", "released")
+    geometry = {"bowl_wall_radius": BOWL_WALL_R, "bowl_height": BOWL_HEIGHT, "plate_height": 2 * PLATE_HALF_H}
 
     def build(self, engine: Engine) -> None:
         super().build(engine)

@@ -85,7 +85,7 @@ class WarpRollout:
     """A ``SimRollout`` over one world of MuJoCo Warp (a ``BatchedScene`` of one)."""
 
     def __init__(self, robot, task: str, options=None, warp_options=None):
-        from simseam.engines.mujoco_warp.batched import BatchedScene
+        from simseam.scene.warp.batched import BatchedScene
 
         self.batch = BatchedScene(robot, task, 1, options, warp_options)
         self._seed_stream = np.random.default_rng(self.batch.options.seed)
