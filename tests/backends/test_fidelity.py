@@ -147,6 +147,15 @@ def test_backend_keeps_the_seam_contract(open_backend, name, config):
     assert spec.backend == "sidecar" and spec.task.instruction
 
 
+def test_a_benchmark_backend_in_two_sidecars_keeps_the_batched_seam_contract(open_backend):
+    """The batch of a backend that does not batch itself: its sidecars behind SyncBatchRollout."""
+    from simseam.seam import SyncBatchRollout, check_batch_rollout
+
+    config = {"task": "pick-place-v3", "image_size": [32, 32]}
+    spec = check_batch_rollout(SyncBatchRollout([open_backend("metaworld", config) for _ in range(2)]))
+    assert spec.backend == "sidecar" and spec.task.name == "pick-place-v3"
+
+
 def test_metaworld_expert_rollout_keeps_the_seam_contract(open_backend):
     spec = check_rollout(open_backend("metaworld", {"task": "reach-v3", "image_size": [32, 32]}, privileged=True))
     assert spec.observation.has("expert_action")

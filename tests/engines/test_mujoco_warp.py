@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from simseam.scene.warp import BatchedScene, WarpRollout, world_observations
+from simseam.scene.warp import BatchedScene, WarpBatchRollout, WarpRollout, world_observations
 from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
-from simseam.seam import INFO_DIAGNOSTICS, STATE_ONLY, ConfigError, InvalidActionError, ObsRequest, check_rollout
+from simseam.seam import (INFO_DIAGNOSTICS, STATE_ONLY, ConfigError, InvalidActionError, ObsRequest, check_batch_rollout,
+                          check_rollout)
 
 # Stated tolerances of one world against the CPU engine (float32 physics on the device, float64 on
 # the CPU; measured on seeds 0, 5, 11: tool position within 0.7 um before contact, 2.4 um over the
@@ -190,6 +191,29 @@ def test_one_world_passes_the_seam_conformance_check_with_cameras(panda):
     only = rollout.step(np.zeros(rollout.action_dim, np.float32), ObsRequest(images=frozenset()))
     assert only.observation["images"] == {}
     check_rollout(rollout)  # closes it
+
+
+def test_the_worlds_keep_the_batched_seam_contract_with_cameras(panda):
+    """WarpBatchRollout: the worlds reset and stepped by index (check_batch_rollout), each world's rows
+    against the single-world rollout on the same seed and actions."""
+    opts = SceneOptions(image_size=(24, 32), privileged=True)
+    batch = WarpBatchRollout(panda, "lift_cube", 3, opts)
+    one = WarpRollout(panda, "lift_cube", opts)
+    try:
+        a = np.full(batch.spec.action.dim, 0.4, np.float32)
+        batch.reset([2, 0], [9, 3])
+        r = batch.step([2, 0], np.stack([a, -a]))
+        one.reset(9)
+        ref = one.step(a)
+        assert r.envs.tolist() == [2, 0] and r[0].info == ref.info
+        assert np.array_equal(r.observations[0]["state"], ref.observation["state"])
+        images, ref_images = r.observations[0]["images"], ref.observation["images"]
+        assert set(images) == set(ref_images) and len(images) == 2
+        assert all(np.array_equal(images[k], ref_images[k]) for k in images)
+        assert batch.render(2).shape == (24, 32, 3)
+    finally:
+        one.close()
+    check_batch_rollout(batch)  # closes it
 
 
 def test_unsupported_configurations_are_clear_errors(panda, state_opts):

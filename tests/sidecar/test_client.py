@@ -345,6 +345,14 @@ def test_a_sidecar_keeps_the_seam_contract(make_sidecar):
     assert spec.backend == "sidecar" and spec.can("restart") and spec.task.name == "lift_cube"
 
 
+def test_sidecars_as_a_batch_keep_the_batched_seam_contract(make_sidecar):
+    """SyncBatchRollout over two sidecars: the batch of any backend a sidecar holds."""
+    from simseam.seam import SyncBatchRollout, check_batch_rollout
+
+    spec = check_batch_rollout(SyncBatchRollout([make_sidecar(), make_sidecar()]))
+    assert spec.backend == "sidecar" and spec.observation.images
+
+
 def test_observation_requests_travel_to_the_sidecar(make_sidecar):
     from simseam.seam import STATE_ONLY, ObsRequest
 

@@ -10,7 +10,10 @@ any interpreter that hosts an engine can import it.
 - ``rollout``: the ``SimRollout`` protocol and ``StepResult``
 - ``keys``: the one vocabulary of observation, info and feature names
 - ``errors``: the error hierarchy
-- ``checker``: ``check_rollout``, the conformance check every backend passes
+- ``batch``: the ``BatchRollout`` protocol (N environments reset and stepped by index),
+  ``BatchStepResult`` and ``SyncBatchRollout`` (a batch of separate rollouts)
+- ``checker``: ``check_rollout``, the conformance check every backend passes, and
+  ``check_batch_rollout`` for batches
 
 The observation contract, key by key (shapes in ``rollout.spec.observation``):
 
@@ -34,7 +37,8 @@ The observation contract, key by key (shapes in ``rollout.spec.observation``):
   beside ``state`` (LeRobot's ``observation.environment_state``).
 """
 
-from simseam.seam.checker import RolloutContractError, check_rollout, observation_problems
+from simseam.seam.batch import BatchRollout, BatchStepResult, SyncBatchRollout
+from simseam.seam.checker import RolloutContractError, check_batch_rollout, check_rollout, observation_problems
 from simseam.seam.errors import (
     BackendUnavailableError,
     ConfigError,
@@ -69,10 +73,10 @@ from simseam.seam.spec import (
 )
 
 __all__ = [
-    "ActionSlot", "ActionSpec", "BackendUnavailableError", "BaseFacts", "CAP_LINK_POSES", "CAP_PRIVILEGED",
+    "ActionSlot", "ActionSpec", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "CAP_LINK_POSES", "CAP_PRIVILEGED",
     "CAP_RESTART", "ConfigError", "ControlMode", "FULL", "FieldSpec", "GripperFacts", "InvalidActionError",
     "JointFacts", "LinkFacts", "NormBound", "ObsRequest", "Observation", "ObservationSpec", "OPTIONAL_OBS_KEYS",
     "REQUIRED_OBS_KEYS", "RobotFacts", "RolloutContractError", "RolloutSpec", "STATE_ONLY", "SensorFacts",
-    "SidecarError", "SimRollout", "SimseamError", "SimulationError", "StepResult", "TaskSpec", "check_action",
+    "SidecarError", "SimRollout", "SimseamError", "SimulationError", "StepResult", "SyncBatchRollout", "TaskSpec", "check_action", "check_batch_rollout",
     "check_rollout", "observation_problems",
 ]

@@ -1,4 +1,5 @@
 """``check_rollout``: does a rollout keep the seam's contract? (in the spirit of gymnasium's ``check_env``)
+``check_batch_rollout`` does the same for a ``BatchRollout`` (seam/batch.py).
 
 Every backend's tests call it: in-process scenes, sidecars, the Isaac stand-in
 and every future one. It drives the rollout through a few short episodes and
@@ -26,13 +27,14 @@ from typing import Any
 
 import numpy as np
 
-from simseam.seam.errors import InvalidActionError, SimseamError
+from simseam.seam.errors import ConfigError, InvalidActionError, SimseamError
 from simseam.seam.keys import (
     INFO_DIAGNOSTICS,
     INFO_STEPS,
     OBS_DEPTH_POINTS,
     OBS_IMAGES,
     OBS_LINK_POSES,
+    OBS_STATE,
 )
 from simseam.seam.request import ObsRequest
 from simseam.seam.spec import CAP_LINK_POSES, FieldSpec, RolloutSpec
@@ -216,3 +218,144 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
         raise RolloutContractError(f"rollout broke the seam contract ({len(problems)} problem(s)):\n"
                                    + "\n".join(f"  - {p}" for p in problems))
     return spec
+
+
+def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec:
+    """Raise ``RolloutContractError`` unless ``batch`` keeps the ``BatchRollout`` contract (seam/batch.py);
+    returns its spec. Needs ``num_envs >= 2``; takes a few short episodes and closes the batch.
+
+    Checks: the spec (JSON round trip) and ``num_envs``; observations against the spec for every
+    environment and per-environment requests; results in the order of ``envs``; that two environments
+    given the same seed and actions give the same episode, stepped together or one at a time, and the
+    same again later; that resetting one environment leaves another's episode as it was; that a bad
+    action (shape, NaN) raises ``InvalidActionError`` and changes nothing; that actions act as their
+    clipped value; bad indices raise ``ConfigError``; ``info`` carries success, steps and diagnostics;
+    ``render``; ``close``.
+    """
+    problems: list[str] = []
+    try:
+        spec = batch.spec
+        if not isinstance(spec, RolloutSpec):
+            raise RolloutContractError(f"batch.spec is a {type(spec).__name__}, not a RolloutSpec")
+        if RolloutSpec.from_json(json.loads(json.dumps(spec.to_json()))) != spec:
+            problems.append("spec: RolloutSpec.from_json(to_json()) differs from the spec")
+        n = batch.num_envs
+        if not isinstance(n, int) or n < 2:
+            raise RolloutContractError(f"check_batch_rollout needs num_envs >= 2, got {n!r}")
+        _batch_episodes(batch, spec, n, seed, steps, problems)
+        _batch_refusals(batch, spec, n, seed, problems)
+        for env in (0, n - 1):
+            frame = batch.render(env)
+            if spec.observation.images or spec.robot.sensors_of("rgb"):
+                if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8 and frame.ndim == 3):
+                    problems.append(f"render({env}): expected uint8[H, W, 3], got {type(frame).__name__}")
+            elif frame is not None:
+                problems.append(f"render({env}) returned a frame though the robot has no RGB camera")
+    finally:
+        batch.close()
+    batch.close()  # idempotent
+    try:
+        batch.reset([0], [seed])
+        problems.append("reset() on a closed batch did not raise")
+    except SimseamError:
+        pass
+    if problems:
+        raise RolloutContractError(f"batch broke the BatchRollout contract ({len(problems)} problem(s)):\n"
+                                   + "\n".join(f"  - {p}" for p in problems))
+    return spec
+
+
+def _step_problems(r: Any, envs: list[int], spec: RolloutSpec, step: int, requests: list) -> list[str]:
+    """A ``BatchStepResult``'s shape, order, observations and info, after ``step`` steps of each env."""
+    where = f"step {step} of envs {envs}"
+    if list(np.asarray(r.envs).tolist()) != envs or len(r.observations) != len(envs) or len(r.infos) != len(envs):
+        return [f"{where}: the result covers envs {np.asarray(r.envs).tolist()} with {len(r.observations)} "
+                f"observations, expected {envs} in that order"]
+    out = []
+    for arr, name, dtype in ((r.reward, "reward", np.floating), (r.terminated, "terminated", np.bool_),
+                             (r.truncated, "truncated", np.bool_)):
+        if not (isinstance(arr, np.ndarray) and arr.shape == (len(envs),) and np.issubdtype(arr.dtype, dtype)):
+            out.append(f"{where}: {name} is not a {dtype.__name__}[{len(envs)}] array")
+    key = spec.task.success_key
+    for i, env in enumerate(envs):
+        out += [f"{where}, env {env}: {p}" for p in observation_problems(r.observations[i], spec, requests[i])]
+        info = r.infos[i]
+        if not isinstance(info.get(key), bool):
+            out.append(f"{where}, env {env}: info[{key!r}] is {info.get(key)!r}, expected a bool")
+        if info.get(INFO_STEPS) != step:
+            out.append(f"{where}, env {env}: info['steps'] is {info.get(INFO_STEPS)!r}, expected {step}")
+        diag = info.get(INFO_DIAGNOSTICS)
+        if not isinstance(diag, dict) or set(diag) != set(spec.task.diagnostics):
+            out.append(f"{where}, env {env}: info['diagnostics'] is {diag!r}, the spec declares "
+                       f"{list(spec.task.diagnostics)}")
+    return out
+
+
+def _batch_episodes(batch: Any, spec: RolloutSpec, n: int, seed: int, steps: int, problems: list[str]) -> None:
+    """Same seed, same episode: for two environments together, one at a time, after a neighbour's reset."""
+    rng = np.random.default_rng(seed)
+    actions = [_sample_action(spec, rng) for _ in range(steps)]
+    pair = [0, n - 1]
+    cams = sorted(spec.observation.images)
+    requests = [ObsRequest.state_only(), ObsRequest(images=frozenset(cams[:1])) if cams else None]
+    obs = batch.reset(pair, [seed, seed], requests)
+    problems.extend(f"reset, env {e}: {p}" for e, o, q in zip(pair, obs, requests)
+                    for p in observation_problems(o, spec, q))
+    together = []
+    for i, a in enumerate(actions):
+        r = batch.step(pair, np.stack([a, a]), requests)
+        problems.extend(_step_problems(r, pair, spec, i + 1, requests))
+        together.append(_copied(r.observations[0][OBS_STATE]))
+        if not _same(r.observations[0][OBS_STATE], r.observations[1][OBS_STATE]):
+            problems.append(f"step {i + 1}: envs {pair} got the same seed and actions but different states")
+    for env in pair:  # one at a time, later: the same episode again
+        batch.reset([env], [seed], ObsRequest.state_only())
+        for i, a in enumerate(actions):
+            r = batch.step([env], a[None, :], ObsRequest.state_only())
+            if not _same(r.observations[0][OBS_STATE], together[i]):
+                problems.append(f"env {env} stepped alone: step {i + 1} differs from the same seed stepped "
+                                "in a pair (or the same seed did not give the same episode)")
+                break
+    batch.reset(pair, [seed, seed + 1], ObsRequest.state_only())  # a neighbour's reset changes nothing
+    batch.step(pair, np.stack([actions[0], actions[0]]), ObsRequest.state_only())
+    batch.reset([n - 1], [seed + 2], ObsRequest.state_only())
+    r = batch.step([0], actions[1][None, :], ObsRequest.state_only())
+    if not _same(r.observations[0][OBS_STATE], together[1]):
+        problems.append("resetting one environment changed another's episode")
+    batch.reset([n - 1, 0], [seed + 3, seed], ObsRequest.state_only())  # results in the order asked
+    r = batch.step([n - 1, 0], np.stack([actions[1], actions[0]]), ObsRequest.state_only())
+    if list(np.asarray(r.envs).tolist()) != [n - 1, 0] or not _same(r.observations[1][OBS_STATE],
+                                                                     together[0]):
+        problems.append(f"step([{n - 1}, 0]) did not return env {n - 1}'s result first and env 0's second")
+
+
+def _batch_refusals(batch: Any, spec: RolloutSpec, n: int, seed: int, problems: list[str]) -> None:
+    """Bad actions change nothing, out-of-bounds actions act clipped, bad indices are refused."""
+    rng = np.random.default_rng(seed + 1)
+    a = _sample_action(spec, rng)
+    batch.reset([0], [seed], ObsRequest.state_only())
+    clean = _copied(batch.step([0], a[None, :], ObsRequest.state_only()).observations[0])
+    batch.reset([0], [seed], ObsRequest.state_only())
+    for bad, what in ((np.zeros((1, spec.action.dim + 1), np.float32), "a too-long action"),
+                      (np.full((1, spec.action.dim), np.nan, np.float32), "a NaN action"),
+                      (np.zeros((2, spec.action.dim), np.float32), "two actions for one environment")):
+        try:
+            batch.step([0], bad, ObsRequest.state_only())
+            problems.append(f"{what} was accepted; expected InvalidActionError")
+        except InvalidActionError:
+            pass
+    if not _same(batch.step([0], a[None, :], ObsRequest.state_only()).observations[0], clean):
+        problems.append("a rejected action changed the episode (the next step differs from a clean run)")
+    big = a + np.where(np.arange(spec.action.dim) % 2 == 0, 100.0, -100.0).astype(np.float32)
+    batch.reset([0], [seed], ObsRequest.state_only())
+    big_obs = _copied(batch.step([0], big[None, :], ObsRequest.state_only()).observations[0])
+    batch.reset([0], [seed], ObsRequest.state_only())
+    clipped = spec.action.clip(big).astype(np.float32)
+    if not _same(batch.step([0], clipped[None, :], ObsRequest.state_only()).observations[0], big_obs):
+        problems.append("an action outside the bounds did not act as spec.action.clip() of it")
+    for envs, what in (([0, 0], "repeated"), ([n], "out of range"), ([-1], "negative")):
+        try:
+            batch.reset(envs, [seed] * len(envs))
+            problems.append(f"reset with {what} environment indices {envs} was accepted; expected ConfigError")
+        except ConfigError:
+            pass

@@ -1,12 +1,12 @@
 """A manifest scene batched on MuJoCo Warp: N worlds in one process on a GPU (or warp's CPU device).
 
 ``BatchedScene`` (batched reset / step / render, device observations) and ``WarpRollout`` (one
-world behind the ``SimRollout`` seam). The scene's semantics come from the CPU ``ManifestScene``;
+world behind the ``SimRollout`` seam), ``WarpBatchRollout`` (the worlds behind the ``BatchRollout`` seam). The scene's semantics come from the CPU ``ManifestScene``;
 the physics and the kernels from ``simseam.engines.mujoco_warp``. Needs the ``warp`` extra:
 ``mujoco-warp`` and ``warp-lang``.
 """
 
 from simseam.scene.warp.batched import BatchedScene, BatchStep, WarpOptions
-from simseam.scene.warp.rollout import WarpRollout, world_observations
+from simseam.scene.warp.rollout import WarpBatchRollout, WarpRollout, world_observations
 
-__all__ = ["BatchStep", "BatchedScene", "WarpOptions", "WarpRollout", "world_observations"]
+__all__ = ["BatchStep", "BatchedScene", "WarpBatchRollout", "WarpOptions", "WarpRollout", "world_observations"]

@@ -1,4 +1,5 @@
-"""Per-world observations of a ``BatchedScene``, and ``WarpRollout``: one world as a ``SimRollout``.
+"""Per-world observations of a ``BatchedScene``; ``WarpRollout``: one world as a ``SimRollout``;
+``WarpBatchRollout``: the worlds as the seam's ``BatchRollout``.
 
 ``world_observations`` turns the batch's arrays (one host copy per step) into the seam's per-world
 observation dicts, honouring each world's ``ObsRequest`` exactly as ``ManifestScene`` does.
@@ -13,6 +14,7 @@ import numpy as np
 from simseam.math3d import matrix_to_quat
 from simseam.seam import (
     INFO_DIAGNOSTICS,
+    BatchStepResult,
     INFO_STEPS,
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
@@ -29,6 +31,7 @@ from simseam.seam import (
     SimulationError,
     StepResult,
 )
+from simseam.seam.batch import Requests, batch_actions, env_indices, per_env_requests
 
 _FULL = ObsRequest()
 
@@ -154,4 +157,67 @@ class WarpRollout:
         self.close()
 
 
-__all__ = ["WarpRollout", "world_observations"]
+class WarpBatchRollout:
+    """The worlds of a ``BatchedScene`` as a ``BatchRollout`` (seam/batch.py): reset and stepped by index.
+    Every control step advances every world's physics (MuJoCo Warp steps them together); a world left
+    out of ``step`` gets a zero action and does not advance its episode (reset it before stepping it)."""
+
+    def __init__(self, robot, task: str, num_envs: int, options=None, warp_options=None):
+        from simseam.scene.warp.batched import BatchedScene
+
+        self.batch = BatchedScene(robot, task, num_envs, options, warp_options)
+        self._seed_stream = np.random.default_rng(self.batch.options.seed)
+        self._started = np.zeros(num_envs, dtype=bool)
+        self._closed = False
+
+    @property
+    def spec(self) -> RolloutSpec:
+        return self.batch.spec
+
+    @property
+    def num_envs(self) -> int:
+        return self.batch.num_envs
+
+    def reset(self, envs, seeds, observe: Requests = None) -> list[Observation]:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "reset")
+        seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
+        requests = per_env_requests(observe, idx.size, "reset")
+        self.batch.reset(idx, seeds)  # a seed count that does not match is its ConfigError
+        self._started[idx] = True
+        return world_observations(self.batch, idx.tolist(), requests)
+
+    def step(self, envs, actions, observe: Requests = None) -> BatchStepResult:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "step")
+        if not self._started[idx].all():
+            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
+        a = batch_actions(self.spec, actions, idx.size)
+        requests = per_env_requests(observe, idx.size, "step")
+        full = np.zeros((self.num_envs, self.spec.action.dim), dtype=np.float32)
+        full[idx] = a
+        r = self.batch.step(full)
+        obs = world_observations(self.batch, idx.tolist(), requests)
+        key = self.spec.task.success_key
+        infos = [{key: bool(r.success[e]), INFO_STEPS: int(r.steps[e]), INFO_DIAGNOSTICS: self.batch.diagnostics(e)}
+                 for e in idx.tolist()]
+        return BatchStepResult(idx, obs, r.reward[idx], r.terminated[idx], r.truncated[idx], infos)
+
+    def render(self, env: int) -> np.ndarray | None:
+        self._check_open()
+        (e,) = env_indices([env], self.num_envs, "render")
+        if self.batch.rc is None:
+            return None
+        return self.batch.render()[next(iter(self.batch.cameras))].numpy()[int(e)]
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.batch.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the batch is closed")
+
+
+__all__ = ["WarpBatchRollout", "WarpRollout", "world_observations"]

@@ -1,0 +1,193 @@
+"""``BatchRollout``: N environments of one rollout, driven together (the seam for batching).
+
+A batch is N copies of one rollout (``spec`` describes each of them), indexed ``0 .. num_envs-1``.
+``reset`` and ``step`` name the environments they act on, so a runner can start a new episode in
+one environment while the others carry on, and a simulator that batches natively (N worlds on a
+GPU) implements the same contract as N separate rollouts (``SyncBatchRollout``).
+
+Contract (checked by ``simseam.seam.check_batch_rollout``):
+
+- ``spec`` describes each environment and never changes; ``num_envs`` >= 1 never changes.
+- ``reset(envs, seeds, observe)`` starts a new episode in each of ``envs`` (distinct indices) with
+  its seed (``None``: drawn from the batch's own stream) and returns their observations, in the
+  order of ``envs``. The same seed gives the same episode in any environment, whatever the others
+  do. The others are untouched.
+- ``step(envs, actions, observe)`` advances the episodes of ``envs`` by one control step;
+  ``actions`` is ``float32[len(envs), spec.action.dim]``, row ``i`` for ``envs[i]``. A wrong shape or
+  a non-finite value raises ``InvalidActionError`` and changes nothing; values outside the slot
+  bounds are clipped. An environment left out of a step does not advance its episode, but a
+  batched simulator may keep simulating it: reset it before stepping it again.
+- ``observe`` is ``None`` (everything), one ``ObsRequest`` for all, or one per environment.
+- ``render(env)``: ``uint8[H, W, 3]`` of that environment's first RGB camera, or None.
+- ``close()`` releases everything; calling it twice is harmless; a closed batch refuses to reset.
+- Bad environment indices (repeated, out of range) raise ``ConfigError``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from simseam.seam.errors import ConfigError, InvalidActionError, SimulationError
+from simseam.seam.request import ObsRequest
+from simseam.seam.rollout import Observation, StepResult
+from simseam.seam.spec import RolloutSpec
+
+Requests = ObsRequest | Sequence[ObsRequest | None] | None
+
+
+@dataclass(frozen=True)
+class BatchStepResult:
+    """What ``BatchRollout.step`` returns: one entry per stepped environment, in the order asked."""
+
+    envs: np.ndarray  # int64[k]
+    observations: list[Observation]
+    reward: np.ndarray  # float32[k]
+    terminated: np.ndarray  # bool[k]
+    truncated: np.ndarray  # bool[k]
+    infos: list[dict[str, Any]] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.envs)
+
+    def __getitem__(self, i: int) -> StepResult:
+        """The ``i``-th stepped environment's result, as a single rollout's ``StepResult``."""
+        return StepResult(self.observations[i], float(self.reward[i]), bool(self.terminated[i]),
+                          bool(self.truncated[i]), self.infos[i])
+
+    @classmethod
+    def of(cls, envs: Sequence[int], results: Sequence[StepResult]) -> "BatchStepResult":
+        """Stack single-rollout results (one per environment of ``envs``)."""
+        return cls(np.asarray(envs, dtype=np.int64), [r.observation for r in results],
+                   np.array([r.reward for r in results], dtype=np.float32),
+                   np.array([r.terminated for r in results], dtype=bool),
+                   np.array([r.truncated for r in results], dtype=bool), [r.info for r in results])
+
+
+@runtime_checkable
+class BatchRollout(Protocol):
+    """``num_envs`` environments of one rollout, reset and stepped by index (see the module docstring)."""
+
+    @property
+    def spec(self) -> RolloutSpec: ...
+
+    @property
+    def num_envs(self) -> int: ...
+
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None],
+              observe: Requests = None) -> list[Observation]: ...
+
+    def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult: ...
+
+    def render(self, env: int) -> np.ndarray | None: ...
+
+    def close(self) -> None: ...
+
+
+def env_indices(envs: Sequence[int], num_envs: int, where: str) -> np.ndarray:
+    """``envs`` as int64[k]: distinct and in ``[0, num_envs)``, else a ``ConfigError`` naming ``where``."""
+    out = np.asarray(envs, dtype=np.int64).reshape(-1)
+    if out.size and (out.min() < 0 or out.max() >= num_envs):
+        raise ConfigError(f"{where}: environment indices must be in [0, {num_envs}), got {out.tolist()}")
+    if len(set(out.tolist())) != out.size:
+        raise ConfigError(f"{where}: environment indices must be distinct, got {out.tolist()}")
+    return out
+
+
+def per_env_requests(observe: Requests, k: int, where: str) -> list[ObsRequest | None]:
+    """``observe`` as one request (or None) per environment."""
+    if observe is None or isinstance(observe, ObsRequest):
+        return [observe] * k
+    requests = list(observe)
+    if len(requests) != k:
+        raise ConfigError(f"{where}: {len(requests)} observation requests for {k} environments")
+    return requests
+
+
+def batch_actions(spec: RolloutSpec, actions: Any, k: int) -> np.ndarray:
+    """``actions`` as float32[k, dim], each row checked like a single rollout's action
+    (``InvalidActionError`` naming the row); before anything is stepped."""
+    try:
+        a = np.asarray(actions, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise InvalidActionError(f"actions are not numeric: {type(actions).__name__}") from None
+    if a.shape != (k, spec.action.dim):
+        raise InvalidActionError(f"actions must have shape ({k}, {spec.action.dim}), got {tuple(np.shape(a))}")
+    out = np.empty((k, spec.action.dim), dtype=np.float32)
+    for i in range(k):
+        try:
+            out[i] = spec.action.validate(a[i])
+        except InvalidActionError as exc:
+            raise InvalidActionError(f"actions[{i}]: {exc}") from None
+    return out
+
+
+class SyncBatchRollout:
+    """A ``BatchRollout`` over separate single rollouts of one spec (in-process scenes, sidecars), stepped
+    one after another in this process: the batch of any backend that does not batch itself."""
+
+    def __init__(self, rollouts: Sequence[Any]):
+        if not rollouts:
+            raise ConfigError("a batch needs at least one rollout")
+        self.rollouts = list(rollouts)
+        spec = self.rollouts[0].spec
+        for i, r in enumerate(self.rollouts[1:], 1):
+            if r.spec != spec:
+                raise ConfigError(f"rollout {i} of the batch has another spec than rollout 0")
+        self._spec = spec
+        self._closed = False
+
+    @property
+    def spec(self) -> RolloutSpec:
+        return self._spec
+
+    @property
+    def num_envs(self) -> int:
+        return len(self.rollouts)
+
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe: Requests = None) -> list[Observation]:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "reset")
+        seeds = list(seeds)
+        if len(seeds) != idx.size:
+            raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
+        requests = per_env_requests(observe, idx.size, "reset")
+        return [self.rollouts[e].reset(s, q) for e, s, q in zip(idx.tolist(), seeds, requests)]
+
+    def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "step")
+        a = batch_actions(self._spec, actions, idx.size)
+        requests = per_env_requests(observe, idx.size, "step")
+        results = [self.rollouts[e].step(a[i], q) for i, (e, q) in enumerate(zip(idx.tolist(), requests))]
+        return BatchStepResult.of(idx, results)
+
+    def render(self, env: int) -> np.ndarray | None:
+        self._check_open()
+        (e,) = env_indices([env], self.num_envs, "render")
+        return self.rollouts[int(e)].render()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        errors = []
+        for r in self.rollouts:
+            try:
+                r.close()
+            except Exception as exc:  # every rollout gets its close; the first failure is reported
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the batch is closed")
+
+    def __enter__(self) -> "SyncBatchRollout":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
