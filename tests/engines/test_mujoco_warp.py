@@ -197,7 +197,7 @@ def test_the_worlds_keep_the_batched_seam_contract_with_cameras(panda):
     """WarpBatchRollout: the worlds reset and stepped by index (check_batch_rollout), each world's rows
     against the single-world rollout on the same seed and actions."""
     opts = SceneOptions(image_size=(24, 32), privileged=True)
-    batch = WarpBatchRollout(panda, "lift_cube", 3, opts)
+    batch = WarpBatchRollout.build(panda, "lift_cube", 3, opts)
     one = WarpRollout(panda, "lift_cube", opts)
     try:
         a = np.full(batch.spec.action.dim, 0.4, np.float32)

@@ -159,16 +159,23 @@ class WarpRollout:
 
 class WarpBatchRollout:
     """The worlds of a ``BatchedScene`` as a ``BatchRollout`` (seam/batch.py): reset and stepped by index.
-    Every control step advances every world's physics (MuJoCo Warp steps them together); a world left
-    out of ``step`` gets a zero action and does not advance its episode (reset it before stepping it)."""
+    Every control step advances every world's physics (MuJoCo Warp steps them together). A world left
+    out of ``step`` does not advance its episode; it holds still meanwhile (a zero Cartesian delta, or
+    its last joint targets) and must be reset before it is stepped again."""
 
-    def __init__(self, robot, task: str, num_envs: int, options=None, warp_options=None):
+    def __init__(self, scene):
+        self.batch = scene
+        self._seed_stream = np.random.default_rng(scene.options.seed)
+        self._started = np.zeros(scene.num_envs, dtype=bool)
+        self._hold = np.zeros((scene.num_envs, scene.spec.action.dim), dtype=np.float32)
+        self._hold_last = scene.spec.action.control_mode.value == "joint_position"
+        self._closed = False
+
+    @classmethod
+    def build(cls, robot, task: str, num_envs: int, options=None, warp_options=None) -> "WarpBatchRollout":
         from simseam.scene.warp.batched import BatchedScene
 
-        self.batch = BatchedScene(robot, task, num_envs, options, warp_options)
-        self._seed_stream = np.random.default_rng(self.batch.options.seed)
-        self._started = np.zeros(num_envs, dtype=bool)
-        self._closed = False
+        return cls(BatchedScene(robot, task, num_envs, options, warp_options))
 
     @property
     def spec(self) -> RolloutSpec:
@@ -189,19 +196,41 @@ class WarpBatchRollout:
 
     def step(self, envs, actions, observe: Requests = None) -> BatchStepResult:
         self._check_open()
+        idx = self._stepped(envs)
+        a = batch_actions(self.spec, actions, idx.size)
+        requests = per_env_requests(observe, idx.size, "step")
+        full = self._hold.copy() if self._hold_last else np.zeros_like(self._hold)
+        full[idx] = a
+        if self._hold_last:
+            self._hold = full
+        r = self.batch.step(full)
+        return self._result(idx, r, world_observations(self.batch, idx.tolist(), requests))
+
+    def device_observation(self) -> dict:
+        """Every world's observation as device arrays (``BatchedScene.device_observation``)."""
+        self._check_open()
+        return self.batch.device_observation()
+
+    def step_device(self, actions, envs) -> BatchStepResult:
+        """One control step of every world with device actions ``[num_envs, dim]`` (a policy's
+        ``act_device``: no host copy); the result covers ``envs``, without observations (read them
+        with ``device_observation``)."""
+        self._check_open()
+        idx = self._stepped(envs)
+        r = self.batch.step(actions)
+        return self._result(idx, r, [{} for _ in range(idx.size)])
+
+    def _stepped(self, envs) -> np.ndarray:
         idx = env_indices(envs, self.num_envs, "step")
         if not self._started[idx].all():
             raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
-        a = batch_actions(self.spec, actions, idx.size)
-        requests = per_env_requests(observe, idx.size, "step")
-        full = np.zeros((self.num_envs, self.spec.action.dim), dtype=np.float32)
-        full[idx] = a
-        r = self.batch.step(full)
-        obs = world_observations(self.batch, idx.tolist(), requests)
+        return idx
+
+    def _result(self, idx: np.ndarray, r, observations: list) -> BatchStepResult:
         key = self.spec.task.success_key
         infos = [{key: bool(r.success[e]), INFO_STEPS: int(r.steps[e]), INFO_DIAGNOSTICS: self.batch.diagnostics(e)}
                  for e in idx.tolist()]
-        return BatchStepResult(idx, obs, r.reward[idx], r.terminated[idx], r.truncated[idx], infos)
+        return BatchStepResult(idx, observations, r.reward[idx], r.terminated[idx], r.truncated[idx], infos)
 
     def render(self, env: int) -> np.ndarray | None:
         self._check_open()
