@@ -57,3 +57,17 @@ def test_a_policy_answering_the_wrong_shape_stops_the_run_by_name(panda_spec):
     with _batch(panda_spec, 2) as batch:
         with pytest.raises(SimulationError, match=r"act_batch returned shape \(2, 3\) for 2 environments"):
             run_batch(batch, Short(lambda: make_policy("zero"), 2), INDICES)
+
+
+def test_a_lost_episode_goes_back_to_the_front_until_its_last_attempt():
+    from simseam.runner.scheduler import EpisodeQueue
+
+    q = EpisodeQueue([3, 4, 5], seed=100, max_attempts=2)
+    assert q.next() == 3
+    what, res = q.lost(3, lambda n: f"lost {n} times")
+    assert (what, res) == ("episode 3 goes back to the queue (attempt 2 of 2)", None)
+    assert q.next() == 3  # first again
+    what, res = q.lost(3, lambda n: f"lost {n} times")
+    assert what == "episode 3 failed 2 times; recorded as an error"
+    assert (res.index, res.seed, res.success, res.steps, res.error) == (3, 103, False, 0, "lost 2 times")
+    assert [q.next(), q.next()] == [4, 5] and not q

@@ -26,9 +26,9 @@ is refused (each node would write its own disk).
 from __future__ import annotations
 
 import os
-from collections import deque
 from typing import Any, Callable, Sequence
 
+from simseam.runner.scheduler import EpisodeQueue
 from simseam.runner.vector import RolloutRecipe, WorkerFailure
 from simseam.seam import ConfigError, SimseamError, SimulationError
 
@@ -107,8 +107,7 @@ def run_on_ray(address: str, recipe: RolloutRecipe, policy: str, policy_kwargs: 
     starting: dict[Any, Any] = {}  # ready-ref -> actor (building its rollout)
     idle: list = []
     busy: dict[Any, tuple] = {}  # result-ref -> (actor, index)
-    todo = deque(indices)
-    attempts: dict[int, int] = {}
+    todo = EpisodeQueue(indices, seed, max_attempts)
     results: list[dict] = []
     spec_seen = False
     actor_ids: dict[Any, int] = {}
@@ -126,22 +125,14 @@ def run_on_ray(address: str, recipe: RolloutRecipe, policy: str, policy_kwargs: 
             ray.kill(actor)
         except Exception:  # noqa: BLE001  (already gone)
             pass
-        what = "no episode in flight"
+        what, res = "no episode in flight", None
         if index is not None:
-            attempts[index] = attempts.get(index, 0) + 1
-            if attempts[index] < max_attempts:
-                todo.appendleft(index)
-                what = f"episode {index} goes back to the queue (attempt {attempts[index] + 1} of {max_attempts})"
-            else:
-                what = f"episode {index} failed {attempts[index]} times; recorded as an error"
-                entry = {"index": index, "seed": seed + index, "success": False, "steps": 0, "reward": 0.0,
-                         "step_latency_ms": {"mean": None, "p50": None, "p90": None},
-                         "policy_latency_ms": {"mean": None, "p50": None, "p90": None}, "video": None,
-                         "error": f"Ray worker lost {attempts[index]} times ({type(exc).__name__})",
-                         "diagnostics": {}}
-                results.append(entry)
-                if on_done:
-                    on_done(entry)
+            what, res = todo.lost(index, lambda n: f"Ray worker lost {n} times ({type(exc).__name__})")
+        if res is not None:
+            entry = res.to_json()
+            results.append(entry)
+            if on_done:
+                on_done(entry)
         if on_worker_failure:
             node = nodes.get(actor)
             on_worker_failure(WorkerFailure(env=-1, index=index, exitcode=None,
@@ -156,7 +147,7 @@ def run_on_ray(address: str, recipe: RolloutRecipe, policy: str, policy_kwargs: 
         while todo or busy:
             while idle and todo:
                 actor = idle.pop()
-                i = todo.popleft()
+                i = todo.next()
                 busy[actor.run.remote(i, seed)] = (actor, i)
             waiting = list(busy) + list(starting)
             if not waiting:

@@ -25,12 +25,43 @@ from simseam.runner.episodes import EpisodeResult
 from simseam.seam import INFO_DIAGNOSTICS, SimulationError
 
 
-class _Episodes:
-    """The queue of episode indices and the episode each environment is playing."""
+class EpisodeQueue:
+    """The episodes still to run (episode ``i`` uses seed ``seed + i``), and how often each was lost with
+    the worker that ran it: every executor's queue and its one retry rule (worker processes, Ray)."""
 
-    def __init__(self, indices: Sequence[int], n: int, seed: int):
+    def __init__(self, indices: Sequence[int], seed: int = 0, max_attempts: int = 3):
         self.todo = deque(indices)
         self.seed = seed
+        self.max_attempts = max_attempts
+        self.attempts: dict[int, int] = {}
+
+    def __bool__(self) -> bool:
+        return bool(self.todo)
+
+    def next(self) -> int:
+        return self.todo.popleft()
+
+    def new_result(self, index: int) -> EpisodeResult:
+        return EpisodeResult(index=index, seed=self.seed + index, success=False, steps=0, reward=0.0)
+
+    def lost(self, index: int, error: Callable[[int], str]) -> tuple[str, EpisodeResult | None]:
+        """Episode ``index`` was lost with its worker: it goes back to the front of the queue, or after
+        ``max_attempts`` losses it is recorded as an error (``error(times)`` says what happened). Returns
+        what happens next, in words, and the error result when there is one."""
+        n = self.attempts[index] = self.attempts.get(index, 0) + 1
+        if n < self.max_attempts:
+            self.todo.appendleft(index)
+            return f"episode {index} goes back to the queue (attempt {n + 1} of {self.max_attempts})", None
+        res = self.new_result(index)
+        res.error = error(n)
+        return f"episode {index} failed {n} times; recorded as an error", res
+
+
+class _Episodes(EpisodeQueue):
+    """The queue, and the episode each environment of a batch is playing."""
+
+    def __init__(self, indices: Sequence[int], n: int, seed: int):
+        super().__init__(indices, seed)
         self.playing: list[EpisodeResult | None] = [None] * n
 
     def busy(self) -> list[int]:
@@ -42,8 +73,7 @@ class _Episodes:
         for env in envs:
             if not self.todo:
                 break
-            i = self.todo.popleft()
-            self.playing[env] = EpisodeResult(index=i, seed=self.seed + i, success=False, steps=0, reward=0.0)
+            self.playing[env] = self.new_result(self.next())
             started.append(env)
         return started
 

@@ -43,7 +43,6 @@ import select
 import signal
 import struct
 import time
-from collections import deque
 from dataclasses import dataclass
 from multiprocessing import reduction
 from multiprocessing.connection import wait as wait_any
@@ -53,6 +52,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
+from simseam.runner.scheduler import EpisodeQueue
 from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
 from simseam.sidecar.local import SPIN_ENV, spin_until_readable
@@ -753,8 +753,7 @@ class VectorEnv:
         spec = self.spec
         max_steps = spec.task.max_steps
         key = spec.task.success_key
-        todo = deque(indices)
-        attempts: dict[int, int] = {}
+        todo = EpisodeQueue(indices, seed, max_attempts)
         results: list[EpisodeResult] = []
         central = self.central
         if central is not None:
@@ -798,23 +797,16 @@ class VectorEnv:
                 s.proc.kill()
                 s.proc.join(5.0)
             exitcode = s.proc.exitcode
-            what = "no episode in flight"
+            what, res = "no episode in flight", None
             if i is not None:
-                attempts[i] = attempts.get(i, 0) + 1
-                if attempts[i] < max_attempts:
-                    todo.appendleft(i)
-                    what = f"episode {i} goes back to the queue (attempt {attempts[i] + 1} of {max_attempts})"
-                else:
-                    what = f"episode {i} failed {attempts[i]} times; recorded as an error"
+                what, res = todo.lost(i, lambda n: f"worker process died {n} times (last exit code {exitcode})")
             s.index, s.result, s.obs = None, None, None
             drop_video(s)
             self._spawn(s)
             self.restarts += 1
             if on_worker_failure:
                 on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
-            if i is not None and attempts[i] >= max_attempts:
-                res = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
-                                    error=f"worker process died {attempts[i]} times (last exit code {exitcode})")
+            if res is not None:
                 results.append(res)
                 if on_done:
                     on_done(res)
@@ -832,8 +824,8 @@ class VectorEnv:
             if msg[0] == "fatal":
                 raise msg[1]
             if msg[0] == "episode_error":
-                res = EpisodeResult(index=s.index, seed=seed + s.index, success=False, steps=0, reward=0.0,
-                                    error=msg[1])
+                res = todo.new_result(s.index)
+                res.error = msg[1]
                 if on_error:
                     on_error(res, msg[2])
                 return finish(s, res)
@@ -880,7 +872,7 @@ class VectorEnv:
             policy.reset(s.env, spec)
             video = str(video_dir / f"episode_{i:03d}.mp4") if video_dir is not None else None
             s.index, s.state, s.video = i, RESETTING, video is not None
-            s.result = EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0)
+            s.result = todo.new_result(i)
             if on_start:
                 on_start(s.env, i)
             want = policy.observe_next(s.env)
@@ -897,7 +889,7 @@ class VectorEnv:
         while True:
             for s in self.slots:
                 if s.state == IDLE and todo:
-                    start(s, todo.popleft())
+                    start(s, todo.next())
             busy = [s for s in self.slots if s.state in (RESETTING, STEPPING)]
             booting = [s for s in self.slots if s.state == BOOTING]
             acting = [s for s in self.slots if s.state == ACTING]
@@ -960,8 +952,7 @@ class VectorEnv:
             raise ConfigError("renderer 'batched' draws the frames in this process, so it steps the workers "
                               "together (run); run_local keeps the policy and its cameras inside each worker")
         spec_key = (policy, tuple(sorted((policy_kwargs or {}).items())))
-        todo = deque(indices)
-        attempts: dict[int, int] = {}
+        todo = EpisodeQueue(indices, seed, max_attempts)
         results: list[EpisodeResult] = []
 
         def done(res: EpisodeResult) -> None:
@@ -972,7 +963,7 @@ class VectorEnv:
         while todo or any(s.state == STEPPING for s in self.slots):
             for s in self.slots:
                 if s.state == IDLE and todo:
-                    s.index, s.state = todo.popleft(), STEPPING
+                    s.index, s.state = todo.next(), STEPPING
                     self._send(s, ("episode", s.index, seed, spec_key, str(video_dir) if video_dir else None))
             watch = [s for s in self.slots if s.state in (STEPPING, BOOTING)]
             if not any(s.state == STEPPING for s in watch) and not todo:
@@ -998,23 +989,14 @@ class VectorEnv:
                         s.proc.kill()
                         s.proc.join(5.0)
                     exitcode = s.proc.exitcode
-                    attempts[i] = attempts.get(i, 0) + 1
-                    again = attempts[i] < max_attempts
-                    if again:
-                        todo.appendleft(i)
+                    what, res = todo.lost(i, lambda n: f"worker process died {n} times (last exit code {exitcode})")
                     s.index = None
                     self._spawn(s)
                     self.restarts += 1
                     if on_worker_failure:
-                        on_worker_failure(WorkerFailure(
-                            env=s.env, index=i, exitcode=exitcode,
-                            what_next=(f"episode {i} goes back to the queue (attempt {attempts[i] + 1} of "
-                                       f"{max_attempts})") if again else
-                            f"episode {i} failed {attempts[i]} times; recorded as an error"))
-                    if not again:
-                        done(EpisodeResult(index=i, seed=seed + i, success=False, steps=0, reward=0.0,
-                                           error=f"worker process died {attempts[i]} times (last exit code "
-                                                 f"{exitcode})"))
+                        on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
+                    if res is not None:
+                        done(res)
                     continue
                 if msg[0] == "fatal":
                     raise msg[1]
