@@ -5,6 +5,7 @@ from pathlib import Path
 
 import imageio.v2 as imageio
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from simseam.cli.main import app
@@ -77,3 +78,19 @@ def test_eval_help_names_every_preset():
     res = runner.invoke(app, ["eval", "--help"], env={"COLUMNS": "400"})
     assert res.exit_code == 0
     assert len(PRESETS) >= 11 and all(name in res.output for name in PRESETS), res.output
+
+
+@pytest.mark.parametrize("extra", [[], ["--num-envs", "2"]])
+def test_run_parses_the_scene_file_once(tmp_path, monkeypatch, extra):
+    """One parse per command, whichever path runs the episodes (the workers get the parsed config)."""
+    import simseam.runner.scene_config as scene_config
+
+    calls = []
+    real = scene_config.load_scene_config
+    monkeypatch.setattr(scene_config, "load_scene_config", lambda path: calls.append(path) or real(path))
+    scene = REPO / "scenes" / "franka_lift_state.yaml"
+    r = runner.invoke(app, ["run", "--scene", str(scene), "--policy", "zero", "--episodes", "2",
+                                 "--out", str(tmp_path / "run"), *extra])
+    assert r.exit_code == 0, r.output
+    assert calls == [scene]
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["n_episodes"] == 2

@@ -65,11 +65,12 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
                             keep_failures=keep_failures, on_start=start, on_done=done, on_error=error)
 
 
-def _open_run(scene: Path, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):
+def _open_run(scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):
+    """The policy and the rollout of a loaded scene file (``(cfg, base_dir)``, parsed once per command)."""
     from simseam.policies.base import make_policy
-    from simseam.runner.scene_config import build_rollout, load_scene_config
+    from simseam.runner.scene_config import build_rollout
 
-    cfg, base_dir = load_scene_config(scene)
+    cfg, base_dir = scene_file
     pol = make_policy(policy, **policy_kwargs)
     with console.status("building the scene") as status:
         rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged,
@@ -133,7 +134,7 @@ def run(
         if ray_address is not None and (record_dataset is not None or video):
             raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
                               "to its own disk)")
-        cfg, _ = load_scene_config(scene)
+        cfg, base_dir = load_scene_config(scene)  # the one parse of the scene file
         from simseam.runner.central_render import RENDERERS, unsupported
 
         if renderer not in RENDERERS:
@@ -160,7 +161,7 @@ def run(
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
     if ray_address is not None:
-        _run_ray(ray_address, scene, policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
+        _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
         return
     if num_envs is None:
@@ -168,11 +169,11 @@ def run(
 
         num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
     if num_envs > 1 or renderer == "batched":
-        _run_vector(scene, policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
+        _run_vector(scene, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                     num_envs=num_envs, video=video, planned=len(planned), renderer=renderer)
         return
     try:
-        cfg, pol, rollout = _open_run(scene, policy, seed, policy_kwargs(device, n_action_steps),
+        cfg, pol, rollout = _open_run((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps),
                                       need_images=record_dataset is not None)
     except SimseamError as exc:
         run_dir.close()
@@ -211,18 +212,17 @@ def run(
                       f"in {escape(str(record_dataset))}")
 
 
-def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path, todo: list[int], *,
-                num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
+def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
+                todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import shared_batch
     from simseam.runner.run_dir import rebuild_summary
-    from simseam.runner.scene_config import load_scene_config
     from simseam.runner.vector import RolloutRecipe, VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
     vec = pol = None
-    cfg, _ = load_scene_config(scene)
+    cfg, base_dir = scene_file
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
         run_dir.close()
         fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
@@ -231,7 +231,6 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
     spec_json = None
     interrupted = False
     try:
-        cfg, base_dir = load_scene_config(scene)
         with console.status(f"loading the policy for {num_envs} environments"):
             probe = make_policy(policy, **policy_kwargs)
             pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
@@ -293,15 +292,15 @@ def _run_vector(scene: Path, policy: str, seed: int, policy_kwargs: dict, run_di
     _finish_run(out, spec_json, interrupted, planned)
 
 
-def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
+def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
              todo: list[int], *, num_workers: int | None, planned: int) -> None:
     """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
     from simseam.policies.base import make_policy
     from simseam.runner.ray_eval import run_on_ray
     from simseam.runner.run_dir import rebuild_summary
-    from simseam.runner.scene_config import load_scene_config
     from simseam.runner.vector import RolloutRecipe
 
+    cfg, base_dir = scene_file
     spec_json = None
     interrupted = False
     progress = EvalProgress(console, total=len(todo))
@@ -316,7 +315,6 @@ def _run_ray(address: str, scene: Path, policy: str, seed: int, policy_kwargs: d
         progress.done(entry)
 
     try:
-        cfg, base_dir = load_scene_config(scene)
         probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
@@ -428,7 +426,9 @@ def collect(
         check_writable(out)
         if out.exists() and any(out.iterdir()) and not overwrite:
             raise ConfigError(f"dataset directory {out} already exists; pick a new --out or pass --overwrite")
-        _, pol, rollout = _open_run(scene, policy, seed, {}, need_images=cameras)
+        from simseam.runner.scene_config import load_scene_config
+
+        _, pol, rollout = _open_run(load_scene_config(scene), policy, seed, {}, need_images=cameras)
         if action_noise > 0:
             from simseam.runner.action_noise import ActionNoise
 
