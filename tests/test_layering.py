@@ -95,3 +95,21 @@ def test_the_walk_sees_imports_inside_functions_and_relative_ones():
     """(Without them the layering check above would pass vacuously on lazy imports.)"""
     source = "import numpy\ndef f():\n    from ..scene import manifest_scene\n    import simseam.cli.main\n"
     assert [m for _, m in _imports(source, ("simseam", "engines"))] == ["simseam.scene", "simseam.cli.main"]
+
+
+def _foreign_private_reads(source: str) -> list[str]:
+    """``x._name`` where ``x`` is not ``self`` / ``cls``: reaching into another object's internals."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+                and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))):
+            found.append(f"{ast.unparse(node)} (line {node.lineno})")
+    return found
+
+
+def test_the_gpu_scene_reads_the_scenes_public_plan_not_its_internals():
+    """scene/warp builds N worlds from a ManifestScene: through ``plan``, ``engine.layout``,
+    ``chain.arrays`` and ``base_frame()``, never a private attribute of another object."""
+    assert _foreign_private_reads("host._arm_idx\nself._ok\nchain.arrays") == ["host._arm_idx (line 1)"]
+    found = {p.name: _foreign_private_reads(p.read_text()) for p in sorted((SRC / "scene" / "warp").glob("*.py"))}
+    assert not any(found.values()), found

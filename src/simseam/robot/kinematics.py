@@ -25,6 +25,20 @@ class IKResult:
     iterations: int
 
 
+@dataclass(frozen=True)
+class ChainArrays:
+    """A chain's constants in chain order, for batched kinematics elsewhere (the MuJoCo Warp kernels):
+    ``q_index[k]``: which of the chain's joint names (its ``q`` order) is the k-th joint along the chain;
+    ``fixed[k]``: the 4x4 transform before joint k; ``axes[k]``: its unit axis; ``prismatic[k]``;
+    ``tail``: the transform after the last joint (to the tool frame)."""
+
+    q_index: np.ndarray
+    fixed: np.ndarray
+    axes: np.ndarray
+    prismatic: np.ndarray
+    tail: np.ndarray
+
+
 class SerialChain:
     """The joints between ``base_link`` and ``tip_link``.
 
@@ -88,6 +102,11 @@ class SerialChain:
         self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
+
+    @property
+    def arrays(self) -> ChainArrays:
+        return ChainArrays(self._q_from_names.copy(), self._fixed_arr.copy(), self._axes_arr.copy(),
+                           self._prism.copy(), self._tail.copy())
 
     @classmethod
     def of_robot(cls, robot: RobotFacts) -> "SerialChain":

@@ -89,6 +89,32 @@ class SceneOptions:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class ScenePlan:
+    """What a built scene compiled, fixed for its life: the public description another implementation of
+    the same scene reads (the MuJoCo Warp batch) instead of the scene's internals.
+
+    ``substeps`` physics steps per control step, run in ``chunks`` with the servo setpoint at ``ramp``
+    of the way to the new target after each; ``joints``: the engine's joints (the manifest's, less a
+    kinematic base), ``joint_index[k]``: joint k's place in the manifest; ``arm_idx`` / ``grip_idx``:
+    the arm's and the gripper's joints among ``joints``; ``home``: their reset positions; the tool frame
+    (``tool_pos``, ``tool_rot``) on the tool link; ``state_names``: the task's state vector;
+    ``cameras``: the RGB cameras as (sensor name, feature key, (H, W))."""
+
+    substeps: int
+    chunks: tuple[int, ...]
+    ramp: tuple[float, ...]
+    joints: tuple
+    joint_index: np.ndarray
+    arm_idx: np.ndarray
+    grip_idx: np.ndarray
+    home: np.ndarray
+    tool_pos: np.ndarray
+    tool_rot: np.ndarray
+    state_names: tuple[str, ...]
+    cameras: tuple[tuple[str, str, tuple[int, int]], ...]
+
+
 class ManifestScene:
     """A ``SimRollout`` built from a ``RobotSpec`` and a task name."""
 
@@ -139,6 +165,10 @@ class ManifestScene:
         t = np.cumsum(self._chunks) / self._substeps / RAMP_FRACTION
         self._ramp = np.where(t >= 1.0, 1.0, t * t * (3.0 - 2.0 * t)).tolist()  # smoothstep
         self._spec = self._describe(task)
+        self.plan = ScenePlan(self._substeps, tuple(self._chunks), tuple(self._ramp), tuple(self._ejoints),
+                              self._eidx.copy(), self._arm_idx.copy(), self._grip_idx.copy(), self._home.copy(),
+                              self._tool_pos.copy(), self._tool_rot.copy(), tuple(self._state_names),
+                              tuple((n, k, self._sizes[n]) for n, k in self._rgb))
         self._seed_stream = np.random.default_rng(opts.seed)
         self._episode_ready = False
         self._closed = False
@@ -364,6 +394,10 @@ class ManifestScene:
             return self._kbase.pose.copy()
         r = self._base_rot
         return np.array([self._base_pos[0], self._base_pos[1], math.atan2(r[1, 0], r[0, 0])])
+
+    def base_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """The base link's frame in the world now: (position[3], rotation 3x3)."""
+        return self._base_pos.copy(), self._base_rot.copy()
 
     def link_in_base(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """Measured pose of a robot link in the base frame: (rot 3x3, pos 3)."""

@@ -17,6 +17,7 @@ from __future__ import annotations
 import re
 import warnings
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -149,6 +150,24 @@ def _mount_to_mjcam(quat: tuple[float, ...]) -> np.ndarray:
     q = np.zeros(4)
     mujoco.mju_mat2Quat(q, cam.reshape(-1))
     return q
+
+
+@dataclass(frozen=True)
+class ModelLayout:
+    """Where the robot and the objects live in the compiled ``MjModel`` (fixed once built), for code that
+    runs the same model elsewhere (MuJoCo Warp): per robot joint (``RobotModel.joints`` order) its qpos
+    and qvel address and its actuator; per object its body and, when it moves freely, its free joint's
+    qpos / qvel address; per geom its owner code (0 world, 1 robot, k+2 the k-th object), ``owner_code``
+    by name."""
+
+    joint_qadr: np.ndarray
+    joint_vadr: np.ndarray
+    actuators: np.ndarray
+    object_body: dict
+    object_qadr: dict
+    object_vadr: dict
+    geom_owner: np.ndarray
+    owner_code: dict
 
 
 class MujocoEngine:
@@ -372,6 +391,23 @@ class MujocoEngine:
             owner[self._obj_body[o.name]] = k + 2
             self._owner_code[o.name] = k + 2
         self._geom_owner = owner[m.geom_bodyid]
+
+    @property
+    def layout(self) -> ModelLayout:
+        """The compiled model's addresses (``ModelLayout``); after ``build``."""
+        if self.model is None:
+            raise SimulationError("the engine is not built yet")
+        return ModelLayout(self._qadr.copy(), self._vadr.copy(), self._act.copy(), dict(self._obj_body),
+                           dict(self._obj_qadr), dict(self._obj_vadr), self._geom_owner.copy(),
+                           dict(self._owner_code))
+
+    def pose_qpos(self, qpos: np.ndarray) -> None:
+        """Put the whole ``qpos`` into the model and bring body poses up to date (kinematics only), to read
+        link poses of a state computed elsewhere (one world of a MuJoCo Warp batch). Velocities and
+        contacts are left as they were: reset before stepping again."""
+        self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        self._stale = False
 
     def robot_visual_geoms(self) -> int:
         """How many robot geoms render (group 2: the URDF's visuals, else its collision geometry)."""

@@ -6,8 +6,11 @@ built from the same robot, task and options, and provides
 - the compiled ``MjModel`` (the very model the CPU engine steps, put on the device once),
 - the ``RolloutSpec`` (action slots and bounds from the same controllers; ``engine`` says
   ``mujoco_warp``),
-- the chain constants of its IK (``SerialChain``), the gripper mapping, the ramp of the servo
-  setpoints, the task's constants,
+- what it compiled, through public views only: ``host.plan`` (``ScenePlan``: substeps and the
+  servo ramp, joints, arm and gripper indices, home, tool frame, state names, cameras),
+  ``host.engine.layout`` (``ModelLayout``: qpos/qvel addresses, actuators, object bodies, geom
+  owners), ``host.chain.arrays`` (``ChainArrays``: the IK chain's constants), ``host.base_frame()``,
+  the controllers' gains and the tasks' constants (module constants),
 - each world's reset state: ``reset`` runs the host scene's own reset for the world's seed (the
   task's randomisation and the 0.1 s settle, on the CPU) and copies the settled state into that
   world's row. A reset therefore starts from exactly the CPU engine's state.
@@ -105,16 +108,17 @@ class BatchedScene:
         self._spec = dataclasses.replace(spec, engine="mujoco_warp")
         mode = spec.action.control_mode
         self._cartesian = mode == ControlMode.CARTESIAN_DELTA
-        n_arm = len(host._arm_idx)
+        plan = host.plan
+        n_arm = len(plan.arm_idx)
         if self._cartesian and n_arm < 3:
             raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 3 arm joints; robot "
                               f"{robot.name!r} has {n_arm} (use control_mode: joint_position)")
         self.task_name = task
         mjm = host.engine.model
         self.mjm = mjm
-        self.substeps = host._substeps
-        self._chunks = list(host._chunks)
-        self._ramp = list(host._ramp)
+        self.substeps = plan.substeps
+        self._chunks = list(plan.chunks)
+        self._ramp = list(plan.ramp)
         self.max_steps = spec.task.max_steps
 
         self._template = None
@@ -141,17 +145,15 @@ class BatchedScene:
     # ------------------------------------------------------------------------------------ construction
     def _make_buffers(self, host, mjm) -> None:
         n = self.num_envs
-        dev = self.device
-        chain = host.chain
+        chain, ca = host.chain, host.chain.arrays
         arm = host.arm
-        spec = host.spec
-        self._nej = nej = len(host._ejoints)
+        spec, plan, layout = host.spec, host.plan, host.engine.layout
+        self._nej = len(plan.joints)
         self._adim = adim = spec.action.dim
-        eng = host.engine
-        self._act_id = wp.array(eng._act.astype(np.int32), dtype=int)
-        self._arm_idx = wp.array(host._arm_idx.astype(np.int32), dtype=int)
-        self._grip_idx = wp.array(host._grip_idx.astype(np.int32), dtype=int)
-        self._home = host._home.astype(np.float32)
+        self._act_id = wp.array(layout.actuators.astype(np.int32), dtype=int)
+        self._arm_idx = wp.array(plan.arm_idx.astype(np.int32), dtype=int)
+        self._grip_idx = wp.array(plan.grip_idx.astype(np.int32), dtype=int)
+        self._home = plan.home.astype(np.float32)
         self.target = wp.array(np.tile(self._home, (n, 1)), dtype=float)
         self.q_sent = wp.array(np.tile(self._home, (n, 1)), dtype=float)
         self.action = wp.zeros((n, adim), dtype=float)
@@ -168,21 +170,21 @@ class BatchedScene:
         self.ref_ok = wp.zeros(n, dtype=int)
         self._active = wp.ones(n, dtype=int)  # every world's servo runs (idle worlds hold their targets)
         # chain constants (SerialChain), in chain order
-        self._chain_q = wp.array(np.asarray(chain._q_from_names, dtype=np.int32), dtype=int)
-        self._fixed = wp.array(chain._fixed_arr.astype(np.float32), dtype=wp.mat44)
-        self._axes = wp.array(chain._axes_arr.astype(np.float32), dtype=wp.vec3)
-        self._prism = wp.array(chain._prism.astype(np.int32), dtype=int)
-        self._tail = wp.mat44(*chain._tail.astype(np.float32).reshape(-1).tolist())
+        self._chain_q = wp.array(ca.q_index.astype(np.int32), dtype=int)
+        self._fixed = wp.array(ca.fixed.astype(np.float32), dtype=wp.mat44)
+        self._axes = wp.array(ca.axes.astype(np.float32), dtype=wp.vec3)
+        self._prism = wp.array(ca.prismatic.astype(np.int32), dtype=int)
+        self._tail = wp.mat44(*ca.tail.astype(np.float32).reshape(-1).tolist())
         self._lower = wp.array(chain.lower.astype(np.float32), dtype=float)
         self._upper = wp.array(chain.upper.astype(np.float32), dtype=float)
         self._max_step = wp.array(np.minimum(arm.max_step, 1e6).astype(np.float32), dtype=float)
-        self._q_home = wp.array(self._home[host._arm_idx], dtype=float)
+        self._q_home = wp.array(self._home[plan.arm_idx], dtype=float)
         g = host.gripper
         self._grip_open = wp.array((g.open if g else np.zeros(0)).astype(np.float32), dtype=float)
         self._grip_closed = wp.array((g.closed if g else np.zeros(0)).astype(np.float32), dtype=float)
         names = [s.name for s in spec.action.slots]
         self._grip_slot = names.index("grip") if "grip" in names else -1
-        self._arm_kernel = K.make_arm_kernel(chain.n, self._cartesian, chain.n > 6, bool(chain._prism.any()))
+        self._arm_kernel = K.make_arm_kernel(chain.n, self._cartesian, chain.n > 6, bool(ca.prismatic.any()))
         if self._cartesian:
             self._max_t, self._max_r = float(arm.max_translation), float(arm.max_rotation)
         else:
@@ -193,25 +195,26 @@ class BatchedScene:
         self._reanchor = (REANCHOR_POS, REANCHOR_ROT, ROT_WEIGHT)
         robot = host.robot
         self._tool_body = int(mjm.body(robot.tool_parent).id)
-        self._tool_pos = wp.vec3(*host._tool_pos.astype(np.float32).tolist())
-        self._tool_rot = wp.mat33(*host._tool_rot.astype(np.float32).reshape(-1).tolist())
-        self._base_pos = wp.vec3(*host._base_pos.astype(np.float32).tolist())
-        self._base_rot = wp.mat33(*host._base_rot.astype(np.float32).reshape(-1).tolist())
+        base_pos, base_rot = host.base_frame()
+        self._tool_pos = wp.vec3(*plan.tool_pos.astype(np.float32).tolist())
+        self._tool_rot = wp.mat33(*plan.tool_rot.astype(np.float32).reshape(-1).tolist())
+        self._base_pos = wp.vec3(*base_pos.astype(np.float32).tolist())
+        self._base_rot = wp.mat33(*base_rot.astype(np.float32).reshape(-1).tolist())
         self._rot_reference = wp.vec4(*host.rot_reference.astype(np.float32).tolist())
         manifest = robot.joint_names
         qadr = np.zeros(len(manifest), dtype=np.int32)
         vadr = np.zeros(len(manifest), dtype=np.int32)
-        qadr[host._eidx] = eng._qadr
-        vadr[host._eidx] = eng._vadr
+        qadr[plan.joint_index] = layout.joint_qadr
+        vadr[plan.joint_index] = layout.joint_vadr
         self._jqadr, self._jvadr = wp.array(qadr, dtype=int), wp.array(vadr, dtype=int)
-        self._gqadr = wp.array(eng._qadr[host._grip_idx].astype(np.int32), dtype=int)
+        self._gqadr = wp.array(layout.joint_qadr[plan.grip_idx].astype(np.int32), dtype=int)
         from simseam.scene.tasks import reach as reach_task
         from simseam.scene.tasks.base import TABLE_TOP
         from simseam.scene.tasks.lift_cube import CUBE_HALF, LIFT_HEIGHT
 
         lift = self.task_name == "lift_cube"
         # lift_cube: the cube; reach: nothing to track (the observe kernel reads the tool body instead)
-        self._cube_body = int(eng._obj_body["cube"]) if lift else self._tool_body
+        self._cube_body = int(layout.object_body["cube"]) if lift else self._tool_body
         self._rest_z, self._lift = float(TABLE_TOP + CUBE_HALF), float(LIFT_HEIGHT) if lift else 1e9
         self._reach_tol = (float(reach_task.POS_TOL), float(reach_task.ROT_TOL))
         self.target_pos = wp.zeros(n, dtype=wp.vec3)  # reach: each world's target, base frame
@@ -219,7 +222,7 @@ class BatchedScene:
         self._target_np = np.zeros((n, 7))  # the same as [x y z qw qx qy qz] (privileged)
         self.pos_err = wp.zeros(n, dtype=float)
         self.rot_err = wp.zeros(n, dtype=float)
-        ns = len(host._state_names)
+        ns = len(plan.state_names)
         self.state = wp.zeros((n, ns), dtype=float)
         self.joint_pos = wp.zeros((n, len(manifest)), dtype=float)
         self.joint_vel = wp.zeros((n, len(manifest)), dtype=float)
@@ -230,20 +233,20 @@ class BatchedScene:
         self.success = wp.zeros(n, dtype=int)
         self.touching = wp.zeros(n, dtype=int)
         self._observe_kernel = K.make_observe_kernel(ns - 6)
-        owner = np.asarray(eng._geom_owner, dtype=np.int32).copy()
+        owner = np.asarray(layout.geom_owner, dtype=np.int32)
         self._geom_owner = wp.array(owner, dtype=int)
-        self._cube_code = int(eng._owner_code["cube"]) if lift else -1
+        self._cube_code = int(layout.owner_code["cube"]) if lift else -1
 
     def _make_cameras(self, host, mjm) -> None:
         self.cameras: dict[str, tuple[int, int]] = {}  # feature key -> (H, W)
         self.images: dict[str, wp.array] = {}
         self.rc = None
-        if not (self.options.render_images and host._rgb):
+        cams = host.plan.cameras
+        if not (self.options.render_images and cams):
             return
-        names = [f"cam:{name}" for name, _ in host._rgb]
+        names = [f"cam:{name}" for name, _, _ in cams]
         res = []
-        for name, key in host._rgb:
-            h, w = host._sizes[name]
+        for _, key, (h, w) in cams:
             self.cameras[key] = (h, w)
             res.append((w, h))
             self.images[key] = wp.zeros((self.num_envs, h, w, 3), dtype=wp.uint8)
@@ -254,7 +257,7 @@ class BatchedScene:
                                             enabled_geom_groups=[GROUP_WORLD, GROUP_ROBOT_VISUAL],
                                             background_color=(0.0, 0.0, 0.0, 1.0))
         adr = self.rc.rgb_adr.numpy()
-        self._cam_adr = [(key, int(adr[i]), res[i][0]) for i, (_, key) in enumerate(host._rgb)]
+        self._cam_adr = [(key, int(adr[i]), res[i][0]) for i, (_, key, _) in enumerate(cams)]
 
     # ---------------------------------------------------------------------------------------- resets
     def _placement(self, seed: int):
@@ -274,9 +277,9 @@ class BatchedScene:
         same few micrometres wherever it stands, the robot starts at home). Verified here against the
         CPU scene's real reset for two seeds; when it does not hold, resets settle on the CPU."""
         host = self.host
-        eng, data = host.engine, host.engine.data
+        layout, data = host.engine.layout, host.engine.data
         names = list(self._placement(0))
-        adr = {n: (eng._obj_qadr[n], eng._obj_vadr[n]) for n in names}
+        adr = {n: (layout.object_qadr[n], layout.object_vadr[n]) for n in names}
         host.reset(0, STATE_ONLY)
         placed0 = self._placement(0)
         base = (data.qpos.copy(), data.qvel.copy(), data.ctrl.copy(), data.qacc_warmstart.copy())

@@ -70,13 +70,8 @@ def world_observations(batch, worlds, requests) -> list[Observation]:
 def _link_poses(batch, w: int) -> dict[str, np.ndarray]:
     """Every link's pose in the base frame for world ``w`` (on request only): the host scene's own
     ``link_in_base`` on this world's joint positions (MuJoCo kinematics on the CPU)."""
-    import mujoco
-
     host = batch.host
-    data = host.engine.data
-    data.qpos[:] = batch.world_qpos(w)
-    mujoco.mj_kinematics(host.engine.model, data)
-    host.engine._stale = False
+    host.engine.pose_qpos(batch.world_qpos(w))
     poses = {}
     for link in batch.spec.robot.links:
         rot, pos = host.link_in_base(link.name)
