@@ -34,7 +34,26 @@ def test_unknown_engine_lists_known_engines():
     assert "'bullet'" in msg
     for name in ENGINE_NAMES:
         assert name in msg
-    assert {"mujoco", "isaac"} <= set(ENGINE_NAMES)
+    assert set(ENGINE_NAMES) == {"mujoco", "isaac", "mujoco_warp"}
+
+
+def test_the_batched_engine_is_in_the_table_but_builds_no_primitives():
+    from simseam.engines.registry import engine_info
+
+    info = engine_info("mujoco_warp")
+    assert info.batched and info.processes == ("inprocess",) and info.module == "simseam.scene.warp"
+    with pytest.raises(ConfigError, match="engine 'mujoco_warp' runs N worlds as one batched scene"):
+        make_engine("mujoco_warp")
+
+
+def test_a_scene_file_asking_an_engine_for_a_process_it_cannot_run_in_is_refused(tmp_path):
+    from simseam.runner.scene_config import build_rollout, load_scene_config
+
+    p = tmp_path / "s.yaml"
+    p.write_text("robot: franka_panda\ntask: lift_cube\nengine: {name: mujoco_warp, process: sidecar}\n")
+    cfg, base = load_scene_config(p)
+    with pytest.raises(ConfigError, match=r"engine 'mujoco_warp' runs inprocess \(process: sidecar is not supported\)"):
+        build_rollout(cfg, base)
 
 
 def test_isaac_is_unavailable_in_process():

@@ -235,7 +235,9 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             probe = make_policy(policy, **policy_kwargs)
             pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
         uses_images, privileged = probe.uses_images, probe.requires_privileged
-        batched_engine = cfg.engine.name == "mujoco_warp"  # N worlds in this process: one policy batch
+        from simseam.engines.registry import engine_info
+
+        batched_engine = engine_info(cfg.engine.name).batched  # N worlds in this process: one policy batch
         from simseam.runner.central_render import choose_renderer
 
         renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)

@@ -131,6 +131,18 @@ def scene_options(cfg: SceneConfig, *, privileged: bool, render_images: bool, se
                         timestep=cfg.engine.timestep, seed=seed)
 
 
+def check_engine(cfg: SceneConfig):
+    """The scene's engine (``engines.registry.EngineInfo``); a ``ConfigError`` for an unknown one or one
+    that cannot run in the process the scene names (isaac's in-process refusal comes when it is made)."""
+    from simseam.engines.registry import engine_info
+
+    info = engine_info(cfg.engine.name)
+    if cfg.engine.process not in info.processes and info.name != "isaac":
+        raise ConfigError(f"engine {info.name!r} runs {' or '.join(info.processes)} "
+                          f"(process: {cfg.engine.process} is not supported)")
+    return info
+
+
 def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
                   seed: int = 0, progress=None) -> SimRollout:
     """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar;
@@ -154,11 +166,10 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     spec = resolve_robot(cfg, base_dir)
     options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
     eng = cfg.engine
-    if eng.name == "mujoco_warp":  # one world of the GPU-batched engine (runner.warp_vector runs N)
+    info = check_engine(cfg)
+    if info.batched:  # one world of the GPU-batched engine (runner.warp_vector runs N)
         from simseam.scene.warp import WarpOptions, WarpRollout
 
-        if eng.process != "inprocess":
-            raise ConfigError("engine 'mujoco_warp' runs in-process (process: sidecar is not supported)")
         return WarpRollout(spec, cfg.task, options, WarpOptions(device=eng.device))
     if eng.process == "sidecar":
         from simseam.sidecar.client import SidecarRollout

@@ -23,13 +23,11 @@ def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, pri
                         render_images: bool = True, seed: int = 0, device: str | None = None):
     """The ``BatchedScene`` a scene file with ``engine: {name: mujoco_warp, num_envs: N}`` describes."""
     from simseam.scene.warp import BatchedScene, WarpOptions
-    from simseam.runner.scene_config import resolve_robot, scene_options
+    from simseam.runner.scene_config import check_engine, resolve_robot, scene_options
 
     eng = cfg.engine
-    if eng.name != "mujoco_warp":
-        raise ConfigError(f"a batched scene needs engine 'mujoco_warp', got {eng.name!r}")
-    if eng.process != "inprocess":
-        raise ConfigError("engine 'mujoco_warp' runs in-process (process: sidecar is not supported)")
+    if not check_engine(cfg).batched:
+        raise ConfigError(f"a batched scene needs a batched engine (mujoco_warp), got {eng.name!r}")
     n = num_envs or eng.num_envs or 1
     options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
     return BatchedScene(resolve_robot(cfg, base_dir), cfg.task, n, options,
@@ -80,7 +78,9 @@ class WarpVectorEnv:
 def make_vector_env(cfg, base_dir: Path, num_envs: int, recipe_factory: Callable | None = None, **kwargs):
     """The vector environment for a scene: ``WarpVectorEnv`` (N worlds, one process) when its engine is
     ``mujoco_warp``, else the vector runner's worker processes (``recipe_factory()`` -> VectorEnv)."""
-    if cfg.engine.name == "mujoco_warp":
+    from simseam.engines.registry import engine_info
+
+    if cfg.benchmark is None and engine_info(cfg.engine.name).batched:
         return WarpVectorEnv.from_config(cfg, base_dir, num_envs, **kwargs)
     if recipe_factory is None:
         raise ConfigError(f"engine {cfg.engine.name!r} runs vectorized through worker processes (runner.vector)")
