@@ -95,12 +95,12 @@ def test_tiny_manifest_becomes_a_spec(write):
     assert (j1.max_velocity, j3.max_velocity) == (2.0, 0.2)  # URDF <limit velocity>
     assert spec.inertia == "urdf"  # the default
     assert [j.name for j in spec.arm_joints] == ["shoulder_yaw", "joint2"]
-    assert spec.gripper.joints == ["joint3"]
-    assert (spec.gripper.open, spec.gripper.closed) == ([0.1], [0.0])
+    assert spec.gripper.joints == ("joint3",)  # the seam's GripperFacts
+    assert (spec.gripper.open, spec.gripper.closed) == ((0.1,), (0.0,))
     assert spec.kinematic_base is None
     wrist, belly, scan = spec.sensors
     assert (wrist.feature_key, wrist.width, wrist.height, wrist.xyz, wrist.rpy) == (
-        "camera2", 64, 48, [0.05, 0, 0.02], [0, 0.3, 0])
+        "camera2", 64, 48, (0.05, 0, 0.02), (0, 0.3, 0))
     assert belly.feature_key == "belly"  # defaults to the sensor name
     assert (scan.kind, scan.beams, scan.range_max, scan.fov_deg) == ("lidar_2d", 90, 8.0, 360.0)
     assert [s.name for s in spec.sensors_of("rgb")] == ["wrist"]
@@ -134,7 +134,7 @@ def test_manifest_limits_narrow_the_urdf_limits(write):
 
 def test_kinematic_base_joints_need_no_urdf_joint(write):
     spec = load_manifest(write(mobile_tiny()))
-    assert spec.kinematic_base.joints == ["base_x", "base_y", "base_yaw"]
+    assert spec.kinematic_base.joints == ("base_x", "base_y", "base_yaw")
     assert (spec.kinematic_base.max_linear, spec.kinematic_base.max_angular) == (0.4, 0.8)
     base = {j.name: j for j in spec.joints_with_role("base")}
     assert (base["base_x"].lower, base["base_x"].upper) == (None, None)
@@ -198,7 +198,7 @@ def test_panda_manifest():
                                                                           "panda_finger_joint2"]
     assert [j.role for j in spec.joints] == ["arm"] * 7 + ["gripper"] * 2
     assert spec.ee_link == "panda_grasptarget"
-    assert spec.gripper.open == [0.04, 0.04] and spec.gripper.closed == [0.0, 0.0]
+    assert spec.gripper.open == (0.04, 0.04) and spec.gripper.closed == (0.0, 0.0)
     assert spec.joints[3].lower == pytest.approx(-3.1416) and spec.joints[3].upper == 0.0
     assert spec.action.control_mode == "cartesian_delta"
 

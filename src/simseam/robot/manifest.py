@@ -16,16 +16,14 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from simseam.config_files import load_yaml_model
 from simseam.robot.assets import resolve_asset
 from simseam.robot.spec import (
-    ActionSpec,
-    GripperSpec,
+    ActionDefaults,
     JointSpec,
     KinematicBaseSpec,
     RobotSpec,
-    SensorSpec,
     ToolFrameSpec,
 )
 from simseam.robot.urdf import read_urdf
-from simseam.seam import BackendUnavailableError, ConfigError
+from simseam.seam import BackendUnavailableError, ConfigError, GripperFacts, SensorFacts
 
 BUILTIN_DIR = Path(__file__).parent / "manifests"
 
@@ -228,7 +226,7 @@ def load_manifest(path: str | Path) -> RobotSpec:
         if j.role != "base" and not _within(j.home, lower, upper):
             problems.append(f"field 'joints.{i}.home' ({j.name}): {j.home:g} is outside the joint limits "
                             f"[{lower:g}, {upper:g}]")
-        joints.append(JointSpec(j.name, j.role, sim_name, j.home, lower, upper, j.kp, j.kd, velocity))
+        joints.append(JointSpec(j.name, j.role, lower, upper, velocity, sim_name, home=j.home, kp=j.kp, kd=j.kd))
     for i, s in enumerate(m.sensors):
         if s.parent not in links:
             problems.append(
@@ -248,19 +246,20 @@ def load_manifest(path: str | Path) -> RobotSpec:
 
     gripper = None
     if m.gripper is not None:
-        gripper = GripperSpec([j.name for j in m.joints if j.role == "gripper"], list(m.gripper.open), list(m.gripper.closed))
+        gripper = GripperFacts(tuple(j.name for j in m.joints if j.role == "gripper"), tuple(m.gripper.open),
+                               tuple(m.gripper.closed))
     kb = None
     if m.kinematic_base is not None:
         k = m.kinematic_base
-        kb = KinematicBaseSpec(list(k.joints), k.max_linear, k.max_angular, k.height,
-                               [sh.model_dump(mode="json") for sh in k.shapes])
+        kb = KinematicBaseSpec(tuple(k.joints), k.max_linear, k.max_angular, k.height,
+                               tuple(sh.model_dump(mode="json") for sh in k.shapes))
     sensors = [
-        SensorSpec(
+        SensorFacts(
             name=s.name,
             kind=s.kind,
             parent=s.parent,
-            xyz=list(s.xyz),
-            rpy=list(s.rpy),
+            xyz=tuple(s.xyz),
+            rpy=tuple(s.rpy),
             feature_key=s.feature_key or s.name,
             width=s.width,
             height=s.height,
@@ -282,7 +281,7 @@ def load_manifest(path: str | Path) -> RobotSpec:
         gripper=gripper,
         sensors=sensors,
         kinematic_base=kb,
-        action=ActionSpec(**m.action.model_dump()),
+        action=ActionDefaults(**m.action.model_dump()),
         description=m.description,
         source=str(path),
         inertia=m.inertia,

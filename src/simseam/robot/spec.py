@@ -1,5 +1,9 @@
 """RobotSpec: a validated robot manifest as plain, JSON-ready data.
 
+It is described with the seam's own facts (``JointFacts``, ``GripperFacts``, ``SensorFacts``,
+``BaseFacts``), extended only by what the scene alone uses (a joint's home and gains, a base's
+chassis shapes, the default action contract), so a robot is described once.
+
 The manifest (YAML, validated with pydantic on the client side) is turned into
 a ``RobotSpec`` once; engines, scenes and sidecars only ever see the spec. It
 uses dataclasses of JSON types (str, float, int, bool, list, dict) so it can
@@ -16,81 +20,33 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from simseam.seam.spec import BaseFacts, GripperFacts, JointFacts, SensorFacts
+
 ROLES = ("arm", "gripper", "base")
 SENSOR_KINDS = ("rgb", "depth", "lidar_2d")
 
 
 @dataclass(frozen=True)
-class JointSpec:
-    """One controllable joint, in manifest order.
+class JointSpec(JointFacts):
+    """One controllable joint, in manifest order: the seam's ``JointFacts`` (name, role, limits from the
+    URDF unless the manifest narrows them, ``max_velocity``, ``sim_name``: its name in the simulator
+    model) plus what only the scene uses: ``home`` (its reset position) and ``kp``/``kd``
+    (position-servo gains, N m/rad and N m s/rad; None: the engine's defaults)."""
 
-    ``sim_name`` is the joint's name inside the simulator model (defaults to
-    ``name``). ``lower``/``upper`` come from the URDF unless the manifest
-    narrows them. ``kp``/``kd`` are position-servo gains (N m/rad, N m s/rad).
-    ``max_velocity`` bounds how far one control step may move the joint's target.
-    """
-
-    name: str
-    role: str
-    sim_name: str
     home: float = 0.0
-    lower: float | None = None
-    upper: float | None = None
     kp: float | None = None
     kd: float | None = None
-    max_velocity: float | None = None  # rad/s or m/s, from the URDF <limit velocity>
 
 
 @dataclass(frozen=True)
-class GripperSpec:
-    """Gripper joints and their positions at -1 (open) and +1 (closed)."""
+class KinematicBaseSpec(BaseFacts):
+    """A planar holonomic base moved kinematically (the robot root is teleported): the seam's
+    ``BaseFacts`` (virtual [x, y, yaw] ``joints``, not in the URDF; ``max_linear`` m/s in norm and
+    ``max_angular`` rad/s, which clip BODY_TWIST; ``height`` of the base link above the floor) plus
+    ``shapes``: primitive chassis geometry fixed to the base link (``{kind, size, pos, rgba}``, same
+    conventions as ``engines.base.Shape``), part of the robot."""
 
-    joints: list[str]
-    open: list[float]
-    closed: list[float]
-
-
-@dataclass(frozen=True)
-class SensorSpec:
-    """A declared sensor. Only declared sensors are ever created.
-
-    rgb/depth: ``width`` x ``height`` pixels, vertical field of view ``fovy_deg``.
-    depth/lidar_2d: valid ranges in [``range_min``, ``range_max``] metres.
-    lidar_2d: ``beams`` rays over ``fov_deg`` centred on the mount's +x.
-    ``feature_key`` names the image in ``observation['images']``.
-    """
-
-    name: str
-    kind: str
-    parent: str
-    xyz: list[float]
-    rpy: list[float]
-    feature_key: str
-    width: int = 0
-    height: int = 0
-    fovy_deg: float = 0.0
-    range_min: float = 0.0
-    range_max: float = 0.0
-    beams: int = 0
-    fov_deg: float = 360.0
-
-
-@dataclass(frozen=True)
-class KinematicBaseSpec:
-    """A planar holonomic base moved kinematically (the robot root is teleported).
-
-    ``joints``: names of the virtual [x, y, yaw] joints (not in the URDF).
-    ``max_linear`` (m/s, norm of [vx, vy]) and ``max_angular`` (rad/s) clip
-    BODY_TWIST. ``height``: z of the base link above the floor (m). ``shapes``:
-    primitive chassis geometry fixed to the base link (``{kind, size, pos,
-    rgba}``, same conventions as ``engines.base.Shape``), part of the robot.
-    """
-
-    joints: list[str]
-    max_linear: float
-    max_angular: float
-    height: float = 0.0
-    shapes: list[dict] = field(default_factory=list)
+    shapes: tuple[dict, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -109,8 +65,8 @@ class ToolFrameSpec:
 
 
 @dataclass(frozen=True)
-class ActionSpec:
-    """The robot's default action contract."""
+class ActionDefaults:
+    """The robot's default action contract (the scene's controllers turn it into the seam's ``ActionSpec``)."""
 
     control_mode: str = "cartesian_delta"
     max_translation: float = 0.05
@@ -133,10 +89,10 @@ class RobotSpec:
     base_link: str
     ee_link: str
     joints: list[JointSpec]
-    gripper: GripperSpec | None = None
-    sensors: list[SensorSpec] = field(default_factory=list)
+    gripper: GripperFacts | None = None
+    sensors: list[SensorFacts] = field(default_factory=list)
     kinematic_base: KinematicBaseSpec | None = None
-    action: ActionSpec = field(default_factory=ActionSpec)
+    action: ActionDefaults = field(default_factory=ActionDefaults)
     description: str = ""
     source: str = ""
     #: "urdf": the URDF's masses/inertias; "geometry": computed from collision geometry
@@ -162,7 +118,7 @@ class RobotSpec:
     def joint_names(self) -> list[str]:
         return [j.name for j in self.joints]
 
-    def sensors_of(self, kind: str) -> list[SensorSpec]:
+    def sensors_of(self, kind: str) -> list[SensorFacts]:
         return [s for s in self.sensors if s.kind == kind]
 
     # ----------------------------------------------------------------- (de)serde
@@ -176,12 +132,16 @@ class RobotSpec:
     def from_json(cls, data: dict[str, Any]) -> "RobotSpec":
         d = dict(data)
         d["joints"] = [JointSpec(**j) for j in d["joints"]]
-        d["sensors"] = [SensorSpec(**s) for s in d.get("sensors", [])]
+        d["sensors"] = [SensorFacts(**{**s, "xyz": tuple(s["xyz"]), "rpy": tuple(s["rpy"])})
+                        for s in d.get("sensors", [])]
         if d.get("gripper") is not None:
-            d["gripper"] = GripperSpec(**d["gripper"])
+            g = d["gripper"]
+            d["gripper"] = GripperFacts(tuple(g["joints"]), tuple(g["open"]), tuple(g["closed"]))
         if d.get("kinematic_base") is not None:
-            d["kinematic_base"] = KinematicBaseSpec(**d["kinematic_base"])
-        d["action"] = ActionSpec(**d.get("action", {}))
+            k = d["kinematic_base"]
+            d["kinematic_base"] = KinematicBaseSpec(**{**k, "joints": tuple(k["joints"]),
+                                                       "shapes": tuple(k.get("shapes", ()))})
+        d["action"] = ActionDefaults(**d.get("action", {}))
         if d.get("tcp") is not None:
             d["tcp"] = ToolFrameSpec(**d["tcp"])
         return cls(**d)

@@ -7,6 +7,8 @@ forwards this spec unchanged.
 
 from __future__ import annotations
 
+import dataclasses
+
 from simseam.robot.spec import RobotSpec
 from simseam.robot.urdf import UrdfModel
 from simseam.seam import (
@@ -27,13 +29,11 @@ from simseam.seam import (
     ActionSpec,
     BaseFacts,
     FieldSpec,
-    GripperFacts,
     JointFacts,
     LinkFacts,
     ObservationSpec,
     RobotFacts,
     RolloutSpec,
-    SensorFacts,
     TaskSpec,
 )
 
@@ -49,18 +49,15 @@ def robot_facts(spec: RobotSpec, urdf: UrdfModel, image_sizes: dict[str, tuple[i
     if spec.tcp is not None:  # the manifest's tool frame: a virtual link fixed to its parent
         t = spec.tcp
         links.append(LinkFacts(t.name, t.parent, f"{t.name}_joint", "fixed", tuple(t.xyz), tuple(t.rpy)))
-    sensors = []
-    for s in spec.sensors:
-        h, w = image_sizes.get(s.name, (s.height, s.width))
-        sensors.append(SensorFacts(s.name, s.kind, s.parent, tuple(s.xyz), tuple(s.rpy), s.feature_key, w, h,
-                                   s.fovy_deg, s.range_min, s.range_max, s.beams, s.fov_deg))
-    g, kb = spec.gripper, spec.kinematic_base
+    sensors = tuple(dataclasses.replace(s, height=h, width=w) for s in spec.sensors
+                    for h, w in [image_sizes.get(s.name, (s.height, s.width))])
+    kb = spec.kinematic_base  # the seam's facts of the scene-only subclasses (what crosses in the spec)
     return RobotFacts(
         name=spec.name, base_link=spec.base_link, tool_link=spec.ee_link, urdf=spec.urdf,
         joints=tuple(JointFacts(j.name, j.role, j.lower, j.upper, j.max_velocity, j.sim_name) for j in spec.joints),
-        gripper=None if g is None else GripperFacts(tuple(g.joints), tuple(g.open), tuple(g.closed)),
-        base=None if kb is None else BaseFacts(tuple(kb.joints), kb.max_linear, kb.max_angular, kb.height),
-        sensors=tuple(sensors), links=tuple(links))
+        gripper=spec.gripper,
+        base=None if kb is None else BaseFacts(kb.joints, kb.max_linear, kb.max_angular, kb.height),
+        sensors=sensors, links=tuple(links))
 
 
 def observation_spec(robot: RobotFacts, cameras: dict[str, tuple[int, int]], state_names: tuple[str, ...],

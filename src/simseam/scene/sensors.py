@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from simseam.math3d import rpy_to_matrix
-from simseam.robot.spec import SensorSpec
+from simseam.seam import SensorFacts
 
 
 def intrinsics(width: int, height: int, fovy_deg: float) -> tuple[float, float, float, float]:
@@ -32,7 +32,7 @@ def intrinsics(width: int, height: int, fovy_deg: float) -> tuple[float, float, 
 class DepthCloud:
     """Depth image -> base_link point cloud for one depth sensor."""
 
-    def __init__(self, sensor: SensorSpec, width: int, height: int):
+    def __init__(self, sensor: SensorFacts, width: int, height: int):
         self.sensor = sensor
         fx, fy, cx, cy = intrinsics(width, height, sensor.fovy_deg)
         v, u = np.mgrid[0:height, 0:width].astype(np.float64)
@@ -63,7 +63,7 @@ class DepthCloud:
 class Lidar2D:
     """A planar scanner: ranges (float32, ``beams``) in the base_link xy plane."""
 
-    def __init__(self, sensor: SensorSpec):
+    def __init__(self, sensor: SensorFacts):
         self.sensor = sensor
         n = sensor.beams
         if sensor.fov_deg >= 360.0:

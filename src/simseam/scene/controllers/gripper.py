@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from simseam.robot.spec import GripperSpec
-from simseam.seam import ActionSlot
+from simseam.seam import ActionSlot, GripperFacts
 
 
 class Gripper:
     group = "grip"
 
-    def __init__(self, spec: GripperSpec):
+    def __init__(self, spec: GripperFacts):
         self.open = np.asarray(spec.open, dtype=np.float64)
         self.closed = np.asarray(spec.closed, dtype=np.float64)
         self.slots = (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open .. +1 closed"),)
