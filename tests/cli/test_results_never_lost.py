@@ -50,6 +50,42 @@ def test_unusable_out_is_refused_before_anything_runs(scene, tmp_path):
         assert "episode" not in proc.stdout
 
 
+def test_out_where_no_directory_can_be_made_is_one_line_not_a_traceback(scene):
+    for out, why in (("/proc/simseam-x", "cannot create it"), ("/sys/simseam-x", "cannot create it")):
+        proc = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out)
+        err = proc.stderr.strip()
+        assert proc.returncode == 2 and err.count("\n") == 0 and f"--out {out}: {why}" in err, err
+
+
+def test_an_overwrite_that_fails_before_it_starts_destroys_nothing(scene, tmp_path):
+    """A typo (here the policy) is found when the run is built, before anything is written: the run
+    already in --out keeps every file, byte for byte."""
+    out = tmp_path / "keep"
+    assert _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "2", "--out", out).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    proc = _simseam("run", "--scene", scene(), "--policy", "scriptd", "--episodes", "2", "--out", out, "--overwrite")
+    assert proc.returncode == 2 and "unknown policy 'scriptd'" in proc.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_run_that_fails_before_it_starts_leaves_no_half_made_directory(scene, tmp_path):
+    """Nothing to refuse on the retry, and runs/latest keeps pointing at the last run that started."""
+    out = tmp_path / "typo"
+    for scene_file, policy in ((scene(), "scriptd"), (tmp_path / "nope.yaml", "zero")):
+        proc = _simseam("run", "--scene", scene_file, "--policy", policy, "--episodes", "1", "--out", out)
+        assert proc.returncode == 2, proc.stdout + proc.stderr
+        assert not out.exists()
+    assert _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out).returncode == 0
+    assert len(_log(out)) == 1
+    runs = tmp_path / "runs"
+    ok = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", cwd=tmp_path)
+    assert ok.returncode == 0
+    first = (runs / "latest").resolve()
+    assert _simseam("run", "--scene", scene(), "--policy", "scriptd", cwd=tmp_path).returncode == 2
+    assert (runs / "latest").resolve() == first and sorted(p.name for p in runs.iterdir()) == sorted(
+        ["latest", first.name])
+
+
 def test_existing_run_is_refused_then_overwritten_or_resumed(scene, tmp_path):
     out = tmp_path / "run"
     first = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "2", "--out", out, "--video")

@@ -10,8 +10,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from simseam.cli.common import EvalProgress, close_policy, console, err_console, fail, policy_kwargs, redacted, \
-    sigterm_as_interrupt
+from simseam.cli.common import EvalProgress, close_policy, console, err_console, fail, never_started, policy_kwargs, \
+    redacted, sigterm_as_interrupt
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
 
@@ -107,7 +107,7 @@ def eval_command(
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
-    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest
+    from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import parse_shard
 
     if resume and out is None:
@@ -125,11 +125,9 @@ def eval_command(
         config = eval_config(p, redacted(policy), task_list, n, seed, video)
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
-        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)
+        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    if default_out:
-        point_latest(out)
     planned = eval_indices(task_list, n, shard_ik)
     todo = [i for i in planned if i not in run_dir.done]
     if ray_address is not None:
@@ -161,7 +159,7 @@ def eval_command(
     if num_envs > 1:
         interrupted = _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
                                    seed=seed, video=video, indices=planned)
-        _eval_summary(p, policy, out, interrupted)
+        _eval_summary(p, policy, run_dir, interrupted)
         return
 
     def done(res, task):
@@ -176,7 +174,7 @@ def eval_command(
         run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                  progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
                  on_done=done, on_error=error, indices=planned)
-    _eval_summary(p, policy, out, guard.interrupted)
+    _eval_summary(p, policy, run_dir, guard.interrupted)
 
 
 @contextmanager
@@ -185,8 +183,6 @@ def _eval_guard(run_dir, out: Path, cleanup=None):
     (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode log (every
     finished episode kept) and fails with its one-line message (exit 2). The run directory is closed
     and ``cleanup`` (the policy's close) called whichever way it ends."""
-    from simseam.runner.run_dir import rebuild_summary
-
     guard = SimpleNamespace(interrupted=False)
     error = None
     try:
@@ -201,7 +197,7 @@ def _eval_guard(run_dir, out: Path, cleanup=None):
         if cleanup is not None:
             cleanup()
     if error is not None:
-        rebuild_summary(out, interrupted=True)
+        run_dir.summarize(interrupted=True)
         fail(error)
 
 
@@ -250,13 +246,14 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
             run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
                          privileged=privileged, seed=seed, num_workers=num_workers, indices=indices,
                          on_done=progress.done, on_worker_failure=progress.worker_failure)
-    _eval_summary(p, policy, out, guard.interrupted)
+    _eval_summary(p, policy, run_dir, guard.interrupted)
 
 
-def _eval_summary(p, policy: str, out: Path, interrupted: bool) -> None:
-    from simseam.runner.run_dir import rebuild_summary
-
-    summary = rebuild_summary(out, interrupted=interrupted)
+def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:
+    out = run_dir.path
+    summary = run_dir.summarize(interrupted=interrupted)
+    if summary is None:
+        never_started(out, interrupted)
     print_task_table(summary, f"{p.name} ({policy})")
     console.print(f"summary: {escape(str(out / 'summary.json'))}")
     if interrupted:

@@ -116,3 +116,10 @@ class EvalProgress:
         code = f" (exit code {failure.exitcode})" if failure.exitcode is not None else ""
         err_console.print(f"{who} died {where}{code}; {failure.what_next}; a fresh worker takes its place",
                           style="red", markup=False, highlight=False)
+
+
+def never_started(out, interrupted: bool) -> None:
+    """A run that ended before it started (nothing was written to ``out``): say so, exit 130 or 1."""
+    err_console.print(f"interrupted before the run started; nothing was written to {out}" if interrupted else
+                      f"no episode ran; nothing was written to {out}", markup=False, highlight=False)
+    raise typer.Exit(code=130 if interrupted else 1)

@@ -13,8 +13,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, err_console, fail, policy_kwargs,
-                                redacted, sigterm_as_interrupt)
+from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, err_console, fail, never_started,
+                                policy_kwargs, redacted, sigterm_as_interrupt)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.serve_policy import serve_policy
@@ -116,7 +116,7 @@ def run(
                                  "CUDA device is present and the scene is supported). docs/evaluation.md"),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
-    from simseam.runner.run_dir import RunDir, default_run_dir, point_latest, rebuild_summary
+    from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.scene_config import load_scene_config
 
     check_seed(seed)
@@ -151,11 +151,9 @@ def run(
             config["shard"] = list(shard_ik)
         if renderer != "workers":
             config["renderer"] = renderer
-        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume)  # checked before anything runs
+        run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    if default_out:
-        point_latest(out)
     planned = shard_indices(episodes, shard_ik)
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
@@ -198,7 +196,7 @@ def run(
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
-        rebuild_summary(out, spec_json, interrupted=True)
+        run_dir.summarize(spec_json, interrupted=True)
         fail(exc)
     finally:
         run_dir.close()
@@ -206,7 +204,7 @@ def run(
             recorder.close()
         rollout.close()
         close_policy(pol)
-    _finish_run(out, spec_json, interrupted, len(planned))
+    _finish_run(run_dir, spec_json, interrupted, len(planned))
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
@@ -217,7 +215,6 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import shared_batch
-    from simseam.runner.run_dir import rebuild_summary
     from simseam.runner.vector import RolloutRecipe, VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
@@ -283,7 +280,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         if vec is not None:
             vec.close()
         run_dir.close()
-        rebuild_summary(out, spec_json, interrupted=True)
+        run_dir.summarize(spec_json, interrupted=True)
         fail(exc)
     finally:
         if vec is not None:
@@ -291,7 +288,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         if pol is not None:
             pol.close()
         run_dir.close()
-    _finish_run(out, spec_json, interrupted, planned)
+    _finish_run(run_dir, spec_json, interrupted, planned)
 
 
 def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
@@ -299,7 +296,6 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
     """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
     from simseam.policies.base import make_policy
     from simseam.runner.ray_eval import run_on_ray
-    from simseam.runner.run_dir import rebuild_summary
     from simseam.runner.vector import RolloutRecipe
 
     cfg, base_dir = scene_file
@@ -330,17 +326,18 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         interrupted = True
     except SimseamError as exc:
         run_dir.close()
-        rebuild_summary(out, spec_json, interrupted=True)
+        run_dir.summarize(spec_json, interrupted=True)
         fail(exc)
     finally:
         run_dir.close()
-    _finish_run(out, spec_json, interrupted, planned)
+    _finish_run(run_dir, spec_json, interrupted, planned)
 
 
-def _finish_run(out: Path, spec_json, interrupted: bool, planned: int) -> None:
-    from simseam.runner.run_dir import rebuild_summary
-
-    summary = rebuild_summary(out, spec_json, interrupted=interrupted)
+def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
+    out = run_dir.path
+    summary = run_dir.summarize(spec_json, interrupted=interrupted)
+    if summary is None:
+        never_started(out, interrupted)
     if interrupted:
         err_console.print(f"interrupted after {summary['n_episodes']} of {planned} episodes; "
                           f"summary of the finished ones: {out / 'summary.json'}", markup=False, highlight=False)

@@ -8,12 +8,17 @@ Layout of ``DIR``::
     summary.json      rebuilt from episodes.jsonl, written atomically (temp file + rename)
     episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
 
-Rules: the directory is checked before the first episode (a file, or a
-directory that cannot be written, is a ``ConfigError``). A directory that
-already holds a run is refused unless ``overwrite`` (the old run's files are
-removed first: two runs never mix) or ``resume`` (same config required; the
-differences are listed otherwise; episodes already in the log are skipped).
-``rebuild_summary(DIR)`` turns the log into ``summary.json`` after any crash.
+Rules: the directory is checked when the ``RunDir`` is made (a file, or a place
+where no directory can be created or written, is a ``ConfigError``), and nothing
+is written there until the run starts: at the first ``write_spec`` or ``append``,
+once the rollout and the policy are built. So a run that fails before it starts
+(an unknown policy, a typo in the scene, an unprovisioned backend) leaves the
+directory as it was: no half-made run, and an ``overwrite`` that never started
+destroys nothing. A directory that already holds a run is refused unless
+``overwrite`` (the old run's files are removed when the new run starts: two runs
+never mix) or ``resume`` (same config required; the differences are listed
+otherwise; episodes already in the log are skipped). ``rebuild_summary(DIR)``
+turns the log into ``summary.json`` after any crash.
 """
 
 from __future__ import annotations
@@ -92,45 +97,59 @@ def check_writable(path: Path) -> None:
         probe_dir = probe_dir.parent
     if not probe_dir.is_dir() or not os.access(probe_dir, os.W_OK | os.X_OK):
         raise ConfigError(f"--out {path}: {probe_dir} is not writable")
-    if path.exists():
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=".write-test.", dir=path)
-            os.close(fd)
-            os.unlink(tmp)
-        except OSError as exc:
-            raise ConfigError(f"--out {path}: cannot write there ({exc.strerror})") from None
+    try:  # what access() cannot tell (/proc, /sys, a read-only mount): a directory made and removed
+        os.rmdir(tempfile.mkdtemp(prefix=".write-test.", dir=path if path.exists() else probe_dir))
+    except OSError as exc:
+        raise ConfigError(f"--out {path}: cannot {'write there' if path.exists() else 'create it'} "
+                          f"({exc.strerror})") from None
 
 
 class RunDir:
-    """The output directory of one run (see the module docstring)."""
+    """The output directory of one run (see the module docstring). ``latest``: point
+    ``<parent>/latest`` at it once the run starts."""
 
-    def __init__(self, path: Path, config: dict, *, overwrite: bool = False, resume: bool = False):
+    def __init__(self, path: Path, config: dict, *, overwrite: bool = False, resume: bool = False,
+                 latest: bool = False):
         if overwrite and resume:
             raise ConfigError("--overwrite and --resume exclude each other")
         self.path = Path(path)
         check_writable(self.path)
         self.config = json.loads(json.dumps(config))  # plain JSON, as it will be read back
-        held = [f for f in RUN_FILES if (self.path / f).exists()]
+        self.held = [f for f in RUN_FILES if (self.path / f).exists()]
         self.resumed: list[dict] = []
-        if held and resume:
+        if self.held and resume:
             old = self._read_config()
             diff = config_differences(old, self.config)
             if diff:
                 raise ConfigError(f"--resume {self.path}: the run there has a different config:\n"
                                   + "\n".join(f"  - {d}" for d in diff))
             self.resumed = read_log(self.path)
-        elif held and not overwrite:
-            raise ConfigError(f"--out {self.path} already holds a run ({', '.join(held)}); pass --overwrite to "
+        elif self.held and not overwrite:
+            raise ConfigError(f"--out {self.path} already holds a run ({', '.join(self.held)}); pass --overwrite to "
                               "replace it, --resume to continue it, or choose another --out")
-        elif held:
-            for f in self.path.iterdir():
-                if f.name in RUN_FILES or (f.name.startswith("episode_") and f.suffix == ".mp4"):
-                    f.unlink()
-        self.path.mkdir(parents=True, exist_ok=True)
-        if not self.resumed:
-            write_json_atomic(self.path / CONFIG_FILE, self.config)
-            (self.path / LOG_FILE).touch()
-        self._log = open(self.path / LOG_FILE, "a")
+        self.resume, self.latest = resume, latest
+        self.started = False
+        self._log = None
+
+    def start(self) -> None:
+        """Write the run's start (idempotent): replace an old run (``overwrite``), the config, the empty log."""
+        if self.started:
+            return
+        try:
+            if self.held and not self.resume:
+                for f in self.path.iterdir():
+                    if f.name in RUN_FILES or (f.name.startswith("episode_") and f.suffix == ".mp4"):
+                        f.unlink()
+            self.path.mkdir(parents=True, exist_ok=True)
+            if not (self.resume and self.held):
+                write_json_atomic(self.path / CONFIG_FILE, self.config)
+                (self.path / LOG_FILE).touch()
+            self._log = open(self.path / LOG_FILE, "a")
+        except OSError as exc:
+            raise ConfigError(f"--out {self.path}: cannot write the run there ({exc.strerror})") from None
+        self.started = True
+        if self.latest:
+            point_latest(self.path)
 
     def _read_config(self) -> dict:
         try:
@@ -144,16 +163,26 @@ class RunDir:
         return {int(e["index"]) for e in self.resumed}
 
     def write_spec(self, spec_json: dict) -> None:
+        self.start()
         write_json_atomic(self.path / SPEC_FILE, spec_json)
 
     def append(self, episode: dict) -> None:
         """Record one finished episode: one line, flushed and fsynced before returning."""
+        self.start()
         self._log.write(json.dumps(episode) + "\n")
         self._log.flush()
         os.fsync(self._log.fileno())
 
+    def summarize(self, spec_json: dict | None = None, *, interrupted: bool = False) -> dict | None:
+        """``rebuild_summary`` of this run, or None when it never started and holds no earlier run to
+        continue (nothing was written)."""
+        if not self.started and not (self.resume and self.held):
+            return None
+        return rebuild_summary(self.path, spec_json, interrupted=interrupted)
+
     def close(self) -> None:
-        self._log.close()
+        if self._log is not None:
+            self._log.close()
 
 
 def read_log(path: Path) -> list[dict]:
