@@ -52,7 +52,7 @@ def test_cached_training_runs_and_stops_on_its_time_budget(scripted_dataset, tmp
     from simseam.runner.training import ActTrainConfig, train_act
 
     res = train_act(scripted_dataset[0], tmp_path / "ck",
-                    ActTrainConfig(steps=10_000, time_budget_s=0.0, cache_on_device=True, device="cpu",
+                    ActTrainConfig(steps=10_000, time_budget_s=1e-9, cache_on_device=True, device="cpu",
                                    **tiny_act_config))
     assert res.steps == 1 and (tmp_path / "ck" / "model.safetensors").is_file()
 
@@ -93,6 +93,37 @@ def test_checkpoints_at_intervals_resume_and_refusals(scripted_dataset, tmp_path
     fresh = train_act(scripted_dataset[0], out, ActTrainConfig(steps=1, device="cpu", **tiny_act_config),
                       overwrite=True)
     assert fresh.steps == 1 and not (out / "checkpoints").exists()  # the old run was removed first
+
+
+def test_overwrite_never_destroys_the_dataset_or_what_is_not_a_training_run(scripted_dataset, tmp_path,
+                                                                           tiny_act_config):
+    """--out naming the dataset, a folder inside it or above it, a folder of other files, a mistyped
+    dataset, bad rates: each refused by name before anything is deleted."""
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    data = scripted_dataset[0]
+    cfg = ActTrainConfig(steps=1, device="cpu", **tiny_act_config)
+    before = sorted(p.relative_to(data) for p in data.rglob("*"))
+    for out, what in ((data, "would replace the dataset"), (data.parent, "would replace the dataset"),
+                      (data / "ckpt", "would write into the dataset")):
+        with pytest.raises(ConfigError, match=f"overlap: training {what}"):
+            train_act(data, out, cfg, overwrite=True)
+    assert sorted(p.relative_to(data) for p in data.rglob("*")) == before
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(ConfigError, match="holds notes.txt, not a training run; .*nothing was deleted"):
+        train_act(data, mine, cfg, overwrite=True)
+    assert (mine / "notes.txt").read_text() == "keep me"
+    ckpt = tmp_path / "ckpt"
+    train_act(data, ckpt, cfg)
+    weights = (ckpt / "model.safetensors").read_bytes()
+    with pytest.raises(ConfigError, match="not a LeRobot dataset"):
+        train_act(tmp_path / "mistyped", ckpt, cfg, overwrite=True)
+    assert (ckpt / "model.safetensors").read_bytes() == weights
+    for field, value in (("lr", -1.0), ("time_budget_s", -5.0), ("lr", float("nan"))):
+        with pytest.raises(ConfigError, match=f"--{field.replace('_', '-')} must be a positive number"):
+            train_act(data, tmp_path / "bad", ActTrainConfig(**{**vars(cfg), field: value}))
 
 
 def test_an_interrupt_saves_a_checkpoint_of_the_steps_done(scripted_dataset, tmp_path, tiny_act_config):

@@ -12,7 +12,8 @@ The output directory is a complete ``lerobot:`` checkpoint: ``config.json`` +
 ``training.json`` (steps, seconds, loss curve, dataset size, device).
 
 Nothing is lost or silently replaced: an output directory that already holds a
-training run is refused unless ``overwrite`` (removed first) or ``resume``.
+training run is refused unless ``overwrite`` (removed once the dataset has loaded and training
+starts; only a directory that holds a training run, never the dataset or other files) or ``resume``.
 Every ``checkpoint_every`` steps, and when the run is interrupted (Ctrl-C,
 SIGTERM), ``out_dir/checkpoints/step_NNNNNNN/`` receives the weights, both
 processors and ``training_state.pt`` (optimizer state, step, losses), written
@@ -118,27 +119,44 @@ def latest_checkpoint(out_dir: str | Path) -> Path | None:
     return done[-1] if done else None
 
 
-def _prepare_out(out: Path, overwrite: bool, resume: bool) -> Path | None:
-    """Check ``out`` before anything runs; returns the checkpoint to resume from."""
-    import shutil
+#: what marks a directory as a training run (``--overwrite`` deletes nothing else)
+TRAINING_MARKS = ("training.json", CHECKPOINTS, "model.safetensors")
 
+
+def check_dataset(root: Path) -> None:
+    """``ConfigError`` unless ``root`` is a LeRobot dataset holding episodes."""
+    if not (root / "meta" / "info.json").is_file():
+        raise ConfigError(f"{root}: not a LeRobot dataset (no meta/info.json); record one with `simseam collect`")
+    if not (root / "meta" / "tasks.parquet").is_file():
+        raise ConfigError(f"{root}: the dataset holds no episodes (was every collected episode a failure? "
+                          "`simseam collect --keep-failures` keeps them)")
+
+
+def _prepare_out(out: Path, dataset: Path, overwrite: bool, resume: bool) -> tuple[Path | None, bool]:
+    """Check ``out`` before anything runs (nothing is deleted here); returns the checkpoint to resume from,
+    and whether an earlier training run in ``out`` is to be replaced once training starts."""
     from simseam.runner.run_dir import check_writable
 
     if overwrite and resume:
         raise ConfigError("--overwrite and --resume exclude each other")
+    o, d = out.resolve(), dataset.resolve()
+    if o == d or o in d.parents or d in o.parents:
+        raise ConfigError(f"--out {out} and the dataset {dataset} overlap: training would "
+                          f"{'replace' if o == d or o in d.parents else 'write into'} the dataset; choose another --out")
     check_writable(out)
-    held = out.is_dir() and any(out.iterdir())
+    held = sorted(p.name for p in out.iterdir()) if out.is_dir() else []
     if resume:
         ckpt = latest_checkpoint(out)
         if ckpt is None:
             raise ConfigError(f"--resume {out}: no complete checkpoint under {out / CHECKPOINTS}")
-        return ckpt
+        return ckpt, False
     if held and not overwrite:
         raise ConfigError(f"--out {out} is not empty (an earlier training run?); pass --overwrite to replace it, "
                           "--resume to continue its newest checkpoint, or choose another --out")
-    if held:
-        shutil.rmtree(out)
-    return None
+    if held and not any(m in held for m in TRAINING_MARKS):
+        raise ConfigError(f"--out {out} holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''}, not a training "
+                          "run; --overwrite replaces only a training run (nothing was deleted): choose another --out")
+    return None, bool(held)
 
 
 def _save_checkpoint(out: Path, step: int, policy, preprocessor, postprocessor, optimizer, losses) -> Path:
@@ -241,9 +259,13 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     if cfg.temporal_ensemble_coeff is not None and cfg.n_action_steps != 1:
         raise ConfigError(f"temporal ensembling queries the policy every step: it needs n_action_steps 1, "
                           f"not {cfg.n_action_steps}")
+    for name, value in (("lr", cfg.lr), ("lr_backbone", cfg.lr_backbone), ("time_budget_s", cfg.time_budget_s)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"--{name.replace('_', '-')} must be a positive number, got {value!r}")
     t_start = time.perf_counter()
-    out = Path(out_dir)
-    resume_from = _prepare_out(out, overwrite, resume)
+    out, root = Path(out_dir), Path(dataset_root)
+    check_dataset(root)
+    resume_from, replace = _prepare_out(out, root, overwrite, resume)
     try:
         import torch
         from lerobot.configs.types import FeatureType, NormalizationMode
@@ -256,12 +278,6 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         raise ConfigError(f"training needs the lerobot extra ({exc}); `pip install 'simseam[lerobot]'`") from None
     from simseam.policies.lerobot_policy import pick_device
 
-    root = Path(dataset_root)
-    if not (root / "meta" / "info.json").is_file():
-        raise ConfigError(f"{root}: not a LeRobot dataset (no meta/info.json); record one with `simseam collect`")
-    if not (root / "meta" / "tasks.parquet").is_file():
-        raise ConfigError(f"{root}: the dataset holds no episodes (was every collected episode a failure? "
-                          "`simseam collect --keep-failures` keeps them)")
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
     meta = LeRobotDatasetMetadata("simseam/local", root=root)
@@ -319,6 +335,10 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         result.steps = result.resumed_from = int(state["step"])
         result.losses = [tuple(x) for x in state["losses"]]
     amp = cfg.use_amp and device.startswith("cuda")
+    if replace:  # the dataset loaded and the model was built: now the earlier training run goes
+        import shutil
+
+        shutil.rmtree(out)
     if device.startswith("cuda"):
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
