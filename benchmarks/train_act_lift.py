@@ -1,31 +1,47 @@
-"""Train ACT on scripted lift_cube demonstrations and measure its success in simseam.
+"""Train ACT from camera images on scripted lift_cube demonstrations and measure it through simseam.
 
-    .venv/bin/python benchmarks/train_act_lift.py [--episodes 200] [--train-budget-s 420] ...
+    .venv/bin/python benchmarks/train_act_lift.py [--episodes 300] [--train-s 420] [--eval-seeds 10000:10050] ...
 
-Three phases, one process, all through simseam's own code paths:
+Three phases, all through simseam's own code paths (the GPU machine runs it through
+``benchmarks/device/act_lift.sh``):
 
-1. collect: the scripted expert (privileged ground truth) runs ``--episodes``
-   episodes of franka_panda / lift_cube (MuJoCo, two RGB cameras at
-   ``--image-size``, 7-D CARTESIAN_DELTA, 20 Hz), seeds 0..N-1; successful ones are
-   written as a LeRobot dataset (``collect_dataset``);
-2. train: LeRobot ACT from scratch (no ImageNet weights: no network) on that
-   dataset (``train_act``) for ``--steps`` optimizer steps or ``--train-budget-s``
-   seconds, whichever comes first;
-3. evaluate: the checkpoint is loaded through ``lerobot:<dir>`` (the spec users
-   give ``simseam run``) and run on ``--eval-seeds`` held-out seeds (10000+), with
-   images only (no privileged state); the scripted expert runs on the same seeds
-   as the reference.
+1. collect: the scripted expert (privileged ground truth) runs ``--episodes`` episodes of
+   franka_panda / lift_cube (MuJoCo, two RGB cameras -- third-person ``camera1`` and wrist
+   ``camera2`` -- at ``--image-size``, 8-D proprioceptive state, 7-D CARTESIAN_DELTA, 20 Hz) on
+   seeds 0..N-1 (``collect_dataset``; ``--collect-workers`` processes each record a block of seeds,
+   merged with LeRobot's ``aggregate_datasets``); successful episodes become the LeRobot dataset;
+2. train: LeRobot ACT from scratch (no ImageNet weights: the GPU machine has no network) through
+   ``train_act``, the code behind ``simseam train``, with the recipe the state-based proof found
+   (docs/policies.md): no VAE, chunk 10, one action per model call with temporal ensembling,
+   cosine learning rate, a small transformer; plus a random shift of each camera image
+   (``--aug-shift`` pixels, DrQ-style) applied to the cached batches on the device;
+3. evaluate: the checkpoint is loaded through ``lerobot:<dir>`` (the spec a user gives
+   ``simseam run``) and runs ``--eval-seeds`` held-out seeds from images and proprioception only
+   (no privileged state, no environment_state); the scripted expert runs the same seeds.
 
-Prints a table and writes JSON (``--json``, default benchmarks/results/act_lift.json).
-On the GPU machine it runs through ``benchmarks/device/act_lift.sh``.
+The training length is a wall-clock plan, turned into a step count once the speed is known: after
+``--calibrate-s`` seconds of training the cosine schedule's horizon (``ActTrainConfig.steps``) is
+set to the steps that fit the remaining time, so the learning rate reaches 0 as the time runs out
+and the checkpoint records the step count it ran (``simseam train --steps N --lr-schedule cosine``
+replays it on any machine).
+
+One run can span several commands on the same machine (a device command is limited to 10 minutes):
+``--pause`` makes training stop at ``--deadline-s`` with a resumable checkpoint under ``--work``
+(``train_act`` saves one when interrupted), planning ``--later-train-s`` more seconds of training;
+the next invocation with the same ``--work`` skips the finished phases, resumes training,
+re-plans the horizon to its own deadline, and evaluates. Writes JSON (``--json``) after every phase:
+the loss curve (step, mean loss since the last point, wall seconds of training so far: each invocation's
+preparation, i.e. decoding the dataset onto the device, included) is in ``train.curve``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing as mp
 import os
 import platform
+import shutil
 import time
 from pathlib import Path
 
@@ -35,137 +51,322 @@ import numpy as np  # noqa: E402
 
 from simseam.policies.base import make_policy  # noqa: E402
 from simseam.robot.manifest import load_robot  # noqa: E402
+from simseam.runner import training  # noqa: E402
 from simseam.runner.collect import collect_dataset  # noqa: E402
 from simseam.runner.episodes import run_episode  # noqa: E402
 from simseam.runner.summary import wilson_interval  # noqa: E402
-from simseam.runner.training import ActTrainConfig, train_act  # noqa: E402
+from simseam.runner.training import ActTrainConfig, latest_checkpoint, train_act  # noqa: E402
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions  # noqa: E402
 
+T0 = time.perf_counter()
 
-def evaluate(spec, policy, seeds, size, privileged, max_steps):
-    scene = ManifestScene(spec, "lift_cube", "mujoco",
-                          SceneOptions(image_size=(size, size), privileged=privileged, max_steps=max_steps))
+
+def _now() -> float:
+    return time.perf_counter() - T0
+
+
+def _scene(size: int, privileged: bool, max_steps: int) -> ManifestScene:
+    return ManifestScene(load_robot("franka_panda"), "lift_cube", "mujoco",
+                         SceneOptions(image_size=(size, size), privileged=privileged, max_steps=max_steps))
+
+
+def _collect_block(job: tuple[str, int, int, int, int, bool]) -> tuple[int, int, int]:
+    """One worker: the scripted expert on seeds ``seed .. seed+n-1``, recorded at ``root``."""
+    root, seed, n, size, max_steps, videos = job
+    scene = _scene(size, privileged=True, max_steps=max_steps)
     try:
-        results = [run_episode(scene, policy, index=i, seed=s) for i, s in enumerate(seeds)]
+        col = collect_dataset(scene, make_policy("scripted"), root, episodes=n, seed=seed, use_videos=videos,
+                              overwrite=True)
     finally:
         scene.close()
-    return results
+    return col.episodes_run, col.episodes_written, col.frames_written
+
+
+def collect(root: Path, episodes: int, workers: int, size: int, max_steps: int, videos: bool) -> dict:
+    """Seeds 0..episodes-1 in ``workers`` contiguous blocks, merged into one dataset at ``root``."""
+    t = time.perf_counter()
+    workers = max(1, min(workers, episodes))
+    if root.exists():
+        shutil.rmtree(root)
+    if workers == 1:
+        runs = [_collect_block((str(root), 0, episodes, size, max_steps, videos))]
+    else:
+        bounds = np.linspace(0, episodes, workers + 1).astype(int)
+        shards = root.parent / (root.name + "_shards")
+        shutil.rmtree(shards, ignore_errors=True)
+        jobs = [(str(shards / f"s{k:02d}"), int(bounds[k]), int(bounds[k + 1] - bounds[k]), size, max_steps, videos)
+                for k in range(workers)]
+        with mp.get_context("spawn").Pool(workers) as pool:
+            runs = pool.map(_collect_block, jobs)
+        from lerobot.datasets.aggregate import aggregate_datasets
+
+        kept = [Path(j[0]) for j, r in zip(jobs, runs) if r[1] > 0]
+        aggregate_datasets([f"simseam/shard{k}" for k in range(len(kept))], "simseam/local", roots=kept,
+                           aggr_root=root)
+        # the scene's contract (control mode, image sizes) that `train_act` copies into the checkpoint
+        shutil.copy(kept[0] / "meta" / "simseam_skill.json", root / "meta" / "simseam_skill.json")
+        shutil.rmtree(shards, ignore_errors=True)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    out = {"seeds": f"0:{episodes}", "episodes_run": sum(r[0] for r in runs),
+           "episodes_written": sum(r[1] for r in runs), "frames": sum(r[2] for r in runs),
+           "dataset_episodes": info["total_episodes"], "dataset_frames": info["total_frames"],
+           "workers": workers, "seconds": time.perf_counter() - t}
+    if (out["dataset_episodes"], out["dataset_frames"]) != (out["episodes_written"], out["frames"]):
+        raise RuntimeError(f"merged dataset holds {info['total_episodes']} episodes / {info['total_frames']} "
+                           f"frames, the workers wrote {out['episodes_written']} / {out['frames']}")
+    return out
+
+
+def random_shift(images, pad: int):
+    """DrQ's augmentation: pad each image by ``pad`` pixels (edge replicated), crop back at a random offset
+    (one per image). ``images``: float [B, C, H, W]."""
+    import torch
+    import torch.nn.functional as F
+
+    b, c, h, w = images.shape
+    padded = F.pad(images, (pad, pad, pad, pad), mode="replicate")
+    dy = torch.randint(0, 2 * pad + 1, (b,), device=images.device)
+    dx = torch.randint(0, 2 * pad + 1, (b,), device=images.device)
+    rows = (dy[:, None] + torch.arange(h, device=images.device))[:, None, :, None].expand(b, c, h, w + 2 * pad)
+    cols = (dx[:, None] + torch.arange(w, device=images.device))[:, None, None, :].expand(b, c, h, w)
+    return padded.gather(2, rows).gather(3, cols)
+
+
+def use_random_shift(pad: int) -> None:
+    """Shift the camera images of every batch the device cache yields (training only: the cache is built
+    by ``train_act`` for its loop; evaluation never sees it)."""
+    cache = training._DeviceCache
+    if getattr(cache, "_simseam_shift", None) is not None:
+        cache._simseam_shift = pad
+        return
+    plain = cache.batches
+
+    def batches(self):
+        for batch in plain(self):
+            if cache._simseam_shift:
+                for k in self.image_keys:
+                    batch[k] = random_shift(batch[k], cache._simseam_shift)
+            yield batch
+
+    cache.batches = batches
+    cache._simseam_shift = pad
+
+
+def evaluate(policy, seeds, size, privileged, max_steps):
+    scene = _scene(size, privileged, max_steps)
+    try:
+        return [run_episode(scene, policy, index=i, seed=s) for i, s in enumerate(seeds)]
+    finally:
+        scene.close()
+
+
+def _row(name: str, results) -> dict:
+    k = sum(r.success for r in results)
+    lo, hi = wilson_interval(k, len(results))
+    return {"policy": name, "success": k, "episodes": len(results), "rate": k / len(results), "wilson95": [lo, hi],
+            "mean_steps": sum(r.steps for r in results) / len(results),
+            "policy_ms_p50": float(np.median([x for r in results for x in r.policy_ms])),
+            "failed_seeds": [r.seed for r in results if not r.success]}
 
 
 def _write(path: Path, report: dict) -> None:
-    """Write the report so far (a run cut short still leaves its finished phases)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(report, indent=2) + "\n")
 
 
-def main() -> None:
+def parse_seeds(text: str) -> range:
+    start, end = (int(x) for x in text.split(":"))
+    if not 0 <= start < end:
+        raise argparse.ArgumentTypeError(f"--eval-seeds {text!r}: expected START:END with 0 <= START < END")
+    return range(start, end)
+
+
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--episodes", type=int, default=200)
-    ap.add_argument("--image-size", type=int, default=96)
-    ap.add_argument("--max-steps", type=int, default=150)
-    ap.add_argument("--steps", type=int, default=200_000)
-    ap.add_argument("--train-budget-s", type=float, default=420.0)
-    ap.add_argument("--deadline-s", type=float, default=None,
-                    help="whole-run limit: training stops early enough to leave --eval-reserve-s for evaluation")
-    ap.add_argument("--eval-reserve-s", type=float, default=75.0)
-    ap.add_argument("--batch-size", type=int, default=64)
-    ap.add_argument("--lr", type=float, default=1e-4)
-    ap.add_argument("--chunk-size", type=int, default=20)
-    ap.add_argument("--n-action-steps", type=int, default=10)
-    ap.add_argument("--dim-model", type=int, default=512)
-    ap.add_argument("--workers", type=int, default=8)
-    ap.add_argument("--amp", action="store_true", help="bfloat16 autocast for training on CUDA")
-    ap.add_argument("--eval-n-action-steps", default="",
-                    help="extra evaluations of the same checkpoint, comma-separated: an integer is n_action_steps, "
-                         "'te' is ACT's temporal ensembling (n_action_steps=1, coefficient 0.01)")
-    ap.add_argument("--no-cache", action="store_true",
-                    help="stream batches through LeRobotDataset's loader instead of caching frames on the device")
-    ap.add_argument("--eval-seeds", type=int, default=20)
-    ap.add_argument("--videos", action="store_true", help="store camera frames as AV1 video (default: PNG images)")
-    ap.add_argument("--work", type=Path, default=Path("runs/act_lift"))
-    ap.add_argument("--json", type=Path, default=Path("benchmarks/results/act_lift.json"))
+    g = ap.add_argument_group("data")
+    g.add_argument("--episodes", type=int, default=300, help="scripted demonstrations, seeds 0..N-1")
+    g.add_argument("--collect-workers", type=int, default=1, help="processes recording the demonstrations")
+    g.add_argument("--image-size", type=int, default=96)
+    g.add_argument("--max-steps", type=int, default=150)
+    g.add_argument("--videos", action="store_true", help="store frames as AV1 video (default: PNG images)")
+    g = ap.add_argument_group("training (train_act, the code behind `simseam train`)")
+    g.add_argument("--steps", type=int, default=None,
+                   help="fixed step count (cosine horizon); default: planned from --train-s after calibration")
+    g.add_argument("--train-s", type=float, default=None, help="training seconds for this invocation (default: "
+                   "up to --deadline-s less --eval-reserve-s, or 420 without a deadline)")
+    g.add_argument("--later-train-s", type=float, default=0.0,
+                   help="with --pause: training seconds the next invocation will add (part of the cosine horizon)")
+    g.add_argument("--calibrate-s", type=float, default=20.0,
+                   help="seconds of training measured before the horizon is planned")
+    g.add_argument("--batch-size", type=int, default=256)
+    g.add_argument("--lr", type=float, default=3e-4, help="learning rate (backbone included: it starts from scratch)")
+    g.add_argument("--lr-schedule", default="cosine", choices=training.LR_SCHEDULES)
+    g.add_argument("--chunk-size", type=int, default=10)
+    g.add_argument("--n-action-steps", type=int, default=1)
+    g.add_argument("--temporal-ensemble", type=float, default=0.01,
+                   help="ACT's temporal ensembling coefficient (needs --n-action-steps 1); 0: off")
+    g.add_argument("--vae", action="store_true", help="ACT's VAE (off: the expert has one mode)")
+    g.add_argument("--dim-model", type=int, default=256)
+    g.add_argument("--ff-dim", type=int, default=1024)
+    g.add_argument("--encoder-layers", type=int, default=4)
+    g.add_argument("--aug-shift", type=int, default=4, help="random shift of each image, pixels (0: off)")
+    g.add_argument("--amp", action="store_true", help="bfloat16 autocast for training on CUDA")
+    g.add_argument("--no-cache", action="store_true",
+                   help="stream batches through LeRobotDataset's loader instead of caching frames on the device "
+                        "(no --aug-shift then)")
+    g.add_argument("--workers", type=int, default=8, help="data-loader workers (decoding the cache)")
+    g.add_argument("--log-every", type=int, default=100)
+    g.add_argument("--seed", type=int, default=0)
+    g = ap.add_argument_group("time and evaluation")
+    g.add_argument("--deadline-s", type=float, default=None,
+                   help="this invocation's limit in seconds: training ends (or pauses) early enough to leave "
+                        "--eval-reserve-s for evaluation")
+    g.add_argument("--eval-reserve-s", type=float, default=120.0)
+    g.add_argument("--pause", action="store_true",
+                   help="stop training at the deadline with a resumable checkpoint and do not evaluate")
+    g.add_argument("--eval-seeds", type=parse_seeds, default=parse_seeds("10000:10050"),
+                   help="held-out seeds START:END (default 10000:10050)")
+    g.add_argument("--eval-variants", default="",
+                   help="more evaluations of the same checkpoint, comma-separated n_action_steps values "
+                        "(executed open loop from each chunk, no temporal ensembling), run if time is left")
+    g.add_argument("--work", type=Path, default=Path("runs/act_lift"))
+    g.add_argument("--json", type=Path, default=Path("benchmarks/results/act_lift_image.json"))
     args = ap.parse_args()
+    if args.eval_seeds.start < args.episodes:
+        ap.error(f"--eval-seeds {args.eval_seeds.start}:{args.eval_seeds.stop} overlaps the demonstration seeds "
+                 f"0:{args.episodes}")
+    if args.aug_shift and args.no_cache:
+        ap.error("--aug-shift shifts the device cache's batches: it needs the cache (drop --no-cache)")
 
     import torch
 
-    spec = load_robot("franka_panda")
+    args.work.mkdir(parents=True, exist_ok=True)
+    state_path = args.work / "report.json"
+    report: dict = json.loads(state_path.read_text()) if state_path.is_file() else {}
+    report.setdefault("invocations", []).append({
+        "host": platform.node(), "torch": torch.__version__,
+        "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "args": {k: (f"{v.start}:{v.stop}" if isinstance(v, range) else str(v) if isinstance(v, Path) else v)
+                 for k, v in vars(args).items()}})
+    calls = report["invocations"]
+
+    def save() -> None:
+        _write(state_path, report)
+        _write(args.json, report)
+
     size = args.image_size
-    report: dict = {"host": platform.node(), "torch": torch.__version__,
-                    "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
-                    "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}}
+    data, ckpt = args.work / "dataset", args.work / "act"
 
-    t0 = time.perf_counter()
-    scene = ManifestScene(spec, "lift_cube", "mujoco",
-                          SceneOptions(image_size=(size, size), privileged=True, max_steps=args.max_steps))
-    try:
-        col = collect_dataset(scene, make_policy("scripted"), args.work / "dataset", episodes=args.episodes,
-                              use_videos=args.videos, overwrite=True)
-    finally:
-        scene.close()
-    report["collect"] = {"episodes_run": col.episodes_run, "episodes_written": col.episodes_written,
-                         "frames": col.frames_written, "seconds": time.perf_counter() - t0}
-    _write(args.json, report)
-    print(f"collect: {col.episodes_written}/{col.episodes_run} episodes, {col.frames_written} frames, "
-          f"{report['collect']['seconds']:.0f} s", flush=True)
+    # 1. demonstrations
+    if "collect" not in report:
+        report["collect"] = collect(data, args.episodes, args.collect_workers, size, args.max_steps, args.videos)
+        save()
+        c = report["collect"]
+        print(f"collect: {c['episodes_written']}/{c['episodes_run']} episodes, {c['frames']} frames, "
+              f"{c['seconds']:.0f} s ({c['workers']} workers)", flush=True)
 
-    budget = args.train_budget_s
-    if args.deadline_s is not None:
-        budget = min(budget, args.deadline_s - args.eval_reserve_s - (time.perf_counter() - t0))
-    cfg = ActTrainConfig(steps=args.steps, time_budget_s=budget, batch_size=args.batch_size,
-                         lr=args.lr, lr_backbone=args.lr, chunk_size=args.chunk_size,
-                         n_action_steps=args.n_action_steps, dim_model=args.dim_model,
-                         num_workers=args.workers, cache_on_device=not args.no_cache, use_amp=args.amp,
-                         log_every=500)
-    res = train_act(args.work / "dataset", args.work / "act", cfg,
-                    on_log=lambda s, loss: print(f"  step {s:6d}  loss {loss:.4f}", flush=True))
-    report["train"] = {"steps": res.steps, "seconds": res.seconds, "prepare_seconds": res.prepare_seconds,
-                       "steps_per_s": res.steps / max(res.seconds, 1e-9), "cached_on_device": not args.no_cache, "device": res.device, "n_params": res.n_params,
-                       "batch_size": args.batch_size, "samples_seen": res.steps * args.batch_size,
-                       "epochs": res.steps * args.batch_size / max(res.frames, 1), "losses": res.losses}
-    _write(args.json, report)
-    print(f"train: {res.steps} steps in {res.seconds:.0f} s (+{res.prepare_seconds:.0f} s preparing) on "
-          f"{res.device} ({res.n_params / 1e6:.1f} M params)",
-          flush=True)
+    # 2. training
+    train = report.setdefault("train", {"curve": [], "segments": [], "done": False})
+    if not train["done"]:
+        resume = latest_checkpoint(ckpt) is not None
+        prior_s = sum(s["seconds"] for s in train["segments"])
+        window = args.train_s if args.train_s is not None else float("inf") if args.deadline_s else 420.0
+        if args.deadline_s is not None:
+            window = min(window, args.deadline_s - (0 if args.pause else args.eval_reserve_s) - _now())
+        cfg = ActTrainConfig(
+            steps=args.steps or train.get("planned_steps") or 10**9, batch_size=args.batch_size,
+            lr=args.lr, lr_backbone=args.lr, lr_schedule=args.lr_schedule, chunk_size=args.chunk_size,
+            n_action_steps=args.n_action_steps, temporal_ensemble_coeff=args.temporal_ensemble or None,
+            dim_model=args.dim_model, dim_feedforward=args.ff_dim, n_encoder_layers=args.encoder_layers,
+            use_vae=args.vae, num_workers=args.workers, cache_on_device=not args.no_cache, use_amp=args.amp,
+            seed=args.seed + len(calls) - 1, log_every=args.log_every,
+            # a final invocation ends by time at the latest; a pausing one is interrupted below instead
+            time_budget_s=None if args.pause else window)
+        if args.aug_shift:
+            use_random_shift(args.aug_shift)
+        seg = {"invocation": len(calls) - 1, "resumed": resume, "window_s": window}
+        first: list[float] = []  # (step, time) of this segment's first log: speed is measured from there
 
-    seeds = list(range(10_000, 10_000 + args.eval_seeds))
-    spec_str = f"lerobot:{args.work / 'act'}"
-    t1 = time.perf_counter()
-    ev = evaluate(spec, make_policy(spec_str), seeds, size, privileged=False, max_steps=args.max_steps)
-    eval_s = time.perf_counter() - t1
-    runs = [(f"act, n_action_steps={args.n_action_steps}", ev)]
-    for variant in filter(None, args.eval_n_action_steps.split(",")):
-        if args.deadline_s is not None and time.perf_counter() - t0 > args.deadline_s - 40:
-            report.setdefault("skipped_variants", []).append(variant)
-            print(f"skipping evaluation variant {variant!r}: too close to --deadline-s", flush=True)
+        def on_log(step: int, loss: float) -> None:
+            now = time.perf_counter()
+            if not first:
+                first[:] = [step, now]
+            wall = prior_s + _now() - seg["t_start"]
+            train["curve"].append([step, loss, round(wall, 2)])
+            print(f"  step {step:6d}  loss {loss:.4f}  lr x{training.lr_factor(cfg, step):.3f}  {wall:6.0f} s",
+                  flush=True)
+            if args.steps is None and "rate" not in seg and now - first[1] >= args.calibrate_s:
+                # plan the cosine horizon: the steps that fit this window (+ the next invocation's)
+                seg["rate"] = (step - first[0]) / (now - first[1])
+                left = 0.97 * (window - (_now() - seg["t_start"]))  # a margin: the rate may sag
+                left += args.later_train_s if args.pause else 0.0
+                cfg.steps = train["planned_steps"] = step + max(1, int(seg["rate"] * left))
+                print(f"  {seg['rate']:.1f} steps/s: horizon {cfg.steps} steps", flush=True)
+            if args.pause and _now() - seg["t_start"] >= window:
+                raise KeyboardInterrupt  # train_act saves a resumable checkpoint of the steps done
+
+        seg["t_start"] = _now()
+        print(f"train: {'resuming' if resume else 'from scratch'}, window {window:.0f} s, "
+              f"batch {args.batch_size}, lr {args.lr} ({args.lr_schedule})", flush=True)
+        try:
+            res = train_act(data, ckpt, cfg, on_log=on_log, resume=resume, overwrite=not resume)
+        except KeyboardInterrupt:
+            if not args.pause:
+                raise
+            seg.update(paused_at=int(latest_checkpoint(ckpt).name.split("_")[1]), seconds=_now() - seg["t_start"])
+            train["segments"].append(seg)
+            save()
+            print(f"paused at step {seg['paused_at']} (checkpoint {latest_checkpoint(ckpt)}); "
+                  f"run again with --work {args.work} to continue", flush=True)
+            return 0
+        seg.update(steps=res.steps, seconds=_now() - seg["t_start"], train_seconds=res.seconds,
+                   prepare_seconds=res.prepare_seconds)
+        train["segments"].append(seg)
+        train.update(done=True, steps=res.steps, planned_steps=cfg.steps, seconds=prior_s + seg["seconds"],
+                     device=res.device, n_params=res.n_params, batch_size=args.batch_size,
+                     frames=res.frames, episodes=res.episodes, samples_seen=res.steps * args.batch_size,
+                     epochs=res.steps * args.batch_size / max(res.frames, 1),
+                     losses=res.losses, config=json.loads((ckpt / "training.json").read_text())["config"])
+        save()
+        print(f"train: {res.steps} steps (horizon {cfg.steps}) in {train['seconds']:.0f} s of training on "
+              f"{res.device} ({res.n_params / 1e6:.1f} M params)", flush=True)
+
+    # 3. held-out evaluation through `lerobot:`
+    seeds = list(args.eval_seeds)
+    spec = f"lerobot:{ckpt}"
+    t = time.perf_counter()
+    name = (f"act, temporal ensembling {args.temporal_ensemble}" if args.temporal_ensemble
+            else f"act, n_action_steps={args.n_action_steps}")
+    rows = [_row(name, evaluate(make_policy(spec), seeds, size, False, args.max_steps))]
+    ev = {"seeds": f"{seeds[0]}:{seeds[-1] + 1}", "policies": rows, "seconds": time.perf_counter() - t}
+    report["eval"] = ev
+    save()
+    rows.append(_row("scripted expert (privileged)", evaluate(make_policy("scripted"), seeds, size, True,
+                                                               args.max_steps)))
+    save()
+    for variant in filter(None, args.eval_variants.split(",")):
+        # each variant runs as long as the first evaluation, at most
+        if args.deadline_s is not None and _now() + ev["seconds"] + 15 > args.deadline_s:
+            ev.setdefault("skipped_variants", []).append(variant)
             continue
-        if variant == "te":
-            pol = make_policy(spec_str, n_action_steps=1, config_overrides={"temporal_ensemble_coeff": 0.01})
-            label = "act, temporal ensembling"
-        else:
-            pol = make_policy(spec_str, n_action_steps=int(variant))
-            label = f"act, n_action_steps={int(variant)}"
-        runs.append((label, evaluate(spec, pol, seeds, size, privileged=False, max_steps=args.max_steps)))
-    ref = evaluate(spec, make_policy("scripted"), seeds, size, privileged=True, max_steps=args.max_steps)
-    rows = []
-    for name, results in runs + [("scripted expert", ref)]:
-        k = sum(r.success for r in results)
-        lo, hi = wilson_interval(k, len(results))
-        rows.append({"policy": name, "success": k, "episodes": len(results), "rate": k / len(results),
-                     "wilson95": [lo, hi], "mean_steps": sum(r.steps for r in results) / len(results),
-                     "per_seed": {r.seed: r.success for r in results}})
-    report["eval"] = {"seeds": seeds, "seconds": eval_s, "policies": rows,
-                      "policy_ms_p50": float(np.median([x for r in ev for x in r.policy_ms]))}
-    report["total_seconds"] = time.perf_counter() - t0
+        pol = make_policy(spec, n_action_steps=int(variant), config_overrides={"temporal_ensemble_coeff": None})
+        rows.append(_row(f"act, n_action_steps={int(variant)}", evaluate(pol, seeds, size, False, args.max_steps)))
+        save()
+    ev["seconds_all"] = time.perf_counter() - t
+    report["total_seconds_last_invocation"] = _now()
+    save()
 
-    print(f"\n{'policy':28s} {'success':>9s} {'rate':>6s} {'Wilson 95%':>14s} {'mean steps':>11s}")
+    print(f"\n{'policy':34s} {'success':>9s} {'rate':>6s} {'Wilson 95%':>14s} {'mean steps':>11s}")
     for r in rows:
-        print(f"{r['policy']:28s} {r['success']:>4d}/{r['episodes']:<4d} {r['rate']:6.0%} "
+        print(f"{r['policy']:34s} {r['success']:>4d}/{r['episodes']:<4d} {r['rate']:6.0%} "
               f"[{r['wilson95'][0]:.2f}, {r['wilson95'][1]:.2f}] {r['mean_steps']:11.1f}")
-    print(f"training budget: {res.steps} steps x batch {args.batch_size} in {res.seconds:.0f} s on "
-          f"{report['gpu'] or res.device}; data: {col.episodes_written} demos / {col.frames_written} frames")
-    _write(args.json, report)
+    c = report["collect"]
+    print(f"held-out seeds {ev['seeds']}; training: {train['steps']} steps x batch {args.batch_size} in "
+          f"{train['seconds']:.0f} s on {calls[-1]['gpu'] or train['device']}; data: {c['episodes_written']} demos / "
+          f"{c['frames']} frames (seeds {c['seeds']})")
     print(f"wrote {args.json}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -1,25 +1,53 @@
 #!/usr/bin/env bash
-# Runs benchmarks/train_act_lift.py on a lent GPU machine (no network there), through the
-# device tool: run(command="bash benchmarks/device/act_lift.sh", carry=[".whl", ".gl", ".devcarry"]).
-# Prepared here first (README, "Training ACT on a GPU"):
-#   .whl/      cp312 wheels the machine lacks (lerobot 0.4.4 and its datasets/draccus/diffusers/
-#              deepdiff/gymnasium deps, huggingface-hub 0.35 with the transformers 4.57 / tokenizers 0.22
-#              that match it, mujoco 4, pydantic), installed with --no-deps;
-#   .gl/       the GL loader .debs (libegl1, libglvnd0, ...) so MuJoCo renders through the NVIDIA EGL driver;
-#   .devcarry/ pybullet_data/franka_panda (the Panda URDF + meshes, 1.9 MB as .tar.xz): the pybullet wheel
-#              itself is over the 64 MiB transfer cap, so the assets travel alone under a minimal
-#              pybullet dist-info, which is how `pkg:pybullet/...` asset references find them.
+# Runs benchmarks/train_act_lift.py on a lent GPU machine (no network there), through the device tool:
+#   run(command="bash benchmarks/device/act_lift.sh --pause --later-train-s 420",
+#       carry=[".whl", ".gl", ".devcarry"], timeout_s=600)
+#   run(command="bash benchmarks/device/act_lift.sh")          # next call, same warm machine: resumes, evaluates
+# Every argument goes to train_act_lift.py after these defaults (a later one wins): --work /tmp/act_lift
+# (kept between back-to-back calls: the machine's /tmp lives while it stays warm), --json $OUT/act_lift.json,
+# --deadline-s (what is left of LIMIT seconds, default 570, counted from this script's start: the tool's
+# command limit is 600 s), --amp, --collect-workers 12.
+#
+# Prepared here first, in the repository root (all three are ignored through .git/info/exclude):
+#   .whl/      cp312 wheels the machine's image lacks, installed with --no-deps into /tmp/site (23 MB):
+#                P="--no-deps --only-binary=:all: --python-version 3.12 --implementation cp
+#                   --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64
+#                   --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl"
+#                python3 -m pip download $P lerobot==0.4.4 datasets==4.8.5 dill multiprocess draccus==0.10.0 \
+#                  mergedeep pyyaml-include toml deepdiff==8.6.2 orderly-set gymnasium==1.4.0 farama-notifications \
+#                  diffusers==0.35.2 importlib_metadata jsonlines termcolor mujoco==4.0.0 mujoco-core==4.0.0 glfw \
+#                  pyopengl pydantic==2.14.4 pydantic-core==2.50.5 annotated-types typing-inspection \
+#                  huggingface-hub==0.35.3 pyserial
+#              (huggingface-hub 0.35: lerobot 0.4.4 needs < 0.36, the image has 1.x; mujoco-studio is not
+#              needed: the classic EGL renderer is in mujoco-core; torch, torchvision, numpy, pandas, pyarrow,
+#              accelerate, opencv, safetensors ... are the image's own);
+#   .gl/       the GL loader .debs, so MuJoCo renders through the NVIDIA EGL driver
+#              (/work/.library/device/README.md: apt-get download libvulkan1 libegl1 libglvnd0 libopengl0
+#              libgl1 libglx0 libgles2, amd64);
+#   .devcarry/ pybullet_franka.tar.xz: pybullet_data/franka_panda (the Panda URDF + meshes, 1.9 MB) from
+#              an installed pybullet (tar -C <site-packages> -cJf .devcarry/pybullet_franka.tar.xz
+#              pybullet_data/franka_panda). The pybullet wheel is over the 64 MiB transfer cap, so the
+#              assets travel alone under a minimal pybullet dist-info, which is how `pkg:pybullet/...`
+#              asset references find them.
 # PyAV (av, 40 MB) is also over the cap; lerobot imports it at module load but only calls it for
 # video features, and this run stores frames as PNG images, so a module that raises on any use
 # stands in for it (it defines only the one constant lerobot reads at import).
+# SKIP_SETUP=1 skips the .deb and wheel installs (SITE already prepared: a rehearsal on another machine).
 set -euo pipefail
-for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
-SITE=/tmp/site
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" .whl/*.whl
+LIMIT=${LIMIT:-570}
+PY=${PY:-python3}
+SITE=${SITE:-/tmp/site}
+if [ -z "${SKIP_SETUP:-}" ]; then
+  for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+  if [ ! -f "$SITE/.installed" ]; then
+    "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$SITE" .whl/*.whl
+    touch "$SITE/.installed"
+  fi
+fi
 tar -C "$SITE" -xJf .devcarry/pybullet_franka.tar.xz
 mkdir -p "$SITE/pybullet-3.2.7.dist-info"
 printf 'Metadata-Version: 2.1\nName: pybullet\nVersion: 3.2.7\n' > "$SITE/pybullet-3.2.7.dist-info/METADATA"
-if ! python3 -c 'import av' 2>/dev/null; then
+if ! PYTHONPATH="$SITE" "$PY" -c 'import av' 2>/dev/null; then
   mkdir -p "$SITE/av"
   cat > "$SITE/av/__init__.py" <<'PY'
 """PyAV is not on this machine (its wheel is over the transfer cap); any use fails loudly."""
@@ -33,7 +61,12 @@ def __getattr__(name):
     raise ImportError(f"av.logging.{name}: PyAV is not installed on this machine (PNG-only run)")
 PY
 fi
-export PYTHONPATH="$SITE:$PWD/src" MUJOCO_GL=egl PYTHONUNBUFFERED=1
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader
-python3 -c 'import torch, lerobot, mujoco; print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "mujoco", mujoco.__version__)'
-python3 benchmarks/train_act_lift.py --json "${OUT:-benchmarks/results}/act_lift.json" --work /tmp/act_lift "$@"
+export PYTHONPATH="$SITE:$PWD/src" MUJOCO_GL=egl PYTHONUNBUFFERED=1 HF_DATASETS_DISABLE_PROGRESS_BARS=1 \
+  TQDM_DISABLE=1
+OUTDIR=${OUT:-benchmarks/results}
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
+"$PY" -c 'import torch, lerobot, mujoco; print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "mujoco", mujoco.__version__)'
+echo "setup: ${SECONDS} s"
+set -o pipefail
+"$PY" benchmarks/train_act_lift.py --work /tmp/act_lift --json "$OUTDIR/act_lift.json" --amp --collect-workers 12 \
+  --deadline-s $((LIMIT - SECONDS)) "$@" 2>&1 | tee -a "$OUTDIR/act_lift.log"
