@@ -70,7 +70,7 @@ def test_png_frames_are_lossless_and_failures_are_dropped(panda_spec, make_scene
         np.testing.assert_array_equal(got, policy.log[24 + i][1]["camera2"])
 
 
-def test_existing_directory_is_refused_unless_overwritten(panda_spec, make_scene, tmp_path):
+def test_existing_directory_is_refused_and_only_a_dataset_is_overwritten(panda_spec, make_scene, tmp_path):
     from simseam.runner.dataset_recorder import LeRobotRecorder
 
     scene = make_scene(panda_spec, image_size=(32, 32))
@@ -78,9 +78,13 @@ def test_existing_directory_is_refused_unless_overwritten(panda_spec, make_scene
     (tmp_path / "ds" / "keep.txt").write_text("mine")
     with pytest.raises(ConfigError, match="already exists"):
         LeRobotRecorder(tmp_path / "ds", scene.spec)
+    with pytest.raises(ConfigError, match="holds keep.txt, not a LeRobot dataset; .*nothing was deleted"):
+        LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True)  # --overwrite replaces a dataset only
     assert (tmp_path / "ds" / "keep.txt").read_text() == "mine"
-    LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True).close()
-    assert not (tmp_path / "ds" / "keep.txt").exists()
+    (tmp_path / "empty").mkdir()
+    LeRobotRecorder(tmp_path / "empty", scene.spec).close()  # an empty directory is free to use
+    assert (tmp_path / "empty" / "meta" / "info.json").is_file()
+    LeRobotRecorder(tmp_path / "empty", scene.spec, overwrite=True).close()  # an earlier dataset is replaced
 
 
 def test_recording_needs_images_and_an_integer_rate(panda_spec, make_scene, tmp_path):

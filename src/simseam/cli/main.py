@@ -88,7 +88,7 @@ def run(
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     out: Path = typer.Option(None, "--out", help="Output directory (run.json, episodes.jsonl, summary.json, "
                              "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out (and the dataset in --record-dataset)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config): skip the "
                                 "episodes it already recorded."),
     video: bool = typer.Option(False, "--video/--no-video", help="Write one MP4 per episode (first RGB camera)."),
@@ -131,6 +131,10 @@ def run(
         shard_ik = parse_shard(shard) if shard is not None else None
         if record_dataset is not None and (num_envs or 1) > 1:
             raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
+        if record_dataset is not None:
+            from simseam.runner.dataset_recorder import check_dataset_out
+
+            check_dataset_out(record_dataset, overwrite, "--record-dataset")
         if ray_address is not None and (record_dataset is not None or video):
             raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
                               "to its own disk)")
@@ -188,7 +192,7 @@ def run(
             if record_dataset is not None:
                 from simseam.runner.dataset_recorder import LeRobotRecorder
 
-                recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos)
+                recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos, overwrite=overwrite)
             console.print(f"{escape(rollout.spec.describe())}, policy [bold]{escape(policy)}[/], "
                           f"{episodes} episode(s) -> {escape(str(out))}")
             _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
@@ -412,19 +416,16 @@ def collect(
                                        help="Execute each action with Gaussian noise of this standard deviation "
                                             "(action units; gripper untouched) while recording the policy's own "
                                             "action: demonstrations that show recoveries (0: off)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace --out if it exists."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the LeRobot dataset already in --out (never other files)."),
 ) -> None:
     """Collect demonstrations as a LeRobot dataset (images, state, action, task, fps = control rate).
     Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
-    from simseam.runner.dataset_recorder import LeRobotRecorder
-    from simseam.runner.run_dir import check_writable
+    from simseam.runner.dataset_recorder import LeRobotRecorder, check_dataset_out
 
     check_seed(seed)
 
     try:
-        check_writable(out)
-        if out.exists() and any(out.iterdir()) and not overwrite:
-            raise ConfigError(f"dataset directory {out} already exists; pick a new --out or pass --overwrite")
+        check_dataset_out(out, overwrite)
         from simseam.runner.scene_config import load_scene_config
 
         _, pol, rollout = _open_run(load_scene_config(scene), policy, seed, {}, need_images=cameras)

@@ -59,11 +59,25 @@ def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str,
     return features
 
 
+def check_dataset_out(root: Path, overwrite: bool, flag: str = "--out") -> None:
+    """Before anything runs: ``root`` may be recorded into (absent or empty, or an earlier LeRobot
+    dataset with ``overwrite``); a ``ConfigError`` naming ``flag`` otherwise. Nothing is deleted here."""
+    from simseam.runner.run_dir import check_writable
+
+    check_writable(root)
+    held = sorted(p.name for p in root.iterdir()) if root.is_dir() else []
+    if held and not overwrite:
+        raise ConfigError(f"{flag} {root}: the directory already exists; pick another or pass --overwrite")
+    if held and not (root / "meta" / "info.json").is_file():
+        raise ConfigError(f"{flag} {root} holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''}, not a "
+                          "LeRobot dataset; --overwrite replaces only a dataset (nothing was deleted)")
+
+
 class LeRobotRecorder:
     """Writes episodes of one scene into a new LeRobot dataset at ``root``.
 
-    ``root`` must not exist yet (LeRobot refuses to append to a dataset it did not
-    open); ``overwrite=True`` deletes it first. ``repo_id`` is only a name here
+    ``root`` must not exist yet, or be empty (LeRobot refuses to append to a dataset it did not
+    open); ``overwrite=True`` replaces an earlier LeRobot dataset there (never other files). ``repo_id`` is only a name here
     (nothing is uploaded).
     """
 
@@ -71,15 +85,13 @@ class LeRobotRecorder:
                  use_videos: bool = True, overwrite: bool = False):
         LeRobotDataset = _require_lerobot()
         self.root = Path(root)
-        if self.root.exists():
-            if not overwrite:
-                raise ConfigError(f"dataset directory {self.root} already exists; pick a new --out "
-                                  "or pass --overwrite")
-            shutil.rmtree(self.root)
         fps = float(spec.control_hz)
         if abs(fps - round(fps)) > 1e-9:
             raise ConfigError(f"LeRobot datasets need an integer fps; the scene runs at {fps:g} Hz "
                               "(set control_hz to a whole number)")
+        check_dataset_out(self.root, overwrite)
+        if self.root.exists():
+            shutil.rmtree(self.root)
         self.spec = spec
         self.features = dataset_features(spec, use_videos=use_videos)
         self._image_keys = list(spec.cameras)
