@@ -272,7 +272,7 @@ def main() -> int:
         prior_s = sum(s["seconds"] for s in train["segments"])
         window = args.train_s if args.train_s is not None else float("inf") if args.deadline_s else 420.0
         if args.deadline_s is not None:
-            window = min(window, args.deadline_s - (0 if args.pause else args.eval_reserve_s) - _now())
+            window = max(5.0, min(window, args.deadline_s - (0 if args.pause else args.eval_reserve_s) - _now()))
         cfg = ActTrainConfig(
             steps=args.steps or train.get("planned_steps") or 10**9, batch_size=args.batch_size,
             lr=args.lr, lr_backbone=args.lr, lr_schedule=args.lr_schedule, chunk_size=args.chunk_size,
