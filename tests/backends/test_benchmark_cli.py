@@ -108,6 +108,9 @@ def test_bad_benchmark_input_is_one_line_naming_file_and_field(tmp_path):
     assert proc.returncode == 2 and "unknown eval preset 'robocasa_kitchen'" in proc.stderr
     proc = simseam("eval", "libero_goal", "--policy", "random", "--tasks", "libero_goal/12")
     assert proc.returncode == 2 and "--tasks: ['libero_goal/12'] not in preset 'libero_goal'" in proc.stderr
+    proc = simseam("eval", "libero_goal", "--policy", "random", "--tasks", "", "--out", str(tmp_path / "none"))
+    assert proc.returncode == 2 and "--tasks '' names no task" in proc.stderr  # it used to run every task
+    assert not (tmp_path / "none").exists()
 
 
 def test_benchmarks_list_shows_tasks_and_instructions():

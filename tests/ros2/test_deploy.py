@@ -116,3 +116,24 @@ def test_deploy_without_ros2_records_and_serves_foxglove(mobile_scene, tmp_path)
     with open(mcap_path, "rb") as fh:
         topics = {ch.topic for ch in make_reader(fh).get_summary().channels.values()}
     assert {"/clock", "/joint_states", "/odom", "/scan"} <= topics
+
+
+def test_bad_recording_and_port_input_is_one_line_and_overwrites_nothing(mobile_scene, tmp_path):
+    """--record naming a directory or an existing file (kept unless --overwrite), a port out of range."""
+    from cli_util import simseam
+
+    folder = tmp_path / "runs"
+    folder.mkdir()
+    old = tmp_path / "old.mcap"
+    old.write_bytes(b"earlier recording")
+    for args, fragment in ((["--record", folder], f"--record {folder}: is a directory"),
+                           (["--record", old], f"--record {old}: the file exists; choose another or pass --overwrite"),
+                           (["--foxglove", "--foxglove-port", "70000"], "less than or equal to 65535"),
+                           (["--foxglove", "--foxglove-port", "-5"], "greater than or equal to 0")):
+        proc = simseam("deploy", "--scene", mobile_scene, "--duration", "0.1", *args, timeout=120)
+        assert proc.returncode == 2 and fragment in " ".join(proc.stderr.replace("│", " ").split()), proc.stderr
+        assert "Traceback" not in proc.stderr
+    assert old.read_bytes() == b"earlier recording"
+    proc = simseam("deploy", "--scene", mobile_scene, "--duration", "0.1", "--record", old, "--overwrite", timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert old.read_bytes()[:8] == b"\x89MCAP0\r\n"  # replaced by a recording

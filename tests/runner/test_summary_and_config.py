@@ -31,6 +31,44 @@ def _write(tmp_path, text):
     return p
 
 
+@pytest.mark.parametrize("text, fragment", [
+    ("robot: franka_panda\nrobot: so101\ntask: lift_cube\n", "line 2: key 'robot' appears twice (lines 1 and 2)"),
+    ("robot: franka_panda\ntask: lift_cube\nmax_steps: true\n", "field 'max_steps': Input should be a valid integer"),
+    ("robot: franka_panda\ntask: lift_cube\nenvironment_state: 1\n", "field 'environment_state'"),
+])
+def test_scene_file_values_yaml_would_take_silently_are_refused(tmp_path, text, fragment):
+    """A key given twice (YAML keeps the last) and a bool where a count belongs (`true` ran one step)."""
+    with pytest.raises(ConfigError, match=fragment.replace("(", r"\(").replace(")", r"\)")):
+        load_scene_config(_write(tmp_path, text))
+
+
+def test_a_damaged_episode_log_is_summarized_but_never_called_complete(tmp_path):
+    """A torn last line (a kill mid-write) is expected; an unreadable line before it is damage: the
+    episodes that remain are summarized and the run is marked incomplete, naming the lines."""
+    import json
+
+    from simseam.runner.run_dir import rebuild_summary
+
+    ok = [EpisodeResult(i, i, success=True, steps=3, reward=1.0).to_json() for i in range(3)]
+    (tmp_path / "run.json").write_text(json.dumps({"episodes": 3}))
+    lines = [json.dumps(ok[0]), json.dumps({"index": 1, "seed": 1}), "garbage", json.dumps(ok[1]),
+             json.dumps(ok[2]), '{"index": 2, "se']
+    (tmp_path / "episodes.jsonl").write_text("\n".join(lines))
+    s = rebuild_summary(tmp_path)
+    assert s["n_episodes"] == 3 and s["damaged_log_lines"] == [2, 3] and s["complete"] is False
+    (tmp_path / "episodes.jsonl").write_text("\n".join(lines[:1] + lines[3:]))  # only the torn last line
+    s = rebuild_summary(tmp_path)
+    assert s["complete"] is True and "damaged_log_lines" not in s
+
+
+def test_a_shard_that_holds_no_episode_is_refused():
+    from simseam.runner.sharding import check_shard_holds_episodes, shard_indices
+
+    assert check_shard_holds_episodes(shard_indices(5, (3, 5)), (3, 5), 5) == [3]
+    with pytest.raises(ConfigError, match=r"--shard 3/5: none of the 2 episode\(s\) falls in this shard"):
+        check_shard_holds_episodes(shard_indices(2, (3, 5)), (3, 5), 2)
+
+
 def test_scene_file_unknown_key_names_file_and_field(tmp_path):
     p = _write(tmp_path, "robot: franka_panda\nlayout: lift_cube\nengine: {name: mujoco, gpu: true}\n")
     with pytest.raises(ConfigError) as exc:

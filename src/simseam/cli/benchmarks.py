@@ -108,7 +108,7 @@ def eval_command(
     from simseam.policies.base import make_policy
     from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
     from simseam.runner.run_dir import RunDir, default_run_dir
-    from simseam.runner.sharding import parse_shard
+    from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
 
     if resume and out is None:
         fail(ConfigError("--resume needs --out (the run directory to continue)"))
@@ -117,7 +117,10 @@ def eval_command(
         if ray_address is not None and video:
             raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
         p = preset(preset_name)
-        only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks else None
+        only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks is not None else None
+        if only == []:
+            raise ConfigError(f"--tasks {tasks!r} names no task (comma-separated names or indices; leave it out "
+                              "for every task)")
         task_list = resolve_tasks(p, only)
         n = episodes or p.episodes
         default_out = out is None
@@ -125,10 +128,10 @@ def eval_command(
         config = eval_config(p, redacted(policy), task_list, n, seed, video)
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
+        planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    planned = eval_indices(task_list, n, shard_ik)
     todo = [i for i in planned if i not in run_dir.done]
     if ray_address is not None:
         _eval_ray(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,

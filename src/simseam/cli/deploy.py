@@ -21,9 +21,11 @@ def deploy(
     scene: Path = typer.Option(..., "--scene", help="Scene YAML (robot, engine, task, control rate)."),
     ros2: bool = typer.Option(False, "--ros2/--no-ros2", help="Publish and subscribe ROS 2 topics over DDS."),
     record: Path = typer.Option(None, "--record", help="Write the topics to this MCAP file (ROS 2 schemas)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace the --record file if it exists."),
     foxglove: bool = typer.Option(False, "--foxglove/--no-foxglove",
                                   help="Serve the topics live to Foxglove on 127.0.0.1."),
-    foxglove_port: int = typer.Option(8765, "--foxglove-port", help="Foxglove WebSocket port (0: any free)."),
+    foxglove_port: int = typer.Option(8765, "--foxglove-port", min=0, max=65535,
+                                      help="Foxglove WebSocket port (0: any free)."),
     duration: float = typer.Option(None, "--duration", min=0.0, help="Stop after S seconds of sim time "
                                    "(default: run until Ctrl-C)."),
     rtf: float = typer.Option(1.0, "--rtf", min=0.0, help="Real-time factor (0: as fast as possible)."),
@@ -76,7 +78,7 @@ def deploy(
             if record is not None:
                 from simseam.ros2.record import McapRecorder
 
-                sinks.append(McapRecorder(record))
+                sinks.append(McapRecorder(record, overwrite=overwrite))
             if foxglove:
                 from simseam.ros2.record import FoxgloveServer
 

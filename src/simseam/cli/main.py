@@ -126,9 +126,10 @@ def run(
         fail(ConfigError("--resume needs --out (the run directory to continue)"))
     out = default_run_dir() if default_out else out
     try:
-        from simseam.runner.sharding import parse_shard, shard_indices
+        from simseam.runner.sharding import check_shard_holds_episodes, parse_shard, shard_indices
 
         shard_ik = parse_shard(shard) if shard is not None else None
+        planned = check_shard_holds_episodes(shard_indices(episodes, shard_ik), shard_ik, episodes)
         if record_dataset is not None and (num_envs or 1) > 1:
             raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
         if record_dataset is not None:
@@ -158,7 +159,6 @@ def run(
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    planned = shard_indices(episodes, shard_ik)
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
@@ -362,6 +362,10 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
         summary = rebuild_summary(run)
     except SimseamError as exc:
         fail(exc)
+    if summary.get("damaged_log_lines"):
+        lines = summary["damaged_log_lines"]
+        err_console.print(f"warning: {run / 'episodes.jsonl'}: line(s) {', '.join(map(str, lines[:10]))} hold no "
+                          "episode record (skipped); the run counts as incomplete", markup=False, highlight=False)
     lo, hi = summary["success_rate_wilson95"]
     console.print(f"{summary['n_episodes']} episode(s), success {summary['n_success']}/{summary['n_episodes']} "
                   f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}]); {'complete' if summary['complete'] else 'incomplete'}; "

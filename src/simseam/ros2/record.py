@@ -20,15 +20,23 @@ from simseam.seam import BackendUnavailableError, ConfigError
 class McapRecorder:
     """Write messages to ``path`` (MCAP, zstd-compressed chunks)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, *, overwrite: bool = False):
         try:
             from mcap.writer import CompressionType, Writer
         except ImportError as exc:
             raise BackendUnavailableError(f"--record needs the mcap package ({exc}); "
                                           "install it with: pip install 'simseam[ros2]'") from None
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "wb")
+        if self.path.is_dir():
+            raise ConfigError(f"--record {self.path}: is a directory; name the MCAP file to write (e.g. "
+                              f"{self.path / 'session.mcap'})")
+        if self.path.exists() and not overwrite:
+            raise ConfigError(f"--record {self.path}: the file exists; choose another or pass --overwrite")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "wb")
+        except OSError as exc:
+            raise ConfigError(f"--record {self.path}: cannot write it ({exc.strerror})") from None
         self._w = Writer(self._fh, compression=CompressionType.ZSTD)
         self._w.start(profile="ros2", library="simseam")
         self._schemas: dict[str, int] = {}

@@ -185,20 +185,38 @@ class RunDir:
             self._log.close()
 
 
+#: what every line of the episode log holds (``EpisodeResult.to_json``)
+EPISODE_KEYS = ("index", "seed", "success", "steps")
+
+
 def read_log(path: Path) -> list[dict]:
-    """The finished episodes in ``DIR/episodes.jsonl``, by index (a torn last line is ignored;
-    an index logged twice counts once, the last entry winning)."""
+    """The finished episodes in ``DIR/episodes.jsonl``, by index (an index logged twice counts once, the
+    last entry winning). A torn last line (a kill mid-write) is skipped; see ``damaged_lines``."""
+    return _read_log(path)[0]
+
+
+def damaged_lines(path: Path) -> list[int]:
+    """Line numbers (1-based) of the log that hold no episode record, a torn last line excepted."""
+    return _read_log(path)[1]
+
+
+def _read_log(path: Path) -> tuple[list[dict], list[int]]:
     log = Path(path) / LOG_FILE
     if not log.is_file():
         raise ConfigError(f"{path}: no {LOG_FILE} (not a simseam run directory)")
     by_index: dict[int, dict] = {}
-    for line in log.read_text().splitlines():
+    bad: list[int] = []
+    lines = log.read_text().splitlines()
+    for n, line in enumerate(lines, 1):
         try:
             e = json.loads(line)
+            if not isinstance(e, dict) or any(k not in e for k in EPISODE_KEYS):
+                raise ValueError
             by_index[int(e["index"])] = e
-        except (ValueError, KeyError, TypeError):
-            continue  # a line cut short by a kill
-    return [by_index[i] for i in sorted(by_index)]
+        except (ValueError, TypeError):
+            if line.strip() and n < len(lines):  # the last line may be cut short by a kill
+                bad.append(n)
+    return [by_index[i] for i in sorted(by_index)], bad
 
 
 def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: bool = False) -> dict:
@@ -206,7 +224,7 @@ def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: b
     from simseam.runner.summary import build_summary
 
     path = Path(path)
-    episodes = read_log(path)
+    episodes, damaged = _read_log(path)
     try:
         config = json.loads((path / CONFIG_FILE).read_text())
     except (OSError, ValueError):
@@ -221,6 +239,9 @@ def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: b
 
     planned = planned_indices(config)  # a shard's (--shard i/K) own indices
     have = {int(e["index"]) for e in episodes}
-    summary["complete"] = (not interrupted) and planned is not None and all(i in have for i in planned)
+    summary["complete"] = (not interrupted and not damaged and planned is not None
+                           and all(i in have for i in planned))
+    if damaged:
+        summary["damaged_log_lines"] = damaged
     write_json_atomic(path / SUMMARY_FILE, summary)
     return summary

@@ -47,9 +47,9 @@ class EngineConfig(BaseModel):
     transport: Literal["ipc", "tcp"] = "ipc"
     boot_timeout_s: float = Field(default=120.0, gt=0)
     request_timeout_s: float = Field(default=30.0, gt=0)
-    keep_alive: bool = False
+    keep_alive: bool = Field(default=False, strict=True)
     # engine mujoco_warp (GPU-batched): worlds in one process, and the warp device (default: the preferred one)
-    num_envs: int | None = Field(default=None, ge=1)
+    num_envs: int | None = Field(default=None, ge=1, strict=True)
     device: str | None = None
 
 
@@ -70,11 +70,11 @@ class SceneConfig(BaseModel):
     task: str | None = Field(default=None, validation_alias=AliasChoices("task", "layout"))
     benchmark: BenchmarkConfig | None = None
     image_size: tuple[int, int] | None = None
-    max_steps: int | None = Field(default=None, gt=0)
+    max_steps: int | None = Field(default=None, gt=0, strict=True)  # strict: `true` is no step count
     control_hz: float = Field(default=20.0, gt=0, le=1000)
     control_mode: Literal["joint_position", "cartesian_delta"] | None = None
     #: observe the task's object state (``environment_state``), what a state-based learned policy reads
-    environment_state: bool = False
+    environment_state: bool = Field(default=False, strict=True)
 
     @field_validator("engine", mode="before")
     @classmethod

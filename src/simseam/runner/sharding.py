@@ -53,6 +53,15 @@ def shard_indices(episodes: int, shard: tuple[int, int] | None) -> list[int]:
     return list(range(i, episodes, k))
 
 
+def check_shard_holds_episodes(planned: list[int], shard: tuple[int, int] | None, total: int) -> list[int]:
+    """``planned``, or a ``ConfigError`` when a shard holds none of the ``total`` episodes (a run of
+    nothing would otherwise report 0/0 as complete)."""
+    if not planned and shard is not None:
+        raise ConfigError(f"--shard {shard[0]}/{shard[1]}: none of the {total} episode(s) falls in this shard "
+                          f"(shard i runs the episodes e with e % {shard[1]} == i)")
+    return planned
+
+
 def planned_indices(config: dict) -> list[int] | None:
     """The indices a run's config plans (its shard's), or None when the config does not say."""
     n = config.get("episodes")
