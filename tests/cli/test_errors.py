@@ -72,3 +72,49 @@ def test_video_without_an_rgb_camera_says_so(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "has no RGB camera, so no video is written" in proc.stderr
     assert list((tmp_path / "o").glob("*.mp4")) == []
+
+
+def test_a_mistyped_name_gets_the_closest_known_one(tmp_path):
+    """Policies, robots, tasks, engines, presets and PyPI distributions: 'did you mean', and a typo of an
+    installed distribution is never turned into `pip install <typo>` advice (a typosquat)."""
+    from simseam.backends import backend_info
+    from simseam.engines.registry import engine_info
+    from simseam.policies.base import make_policy
+    from simseam.robot.assets import resolve_asset
+    from simseam.robot.manifest import find_manifest
+    from simseam.runner.evaluate import preset
+    from simseam.scene.tasks.base import get_task
+    from simseam.seam import ConfigError
+    from simseam.seam.errors import did_you_mean
+
+    for call, fragment in ((lambda: make_policy("scriptd"), "did you mean 'scripted'?"),
+                           (lambda: find_manifest("franka_pand"), "did you mean 'franka_panda'?"),
+                           (lambda: get_task("lift_cub"), "did you mean 'lift_cube'?"),
+                           (lambda: engine_info("mujoco-warp"), "did you mean 'mujoco_warp'?"),
+                           (lambda: preset("libero_spacial"), "did you mean 'libero_spatial'?"),
+                           (lambda: backend_info("metaword"), "did you mean 'metaworld'?"),
+                           (lambda: resolve_asset("pkg:pybulet/x.urdf"), "did you mean 'pybullet'?")):
+        with pytest.raises(ConfigError) as err:
+            call()
+        assert fragment in str(err.value) and "pip install" not in str(err.value), str(err.value)
+    assert did_you_mean("zzz", ["scripted", "zero"]) == ""
+
+
+def test_robots_check_takes_a_built_in_name_and_names_a_directory_for_what_it_is(tmp_path):
+    ok = _simseam("robots", "check", "so101")
+    assert ok.returncode == 0 and "ok so101: robot 'so101'" in ok.stdout, ok.stderr
+    (tmp_path / "urdfdir").mkdir()
+    m = tmp_path / "m.yaml"
+    m.write_text("name: x\nurdf: file:urdfdir\nbase_link: a\nee_link: b\njoints: [{name: j, role: arm}]\n")
+    bad = _simseam("robots", "check", m)
+    assert bad.returncode == 2 and "which is a directory, not a file" in bad.stderr
+
+
+@pytest.mark.learning
+def test_a_device_that_is_no_torch_device_is_named(tmp_path):
+    from simseam.policies.lerobot_policy import pick_device
+    from simseam.seam import ConfigError
+
+    with pytest.raises(ConfigError, match=r"--device 'gpu0': not a torch device \(cpu, cuda, cuda:N, mps\)"):
+        pick_device("gpu0")
+    assert pick_device("cpu") == "cpu"

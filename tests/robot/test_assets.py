@@ -77,7 +77,7 @@ def test_missing_file_reference_is_a_config_error(tmp_path):
 
 
 def test_a_directory_is_not_an_asset(tmp_path):
-    with pytest.raises(ConfigError, match="does not exist"):
+    with pytest.raises(ConfigError, match="which is a directory, not a file"):  # it used to say "does not exist"
         resolve_asset(f"file:{tmp_path}")
 
 

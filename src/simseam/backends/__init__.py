@@ -17,7 +17,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from simseam.seam.errors import ConfigError
+from simseam.seam.errors import ConfigError, did_you_mean
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,8 @@ def backend_info(name: str) -> BackendInfo:
         return BACKENDS[name]
     except KeyError:
         extra = f" ({NOT_AVAILABLE[name]})" if name in NOT_AVAILABLE else ""
-        raise ConfigError(f"unknown benchmark backend {name!r}{extra}; available: {', '.join(sorted(BACKENDS))}") \
+        raise ConfigError(f"unknown benchmark backend {name!r}{extra or did_you_mean(name, BACKENDS)}; available: "
+                          f"{', '.join(sorted(BACKENDS))}") \
             from None
 
 

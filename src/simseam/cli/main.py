@@ -577,7 +577,8 @@ def robots_show(name: str = typer.Argument(..., help="Built-in robot name or man
 
 
 @robots_app.command("check")
-def robots_check(path: Path = typer.Argument(..., help="Manifest file to check against its URDF.")) -> None:
+def robots_check(path: Path = typer.Argument(..., help="Manifest file (or a built-in robot's name) to check "
+                                             "against its URDF.")) -> None:
     """Validate a manifest: schema, assets, every joint/link against its URDF, home and gripper positions
     within the joint limits; then build the robot headless in MuJoCo as `run` does (meshes, inertias,
     cameras, holding still) and warn about what would surprise (no visual geometry, unreadable meshes)."""

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 from simseam.engines.base import Engine, EngineOptions
 from simseam.seam import BackendUnavailableError, ConfigError
+from simseam.seam.errors import did_you_mean
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,8 @@ def engine_info(name: str) -> EngineInfo:
     try:
         return ENGINES[name]
     except KeyError:
-        raise ConfigError(f"unknown engine {name!r}; known engines: {', '.join(ENGINE_NAMES)}") from None
+        raise ConfigError(f"unknown engine {name!r}{did_you_mean(name, ENGINE_NAMES)}; known engines: "
+                          f"{', '.join(ENGINE_NAMES)}") from None
 
 
 def make_engine(name: str, options: EngineOptions | None = None) -> Engine:

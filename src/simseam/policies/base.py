@@ -25,6 +25,7 @@ from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from simseam.seam import STATE_ONLY, ConfigError, Observation, ObsRequest, RolloutSpec
+from simseam.seam.errors import did_you_mean
 
 
 @runtime_checkable
@@ -129,7 +130,7 @@ def make_policy(name: str, **kwargs: Any) -> Policy:
         factory = _POLICIES[name]
     except KeyError:
         known = ", ".join(sorted(_POLICIES)) + ", " + ", ".join(f"{s}:<target>" for s in sorted(_SCHEMES))
-        raise ConfigError(f"unknown policy {name!r}; known policies: {known}") from None
+        raise ConfigError(f"unknown policy {name!r}{did_you_mean(name, _POLICIES)}; known policies: {known}") from None
     check_policy_options(name, factory, kwargs)
     return factory(**kwargs)
 

@@ -55,6 +55,10 @@ def pick_device(requested: str | None = None) -> str:
     import torch
 
     if requested:
+        try:
+            torch.device(requested)
+        except (RuntimeError, ValueError):
+            raise ConfigError(f"--device {requested!r}: not a torch device (cpu, cuda, cuda:N, mps)") from None
         if requested.startswith("cuda") and not torch.cuda.is_available():
             raise ConfigError(f"device {requested!r} requested but torch sees no CUDA GPU")
         return requested

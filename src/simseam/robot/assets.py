@@ -15,6 +15,7 @@ import importlib.metadata as md
 from pathlib import Path
 
 from simseam.seam import BackendUnavailableError, ConfigError
+from simseam.seam.errors import did_you_mean
 
 
 def resolve_asset(ref: str, base_dir: str | Path | None = None) -> Path:
@@ -36,10 +37,14 @@ def resolve_asset(ref: str, base_dir: str | Path | None = None) -> Path:
                 raise ConfigError(
                     f"asset reference {ref!r}: {dist_name!r} is not a PyPI distribution but a folder inside "
                     f"{' / '.join(repr(p) for p in providers)}; write pkg:{providers[0]}/{dist_name}/{rel}") from None
+            installed = sorted({d.metadata["Name"] for d in md.distributions() if d.metadata["Name"]})
+            close = did_you_mean(dist_name, installed)
+            if close:  # a typo of an installed distribution: never advise installing the typo (a typosquat)
+                raise ConfigError(f"asset reference {ref!r}: no installed distribution {dist_name!r}{close}") from None
             raise BackendUnavailableError(
                 f"asset {ref!r} needs the PyPI distribution {dist_name!r} (the name you would `pip install`), "
-                f"which is not installed; run `pip install {dist_name}` if that is its name (the set-up scripts "
-                "install the built-in robots' packages)"
+                f"which is not installed; run `pip install {dist_name}` if that is its name (check the spelling on "
+                "PyPI first; the set-up scripts install the built-in robots' packages)"
             ) from None
         path = Path(dist.locate_file(rel)).resolve()
     elif ref.startswith("file:"):
@@ -49,6 +54,9 @@ def resolve_asset(ref: str, base_dir: str | Path | None = None) -> Path:
         path = path.resolve()
     else:
         raise ConfigError(f"asset reference {ref!r}: must start with 'pkg:' or 'file:'")
+    if path.is_dir():
+        raise ConfigError(f"asset reference {ref!r} resolves to {path}, which is a directory, not a file "
+                          "(name the file inside it)")
     if not path.is_file():
         raise ConfigError(f"asset reference {ref!r} resolves to {path}, which does not exist")
     return path

@@ -24,6 +24,7 @@ from simseam.robot.spec import (
 )
 from simseam.robot.urdf import read_urdf
 from simseam.seam import BackendUnavailableError, ConfigError, GripperFacts, SensorFacts
+from simseam.seam.errors import did_you_mean
 
 BUILTIN_DIR = Path(__file__).parent / "manifests"
 
@@ -303,8 +304,8 @@ def find_manifest(name_or_path: str) -> Path:
     if p.suffix in (".yaml", ".yml") and p.is_file():
         return p
     raise ConfigError(
-        f"unknown robot {name_or_path!r}: not a built-in robot ({', '.join(builtin) or 'none'}) "
-        "and not a manifest file"
+        f"unknown robot {name_or_path!r}{did_you_mean(name_or_path, builtin)}: not a built-in robot "
+        f"({', '.join(builtin) or 'none'}) and not a manifest file"
     )
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simseam.robot.assets import resolve_asset
-from simseam.robot.manifest import load_manifest
+from simseam.robot.manifest import find_manifest, load_manifest
 from simseam.robot.spec import RobotSpec
 from simseam.seam import ConfigError, ObsRequest, SimulationError
 
@@ -50,7 +50,7 @@ def check_robot(path: str | Path) -> CheckReport:
     from simseam.policies.simple import ZeroPolicy
     from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 
-    path = Path(path)
+    path = Path(path) if Path(path).exists() else find_manifest(str(path))  # a file, or a built-in robot's name
     spec = load_manifest(path)
     report = CheckReport(spec)
     scene = None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import difflib
+from typing import Iterable
+
 
 class SimseamError(Exception):
     """Base of every error simseam raises on purpose."""
@@ -25,3 +28,9 @@ class SimulationError(SimseamError):
 
 class SidecarError(SimseamError):
     """Transport-level failure talking to an out-of-process engine."""
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``known`` to a mistyped ``name``, or ``""``."""
+    close = difflib.get_close_matches(str(name), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""

@@ -20,6 +20,7 @@ from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import matrix_to_axis_angle
 from simseam.robot.spec import RobotSpec
 from simseam.seam import ConfigError
+from simseam.seam.errors import did_you_mean
 
 if TYPE_CHECKING:  # pragma: no cover
     from simseam.robot.kinematics import SerialChain
@@ -165,7 +166,8 @@ def get_task(name: str) -> type[Task]:
     try:
         return _TASKS[name]
     except KeyError:
-        raise ConfigError(f"unknown task {name!r}; known tasks: {', '.join(sorted(_TASKS))}") from None
+        raise ConfigError(f"unknown task {name!r}{did_you_mean(name, _TASKS)}; known tasks: "
+                          f"{', '.join(sorted(_TASKS))}") from None
 
 
 def _load_builtin() -> None:
