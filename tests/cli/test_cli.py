@@ -94,3 +94,27 @@ def test_run_parses_the_scene_file_once(tmp_path, monkeypatch, extra):
     assert r.exit_code == 0, r.output
     assert calls == [scene]
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["n_episodes"] == 2
+
+
+@pytest.mark.learning  # it expects the whole test set-up (Python 3.11's venv: the learning stack, the backends)
+def test_doctor_checks_what_this_machine_runs_by_running_it(tmp_path):
+    """Rendering (a frame that is not blank), the learned-policy stack, MuJoCo Warp and each benchmark
+    backend: found here (the test set-up installs them all); a broken GL or a missing backend is named
+    with what to do."""
+    import os
+    import subprocess
+    import sys
+
+    def doctor(**env):
+        out = subprocess.run([sys.executable, "-m", "simseam.cli.main", "doctor", "--json"], capture_output=True,
+                             text=True, timeout=600, env={**os.environ, **env})
+        assert out.returncode == 0, out.stderr
+        return {c["area"]: c for c in json.loads(out.stdout)["checks"]}
+
+    checks = doctor()
+    assert all(c["ok"] for c in checks.values()), [c for c in checks.values() if not c["ok"]]
+    assert {"rendering", "learned policies", "MuJoCo Warp", "backend metaworld", "backend maniskill"} <= set(checks)
+    broken = doctor(MUJOCO_GL="nonesuch", SIMSEAM_BACKENDS_DIR=str(tmp_path))
+    assert not broken["rendering"]["ok"] and "MUJOCO_GL=nonesuch" in broken["rendering"]["found"]
+    assert not broken["backend pusht"]["ok"] and broken["backend pusht"]["fix"] == \
+        "simseam backends provision pusht"

@@ -209,13 +209,22 @@ def doctor_report(environ=None, run=None, which=None) -> dict:
 
 
 def doctor(json_out: bool = typer.Option(False, "--json", help="Print the report as JSON.")) -> None:
-    """Check this machine for the Isaac Sim engine: interpreter, isaacsim, version, license, GPU, disk."""
+    """Check what this machine can run, by running a little of each: rendering, the learned-policy stack,
+    MuJoCo Warp, the benchmark backends, and the Isaac Sim engine (interpreter, isaacsim, version,
+    license, GPU, disk)."""
+    from simseam.runner.machine_check import machine_checks
+
+    checks = machine_checks()
     report = doctor_report()
     if json_out:
-        sys.stdout.write(json.dumps(report, indent=2) + "\n")
+        sys.stdout.write(json.dumps({**report, "checks": [c.to_json() for c in checks]}, indent=2) + "\n")
         return
     p = console.print
     p(f"simseam {report['simseam']} (Python {report['python']}, {report['executable']})")
+    p("")
+    for c in checks:
+        p(f"  {'ok' if c.ok else 'NO'}  {c.area}: {c.found}" + ("" if c.ok or not c.fix else f"\n        -> {c.fix}"),
+          markup=False, highlight=False)
     p("\nIsaac Sim interpreters:")
     if not report["interpreters"]:
         p(f"  none provisioned (${prov.ISAAC_PYTHON_ENV} is unset and no venv in "
