@@ -9,6 +9,7 @@
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
 #   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite, ManiSkill3; backends/pins/),
+#      and a software Vulkan driver for ManiSkill3's cameras on a CPU (Mesa 25 lavapipe, ~30 MB, unpacked),
 #      each under ~/.cache/simseam/backends/<name>-<pins hash>/ (cold: ~3.7 min with the six provisioned at once,
 #      ~6.5 GB from PyPI, once; ManiSkill3 2.0 GB of that, its CPU torch from the machine's wheel folder);
 #   5. with "learning" as third argument: the LeRobot/PyTorch stack (scripts/learning-stack.txt),
@@ -153,6 +154,10 @@ if [ -z "$LEARNING" ]; then return 0 2>/dev/null || exit 0; fi  # the demo needs
 # All six at once: cold, 3.7 min instead of 5.6 one after the other (docs/performance.md, "CI time")
 "$VENV/bin/python" -m simseam.backends.provision --jobs 6 metaworld pusht aloha libero robosuite maniskill \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
+# a software Vulkan driver (Mesa 25's lavapipe, unpacked under the cache) so that SAPIEN renders ManiSkill3's
+# cameras on a machine without a GPU (simseam/backends/software_vulkan.py; a GPU's own driver wins)
+"$VENV/bin/python" -m simseam.backends.software_vulkan \
+  || echo "[simseam] WARNING: no software Vulkan driver; ManiSkill3's camera tests will fail" >&2
 
 # --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,
 # cached outside the repo under ~/.cache/simseam/, keyed by their pins (scripts/setup_ros_peers.sh)

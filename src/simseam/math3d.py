@@ -20,6 +20,14 @@ def rpy_to_matrix(rpy) -> np.ndarray:
     )
 
 
+def matrix_to_rpy(m: np.ndarray) -> np.ndarray:
+    """The inverse of ``rpy_to_matrix`` (pitch in [-pi/2, pi/2]; at +-pi/2 roll is taken as 0)."""
+    pitch = math.asin(max(-1.0, min(1.0, -float(m[2, 0]))))
+    if abs(abs(pitch) - math.pi / 2) < 1e-9:  # gimbal lock: only roll -+ yaw is defined
+        return np.array([0.0, pitch, math.atan2(-float(m[0, 1]), float(m[1, 1]))])
+    return np.array([math.atan2(float(m[2, 1]), float(m[2, 2])), pitch, math.atan2(float(m[1, 0]), float(m[0, 0]))])
+
+
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Rotation matrix -> unit quaternion [w, x, y, z] with w >= 0."""
     t = np.trace(m)

@@ -24,6 +24,10 @@ def run_native(tmp_path):
         np.save(tmp_path / "actions.npy", np.asarray(actions, dtype=np.float32))
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
         env.setdefault("MUJOCO_GL", "egl")
+        if backend == "maniskill":  # SAPIEN renders with the same Vulkan driver as simseam's sidecar
+            from simseam.backends.software_vulkan import sidecar_env
+
+            env.update(sidecar_env())
         env["PYGAME_HIDE_SUPPORT_PROMPT"] = "1"
         out = subprocess.run([python, str(HERE / "native_episode.py"), backend, json.dumps(config), str(seed),
                               str(tmp_path / "actions.npy"), str(tmp_path / "native.npz")],

@@ -146,7 +146,7 @@ def robosuite(cfg, seed, actions):
     return out
 
 
-def _maniskill_env(task, control_mode):
+def _maniskill_env(task, control_mode, cameras=None):
     """ManiSkill 3's own env, CPU physics, state observations. Where SAPIEN finds no Vulkan device to render
     with (a CPU), ManiSkill builds no visuals but its task builders still construct RenderMaterial objects:
     those become inert (the workaround simseam's backend applies too, in simseam/backends/maniskill.py)."""
@@ -164,6 +164,10 @@ def _maniskill_env(task, control_mode):
         sapien.render.RenderMaterial = sapien.pysapien.render.RenderMaterial = Inert
         sapien.wrapper.urdf_loader.RenderMaterial = Inert
     import mani_skill.envs  # noqa: F401  (registers the tasks)
+    if cameras:  # (H, W): ManiSkill's own sensor images, rendered by SAPIEN
+        return gym.make(task, obs_mode="state", control_mode=control_mode, sim_backend="physx_cpu", num_envs=1,
+                        render_mode=None, render_backend="gpu", sensor_configs=dict(height=cameras[0],
+                                                                                     width=cameras[1]))
     return gym.make(task, obs_mode="state", control_mode=control_mode, sim_backend="physx_cpu", num_envs=1,
                     render_mode=None, render_backend="none")
 
@@ -172,14 +176,22 @@ def maniskill(cfg, seed, actions):
     """Actions in ManiSkill's own convention (gripper -1 closed, +1 open); with cfg["solver"]: its expert."""
     if "solver" in cfg:
         return _maniskill_expert(cfg, seed)
-    env = _maniskill_env(cfg["task"], cfg.get("control_mode", "pd_ee_delta_pose"))
+    cameras = cfg.get("image_size")
+    env = _maniskill_env(cfg["task"], cfg.get("control_mode", "pd_ee_delta_pose"), cameras)
     obs, _ = env.reset(seed=seed)
-    out = {"state": [obs[0].numpy()], "reward": [], "success": []}
+    out = {"state": [obs[0].numpy()], "reward": [], "success": [], "rgb": []}
+
+    def frame():
+        if cameras:
+            out["rgb"].append(env.unwrapped.get_sensor_images()["base_camera"]["rgb"][0].cpu().numpy())
+
+    frame()
     for a in actions:
         obs, r, _, _, info = env.step(a)
         out["state"].append(obs[0].numpy())
         out["reward"].append(float(r[0]))
         out["success"].append(bool(info["success"][0]))
+        frame()
     return out
 
 

@@ -1,6 +1,7 @@
 """ManiSkill3 behind the seam: fidelity against ManiSkill's own env (its venv, no simseam), the seam
-contract, its motion-planning experts through the seam vs native, runs from the command line, and
-the one-line failure when cameras are asked for where SAPIEN cannot render (this CPU machine).
+contract, its motion-planning experts through the seam vs native, runs from the command line, its camera
+pixel for pixel against the native env (SAPIEN on a software Vulkan driver: this machine has no GPU), and
+the one-line failure when cameras are asked for where SAPIEN cannot render.
 
 Fidelity is bit-exact: ManiSkill's state is float32 natively (compared as is), its reward a float32
 (compared after the same widening to float64). The seam's ``grip`` is ManiSkill's gripper command
@@ -91,14 +92,46 @@ def test_maniskill_keeps_the_seam_contract(open_backend, config, privileged):
     assert spec.engine.startswith("maniskill-3.0.1/sapien-")
 
 
+def test_maniskill_cameras_match_native_pixel_for_pixel_on_this_cpu(open_backend, run_native):
+    """ManiSkill's base camera through the seam (SAPIEN on the software Vulkan driver set-up provisions:
+    this machine has no GPU), against ManiSkill's own env on the same driver, same seed and actions: the
+    same pixels at reset and after every step; non-square, so a height/width swap shows; a state-only
+    request renders nothing."""
+    from simseam.backends.software_vulkan import installed
+
+    assert installed() is not None, "set-up provisions the software Vulkan driver (python -m simseam.backends.software_vulkan)"
+    cfg = {"task": "PickCube-v1", "cameras": True, "image_size": [48, 64]}
+    seed = 7
+    actions = np.random.default_rng(seed).uniform(-1, 1, (6, 7)).astype(np.float32)
+    native = run_native("maniskill", {"task": "PickCube-v1", "image_size": [48, 64]}, seed, native_actions(actions))
+    r = open_backend("maniskill", cfg)
+    assert r.spec.observation.images == {"camera1": r.spec.observation.images["camera1"]}
+    obs = r.reset(seed)
+    frames = [obs["images"]["camera1"].copy()]  # copies: a sidecar's images are views into reused ring slots
+    for a in actions:
+        frames.append(r.step(a).observation["images"]["camera1"].copy())
+    seam = np.stack(frames)
+    assert seam.shape == (7, 48, 64, 3) and seam.dtype == np.uint8 and seam.std() > 20  # a scene, not a blank
+    np.testing.assert_array_equal(seam, native["rgb"])
+    assert r.step(actions[0], ObsRequest.state_only()).observation["images"] == {}
+
+
+def test_maniskill_with_its_camera_keeps_the_seam_contract(open_backend):
+    spec = check_rollout(open_backend("maniskill", {"task": "PickCube-v1", "cameras": True, "image_size": [32, 40]}))
+    (cam,) = spec.robot.sensors_of("rgb")
+    assert set(spec.observation.images) == {"camera1"} and (cam.height, cam.width) == (32, 40)
+
+
 def test_maniskill_cameras_fail_in_one_line_where_sapien_cannot_render(tmp_path):
-    """This machine (CPU, Mesa lavapipe): asking for ManiSkill's camera fails at once, naming the cause."""
+    """Without a Vulkan driver SAPIEN can use (here: one that does not exist), asking for ManiSkill's
+    camera fails at once, naming the cause and the fix."""
     scene = tmp_path / "cam.yaml"
     scene.write_text("benchmark: {name: maniskill, task: PickCube-v1, cameras: true}\n")
-    proc = simseam("run", "--scene", str(scene), "--policy", "zero", "--episodes", "1", "--out", str(tmp_path / "r"))
+    proc = simseam("run", "--scene", str(scene), "--policy", "zero", "--episodes", "1", "--out", str(tmp_path / "r"),
+                   env={"VK_ICD_FILENAMES": str(tmp_path / "no_driver.json")})
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     assert "cameras need a Vulkan device SAPIEN can render with" in proc.stderr
-    assert "ManiSkill runs state-only on this machine" in proc.stderr
+    assert "python -m simseam.backends.software_vulkan" in proc.stderr
 
 
 def simseam(*args, env=None):

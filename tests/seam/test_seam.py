@@ -83,3 +83,11 @@ def test_a_task_publishes_its_props_sizes_in_the_spec_for_privileged_experts(pan
     bare = dataclasses.replace(spec, task=dataclasses.replace(spec.task, geometry=()))
     with pytest.raises(ConfigError, match="task 'bowl_plate' publishes no size 'bowl_wall_radius'"):
         BowlPlateExpert(bare, np.eye(3))
+
+
+def test_matrix_to_rpy_inverts_rpy_to_matrix():
+    from simseam.math3d import matrix_to_rpy, rpy_to_matrix
+
+    rng = np.random.default_rng(0)
+    for rpy in [*rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], (50, 3)), (0.3, np.pi / 2, 0.2)]:
+        np.testing.assert_allclose(rpy_to_matrix(matrix_to_rpy(rpy_to_matrix(rpy))), rpy_to_matrix(rpy), atol=1e-9)

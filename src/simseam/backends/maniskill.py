@@ -6,8 +6,10 @@ is ManiSkill's own ``env.reset(seed=seed)`` (it reseeds the task's randomisation
 reconfigures the tasks that randomise their assets, e.g. PegInsertionSide's peg sizes).
 
 Rendering. SAPIEN renders through Vulkan and needs a device with descriptor indexing,
-timeline semaphores and extended dynamic state (a GPU driver). Where it finds none (the
-Mesa lavapipe 22.3 of Debian 12, a CPU), ManiSkill runs physics only: it drops every visual
+timeline semaphores and extended dynamic state: a GPU's driver, or on a CPU the Mesa 25
+lavapipe that ``simseam.backends.software_vulkan`` provisions (set-up does; Debian 12's own
+lavapipe 22.3 lacks descriptor indexing), which the sidecar is started with. Where it finds
+none, ManiSkill runs physics only: it drops every visual
 shape (``scene.can_render()`` is false), yet its task builders still construct
 ``sapien.render.RenderMaterial`` objects first, which raise "failed to find a rendering
 device". ``allow_physics_only()`` then replaces that one class by an inert stand-in whose
@@ -54,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from simseam.math3d import matrix_to_rpy, quat_to_matrix
 from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
 from simseam.seam import (
     OBS_EXPERT_ACTION,
@@ -190,8 +193,8 @@ class ManiSkillRollout(BenchmarkRollout):
         if config["cameras"] and not self.can_render:
             raise BackendUnavailableError(
                 "maniskill: cameras need a Vulkan device SAPIEN can render with, and there is none here "
-                "(a CPU / Mesa lavapipe: SAPIEN needs descriptor indexing and extended dynamic state); "
-                "ManiSkill runs state-only on this machine (cameras: false)")
+                "(SAPIEN needs descriptor indexing and extended dynamic state: a GPU driver, or on a CPU "
+                "`python -m simseam.backends.software_vulkan` for Mesa 25's lavapipe); or cameras: false")
         self._kwargs = dict(obs_mode="state", control_mode=config["control_mode"], sim_backend="physx_cpu",
                             num_envs=1, render_mode=None,
                             render_backend="gpu" if config["cameras"] else "none",
@@ -237,9 +240,12 @@ class ManiSkillRollout(BenchmarkRollout):
         sensors = ()
         if config["cameras"]:
             cam = self._u._sensor_configs["base_camera"]
+            pose = np.asarray(cam.pose.raw_pose[0], dtype=np.float64)  # [x y z qw qx qy qz]; SAPIEN looks along +x
             sensors = (SensorFacts(name="base_camera", kind="rgb", parent="world",
-                                   xyz=tuple(float(x) for x in cam.pose.raw_pose[0, :3]), feature_key="camera1",
-                                   width=w, height=h, fovy_deg=float(np.degrees(cam.fov))),)
+                                   xyz=tuple(float(x) for x in pose[:3]),
+                                   rpy=tuple(float(a) for a in matrix_to_rpy(quat_to_matrix(pose[3:]))),
+                                   feature_key="camera1", width=w, height=h,
+                                   fovy_deg=float(np.degrees(float(np.asarray(cam.fov).reshape(-1)[0])))),)
         extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (action.dim,), presence="declared")} \
             if config["expert"] else {}
         spec = RolloutSpec(

@@ -108,5 +108,18 @@ def check_backends() -> list[Check]:
     return out
 
 
+def check_vulkan() -> Check:
+    """A Vulkan driver SAPIEN can render ManiSkill3's cameras with: a GPU's, or the provisioned software one."""
+    from simseam.backends import software_vulkan as sv
+
+    if sv._gpu_vulkan():
+        return Check("ManiSkill3 cameras", True, "a GPU Vulkan driver (or VK_ICD_FILENAMES) is set")
+    icd = sv.installed()
+    if icd is None:
+        return Check("ManiSkill3 cameras", False, "no GPU Vulkan driver and no software one",
+                     "python -m simseam.backends.software_vulkan (Mesa 25 lavapipe; set-up does it on Debian)")
+    return Check("ManiSkill3 cameras", True, f"software Vulkan (Mesa lavapipe) {icd.parent.name}, on the CPU")
+
+
 def machine_checks() -> list[Check]:
-    return [check_rendering(), check_learning(), check_warp(), *check_backends()]
+    return [check_rendering(), check_learning(), check_warp(), check_vulkan(), *check_backends()]

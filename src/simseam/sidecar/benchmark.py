@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from simseam.backends import backend_module
+from simseam.backends import backend_module, software_vulkan
 from simseam.backends.provision import require
 from simseam.seam.errors import ConfigError
 from simseam.sidecar.client import SidecarRollout
@@ -30,5 +30,7 @@ def open_benchmark(name: str, config: dict[str, Any], *, privileged: bool = Fals
         config["expert"] = True
     config = module.normalize_config(config, where)
     python = require(name)
+    env = software_vulkan.sidecar_env() if name in software_vulkan.RENDERS_WITH else None
     return SidecarRollout(None, str(config.get("task", name)), name, config, backend=name, python=str(python),
-                          boot_timeout=boot_timeout, request_timeout=request_timeout, progress=progress, local=local)
+                          boot_timeout=boot_timeout, request_timeout=request_timeout, progress=progress, local=local,
+                          env=env)
