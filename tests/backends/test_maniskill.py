@@ -203,3 +203,13 @@ def test_maniskill_bad_input_is_one_line_naming_the_field(tmp_path):
         proc = simseam("run", "--scene", str(bad), "--policy", policy, "--out", str(tmp_path / "run"), "--overwrite")
         assert proc.returncode == 2, (text, proc.stderr)
         assert expect in proc.stderr and "Traceback" not in proc.stderr, (text, proc.stderr)
+
+
+def test_eval_turns_maniskills_camera_on_for_a_policy_that_reads_images():
+    from simseam.runner.evaluate import preset
+
+    p = preset("maniskill_tabletop")
+    assert p.backend_config(uses_images=True) == {**p.config, "cameras": True}
+    assert p.backend_config(uses_images=False) == p.config and "cameras" not in p.config
+    libero = preset("libero_goal")  # always renders its cameras: nothing to turn on
+    assert libero.backend_config(uses_images=True) == libero.config

@@ -221,7 +221,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
             console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
 
         run_eval_vector(p, task_list, n, run_dir, num_envs, policy=policy, policy_kwargs=kwargs,
-                        policy_batch=batch, privileged=privileged, seed=seed,
+                        policy_batch=batch, privileged=privileged, uses_images=pol.uses_images, seed=seed,
                         video_dir=out if video else None, on_start=start,
                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
@@ -239,7 +239,7 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
     todo = [i for i in indices if i not in run_dir.done]
     with _eval_guard(run_dir, out) as guard:
         probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
-        privileged = probe.requires_privileged
+        privileged, uses_images = probe.requires_privileged, probe.uses_images
         close_policy(probe)
         console.print(f"eval [bold]{escape(p.name)}[/]: {len(todo)} episode(s) of {len(task_list)} task(s), policy "
                       f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
@@ -247,7 +247,8 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
             console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
         with EvalProgress(console, total=len(todo)) as progress:
             run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
-                         privileged=privileged, seed=seed, num_workers=num_workers, indices=indices,
+                         privileged=privileged, uses_images=uses_images, seed=seed, num_workers=num_workers,
+                         indices=indices,
                          on_done=progress.done, on_worker_failure=progress.worker_failure)
     _eval_summary(p, policy, run_dir, guard.interrupted)
 

@@ -41,6 +41,14 @@ class Preset:
     suite: str = ""
     protocol: str = ""
 
+    def backend_config(self, uses_images: bool) -> dict[str, Any]:
+        """The backend's config for a policy: a backend whose cameras are off unless asked for (its
+        ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images."""
+        from simseam.backends import backend_module
+
+        option = getattr(backend_module(self.backend), "CAMERA_OPTION", None)
+        return {**self.config, **({option: True} if option and uses_images else {})}
+
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
     Preset("metaworld_mt10", "metaworld", METAWORLD_MT10, 50, {"max_steps": 500},
@@ -142,7 +150,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
         indices = [i for i in todo if i // episodes == ti]
         if not indices:
             continue
-        cfg = {**p.config, "task": task}
+        cfg = {**p.backend_config(policy.uses_images), "task": task}
         progress(f"{p.backend}: starting {task}")
         rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
                                  progress=lambda s: progress(f"{task}: {s}"))
@@ -203,8 +211,8 @@ class EvalRecipe:
 
 
 def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
-                    policy_kwargs: dict, policy_batch=None, privileged: bool = False, seed: int = 0,
-                    video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
+                    policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
+                    seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
                     on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None) -> None:
     """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
     backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
@@ -239,7 +247,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
     if policy_batch is None:
         n = max(1, min(num_envs, len(todo)))
-        recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged,
+        recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
                             first_task=todo[0] // episodes)
         with VectorEnv(recipe, n) as vec:
             write_spec(vec)
@@ -252,8 +260,8 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
         if not indices:
             continue
         n = max(1, min(num_envs, len(indices)))
-        with VectorEnv(EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged, first_task=ti),
-                       n) as vec:
+        with VectorEnv(EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
+                                  first_task=ti), n) as vec:
             write_spec(vec)
             if on_start:
                 on_start(vec)
@@ -261,7 +269,8 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
 
 
 def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: str, *, policy: str,
-                 policy_kwargs: dict, privileged: bool = False, seed: int = 0, num_workers: int | None = None,
+                 policy_kwargs: dict, privileged: bool = False, uses_images: bool = False, seed: int = 0,
+                 num_workers: int | None = None,
                  indices: Sequence[int] | None = None, on_done: Callable[[dict], None] | None = None,
                  on_worker_failure=None) -> None:
     """``run_eval`` on the Ray cluster at ``address`` (``runner.ray_eval.run_on_ray``): each actor holds
@@ -274,7 +283,7 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
     todo = _todo(tasks, episodes, run_dir, indices)
     if not todo:
         return
-    recipe = EvalRecipe(p.backend, dict(p.config), tuple(tasks), episodes, privileged,
+    recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
                         first_task=todo[0] // episodes)
 
     def record(entry):
