@@ -187,3 +187,13 @@ def test_temporal_ensembling_is_saved_in_the_checkpoint_and_needs_one_action_per
     policy = make_policy(f"lerobot:{tmp_path / 'te'}", device="cpu")
     assert policy.policy.config.temporal_ensemble_coeff == 0.01 and policy.n_action_steps == 1
     assert policy.policy.temporal_ensembler is not None
+
+
+def test_data_loading_workers_default_to_the_cores_left_over(monkeypatch):
+    import os
+
+    from simseam.runner.training import default_loader_workers
+
+    for cores, want in ((1, 0), (2, 1), (4, 3), (16, 4)):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda pid, n=cores: set(range(n)))
+        assert default_loader_workers() == want

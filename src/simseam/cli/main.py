@@ -495,7 +495,8 @@ def train(
     vae: bool = typer.Option(True, "--vae/--no-vae", help="ACT's VAE objective (off: plain regression of the "
                              "chunk, for one-mode demonstrations such as a scripted expert's)."),
     device: str = typer.Option(None, "--device", help="torch device (default: CUDA if present, else CPU)."),
-    workers: int = typer.Option(4, "--workers", min=0, help="Data-loading worker processes."),
+    workers: int = typer.Option(None, "--workers", min=0, help="Data-loading worker processes (default: one per "
+                                "core beyond the training process's, at most 4; 1 on a 2-core machine)."),
     cache: bool = typer.Option(False, "--cache/--no-cache", help="Decode the dataset once and keep it on the "
                                "device (fast; needs the frames to fit in its memory)."),
     amp: bool = typer.Option(False, "--amp", help="bfloat16 autocast on CUDA."),
@@ -508,7 +509,7 @@ def train(
 ) -> None:
     """Train a LeRobot ACT policy on a dataset; the result loads with --policy lerobot:<out>.
     Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
-    from simseam.runner.training import ActTrainConfig, train_act
+    from simseam.runner.training import ActTrainConfig, default_loader_workers, train_act
 
     check_seed(seed)
 
@@ -519,7 +520,7 @@ def train(
                          chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
                          temporal_ensemble_coeff=temporal_ensemble,
                          dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
-                         device=device, num_workers=workers,
+                         device=device, num_workers=default_loader_workers() if workers is None else workers,
                          cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
                          checkpoint_every=checkpoint_every)
     try:

@@ -119,6 +119,13 @@ def latest_checkpoint(out_dir: str | Path) -> Path | None:
     return done[-1] if done else None
 
 
+def default_loader_workers() -> int:
+    """Data-loading processes beside the training process: one per remaining core, at most 4."""
+    import os
+
+    return max(0, min(4, len(os.sched_getaffinity(0)) - 1))
+
+
 #: what marks a directory as a training run (``--overwrite`` deletes nothing else)
 TRAINING_MARKS = ("training.json", CHECKPOINTS, "model.safetensors")
 
