@@ -197,3 +197,19 @@ def test_data_loading_workers_default_to_the_cores_left_over(monkeypatch):
     for cores, want in ((1, 0), (2, 1), (4, 3), (16, 4)):
         monkeypatch.setattr(os, "sched_getaffinity", lambda pid, n=cores: set(range(n)))
         assert default_loader_workers() == want
+
+
+def test_a_dataset_whose_recording_was_killed_is_named_not_a_traceback(scripted_dataset, tmp_path):
+    """A SIGKILLed collect leaves its parquet files without their footer: training says so in one line
+    (it was an ArrowInvalid traceback, or a Hugging Face Hub lookup)."""
+    import shutil
+
+    from simseam.runner.training import train_act
+
+    data = tmp_path / "killed"
+    shutil.copytree(scripted_dataset[0], data)
+    (part,) = sorted((data / "data").rglob("*.parquet"))
+    part.write_bytes(part.read_bytes()[:-100])  # a writer killed before it wrote its footer
+    with pytest.raises(ConfigError, match=r"data/chunk-000/file-000.parquet is incomplete: the recording was killed"):
+        train_act(data, tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -130,6 +130,16 @@ def default_loader_workers() -> int:
 TRAINING_MARKS = ("training.json", CHECKPOINTS, "model.safetensors")
 
 
+def _parquet_complete(path: Path) -> bool:
+    """A parquet file ends with its footer and the magic bytes PAR1 (a killed writer leaves neither)."""
+    with open(path, "rb") as f:
+        size = f.seek(0, 2)
+        if size < 8:
+            return False
+        f.seek(size - 4)
+        return f.read(4) == b"PAR1"
+
+
 def check_dataset(root: Path) -> None:
     """``ConfigError`` unless ``root`` is a LeRobot dataset holding episodes."""
     if not (root / "meta" / "info.json").is_file():
@@ -137,6 +147,14 @@ def check_dataset(root: Path) -> None:
     if not (root / "meta" / "tasks.parquet").is_file():
         raise ConfigError(f"{root}: the dataset holds no episodes (was every collected episode a failure? "
                           "`simseam collect --keep-failures` keeps them)")
+    for part in sorted((root / "data").rglob("*.parquet")) + sorted((root / "meta" / "episodes").rglob("*.parquet")):
+        if not _parquet_complete(part):
+            raise ConfigError(f"{root}: {part.relative_to(root)} is incomplete: the recording was killed before it "
+                              "finalized the dataset (Ctrl-C or SIGTERM finalize it; a SIGKILL cannot); record "
+                              "it again")
+    if not any((root / "meta" / "episodes").rglob("*.parquet")):
+        raise ConfigError(f"{root}: meta/episodes holds no episode index: the recording was killed before it "
+                          "finalized the dataset; record it again")
 
 
 def _prepare_out(out: Path, dataset: Path, overwrite: bool, resume: bool) -> tuple[Path | None, bool]:
