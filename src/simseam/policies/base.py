@@ -25,6 +25,7 @@ from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from simseam.seam import STATE_ONLY, ConfigError, Observation, ObsRequest, RolloutSpec
+from simseam import registry
 from simseam.seam.errors import did_you_mean
 
 
@@ -88,49 +89,47 @@ class ChunkedPolicy(BasePolicy):
         return self._queue.popleft()
 
 
-_POLICIES: dict[str, Callable[..., Policy]] = {}
-#: ``scheme:target`` policy specs (``lerobot:<dir|hub id>``, ``remote:ws://host:port``)
-_SCHEMES: dict[str, Callable[..., Policy]] = {}
+#: every policy by name (simseam.registry: "module:factory", imported when asked for)
+POLICIES: dict[str, str | Callable[..., Policy]] = {
+    "scripted": "simseam.policies.scripted:ScriptedPolicy",
+    "zero": "simseam.policies.simple:ZeroPolicy",
+    "random": "simseam.policies.simple:RandomPolicy",
+}
+#: ``scheme:target`` policy specs (``lerobot:<dir|hub id>``, ``remote:ws://host:port``): ``f(target, **kwargs)``
+SCHEMES: dict[str, str | Callable[..., Policy]] = {
+    "lerobot": "simseam.policies.lerobot_policy:LeRobotPolicy",
+    "remote": "simseam.policies.remote:make_remote_policy",
+}
 
 
 def register_policy(name: str) -> Callable:
-    def deco(factory: Callable[..., Policy]) -> Callable[..., Policy]:
-        _POLICIES[name] = factory
-        return factory
-
-    return deco
+    """Decorator for a policy defined outside this table: adds its row."""
+    return lambda factory: registry.add(POLICIES, name, factory)
 
 
 def register_policy_scheme(scheme: str) -> Callable:
-    """Register a factory ``f(target: str, **kwargs) -> Policy`` for specs ``<scheme>:<target>``."""
-
-    def deco(factory: Callable[..., Policy]) -> Callable[..., Policy]:
-        _SCHEMES[scheme] = factory
-        return factory
-
-    return deco
+    """Decorator for a ``<scheme>:<target>`` factory ``f(target: str, **kwargs) -> Policy`` outside the table."""
+    return lambda factory: registry.add(SCHEMES, scheme, factory)
 
 
 def policy_names() -> list[str]:
-    _load_builtin()
-    return sorted(_POLICIES)
+    return sorted(POLICIES)
 
 
 def make_policy(name: str, **kwargs: Any) -> Policy:
     """Create a policy from a spec: a registered name (``scripted``, ``random``, ``zero``)
     or ``<scheme>:<target>`` (``lerobot:<dir or hub id>``, ``remote:ws://host:port``)."""
-    _load_builtin()
     scheme, sep, target = name.partition(":")
-    if sep and scheme in _SCHEMES:
+    if sep and scheme in SCHEMES:
         if not target:
             raise ConfigError(f"policy spec {name!r} names no target after '{scheme}:'")
-        check_policy_options(name, _SCHEMES[scheme], kwargs, positional=1)
-        return _SCHEMES[scheme](target, **kwargs)
-    try:
-        factory = _POLICIES[name]
-    except KeyError:
-        known = ", ".join(sorted(_POLICIES)) + ", " + ", ".join(f"{s}:<target>" for s in sorted(_SCHEMES))
-        raise ConfigError(f"unknown policy {name!r}{did_you_mean(name, _POLICIES)}; known policies: {known}") from None
+        factory = registry.load(SCHEMES, scheme, "policy scheme")
+        check_policy_options(name, factory, kwargs, positional=1)
+        return factory(target, **kwargs)
+    if name not in POLICIES:
+        known = ", ".join(sorted(POLICIES)) + ", " + ", ".join(f"{s}:<target>" for s in sorted(SCHEMES))
+        raise ConfigError(f"unknown policy {name!r}{did_you_mean(name, POLICIES)}; known policies: {known}")
+    factory = registry.load(POLICIES, name, "policy")
     check_policy_options(name, factory, kwargs)
     return factory(**kwargs)
 
@@ -147,7 +146,3 @@ def check_policy_options(name: str, factory: Callable[..., Any], kwargs: dict[st
     if unknown:
         shown = ", ".join(f"--{k.replace('_', '-')}" for k in unknown)
         raise ConfigError(f"policy {name!r} does not take {shown} (it takes: {', '.join(takes) or 'no options'})")
-
-
-def _load_builtin() -> None:
-    from simseam.policies import lerobot_policy, remote, scripted, simple  # noqa: F401  (registers them)

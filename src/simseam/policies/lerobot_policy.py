@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from simseam.policies.base import BasePolicy, register_policy_scheme
+from simseam.policies.base import BasePolicy
 from simseam.policies.batch import PolicyBatch
 from simseam.policies.contract import SkillContract, check_contract
 from simseam.seam import (
@@ -326,6 +326,3 @@ class LeRobotBatch(PolicyBatch):
         return np.stack([self.queues[e].popleft() for e in envs]).astype(np.float32)
 
 
-@register_policy_scheme("lerobot")
-def _lerobot_from_spec(target: str, **kwargs: Any) -> LeRobotPolicy:
-    return LeRobotPolicy(target, **kwargs)

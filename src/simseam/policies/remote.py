@@ -50,7 +50,7 @@ from urllib.parse import parse_qsl, urlsplit, urlunsplit
 import numpy as np
 
 from simseam.policies import openpi_wire as wire
-from simseam.policies.base import ChunkedPolicy, check_policy_options, register_policy_scheme
+from simseam.policies.base import ChunkedPolicy, check_policy_options
 from simseam.policies.batch import PolicyBatch
 from simseam.policies.contract import SkillContract, contract_mismatches
 from simseam.seam import (
@@ -425,7 +425,6 @@ class RemoteBatch(PolicyBatch):
             p.close()
 
 
-@register_policy_scheme("remote")
 def make_remote_policy(target: str, **kwargs: Any) -> RemotePolicy:
     """``remote:<target>``: see ``parse_target``; keyword arguments override query options."""
     url, options = parse_target(target)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from simseam.math3d import quat_to_matrix, rotation_error
-from simseam.policies.base import BasePolicy, register_policy
+from simseam.policies.base import BasePolicy
 from simseam.policies.navigation import NavExpert
 from simseam.robot.kinematics import SerialChain
 from simseam.seam import (OBS_EXPERT_ACTION, OBS_JOINT_POSITIONS, OBS_PRIVILEGED, ActionSpec, ConfigError, ControlMode,
@@ -207,7 +207,6 @@ _EXPERTS = {"lift_cube": _cartesian(LiftExpert), "bowl_plate": BowlPlateExpert,
 _ANY_MODE = {"reach"}  # experts that drive joint_position too
 
 
-@register_policy("scripted")
 class ScriptedPolicy(BasePolicy):
     """Dispatches to the expert of the rollout's task. Needs privileged observations.
     On a benchmark that ships its own experts (Meta-World) the rollout declares

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simseam.policies.base import BasePolicy, register_policy
+from simseam.policies.base import BasePolicy
 from simseam.seam import OBS_JOINT_POSITIONS, ControlMode, Observation, RolloutSpec
 
 
@@ -14,7 +14,6 @@ def _arm_index(spec: RolloutSpec) -> list[int]:
     return [names.index(n) for n in spec.action.arm_names]
 
 
-@register_policy("zero")
 class ZeroPolicy(BasePolicy):
     """A true no-op: the robot holds still. Cartesian deltas and base twists are zero; under
     JOINT_POSITION the arm holds the joint positions measured at the episode's first step; the
@@ -39,7 +38,6 @@ class ZeroPolicy(BasePolicy):
         return self._hold.copy()
 
 
-@register_policy("random")
 class RandomPolicy(BasePolicy):
     """Uniform random actions in [-1, 1] (JOINT_POSITION: current joints +- 0.1 rad), seeded."""
 

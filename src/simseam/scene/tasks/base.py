@@ -19,8 +19,8 @@ import numpy as np
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import matrix_to_axis_angle
 from simseam.robot.spec import RobotSpec
+from simseam import registry
 from simseam.seam import ConfigError
-from simseam.seam.errors import did_you_mean
 
 if TYPE_CHECKING:  # pragma: no cover
     from simseam.robot.kinematics import SerialChain
@@ -145,32 +145,23 @@ class Task:
         raise NotImplementedError
 
 
-_TASKS: dict[str, type[Task]] = {}
+#: every task by name (simseam.registry: "module:Class", imported when asked for)
+TASKS: dict[str, str | type[Task]] = {
+    "lift_cube": "simseam.scene.tasks.lift_cube:LiftCube",
+    "bowl_plate": "simseam.scene.tasks.bowl_plate:BowlPlate",
+    "nav_obstacles": "simseam.scene.tasks.nav_obstacles:NavObstacles",
+    "reach": "simseam.scene.tasks.reach:Reach",
+}
 
 
 def register_task(cls: type[Task]) -> type[Task]:
-    """Class decorator: make a task available by its ``name``."""
-    if not cls.name:
-        raise ValueError(f"{cls.__name__} has no name")
-    _TASKS[cls.name] = cls
-    return cls
+    """Class decorator for a task defined outside this table: adds its row (under its ``name``)."""
+    return registry.add(TASKS, cls.name, cls)
 
 
 def task_names() -> list[str]:
-    _load_builtin()
-    return sorted(_TASKS)
+    return sorted(TASKS)
 
 
 def get_task(name: str) -> type[Task]:
-    _load_builtin()
-    try:
-        return _TASKS[name]
-    except KeyError:
-        raise ConfigError(f"unknown task {name!r}{did_you_mean(name, _TASKS)}; known tasks: "
-                          f"{', '.join(sorted(_TASKS))}") from None
-
-
-def _load_builtin() -> None:
-    from simseam.scene.tasks import bowl_plate, lift_cube, nav_obstacles, reach  # noqa: F401  (registers them)
-
-
+    return registry.load(TASKS, name, "task")

@@ -17,7 +17,7 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task, register_task
+from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task
 
 BOWL_BASE_R = 0.045
 BOWL_WALL_R = 0.052  # centre radius of the wall segments
@@ -46,7 +46,6 @@ def bowl_shapes() -> list[Shape]:
     return shapes
 
 
-@register_task
 class BowlPlate(Task):
     name = "bowl_plate"
     instruction = "put the bowl on the plate"

@@ -13,13 +13,12 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task, register_task
+from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task
 
 CUBE_HALF = 0.02
 LIFT_HEIGHT = 0.10
 
 
-@register_task
 class LiftCube(Task):
     name = "lift_cube"
     instruction = "lift the red cube"

@@ -17,7 +17,7 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import Evaluation, Task, register_task
+from simseam.scene.tasks.base import Evaluation, Task
 from simseam.seam import ConfigError
 
 N_OBSTACLES = 6
@@ -27,7 +27,6 @@ CLEARANCE = 1.0
 PARKED_X = -8.0  # unused obstacles wait behind the start, out of the way, on the floor
 
 
-@register_task
 class NavObstacles(Task):
     name = "nav_obstacles"
     instruction = "drive to the goal without touching anything"

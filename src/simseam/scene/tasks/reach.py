@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from simseam.math3d import matrix_to_quat, rotation_error
-from simseam.scene.tasks.base import Evaluation, Task, register_task
+from simseam.scene.tasks.base import Evaluation, Task
 from simseam.seam import ConfigError
 
 POS_TOL = 0.02  # m
@@ -32,7 +32,6 @@ MIN_RADIUS = 0.35  # of the robot's tabletop reach: the tool stays clear of the 
 DRAWS = 200
 
 
-@register_task
 class Reach(Task):
     name = "reach"
     instruction = "move the tool to the target pose"
