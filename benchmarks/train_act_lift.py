@@ -37,6 +37,7 @@ preparation, i.e. decoding the dataset onto the device, included) is in ``train.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import multiprocessing as mp
 import os
@@ -101,6 +102,8 @@ def collect(root: Path, episodes: int, workers: int, size: int, max_steps: int, 
         from lerobot.datasets.aggregate import aggregate_datasets
 
         kept = [Path(j[0]) for j, r in zip(jobs, runs) if r[1] > 0]
+        if not kept:
+            raise RuntimeError(f"the scripted expert succeeded in none of {episodes} episodes: no demonstrations")
         aggregate_datasets([f"simseam/shard{k}" for k in range(len(kept))], "simseam/local", roots=kept,
                            aggr_root=root)
         # the scene's contract (control mode, image sizes) that `train_act` copies into the checkpoint
@@ -150,6 +153,32 @@ def use_random_shift(pad: int) -> None:
 
     cache.batches = batches
     cache._simseam_shift = pad
+
+
+@contextlib.contextmanager
+def batchnorm_backbone(on: bool):
+    """Train the ResNet backbone with real batch normalization (``nn.BatchNorm2d``) instead of ACT's
+    ``FrozenBatchNorm2d``.
+
+    ACT freezes its backbone's batch norm because it expects ImageNet weights; from scratch that
+    leaves a ResNet with no normalization at all, whose activations Adam blows up (layer4's
+    standard deviation went from 1.7 to 646 in 20 steps at lr 3e-4, and the GPU run's loss stalled at
+    0.39-0.49). Trained with ``BatchNorm2d``, the weights and running statistics fill exactly the
+    tensors ``FrozenBatchNorm2d`` holds (which drops ``num_batches_tracked`` when loading), so the saved
+    checkpoint is a plain ACT checkpoint: ``lerobot:`` loads it with frozen batch norm and computes what
+    the trained network computes in eval mode, as with ImageNet weights. Only construction is
+    patched, for the duration of training."""
+    from lerobot.policies.act import modeling_act
+
+    frozen = modeling_act.FrozenBatchNorm2d
+    if on:
+        import torch.nn as nn
+
+        modeling_act.FrozenBatchNorm2d = nn.BatchNorm2d
+    try:
+        yield
+    finally:
+        modeling_act.FrozenBatchNorm2d = frozen
 
 
 def evaluate(policy, seeds, size, privileged, max_steps):
@@ -210,6 +239,9 @@ def main() -> int:
     g.add_argument("--ff-dim", type=int, default=1024)
     g.add_argument("--encoder-layers", type=int, default=4)
     g.add_argument("--aug-shift", type=int, default=4, help="random shift of each image, pixels (0: off)")
+    g.add_argument("--backbone-norm", choices=("batch", "frozen"), default="batch",
+                   help="train the ResNet with batch norm (saved into ACT's frozen batch norm) or as ACT builds it "
+                        "(frozen: no normalization from scratch)")
     g.add_argument("--amp", action="store_true", help="bfloat16 autocast for training on CUDA")
     g.add_argument("--no-cache", action="store_true",
                    help="stream batches through LeRobotDataset's loader instead of caching frames on the device "
@@ -309,7 +341,8 @@ def main() -> int:
         print(f"train: {'resuming' if resume else 'from scratch'}, window {window:.0f} s, "
               f"batch {args.batch_size}, lr {args.lr} ({args.lr_schedule})", flush=True)
         try:
-            res = train_act(data, ckpt, cfg, on_log=on_log, resume=resume, overwrite=not resume)
+            with batchnorm_backbone(args.backbone_norm == "batch"):
+                res = train_act(data, ckpt, cfg, on_log=on_log, resume=resume, overwrite=not resume)
         except KeyboardInterrupt:
             if not args.pause:
                 raise

@@ -28,7 +28,10 @@
 #              an installed pybullet (tar -C <site-packages> -cJf .devcarry/pybullet_franka.tar.xz
 #              pybullet_data/franka_panda). The pybullet wheel is over the 64 MiB transfer cap, so the
 #              assets travel alone under a minimal pybullet dist-info, which is how `pkg:pybullet/...`
-#              asset references find them.
+#              asset references find them;
+#              src/: simseam's sources at a commit (rm -rf .devcarry/src; git archive HEAD src | tar -x -C
+#              .devcarry), used instead of the checkout's src/ when present, so that edits in progress in
+#              a shared checkout do not travel into the run (.devcarry/src/COMMIT: git rev-parse HEAD).
 # PyAV (av, 40 MB) is also over the cap; lerobot imports it at module load but only calls it for
 # video features, and this run stores frames as PNG images, so a module that raises on any use
 # stands in for it (it defines only the one constant lerobot reads at import).
@@ -61,7 +64,9 @@ def __getattr__(name):
     raise ImportError(f"av.logging.{name}: PyAV is not installed on this machine (PNG-only run)")
 PY
 fi
-export PYTHONPATH="$SITE:$PWD/src" MUJOCO_GL=egl PYTHONUNBUFFERED=1 HF_DATASETS_DISABLE_PROGRESS_BARS=1 \
+SRC="$PWD/src"
+if [ -d .devcarry/src/simseam ]; then SRC="$PWD/.devcarry/src"; echo "simseam from .devcarry/src at $(cat .devcarry/src/COMMIT 2>/dev/null)"; fi
+export PYTHONPATH="$SITE:$SRC" MUJOCO_GL=egl PYTHONUNBUFFERED=1 HF_DATASETS_DISABLE_PROGRESS_BARS=1 \
   TQDM_DISABLE=1
 OUTDIR=${OUT:-benchmarks/results}
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
