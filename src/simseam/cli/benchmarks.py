@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from pathlib import Path
-from types import SimpleNamespace
 
 import typer
 from rich.markup import escape
 from rich.table import Table
 
-from simseam.cli.common import EvalProgress, close_policy, console, err_console, fail, never_started, policy_kwargs, \
-    redacted, sigterm_as_interrupt
+from simseam.cli.common import EvalProgress, close_policy, console, episodes_guard, err_console, fail, never_started, \
+    policy_kwargs, redacted
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
 
@@ -173,35 +171,11 @@ def eval_command(
     def error(res, what_next):
         err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
 
-    with _eval_guard(run_dir, out, lambda: close_policy(pol)) as guard:
+    with episodes_guard(run_dir, lambda: close_policy(pol)) as guard:
         run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                  progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
                  on_done=done, on_error=error, indices=planned)
     _eval_summary(p, policy, run_dir, guard.interrupted)
-
-
-@contextmanager
-def _eval_guard(run_dir, out: Path, cleanup=None):
-    """Around an eval's episodes: SIGTERM counts as Ctrl-C; Ctrl-C ends the run as interrupted
-    (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode log (every
-    finished episode kept) and fails with its one-line message (exit 2). The run directory is closed
-    and ``cleanup`` (the policy's close) called whichever way it ends."""
-    guard = SimpleNamespace(interrupted=False)
-    error = None
-    try:
-        with sigterm_as_interrupt():
-            yield guard
-    except KeyboardInterrupt:
-        guard.interrupted = True
-    except SimseamError as exc:
-        error = exc
-    finally:
-        run_dir.close()
-        if cleanup is not None:
-            cleanup()
-    if error is not None:
-        run_dir.summarize(interrupted=True)
-        fail(error)
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
@@ -215,7 +189,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
         close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len([i for i in indices if i not in run_dir.done])
-    with _eval_guard(run_dir, out, batch.close if batch is not None else None) as guard, \
+    with episodes_guard(run_dir, batch.close if batch is not None else None) as guard, \
             EvalProgress(console, total=todo) as progress:
         def start(vec):
             console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
@@ -237,7 +211,7 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
     from simseam.runner.evaluate import run_eval_ray
 
     todo = [i for i in indices if i not in run_dir.done]
-    with _eval_guard(run_dir, out) as guard:
+    with episodes_guard(run_dir) as guard:
         probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
         privileged, uses_images = probe.requires_privileged, probe.uses_images
         close_policy(probe)

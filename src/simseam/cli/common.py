@@ -123,3 +123,29 @@ def never_started(out, interrupted: bool) -> None:
     err_console.print(f"interrupted before the run started; nothing was written to {out}" if interrupted else
                       f"no episode ran; nothing was written to {out}", markup=False, highlight=False)
     raise typer.Exit(code=130 if interrupted else 1)
+
+
+@contextlib.contextmanager
+def episodes_guard(run_dir, cleanup=None, spec=lambda: None):
+    """Around a run's episodes (run and eval, every executor): SIGTERM counts as Ctrl-C; Ctrl-C ends the
+    run as interrupted (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode
+    log (every finished episode kept; ``spec()`` gives the rollout's spec when known) and fails with its
+    one-line message (exit 2). The run directory is closed and ``cleanup`` called whichever way it ends."""
+    from types import SimpleNamespace
+
+    guard = SimpleNamespace(interrupted=False)
+    error = None
+    try:
+        with sigterm_as_interrupt():
+            yield guard
+    except KeyboardInterrupt:
+        guard.interrupted = True
+    except SimseamError as exc:
+        error = exc
+    finally:
+        run_dir.close()
+        if cleanup is not None:
+            cleanup()
+    if error is not None:
+        run_dir.summarize(spec(), interrupted=True)
+        fail(error)

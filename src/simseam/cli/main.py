@@ -13,8 +13,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, err_console, fail, never_started,
-                                policy_kwargs, redacted, sigterm_as_interrupt)
+from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail,
+                                never_started, policy_kwargs, redacted, sigterm_as_interrupt)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.serve_policy import serve_policy
@@ -180,35 +180,29 @@ def run(
     except SimseamError as exc:
         run_dir.close()
         fail(exc)
-    spec_json = rollout.spec.to_json()
-    run_dir.write_spec(spec_json)
-    if video and not rollout.spec.robot.sensors_of("rgb"):
-        err_console.print(f"note: --video: robot {rollout.spec.robot.name!r} has no RGB camera, so no video "
-                          "is written", style="yellow", markup=False, highlight=False)
-    recorder = None
-    interrupted = False
-    try:
-        with sigterm_as_interrupt():
-            if record_dataset is not None:
-                from simseam.runner.dataset_recorder import LeRobotRecorder
+    recorder = spec_json = None
 
-                recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos, overwrite=overwrite)
-            console.print(f"{escape(rollout.spec.describe())}, policy [bold]{escape(policy)}[/], "
-                          f"{episodes} episode(s) -> {escape(str(out))}")
-            _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
-                      keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
-    except KeyboardInterrupt:
-        interrupted = True
-    except SimseamError as exc:
-        run_dir.summarize(spec_json, interrupted=True)
-        fail(exc)
-    finally:
-        run_dir.close()
+    def cleanup():
         if recorder is not None:
             recorder.close()
         rollout.close()
         close_policy(pol)
-    _finish_run(run_dir, spec_json, interrupted, len(planned))
+
+    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
+        if record_dataset is not None:  # before the run starts: a recorder that cannot start replaces nothing
+            from simseam.runner.dataset_recorder import LeRobotRecorder
+
+            recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos, overwrite=overwrite)
+        spec_json = rollout.spec.to_json()
+        run_dir.write_spec(spec_json)
+        if video and not rollout.spec.robot.sensors_of("rgb"):
+            err_console.print(f"note: --video: robot {rollout.spec.robot.name!r} has no RGB camera, so no video "
+                              "is written", style="yellow", markup=False, highlight=False)
+        console.print(f"{escape(rollout.spec.describe())}, policy [bold]{escape(policy)}[/], "
+                      f"{episodes} episode(s) -> {escape(str(out))}")
+        _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
+                  keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
+    _finish_run(run_dir, spec_json, guard.interrupted, len(planned))
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
@@ -230,8 +224,14 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
                           f"{num_envs} environment workers would each need their own; pass --num-envs 1 or "
                           "drop keep_alive"))
     spec_json = None
-    interrupted = False
-    try:
+
+    def cleanup():
+        if vec is not None:
+            vec.close()
+        if pol is not None:
+            pol.close()
+
+    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
         with console.status(f"loading the policy for {num_envs} environments"):
             probe = make_policy(policy, **policy_kwargs)
             pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
@@ -251,48 +251,33 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             close_policy(probe)
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
-        with sigterm_as_interrupt():
-            from simseam.runner.warp_vector import make_vector_env
+        from simseam.runner.warp_vector import make_vector_env
 
-            with console.status(f"starting {num_envs} environments"):
-                vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
-                                      privileged=privileged, render_images=uses_images or video, seed=seed)
-            spec_json = vec.spec.to_json()
-            run_dir.write_spec(spec_json)
-            where = "one batched policy" if pol is not None else "a policy in each worker"
-            if renderer == "batched":
-                where += ", cameras drawn here in one batch"
-            console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
-                          f"on {num_envs} environments ({where}) -> {escape(str(out))}")
-            with EvalProgress(console, total=len(todo)) as progress:
-                def done(res):
-                    entry = res.to_json()
-                    run_dir.append(entry)
-                    progress.done(entry)
+        with console.status(f"starting {num_envs} environments"):
+            vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
+                                  privileged=privileged, render_images=uses_images or video, seed=seed)
+        spec_json = vec.spec.to_json()
+        run_dir.write_spec(spec_json)
+        where = "one batched policy" if pol is not None else "a policy in each worker"
+        if renderer == "batched":
+            where += ", cameras drawn here in one batch"
+        console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
+                      f"on {num_envs} environments ({where}) -> {escape(str(out))}")
+        with EvalProgress(console, total=len(todo)) as progress:
+            def done(res):
+                entry = res.to_json()
+                run_dir.append(entry)
+                progress.done(entry)
 
-                common = dict(seed=seed, video_dir=out if video else None, on_done=done,
-                              on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
-                if batched_engine:  # N worlds stepped together on the device
-                    vec.run(pol, todo, **common)
-                elif pol is not None:  # a shared model or server: all environments stepped together, batched
-                    vec.run(pol, todo, sync=True, **common)
-                else:
-                    vec.run_local(policy, policy_kwargs, todo, **common)
-    except KeyboardInterrupt:
-        interrupted = True
-    except SimseamError as exc:
-        if vec is not None:
-            vec.close()
-        run_dir.close()
-        run_dir.summarize(spec_json, interrupted=True)
-        fail(exc)
-    finally:
-        if vec is not None:
-            vec.close()
-        if pol is not None:
-            pol.close()
-        run_dir.close()
-    _finish_run(run_dir, spec_json, interrupted, planned)
+            common = dict(seed=seed, video_dir=out if video else None, on_done=done,
+                          on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
+            if batched_engine:  # N worlds stepped together on the device
+                vec.run(pol, todo, **common)
+            elif pol is not None:  # a shared model or server: all environments stepped together, batched
+                vec.run(pol, todo, sync=True, **common)
+            else:
+                vec.run_local(policy, policy_kwargs, todo, **common)
+    _finish_run(run_dir, spec_json, guard.interrupted, planned)
 
 
 def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
@@ -304,7 +289,6 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
 
     cfg, base_dir = scene_file
     spec_json = None
-    interrupted = False
     progress = EvalProgress(console, total=len(todo))
 
     def on_spec(spec):
@@ -316,25 +300,17 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         run_dir.append(entry)
         progress.done(entry)
 
-    try:
+    with episodes_guard(run_dir, spec=lambda: spec_json) as guard:
         probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
         close_policy(probe)
         console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
                       f"{escape(str(out))}")
-        with sigterm_as_interrupt(), progress:
+        with progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
                        on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure)
-    except KeyboardInterrupt:
-        interrupted = True
-    except SimseamError as exc:
-        run_dir.close()
-        run_dir.summarize(spec_json, interrupted=True)
-        fail(exc)
-    finally:
-        run_dir.close()
-    _finish_run(run_dir, spec_json, interrupted, planned)
+    _finish_run(run_dir, spec_json, guard.interrupted, planned)
 
 
 def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
