@@ -115,7 +115,9 @@ def test_resume_skips_recorded_episodes(scene, tmp_path):
     lines = [line for line in (out / "episodes.jsonl").read_text().splitlines() if json.loads(line)["index"] != 2]
     (out / "episodes.jsonl").write_text("\n".join(lines) + "\n")
     before = _log(out)
-    resumed = _simseam(*args, "--resume")
+    via = tmp_path / "elsewhere"  # the same scene file reached through another relative path
+    via.mkdir()
+    resumed = _simseam(*[f"../{scene().name}" if a == scene() else a for a in args], "--resume", cwd=via)
     assert resumed.returncode == 0, resumed.stderr
     assert "2 episode(s) already recorded, 1 to run" in resumed.stdout
     assert "episode   2  seed     6" in resumed.stdout and "episode   0" not in resumed.stdout

@@ -76,10 +76,15 @@ def point_latest(run: Path) -> None:
     os.replace(tmp, latest)
 
 
+#: what a run's config records but does not decide: the path the scene file was named by (its parsed
+#: contents, ``scene``, are compared instead: the same file reached through another path is the same run)
+NOT_COMPARED = ("scene_file",)
+
+
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
-    """Human-readable differences between two configs (``key: old -> new``)."""
+    """Human-readable differences between two configs (``key: old -> new``), ``NOT_COMPARED`` aside."""
     out = []
-    for k in sorted(set(old) | set(new)):
+    for k in sorted((set(old) | set(new)) - (set(NOT_COMPARED) if not prefix else set())):
         a, b = old.get(k, "<absent>"), new.get(k, "<absent>")
         if isinstance(a, dict) and isinstance(b, dict):
             out += config_differences(a, b, f"{prefix}{k}.")
