@@ -9,12 +9,16 @@ Three phases, all through simseam's own code paths (the GPU machine runs it thro
    franka_panda / lift_cube (MuJoCo, two RGB cameras -- third-person ``camera1`` and wrist
    ``camera2`` -- at ``--image-size``, 8-D proprioceptive state, 7-D CARTESIAN_DELTA, 20 Hz) on
    seeds 0..N-1 (``collect_dataset``; ``--collect-workers`` processes each record a block of seeds,
-   merged with LeRobot's ``aggregate_datasets``); successful episodes become the LeRobot dataset;
+   merged with LeRobot's ``aggregate_datasets``); successful episodes become the LeRobot dataset,
+   whose camera mean/std are then recomputed from every frame (``fix_image_stats``: LeRobot 0.4.4
+   records an image std of about 0);
 2. train: LeRobot ACT from scratch (no ImageNet weights: the GPU machine has no network) through
    ``train_act``, the code behind ``simseam train``, with the recipe the state-based proof found
    (docs/policies.md): no VAE, chunk 10, one action per model call with temporal ensembling,
    cosine learning rate, a small transformer; plus a random shift of each camera image
-   (``--aug-shift`` pixels, DrQ-style) applied to the cached batches on the device;
+   (``--aug-shift`` pixels, DrQ-style) applied to the cached batches on the device, and the ResNet
+   trained with batch norm (``batchnorm_backbone``: ACT's frozen batch norm is no normalization
+   from scratch), saved as a plain ACT checkpoint;
 3. evaluate: the checkpoint is loaded through ``lerobot:<dir>`` (the spec a user gives
    ``simseam run``) and runs ``--eval-seeds`` held-out seeds from images and proprioception only
    (no privileged state, no environment_state); the scripted expert runs the same seeds.
@@ -120,6 +124,41 @@ def collect(root: Path, episodes: int, workers: int, size: int, max_steps: int, 
     return out
 
 
+def fix_image_stats(root: Path, workers: int) -> dict:
+    """Rewrite the per-channel ``mean`` / ``std`` of every camera in ``root/meta/stats.json`` from all frames.
+
+    LeRobot 0.4.4 computes an episode's image statistics from uint8 frames and squares them in uint8
+    (``RunningQuantileStats.update``: ``batch**2`` wraps modulo 256), so every episode's image std is 0 and
+    the dataset's is only the spread of the episodes' means (0.001-0.015 here, against 0.1-0.2). ACT
+    normalizes images with these statistics, so its inputs were scaled up 10-200x, differently per camera.
+    Returns the statistics before and after."""
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    path = root / "meta" / "stats.json"
+    stats = json.loads(path.read_text())
+    ds = LeRobotDataset("simseam/local", root=root)
+    keys = list(ds.meta.camera_keys)
+    total = {k: torch.zeros(3, dtype=torch.float64) for k in keys}
+    squares = {k: torch.zeros(3, dtype=torch.float64) for k in keys}
+    n = 0
+    for batch in torch.utils.data.DataLoader(ds, batch_size=256, num_workers=workers):
+        for k in keys:
+            x = batch[k].double()  # [B, 3, H, W] in [0, 1]
+            total[k] += x.sum(dim=(0, 2, 3))
+            squares[k] += (x * x).sum(dim=(0, 2, 3))
+        n += batch[keys[0]].shape[0] * batch[keys[0]].shape[2] * batch[keys[0]].shape[3]
+    report = {}
+    for k in keys:
+        mean = total[k] / n
+        std = (squares[k] / n - mean**2).clamp(min=0).sqrt()
+        report[k] = {"std_before": np.ravel(stats[k]["std"]).tolist(), "mean": mean.tolist(), "std": std.tolist()}
+        stats[k]["mean"] = mean.reshape(3, 1, 1).tolist()
+        stats[k]["std"] = std.reshape(3, 1, 1).tolist()
+    path.write_text(json.dumps(stats, indent=4))
+    return report
+
+
 def random_shift(images, pad: int):
     """DrQ's augmentation: pad each image by ``pad`` pixels (edge replicated), crop back at a random offset
     (one per image). ``images``: float [B, C, H, W]."""
@@ -161,9 +200,10 @@ def batchnorm_backbone(on: bool):
     ``FrozenBatchNorm2d``.
 
     ACT freezes its backbone's batch norm because it expects ImageNet weights; from scratch that
-    leaves a ResNet with no normalization at all, whose activations Adam blows up (layer4's
-    standard deviation went from 1.7 to 646 in 20 steps at lr 3e-4, and the GPU run's loss stalled at
-    0.39-0.49). Trained with ``BatchNorm2d``, the weights and running statistics fill exactly the
+    leaves a ResNet with no normalization at all, whose activations Adam blows up (on CPU, batch 32,
+    lr 3e-4, correct image statistics: layer4's standard deviation about 1.7 at initialization, 359
+    after 20 steps, 2e5 after 180; on the H200 the loss stalled at 0.39-0.49 for 12,600 steps).
+    Trained with ``BatchNorm2d``, the weights and running statistics fill exactly the
     tensors ``FrozenBatchNorm2d`` holds (which drops ``num_batches_tracked`` when loading), so the saved
     checkpoint is a plain ACT checkpoint: ``lerobot:`` loads it with frozen batch norm and computes what
     the trained network computes in eval mode, as with ImageNet weights. Only construction is
@@ -239,6 +279,9 @@ def main() -> int:
     g.add_argument("--ff-dim", type=int, default=1024)
     g.add_argument("--encoder-layers", type=int, default=4)
     g.add_argument("--aug-shift", type=int, default=4, help="random shift of each image, pixels (0: off)")
+    g.add_argument("--image-stats", choices=("recompute", "lerobot"), default="recompute",
+                   help="recompute the cameras' mean/std from every frame before training (LeRobot 0.4.4 records "
+                        "an image std of ~0: fix_image_stats), or keep what LeRobot recorded")
     g.add_argument("--backbone-norm", choices=("batch", "frozen"), default="batch",
                    help="train the ResNet with batch norm (saved into ACT's frozen batch norm) or as ACT builds it "
                         "(frozen: no normalization from scratch)")
@@ -296,6 +339,13 @@ def main() -> int:
         c = report["collect"]
         print(f"collect: {c['episodes_written']}/{c['episodes_run']} episodes, {c['frames']} frames, "
               f"{c['seconds']:.0f} s ({c['workers']} workers)", flush=True)
+
+    if args.image_stats == "recompute" and "image_stats" not in report:
+        report["image_stats"] = fix_image_stats(data, args.workers)
+        save()
+        print("image stats recomputed: std " + ", ".join(
+            f"{k.split('.')[-1]} {np.round(v['std_before'], 4).tolist()} -> {np.round(v['std'], 3).tolist()}"
+            for k, v in report["image_stats"].items()), flush=True)
 
     # 2. training
     train = report.setdefault("train", {"curve": [], "segments": [], "done": False})
