@@ -114,3 +114,32 @@ def test_a_state_dataset_holds_the_object_state_each_action_followed(state_datas
     np.testing.assert_array_equal(np.stack(table["action"]), np.stack([a for _, _, a in policy.log]))
     skill = json.loads((root / "meta" / "simseam_skill.json").read_text())
     assert skill["env_state_dim"] == 7 and skill["images"] == {}
+
+
+def test_the_cameras_statistics_are_those_of_the_recorded_pixels(panda_spec, make_scene, tmp_path):
+    """meta/stats.json's per-channel image mean and std are computed from every pixel of the kept frames.
+    LeRobot 0.4.4 records a std of ~0 (it squares uint8 frames in uint8), which scaled ACT's image inputs
+    up 10-200x; a dropped episode's frames count for nothing."""
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+
+    scene = make_scene(panda_spec, image_size=(24, 32))
+    kept = {k: [] for k in scene.spec.cameras}
+    rng = np.random.default_rng(0)
+    rec = LeRobotRecorder(tmp_path / "ds", scene.spec, use_videos=False)
+    for episode, keep in ((0, True), (1, False), (2, True)):
+        obs = scene.reset(episode)
+        for _ in range(4):
+            rec.add(obs, np.zeros(scene.spec.action.dim, np.float32))
+            if keep:
+                for k in kept:
+                    kept[k].append(obs["images"][k].copy())
+            obs = scene.step(rng.uniform(-1, 1, scene.spec.action.dim).astype(np.float32)).observation
+        rec.end_episode(keep=keep)
+    rec.close()
+    stats = json.loads((tmp_path / "ds" / "meta" / "stats.json").read_text())
+    for k, frames in kept.items():
+        x = np.stack(frames).reshape(-1, 3) / 255.0
+        got = stats[f"observation.images.{k}"]
+        np.testing.assert_allclose(np.ravel(got["mean"]), x.mean(axis=0), atol=1e-9)
+        np.testing.assert_allclose(np.ravel(got["std"]), x.std(axis=0), atol=1e-9)
+        assert min(np.ravel(got["std"])) > 0.02  # a real spread, not LeRobot's ~0

@@ -213,3 +213,32 @@ def test_a_dataset_whose_recording_was_killed_is_named_not_a_traceback(scripted_
     with pytest.raises(ConfigError, match=r"data/chunk-000/file-000.parquet is incomplete: the recording was killed"):
         train_act(data, tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+def test_degenerate_image_statistics_are_recomputed_from_the_frames(scripted_dataset, tmp_path):
+    """A dataset LeRobot 0.4.4 recorded holds an image std of ~0: training normalizes with the frames' own
+    mean/std instead (and leaves the dataset on disk as it was); good statistics are used as they are."""
+    import shutil
+
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    from simseam.runner.training import image_stats
+
+    data = tmp_path / "ds"
+    shutil.copytree(scripted_dataset[0], data)
+    good = LeRobotDatasetMetadata("simseam/local", root=data)
+    assert image_stats(good, data) is good.stats
+    path = data / "meta" / "stats.json"
+    stats = json.loads(path.read_text())
+    keys = [k for k in stats if k.startswith("observation.images.")]
+    for k in keys:
+        stats[k]["std"] = [[[0.001]], [[0.002]], [[0.001]]]  # what LeRobot 0.4.4 writes
+    path.write_text(json.dumps(stats))
+    on_disk = path.read_text()
+    meta = LeRobotDatasetMetadata("simseam/local", root=data)
+    fixed = image_stats(meta, data)
+    for k in keys:
+        std = np.ravel(fixed[k]["std"])
+        np.testing.assert_allclose(std, np.ravel(good.stats[k]["std"]), atol=0.02)  # AV1 frames: close, not equal
+        assert std.min() > 0.02
+    assert path.read_text() == on_disk

@@ -19,6 +19,8 @@ the parquet footers to be written (``close()`` does it, also on errors).
 
 from __future__ import annotations
 
+import json
+
 import shutil
 from pathlib import Path
 from typing import Any
@@ -104,6 +106,10 @@ class LeRobotRecorder:
         self.frames_written = 0
         self._frames = 0
         self._closed = False
+        # per camera: [sum, sum of squares] of the pixels per channel (in [0, 1]) and the pixel count, for the
+        # kept episodes and for the one being recorded (see _write_image_stats)
+        self._pixels = {k: [np.zeros(3), np.zeros(3), 0] for k in self._image_keys}
+        self._episode_pixels = {k: [np.zeros(3), np.zeros(3), 0] for k in self._image_keys}
 
     def add(self, observation: Observation, action: np.ndarray) -> None:
         """Buffer one frame: the observation the policy saw and the action it took."""
@@ -114,6 +120,12 @@ class LeRobotRecorder:
         # copies: the frames are buffered (and written by background threads) after the rollout moved on, and a
         # sidecar's images are views into shared-memory slots that its next replies overwrite
         frame: dict[str, Any] = {IMAGE_PREFIX + k: np.array(images[k], dtype=np.uint8) for k in self._image_keys}
+        for k in self._image_keys:
+            x = frame[IMAGE_PREFIX + k].reshape(-1, 3).astype(np.float64) / 255.0
+            acc = self._episode_pixels[k]
+            acc[0] += x.sum(axis=0)
+            acc[1] += (x * x).sum(axis=0)
+            acc[2] += x.shape[0]
         frame[STATE_KEY] = np.array(observation[OBS_STATE], dtype=np.float32)
         if ENV_STATE_KEY in self.features:
             frame[ENV_STATE_KEY] = np.array(observation[OBS_ENV_STATE], dtype=np.float32)
@@ -130,8 +142,13 @@ class LeRobotRecorder:
             self.dataset.save_episode()
             self.episodes_written += 1
             self.frames_written += self._frames
+            for k, (total, squares, n) in self._episode_pixels.items():
+                self._pixels[k][0] += total
+                self._pixels[k][1] += squares
+                self._pixels[k][2] += n
         else:
             self.dataset.clear_episode_buffer()
+        self._episode_pixels = {k: [np.zeros(3), np.zeros(3), 0] for k in self._image_keys}
         self._frames = 0
         return keep
 
@@ -146,6 +163,24 @@ class LeRobotRecorder:
         self.dataset.finalize()
         if getattr(self.dataset, "image_writer", None) is not None:
             self.dataset.stop_image_writer()
+        self._write_image_stats()
+
+    def _write_image_stats(self) -> None:
+        """The cameras' per-channel mean and std in ``meta/stats.json``, from every pixel of the kept frames.
+        LeRobot 0.4.4 squares uint8 frames in uint8 when it computes them (``batch**2`` wraps modulo 256), so
+        it records an image std of ~0 (0.001-0.015 measured, against 0.1-0.2): ACT, which normalizes its
+        images with these, then sees inputs scaled up 10-200x, differently per camera."""
+        path = self.root / "meta" / "stats.json"
+        if not self.episodes_written or not self._image_keys or not path.is_file():
+            return
+        stats = json.loads(path.read_text())
+        for k, (total, squares, n) in self._pixels.items():
+            mean = total / n
+            std = np.sqrt(np.maximum(squares / n - mean * mean, 0.0))
+            entry = stats.setdefault(IMAGE_PREFIX + k, {})
+            entry["mean"] = mean.reshape(3, 1, 1).tolist()
+            entry["std"] = std.reshape(3, 1, 1).tolist()
+        path.write_text(json.dumps(stats, indent=4))
 
     def __enter__(self) -> "LeRobotRecorder":
         return self

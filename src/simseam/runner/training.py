@@ -130,6 +130,34 @@ def default_loader_workers() -> int:
 TRAINING_MARKS = ("training.json", CHECKPOINTS, "model.safetensors")
 
 
+def image_stats(meta, root: Path) -> dict:
+    """The dataset's statistics, with each camera's per-channel mean/std recomputed from its frames when the
+    recorded std is degenerate (< 0.01: LeRobot 0.4.4 squares uint8 frames in uint8, so datasets it recorded
+    hold ~0; simseam's recorder writes the real values). The dataset on disk is left as it is."""
+    import copy
+
+    import numpy as np
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    bad = [k for k in meta.camera_keys if float(np.max(np.asarray(meta.stats[k]["std"]))) < 0.01]
+    if not bad:
+        return meta.stats
+    stats = copy.deepcopy(meta.stats)
+    sums = {k: [torch.zeros(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64), 0] for k in bad}
+    for batch in torch.utils.data.DataLoader(LeRobotDataset("simseam/local", root=root), batch_size=64):
+        for k in bad:
+            x = batch[k].double()  # [B, 3, H, W] in [0, 1]
+            sums[k][0] += x.sum(dim=(0, 2, 3))
+            sums[k][1] += (x * x).sum(dim=(0, 2, 3))
+            sums[k][2] += x.shape[0] * x.shape[2] * x.shape[3]
+    for k, (total, squares, n) in sums.items():
+        mean = total / n
+        stats[k]["mean"] = mean.reshape(3, 1, 1).numpy()
+        stats[k]["std"] = (squares / n - mean**2).clamp(min=0).sqrt().reshape(3, 1, 1).numpy()
+    return stats
+
+
 def _parquet_complete(path: Path) -> bool:
     """A parquet file ends with its footer and the magic bytes PAR1 (a killed writer leaves neither)."""
     with open(path, "rb") as f:
@@ -333,7 +361,7 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
     policy.to(device)
     policy.train()
-    preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=meta.stats)
+    preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=image_stats(meta, root))
     if cfg.cache_on_device:
         cache = _DeviceCache(LeRobotDataset("simseam/local", root=root), list(act_cfg.action_delta_indices),
                              device, cfg.num_workers, cfg.batch_size, cfg.seed)
