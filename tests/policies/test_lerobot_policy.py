@@ -151,7 +151,12 @@ def test_bad_sources_name_what_is_missing(tiny_act, tmp_path):
 
 
 def test_hub_ids_fail_cleanly_offline(monkeypatch):
+    import huggingface_hub.constants
+
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    # huggingface_hub reads the variable once, at import (earlier tests imported it): without this it would
+    # try the network, retrying for ~20 s, before failing the same way
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", True)
     with pytest.raises(ConfigError, match="lerobot:lerobot/act_aloha_sim_transfer_cube_human: cannot load"):
         make_policy("lerobot:lerobot/act_aloha_sim_transfer_cube_human")
 
