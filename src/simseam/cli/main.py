@@ -212,7 +212,6 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
                 todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
-    from simseam.policies.batch import shared_batch
     from simseam.runner.vector import RolloutRecipe, VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
@@ -232,23 +231,15 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             pol.close()
 
     with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
-        with console.status(f"loading the policy for {num_envs} environments"):
-            probe = make_policy(policy, **policy_kwargs)
-            pol = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
-        uses_images, privileged = probe.uses_images, probe.requires_privileged
         from simseam.engines.registry import engine_info
-
-        batched_engine = engine_info(cfg.engine.name).batched  # N worlds in this process: one policy batch
         from simseam.runner.central_render import choose_renderer
 
+        with console.status(f"loading the policy for {num_envs} environments"):
+            probe = make_policy(policy, **policy_kwargs)
+        uses_images, privileged = probe.uses_images, probe.requires_privileged
+        batched_engine = engine_info(cfg.engine.name).batched  # N worlds in this process: one policy batch
         renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
-        if pol is None and (batched_engine or renderer == "batched"):  # the policies act here, for all workers
-            from simseam.policies.batch import PerEnvPolicies
-
-            made = [probe]
-            pol = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **policy_kwargs), num_envs)
-        elif pol is None:  # nothing shared: each worker runs its own instance, whole episodes at a time
-            close_policy(probe)
+        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=batched_engine or renderer == "batched")
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
         from simseam.runner.warp_vector import make_vector_env
@@ -278,6 +269,24 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             else:
                 vec.run_local(policy, policy_kwargs, todo, **common)
     _finish_run(run_dir, spec_json, guard.interrupted, planned)
+
+
+def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, acts_here: bool):
+    """The policy batch that acts in this process for ``num_envs`` workers, or None when each worker runs
+    its own instance (whole episodes at a time). A policy that shares a model or a server batches; any other
+    acts here only when the workers must be stepped from here (``acts_here``: N worlds in this process, or
+    the cameras drawn here), one instance per environment (``probe`` is the first)."""
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import PerEnvPolicies, shared_batch
+
+    batch = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
+    if batch is not None:
+        return batch
+    if acts_here:
+        made = [probe]
+        return PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **policy_kwargs), num_envs)
+    close_policy(probe)
+    return None
 
 
 def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
