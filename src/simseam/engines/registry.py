@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from simseam import registry
 from simseam.engines.base import Engine, EngineOptions
 from simseam.seam import BackendUnavailableError, ConfigError
-from simseam.seam.errors import did_you_mean
 
 
 @dataclass(frozen=True)
@@ -35,11 +35,7 @@ ENGINE_NAMES = tuple(ENGINES)
 
 
 def engine_info(name: str) -> EngineInfo:
-    try:
-        return ENGINES[name]
-    except KeyError:
-        raise ConfigError(f"unknown engine {name!r}{did_you_mean(name, ENGINE_NAMES)}; known engines: "
-                          f"{', '.join(ENGINE_NAMES)}") from None
+    return registry.load(ENGINES, name, "engine")
 
 
 def make_engine(name: str, options: EngineOptions | None = None) -> Engine:

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from simseam import registry
 from simseam.seam import ConfigError
-from simseam.seam.errors import did_you_mean
 
 METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
                   "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
@@ -76,11 +76,7 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
 
 
 def preset(name: str) -> Preset:
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise ConfigError(f"unknown eval preset {name!r}{did_you_mean(name, PRESETS)}; presets: "
-                          f"{', '.join(sorted(PRESETS))}") from None
+    return registry.load(PRESETS, name, "eval preset")
 
 
 def resolve_tasks(p: Preset, only: list[str] | None) -> list[str]:
