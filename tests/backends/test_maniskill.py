@@ -179,6 +179,27 @@ def test_maniskill_motion_planning_expert_through_eval_matches_native(tmp_path, 
     assert any(e["success"] for e in summary["episodes"])
 
 
+def test_maniskill_mp_preset_gives_the_expert_its_plans_length(tmp_path, run_native):
+    """`maniskill_tabletop_mp` (pd_joint_pos, PickCube at 100 steps: ManiSkill's imitation-learning baselines'
+    limit) on seeds where every plan runs past the registered 50 steps: the expert succeeds on each, at exactly
+    the step where ManiSkill's solver first succeeds on its own env; the spec says the control mode and limit."""
+    backend_python("maniskill")
+    out = tmp_path / "eval"
+    proc = simseam("eval", "maniskill_tabletop_mp", "--policy", "scripted", "--episodes", "3", "--tasks",
+                   "PickCube-v1", "--seed", "10000", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["spec"]["action"]["control_mode"] == "joint_position"
+    assert summary["spec"]["task"]["max_steps"] == 100
+    native = run_native("maniskill", {"task": "PickCube-v1", "solver": "solvePickCube", "episodes": 3}, 10000,
+                        np.zeros(1))
+    assert all(50 < f <= 100 for f in native["first_success"]), native  # none would fit the registered 50
+    seam = sorted((e["seed"], e["success"], e["steps"]) for e in summary["episodes"])
+    assert seam == [(10000 + i, True, int(f)) for i, f in enumerate(native["first_success"])], (seam, native)
+    run = json.loads((out / "run.json").read_text())
+    assert run["per_task_config"]["PickCube-v1"] == {"max_steps": 100}
+
+
 def test_maniskill_benchmarks_list_shows_its_tasks_and_preset():
     backend_python("maniskill")
     proc = simseam("benchmarks", "list", "maniskill", env={"COLUMNS": "200"})

@@ -29,6 +29,12 @@ METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawe
                   "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
 
 MANISKILL_TABLETOP = ("PickCube-v1", "PushCube-v1", "StackCube-v1", "PegInsertionSide-v1", "PullCube-v1")
+#: the step limits ManiSkill's own imitation-learning baselines (examples/baselines/act and diffusion_policy,
+#: "learning from motion planning generated demonstrations") evaluate with; PullCube is in neither: 100, as
+#: PushCube. The limits ManiSkill registers (50; PegInsertionSide 100) are shorter than most of the
+#: motion planner's own plans (PickCube 46-88 steps), so its demonstrations cannot fit them.
+MANISKILL_MP_STEPS = {"PickCube-v1": 100, "PushCube-v1": 100, "StackCube-v1": 200, "PegInsertionSide-v1": 300,
+                      "PullCube-v1": 100}
 
 
 @dataclass(frozen=True)
@@ -40,14 +46,17 @@ class Preset:
     config: dict[str, Any] = field(default_factory=dict)
     suite: str = ""
     protocol: str = ""
+    per_task: dict[str, dict[str, Any]] = field(default_factory=dict)  # a task's own fields over ``config``
 
-    def backend_config(self, uses_images: bool) -> dict[str, Any]:
-        """The backend's config for a policy: a backend whose cameras are off unless asked for (its
-        ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images."""
+    def backend_config(self, uses_images: bool, task: str | None = None) -> dict[str, Any]:
+        """The backend's config for a policy (and ``task``: its ``per_task`` fields, e.g. its step limit,
+        over the preset's): a backend whose cameras are off unless asked for (its ``CAMERA_OPTION``,
+        ManiSkill's ``cameras``) turns them on for a policy that reads images."""
         from simseam.backends import backend_module
 
         option = getattr(backend_module(self.backend), "CAMERA_OPTION", None)
-        return {**self.config, **({option: True} if option and uses_images else {})}
+        return {**self.config, **(self.per_task.get(task, {}) if task else {}),
+                **({option: True} if option and uses_images else {})}
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
@@ -70,6 +79,13 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
            protocol="ManiSkill3 (state, pd_ee_delta_pose, PhysX CPU): 5 shipped-asset Panda tasks x 50 episodes "
                     "(env.reset(seed)), each at the step limit ManiSkill registers (PegInsertionSide 100, the others "
                     "50), success = info['success'] at any step (the episode ends there: ManiSkill's success_once)"),
+    Preset("maniskill_tabletop_mp", "maniskill", MANISKILL_TABLETOP, 50, {"control_mode": "pd_joint_pos"},
+           per_task={t: {"max_steps": n} for t, n in MANISKILL_MP_STEPS.items()},
+           protocol="ManiSkill3 (state, pd_joint_pos: the motion planner's control mode, PhysX CPU), for policies "
+                    "cloned from its motion-planning demonstrations: the 5 tasks x 50 episodes (env.reset(seed)), "
+                    "at the step limits ManiSkill's imitation-learning baselines use (PickCube 100, PushCube 100, "
+                    "StackCube 200, PegInsertionSide 300; PullCube 100), success = info['success'] at any step "
+                    "(the episode ends there)"),
     Preset("aloha_transfer_cube", "aloha", ("transfer_cube",), 50, {"task": "transfer_cube", "max_steps": 400},
            protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
 )}
@@ -99,7 +115,7 @@ def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: i
     return {"preset": p.name, "backend": p.backend, "protocol": p.protocol, "standard": episodes == p.episodes
             and (p.tasks is None or list(p.tasks) == tasks), "policy": policy, "tasks": tasks,
             "episodes": episodes * len(tasks), "episodes_per_task": episodes, "seed": seed, "video": video,
-            "task_config": p.config}
+            "task_config": p.config, **({"per_task_config": p.per_task} if p.per_task else {})}
 
 
 def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | None = None) -> list[int]:
@@ -146,7 +162,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
         indices = [i for i in todo if i // episodes == ti]
         if not indices:
             continue
-        cfg = {**p.backend_config(policy.uses_images), "task": task}
+        cfg = {**p.backend_config(policy.uses_images, task), "task": task}
         progress(f"{p.backend}: starting {task}")
         rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
                                  progress=lambda s: progress(f"{task}: {s}"))
@@ -178,7 +194,8 @@ class EvalRecipe:
     """How a vector worker builds the rollout of a preset's task (``runner.vector``): the backend's
     sidecar for ``tasks[first_task]`` at boot; ``rollout_for`` gives each episode index its task's
     rollout (closing the worker's sidecar and starting one for the new task only when the task changes)
-    and its seed base (episode ``i = ti * episodes + e`` runs with ``seed + e``). Picklable."""
+    and its seed base (episode ``i = ti * episodes + e`` runs with ``seed + e``). ``per_task``: a task's
+    own fields over ``config`` (the preset's). Picklable."""
 
     backend: str
     config: dict
@@ -186,11 +203,14 @@ class EvalRecipe:
     episodes: int
     privileged: bool = False
     first_task: int = 0
+    per_task: dict = field(default_factory=dict)
 
     def _open(self, ti: int):
         from simseam.sidecar.benchmark import open_benchmark
 
-        rollout = open_benchmark(self.backend, {**self.config, "task": self.tasks[ti]}, privileged=self.privileged)
+        task = self.tasks[ti]
+        rollout = open_benchmark(self.backend, {**self.config, **self.per_task.get(task, {}), "task": task},
+                                 privileged=self.privileged)
         self._task = ti
         return rollout
 
@@ -244,7 +264,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     if policy_batch is None:
         n = max(1, min(num_envs, len(todo)))
         recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                            first_task=todo[0] // episodes)
+                            first_task=todo[0] // episodes, per_task=p.per_task)
         with VectorEnv(recipe, n) as vec:
             write_spec(vec)
             if on_start:
@@ -257,7 +277,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
             continue
         n = max(1, min(num_envs, len(indices)))
         with VectorEnv(EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                                  first_task=ti), n) as vec:
+                                  first_task=ti, per_task=p.per_task), n) as vec:
             write_spec(vec)
             if on_start:
                 on_start(vec)
@@ -280,7 +300,7 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
     if not todo:
         return
     recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                        first_task=todo[0] // episodes)
+                        first_task=todo[0] // episodes, per_task=p.per_task)
 
     def record(entry):
         entry = _eval_entry(entry, tasks, episodes, seed)

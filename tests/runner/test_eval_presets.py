@@ -1,0 +1,87 @@
+"""Evaluation presets' per-task fields (``Preset.per_task``): every path that opens a task's rollout
+(sequential ``run_eval``, worker processes and Ray through ``EvalRecipe``) gives the task its own fields
+over the preset's, and run.json records them. No backend is started: ``open_benchmark`` is replaced."""
+
+from __future__ import annotations
+
+import pickle
+
+import pytest
+
+from simseam.runner import evaluate
+from simseam.runner.evaluate import EvalRecipe, eval_config, preset
+
+
+def test_maniskill_mp_preset_runs_the_planners_control_mode_at_the_baselines_step_limits():
+    p = preset("maniskill_tabletop_mp")
+    limits = {t: p.backend_config(False, t)["max_steps"] for t in p.tasks}
+    assert limits == {"PickCube-v1": 100, "PushCube-v1": 100, "StackCube-v1": 200, "PegInsertionSide-v1": 300,
+                      "PullCube-v1": 100}
+    assert all(p.backend_config(False, t)["control_mode"] == "pd_joint_pos" for t in p.tasks)
+    assert p.backend_config(True, "PickCube-v1") == {"control_mode": "pd_joint_pos", "max_steps": 100,
+                                                     "cameras": True}
+    # the registered-limit preset is unchanged: no per-task fields, ManiSkill's default control mode
+    tabletop = preset("maniskill_tabletop")
+    assert tabletop.per_task == {} and tabletop.backend_config(False, "PickCube-v1") == {}
+    assert tabletop.tasks == p.tasks
+
+
+@pytest.mark.parametrize("first_task", [0, 2])
+def test_eval_recipe_opens_each_task_with_its_own_fields(monkeypatch, first_task):
+    opened = []
+
+    class Rollout:
+        def __init__(self, config):
+            self.config = config
+
+        def close(self):
+            pass
+
+    def fake_open(backend, config, privileged=False, **kwargs):
+        opened.append((backend, config, privileged))
+        return Rollout(config)
+
+    monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
+    p = preset("maniskill_tabletop_mp")
+    tasks = ("PickCube-v1", "PushCube-v1", "StackCube-v1")
+    recipe = EvalRecipe(p.backend, p.backend_config(False), tasks, 4, True, first_task=first_task,
+                        per_task=p.per_task)
+    recipe = pickle.loads(pickle.dumps(recipe))  # what worker processes and Ray actors receive
+    rollout = recipe.build()
+    assert rollout.config == {"control_mode": "pd_joint_pos", "max_steps": p.per_task[tasks[first_task]]["max_steps"],
+                              "task": tasks[first_task]}
+    rollout, base = recipe.rollout_for(rollout, 2 * 4 + 1, seed=10000)  # episode 1 of StackCube
+    assert rollout.config["task"] == "StackCube-v1" and rollout.config["max_steps"] == 200 and base == 10000 - 8
+    assert all(priv for _, _, priv in opened)
+
+
+def test_run_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
+    opened = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_open(backend, config, privileged=False, **kwargs):
+        opened.append(config)
+        raise Stop
+
+    class Policy:
+        uses_images = False
+        requires_privileged = False
+
+    class RunDir:
+        done = set()
+        path = tmp_path
+
+    monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
+    with pytest.raises(Stop):
+        evaluate.run_eval(preset("maniskill_tabletop_mp"), Policy(), "p", ["StackCube-v1"], 2, RunDir())
+    assert opened == [{"control_mode": "pd_joint_pos", "max_steps": 200, "task": "StackCube-v1"}]
+
+
+def test_run_json_records_the_per_task_fields_only_where_a_preset_has_them():
+    mp = eval_config(preset("maniskill_tabletop_mp"), "scripted", ["PickCube-v1"], 50, 10000, False)
+    assert mp["per_task_config"]["PickCube-v1"] == {"max_steps": 100}
+    assert mp["task_config"] == {"control_mode": "pd_joint_pos"}
+    plain = eval_config(preset("maniskill_tabletop"), "scripted", ["PickCube-v1"], 50, 0, False)
+    assert "per_task_config" not in plain  # an earlier run's run.json still resumes
