@@ -81,6 +81,27 @@ def test_maniskill_joint_position_mode_matches_native(open_backend, run_native):
     assert np.ptp(native["state"][:, 0]) > 0.01
 
 
+def test_maniskill_environment_state_is_the_tasks_part_of_its_state(open_backend):
+    """`environment_state: true`: ManiSkill's `extra.*` slots of `state`, bit for bit, named alike (what a
+    state-based ACT reads as observation.environment_state); `state` itself is unchanged."""
+    cfg = {"task": "PickCube-v1", "control_mode": "pd_joint_pos", "environment_state": True}
+    spec = check_rollout(open_backend("maniskill", cfg))  # (closes it)
+    r = open_backend("maniskill", cfg)
+    names, env_names = spec.observation.fields["state"].names, spec.observation.fields["environment_state"].names
+    assert env_names == tuple(n for n in names if n.startswith("extra.")) and spec.observation.env_state_dim == 24
+    assert {"extra.obj_pose.0", "extra.goal_pos.2", "extra.tcp_pose.6"} <= set(env_names)
+    idx = [names.index(n) for n in env_names]
+    obs = r.reset(7)
+    q = obs["joint_positions"][:7].astype(np.float32)
+    for t in range(5):
+        assert obs["environment_state"].dtype == np.float32
+        np.testing.assert_array_equal(obs["environment_state"], obs["state"][idx])
+        obs = r.step(np.append(q + 0.05 * (t + 1), 1.0).astype(np.float32)).observation
+    plain = open_backend("maniskill", {"task": "PickCube-v1", "control_mode": "pd_joint_pos"})
+    assert not plain.spec.observation.has("environment_state")
+    np.testing.assert_array_equal(plain.reset(7)["state"], r.reset(7)["state"])
+
+
 @pytest.mark.parametrize("config, privileged", [
     ({"task": "StackCube-v1"}, False),
     ({"task": "PushCube-v1"}, True),  # pd_joint_pos, with the motion-planning expert

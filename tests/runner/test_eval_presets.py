@@ -18,8 +18,8 @@ def test_maniskill_mp_preset_runs_the_planners_control_mode_at_the_baselines_ste
     assert limits == {"PickCube-v1": 100, "PushCube-v1": 100, "StackCube-v1": 200, "PegInsertionSide-v1": 300,
                       "PullCube-v1": 100}
     assert all(p.backend_config(False, t)["control_mode"] == "pd_joint_pos" for t in p.tasks)
-    assert p.backend_config(True, "PickCube-v1") == {"control_mode": "pd_joint_pos", "max_steps": 100,
-                                                     "cameras": True}
+    assert p.backend_config(True, "PickCube-v1") == {"control_mode": "pd_joint_pos", "environment_state": True,
+                                                     "max_steps": 100, "cameras": True}
     # the registered-limit preset is unchanged: no per-task fields, ManiSkill's default control mode
     tabletop = preset("maniskill_tabletop")
     assert tabletop.per_task == {} and tabletop.backend_config(False, "PickCube-v1") == {}
@@ -48,7 +48,7 @@ def test_eval_recipe_opens_each_task_with_its_own_fields(monkeypatch, first_task
                         per_task=p.per_task)
     recipe = pickle.loads(pickle.dumps(recipe))  # what worker processes and Ray actors receive
     rollout = recipe.build()
-    assert rollout.config == {"control_mode": "pd_joint_pos", "max_steps": p.per_task[tasks[first_task]]["max_steps"],
+    assert rollout.config == {"control_mode": "pd_joint_pos", "environment_state": True, "max_steps": p.per_task[tasks[first_task]]["max_steps"],
                               "task": tasks[first_task]}
     rollout, base = recipe.rollout_for(rollout, 2 * 4 + 1, seed=10000)  # episode 1 of StackCube
     assert rollout.config["task"] == "StackCube-v1" and rollout.config["max_steps"] == 200 and base == 10000 - 8
@@ -76,12 +76,13 @@ def test_run_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
     monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
     with pytest.raises(Stop):
         evaluate.run_eval(preset("maniskill_tabletop_mp"), Policy(), "p", ["StackCube-v1"], 2, RunDir())
-    assert opened == [{"control_mode": "pd_joint_pos", "max_steps": 200, "task": "StackCube-v1"}]
+    assert opened == [{"control_mode": "pd_joint_pos", "environment_state": True, "max_steps": 200,
+                       "task": "StackCube-v1"}]
 
 
 def test_run_json_records_the_per_task_fields_only_where_a_preset_has_them():
     mp = eval_config(preset("maniskill_tabletop_mp"), "scripted", ["PickCube-v1"], 50, 10000, False)
     assert mp["per_task_config"]["PickCube-v1"] == {"max_steps": 100}
-    assert mp["task_config"] == {"control_mode": "pd_joint_pos"}
+    assert mp["task_config"] == {"control_mode": "pd_joint_pos", "environment_state": True}
     plain = eval_config(preset("maniskill_tabletop"), "scripted", ["PickCube-v1"], 50, 0, False)
     assert "per_task_config" not in plain  # an earlier run's run.json still resumes

@@ -31,6 +31,10 @@ Mapping to the seam:
   agent's qpos and qvel, then the task's extra state, each slot named after its key
   (``agent.qpos.0``, ``extra.tcp_pose.3``, ...);
 - ``joint_positions`` / ``joint_velocities``: the Panda's 7 arm and 2 finger joints;
+- ``environment_state`` (``environment_state: true``): the task's part of ``state``, the ``extra.*``
+  slots (PickCube: ``is_grasped``, the TCP pose, the goal, the cube's pose, their differences) in the
+  same order, bit for bit, world frame as ManiSkill gives them; what LeRobot's ACT reads as
+  ``observation.environment_state`` (it needs a camera or that) for a state-based policy;
 - ``images``: none unless ``cameras: true``; then ``camera1`` = ManiSkill's ``base_camera`` at
   ``image_size`` (default 128x128), rendered only when requested, and only where SAPIEN can
   render; elsewhere ``cameras: true`` fails at once with one line naming the cause;
@@ -59,6 +63,7 @@ import numpy as np
 from simseam.math3d import matrix_to_rpy, quat_to_matrix
 from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
 from simseam.seam import (
+    OBS_ENV_STATE,
     OBS_EXPERT_ACTION,
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
@@ -91,7 +96,7 @@ EXPERT_TASKS = {"PickCube-v1": "solvePickCube", "PushCube-v1": "solvePushCube", 
                 "LiftPegUpright-v1": "solveLiftPegUpright", "PlaceSphere-v1": "solvePlaceSphere"}
 CONTROL_MODES = ("pd_ee_delta_pose", "pd_joint_pos")
 DEFAULTS = {"control_mode": "pd_ee_delta_pose", "max_steps": 0, "cameras": False, "image_size": [128, 128],
-            "expert": False}
+            "expert": False, "environment_state": False}
 SKIP_INFO = ("success", "elapsed_steps", "reconfigure")
 
 
@@ -102,7 +107,7 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
         raise ConfigError(f"{where}.task: one of ManiSkill's shipped-asset tasks {list(TASKS)} is required, "
                           f"got {task!r}")
     out = {**DEFAULTS, **{k: v for k, v in config.items() if k != "name"}}
-    for key in ("expert", "cameras"):
+    for key in ("expert", "cameras", "environment_state"):
         if not isinstance(out[key], bool):
             raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
     if out["expert"]:
@@ -249,6 +254,12 @@ class ManiSkillRollout(BenchmarkRollout):
                                    fovy_deg=float(np.degrees(float(np.asarray(cam.fov).reshape(-1)[0])))),)
         extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (action.dim,), presence="declared")} \
             if config["expert"] else {}
+        self._env_slots = None
+        if config["environment_state"]:
+            self._env_slots = np.array([i for i, n in enumerate(names) if n.startswith("extra.")], dtype=np.int64)
+            extra[OBS_ENV_STATE] = FieldSpec("float32", (len(self._env_slots),), "declared",
+                                             "ManiSkill's task state (world frame)",
+                                             tuple(names[i] for i in self._env_slots))
         spec = RolloutSpec(
             robot=RobotFacts(name=self._u.agent.uid, base_link=robot.get_links()[0].name,
                              tool_link=self._u.agent.tcp.name,
@@ -330,6 +341,8 @@ class ManiSkillRollout(BenchmarkRollout):
         }
         if self.config["expert"]:
             obs[OBS_EXPERT_ACTION] = self.expert_action()
+        if self._env_slots is not None:
+            obs[OBS_ENV_STATE] = obs[OBS_STATE][self._env_slots]
         return obs
 
     def _render_camera(self, key: str) -> np.ndarray:

@@ -79,12 +79,14 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
            protocol="ManiSkill3 (state, pd_ee_delta_pose, PhysX CPU): 5 shipped-asset Panda tasks x 50 episodes "
                     "(env.reset(seed)), each at the step limit ManiSkill registers (PegInsertionSide 100, the others "
                     "50), success = info['success'] at any step (the episode ends there: ManiSkill's success_once)"),
-    Preset("maniskill_tabletop_mp", "maniskill", MANISKILL_TABLETOP, 50, {"control_mode": "pd_joint_pos"},
+    Preset("maniskill_tabletop_mp", "maniskill", MANISKILL_TABLETOP, 50,
+           {"control_mode": "pd_joint_pos", "environment_state": True},
            per_task={t: {"max_steps": n} for t, n in MANISKILL_MP_STEPS.items()},
            protocol="ManiSkill3 (state, pd_joint_pos: the motion planner's control mode, PhysX CPU), for policies "
                     "cloned from its motion-planning demonstrations: the 5 tasks x 50 episodes (env.reset(seed)), "
                     "at the step limits ManiSkill's imitation-learning baselines use (PickCube 100, PushCube 100, "
-                    "StackCube 200, PegInsertionSide 300; PullCube 100), success = info['success'] at any step "
+                    "StackCube 200, PegInsertionSide 300; PullCube 100), the task's part of the state also as "
+                    "environment_state (what a state-based ACT reads), success = info['success'] at any step "
                     "(the episode ends there)"),
     Preset("aloha_transfer_cube", "aloha", ("transfer_cube",), 50, {"task": "transfer_cube", "max_steps": 400},
            protocol="50 episodes, 400 steps at 50 Hz, success = stage reward 4 (ACT / LeRobot eval)"),
@@ -281,7 +283,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
             write_spec(vec)
             if on_start:
                 on_start(vec)
-            vec.run(policy_batch, indices, seed=seed - ti * episodes, sync=True, **common)
+            vec.run(policy_batch, indices, seed=seed - ti * episodes, **common)
 
 
 def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: str, *, policy: str,
