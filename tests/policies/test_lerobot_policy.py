@@ -289,3 +289,19 @@ def test_a_state_policy_in_a_scene_without_object_state_is_refused_with_the_fix(
     with pytest.raises(ConfigError, match=r"environment_state.*provides none.*`environment_state: true`"):
         run_episode(scene, policy, index=0, seed=0)
     assert scene.sim_time_ns() == 0
+
+
+@pytest.mark.parametrize("omp, threads", [(None, 1), ("2", 2)])
+def test_a_cpu_policy_runs_torch_on_one_thread_unless_omp_num_threads_says(state_act, omp, threads):
+    """Two intra-op threads per process on a shared 2-core machine made one call ~90x slower (173 ms
+    against 1.9 ms); a CPU policy uses one unless OMP_NUM_THREADS is set (then torch's own rule holds)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"} | ({"OMP_NUM_THREADS": omp} if omp else {})
+    code = ("import torch; torch.set_num_threads(2); from simseam.policies.base import make_policy; "
+            f"make_policy('lerobot:{state_act}', device='cpu'); print(torch.get_num_threads())")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == str(threads)

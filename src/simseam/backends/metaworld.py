@@ -3,7 +3,12 @@
 Native environment: ``metaworld.MT1(task, seed=goal_seed)`` gives the task's 50 fixed
 goal/object variations (``train_tasks``); episode ``seed`` uses variation ``seed % 50``
 and ``env.seed(seed)``, so 50 consecutive seeds cover every variation once (the MT1
-evaluation protocol, made deterministic). Each reset starts from freshly reset MuJoCo
+evaluation protocol, made deterministic). Seeds ``s`` and ``s + 50`` are therefore the same
+episode. ``variation: sampled`` instead draws each episode's object and goal positions from
+the task's own reset distribution (the one MT1 draws its 50 from) with the episode seed
+(Meta-World's ``seeded_rand_vec`` path after ``env.seed(seed)``): every seed its own episode,
+none of them one of MT1's 50, so demonstrations recorded that way leave the MT1 variations
+that ``simseam eval metaworld_mt10`` runs unseen. Each reset starts from freshly reset MuJoCo
 data (``mj_resetData``), so an episode is the same whether it is the first of its
 environment or the hundredth (MuJoCo's solver warm start would otherwise carry over).
 
@@ -12,9 +17,15 @@ Mapping to the seam:
 - action: Meta-World's own ``[dx, dy, dz, grip]`` in [-1, 1] (CARTESIAN_DELTA, 1 cm per unit
   per step of the mocap target; grip -1 open, +1 closed), clipped to the bounds;
 - ``images``: ``{"camera1": <camera>}`` (default ``corner2``) at ``image_size`` (default 224x224),
-  exactly what ``env.render()`` returns for that camera;
+  exactly what ``env.render()`` returns for that camera; ``cameras: false`` declares none (a
+  state-only rollout: ``simseam collect --no-cameras`` and a state policy's ``run`` set it);
 - ``state``: the 39-D Meta-World observation (hand xyz, gripper opening, two object poses, the
   previous frame of those, the goal), cast to float32 (native: float64);
+- ``environment_state`` (``environment_state: true``, the default): the 17 task slots of that
+  observation, the two object poses and the goal (``state[4:18]`` and ``state[36:39]``), under
+  the seam's key for a task's object state: what LeRobot's ACT reads as
+  ``observation.environment_state`` (it refuses a state-only policy without it or a camera). It
+  repeats what ``state`` already holds; ``state`` itself is unchanged;
 - ``joint_positions`` / ``joint_velocities``: the Sawyer's 7 arm joints and 2 finger joints;
 - ``expert_action`` (privileged rollouts only, i.e. ``--policy scripted``): the action of
   Meta-World's scripted expert for this task (``metaworld.policies``) on the full-precision
@@ -39,6 +50,7 @@ from simseam.backends.base import (
     observation_spec,
 )
 from simseam.seam import (
+    OBS_ENV_STATE,
     OBS_EXPERT_ACTION,
     OBS_IMAGES,
     OBS_JOINT_POSITIONS,
@@ -60,7 +72,10 @@ from simseam.seam import (
 NAME = "metaworld"
 HAS_EXPERT = True  # metaworld.policies: one scripted expert per task
 CAMERAS = ("corner", "corner2", "corner3", "topview", "behindGripper", "gripperPOV")
-DEFAULTS = {"camera": "corner2", "image_size": [224, 224], "max_steps": 500, "goal_seed": 0, "expert": False}
+CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
+VARIATIONS = ("mt1", "sampled")
+DEFAULTS = {"camera": "corner2", "image_size": [224, 224], "max_steps": 500, "goal_seed": 0, "expert": False,
+            "cameras": True, "variation": "mt1", "environment_state": True}
 DIAGNOSTICS = ("near_object", "grasp_success", "grasp_reward", "in_place_reward", "obj_to_target", "unscaled_reward")
 ROBOT_JOINTS = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "right_j5", "right_j6", "r_close",
                 "l_close")
@@ -69,6 +84,8 @@ STATE_NAMES = tuple(
     + [f"obj1_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     + [f"obj2_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     + [f"prev_{i}" for i in range(18)] + ["goal_x", "goal_y", "goal_z"])
+ENV_STATE_SLOTS = (*range(4, 18), 36, 37, 38)  # obj1 pose, obj2 pose, goal: the task's part of the 39-D observation
+ENV_STATE_NAMES = tuple(STATE_NAMES[i] for i in ENV_STATE_SLOTS)
 N_GOALS = 50
 
 
@@ -84,8 +101,12 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
     out["image_size"] = check_image_size(out["image_size"], where)
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
     out["goal_seed"] = check_int(out["goal_seed"], f"{where}.goal_seed", low=0)
-    if not isinstance(out["expert"], bool):
-        raise ConfigError(f"{where}.expert: expected true or false, got {out['expert']!r}")
+    for key in ("expert", "cameras", "environment_state"):
+        if not isinstance(out[key], bool):
+            raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
+    if out["variation"] not in VARIATIONS:
+        raise ConfigError(f"{where}.variation: {out['variation']!r}; one of {list(VARIATIONS)} (mt1: MT1's 50 fixed "
+                          "variations, seed % 50; sampled: a fresh draw from the task's reset distribution per seed)")
     return out
 
 
@@ -133,17 +154,21 @@ class MetaWorldRollout(BenchmarkRollout):
         sensors = (SensorFacts(name=config["camera"], kind="rgb", parent="world",
                                xyz=tuple(float(x) for x in self.env.data.cam_xpos[cam]),
                                rpy=mount_rpy(self.env.data.cam_xmat[cam]), feature_key="camera1",
-                               width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),)
+                               width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),) if config["cameras"] else ()
         joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
                                   float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
                        for j in ROBOT_JOINTS)
         extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if self._expert else {}
+        if config["environment_state"]:
+            extra[OBS_ENV_STATE] = FieldSpec("float32", (len(ENV_STATE_SLOTS),), names=ENV_STATE_NAMES,
+                                             presence="declared")
         step = float(self.env.action_scale)
         spec = RolloutSpec(
             robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=sensors),
             task=TaskSpec(name=name, instruction=instruction(name), max_steps=config["max_steps"],
                           diagnostics=DIAGNOSTICS),
-            observation=observation_spec({"camera1": (h, w)}, STATE_NAMES, ROBOT_JOINTS, extra),
+            observation=observation_spec({"camera1": (h, w)} if config["cameras"] else {}, STATE_NAMES, ROBOT_JOINTS,
+                                         extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               (ActionSlot("dx", "arm", -1.0, 1.0, f"{step} m"),
                                ActionSlot("dy", "arm", -1.0, 1.0, f"{step} m"),
@@ -160,7 +185,12 @@ class MetaWorldRollout(BenchmarkRollout):
 
     def _native_reset(self, seed: int) -> None:
         self._mj.mj_resetData(self.env.model, self.env.data)
-        self.env.set_task(self._bench.train_tasks[seed % N_GOALS])
+        if self.config["variation"] == "sampled":
+            self.env.set_task(self._bench.train_tasks[0])  # the task's observability and settings ...
+            self.env._freeze_rand_vec = False  # ... then its reset draws from env.np_random (seeded below)
+            self.env.seeded_rand_vec = True
+        else:
+            self.env.set_task(self._bench.train_tasks[seed % N_GOALS])
         self.env.seed(seed)
         self._obs, _ = self.env.reset()
 
@@ -176,6 +206,8 @@ class MetaWorldRollout(BenchmarkRollout):
             OBS_JOINT_POSITIONS: d.qpos[self._qadr].astype(np.float32),
             OBS_JOINT_VELOCITIES: d.qvel[self._vadr].astype(np.float32),
         }
+        if self.config["environment_state"]:
+            obs[OBS_ENV_STATE] = obs[OBS_STATE][list(ENV_STATE_SLOTS)]
         if self._expert is not None:
             obs[OBS_EXPERT_ACTION] = np.asarray(self._expert.get_action(self._obs), dtype=np.float32)
         return obs

@@ -24,6 +24,7 @@ the control mode is then unknown and not checked).
 
 from __future__ import annotations
 
+import os
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -145,6 +146,11 @@ class LeRobotPolicy(BasePolicy):
         else:
             ref = self.source
         self.device = pick_device(device)
+        if self.device == "cpu" and "OMP_NUM_THREADS" not in os.environ:
+            # one observation's forward pass gains nothing from intra-op threads, and threads contending for the
+            # cores (eval workers each with their own policy, a shared machine) made each call ~90x slower:
+            # 173 ms against 1.9 ms for a 0.7 M-parameter ACT on a loaded 2-core machine (docs/policies.md)
+            torch.set_num_threads(1)
         try:
             cfg = PreTrainedConfig.from_pretrained(ref)
         except Exception as exc:  # noqa: BLE001 - hub/network/parse errors all mean "cannot load"

@@ -150,12 +150,16 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     import dataclasses
 
     if cfg.benchmark is not None:
-        from simseam.backends import normalize_config
+        from simseam.backends import backend_module, normalize_config
         from simseam.sidecar.benchmark import open_benchmark
 
         b = cfg.benchmark
-        normalize_config(b.name, b.backend_config(), "benchmark")  # bad fields fail before any process starts
-        return open_benchmark(b.name, b.backend_config(), privileged=privileged, progress=progress,
+        config = b.backend_config()
+        normalize_config(b.name, config, "benchmark")  # bad fields fail before any process starts
+        option = getattr(backend_module(b.name), "CAMERA_OPTION", None)
+        if option and not render_images:  # nothing reads images (collect --no-cameras, a state policy): none declared
+            config = {**config, option: False}
+        return open_benchmark(b.name, config, privileged=privileged, progress=progress,
                               boot_timeout=max(cfg.engine.boot_timeout_s, 300.0),
                               request_timeout=max(cfg.engine.request_timeout_s, 120.0))
 
