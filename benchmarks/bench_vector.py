@@ -1,7 +1,7 @@
 """Evaluation throughput vs the number of environments: env-steps/s, episodes/hour, main-process cost.
 
     .venv/bin/python benchmarks/bench_vector.py [--n 1 2 4 8 16] [--steps 300] [--episodes-per-env 2]
-        [--cases state overhead rgb128 rgb256 sidecar_state] [--modes vector async local bare]
+        [--cases state overhead rgb128 rgb256 sidecar_state] [--modes vector local bare]
         [--renderers workers batched] [--rounds 1] [--robot-json panda.json --urdf .../panda.urdf]
         [--out benchmarks/results/vector.json]
 
@@ -26,8 +26,7 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process; each side busy-polls its pipe when every process has
 a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
-(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``); ``async`` the same with ``sync=False`` (the policy
-acts on whichever workers have answered); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -219,7 +218,7 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, renderer: str = "workers",
+def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
                spin_us: int | None = None) -> dict:
     images = CASES[case][0] is not None
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
@@ -240,7 +239,7 @@ def run_vector(case: str, n: int, steps: int, episodes: int, sync: bool = True, 
             vec.central.render([state] * n)
         pol = ZeroBatch(n, images)
         t0, c0 = time.perf_counter(), _cpu()
-        results = vec.run(pol, range(episodes), sync=sync)
+        results = vec.run(pol, range(episodes))
         wall, cpu = time.perf_counter() - t0, _cpu() - c0
     steps_done = sum(r.steps for r in results)
     if images:
@@ -302,7 +301,7 @@ def main() -> None:
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
     ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "vector_spin", "async", "local", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "vector_spin", "local", "bare"])
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
@@ -323,7 +322,7 @@ def main() -> None:
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
-            for renderer in (args.renderers if images and mode in ("vector", "vector0", "vector_spin", "async") else ["workers"]):
+            for renderer in (args.renderers if images and mode in ("vector", "vector0", "vector_spin") else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
     for case in args.cases:
@@ -338,8 +337,7 @@ def main() -> None:
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
                     else:
-                        r = run_vector(case, n, args.steps, episodes, sync=mode in ("vector", "vector0", "vector_spin"),
-                                       renderer=renderer, spin_us=SPIN_MODES.get(mode))
+                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)

@@ -21,7 +21,7 @@ def _batch(spec, n):
 
 
 def _outcome(results):
-    return {r.index: (r.seed, r.success, r.steps, round(r.reward, 9), r.diagnostics) for r in results}
+    return {r.index: (r.seed, r.success, r.steps, r.reward, r.diagnostics) for r in results}  # rewards exactly
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +71,67 @@ def test_a_lost_episode_goes_back_to_the_front_until_its_last_attempt():
     assert what == "episode 3 failed 2 times; recorded as an error"
     assert (res.index, res.seed, res.success, res.steps, res.error) == (3, 103, False, 0, "lost 2 times")
     assert [q.next(), q.next()] == [4, 5] and not q
+
+
+class _Crashing:
+    """A rollout whose sidecar crashes at one step of one seed (the rest of the time the real scene)."""
+
+    def __init__(self, scene, crash_seed: int, at_step: int):
+        import dataclasses
+
+        self.scene, self.crash_seed, self.at_step = scene, crash_seed, at_step
+        self.spec = dataclasses.replace(scene.spec, capabilities=(*scene.spec.capabilities, "restart"))
+        self.restarts, self.t, self.seed = 0, 0, None
+
+    def reset(self, seed=None, observe=None):
+        self.seed, self.t = seed, 0
+        return self.scene.reset(seed, observe)
+
+    def step(self, action, observe=None):
+        from simseam.seam import SidecarError
+
+        self.t += 1
+        if self.seed == self.crash_seed and self.t == self.at_step:
+            raise SidecarError("the sidecar process exited (signal 9)")
+        return self.scene.step(action, observe)
+
+    def restart(self):
+        self.restarts += 1
+
+    def render(self):
+        return self.scene.render()
+
+    def close(self):
+        self.scene.close()
+
+
+def test_a_sidecar_crash_costs_its_episode_only_recorded_with_its_error(panda_spec, sequential):
+    """As in the sequential loop: the crashed episode is recorded with the error (no retry), the
+    environment goes on with the next episode, and every other episode is unchanged."""
+    errors = []
+    rollouts = [_Crashing(ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(**OPTS)), 42, 7)
+                for _ in range(2)]
+    with SyncBatchRollout(rollouts) as batch:
+        results = run_batch(batch, PerEnvPolicies(lambda: make_policy("scripted"), 2), INDICES, seed=40,
+                            on_error=lambda r, what: errors.append((r.index, what)))
+    got = _outcome(results)
+    assert sorted(got) == INDICES and got[2] == (42, False, 0, 0.0, {})
+    assert [r.error for r in results if r.index == 2] == ["SidecarError: the sidecar process exited (signal 9)"]
+    assert {i: o for i, o in got.items() if i != 2} == {i: o for i, o in sequential.items() if i != 2}
+    assert errors == [(2, "restarting the sidecar")] and sum(r.restarts for r in rollouts) == 1
+
+
+def test_videos_of_a_batch_that_renders_are_written_by_the_scheduler(panda_spec, tmp_path):
+    """One MP4 per finished episode (reset frame + one per step), none left under a partial name."""
+    import av
+
+    opts = dict(OPTS, render_images=True)
+    scenes = [ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(**opts)) for _ in range(2)]
+    with SyncBatchRollout(scenes) as batch:
+        results = run_batch(batch, PerEnvPolicies(lambda: make_policy("scripted"), 2), [0, 1, 2], seed=40,
+                            video_dir=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["episode_000.mp4", "episode_001.mp4", "episode_002.mp4"]
+    for r in results:
+        assert r.video == str(tmp_path / f"episode_{r.index:03d}.mp4")
+        with av.open(r.video) as f:
+            assert sum(1 for _ in f.decode(video=0)) == r.steps + 1

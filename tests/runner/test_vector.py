@@ -50,8 +50,7 @@ def _recipe(scene_path: Path, policy, seed: int) -> RolloutRecipe:
                          render_images=policy.uses_images, seed=seed)
 
 
-@pytest.mark.parametrize("sync", [True, False], ids=["stepped-together", "asynchronous"])
-def test_vector_results_equal_one_process(tmp_path, sync):
+def test_vector_results_equal_one_process(tmp_path):
     scene = _scene(tmp_path)
     reference = _sequential(scene, "scripted", range(5), seed=7)
     assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
@@ -60,7 +59,7 @@ def test_vector_results_equal_one_process(tmp_path, sync):
     done = []
     with VectorEnv(_recipe(scene, pol, 7), 3) as vec:
         assert vec.spec.task.name == "lift_cube"
-        results = vec.run(pol, range(5), seed=7, on_done=done.append, sync=sync)
+        results = vec.run(pol, range(5), seed=7, on_done=done.append)
     assert sorted(r.index for r in done) == list(range(5))
     assert {r.index: _outcome(r) for r in results} == reference
 
@@ -236,8 +235,7 @@ class _StateFollower:
         return a
 
 
-@pytest.mark.parametrize("sync", [True, False], ids=["stepped-together", "asynchronous"])
-def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path, sync):
+def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path):
     """State-only replies travel through the shared step block (no pickling): every observation,
     reward, flag and diagnostic the policy and the results see equals the in-process rollout's, types
     included (a bool diagnostic stays a bool)."""
@@ -253,9 +251,8 @@ def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path, syn
         rollout.close()
     pol = PerEnvPolicies(_StateFollower, 2)
     with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2) as vec:
-        results = vec.run(pol, range(4), seed=2, sync=sync)
-        # the replies came through the step blocks, in every worker that stepped (asynchronously, on a
-        # loaded machine, one worker may play every episode while the other is still booting)
+        results = vec.run(pol, range(4), seed=2)
+        # the replies came through the step blocks, in every worker that stepped
         stepped = [k for k, p in enumerate(pol.policies) if p.seen]
         blocks = {s.env: s.block for s in vec.slots}
         assert stepped and all(blocks[k] is not None for k in stepped), (stepped, blocks)
@@ -301,5 +298,41 @@ def test_lockstep_with_busy_polling_equals_one_process(tmp_path, monkeypatch):
     pol = make_policy_batch("scripted", 2)
     with VectorEnv(_recipe(scene, pol, 2), 2) as vec:
         assert vec.spin_us == 5000 and all(s.pipe_poll is not None for s in vec.slots)
-        results = vec.run(pol, range(3), seed=2, sync=True)
+        results = vec.run(pol, range(3), seed=2)
     assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_the_workers_keep_the_batch_rollout_contract(tmp_path):
+    """The worker processes are a BatchRollout (seam/batch.py), checked like every other batch."""
+    from simseam.seam import BatchRollout, check_batch_rollout
+
+    cfg, base = load_scene_config(_scene(tmp_path, steps=20))
+    vec = VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2)
+    with vec:
+        assert isinstance(vec, BatchRollout)
+        spec = check_batch_rollout(vec)
+    assert spec.task.name == "lift_cube"
+
+
+def test_worker_videos_are_one_per_finished_episode_as_one_process(tmp_path):
+    """Each worker encodes its own episodes' videos; the scheduler names them; a killed worker's
+    unfinished video is dropped, and its episode's re-run has a whole one."""
+    import av
+
+    scene = _scene(tmp_path, steps=20)
+    pol = make_policy_batch("scripted", 2)
+    killed = []
+    out = tmp_path / "videos"
+    out.mkdir()
+    with VectorEnv(_recipe(scene, make_policy("scripted"), 3), 2) as vec:
+        def on_step(env, index, steps):
+            if index == 0 and steps == 4 and not killed:
+                killed.append(index)
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(3), seed=3, video_dir=out, on_step=on_step)
+    assert killed and sorted(r.index for r in results) == [0, 1, 2]
+    assert sorted(p.name for p in out.iterdir()) == ["episode_000.mp4", "episode_001.mp4", "episode_002.mp4"]
+    for r in results:
+        with av.open(r.video) as f:
+            assert sum(1 for _ in f.decode(video=0)) == r.steps + 1

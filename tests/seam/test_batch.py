@@ -120,3 +120,11 @@ class _ClipsNothing(SyncBatchRollout):
 def test_the_check_catches_a_broken_batch(panda_spec, broken, problem):
     with pytest.raises(RolloutContractError, match=problem):
         check_batch_rollout(broken(_scenes(panda_spec, 2, render_images=False)))
+
+
+def test_batched_rewards_are_the_single_rollouts_floats_exactly():
+    """A reward summed over an episode must not depend on the path: float64, as a single rollout's."""
+    from simseam.seam import BatchStepResult, StepResult
+
+    r = BatchStepResult.of([0, 1], [StepResult({}, 0.1, False, False, {}), StepResult({}, 1 / 3, True, False, {})])
+    assert r.reward.tolist() == [0.1, 1 / 3] and r[1].reward == 1 / 3

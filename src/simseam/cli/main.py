@@ -262,10 +262,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
 
             common = dict(seed=seed, video_dir=out if video else None, on_done=done,
                           on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
-            if batched_engine:  # N worlds stepped together on the device
+            if pol is not None:  # N worlds on the device, or a shared model: stepped together, batched
                 vec.run(pol, todo, **common)
-            elif pol is not None:  # a shared model or server: all environments stepped together, batched
-                vec.run(pol, todo, sync=True, **common)
             else:
                 vec.run_local(policy, policy_kwargs, todo, **common)
     _finish_run(run_dir, spec_json, guard.interrupted, planned)

@@ -29,7 +29,8 @@ import os
 from typing import Any, Callable, Sequence
 
 from simseam.runner.scheduler import EpisodeQueue
-from simseam.runner.vector import RolloutRecipe, WorkerFailure
+from simseam.runner.scheduler import WorkerFailure
+from simseam.runner.vector import RolloutRecipe
 from simseam.seam import ConfigError, SimseamError, SimulationError
 
 

@@ -11,17 +11,32 @@ exactly those, observing what each environment's policy will read next.
 A policy with ``act_device(observation)`` on a batch with ``device_observation()`` /
 ``step_device(actions)`` (MuJoCo Warp) reads the batch's device arrays and answers device actions
 for every environment: no host copy of observations or actions.
+
+Failures (``BatchRollout.failures``): an environment whose process died loses its episode through no
+fault of the episode, which goes back to the front of the queue (at most ``max_attempts`` times, then
+it is recorded with its error); a crashed sidecar costs its episode, recorded with its error, as in
+the sequential loop. Either way the environment then starts the next episode. Every finished
+episode reaches ``on_done`` exactly once.
+
+Videos (``video_dir``): ``episode_NNN.mp4`` per episode, written under a partial name and renamed
+when the episode has finished. A batch that records its own videos (``start_video(env, path)`` before
+the reset, ``finish_video(env) -> path | None`` at the end, ``drop_video(env)``: worker processes
+encode their own frames) does it; for any other the scheduler writes ``render(env)`` after the reset
+and after every step.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
-from simseam.runner.episodes import EpisodeResult
+from simseam.runner.episodes import EpisodeResult, partial_video_path
 from simseam.seam import INFO_DIAGNOSTICS, SimulationError
 
 
@@ -57,11 +72,27 @@ class EpisodeQueue:
         return f"episode {index} failed {n} times; recorded as an error", res
 
 
+@dataclass
+class WorkerFailure:
+    """An environment's process that died: which environment (-1: a Ray worker), in which episode (None:
+    between episodes), its exit code, and what happens next."""
+
+    env: int
+    index: int | None
+    exitcode: int | None
+    what_next: str
+
+
+def lost_error(message: str, times: int, exitcode: int | None) -> str:
+    """The error of an episode lost ``times`` times with its process."""
+    return f"{message} {times} times" + (f" (last exit code {exitcode})" if exitcode is not None else "")
+
+
 class _Episodes(EpisodeQueue):
     """The queue, and the episode each environment of a batch is playing."""
 
-    def __init__(self, indices: Sequence[int], n: int, seed: int):
-        super().__init__(indices, seed)
+    def __init__(self, indices: Sequence[int], n: int, seed: int, max_attempts: int):
+        super().__init__(indices, seed, max_attempts)
         self.playing: list[EpisodeResult | None] = [None] * n
 
     def busy(self) -> list[int]:
@@ -78,66 +109,175 @@ class _Episodes(EpisodeQueue):
         return started
 
 
-def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0,
+class _Videos:
+    """Each environment's video of its episode in ``video_dir`` (see the module docstring)."""
+
+    def __init__(self, batch, video_dir: Path | None):
+        self.batch, self.dir = batch, video_dir
+        self.own = video_dir is not None and callable(getattr(batch, "start_video", None))
+        self.writers: dict[int, tuple] = {}  # env -> (VideoWriter, path): the frames the scheduler writes
+
+    def start(self, env: int, index: int) -> None:
+        if self.dir is None:
+            return
+        path = self.dir / f"episode_{index:03d}.mp4"
+        if self.own:
+            self.batch.start_video(env, path)
+        else:
+            self.writers[env] = (None, path)
+
+    def frame(self, env: int) -> None:
+        if env not in self.writers:
+            return
+        writer, path = self.writers[env]
+        frame = self.batch.render(env)
+        if frame is None:
+            return
+        if writer is None:
+            from simseam.runner.video import VideoWriter
+
+            writer = VideoWriter(partial_video_path(path), fps=self.batch.spec.control_hz)
+            self.writers[env] = (writer, path)
+        writer.append(frame)
+
+    def finish(self, env: int) -> str | None:
+        if self.dir is None:
+            return None
+        if self.own:
+            return self.batch.finish_video(env)
+        writer, path = self.writers.pop(env, (None, None))
+        if writer is None:
+            return None
+        writer.close()
+        os.replace(partial_video_path(path), path)
+        return str(path)
+
+    def drop(self, env: int) -> None:
+        if self.dir is None:
+            return
+        if self.own:
+            self.batch.drop_video(env)
+            return
+        writer, path = self.writers.pop(env, (None, None))
+        if writer is not None:
+            writer.close()
+            partial_video_path(path).unlink(missing_ok=True)
+
+    def close(self) -> None:
+        for env in list(self.writers):
+            self.drop(env)
+
+
+def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
+              max_attempts: int = 3,
               on_start: Callable[[int, int], None] | None = None,
               on_step: Callable[[int, int, int], None] | None = None,
-              on_done: Callable[[EpisodeResult], None] | None = None) -> list[EpisodeResult]:
+              on_done: Callable[[EpisodeResult], None] | None = None,
+              on_error: Callable[[EpisodeResult, str], None] | None = None,
+              on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
     """Run episodes ``indices`` on ``batch`` (see the module docstring). ``on_start(env, index)``,
-    ``on_step(env, index, steps)`` and ``on_done(result)`` follow each episode; results in the order
-    the episodes finished."""
+    ``on_step(env, index, steps)`` and ``on_done(result)`` follow each episode; ``on_error(result,
+    what_next)``: a sidecar failure cost the episode; ``on_worker_failure``: an environment's process
+    died. Results in the order the episodes finished."""
     spec, n = batch.spec, batch.num_envs
-    episodes = _Episodes(indices, n, seed)
+    if getattr(policy, "n", n) < n:
+        raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
+    episodes = _Episodes(indices, n, seed, max_attempts)
+    videos = _Videos(batch, video_dir)
     device = callable(getattr(policy, "act_device", None)) and callable(getattr(batch, "device_observation", None))
     obs: list = [None] * n
     results: list[EpisodeResult] = []
 
+    def finish(env: int, res: EpisodeResult) -> None:
+        episodes.playing[env], obs[env] = None, None
+        results.append(res)
+        if on_done:
+            on_done(res)
+
+    def failed(env: int, f) -> None:
+        """``env``'s episode ended by a failure of the environment (``EnvFailure``)."""
+        index = episodes.playing[env].index
+        episodes.playing[env], obs[env] = None, None
+        videos.drop(env)
+        if f.lost:
+            what, res = episodes.lost(index, lambda times: lost_error(f.message, times, f.exitcode))
+            if on_worker_failure:
+                on_worker_failure(WorkerFailure(env=env, index=index, exitcode=f.exitcode, what_next=what))
+        else:
+            res = episodes.new_result(index)
+            res.error = f.message
+            if on_error:
+                on_error(res, f.what_next)
+        if res is not None:
+            finish(env, res)
+
     def start(envs: Sequence[int]) -> None:
-        started = episodes.take(envs)
-        for env in started:
-            policy.reset(env, spec)
-            if on_start:
-                on_start(env, episodes.playing[env].index)
-        if started:
+        while started := episodes.take(envs):
+            for env in started:
+                policy.reset(env, spec)
+                videos.start(env, episodes.playing[env].index)
+                if on_start:
+                    on_start(env, episodes.playing[env].index)
             got = batch.reset(started, [episodes.playing[e].seed for e in started],
                               None if device else [policy.observe_next(e) for e in started])
+            fails = batch.failures()
             for env, o in zip(started, got):
-                obs[env] = o
+                if env in fails:
+                    failed(env, fails[env])
+                else:
+                    obs[env] = o
+                    videos.frame(env)
+            envs = [e for e in started if e in fails]  # start them again with the next episodes
 
-    start(range(n))
-    while busy := episodes.busy():
-        t0 = time.perf_counter()
-        if device:
-            actions = policy.act_device(batch.device_observation())
-        else:
-            actions = np.asarray(policy.act_batch(busy, [obs[e] for e in busy]), dtype=np.float32)
-            if actions.shape != (len(busy), spec.action_dim):
-                raise SimulationError(f"act_batch returned shape {actions.shape} for {len(busy)} environments")
-        policy_ms = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        if device:
-            r = batch.step_device(actions, busy)
-        else:
-            r = batch.step(busy, actions, [policy.observe_next(e) for e in busy])
-        step_ms = (time.perf_counter() - t0) * 1e3
-        ended = []
-        for k, env in enumerate(busy):
-            res = episodes.playing[env]
-            res.steps += 1
-            res.reward += float(r.reward[k])
-            res.step_ms.append(step_ms)
-            res.policy_ms.append(policy_ms)
-            res.success |= bool(r.infos[k].get(spec.task.success_key))
-            obs[env] = r.observations[k]
-            if on_step:
-                on_step(env, res.index, res.steps)
-            if r.terminated[k] or r.truncated[k] or res.steps >= spec.task.max_steps:
-                res.diagnostics = dict(r.infos[k].get(INFO_DIAGNOSTICS) or {})
-                ended.append(env)
-        for env in ended:
-            results.append(episodes.playing[env])
-            if on_done:
-                on_done(episodes.playing[env])
-            episodes.playing[env], obs[env] = None, None
-        if ended:
-            start(ended)
+    try:
+        start(range(n))
+        while busy := episodes.busy():
+            ended = _step_all(batch, policy, busy, obs, episodes, videos, device, failed, on_step)
+            for env, res in ended:
+                res.video = videos.finish(env)
+                finish(env, res)
+            if ended:
+                start([env for env, _ in ended])
+    finally:
+        videos.close()
     return results
+
+
+def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, videos: _Videos, device: bool,
+              failed: Callable, on_step) -> list[tuple[int, EpisodeResult]]:
+    """One control step of every busy environment; the episodes that ended, with their environments."""
+    spec = batch.spec
+    t0 = time.perf_counter()
+    if device:
+        actions = policy.act_device(batch.device_observation())
+    else:
+        actions = np.asarray(policy.act_batch(busy, [obs[e] for e in busy]), dtype=np.float32)
+        if actions.shape != (len(busy), spec.action_dim):
+            raise SimulationError(f"act_batch returned shape {actions.shape} for {len(busy)} environments")
+    policy_ms = (time.perf_counter() - t0) * 1e3
+    t0 = time.perf_counter()
+    if device:
+        r = batch.step_device(actions, busy)
+    else:
+        r = batch.step(busy, actions, [policy.observe_next(e) for e in busy])
+    step_ms = (time.perf_counter() - t0) * 1e3
+    fails = batch.failures()
+    ended = []
+    for k, env in enumerate(busy):
+        if env in fails:
+            failed(env, fails[env])
+            continue
+        res = episodes.playing[env]
+        res.steps += 1
+        res.reward += float(r.reward[k])
+        res.step_ms.append(step_ms)
+        res.policy_ms.append(policy_ms)
+        res.success |= bool(r.infos[k].get(spec.task.success_key))
+        obs[env] = r.observations[k]
+        videos.frame(env)
+        if on_step:
+            on_step(env, res.index, res.steps)
+        if r.terminated[k] or r.truncated[k] or res.steps >= spec.task.max_steps:
+            res.diagnostics = dict(r.infos[k].get(INFO_DIAGNOSTICS) or {})
+            ended.append((env, res))
+    return ended

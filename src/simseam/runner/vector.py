@@ -2,29 +2,29 @@
 
 ``VectorEnv(recipe, num_envs)`` starts ``num_envs`` worker processes (``spawn``); each builds the
 rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` whose sidecar the
-worker owns) and answers ``reset`` / ``step`` / video commands over a pipe. ``run(policy, indices)``
-steps every busy worker together: it waits for all replies, asks the ``PolicyBatch`` for the
-actions of every environment at once (``act_batch``), and sends them out (``sync=False``: it acts
-on whichever environments have answered, so no worker waits for a slower one). ``run_local`` puts
+worker owns) and answers ``reset`` / ``step`` / ``render`` / video commands over a pipe. The workers
+together are a ``BatchRollout`` (seam/batch.py): ``reset`` and ``step`` send each named worker its
+command and wait for every reply; ``run(policy, indices)`` is the episode scheduler
+(``runner.scheduler``) over this batch, the same loop as every other batch's. ``run_local`` puts
 the policy inside each worker instead (policies that share no model): workers play whole episodes
-and send back only their results. A worker whose episode ends takes the next episode index from
-the queue. Episode ``i`` always uses seed ``seed + i``, so the per-episode results do not depend
-on ``num_envs`` for a deterministic policy. A recipe may define ``rollout_for(rollout, index, seed)
--> (rollout, seed)``: ``run_local`` workers then ask it for each episode's rollout and seed base
-(``simseam eval``: a worker rebuilds its sidecar when the next episode's task differs). Images
-cross from a worker through a shared memory block (``_SharedImages``), not through the pipe; a
-state-only step's reply and its action cross through a second one with a fixed layout
-(``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no pickling). ``renderer="batched"``: the
-workers send their MuJoCo render state instead of images and this process draws every worker's
-cameras in one batch (``runner.central_render``), in ``run`` only. A worker dies with this process
-(Linux).
+and send back only their results. Episode ``i`` always uses seed ``seed + i``, so the per-episode
+results do not depend on ``num_envs`` for a deterministic policy. A recipe may define
+``rollout_for(rollout, index, seed) -> (rollout, seed)``: ``run_local`` workers then ask it for each
+episode's rollout and seed base (``simseam eval``: a worker rebuilds its sidecar when the next
+episode's task differs). Images cross from a worker through a shared memory block
+(``_SharedImages``), not through the pipe; a state-only step's reply and its action cross through a
+second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no pickling).
+``renderer="batched"``: the workers send their MuJoCo render state instead of images and this
+process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only. A
+worker dies with this process (Linux).
 
 Failures:
 
-- a worker process that dies (killed, segfault, OOM) costs nothing: its episode goes back to the
-  front of the queue, a fresh worker is started in its place, and the episode is re-run from its
-  reset (at most ``max_attempts`` times; then it is recorded with its error). An episode is handed
-  to ``on_done`` exactly once, when it has finished;
+- a worker process that dies (killed, segfault, OOM) costs nothing: a fresh worker is started in
+  its place and the batch reports its environment as lost (``failures``), so the scheduler puts the
+  episode back at the front of the queue and re-runs it from its reset (at most ``max_attempts``
+  times; then it is recorded with its error). An episode is handed to ``on_done`` exactly once,
+  when it has finished;
 - a sidecar crash inside a worker costs that episode, recorded with its error, exactly as in the
   sequential loop (``runner.session``); the worker restarts its sidecar when the rollout declares
   the ``restart`` capability;
@@ -52,9 +52,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.runner.scheduler import EpisodeQueue
-from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
+from simseam.runner.scheduler import EpisodeQueue, WorkerFailure, lost_error, run_batch
+from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
+from simseam.runner.central_render import worker_request
+from simseam.seam.batch import BatchStepResult, batch_actions, env_indices, per_env_requests
 from simseam.sidecar.local import SPIN_ENV, spin_until_readable
 
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
@@ -476,6 +478,8 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_
                         conn.send_bytes(_FAST_REPLY)
                     else:
                         conn.send(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
+                elif op == "render":
+                    conn.send(("frame", rollout.render()))
                 elif op == "finish":  # the episode ended normally: keep its video
                     path = None
                     if writer is not None:
@@ -538,7 +542,8 @@ def _portable(exc: BaseException) -> BaseException:
 
 
 # ---------------------------------------------------------------------------------------------- parent
-BOOTING, IDLE, RESETTING, ACTING, STEPPING = "booting", "idle", "resetting", "acting", "stepping"
+BOOTING, IDLE, BUSY = "booting", "idle", "busy"
+WORKER_DIED = "worker process died"
 
 
 @dataclass
@@ -548,38 +553,25 @@ class _Slot:
     conn: Any = None
     state: str = BOOTING
     boot_deadline: float = 0.0
-    index: int | None = None
-    result: EpisodeResult | None = None
-    obs: Any = None
-    sent_at: float = 0.0
+    index: int | None = None  # run_local: the episode the worker is playing
     generation: int = 0
-    video: bool = False
+    video: str | None = None  # the video the worker records from its next reset (start_video)
+    recording: bool = False  # the worker is recording this episode's video
     mm: Any = None  # the worker's shared image block, mapped here
     block: Any = None  # the worker's step block (_MainBlock)
     # the central renderer (renderer="batched"): what the policy asked for, the worker's render state,
-    # whether its frame is still to be drawn, and this episode's video (written here)
+    # and this episode's video (written here)
     want: Any = None
     pose: Any = None
-    frame_due: bool = False
     writer: Any = None
     video_path: Any = None
     pipe_poll: Any = None  # a select.poll on conn: the busy-poll for its reply (lockstep)
 
 
-@dataclass
-class WorkerFailure:
-    """A worker that died: which one, in which episode, its exit code, and what happens next."""
-
-    env: int
-    index: int | None
-    exitcode: int | None
-    what_next: str
-
-
 class VectorEnv:
     """``num_envs`` worker processes each holding a rollout built from ``recipe`` (see the module
-    docstring). ``spec`` is the rollout's spec (from the first worker ready). Use as a context
-    manager, or call ``close()``."""
+    docstring): a ``BatchRollout`` (seam/batch.py) whose environments are the workers. ``spec`` is the
+    rollout's spec (from the first worker ready). Use as a context manager, or call ``close()``."""
 
     def __init__(self, recipe: RolloutRecipe, num_envs: int, *, start_method: str = "spawn",
                  boot_timeout: float = BOOT_TIMEOUT_S, renderer: str = "workers", render_device: str | None = None):
@@ -593,6 +585,8 @@ class VectorEnv:
         self.slots = [_Slot(env=j) for j in range(num_envs)]
         self.spec: RolloutSpec | None = None
         self.restarts = 0  #: workers started again after one died
+        self._failures: dict[int, EnvFailure] = {}
+        self._closed = False
         self.renderer = renderer
         self.central = None  #: the central renderer (runner.central_render.CentralRenderer) with "batched"
         if renderer == "batched":  # workers observe no images but send their render state
@@ -605,7 +599,7 @@ class VectorEnv:
         self.recipe = recipe
         cores = len(os.sched_getaffinity(0))
         self.sidecar_spin_us = sidecar_spin_us(num_envs, cores)
-        self.spin_us = vector_spin_us(num_envs, cores)  # lockstep (run) only: run_local workers wait for whole episodes
+        self.spin_us = vector_spin_us(num_envs, cores)  # lockstep only: run_local workers wait for whole episodes
         try:
             for s in self.slots:
                 self._spawn(s)
@@ -631,6 +625,7 @@ class VectorEnv:
         if s.block is not None:
             s.block.close()
         s.mm = s.block = None
+        s.recording = False
         s.boot_deadline = time.monotonic() + self.boot_timeout
         s.generation += 1
 
@@ -690,12 +685,193 @@ class VectorEnv:
             return None
         return ("nothing",)
 
+    def _reply(self, s: _Slot, spin: bool = False):
+        """The worker's reply to the command just sent (waiting for it), or None when the worker died."""
+        if spin and s.pipe_poll is not None:
+            spin_until_readable(s.pipe_poll, self.spin_us * 1e-6)
+        while True:
+            ready = wait_any([s.conn, s.proc.sentinel])
+            msg = self._recv(s, readable=s.conn in ready)
+            if msg is None or msg[0] != "nothing":
+                return msg
+
+    def _replace(self, s: _Slot) -> int | None:
+        """``s``'s worker died: a fresh one takes its place. Returns the dead one's exit code."""
+        try:
+            s.conn.close()
+        except OSError:
+            pass
+        s.proc.join(5.0)  # its pipe closed: it is gone or going
+        if s.proc.is_alive():
+            s.proc.kill()
+            s.proc.join(5.0)
+        exitcode = s.proc.exitcode
+        self._drop_central_video(s)
+        s.index = None
+        self._spawn(s)
+        self.restarts += 1
+        return exitcode
+
+    def _lost(self, s: _Slot) -> None:
+        """``s``'s worker died: its environment's episode is lost (``failures``), a fresh worker takes its place."""
+        exitcode = self._replace(s)
+        self._failures[s.env] = EnvFailure(WORKER_DIED, lost=True, what_next="a fresh worker takes its place",
+                                           exitcode=exitcode)
+
+    def _answer(self, s: _Slot, msg):
+        """A reset's or a step's reply as (observation, (reward, terminated, truncated, info)), or None
+        when the environment failed (recorded in ``failures``)."""
+        if msg is None:
+            self._lost(s)
+            return None
+        if msg[0] == "fatal":
+            raise msg[1]
+        if msg[0] == "episode_error":
+            s.recording = False
+            self._drop_central_video(s)
+            self._failures[s.env] = EnvFailure(msg[1], what_next=msg[2])
+            return None
+        if self.central is not None:
+            s.pose = msg[4]
+        return msg[1], msg[2]
+
     def pids(self) -> list[int]:
         """The worker processes' ids, by environment."""
         return [s.proc.pid for s in self.slots]
 
+    # -- the batch (seam/batch.py)
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "reset").tolist()
+        seeds = list(seeds)
+        if len(seeds) != len(idx):
+            raise ConfigError(f"reset: {len(idx)} environments but {len(seeds)} seeds")
+        requests = per_env_requests(observe, len(idx), "reset")
+        slots = [self.slots[e] for e in idx]
+        self._wait_booted(slots)
+        for s, seed, want in zip(slots, seeds, requests):
+            video, s.video = s.video, None
+            if self.central is not None:  # this process draws the frames (and writes the video)
+                s.want, want = want, worker_request(want)
+                self._open_central_video(s, video)
+                video = None
+            s.recording = video is not None
+            self._send(s, ("reset", seed, want, video))
+        answers = [self._answer(s, self._reply(s)) for s in slots]
+        out = [None if a is None else a[0] for a in answers]
+        self._draw(slots, out)
+        return out
+
+    def step(self, envs: Sequence[int], actions, observe=None) -> BatchStepResult:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "step").tolist()
+        a = np.asarray(actions, dtype=np.float32)
+        if a.shape != (len(idx), self.spec.action_dim) or not np.isfinite(a).all():
+            batch_actions(self.spec, actions, len(idx))  # the InvalidActionError naming the row
+        requests = per_env_requests(observe, len(idx), "step")
+        slots = [self.slots[e] for e in idx]
+        for s, row, want in zip(slots, a, requests):
+            if self.central is not None:
+                s.want, want = want, worker_request(want)
+            self._step(s, row, want)
+        answers = [self._answer(s, self._reply(s, spin=bool(self.spin_us))) for s in slots]
+        obs = [None if x is None else x[0] for x in answers]
+        self._draw(slots, obs)
+        rest = [(0.0, False, False, {}) if x is None else x[1] for x in answers]
+        return BatchStepResult(np.asarray(idx, dtype=np.int64), obs,
+                               np.array([r[0] for r in rest], dtype=np.float64),
+                               np.array([r[1] for r in rest], dtype=bool),
+                               np.array([r[2] for r in rest], dtype=bool), [r[3] for r in rest])
+
+    def render(self, env: int) -> np.ndarray | None:
+        self._check_open()
+        (e,) = env_indices([env], self.num_envs, "render").tolist()
+        s = self.slots[e]
+        if self.central is not None:
+            return None if s.pose is None else self.central.render([s.pose])[self.central.video_key][0]
+        self._send(s, ("render",))
+        msg = self._reply(s)
+        if msg is None:
+            self._lost(s)
+            return None
+        if msg[0] == "fatal":
+            raise msg[1]
+        return msg[1]
+
+    def failures(self) -> dict[int, EnvFailure]:
+        out, self._failures = self._failures, {}
+        return out
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the batch is closed")
+
+    # -- videos: each worker encodes its own (the central renderer: this process)
+    def start_video(self, env: int, path: Path) -> None:
+        """Record the next episode of ``env`` (from its next reset) as ``path``."""
+        self.slots[env].video = str(path)
+
+    def finish_video(self, env: int) -> str | None:
+        """The episode of ``env`` ended: its video, complete (None: no camera, or the worker died)."""
+        s = self.slots[env]
+        if s.writer is not None:
+            s.writer.close()
+            os.replace(partial_video_path(s.video_path), s.video_path)
+            path, s.writer, s.video_path = str(s.video_path), None, None
+            return path
+        if not s.recording:
+            return None
+        s.recording = False
+        self._send(s, ("finish",))
+        reply = self._reply(s)
+        if reply is None:  # died before its video was complete: the episode stands, its video is lost
+            self._lost(s)
+            self._failures.pop(env, None)
+            return None
+        if reply[0] == "fatal":
+            raise reply[1]
+        return reply[1]
+
+    def drop_video(self, env: int) -> None:
+        """The episode of ``env`` did not finish: no video (the worker drops its own at the next reset)."""
+        s = self.slots[env]
+        s.video = None
+        self._drop_central_video(s)
+
+    def _open_central_video(self, s: _Slot, video: str | None) -> None:
+        self._drop_central_video(s)
+        if video is not None:
+            from simseam.runner.video import VideoWriter
+
+            s.video_path = Path(video)
+            s.writer = VideoWriter(partial_video_path(s.video_path), fps=self.spec.control_hz)
+
+    def _drop_central_video(self, s: _Slot) -> None:
+        if s.writer is not None:
+            s.writer.close()
+            partial_video_path(s.video_path).unlink(missing_ok=True)
+        s.writer = s.video_path = None
+
+    def _draw(self, slots: list[_Slot], obs: list) -> None:
+        """The central renderer: the frames of ``slots`` that are due (a video, or images the policy asked
+        for) in one call, into the observations and the videos."""
+        if self.central is None:
+            return
+        due = [j for j, (s, o) in enumerate(zip(slots, obs)) if o is not None and (
+            s.writer is not None or s.want is None or s.want.images is None or bool(s.want.images))]
+        if not due:
+            return
+        images = self.central.render([slots[j].pose for j in due])
+        for k, j in enumerate(due):
+            s = slots[j]
+            if s.writer is not None:
+                s.writer.append(images[self.central.video_key][k])
+            obs[j][OBS_IMAGES] = {key: images[key][k] for key in self.central.keys
+                                  if s.want is None or s.want.wants_image(key)}
+
     def close(self) -> None:
         """End every worker (politely, then by force); idempotent."""
+        self._closed = True
         for s in self.slots:
             if s.conn is not None:
                 try:
@@ -719,10 +895,8 @@ class VectorEnv:
                 s.mm.close()
             if s.block is not None:
                 s.block.close()
-            if s.writer is not None:
-                s.writer.close()
-                partial_video_path(s.video_path).unlink(missing_ok=True)
-            s.proc, s.conn, s.mm, s.block, s.writer = None, None, None, None, None
+            self._drop_central_video(s)
+            s.proc, s.conn, s.mm, s.block = None, None, None, None
         if self.central is not None:
             self.central.close()
             self.central = None
@@ -735,209 +909,20 @@ class VectorEnv:
 
     # -- episodes
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3, sync: bool = True,
+            max_attempts: int = 3,
             on_start: Callable[[int, int], None] | None = None,
             on_step: Callable[[int, int, int], None] | None = None,
             on_done: Callable[[EpisodeResult], None] | None = None,
             on_error: Callable[[EpisodeResult, str], None] | None = None,
             on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
         """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
-        ``num_envs`` environments). ``sync``: every busy worker answers before the policy acts on all of
-        them (the largest batches); else the policy acts on whichever environments have answered
-        (no worker waits for a slower one; smaller batches). Per-environment results are the same. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``,
-        ``on_done(result)`` (once per episode, as it finishes: order may differ from ``indices``),
-        ``on_error(result, what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
-        if getattr(policy, "n", self.num_envs) < self.num_envs:
-            raise SimulationError(f"the policy batch holds {policy.n} environment(s), the vector env "
-                                  f"{self.num_envs}")
-        spec = self.spec
-        max_steps = spec.task.max_steps
-        key = spec.task.success_key
-        todo = EpisodeQueue(indices, seed, max_attempts)
-        results: list[EpisodeResult] = []
-        central = self.central
-        if central is not None:
-            from simseam.runner.central_render import worker_request
-
-        def drop_video(s: _Slot) -> None:  # the central renderer's video of an episode that did not finish
-            if s.writer is not None:
-                s.writer.close()
-                partial_video_path(s.video_path).unlink(missing_ok=True)
-            s.writer = s.video_path = None
-
-        def draw(slots: list[_Slot]) -> None:
-            """The central renderer: every due frame of ``slots`` in one call, into the observations the
-            policy reads next (the keys it asked for) and the videos."""
-            if not slots:
-                return
-            images = central.render([s.pose for s in slots])
-            for j, s in enumerate(slots):
-                s.frame_due = False
-                if s.writer is not None:
-                    s.writer.append(images[central.video_key][j])
-                if s.obs is not None:
-                    s.obs[OBS_IMAGES] = {k: images[k][j] for k in central.keys
-                                         if s.want is None or s.want.wants_image(k)}
-
-        def finish(s: _Slot, res: EpisodeResult) -> None:
-            drop_video(s)
-            s.state, s.index, s.result, s.obs = IDLE, None, None, None
-            results.append(res)
-            if on_done:
-                on_done(res)
-
-        def worker_died(s: _Slot) -> None:
-            i = s.index
-            try:
-                s.conn.close()
-            except OSError:
-                pass
-            s.proc.join(5.0)  # its pipe closed: it is gone or going
-            if s.proc.is_alive():
-                s.proc.kill()
-                s.proc.join(5.0)
-            exitcode = s.proc.exitcode
-            what, res = "no episode in flight", None
-            if i is not None:
-                what, res = todo.lost(i, lambda n: f"worker process died {n} times (last exit code {exitcode})")
-            s.index, s.result, s.obs = None, None, None
-            drop_video(s)
-            self._spawn(s)
-            self.restarts += 1
-            if on_worker_failure:
-                on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
-            if res is not None:
-                results.append(res)
-                if on_done:
-                    on_done(res)
-
-        def handle(s: _Slot, msg) -> None:
-            if msg is None and s.state == BOOTING:
-                raise SimulationError(f"vector worker {s.env} died while building its rollout "
-                                      f"(exit code {s.proc.exitcode})")
-            if msg is None:
-                return worker_died(s)
-            if msg[0] == "nothing":
-                return
-            if s.state == BOOTING:
-                return self._on_boot(s, msg)
-            if msg[0] == "fatal":
-                raise msg[1]
-            if msg[0] == "episode_error":
-                res = todo.new_result(s.index)
-                res.error = msg[1]
-                if on_error:
-                    on_error(res, msg[2])
-                return finish(s, res)
-            res = s.result
-            if central is not None:
-                s.pose = msg[4]
-                w = s.want
-                s.frame_due = s.writer is not None or w is None or w.images is None or bool(w.images)
-            if s.state == RESETTING:
-                s.obs, s.state = msg[1], ACTING
-                return
-            # STEPPING
-            obs = msg[1]
-            reward, terminated, truncated, info = msg[2]
-            res.step_ms.append((time.perf_counter() - s.sent_at) * 1e3)
-            res.steps += 1
-            res.reward += float(reward)
-            res.diagnostics = info.get(INFO_DIAGNOSTICS) or {}  # a fresh dict every step
-            if info.get(key):
-                res.success = True
-            if on_step:
-                on_step(s.env, s.index, res.steps)
-            if terminated or truncated or res.steps >= max_steps:
-                if s.writer is not None:  # the central renderer's video: its last frame, then done
-                    s.obs = None
-                    draw([s])
-                    s.writer.close()
-                    os.replace(partial_video_path(s.video_path), s.video_path)
-                    res.video = str(s.video_path)
-                    s.writer = s.video_path = None
-                elif s.video:
-                    try:
-                        s.conn.send(("finish",))
-                        reply = s.conn.recv()
-                    except (EOFError, OSError):  # died before its video was complete: play it again
-                        return worker_died(s)
-                    if reply[0] == "fatal":
-                        raise reply[1]
-                    res.video = reply[1]
-                return finish(s, res)
-            s.obs, s.state = obs, ACTING
-
-        def start(s: _Slot, i: int) -> None:
-            policy.reset(s.env, spec)
-            video = str(video_dir / f"episode_{i:03d}.mp4") if video_dir is not None else None
-            s.index, s.state, s.video = i, RESETTING, video is not None
-            s.result = todo.new_result(i)
-            if on_start:
-                on_start(s.env, i)
-            want = policy.observe_next(s.env)
-            if central is not None:  # this process draws the frames (and writes the video)
-                s.want = want
-                if video is not None:
-                    from simseam.runner.video import VideoWriter
-
-                    s.video_path = Path(video)
-                    s.writer = VideoWriter(partial_video_path(s.video_path), fps=spec.control_hz)
-                want, video = worker_request(want), None
-            self._send(s, ("reset", seed + i, want, video))
-
-        while True:
-            for s in self.slots:
-                if s.state == IDLE and todo:
-                    start(s, todo.next())
-            busy = [s for s in self.slots if s.state in (RESETTING, STEPPING)]
-            booting = [s for s in self.slots if s.state == BOOTING]
-            acting = [s for s in self.slots if s.state == ACTING]
-            if (busy and (sync or not acting)) or (booting and not acting):
-                if not busy and not todo:  # nothing left for the booting workers to do
-                    break
-                if sync and not booting:  # lockstep: every busy worker's reply, in turn (a dead one's is None)
-                    spin_s = self.spin_us * 1e-6
-                    for s in busy:
-                        if spin_s and s.pipe_poll is not None:
-                            spin_until_readable(s.pipe_poll, spin_s)
-                        handle(s, self._recv(s, readable=True))
-                    continue
-                watch = busy + booting
-                timeout = None
-                if booting:
-                    timeout = max(0.0, min(s.boot_deadline for s in booting) - time.monotonic())
-                ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)], timeout=timeout))
-                if not ready:
-                    late = [s.env for s in booting if time.monotonic() >= s.boot_deadline]
-                    raise SimulationError(f"vector worker(s) {late} did not build their rollout within "
-                                          f"{self.boot_timeout:g} s")
-                for s in watch:
-                    if s.conn in ready:
-                        handle(s, self._recv(s, readable=True))
-                    elif s.proc.sentinel in ready:
-                        handle(s, self._recv(s))
-                continue
-            if acting:
-                if central is not None:
-                    draw([s for s in acting if s.frame_due])
-                t0 = time.perf_counter()
-                actions = np.asarray(policy.act_batch([s.env for s in acting], [s.obs for s in acting]),
-                                     dtype=np.float32)
-                ms = (time.perf_counter() - t0) * 1e3
-                if actions.shape[0] != len(acting):
-                    raise SimulationError(f"act_batch returned {actions.shape[0]} actions for {len(acting)} "
-                                          "environments")
-                for s, a in zip(acting, actions):
-                    s.result.policy_ms.append(ms)
-                    s.state, s.obs = STEPPING, None
-                    want = policy.observe_next(s.env)
-                    if central is not None:
-                        s.want, want = want, worker_request(want)
-                    self._step(s, a, want)
-                continue
-            break
-        return results
+        ``num_envs`` environments), stepped together: the episode scheduler (``runner.scheduler``) over
+        this batch. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
+        (once per episode, as it finishes: order may differ from ``indices``), ``on_error(result,
+        what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
+        return run_batch(self, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
+                         on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
+                         on_worker_failure=on_worker_failure)
 
     def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,
                   video_dir: Path | None = None, max_attempts: int = 3,
@@ -960,13 +945,13 @@ class VectorEnv:
             if on_done:
                 on_done(res)
 
-        while todo or any(s.state == STEPPING for s in self.slots):
+        while todo or any(s.state == BUSY for s in self.slots):
             for s in self.slots:
                 if s.state == IDLE and todo:
-                    s.index, s.state = todo.next(), STEPPING
+                    s.index, s.state = todo.next(), BUSY
                     self._send(s, ("episode", s.index, seed, spec_key, str(video_dir) if video_dir else None))
-            watch = [s for s in self.slots if s.state in (STEPPING, BOOTING)]
-            if not any(s.state == STEPPING for s in watch) and not todo:
+            watch = [s for s in self.slots if s.state in (BUSY, BOOTING)]
+            if not any(s.state == BUSY for s in watch) and not todo:
                 break
             ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)]))
             for s in watch:
@@ -983,16 +968,8 @@ class VectorEnv:
                     continue
                 if msg is None:  # the worker died mid-episode: the episode goes back to the queue
                     i = s.index
-                    s.conn.close()
-                    s.proc.join(5.0)
-                    if s.proc.is_alive():
-                        s.proc.kill()
-                        s.proc.join(5.0)
-                    exitcode = s.proc.exitcode
-                    what, res = todo.lost(i, lambda n: f"worker process died {n} times (last exit code {exitcode})")
-                    s.index = None
-                    self._spawn(s)
-                    self.restarts += 1
+                    exitcode = self._replace(s)
+                    what, res = todo.lost(i, lambda n: lost_error(WORKER_DIED, n, exitcode))
                     if on_worker_failure:
                         on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
                     if res is not None:
@@ -1013,7 +990,6 @@ class VectorEnv:
         block = s.block
         if (block is not None and (request is None or request is STATE_ONLY or request == STATE_ONLY)
                 and getattr(action, "shape", None) == block.action.shape):
-            s.sent_at = time.perf_counter()
             block.action[:] = action
             try:
                 os.write(s.conn.fileno(), _FAST_STEP_FRAMES[0 if request is None else 1])
@@ -1023,7 +999,6 @@ class VectorEnv:
         self._send(s, ("step", action, request))
 
     def _send(self, s: _Slot, msg) -> None:
-        s.sent_at = time.perf_counter()
         try:
             s.conn.send(msg)
         except (OSError, ValueError):

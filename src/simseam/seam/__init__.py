@@ -37,7 +37,7 @@ The observation contract, key by key (shapes in ``rollout.spec.observation``):
   beside ``state`` (LeRobot's ``observation.environment_state``).
 """
 
-from simseam.seam.batch import BatchRollout, BatchStepResult, SyncBatchRollout
+from simseam.seam.batch import BatchRollout, BatchStepResult, EnvFailure, SyncBatchRollout
 from simseam.seam.checker import RolloutContractError, check_batch_rollout, check_rollout, observation_problems
 from simseam.seam.errors import (
     BackendUnavailableError,
@@ -73,7 +73,7 @@ from simseam.seam.spec import (
 )
 
 __all__ = [
-    "ActionSlot", "ActionSpec", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "CAP_LINK_POSES", "CAP_PRIVILEGED",
+    "ActionSlot", "ActionSpec", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "EnvFailure", "CAP_LINK_POSES", "CAP_PRIVILEGED",
     "CAP_RESTART", "ConfigError", "ControlMode", "FULL", "FieldSpec", "GripperFacts", "InvalidActionError",
     "JointFacts", "LinkFacts", "NormBound", "ObsRequest", "Observation", "ObservationSpec", "OPTIONAL_OBS_KEYS",
     "REQUIRED_OBS_KEYS", "RobotFacts", "RolloutContractError", "RolloutSpec", "STATE_ONLY", "SensorFacts",

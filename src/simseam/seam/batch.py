@@ -19,6 +19,12 @@ Contract (checked by ``simseam.seam.check_batch_rollout``):
   batched simulator may keep simulating it: reset it before stepping it again.
 - ``observe`` is ``None`` (everything), one ``ObsRequest`` for all, or one per environment.
 - ``render(env)``: ``uint8[H, W, 3]`` of that environment's first RGB camera, or None.
+- ``failures()``: the environments whose episode ended by a failure of their own since the last call
+  (``{env: EnvFailure}``), emptied by the call. A crashed sidecar or a worker process that died
+  costs that environment's episode only: its entry in the ``reset`` / ``step`` result is None (no
+  observation; zero reward, not terminated), the others' results are whole, and the environment is
+  ready for a new ``reset`` (the batch restarted what it needed to). A batch whose environments
+  cannot fail one at a time returns ``{}``.
 - ``close()`` releases everything; calling it twice is harmless; a closed batch refuses to reset.
 - Bad environment indices (repeated, out of range) raise ``ConfigError``.
 """
@@ -30,12 +36,25 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from simseam.seam.errors import ConfigError, InvalidActionError, SimulationError
+from simseam.seam.errors import ConfigError, InvalidActionError, SidecarError, SimulationError
 from simseam.seam.request import ObsRequest
 from simseam.seam.rollout import Observation, StepResult
-from simseam.seam.spec import RolloutSpec
+from simseam.seam.spec import CAP_RESTART, RolloutSpec
 
 Requests = ObsRequest | Sequence[ObsRequest | None] | None
+
+
+@dataclass(frozen=True)
+class EnvFailure:
+    """Why one environment's episode ended early (``BatchRollout.failures``). ``lost``: the environment's
+    process died, through no fault of the episode, so running the episode again is worth it (else the
+    episode failed on its own account: a sidecar crash, recorded with its error, as a single rollout's);
+    ``what_next``: what the batch did about it, in words; ``exitcode``: the dead process's exit code."""
+
+    message: str
+    lost: bool = False
+    what_next: str = "continuing"
+    exitcode: int | None = None
 
 
 @dataclass(frozen=True)
@@ -44,7 +63,7 @@ class BatchStepResult:
 
     envs: np.ndarray  # int64[k]
     observations: list[Observation]
-    reward: np.ndarray  # float32[k]
+    reward: np.ndarray  # float64[k]: each a single rollout's reward (a Python float), exactly
     terminated: np.ndarray  # bool[k]
     truncated: np.ndarray  # bool[k]
     infos: list[dict[str, Any]] = field(default_factory=list)
@@ -61,7 +80,7 @@ class BatchStepResult:
     def of(cls, envs: Sequence[int], results: Sequence[StepResult]) -> "BatchStepResult":
         """Stack single-rollout results (one per environment of ``envs``)."""
         return cls(np.asarray(envs, dtype=np.int64), [r.observation for r in results],
-                   np.array([r.reward for r in results], dtype=np.float32),
+                   np.array([r.reward for r in results], dtype=np.float64),
                    np.array([r.terminated for r in results], dtype=bool),
                    np.array([r.truncated for r in results], dtype=bool), [r.info for r in results])
 
@@ -82,6 +101,8 @@ class BatchRollout(Protocol):
     def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult: ...
 
     def render(self, env: int) -> np.ndarray | None: ...
+
+    def failures(self) -> dict[int, EnvFailure]: ...
 
     def close(self) -> None: ...
 
@@ -138,6 +159,7 @@ class SyncBatchRollout:
                 raise ConfigError(f"rollout {i} of the batch has another spec than rollout 0")
         self._spec = spec
         self._closed = False
+        self._failures: dict[int, EnvFailure] = {}
 
     @property
     def spec(self) -> RolloutSpec:
@@ -154,15 +176,33 @@ class SyncBatchRollout:
         if len(seeds) != idx.size:
             raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
         requests = per_env_requests(observe, idx.size, "reset")
-        return [self.rollouts[e].reset(s, q) for e, s, q in zip(idx.tolist(), seeds, requests)]
+        return [self._guarded(e, lambda r, s=s, q=q: r.reset(s, q)) for e, s, q in zip(idx.tolist(), seeds, requests)]
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult:
         self._check_open()
         idx = env_indices(envs, self.num_envs, "step")
         a = batch_actions(self._spec, actions, idx.size)
         requests = per_env_requests(observe, idx.size, "step")
-        results = [self.rollouts[e].step(a[i], q) for i, (e, q) in enumerate(zip(idx.tolist(), requests))]
-        return BatchStepResult.of(idx, results)
+        results = [self._guarded(e, lambda r, i=i, q=q: r.step(a[i], q)) for i, (e, q) in enumerate(zip(idx.tolist(), requests))]
+        return BatchStepResult.of(idx, [r if r is not None else StepResult(None, 0.0, False, False, {}) for r in results])
+
+    def _guarded(self, env: int, call):
+        """``call(rollout)`` for environment ``env``; a sidecar failure becomes that environment's
+        ``EnvFailure`` (the sidecar restarted when the rollout can) and None."""
+        rollout = self.rollouts[env]
+        try:
+            return call(rollout)
+        except SidecarError as exc:
+            restart = rollout.spec.can(CAP_RESTART)
+            self._failures[env] = EnvFailure(f"{type(exc).__name__}: {exc}",
+                                             what_next="restarting the sidecar" if restart else "continuing")
+            if restart:
+                rollout.restart()
+            return None
+
+    def failures(self) -> dict[int, EnvFailure]:
+        out, self._failures = self._failures, {}
+        return out
 
     def render(self, env: int) -> np.ndarray | None:
         self._check_open()

@@ -225,7 +225,7 @@ class WarpBatchRollout:
         key = self.spec.task.success_key
         infos = [{key: bool(r.success[e]), INFO_STEPS: int(r.steps[e]), INFO_DIAGNOSTICS: self.batch.diagnostics(e)}
                  for e in idx.tolist()]
-        return BatchStepResult(idx, observations, r.reward[idx], r.terminated[idx], r.truncated[idx], infos)
+        return BatchStepResult(idx, observations, r.reward[idx].astype(np.float64), r.terminated[idx], r.truncated[idx], infos)
 
     def render(self, env: int) -> np.ndarray | None:
         self._check_open()
@@ -233,6 +233,9 @@ class WarpBatchRollout:
         if self.batch.rc is None:
             return None
         return self.batch.render()[next(iter(self.batch.cameras))].numpy()[int(e)]
+
+    def failures(self) -> dict:
+        return {}  # the worlds share one process and one device: none fails alone
 
     def close(self) -> None:
         if not self._closed:
