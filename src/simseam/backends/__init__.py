@@ -77,3 +77,25 @@ def normalize_config(name: str, config: dict[str, Any], where: str = "benchmark"
 def make_backend_rollout(name: str, config: dict[str, Any]):
     """Build the backend's rollout (in the backend's own interpreter: the sidecar calls this)."""
     return backend_module(name).make_rollout(normalize_config(name, config))
+
+
+def make_backend_batch(name: str, config: dict[str, Any], num_envs: int):
+    """``num_envs`` environments of the backend as one ``BatchRollout`` (in the backend's own interpreter):
+    the backend's own batch when it simulates them together (``make_batch``), else ``num_envs`` of its
+    rollouts stepped in turn (``SyncBatchRollout``)."""
+    from simseam.seam import SyncBatchRollout
+
+    module = backend_module(name)
+    config = normalize_config(name, config)
+    make_batch = getattr(module, "make_batch", None)
+    if make_batch is not None:
+        return make_batch(config, num_envs)
+    rollouts = []
+    try:
+        for _ in range(num_envs):
+            rollouts.append(module.make_rollout(config))
+    except BaseException:
+        for r in rollouts:
+            r.close()
+        raise
+    return SyncBatchRollout(rollouts)

@@ -230,7 +230,7 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
     same again later; that resetting one environment leaves another's episode as it was; that a bad
     action (shape, NaN) raises ``InvalidActionError`` and changes nothing; that actions act as their
     clipped value; bad indices raise ``ConfigError``; ``info`` carries success, steps and diagnostics;
-    ``render``; ``close``.
+    ``render``; ``failures()`` empty; ``close``.
     """
     problems: list[str] = []
     try:
@@ -251,6 +251,9 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
                     problems.append(f"render({env}): expected uint8[H, W, 3], got {type(frame).__name__}")
             elif frame is not None:
                 problems.append(f"render({env}) returned a frame though the robot has no RGB camera")
+        failed = batch.failures()
+        if not isinstance(failed, dict) or failed:
+            problems.append(f"failures(): expected an empty dict after episodes that did not fail, got {failed!r}")
     finally:
         batch.close()
     batch.close()  # idempotent

@@ -52,7 +52,7 @@ import threading
 import time
 import weakref
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import zmq
@@ -68,6 +68,8 @@ from simseam.seam import (
     StepResult,
     check_action,
 )
+from simseam.seam.batch import (BatchStepResult, EnvFailure, Requests, batch_actions, env_indices,
+                                per_env_requests)
 from simseam.sidecar.errors import (
     SidecarAccessError,
     SidecarBusy,
@@ -221,6 +223,7 @@ class SidecarRollout:
     as templates; ``self.compact`` says whether it agreed); the observations are the same either way.
     """
 
+    _num_envs: int | None = None  # a batch's environments (SidecarBatchRollout); None: one rollout
     _want_local = False  # (class defaults: a client made with __new__ speaks plain ZeroMQ)
     _spin_us = 0
     _slots: list | None = None
@@ -301,6 +304,8 @@ class SidecarRollout:
                 "endpoint": endpoint, "token": self._token, "identity": self.identity,
                 "exclusive": self._exclusive, "keep_alive": self._keep_alive,
                 "registry_dir": str(registry_dir()) if self._keep_alive else None}
+        if self._num_envs is not None:
+            boot["num_envs"] = self._num_envs
         env = dict(self._extra_env or {})
         if self._backend is not None:
             boot.update(backend=self._backend, config=self._options)
@@ -385,6 +390,9 @@ class SidecarRollout:
             spec = RolloutSpec.from_json(info.get("spec"), where=f"the sidecar at {self.endpoint}: hello's spec")
         except ConfigError as exc:
             raise SidecarProtocolError(str(exc)) from None
+        if info.get("num_envs") != self._num_envs:
+            raise SidecarProtocolError(f"the sidecar at {self.endpoint} serves num_envs={info.get('num_envs')!r}, "
+                                       f"this client asked for {self._num_envs!r}")
         caps = tuple(dict.fromkeys((*spec.capabilities, CAP_RESTART)))
         self._spec = spec.replace(backend="sidecar", capabilities=caps)
         self.server_pid = int(info["pid"])
@@ -615,3 +623,67 @@ class SidecarRollout:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+class SidecarBatchRollout(SidecarRollout):
+    """A ``BatchRollout`` (seam/batch.py) of ``num_envs`` environments served by one sidecar: the backend's
+    own batch when it simulates them together (ManiSkill3's GPU physics), else ``num_envs`` copies the
+    sidecar steps in turn. Same boot, transport, crash handling and arguments as ``SidecarRollout``
+    (``keep_alive`` aside). Environments that fail alone inside the sidecar come back from ``failures()``;
+    a sidecar that crashes raises, as a single rollout's does (the whole batch is in it)."""
+
+    def __init__(self, num_envs: int, *args: Any, **kwargs: Any):
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ConfigError(f"a sidecar batch needs num_envs >= 1, got {num_envs!r}")
+        if kwargs.get("keep_alive"):
+            raise ConfigError("a sidecar batch cannot be kept alive (keep_alive): it is one run's")
+        self._num_envs = num_envs
+        self._failed: dict[int, EnvFailure] = {}
+        super().__init__(*args, **{**kwargs, "compact": False})
+
+    @property
+    def num_envs(self) -> int:
+        return self._num_envs
+
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe: Requests = None) -> list[Observation]:
+        idx = env_indices(envs, self._num_envs, "reset").tolist()
+        seeds = [None if s is None else int(s) for s in seeds]
+        if len(seeds) != len(idx):
+            raise ConfigError(f"reset: {len(idx)} environments but {len(seeds)} seeds")
+        body = {"envs": idx, "seeds": seeds, "observe": _requests_json(observe, len(idx), "reset")}
+        reply = self._request("batch_reset", body)
+        self._note_failures(reply)
+        return list(reply["obs"])
+
+    def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult:
+        idx = env_indices(envs, self._num_envs, "step")
+        a = batch_actions(self.spec, actions, idx.size)  # fail fast, locally, before a round trip
+        body = {"envs": idx.tolist(), "actions": a, "observe": _requests_json(observe, idx.size, "step")}
+        r = self._request("batch_step", body)
+        self._note_failures(r)
+        return BatchStepResult(idx, list(r["obs"]), np.asarray(r["reward"], dtype=np.float64),
+                               np.asarray(r["terminated"], dtype=bool), np.asarray(r["truncated"], dtype=bool),
+                               [dict(i) for i in r["info"]])
+
+    def render(self, env: int) -> np.ndarray | None:  # type: ignore[override]
+        (e,) = env_indices([env], self._num_envs, "render").tolist()
+        return self._request("batch_render", {"env": e})["frame"]
+
+    def failures(self) -> dict[int, EnvFailure]:
+        out, self._failed = self._failed, {}
+        return out
+
+    def _note_failures(self, reply: dict) -> None:
+        for env, f in (reply.get("failures") or {}).items():
+            self._failed[int(env)] = EnvFailure(str(f["message"]), bool(f["lost"]), str(f["what_next"]),
+                                                f.get("exitcode"))
+
+    def __enter__(self) -> "SidecarBatchRollout":
+        return self
+
+
+def _requests_json(observe: Requests, k: int, where: str):
+    """A batch op's observation requests as wire data: None, one request, or one per environment."""
+    if observe is None or isinstance(observe, ObsRequest):
+        return None if observe is None else observe.to_json()
+    return [None if q is None else q.to_json() for q in per_env_requests(observe, k, where)]

@@ -9,6 +9,11 @@ deleted at start): ``{"spec": RobotSpec JSON, "task": str, "engine": str,
 "token": str, "identity": str, "exclusive": bool, "keep_alive": bool,
 "registry_dir": str | null}``. A benchmark backend's boot names it instead of a
 robot and task: ``{"backend": "metaworld", "config": {...}, ...}`` (``simseam.backends``).
+``"num_envs": N`` serves a batch of N environments instead of one rollout (a ``BatchRollout``,
+seam/batch.py): the backend's own when it batches natively (``make_batch``), else N copies
+stepped in turn in this process. A batch answers the ``batch_reset`` / ``batch_step`` /
+``batch_render`` ops (every reply also carries the environments that failed since the last one);
+the single-rollout ops are refused, and the other way round.
 
 Boot progress goes to stdout as JSON lines (``{"event": "boot", "stage": ...}``,
 then ``{"event": "ready", "endpoint": ..., "pid": ...}``); diagnostics go to
@@ -43,6 +48,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zmq
 
 from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
@@ -53,6 +59,8 @@ from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 EXIT_BUSY = 3  # exit code: an exclusive engine is already running elsewhere
 EXIT_BOOT_ERROR = 4  # exit code: the scene could not be built (the error went out as an "error" event)
 EXCLUSIVE_ENGINES = ("isaac",)
+SINGLE_OPS = ("reset", "step", "render")
+BATCH_OPS = ("batch_reset", "batch_step", "batch_render")
 TEST_HOOKS_ENV = "SIMSEAM_SIDECAR_TEST_HOOKS"  # enables the _sleep/_exit ops (tests only)
 
 
@@ -119,6 +127,7 @@ class Server:
         self.spin_s = 0.0  # the attached local client's busy-poll budget for its next request (attach)
         self.spun = 0  # local messages that arrived while busy-polling (reported by close)
         self.templates: ReplyTemplates | None = None  # the attached client's compact replies (attach)
+        self.num_envs: int | None = getattr(scene, "num_envs", None)  # a batch's (None: one rollout)
 
     def handle(self, frames: list, ring: "local.SlotRing | None" = None, attached: bool = False) -> tuple[list, bool]:
         """Reply frames for one request, and whether to stop serving. ``ring``: put the reply's
@@ -149,6 +158,22 @@ class Server:
         try:
             if op == "hello":
                 return ok(self.hello(body)), False
+            if op in BATCH_OPS or op in SINGLE_OPS:
+                batch = self.num_envs is not None
+                if batch != (op in BATCH_OPS):
+                    raise WireError(f"{op!r}: this sidecar serves " + (f"a batch of {self.num_envs} environments"
+                                                                       if batch else "one rollout"))
+            if op == "batch_reset":
+                obs = self.scene.reset(body.get("envs"), body.get("seeds"), self._requests(body))
+                return ok({"obs": obs, "failures": self._failures()}, ring), False
+            if op == "batch_step":
+                r = self.scene.step(body.get("envs"), body.get("actions"), self._requests(body))
+                return ok({"obs": r.observations, "reward": np.asarray(r.reward, dtype=np.float64),
+                           "terminated": np.asarray(r.terminated, dtype=bool),
+                           "truncated": np.asarray(r.truncated, dtype=bool), "info": list(r.infos),
+                           "failures": self._failures()}, ring), False
+            if op == "batch_render":
+                return ok({"frame": self.scene.render(body.get("env"))}, ring), False
             if op == "reset":
                 seed = body.get("seed")
                 if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
@@ -176,6 +201,18 @@ class Server:
             return encode("error", {"kind": type(exc).__name__, "message": str(exc),
                                     "traceback": traceback.format_exc()}), False
 
+    def _requests(self, body: dict):
+        """A batch op's ``observe``: None, one request (a map) or one per environment (a list)."""
+        observe = body.get("observe")
+        if isinstance(observe, list):
+            return [self._request({"observe": o}) for o in observe]
+        return self._request(body)
+
+    def _failures(self) -> dict:
+        """The batch's failed environments since the last reply, as wire data."""
+        return {str(env): {"message": f.message, "lost": f.lost, "what_next": f.what_next, "exitcode": f.exitcode}
+                for env, f in self.scene.failures().items()}
+
     @staticmethod
     def _request(body: dict) -> ObsRequest:
         """The ``observe`` field of a reset/step body as an ``ObsRequest`` (None: everything; a
@@ -198,6 +235,8 @@ class Server:
             "python": sys.version.split()[0],
             "spec": self.scene.spec.to_json(),
         }
+        if self.num_envs is not None:
+            out["num_envs"] = self.num_envs
         if body.get("local") is True and self.local_path is not None:
             out["local"] = {"path": self.local_path}
         return out
@@ -233,7 +272,7 @@ class Server:
         if compact >= COMPACT_VERSION:  # the client asked for compact step messages: confirm the version spoken
             self.templates = ReplyTemplates()
             reply["compact"] = COMPACT_VERSION
-        size = local.slot_bytes_for(self.scene.spec.to_json())
+        size = local.slot_bytes_for(self.scene.spec.to_json()) * (self.num_envs or 1)
         if size == 0:  # nothing large to share: the local socket alone
             return encode("ok", reply), []
         self.ring = local.SlotRing(slots, size)
@@ -275,6 +314,17 @@ def _is_ok(frames: list) -> bool:
 
 
 def build_scene(boot: dict):
+    n = boot.get("num_envs")
+    if n is not None:
+        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+            raise ConfigError(f"boot: num_envs must be an int >= 1, got {n!r}")
+        if boot.get("backend"):
+            from simseam.backends import make_backend_batch
+
+            return make_backend_batch(str(boot["backend"]), dict(boot.get("config") or {}), n)
+        from simseam.seam import SyncBatchRollout
+
+        return SyncBatchRollout([build_scene({**boot, "num_envs": None}) for _ in range(n)])
     if boot.get("backend"):
         from simseam.backends import make_backend_rollout
 
