@@ -40,16 +40,28 @@ def backends_list() -> None:
 def backends_provision(
     names: list[str] = typer.Argument(..., help="Backend names (simseam backends list)."),
     force: bool = typer.Option(False, "--force", help="Rebuild the venv even if it is provisioned."),
+    physx_gpu: Path = typer.Option(None, "--physx-gpu", metavar="FILE", help="maniskill: place NVIDIA's PhysX "
+                                   "GPU library (libPhysXGpu_64.so, a copy you have) where SAPIEN looks for it, for "
+                                   "sim_backend physx_cuda (SAPIEN would download it on first use)."),
 ) -> None:
     """Create each backend's virtualenv from its pins (PyPI once; afterwards everything runs offline)."""
-    from simseam.backends.provision import provision
+    from simseam.backends import physx_gpu as gpu
+    from simseam.backends.provision import provision, python_of
 
-    for name in names:
-        try:
+    try:
+        if physx_gpu is not None and names != ["maniskill"]:
+            raise ConfigError(f"--physx-gpu belongs to the maniskill backend alone, got {' '.join(names)}")
+        if physx_gpu is not None:
+            gpu.check_library(physx_gpu.expanduser())  # a wrong file fails before minutes of provisioning
+        for name in names:
             rec = provision(name, force=force, progress=lambda s: console.print(escape(s), highlight=False))
-        except SimseamError as exc:
-            fail(exc)
-        console.print(f"[green]ok[/] {escape(name)}: {rec['bytes'] / 2**20:.0f} MiB, {rec['seconds']:.0f} s")
+            console.print(f"[green]ok[/] {escape(name)}: {rec['bytes'] / 2**20:.0f} MiB, {rec['seconds']:.0f} s")
+        if physx_gpu is not None:
+            version = gpu.physx_version(python_of("maniskill"))
+            dest = gpu.install(physx_gpu, version)
+            console.print(f"[green]ok[/] PhysX GPU library for SAPIEN's PhysX {escape(version)}: {escape(str(dest))}")
+    except SimseamError as exc:
+        fail(exc)
 
 
 @benchmarks_app.command("list")

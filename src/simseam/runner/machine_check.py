@@ -121,5 +121,26 @@ def check_vulkan() -> Check:
     return Check("ManiSkill3 cameras", True, f"software Vulkan (Mesa lavapipe) {icd.parent.name}, on the CPU")
 
 
+def check_physx_gpu() -> Check:
+    """ManiSkill3's GPU physics: NVIDIA's PhysX GPU library for the provisioned SAPIEN's PhysX version."""
+    from simseam.backends import physx_gpu
+    from simseam.backends.provision import marker, provision_command, python_of
+    from simseam.seam import SimseamError
+
+    area = "ManiSkill3 GPU physics"
+    if marker("maniskill") is None:
+        return Check(area, False, "the maniskill backend is not provisioned", provision_command("maniskill"))
+    try:
+        version = physx_gpu.physx_version(python_of("maniskill"))
+    except SimseamError as exc:
+        return Check(area, False, str(exc), f"{provision_command('maniskill')} --force")
+    path = physx_gpu.library_path(version)
+    if not path.is_file():
+        return Check(area, False, f"no {physx_gpu.LIBRARY} for SAPIEN's PhysX {version} ({path}); "
+                                  "sim_backend physx_cuda is refused, physx_cpu works",
+                     "simseam backends provision maniskill --physx-gpu FILE (a copy you have)")
+    return Check(area, True, f"{path} for SAPIEN's PhysX {version} (runs on an NVIDIA GPU with its driver)")
+
+
 def machine_checks() -> list[Check]:
-    return [check_rendering(), check_learning(), check_warp(), check_vulkan(), *check_backends()]
+    return [check_rendering(), check_learning(), check_warp(), check_vulkan(), check_physx_gpu(), *check_backends()]
