@@ -18,7 +18,9 @@ Three phases, all through simseam's own code paths (the GPU machine runs it thro
    cosine learning rate, a small transformer; plus a random shift of each camera image
    (``--aug-shift`` pixels, DrQ-style) applied to the cached batches on the device, and the ResNet
    trained with batch norm (``batchnorm_backbone``: ACT's frozen batch norm is no normalization
-   from scratch), saved as a plain ACT checkpoint;
+   from scratch), both cameras through it in one call (``joint_camera_backbone``: the batch statistics
+   training normalizes with are then the mixture that the saved running statistics hold), saved as a
+   plain ACT checkpoint;
 3. evaluate: the checkpoint is loaded through ``lerobot:<dir>`` (the spec a user gives
    ``simseam run``) and runs ``--eval-seeds`` held-out seeds from images and proprioception only
    (no privileged state, no environment_state); the scripted expert runs the same seeds.
@@ -36,6 +38,11 @@ the next invocation with the same ``--work`` skips the finished phases, resumes 
 re-plans the horizon to its own deadline, and evaluates. Writes JSON (``--json``) after every phase:
 the loss curve (step, mean loss since the last point, wall seconds of training so far: each invocation's
 preparation, i.e. decoding the dataset onto the device, included) is in ``train.curve``.
+
+``--curve-every N`` also measures success against training steps, beside training: every N steps
+``train_act`` saves a resumable checkpoint, a copy of which a child process evaluates on ``--curve-seeds``
+(default 10000-10019, the first 20 of the held-out seeds) on the CPU, one at a time, while the GPU
+trains on; the results are in ``curve_success``.
 """
 
 from __future__ import annotations
@@ -221,6 +228,162 @@ def batchnorm_backbone(on: bool):
         modeling_act.FrozenBatchNorm2d = frozen
 
 
+@contextlib.contextmanager
+def joint_camera_backbone(on: bool):
+    """In training, pass every camera's batch through the ResNet in one call (``torch.cat`` of the cameras)
+    instead of ACT's one call per camera.
+
+    With batch norm in the backbone (``batchnorm_backbone``), ACT's per-camera calls normalize each camera by
+    its own batch statistics while training, but the running statistics that inference uses (saved into the
+    frozen batch norm) are one average over both cameras, whose features differ (a third-person and a wrist
+    view): the deployed network would see other normalization than the trained one. One call over all
+    cameras normalizes training batches with the same mixture the running statistics hold. Also fewer,
+    larger kernels. Inference is untouched (eval mode: running statistics, so per-camera calls compute the
+    same). Only ``ACT.forward`` is patched, for the duration of training."""
+    from lerobot.policies.act import modeling_act
+
+    plain = modeling_act.ACT.forward
+    if on:
+        import torch
+        import torch.nn as nn
+
+        class _Replay(nn.Module):
+            """Stands in for the backbone during one forward: returns the precomputed features, camera by camera."""
+
+            def __init__(self, feats):
+                super().__init__()
+                self.feats = list(feats)
+
+            def forward(self, img):
+                return {"feature_map": self.feats.pop(0)}
+
+        def forward(self, batch):
+            imgs = batch.get(modeling_act.OBS_IMAGES) if self.config.image_features else None
+            if not self.training or not imgs or len(imgs) < 2:
+                return plain(self, batch)
+            real = self.backbone
+            feats = real(torch.cat(list(imgs)))["feature_map"].split([int(i.shape[0]) for i in imgs])
+            self.backbone = _Replay(feats)
+            try:
+                return plain(self, batch)
+            finally:
+                self.backbone = real
+
+        modeling_act.ACT.forward = forward
+    try:
+        yield
+    finally:
+        modeling_act.ACT.forward = plain
+
+
+class CurveEval:
+    """Success against training steps, measured beside training: each resumable checkpoint that ``train_act``
+    saves (every ``--curve-every`` steps) is copied under ``work/curve/`` and evaluated on ``--curve-seeds`` by a
+    child process (this script with ``--curve-eval``), on ``--curve-device`` (cpu by default, so that the
+    GPU keeps training alone), one at a time; polled from the training log callback (no threads)."""
+
+    def __init__(self, args, ckpt: Path, data: Path, report: dict, save):
+        self.args, self.ckpt, self.data, self.report, self.save = args, ckpt, data, report, save
+        self.dir = args.work / "curve"
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.rows = report.setdefault("curve_success", [])
+        self.proc = None
+        self.running: tuple[int, Path, float] | None = None
+        self.last_seconds = 90.0  # an evaluation's duration before the first is measured
+
+    def _copy_new(self) -> None:
+        root = self.ckpt / "checkpoints"
+        for src in sorted(root.glob("step_*")) if root.is_dir() else []:
+            dst = self.dir / src.name
+            if dst.exists() or not (src / "training_state.pt").is_file():
+                continue
+            tmp = self.dir / f".{src.name}.partial"
+            shutil.rmtree(tmp, ignore_errors=True)
+            try:
+                shutil.copytree(src, tmp, ignore=shutil.ignore_patterns("training_state.pt"))
+                shutil.copy(self.data / "meta" / "simseam_skill.json", tmp / "simseam_skill.json")
+                os.replace(tmp, dst)
+            except OSError:  # pruned by train_act while copying: the next one will do
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    def _collect(self) -> None:
+        if self.proc is None or self.proc.poll() is None:
+            return
+        step, path, t0 = self.running
+        out = path / "eval.json"
+        row = {"step": step, "seconds": round(time.perf_counter() - t0, 1), "returncode": self.proc.returncode,
+               "device": self.args.curve_device}
+        if self.proc.returncode == 0 and out.is_file():
+            row.update(json.loads(out.read_text()))
+            self.last_seconds = row["seconds"]
+        else:
+            row["log_tail"] = (path / "eval.log").read_text()[-1500:] if (path / "eval.log").is_file() else ""
+        self.rows.append(row)
+        self.save()
+        print(f"  curve: step {step}: {row.get('success', '?')}/{row.get('episodes', '?')} on "
+              f"{self.args.curve_seeds.start}:{self.args.curve_seeds.stop} ({row['seconds']:.0f} s, "
+              f"{self.args.curve_device})", flush=True)
+        self.proc = self.running = None
+
+    def poll(self, seconds_left: float, train_wall: float) -> None:
+        """Collect a finished evaluation, copy new checkpoints, start the next if it can end in ``seconds_left``."""
+        import subprocess
+        import sys
+
+        self._collect()
+        self._copy_new()
+        if self.proc is not None or seconds_left < 1.3 * self.last_seconds + 10:
+            return
+        done = {r["step"] for r in self.rows}
+        todo = [p for p in sorted(self.dir.glob("step_*")) if int(p.name.split("_")[1]) not in done]
+        if not todo:
+            return
+        path = todo[0]
+        step = int(path.name.split("_")[1])
+        a = self.args
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--curve-eval", str(path),
+               "--eval-seeds", f"{a.curve_seeds.start}:{a.curve_seeds.stop}", "--episodes", str(a.episodes),
+               "--image-size", str(a.image_size), "--max-steps", str(a.max_steps),
+               "--curve-device", a.curve_device, "--curve-threads", str(a.curve_threads),
+               "--json", str(path / "eval.json"), "--work", str(path)]
+        env = {**os.environ, "OMP_NUM_THREADS": str(a.curve_threads)}
+        log = open(path / "eval.log", "w")
+        self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+        log.close()
+        self.running = (step, path, time.perf_counter())
+        print(f"  curve: evaluating step {step} at {train_wall:.0f} s of training", flush=True)
+
+    def finish(self, wait_s: float) -> None:
+        """Wait up to ``wait_s`` for the evaluation in progress, then stop it (recorded as stopped)."""
+        if self.proc is None:
+            return
+        try:
+            self.proc.wait(timeout=max(0.0, wait_s))
+        except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+            self.proc.kill()
+            self.proc.wait()
+            step, path, t0 = self.running
+            self.rows.append({"step": step, "stopped": True, "seconds": round(time.perf_counter() - t0, 1)})
+            self.save()
+            print(f"  curve: step {step} stopped unfinished ({wait_s:.0f} s left)", flush=True)
+            self.proc = self.running = None
+            return
+        self._collect()
+
+
+def curve_eval(args) -> int:
+    """``--curve-eval DIR``: evaluate the checkpoint copy at DIR on ``--eval-seeds``; write ``--json``."""
+    import torch
+
+    torch.set_num_threads(args.curve_threads)
+    t = time.perf_counter()
+    pol = make_policy(f"lerobot:{args.curve_eval}", device=args.curve_device)
+    row = _row("act", evaluate(pol, list(args.eval_seeds), args.image_size, False, args.max_steps))
+    row["eval_seconds"] = time.perf_counter() - t
+    _write(args.json, row)
+    return 0
+
+
 def evaluate(policy, seeds, size, privileged, max_steps):
     scene = _scene(size, privileged, max_steps)
     try:
@@ -285,6 +448,9 @@ def main() -> int:
     g.add_argument("--backbone-norm", choices=("batch", "frozen"), default="batch",
                    help="train the ResNet with batch norm (saved into ACT's frozen batch norm) or as ACT builds it "
                         "(frozen: no normalization from scratch)")
+    g.add_argument("--backbone-calls", choices=("joint", "per-camera"), default="joint",
+                   help="in training, one backbone call over all cameras (batch statistics = the mixture the "
+                        "running statistics hold: joint_camera_backbone) or one per camera as ACT does")
     g.add_argument("--amp", action="store_true", help="bfloat16 autocast for training on CUDA")
     g.add_argument("--no-cache", action="store_true",
                    help="stream batches through LeRobotDataset's loader instead of caching frames on the device "
@@ -304,17 +470,29 @@ def main() -> int:
     g.add_argument("--eval-variants", default="",
                    help="more evaluations of the same checkpoint, comma-separated n_action_steps values "
                         "(executed open loop from each chunk, no temporal ensembling), run if time is left")
+    g.add_argument("--curve-every", type=int, default=0,
+                   help="save a checkpoint every N steps and evaluate it on --curve-seeds beside training (0: off)")
+    g.add_argument("--curve-seeds", type=parse_seeds, default=parse_seeds("10000:10020"),
+                   help="held-out seeds for the success curve (default: the first 20 of --eval-seeds)")
+    g.add_argument("--curve-device", default="cpu",
+                   help="device of the curve's evaluations (cpu: the GPU trains alone)")
+    g.add_argument("--curve-threads", type=int, default=4, help="torch threads of a curve evaluation")
+    g.add_argument("--curve-eval", type=Path, default=None, help=argparse.SUPPRESS)  # the child's mode
     g.add_argument("--work", type=Path, default=Path("runs/act_lift"))
     g.add_argument("--json", type=Path, default=Path("benchmarks/results/act_lift_image.json"))
     args = ap.parse_args()
-    if args.eval_seeds.start < args.episodes:
-        ap.error(f"--eval-seeds {args.eval_seeds.start}:{args.eval_seeds.stop} overlaps the demonstration seeds "
-                 f"0:{args.episodes}")
+    if args.curve_eval is not None:
+        return curve_eval(args)
+    if min(args.eval_seeds.start, args.curve_seeds.start) < args.episodes:
+        ap.error(f"--eval-seeds {args.eval_seeds.start}:{args.eval_seeds.stop} or --curve-seeds overlaps the "
+                 f"demonstration seeds 0:{args.episodes}")
     if args.aug_shift and args.no_cache:
         ap.error("--aug-shift shifts the device cache's batches: it needs the cache (drop --no-cache)")
 
     import torch
 
+    if torch.cuda.is_available():
+        torch.backends.cudnn.benchmark = True  # fixed shapes: let cuDNN pick its fastest convolutions
     args.work.mkdir(parents=True, exist_ok=True)
     state_path = args.work / "report.json"
     report: dict = json.loads(state_path.read_text()) if state_path.is_file() else {}
@@ -361,12 +539,13 @@ def main() -> int:
             n_action_steps=args.n_action_steps, temporal_ensemble_coeff=args.temporal_ensemble or None,
             dim_model=args.dim_model, dim_feedforward=args.ff_dim, n_encoder_layers=args.encoder_layers,
             use_vae=args.vae, num_workers=args.workers, cache_on_device=not args.no_cache, use_amp=args.amp,
-            seed=args.seed + len(calls) - 1, log_every=args.log_every,
+            seed=args.seed + len(calls) - 1, log_every=args.log_every, checkpoint_every=args.curve_every or None,
             # a final invocation ends by time at the latest; a pausing one is interrupted below instead
             time_budget_s=None if args.pause else window)
         if args.aug_shift:
             use_random_shift(args.aug_shift)
         seg = {"invocation": len(calls) - 1, "resumed": resume, "window_s": window}
+        curve = CurveEval(args, ckpt, data, report, save) if args.curve_every else None
         first: list[float] = []  # (step, time) of this segment's first log: speed is measured from there
 
         def on_log(step: int, loss: float) -> None:
@@ -384,6 +563,8 @@ def main() -> int:
                 left += args.later_train_s if args.pause else 0.0
                 cfg.steps = train["planned_steps"] = step + max(1, int(seg["rate"] * left))
                 print(f"  {seg['rate']:.1f} steps/s: horizon {cfg.steps} steps", flush=True)
+            if curve is not None:
+                curve.poll(window - (_now() - seg["t_start"]), wall)
             if args.pause and _now() - seg["t_start"] >= window:
                 raise KeyboardInterrupt  # train_act saves a resumable checkpoint of the steps done
 
@@ -391,11 +572,16 @@ def main() -> int:
         print(f"train: {'resuming' if resume else 'from scratch'}, window {window:.0f} s, "
               f"batch {args.batch_size}, lr {args.lr} ({args.lr_schedule})", flush=True)
         try:
-            with batchnorm_backbone(args.backbone_norm == "batch"):
+            with batchnorm_backbone(args.backbone_norm == "batch"), \
+                    joint_camera_backbone(args.backbone_calls == "joint"):
                 res = train_act(data, ckpt, cfg, on_log=on_log, resume=resume, overwrite=not resume)
         except KeyboardInterrupt:
             if not args.pause:
+                if curve is not None:
+                    curve.finish(0)
                 raise
+            if curve is not None:
+                curve.finish((args.deadline_s - _now() - 10) if args.deadline_s is not None else 600)
             seg.update(paused_at=int(latest_checkpoint(ckpt).name.split("_")[1]), seconds=_now() - seg["t_start"])
             train["segments"].append(seg)
             save()
@@ -404,6 +590,8 @@ def main() -> int:
             return 0
         seg.update(steps=res.steps, seconds=_now() - seg["t_start"], train_seconds=res.seconds,
                    prepare_seconds=res.prepare_seconds)
+        if curve is not None:  # the final evaluation runs alone; its first --curve-seeds give the last point
+            curve.finish(0)
         train["segments"].append(seg)
         train.update(done=True, steps=res.steps, planned_steps=cfg.steps, seconds=prior_s + seg["seconds"],
                      device=res.device, n_params=res.n_params, batch_size=args.batch_size,

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs benchmarks/train_act_lift.py on a lent GPU machine (no network there), through the device tool:
-#   run(command="bash benchmarks/device/act_lift.sh --pause --later-train-s 420",
-#       carry=[".whl", ".gl", ".devcarry"], timeout_s=600)
-#   run(command="bash benchmarks/device/act_lift.sh")          # next call, same warm machine: resumes, evaluates
+#   run(command="bash benchmarks/device/act_lift.sh --pause --later-train-s 380 --episodes 1000 --collect-workers 15
+#                --curve-every 2500", carry=[".whl", ".gl", ".devcarry"], timeout_s=600)
+#   run(command="LIMIT=540 bash benchmarks/device/act_lift.sh --episodes 1000 --curve-every 2500",
+#       carry=[".whl", ".gl", ".devcarry"], timeout_s=600)   # next call, same warm machine: resumes, evaluates
+# (the next call must come within the machine's ~30 s idle release, or /tmp/act_lift is gone)
 # Every argument goes to train_act_lift.py after these defaults (a later one wins): --work /tmp/act_lift
 # (kept between back-to-back calls: the machine's /tmp lives while it stays warm), --json $OUT/act_lift.json,
 # --deadline-s (what is left of LIMIT seconds, default 570, counted from this script's start: the tool's
