@@ -289,7 +289,7 @@ class CurveEval:
         self.rows = report.setdefault("curve_success", [])
         self.proc = None
         self.running: tuple[int, Path, float] | None = None
-        self.last_seconds = 90.0  # an evaluation's duration before the first is measured
+        self.last_seconds = args.curve_first_s  # an evaluation's duration before the first is measured
 
     def _copy_new(self) -> None:
         root = self.ckpt / "checkpoints"
@@ -477,6 +477,9 @@ def main() -> int:
     g.add_argument("--curve-device", default="cpu",
                    help="device of the curve's evaluations (cpu: the GPU trains alone)")
     g.add_argument("--curve-threads", type=int, default=4, help="torch threads of a curve evaluation")
+    g.add_argument("--curve-first-s", type=float, default=90.0,
+                   help="expected seconds of a curve evaluation until one is measured (none starts unless it can "
+                        "end inside the training window)")
     g.add_argument("--curve-eval", type=Path, default=None, help=argparse.SUPPRESS)  # the child's mode
     g.add_argument("--work", type=Path, default=Path("runs/act_lift"))
     g.add_argument("--json", type=Path, default=Path("benchmarks/results/act_lift_image.json"))
