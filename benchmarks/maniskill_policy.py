@@ -2,7 +2,7 @@
 ``simseam eval`` on held-out seeds, beside the planner itself on the same seeds.
 
     .venv/bin/python benchmarks/maniskill_policy.py [--eval-seeds 10000:10100] [--demos 200] [--train-steps N]
-        [--train-s 900] [--work DIR] [--json FILE]
+        [--train-s 900] [--work DIR] [--json FILE] [--checkpoint DIR]
 
 Four phases, each a ``simseam`` command a user types:
 
@@ -19,6 +19,11 @@ Four phases, each a ``simseam`` command a user types:
    planner's control mode at the 100-step limit ManiSkill's own imitation-learning baselines evaluate
    PickCube with (docs/benchmarks.md);
 4. the same eval with ``--policy scripted``: the planner itself on the same seeds.
+
+``--checkpoint DIR`` skips phases 1-2: it evaluates a checkpoint trained elsewhere on ``--work``'s
+``pickcube_data`` (the 2-core machine trains at ~1 step/s while it is shared:
+``benchmarks/device/maniskill_train.sh`` trains the same recipe on a lent GPU), and reports that
+checkpoint's ``training.json``.
 
 Prints a table, writes JSON (``--json``; default ``benchmarks/results/maniskill_pickcube_act.json``,
 with each seed's outcome for both) and keeps the dataset, checkpoint and run directories under
@@ -78,7 +83,8 @@ def _simseam(*args: str, log: Path) -> float:
     with log.open("a") as f:
         f.write(f"$ simseam {' '.join(args)}\n")
         f.flush()
-        rc = subprocess.run([SIMSEAM, *args], stdout=f, stderr=subprocess.STDOUT, cwd=ROOT).returncode
+        rc = subprocess.run([SIMSEAM, *args], stdout=f, stderr=subprocess.STDOUT, cwd=ROOT,
+                            env={"OMP_NUM_THREADS": "1", **os.environ}).returncode  # torch's threads contend
     if rc != 0:
         raise RuntimeError(f"simseam {args[0]} exited {rc}; its output is in {log}")
     return time.perf_counter() - t0
@@ -101,35 +107,43 @@ def _eval(policy: str, seeds: range, out: Path, device: str, log: Path) -> dict:
             "per_seed": [{"seed": e["seed"], "success": e["success"], "steps": e["steps"]} for e in episodes]}
 
 
-def prove(recipe: Recipe, seeds: range, work: Path, train_s: float, device: str) -> dict:
+def prove(recipe: Recipe, seeds: range, work: Path, train_s: float, device: str,
+          checkpoint: Path | None = None) -> dict:
     if seeds.start < recipe.demos:
         raise SystemExit(f"--eval-seeds {seeds.start}:{seeds.stop} overlaps the demonstration seeds "
                          f"0:{recipe.demos}; evaluate on held-out seeds (START >= {recipe.demos})")
-    data, ckpt = work / "pickcube_data", work / "pickcube_act"
+    data, ckpt = work / "pickcube_data", checkpoint or work / "pickcube_act"
     log = work / "pickcube.log"
-    collect_s = _simseam("collect", "--scene", SCENE, "--policy", "scripted", "--episodes", str(recipe.demos),
-                         "--seed", "0", "--no-cameras", "--out", str(data), "--overwrite", log=log)
+    if checkpoint is not None and not (data / "meta" / "info.json").exists():
+        raise SystemExit(f"--checkpoint: {data} holds no dataset (the one the checkpoint was trained on)")
+    if checkpoint is None:
+        collect_s = _simseam("collect", "--scene", SCENE, "--policy", "scripted", "--episodes", str(recipe.demos),
+                             "--seed", "0", "--no-cameras", "--out", str(data), "--overwrite", log=log)
     info = json.loads((data / "meta" / "info.json").read_text())
-    train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
-                          "--workers", "0", "--device", device, "--no-vae",
-                          "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
-                          "--batch-size", str(recipe.batch_size), "--lr", str(recipe.lr),
-                          "--lr-schedule", recipe.lr_schedule,
-                          "--chunk-size", str(recipe.chunk_size), "--n-action-steps", str(recipe.n_action_steps),
-                          *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
-                          "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
-                          "--encoder-layers", str(recipe.encoder_layers), log=log)
+    if checkpoint is None:
+        train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
+                              "--workers", "0", "--device", device, "--no-vae",
+                              "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
+                              "--batch-size", str(recipe.batch_size), "--lr", str(recipe.lr),
+                              "--lr-schedule", recipe.lr_schedule,
+                              "--chunk-size", str(recipe.chunk_size), "--n-action-steps", str(recipe.n_action_steps),
+                              *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
+                              "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
+                              "--encoder-layers", str(recipe.encoder_layers), log=log)
+    else:
+        collect_s = train_wall = None
     training = json.loads((ckpt / "training.json").read_text())
     policy = _eval(f"lerobot:{ckpt}", seeds, work / "eval_act", device, log)
     expert = _eval("scripted", seeds, work / "eval_expert", device, log)
     return {
         "task": TASK, "scene": SCENE, "preset": PRESET, "recipe": asdict(recipe),
         "demos": {"seeds": f"0:{recipe.demos}", "episodes_kept": info["total_episodes"],
-                  "frames": info["total_frames"], "seconds": round(collect_s, 1),
+                  "frames": info["total_frames"], "seconds": round(collect_s, 1) if collect_s else None,
                   "state_dim": info["features"]["observation.state"]["shape"][0],
                   "action_dim": info["features"]["action"]["shape"][0]},
         "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
-                     "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
+                     "wall_seconds": round(train_wall, 1) if train_wall else None,
+                     "checkpoint": str(ckpt), "n_params": training["n_params"],
                      "final_loss": training["losses"][-1][1] if training["losses"] else None,
                      "device": training["device"], "losses": training["losses"]},
         "eval": policy, "expert": expert,
@@ -148,6 +162,8 @@ def main() -> int:
     ap.add_argument("--device", default="cpu", help="torch device for training and evaluation (default cpu)")
     ap.add_argument("--work", type=Path, default=None, help="keep the dataset, checkpoint and runs here "
                     "(default: a new temporary directory)")
+    ap.add_argument("--checkpoint", type=Path, default=None, help="evaluate this checkpoint, trained on "
+                    "--work's pickcube_data elsewhere (skips collection and training)")
     ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "maniskill_pickcube_act.json")
     args = ap.parse_args()
     overrides = {"demos": args.demos, "steps": args.train_steps, "lr": args.lr}
@@ -157,7 +173,7 @@ def main() -> int:
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "train_budget_s": args.train_s, "work": str(work)}
     try:
-        report.update(prove(recipe, args.eval_seeds, work, args.train_s, args.device))
+        report.update(prove(recipe, args.eval_seeds, work, args.train_s, args.device, args.checkpoint))
     except RuntimeError as exc:
         print(f"maniskill_policy: {exc}", file=sys.stderr)
         return 1
@@ -167,9 +183,9 @@ def main() -> int:
     d, t = report["demos"], report["training"]
     print(f"ManiSkill3 {TASK}, state ({d['state_dim']}-D), pd_joint_pos ({d['action_dim']}-D), "
           f"preset {PRESET} ({report['eval']['max_steps']} steps)")
-    print(f"demos {d['episodes_kept']} (seeds {d['seeds']}, {d['frames']} frames, {d['seconds']:.0f} s); "
-          f"training {t['steps']} steps x {recipe.batch_size} in {t['seconds']:.0f} s, {t['n_params']} parameters, "
-          f"final loss {t['final_loss']:.4f}")
+    print(f"demos {d['episodes_kept']} (seeds {d['seeds']}, {d['frames']} frames, {d['seconds'] or 0:.0f} s); "
+          f"training {t['steps']} steps x {recipe.batch_size} in {t['seconds']:.0f} s on {t['device']}, "
+          f"{t['n_params']} parameters, final loss {t['final_loss']:.4f}")
     print(f"{'policy':28} {'eval seeds':>12} {'success':>9} {'Wilson 95 %':>15} {'steps':>6} {'eval s':>7}")
     for key in ("eval", "expert"):
         r = report[key]
