@@ -149,6 +149,7 @@ def test_maniskill_cameras_fail_in_one_line_where_sapien_cannot_render(tmp_path)
     scene = tmp_path / "cam.yaml"
     scene.write_text("benchmark: {name: maniskill, task: PickCube-v1, cameras: true}\n")
     proc = simseam("run", "--scene", str(scene), "--policy", "zero", "--episodes", "1", "--out", str(tmp_path / "r"),
+                   "--video",  # something reads the camera (a state policy alone turns cameras off)
                    env={"VK_ICD_FILENAMES": str(tmp_path / "no_driver.json")})
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
     assert "cameras need a Vulkan device SAPIEN can render with" in proc.stderr

@@ -95,8 +95,9 @@ EXPERT_TASKS = {"PickCube-v1": "solvePickCube", "PushCube-v1": "solvePushCube", 
                 "PegInsertionSide-v1": "solvePegInsertionSide", "PullCube-v1": "solvePullCube",
                 "LiftPegUpright-v1": "solveLiftPegUpright", "PlaceSphere-v1": "solvePlaceSphere"}
 CONTROL_MODES = ("pd_ee_delta_pose", "pd_joint_pos")
+SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 DEFAULTS = {"control_mode": "pd_ee_delta_pose", "max_steps": 0, "cameras": False, "image_size": [128, 128],
-            "expert": False, "environment_state": False}
+            "expert": False, "environment_state": False, "sim_backend": "physx_cpu"}
 SKIP_INFO = ("success", "elapsed_steps", "reconfigure")
 
 
@@ -119,6 +120,12 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
         elif out["control_mode"] != "pd_joint_pos":
             raise ConfigError(f"{where}.control_mode: the motion-planning expert emits pd_joint_pos actions, "
                               f"got {out['control_mode']!r}")
+    if out["sim_backend"] not in SIM_BACKENDS:
+        raise ConfigError(f"{where}.sim_backend: {out['sim_backend']!r}; one of {list(SIM_BACKENDS)} (physx_cuda: "
+                          "ManiSkill's GPU physics, N environments in one sidecar)")
+    if out["expert"] and out["sim_backend"] != "physx_cpu":
+        raise ConfigError(f"{where}: the motion-planning expert plans on the CPU (sim_backend physx_cpu), got "
+                          f"{out['sim_backend']!r}")
     if out["control_mode"] not in CONTROL_MODES:
         raise ConfigError(f"{where}.control_mode: {out['control_mode']!r} is not supported; one of "
                           f"{list(CONTROL_MODES)}")
@@ -181,8 +188,28 @@ def state_names(tree: dict, prefix: str = "") -> list[str]:
     return names
 
 
+def require_gpu_physics() -> None:
+    """``sim_backend: physx_cuda`` fails closed here, before SAPIEN is asked for GPU physics (it would try
+    to download NVIDIA's PhysX GPU library): without that library (``simseam.backends.physx_gpu``), or
+    without a CUDA GPU."""
+    import sapien.physx
+    import torch
+
+    from simseam.backends.physx_gpu import require_library
+
+    require_library(sapien.physx.version())
+    if not torch.cuda.is_available():
+        raise BackendUnavailableError("maniskill: sim_backend physx_cuda needs an NVIDIA GPU with its driver, and "
+                                      "torch sees none here; use sim_backend physx_cpu")
+
+
 class ManiSkillRollout(BenchmarkRollout):
-    def __init__(self, config: dict[str, Any]):
+    """One ManiSkill3 environment (``num_envs`` 1); ``num_envs`` > 1 builds the one GPU-simulated env that
+    ``ManiSkillBatch`` (``backends.maniskill_batch``) drives by index: the spec is the same."""
+
+    def __init__(self, config: dict[str, Any], num_envs: int = 1):
+        if config.get("sim_backend", "physx_cpu") == "physx_cuda":
+            require_gpu_physics()
         self.can_render = allow_physics_only()
         import gymnasium as gym
         import mani_skill
@@ -201,8 +228,8 @@ class ManiSkillRollout(BenchmarkRollout):
                 "maniskill: cameras need a Vulkan device SAPIEN can render with, and there is none here "
                 "(SAPIEN needs descriptor indexing and extended dynamic state: a GPU driver, or on a CPU "
                 "`python -m simseam.backends.software_vulkan` for Mesa 25's lavapipe); or cameras: false")
-        self._kwargs = dict(obs_mode="state", control_mode=config["control_mode"], sim_backend="physx_cpu",
-                            num_envs=1, render_mode=None,
+        self._kwargs = dict(obs_mode="state", control_mode=config["control_mode"],
+                            sim_backend=config.get("sim_backend", "physx_cpu"), num_envs=num_envs, render_mode=None,
                             render_backend="gpu" if config["cameras"] else "none",
                             sensor_configs=dict(width=w, height=h))
         self.env = gym.make(task, **self._kwargs)
@@ -273,7 +300,7 @@ class ManiSkillRollout(BenchmarkRollout):
                           diagnostics=self._diagnostics),
             observation=observation_spec(cameras, tuple(names), tuple(joints), extra),
             action=action,
-            engine=f"maniskill-{mani_skill.__version__}/sapien-{sapien.__version__}/physx_cpu",
+            engine=f"maniskill-{mani_skill.__version__}/sapien-{sapien.__version__}/{self._kwargs['sim_backend']}",
             control_hz=float(self._u.control_freq),
             backend="inprocess",
             capabilities=("privileged",) if config["expert"] else (),
@@ -363,3 +390,22 @@ def make_rollout(config: dict[str, Any]) -> ManiSkillRollout:
 
     logging.getLogger("mani_skill").setLevel(logging.ERROR)  # "no render device" warnings, once per env
     return ManiSkillRollout(config)
+
+
+def batches_natively(config: dict[str, Any]) -> bool:
+    """Whether N environments of ``config`` run as ManiSkill's own batch in one sidecar (``simseam run
+    --num-envs N``), rather than one sidecar each: with GPU physics."""
+    return config.get("sim_backend") == "physx_cuda"
+
+
+def make_batch(config: dict[str, Any], num_envs: int):
+    """``num_envs`` environments in this process (a sidecar booted with ``num_envs``): ManiSkill's own batch
+    (``ManiSkillBatch``: one env simulating them together) with GPU physics, or for one environment; on
+    the CPU, where PhysX simulates one environment per env, and for the expert (it plans per environment),
+    ``num_envs`` rollouts stepped in turn."""
+    from simseam.backends.maniskill_batch import ManiSkillBatch
+    from simseam.seam import SyncBatchRollout
+
+    if config["sim_backend"] == "physx_cuda" or (num_envs == 1 and not config["expert"]):
+        return ManiSkillBatch(config, num_envs)
+    return SyncBatchRollout([make_rollout(config) for _ in range(num_envs)])

@@ -176,7 +176,7 @@ def run(
         return
     try:
         cfg, pol, rollout = _open_run((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps),
-                                      need_images=record_dataset is not None)
+                                      need_images=record_dataset is not None or video)
     except SimseamError as exc:
         run_dir.close()
         fail(exc)
@@ -231,18 +231,17 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             pol.close()
 
     with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
-        from simseam.engines.registry import engine_info
         from simseam.runner.central_render import choose_renderer
+        from simseam.runner.warp_vector import batched_in_one_process, make_vector_env
 
         with console.status(f"loading the policy for {num_envs} environments"):
             probe = make_policy(policy, **policy_kwargs)
         uses_images, privileged = probe.uses_images, probe.requires_privileged
-        batched_engine = engine_info(cfg.engine.name).batched  # N worlds in this process: one policy batch
+        one_batch = batched_in_one_process(cfg, uses_images or video)  # N envs stepped from here: one policy batch
         renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
-        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=batched_engine or renderer == "batched")
+        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=one_batch or renderer == "batched")
         recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
-        from simseam.runner.warp_vector import make_vector_env
 
         with console.status(f"starting {num_envs} environments"):
             vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),

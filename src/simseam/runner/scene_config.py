@@ -143,6 +143,20 @@ def check_engine(cfg: SceneConfig):
     return info
 
 
+def benchmark_config(cfg: SceneConfig, render_images: bool = True) -> dict[str, Any]:
+    """The backend config of a ``benchmark:`` scene, checked (bad fields fail before any process starts);
+    without ``render_images`` (nothing reads images: collect --no-cameras, a state policy) its cameras off."""
+    from simseam.backends import backend_module, normalize_config
+
+    b = cfg.benchmark
+    config = b.backend_config()
+    normalize_config(b.name, config, "benchmark")
+    option = getattr(backend_module(b.name), "CAMERA_OPTION", None)
+    if option and not render_images:
+        config = {**config, option: False}
+    return config
+
+
 def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False, render_images: bool = True,
                   seed: int = 0, progress=None) -> SimRollout:
     """Build the rollout a scene file describes (in-process MuJoCo by default, or a sidecar;
@@ -150,17 +164,10 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     import dataclasses
 
     if cfg.benchmark is not None:
-        from simseam.backends import backend_module, normalize_config
         from simseam.sidecar.benchmark import open_benchmark
 
-        b = cfg.benchmark
-        config = b.backend_config()
-        normalize_config(b.name, config, "benchmark")  # bad fields fail before any process starts
-        option = getattr(backend_module(b.name), "CAMERA_OPTION", None)
-        if option and not render_images:  # nothing reads images (collect --no-cameras, a state policy): none declared
-            config = {**config, option: False}
-        return open_benchmark(b.name, config, privileged=privileged, progress=progress,
-                              boot_timeout=max(cfg.engine.boot_timeout_s, 300.0),
+        return open_benchmark(cfg.benchmark.name, benchmark_config(cfg, render_images), privileged=privileged,
+                              progress=progress, boot_timeout=max(cfg.engine.boot_timeout_s, 300.0),
                               request_timeout=max(cfg.engine.request_timeout_s, 120.0))
 
     from simseam.engines.base import EngineOptions

@@ -281,3 +281,32 @@ def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, vi
             res.diagnostics = dict(r.infos[k].get(INFO_DIAGNOSTICS) or {})
             ended.append((env, res))
     return ended
+
+
+class BatchVectorEnv:
+    """The vector runner's interface (``spec``, ``num_envs``, ``run``, ``close``, ``restarts``) over any
+    ``BatchRollout``: ``run`` is ``run_batch``. What ``simseam run --num-envs`` drives when the environments
+    come batched (MuJoCo Warp's worlds, a backend's own batch in one sidecar) instead of as worker
+    processes (``runner.vector.VectorEnv``, the same interface)."""
+
+    def __init__(self, batch):
+        self.batch = batch
+        self.spec = batch.spec
+        self.num_envs = batch.num_envs
+        self.restarts = 0  # the worker processes' counter of restarted workers: none here
+
+    def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
+            max_attempts: int = 3, on_start=None, on_step=None, on_done=None, on_error=None,
+            on_worker_failure=None) -> list[EpisodeResult]:
+        return run_batch(self.batch, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
+                         on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
+                         on_worker_failure=on_worker_failure)
+
+    def close(self) -> None:
+        self.batch.close()
+
+    def __enter__(self) -> "BatchVectorEnv":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

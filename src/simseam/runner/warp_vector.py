@@ -1,21 +1,19 @@
-"""Vectorized episodes on MuJoCo Warp: N worlds in one process instead of N worker processes.
+"""Vectorized episodes without worker processes: N worlds on MuJoCo Warp, or a benchmark's own batch.
 
-``WarpVectorEnv`` offers the vector runner's interface (``spec``, ``num_envs``, ``run(policy,
-indices, seed=..., on_start, on_step, on_done, ...)``, ``close``) over one ``BatchedScene``: its
-worlds as a ``BatchRollout`` (``WarpBatchRollout``; environment ``j`` is world ``j``) run by the
-episode scheduler (``runner.scheduler``), with the same per-environment semantics as the worker
-processes. A policy with ``act_device(state)`` gets the batch's device arrays instead
-(``BatchedScene.device_observation()``, no host copy). ``make_vector_env`` picks it for scenes
-whose engine is ``mujoco_warp``.
+``WarpVectorEnv`` is the episode scheduler's ``BatchVectorEnv`` over one ``BatchedScene``'s worlds
+(``WarpBatchRollout``; environment ``j`` is world ``j``), with the same per-environment semantics as the
+worker processes. A policy with ``act_device(state)`` gets the batch's device arrays instead
+(``BatchedScene.device_observation()``, no host copy). ``make_vector_env`` picks it for scenes whose
+engine is ``mujoco_warp``, a sidecar batch (``SidecarBatchRollout``) for a benchmark whose backend
+simulates the environments together (ManiSkill3 on ``physx_cuda``), and the worker processes otherwise.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable
 
-from simseam.runner.episodes import EpisodeResult
-from simseam.runner.scheduler import run_batch
+from simseam.runner.scheduler import BatchVectorEnv
 from simseam.seam import ConfigError
 
 
@@ -34,54 +32,56 @@ def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, pri
                         WarpOptions(device=device or eng.device))
 
 
-class WarpVectorEnv:
+class WarpVectorEnv(BatchVectorEnv):
     """``num_envs`` worlds of one scene on MuJoCo Warp behind the vector runner's interface."""
 
-    def __init__(self, batch):
+    def __init__(self, scene):
         from simseam.scene.warp import WarpBatchRollout
 
-        self.batch = batch
-        self.rollout = WarpBatchRollout(batch)
-        self.num_envs = batch.num_envs
-        self.spec = batch.spec
-        self.restarts = 0  # the vector runner's counter of restarted workers: there are none here
+        super().__init__(WarpBatchRollout(scene))
+        self.scene = scene
 
     @classmethod
     def from_config(cls, cfg, base_dir: Path, num_envs: int | None = None, **kwargs) -> "WarpVectorEnv":
         return cls(build_batched_scene(cfg, base_dir, num_envs, **kwargs))
 
-    def close(self) -> None:
-        self.batch.close()
-
-    def __enter__(self) -> "WarpVectorEnv":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3,
-            on_start: Callable[[int, int], None] | None = None,
-            on_step: Callable[[int, int, int], None] | None = None,
-            on_done: Callable[[EpisodeResult], None] | None = None,
-            on_error: Callable[[EpisodeResult, str], None] | None = None,
-            on_worker_failure=None) -> list[EpisodeResult]:
-        """Run episodes ``indices`` with the episode scheduler (``runner.scheduler``); callbacks as the
-        vector runner's (no worker can fail here: ``max_attempts``, ``on_error`` and
-        ``on_worker_failure`` go unused)."""
+    def run(self, policy, indices, *, video_dir: Path | None = None, **kwargs):
         if video_dir is not None:
             raise ConfigError("engine 'mujoco_warp': videos are not recorded in batched runs (drop --video)")
-        return run_batch(self.rollout, policy, indices, seed=seed, on_start=on_start, on_step=on_step,
-                         on_done=on_done)
+        return super().run(policy, indices, **kwargs)
 
 
-def make_vector_env(cfg, base_dir: Path, num_envs: int, recipe_factory: Callable | None = None, **kwargs):
-    """The vector environment for a scene: ``WarpVectorEnv`` (N worlds, one process) when its engine is
-    ``mujoco_warp``, else the vector runner's worker processes (``recipe_factory()`` -> VectorEnv)."""
+def batched_in_one_process(cfg, render_images: bool = True) -> bool:
+    """Whether ``make_vector_env`` gives this scene's environments as one batch (MuJoCo Warp's worlds, a
+    backend's own batch), stepped from this process, rather than as worker processes."""
+    from simseam.backends import backend_module
     from simseam.engines.registry import engine_info
 
-    if cfg.benchmark is None and engine_info(cfg.engine.name).batched:
-        return WarpVectorEnv.from_config(cfg, base_dir, num_envs, **kwargs)
-    if recipe_factory is None:
-        raise ConfigError(f"engine {cfg.engine.name!r} runs vectorized through worker processes (runner.vector)")
-    return recipe_factory()
+    if cfg.benchmark is None:
+        return engine_info(cfg.engine.name).batched
+    from simseam.runner.scene_config import benchmark_config
+
+    native = getattr(backend_module(cfg.benchmark.name), "batches_natively", None)
+    return native is not None and native(benchmark_config(cfg, render_images))
+
+
+def make_vector_env(cfg, base_dir: Path, num_envs: int, recipe_factory: Callable | None = None, *,
+                    privileged: bool = False, render_images: bool = True, seed: int = 0):
+    """The vector environment for a scene: ``WarpVectorEnv`` (N worlds, one process) when its engine is
+    ``mujoco_warp``; one sidecar holding the backend's own batch when its benchmark simulates the
+    environments together (``batches_natively(config)``); else the worker processes (``recipe_factory()``
+    -> VectorEnv)."""
+    if not batched_in_one_process(cfg, render_images):
+        if recipe_factory is None:
+            raise ConfigError(f"engine {cfg.engine.name!r} runs vectorized through worker processes (runner.vector)")
+        return recipe_factory()
+    if cfg.benchmark is None:
+        return WarpVectorEnv.from_config(cfg, base_dir, num_envs, privileged=privileged,
+                                         render_images=render_images, seed=seed)
+    from simseam.runner.scene_config import benchmark_config
+    from simseam.sidecar.benchmark import open_benchmark
+
+    config = benchmark_config(cfg, render_images)
+    return BatchVectorEnv(open_benchmark(cfg.benchmark.name, config, privileged=privileged, num_envs=num_envs,
+                                         boot_timeout=max(cfg.engine.boot_timeout_s, 300.0),
+                                         request_timeout=max(cfg.engine.request_timeout_s, 120.0)))

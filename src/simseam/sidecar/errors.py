@@ -3,7 +3,7 @@ inside the sidecar comes back as a ``RemoteError`` (a ``SimulationError``)."""
 
 from __future__ import annotations
 
-from simseam.seam import SidecarError, SimulationError
+from simseam.seam import BackendUnavailableError, SidecarError, SimulationError
 
 
 class SidecarCrashed(SidecarError):
@@ -50,6 +50,19 @@ class RemoteConfigError(RemoteError, ValueError):
     """The sidecar could not build or run the scene as configured."""
 
 
+class RemoteBackendUnavailable(RemoteError, BackendUnavailableError):
+    """The sidecar's machine lacks what the configured backend needs (a library, a device); its message says
+    what and how to get it, and is this error's whole text."""
+
+    def __init__(self, kind: str, message: str, remote_traceback: str = ""):
+        super().__init__(kind, message, remote_traceback)
+        self.args = (message,)
+
+    def __str__(self) -> str:
+        return self.remote_message
+
+
 def remote_error(kind: str, message: str, tb: str = "") -> RemoteError:
-    cls = {"InvalidActionError": RemoteInvalidAction, "ConfigError": RemoteConfigError}.get(kind, RemoteError)
+    cls = {"InvalidActionError": RemoteInvalidAction, "ConfigError": RemoteConfigError,
+           "BackendUnavailableError": RemoteBackendUnavailable}.get(kind, RemoteError)
     return cls(kind, message, tb)
