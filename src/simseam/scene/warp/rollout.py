@@ -80,70 +80,45 @@ def _link_poses(batch, w: int) -> dict[str, np.ndarray]:
 
 
 class WarpRollout:
-    """A ``SimRollout`` over one world of MuJoCo Warp (a ``BatchedScene`` of one)."""
+    """A ``SimRollout`` over one world of MuJoCo Warp: a ``WarpBatchRollout`` of one."""
 
     def __init__(self, robot, task: str, options=None, warp_options=None):
-        from simseam.scene.warp.batched import BatchedScene
-
-        self.batch = BatchedScene(robot, task, 1, options, warp_options)
-        self._seed_stream = np.random.default_rng(self.batch.options.seed)
-        self._ready = False
-        self._closed = False
-        self._frame = None
+        self.worlds = WarpBatchRollout.build(robot, task, 1, options, warp_options)
+        self.batch = self.worlds.batch  # the BatchedScene
+        self._frame = None  # the first camera's frame of the last observation (render() re-uses it)
 
     @property
     def spec(self) -> RolloutSpec:
-        return self.batch.spec
+        return self.worlds.spec
 
     @property
     def action_dim(self) -> int:
-        return self.batch.action_dim
+        return self.worlds.spec.action.dim
 
     def reset(self, seed: int | None = None, observe: ObsRequest | None = None) -> Observation:
-        self._check_open()
-        if seed is None:
-            seed = int(self._seed_stream.integers(0, 2**31 - 1))
-        self.batch.reset([0], [seed])
-        self._ready = True
-        return self._observe(observe)
+        return self._keep_frame(self.worlds.reset([0], [seed], observe)[0])
 
     def step(self, action: np.ndarray, observe: ObsRequest | None = None) -> StepResult:
-        self._check_open()
-        if not self._ready:
-            raise SimulationError("step() called before reset()")
-        a = self.spec.action.validate(action)  # InvalidActionError before anything changes
-        r = self.batch.step(a[None, :])
-        obs = self._observe(observe)
-        info = {self.spec.task.success_key: bool(r.success[0]), INFO_STEPS: int(r.steps[0]),
-                INFO_DIAGNOSTICS: self.batch.diagnostics(0)}
-        return StepResult(obs, float(r.reward[0]), bool(r.terminated[0]), bool(r.truncated[0]), info)
+        a = self.spec.action.validate(action)  # a single rollout's InvalidActionError, before anything changes
+        r = self.worlds.step([0], a[None, :], observe)[0]
+        self._keep_frame(r.observation)
+        return r
 
-    def _observe(self, request) -> Observation:
-        obs = world_observations(self.batch, [0], [request])[0]
+    def _keep_frame(self, obs: Observation) -> Observation:
         key = next(iter(self.batch.cameras), None)
         self._frame = obs[OBS_IMAGES].get(key) if key else None
         return obs
 
     def render(self) -> np.ndarray | None:
-        self._check_open()
-        if self.batch.rc is None:
-            return None
-        if self._frame is None:
-            key = next(iter(self.batch.cameras))
-            self._frame = self.batch.render()[key].numpy()[0]
+        if self._frame is None or self.worlds.closed:
+            self._frame = self.worlds.render(0)  # (a closed batch raises)
         return self._frame
 
     def sim_time_ns(self) -> int:
         return self.batch.sim_time_ns(0)
 
     def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self.batch.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise SimulationError("the rollout is closed")
+        self.worlds.close()
 
     def __enter__(self) -> "WarpRollout":
         return self
@@ -236,6 +211,10 @@ class WarpBatchRollout:
 
     def failures(self) -> dict:
         return {}  # the worlds share one process and one device: none fails alone
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
 
     def close(self) -> None:
         if not self._closed:
