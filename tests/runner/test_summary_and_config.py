@@ -25,6 +25,24 @@ def test_summary_counts_and_latency_stats():
     assert s["diagnostics_mean"] == {"d": 1.5, "ok": 0.5}
 
 
+def test_each_tasks_wilson_interval_is_over_that_tasks_episodes_only():
+    """Catches: a per-task Wilson interval computed over all episodes (10/15) instead of the task's own."""
+    ok = {"reach": [True] * 9 + [False], "push": [True] + [False] * 4}  # 9/10 and 1/5; 10/15 overall
+    eps, i = [], 0
+    for k in range(10):  # the tasks' episodes interleaved, as parallel workers log them
+        for task in ("reach", "push"):
+            if k < len(ok[task]):
+                eps.append({**EpisodeResult(i, i, success=ok[task][k], steps=3, reward=0.0).to_json(), "task": task})
+                i += 1
+    s = build_summary({}, None, eps)
+    assert s["success_rate_wilson95"] == pytest.approx([0.4171, 0.8482], abs=1e-4)  # all 15 episodes
+    reach, push = s["per_task"]["reach"], s["per_task"]["push"]
+    assert (reach["n_episodes"], reach["n_success"], push["n_episodes"], push["n_success"]) == (10, 9, 5, 1)
+    assert reach["success_rate_wilson95"] == pytest.approx([0.5958, 0.9821], abs=1e-4)  # Wilson 9/10
+    assert push["success_rate_wilson95"] == pytest.approx([0.0362, 0.6245], abs=1e-4)  # Wilson 1/5
+    assert s["mean_task_success_rate"] == pytest.approx((0.9 + 0.2) / 2)
+
+
 def _write(tmp_path, text):
     p = tmp_path / "scene.yaml"
     p.write_text(text)
