@@ -127,6 +127,29 @@ def test_resume_skips_recorded_episodes(scene, tmp_path):
     assert summary["n_episodes"] == 3 and summary["complete"] is True
 
 
+def test_resume_from_a_log_with_a_gap_runs_exactly_the_missing_episode(scene, tmp_path):
+    """Catches: resume counting recorded episodes instead of reading their indices (a gap, as parallel
+    workers leave it, skips episode 2 and re-runs episode 4)."""
+    out = tmp_path / "run"
+    args = ("run", "--scene", scene(), "--policy", "zero", "--episodes", "5", "--seed", "10", "--out", out)
+    first = _simseam(*args)
+    assert first.returncode == 0, first.stderr
+    by_index = {e["index"]: line for line, e in zip((out / "episodes.jsonl").read_text().splitlines(), _log(out))}
+    assert sorted(by_index) == [0, 1, 2, 3, 4]
+    kept = [by_index[i] for i in (0, 1, 3, 4)]  # episode 2 never finished; the later ones did
+    (out / "episodes.jsonl").write_text("\n".join(kept) + "\n")
+    resumed = _simseam(*args, "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "4 episode(s) already recorded, 1 to run" in resumed.stdout
+    ran = [line.split()[:4] for line in resumed.stdout.splitlines() if line.startswith("episode ")]
+    assert ran == [["episode", "2", "seed", "12"]], resumed.stdout
+    lines = (out / "episodes.jsonl").read_text().splitlines()
+    assert lines[:4] == kept and len(lines) == 5  # nothing re-run, nothing rewritten
+    assert (json.loads(lines[4])["index"], json.loads(lines[4])["seed"]) == (2, 12)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["n_episodes"] == 5 and summary["complete"] is True
+
+
 def test_default_out_is_a_new_directory_per_run_with_latest(scene, tmp_path):
     for _ in range(2):
         proc = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", cwd=tmp_path)
