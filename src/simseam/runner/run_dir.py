@@ -7,6 +7,7 @@ Layout of ``DIR``::
     episodes.jsonl    one JSON line per finished episode, appended, flushed and fsynced as it ends
     summary.json      rebuilt from episodes.jsonl, written atomically (temp file + rename)
     episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
+    report.html       the results page (runner/report.py), written when the run completes
 
 Rules: the directory is checked when the ``RunDir`` is made (a file, or a place
 where no directory can be created or written, is a ``ConfigError``), and nothing
@@ -36,6 +37,7 @@ CONFIG_FILE = "run.json"
 SPEC_FILE = "spec.json"
 LOG_FILE = "episodes.jsonl"
 SUMMARY_FILE = "summary.json"
+REPORT_FILE = "report.html"
 RUN_FILES = (CONFIG_FILE, SPEC_FILE, LOG_FILE, SUMMARY_FILE)
 
 
@@ -143,7 +145,7 @@ class RunDir:
         try:
             if self.held and not self.resume:
                 for f in self.path.iterdir():
-                    if f.name in RUN_FILES or (f.name.startswith("episode_") and f.suffix == ".mp4"):
+                    if f.name in (*RUN_FILES, REPORT_FILE) or (f.name.startswith("episode_") and f.suffix == ".mp4"):
                         f.unlink()
             self.path.mkdir(parents=True, exist_ok=True)
             if not (self.resume and self.held):
@@ -226,6 +228,13 @@ def _read_log(path: Path) -> tuple[list[dict], list[int]]:
 
 def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: bool = False) -> dict:
     """Rebuild ``DIR/summary.json`` from its config and episode log; returns the summary."""
+    summary = summary_of(path, spec_json, interrupted=interrupted)
+    write_json_atomic(Path(path) / SUMMARY_FILE, summary)
+    return summary
+
+
+def summary_of(path: Path, spec_json: dict | None = None, *, interrupted: bool = False) -> dict:
+    """The summary of the run in ``DIR`` (its config, spec and episode log), computed and not written."""
     from simseam.runner.summary import build_summary
 
     path = Path(path)
@@ -248,5 +257,4 @@ def rebuild_summary(path: Path, spec_json: dict | None = None, *, interrupted: b
                            and all(i in have for i in planned))
     if damaged:
         summary["damaged_log_lines"] = damaged
-    write_json_atomic(path / SUMMARY_FILE, summary)
     return summary
