@@ -16,8 +16,8 @@
 #      FFmpeg's shared libraries for video decoding, and the openpi client (used by the tests).
 # What is set up depends on the third argument, the job:
 #   (none)    the demo: 1 and a venv with simseam and the robot model packages only;
-#   dev       what the tests need on any interpreter: 1, 2 (with the dev and warp extras), 3, 4 and the
-#             ROS 2 / Foxglove test peers;
+#   dev       what the tests need on any interpreter: 1, 2 (with the dev and warp extras), 3, 4, the
+#             ROS 2 / Foxglove test peers and Debian's chromium (the results page's browser test);
 #   learning  dev, plus 5.
 # A cached venv set up for more serves a job that needs less (a test venv serves the demo).
 # Every cache below lives under one root, $SIMSEAM_CACHE (default ~/.cache/simseam): point it at a scratch
@@ -158,6 +158,14 @@ if [ -z "$LEARNING" ]; then return 0 2>/dev/null || exit 0; fi  # the demo needs
 # cameras on a machine without a GPU (simseam/backends/software_vulkan.py; a GPU's own driver wins)
 "$VENV/bin/python" -m simseam.backends.software_vulkan \
   || echo "[simseam] WARNING: no software Vulkan driver; ManiSkill3's camera tests will fail" >&2
+
+# headless Chromium for the results page's browser test (tests/cli/test_report_cli.py): Debian's own, without
+# its recommends (~120 MB downloaded and ~390 MB installed on this image, once); writing the page needs no browser
+if ! command -v chromium >/dev/null 2>&1; then
+  echo "[simseam] installing Debian's chromium (the results page's browser test)"
+  { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends \
+      chromium >/dev/null; } || echo "[simseam] WARNING: could not install chromium; tests/cli/test_report_cli.py will fail" >&2
+fi
 
 # --- ROS 2 / Foxglove test peers (tests/ros2): rclpy Jazzy venv + @foxglove/ws-protocol client,
 # cached outside the repo under ~/.cache/simseam/, keyed by their pins (scripts/setup_ros_peers.sh)

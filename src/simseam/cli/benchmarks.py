@@ -10,6 +10,7 @@ from rich.table import Table
 
 from simseam.cli.common import EvalProgress, close_policy, console, episodes_guard, err_console, fail, never_started, \
     policy_kwargs, redacted
+from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
 
@@ -246,6 +247,8 @@ def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:
         never_started(out, interrupted)
     print_task_table(summary, f"{p.name} ({policy})")
     console.print(f"summary: {escape(str(out / 'summary.json'))}")
+    if summary["complete"]:
+        report_after_run(out)
     if interrupted:
         raise typer.Exit(code=130)
 

@@ -1,5 +1,5 @@
-"""``simseam`` command line: run | eval | summarize | collect | train | serve-policy | deploy | robots | backends |
-benchmarks | sidecar | isaac | doctor."""
+"""``simseam`` command line: run | eval | summarize | report | collect | train | serve-policy | deploy | robots |
+backends | benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from simseam.cli.common import (EvalProgress, check_seed, close_policy, console,
                                 never_started, policy_kwargs, redacted, sigterm_as_interrupt)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
+from simseam.cli.report import report, report_after_run
 from simseam.cli.serve_policy import serve_policy
 from simseam.seam import ConfigError, SimseamError
 
@@ -32,6 +33,7 @@ app.command("serve-policy")(serve_policy)
 app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
+app.command("report")(report)
 def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
               keep_failures: bool = True, on_result=None) -> list:
     """``runner.session.run_episodes`` with a progress bar and one line per episode."""
@@ -333,6 +335,8 @@ def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
         f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
     )
+    if summary["complete"]:
+        report_after_run(out)
 
 
 @app.command()
