@@ -121,6 +121,71 @@ def test_a_sidecar_crash_costs_its_episode_only_recorded_with_its_error(panda_sp
     assert errors == [(2, "restarting the sidecar")] and sum(r.restarts for r in rollouts) == 1
 
 
+class _Counting:
+    """A rollout without a simulator: every episode ends (success) after ``length`` steps; its sidecar
+    crashes at the first step of ``crash_seed``. Records the seeds it was reset with."""
+
+    def __init__(self, length: int, crash_seed: int | None = None):
+        import dataclasses
+
+        from spec_factory import make_spec
+
+        self.spec = dataclasses.replace(make_spec(action_dim=2, cameras={}), capabilities=("restart",))
+        self.length, self.crash_seed = length, crash_seed
+        self.seeds, self.restarts, self.t = [], 0, 0
+
+    def reset(self, seed=None, observe=None):
+        self.seeds.append(seed)
+        self.t = 0
+        return {}
+
+    def step(self, action, observe=None):
+        from simseam.seam import SidecarError, StepResult
+
+        self.t += 1
+        if self.seeds[-1] == self.crash_seed:
+            raise SidecarError("the sidecar process exited (signal 9)")
+        done = self.t >= self.length
+        return StepResult({}, 0.0, done, False, {"success": done})
+
+    def restart(self):
+        self.restarts += 1
+
+    def close(self):
+        pass
+
+
+class _Still:
+    """A policy batch that sends zero actions."""
+
+    n = 2
+
+    def reset(self, env, spec):
+        pass
+
+    def observe_next(self, env):
+        return None
+
+    def act_batch(self, envs, observations):
+        return np.zeros((len(envs), 2), np.float32)
+
+
+def test_a_sidecar_error_is_recorded_under_the_episodes_index_and_seed_not_the_environments():
+    """Catches: a failed episode's error result made from the environment's slot (index 1, seed 41)
+    instead of the episode it was playing (index 3, seed 43)."""
+    env0, env1 = _Counting(length=20), _Counting(length=2, crash_seed=43)
+    errors = []
+    with SyncBatchRollout([env0, env1]) as batch:
+        results = run_batch(batch, _Still(), range(5), seed=40, on_error=lambda r, what: errors.append((r, what)))
+    assert env1.seeds[:3] == [41, 42, 43] and sorted(env0.seeds + env1.seeds) == [40, 41, 42, 43, 44]  # 3 on env 1
+    assert sorted(r.index for r in results) == [0, 1, 2, 3, 4]  # each episode once
+    (err,) = [r for r in results if r.error]
+    assert (err.index, err.seed, err.success, err.steps) == (3, 43, False, 0)
+    assert err.error == "SidecarError: the sidecar process exited (signal 9)"
+    assert [(r.index, r.seed, what) for r, what in errors] == [(3, 43, "restarting the sidecar")]
+    assert {r.index: r.seed for r in results} == {i: 40 + i for i in range(5)} and env1.restarts == 1
+
+
 def test_videos_of_a_batch_that_renders_are_written_by_the_scheduler(panda_spec, tmp_path):
     """One MP4 per finished episode (reset frame + one per step), none left under a partial name."""
     import av
