@@ -72,7 +72,7 @@ def test_each_task_gets_the_wilson_interval_of_its_own_episodes(tmp_path):
     assert f"4/4 = 100% [{lo:.2f}, {hi:.2f}]" in text and "0/4 = 0%" in text
     lo, hi = wilson_interval(4, 8)
     assert f"4/8 = 50% [{lo:.2f}, {hi:.2f}]" in text  # the pooled row, shown as such
-    assert "all (pooled)" in text
+    assert "all (pooled)" in text and "<td><b>mean of tasks</b></td><td class=num>50%</td>" in text
 
 
 def test_runs_side_by_side_in_the_order_given(tmp_path):

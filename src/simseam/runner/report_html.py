@@ -79,6 +79,9 @@ def success_section(runs: list) -> str:
                    for t in tasks)
     if len(tasks) > 1:
         rows += "<tr><td><b>all (pooled)</b></td>" + "".join(success_cell(r.summary) for r in runs) + "</tr>"
+        rows += "<tr><td><b>mean of tasks</b></td>" + "".join(
+            f"<td class=num>{r.summary['mean_task_success_rate']:.0%}</td>" if "mean_task_success_rate" in
+            r.summary else "<td></td>" for r in runs) + "</tr>"
     return ("<h2>Success per task</h2><p class=note>Bars: the success rate; lines: its Wilson 95 % interval, "
             f"computed over that task's episodes.</p>{success_chart(runs, tasks)}"
             f"<table><tr><th>task</th>{head}</tr>{rows}</table>")
