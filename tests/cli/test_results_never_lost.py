@@ -128,8 +128,7 @@ def test_resume_skips_recorded_episodes(scene, tmp_path):
 
 
 def test_resume_from_a_log_with_a_gap_runs_exactly_the_missing_episode(scene, tmp_path):
-    """Catches: resume counting recorded episodes instead of reading their indices (a gap, as parallel
-    workers leave it, skips episode 2 and re-runs episode 4)."""
+    """Catches: resume counting logged episodes instead of reading their indices (would skip 2, re-run 4)."""
     out = tmp_path / "run"
     args = ("run", "--scene", scene(), "--policy", "zero", "--episodes", "5", "--seed", "10", "--out", out)
     first = _simseam(*args)

@@ -9,8 +9,7 @@ from simseam.runner.episodes import EpisodeResult
 
 
 def test_an_eval_resumed_from_a_log_with_a_gap_queues_exactly_the_missing_episodes(tmp_path):
-    """Catches: resume counting recorded episodes instead of reading their indices (episodes 2 and 5
-    missing: a count of 4 would skip 2 and re-run 4)."""
+    """Catches: resume counting logged episodes instead of reading their indices (would skip 2, re-run 4)."""
     config = {"tasks": ["reach-v3", "push-v3"], "episodes": 6, "episodes_per_task": 3, "seed": 0}
     (tmp_path / "run.json").write_text(json.dumps(config))
     (tmp_path / "episodes.jsonl").write_text("".join(

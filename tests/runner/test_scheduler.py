@@ -171,8 +171,7 @@ class _Still:
 
 
 def test_a_sidecar_error_is_recorded_under_the_episodes_index_and_seed_not_the_environments():
-    """Catches: a failed episode's error result made from the environment's slot (index 1, seed 41)
-    instead of the episode it was playing (index 3, seed 43)."""
+    """Catches: a sidecar error result made from the environment's slot (1, seed 41), not its episode (3, 43)."""
     env0, env1 = _Counting(length=20), _Counting(length=2, crash_seed=43)
     errors = []
     with SyncBatchRollout([env0, env1]) as batch:

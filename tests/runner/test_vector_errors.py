@@ -73,8 +73,7 @@ def _check(results, errors):
 
 
 def test_run_records_a_workers_sidecar_error_under_the_episode(recipe):
-    """Catches: a worker's sidecar error recorded under the worker slot's index and seed (0 or 1, 10 or 11)
-    instead of the episode's (3, 13), when the scheduler steps the workers."""
+    """Catches: a worker's sidecar error recorded under the worker slot's index and seed (scheduler path)."""
     errors = []
     with VectorEnv(recipe, 2) as vec:
         results = vec.run(make_policy_batch("zero", 2), range(4), seed=SEED,
@@ -83,8 +82,7 @@ def test_run_records_a_workers_sidecar_error_under_the_episode(recipe):
 
 
 def test_run_local_records_a_workers_sidecar_error_under_the_episode(recipe):
-    """Catches: a worker's sidecar error recorded under the worker slot's index and seed instead of the
-    episode's, when the policies play inside the workers."""
+    """Catches: a worker's sidecar error recorded under the worker slot's index and seed (run_local path)."""
     errors = []
     with VectorEnv(recipe, 2) as vec:
         results = vec.run_local("zero", {}, range(4), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
