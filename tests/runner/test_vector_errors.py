@@ -7,7 +7,6 @@ import dataclasses
 import pytest
 
 from simseam.policies.batch import make_policy_batch
-from simseam.runner.recipe import SceneRecipe
 from simseam.runner.scene_config import load_scene_config
 from simseam.runner.vector import VectorEnv
 
@@ -46,21 +45,30 @@ class _CrashAt:
 
 
 @dataclasses.dataclass(frozen=True)
-class _CrashingRecipe(SceneRecipe):
-    """Built in each worker process (picklable: this module is importable there)."""
+class _CrashingRecipe:
+    """The scene file's rollout, crashing at ``crash_seed``: built in each worker process (picklable:
+    this module is importable there)."""
 
-    crash_seed: int = -1
+    scene_file: str
+    crash_seed: int
 
     def build(self):
-        return _CrashAt(super().build(), self.crash_seed)
+        from pathlib import Path
+
+        from simseam.runner.scene_config import build_rollout
+
+        cfg, base = load_scene_config(Path(self.scene_file))
+        return _CrashAt(build_rollout(cfg, base, render_images=False, seed=SEED), self.crash_seed)
+
+    def rollout_for(self, rollout, index, seed):
+        return rollout, seed
 
 
 @pytest.fixture
 def recipe(tmp_path) -> _CrashingRecipe:
     path = tmp_path / "scene.yaml"
     path.write_text(SCENE)
-    cfg, base = load_scene_config(path)
-    return _CrashingRecipe(cfg.model_dump(mode="json"), str(base), render_images=False, seed=SEED, crash_seed=CRASH)
+    return _CrashingRecipe(str(path), CRASH)
 
 
 def _check(results, errors):
