@@ -162,11 +162,11 @@ def recipe_for(case: str, steps: int):
     if not sidecar:
         return BenchRecipe(image, steps, render_images=image is not None)
     from simseam.runner.scene_config import SceneConfig
-    from simseam.runner.vector import RolloutRecipe
+    from simseam.runner.recipe import SceneRecipe
 
     cfg = SceneConfig.model_validate({"robot": ROBOT, "task": "lift_cube", "engine": {"name": "mujoco", "process": "sidecar"},
                                       "max_steps": steps, "control_hz": 20})
-    return RolloutRecipe(cfg.model_dump(mode="json"), str(Path.cwd()), render_images=False)
+    return SceneRecipe(cfg.model_dump(mode="json"), str(Path.cwd()), render_images=False)
 
 
 class ZeroBatch(PolicyBatch):

@@ -107,7 +107,8 @@ def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
     """`simseam run --num-envs 2 --policy lerobot:...`'s loop: worker processes render, the parent batches."""
     from simseam.runner.scene_config import build_rollout, load_scene_config
     from simseam.runner.session import run_episodes
-    from simseam.runner.vector import RolloutRecipe, VectorEnv
+    from simseam.runner.recipe import SceneRecipe
+    from simseam.runner.vector import VectorEnv
 
     out, _ = tiny_act
     scene = tmp_path / "scene.yaml"
@@ -119,7 +120,7 @@ def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
     finally:
         rollout.close()
     batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
-    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2) as vec:
+    with VectorEnv(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2) as vec:
         got = {r.index: r for r in vec.run(batch, range(3), seed=4)}
     assert batch.forward_passes < batch.chunks_predicted  # the two environments shared forward passes
     for ref in reference:

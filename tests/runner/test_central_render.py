@@ -24,7 +24,8 @@ from simseam.policies.batch import PerEnvPolicies
 from simseam.robot.manifest import load_robot
 from simseam.runner.central_render import CentralRenderer, choose_renderer, cuda_available, unsupported
 from simseam.runner.scene_config import SceneConfig
-from simseam.runner.vector import RolloutRecipe, VectorEnv
+from simseam.runner.recipe import SceneRecipe
+from simseam.runner.vector import VectorEnv
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
 
@@ -53,10 +54,10 @@ def _geometry_problems(got, want) -> list[str]:
     return problems
 
 
-def _recipe(privileged=True) -> RolloutRecipe:
+def _recipe(privileged=True) -> SceneRecipe:
     cfg = SceneConfig.model_validate({"robot": "franka_panda", "task": "lift_cube", "image_size": list(SIZE),
                                       "max_steps": STEPS})
-    return RolloutRecipe(cfg.model_dump(mode="json"), ".", privileged=privileged, render_images=True)
+    return SceneRecipe(cfg.model_dump(mode="json"), ".", privileged=privileged, render_images=True)
 
 
 # the request the policy makes at each step (cycled): every camera, one camera, none
@@ -185,7 +186,7 @@ def test_what_the_central_renderer_cannot_serve_is_a_clear_error(tmp_path):
     with pytest.raises(ConfigError, match="--renderer must be one of"):
         choose_renderer("gpu", {}, True)
     cfg = SceneConfig.model_validate({"robot": "panda_mobile", "task": "nav_obstacles"})
-    mobile = RolloutRecipe(cfg.model_dump(mode="json"), ".", render_images=True)
+    mobile = SceneRecipe(cfg.model_dump(mode="json"), ".", render_images=True)
     with pytest.raises(ConfigError, match="renderer 'batched': robot 'panda_mobile' has (depth cameras|a lidar)"):
         CentralRenderer(mobile, 2)
 

@@ -1,5 +1,5 @@
 """Evaluation presets' per-task fields (``Preset.per_task``): every path that opens a task's rollout
-(sequential ``run_eval``, worker processes and Ray through ``EvalRecipe``) gives the task its own fields
+(sequential ``run_eval``, worker processes and Ray through ``BenchmarkRecipe``) gives the task its own fields
 over the preset's, and run.json records them. No backend is started: ``open_benchmark`` is replaced."""
 
 from __future__ import annotations
@@ -9,7 +9,8 @@ import pickle
 import pytest
 
 from simseam.runner import evaluate
-from simseam.runner.evaluate import EvalRecipe, eval_config, preset
+from simseam.runner.evaluate import eval_config, preset
+from simseam.runner.recipe import BenchmarkRecipe
 
 
 def test_maniskill_mp_preset_runs_the_planners_control_mode_at_the_baselines_step_limits():
@@ -44,7 +45,7 @@ def test_eval_recipe_opens_each_task_with_its_own_fields(monkeypatch, first_task
     monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
     p = preset("maniskill_tabletop_mp")
     tasks = ("PickCube-v1", "PushCube-v1", "StackCube-v1")
-    recipe = EvalRecipe(p.backend, p.backend_config(False), tasks, 4, True, first_task=first_task,
+    recipe = BenchmarkRecipe(p.backend, p.backend_config(False), tasks, 4, True, first_task=first_task,
                         per_task=p.per_task)
     recipe = pickle.loads(pickle.dumps(recipe))  # what worker processes and Ray actors receive
     rollout = recipe.build()

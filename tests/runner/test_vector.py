@@ -11,7 +11,8 @@ from simseam.policies.base import make_policy
 from simseam.policies.batch import PerEnvPolicies, make_policy_batch
 from simseam.runner.scene_config import build_rollout, load_scene_config
 from simseam.runner.session import run_episodes
-from simseam.runner.vector import RolloutRecipe, VectorEnv, default_num_envs
+from simseam.runner.recipe import SceneRecipe
+from simseam.runner.vector import VectorEnv, default_num_envs
 from simseam.seam import ConfigError
 
 SCENE = """robot: franka_panda
@@ -44,9 +45,9 @@ def _sequential(scene_path: Path, policy: str, indices, seed: int) -> dict[int, 
         rollout.close()
 
 
-def _recipe(scene_path: Path, policy, seed: int) -> RolloutRecipe:
+def _recipe(scene_path: Path, policy, seed: int) -> SceneRecipe:
     cfg, base = load_scene_config(scene_path)
-    return RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=policy.requires_privileged,
+    return SceneRecipe(cfg.model_dump(mode="json"), str(base), privileged=policy.requires_privileged,
                          render_images=policy.uses_images, seed=seed)
 
 
@@ -104,7 +105,7 @@ def test_a_bad_scene_fails_in_the_parent_with_its_error(tmp_path):
     path.write_text("robot: franka_panda\ntask: no_such_task\n")
     cfg, base = load_scene_config(path)
     with pytest.raises(ConfigError, match="no_such_task"):
-        VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2)
+        VectorEnv(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2)
 
 
 def test_default_num_envs_is_sized_to_cores_and_episodes():
@@ -143,7 +144,7 @@ def test_images_reach_the_policy_intact_through_shared_memory(tmp_path):
     path.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [64, 80]\nmax_steps: 4\n")
     cfg, base = load_scene_config(path)
     pol = _ImageLog(1)
-    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 1) as vec:
+    with VectorEnv(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 1) as vec:
         vec.run(pol, [0, 1], seed=9)
         assert vec.slots[0].mm is not None  # the images came through the shared block
     frames = pol.seen[0]
@@ -169,7 +170,7 @@ def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_pa
     scene = _scene(tmp_path, steps=60)
     reference = _sequential(scene, "scripted", range(6), seed=1)
     cfg, base = load_scene_config(scene)
-    recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base), privileged=True, render_images=False)
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), privileged=True, render_images=False)
     failures, done, killed = [], [], []
     with VectorEnv(recipe, 2) as vec:
         send = vec._send
@@ -250,7 +251,7 @@ def test_state_only_steps_through_the_step_block_equal_one_process(tmp_path):
     finally:
         rollout.close()
     pol = PerEnvPolicies(_StateFollower, 2)
-    with VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2) as vec:
+    with VectorEnv(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False), 2) as vec:
         results = vec.run(pol, range(4), seed=2)
         # the replies came through the step blocks, in every worker that stepped
         stepped = [k for k, p in enumerate(pol.policies) if p.seen]
@@ -307,7 +308,7 @@ def test_the_workers_keep_the_batch_rollout_contract(tmp_path):
     from simseam.seam import BatchRollout, check_batch_rollout
 
     cfg, base = load_scene_config(_scene(tmp_path, steps=20))
-    vec = VectorEnv(RolloutRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2)
+    vec = VectorEnv(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=True), 2)
     with vec:
         assert isinstance(vec, BatchRollout)
         spec = check_batch_rollout(vec)

@@ -214,7 +214,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
                 todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
     from simseam.policies.base import make_policy
-    from simseam.runner.vector import RolloutRecipe, VectorEnv
+    from simseam.runner.recipe import SceneRecipe
+    from simseam.runner.vector import VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
     vec = pol = None
@@ -242,7 +243,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         one_batch = batched_in_one_process(cfg, uses_images or video)  # N envs stepped from here: one policy batch
         renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
         pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=one_batch or renderer == "batched")
-        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
+        recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
 
         with console.status(f"starting {num_envs} environments"):
@@ -293,7 +294,7 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
     """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
     from simseam.policies.base import make_policy
     from simseam.runner.ray_eval import run_on_ray
-    from simseam.runner.vector import RolloutRecipe
+    from simseam.runner.recipe import SceneRecipe
 
     cfg, base_dir = scene_file
     spec_json = None
@@ -310,7 +311,7 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
 
     with episodes_guard(run_dir, spec=lambda: spec_json) as guard:
         probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
-        recipe = RolloutRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
+        recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
         close_policy(probe)
         console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from simseam import registry
+from simseam.runner.recipe import BenchmarkRecipe
 from simseam.seam import ConfigError
 
 METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
@@ -191,43 +192,6 @@ def _eval_entry(entry: dict, tasks: Sequence[str], episodes: int, seed: int) -> 
     return {**entry, "task": tasks[ti], "episode": e}
 
 
-@dataclass
-class EvalRecipe:
-    """How a vector worker builds the rollout of a preset's task (``runner.vector``): the backend's
-    sidecar for ``tasks[first_task]`` at boot; ``rollout_for`` gives each episode index its task's
-    rollout (closing the worker's sidecar and starting one for the new task only when the task changes)
-    and its seed base (episode ``i = ti * episodes + e`` runs with ``seed + e``). ``per_task``: a task's
-    own fields over ``config`` (the preset's). Picklable."""
-
-    backend: str
-    config: dict
-    tasks: tuple[str, ...]
-    episodes: int
-    privileged: bool = False
-    first_task: int = 0
-    per_task: dict = field(default_factory=dict)
-
-    def _open(self, ti: int):
-        from simseam.sidecar.benchmark import open_benchmark
-
-        task = self.tasks[ti]
-        rollout = open_benchmark(self.backend, {**self.config, **self.per_task.get(task, {}), "task": task},
-                                 privileged=self.privileged)
-        self._task = ti
-        return rollout
-
-    def build(self):
-        return self._open(self.first_task)
-
-    def rollout_for(self, rollout, index: int, seed: int):
-        ti = index // self.episodes
-        if ti != getattr(self, "_task", None):
-            self._task = None
-            rollout.close()
-            rollout = self._open(ti)
-        return rollout, seed - ti * self.episodes
-
-
 def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
                     policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
                     seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
@@ -265,7 +229,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
     if policy_batch is None:
         n = max(1, min(num_envs, len(todo)))
-        recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
+        recipe = BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
                             first_task=todo[0] // episodes, per_task=p.per_task)
         with VectorEnv(recipe, n) as vec:
             write_spec(vec)
@@ -278,7 +242,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
         if not indices:
             continue
         n = max(1, min(num_envs, len(indices)))
-        with VectorEnv(EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
+        with VectorEnv(BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
                                   first_task=ti, per_task=p.per_task), n) as vec:
             write_spec(vec)
             if on_start:
@@ -292,7 +256,7 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
                  indices: Sequence[int] | None = None, on_done: Callable[[dict], None] | None = None,
                  on_worker_failure=None) -> None:
     """``run_eval`` on the Ray cluster at ``address`` (``runner.ray_eval.run_on_ray``): each actor holds
-    its own policy instance (``policy`` is a spec) and one sidecar of the backend (an ``EvalRecipe``,
+    its own policy instance (``policy`` is a spec) and one sidecar of the backend (an ``BenchmarkRecipe``,
     replaced when the next episode's task differs). Each finished episode is appended to the log with
     ``task`` and ``episode`` as it arrives (``on_done(entry)`` after); a lost actor's episode re-runs
     elsewhere. ``indices``: run only these (a shard's)."""
@@ -301,7 +265,7 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
     todo = _todo(tasks, episodes, run_dir, indices)
     if not todo:
         return
-    recipe = EvalRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
+    recipe = BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
                         first_task=todo[0] // episodes, per_task=p.per_task)
 
     def record(entry):

@@ -6,10 +6,10 @@ included: the actor owns it) and its own policy instance (a ``remote:`` policy s
 idle actors and writes each result into the run's episode log as it arrives; episode ``i`` uses seed
 ``seed + i`` wherever it runs.
 
-A recipe may define ``rollout_for(rollout, index, seed) -> (rollout, seed)`` as for the vector workers
-(``runner.vector``): the actor then asks it for each episode's rollout and seed base. ``simseam eval
---ray`` passes an ``EvalRecipe``: an actor owns one sidecar of the benchmark's backend and replaces it
-only when the next episode's task differs (episode ``i = ti * n + e`` runs with ``seed + e``).
+The actor asks its recipe (``runner.recipe``) for each episode's rollout and seed base
+(``rollout_for``), as the vector workers do: ``simseam eval --ray`` passes a ``BenchmarkRecipe``, so an
+actor owns one sidecar of the benchmark's backend and replaces it only when the next episode's task
+differs (episode ``i = ti * n + e`` runs with ``seed + e``).
 
 Fault tolerance: an actor that dies (its process, or the node under it) fails its task with a Ray
 actor/node error; the driver puts that episode back at the front of the queue (at most
@@ -28,9 +28,8 @@ from __future__ import annotations
 import os
 from typing import Any, Callable, Sequence
 
-from simseam.runner.scheduler import EpisodeQueue
-from simseam.runner.scheduler import WorkerFailure
-from simseam.runner.vector import RolloutRecipe
+from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
+from simseam.runner.scheduler import EpisodeQueue, WorkerFailure
 from simseam.seam import ConfigError, SimseamError, SimulationError
 
 
@@ -46,7 +45,7 @@ class EpisodeWorker:
     """A Ray actor: one rollout and one policy; ``run(i, seed)`` plays episode ``i`` (seed ``seed + i``,
     or the recipe's ``rollout_for`` says which rollout and seed base)."""
 
-    def __init__(self, recipe: RolloutRecipe, policy: str, policy_kwargs: dict):
+    def __init__(self, recipe: SceneRecipe | BenchmarkRecipe, policy: str, policy_kwargs: dict):
         from simseam.policies.base import make_policy
 
         self.recipe = recipe
@@ -63,9 +62,7 @@ class EpisodeWorker:
     def run(self, index: int, seed: int) -> dict:
         from simseam.runner.session import run_episodes
 
-        rollout_for = getattr(self.recipe, "rollout_for", None)
-        if rollout_for is not None:  # a multi-task recipe (simseam eval): this episode's task
-            self.rollout, seed = rollout_for(self.rollout, index, seed)
+        self.rollout, seed = self.recipe.rollout_for(self.rollout, index, seed)  # (simseam eval: its task's)
         return run_episodes(self.rollout, self.policy, [index], seed=seed)[0].to_json()
 
     def close(self) -> None:
@@ -75,7 +72,7 @@ class EpisodeWorker:
             close()
 
 
-def run_on_ray(address: str, recipe: RolloutRecipe, policy: str, policy_kwargs: dict, indices: Sequence[int], *,
+def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str, policy_kwargs: dict, indices: Sequence[int], *,
                seed: int = 0, num_workers: int | None = None, max_attempts: int = 3,
                on_spec: Callable[[dict], None] | None = None,
                on_done: Callable[[dict], None] | None = None,

@@ -8,8 +8,8 @@ command and wait for every reply; ``run(policy, indices)`` is the episode schedu
 (``runner.scheduler``) over this batch, the same loop as every other batch's. ``run_local`` puts
 the policy inside each worker instead (policies that share no model): workers play whole episodes
 and send back only their results. Episode ``i`` always uses seed ``seed + i``, so the per-episode
-results do not depend on ``num_envs`` for a deterministic policy. A recipe may define
-``rollout_for(rollout, index, seed) -> (rollout, seed)``: ``run_local`` workers then ask it for each
+results do not depend on ``num_envs`` for a deterministic policy. A worker builds its rollout from a
+recipe (``runner.recipe``: a scene's or a benchmark preset's) and, in ``run_local``, asks it for each
 episode's rollout and seed base (``simseam eval``: a worker rebuilds its sidecar when the next
 episode's task differs). Images cross from a worker through a shared memory block
 (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross through a
@@ -52,6 +52,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
+from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import EpisodeQueue, WorkerFailure, lost_error, run_batch
 from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
@@ -61,28 +62,6 @@ from simseam.sidecar.local import SPIN_ENV, spin_until_readable
 
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
-
-
-@dataclass(frozen=True)
-class RolloutRecipe:
-    """How a worker builds its rollout: a scene config (``SceneConfig.model_dump()``), the scene
-    file's directory, and the options ``build_rollout`` takes. Picklable."""
-
-    scene: dict
-    base_dir: str
-    privileged: bool = False
-    render_images: bool = True
-    seed: int = 0
-    #: workers add their MuJoCo render state (``engine.render_state()``) to every observation they send,
-    #: for the central renderer (``renderer="batched"``)
-    pose_states: bool = False
-
-    def build(self):
-        from simseam.runner.scene_config import SceneConfig, build_rollout
-
-        cfg = SceneConfig.model_validate(self.scene)
-        return build_rollout(cfg, Path(self.base_dir), privileged=self.privileged,
-                             render_images=self.render_images, seed=self.seed)
 
 
 VECTOR_SPIN_ENV = "SIMSEAM_VECTOR_SPIN_US"
@@ -402,7 +381,7 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None,
+def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None,
                  spin_us: int = 0) -> None:
     """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends.
     ``sidecar_spin_us``: the busy-poll budget of a sidecar rollout's local path (unless the user's
@@ -490,9 +469,7 @@ def _worker_main(conn, recipe: RolloutRecipe, parent_pid: int = 0, sidecar_spin_
                     conn.send(("ok", path))
                 elif op == "episode":  # a whole episode with this worker's own policy instance
                     _, index, seed, policy_spec, video_dir = msg
-                    rollout_for = getattr(recipe, "rollout_for", None)
-                    if rollout_for is not None:  # a multi-task recipe (simseam eval): this episode's task
-                        rollout, seed = rollout_for(rollout, index, seed)
+                    rollout, seed = recipe.rollout_for(rollout, index, seed)  # (simseam eval: this episode's task)
                     if policy is None or policy_key != policy_spec:
                         from simseam.policies.base import make_policy
 
@@ -573,7 +550,7 @@ class VectorEnv:
     docstring): a ``BatchRollout`` (seam/batch.py) whose environments are the workers. ``spec`` is the
     rollout's spec (from the first worker ready). Use as a context manager, or call ``close()``."""
 
-    def __init__(self, recipe: RolloutRecipe, num_envs: int, *, start_method: str = "spawn",
+    def __init__(self, recipe: SceneRecipe | BenchmarkRecipe, num_envs: int, *, start_method: str = "spawn",
                  boot_timeout: float = BOOT_TIMEOUT_S, renderer: str = "workers", render_device: str | None = None):
         if num_envs < 1:
             raise SimulationError(f"num_envs must be >= 1, got {num_envs}")
