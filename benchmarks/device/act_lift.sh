@@ -24,7 +24,7 @@
 #              needed: the classic EGL renderer is in mujoco-core; torch, torchvision, numpy, pandas, pyarrow,
 #              accelerate, opencv, safetensors ... are the image's own);
 #   .gl/       the GL loader .debs, so MuJoCo renders through the NVIDIA EGL driver
-#              (/work/.library/device/README.md: apt-get download libvulkan1 libegl1 libglvnd0 libopengl0
+#              (the GPU machine has the NVIDIA driver but not the GL loaders: apt-get download libvulkan1 libegl1 libglvnd0 libopengl0
 #              libgl1 libglx0 libgles2, amd64);
 #   .devcarry/ pybullet_franka.tar.xz: pybullet_data/franka_panda (the Panda URDF + meshes, 1.9 MB) from
 #              an installed pybullet (tar -C <site-packages> -cJf .devcarry/pybullet_franka.tar.xz

@@ -17,7 +17,7 @@ Contract (see ``simseam.gym.spaces`` for every space, unit and shape):
   ``depth_points_count`` ``{sensor: rows used}`` when depth points are observed.
 - ``last_observation``: the raw seam observation of the last reset/step (``task``,
   ``sim_time_ns``, unpadded ``depth_points``, ``privileged``): feed it to a simseam
-  ``Policy`` (``policy.reset(env.unwrapped.rollout.scene, env.unwrapped.rollout.task)``).
+  ``Policy`` (``policy.reset(env.unwrapped.rollout.spec)``).
 - ``render()``: ``uint8[H, W, 3]`` of the robot's first RGB camera when
   ``render_mode="rgb_array"``, else None. ``metadata["render_fps"]`` is the control rate.
 - ``close()`` closes the rollout; calling it again is harmless.
