@@ -108,12 +108,15 @@ class _Crashing:
 def test_a_sidecar_crash_costs_its_episode_only_recorded_with_its_error(panda_spec, sequential):
     """As in the sequential loop: the crashed episode is recorded with the error (no retry), the
     environment goes on with the next episode, and every other episode is unchanged."""
-    errors = []
+    errors, starts = [], []
     rollouts = [_Crashing(ManifestScene(panda_spec, "lift_cube", "mujoco", SceneOptions(**OPTS)), 42, 7)
                 for _ in range(2)]
     with SyncBatchRollout(rollouts) as batch:
         results = run_batch(batch, PerEnvPolicies(lambda: make_policy("scripted"), 2), INDICES, seed=40,
+                            on_start=lambda env, i: starts.append((env, i)),
                             on_error=lambda r, what: errors.append((r.index, what)))
+    crashed_env = next(env for env, i in starts if i == 2)
+    assert any(env == crashed_env and i > 2 for env, i in starts), starts  # the environment plays on
     got = _outcome(results)
     assert sorted(got) == INDICES and got[2] == (42, False, 0, 0.0, {})
     assert [r.error for r in results if r.index == 2] == ["SidecarError: the sidecar process exited (signal 9)"]

@@ -236,8 +236,9 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
             for env, res in ended:
                 res.video = videos.finish(env)
                 finish(env, res)
-            if ended:
-                start([env for env, _ in ended])
+            free = [env for env in busy if episodes.playing[env] is None]  # ended, or failed in the step
+            if free:
+                start(free)
     finally:
         videos.close()
     return results

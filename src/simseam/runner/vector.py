@@ -954,7 +954,11 @@ class VectorEnv:
                     continue
                 if msg[0] == "fatal":
                     raise msg[1]
-                _, res, what_next = msg
+                if msg[0] == "episode_error":  # a sidecar error escaped the worker's episode loop
+                    res = todo.new_result(s.index)
+                    res.error, what_next = msg[1], msg[2]
+                else:
+                    _, res, what_next = msg
                 s.index, s.state = None, IDLE
                 if what_next is not None and on_error:
                     on_error(res, what_next)
