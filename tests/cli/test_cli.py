@@ -98,8 +98,8 @@ def test_run_parses_the_scene_file_once(tmp_path, monkeypatch, extra):
 
 @pytest.mark.learning  # it expects the whole test set-up (Python 3.11's venv: the learning stack, the backends)
 def test_doctor_checks_what_this_machine_runs_by_running_it(tmp_path):
-    """Rendering (a frame that is not blank), the learned-policy stack, MuJoCo Warp and each benchmark
-    backend: found here (the test set-up installs them all); a broken GL or a missing backend is named
+    """Rendering (a frame that is not blank), the learned-policy stack, MuJoCo Warp, each benchmark
+    backend, DDS, MCAP recording and the Foxglove server: found here (the test set-up installs them all); a broken GL or a missing backend is named
     with what to do."""
     import os
     import subprocess
@@ -115,8 +115,10 @@ def test_doctor_checks_what_this_machine_runs_by_running_it(tmp_path):
     gpu_physics = checks.pop("ManiSkill3 GPU physics")  # NVIDIA's PhysX GPU library: never on a test machine
     assert gpu_physics["ok"] or "--physx-gpu FILE" in gpu_physics["fix"], gpu_physics
     assert all(c["ok"] for c in checks.values()), [c for c in checks.values() if not c["ok"]]
-    assert {"rendering", "learned policies", "MuJoCo Warp", "backend metaworld", "backend maniskill"} <= set(checks)
-    broken = doctor(MUJOCO_GL="nonesuch", SIMSEAM_BACKENDS_DIR=str(tmp_path))
+    assert {"rendering", "learned policies", "MuJoCo Warp", "backend metaworld", "backend maniskill",
+            "ROS 2 over DDS", "ROS 2 recording", "Foxglove live view"} <= set(checks)
+    broken = doctor(MUJOCO_GL="nonesuch", SIMSEAM_BACKENDS_DIR=str(tmp_path), ROS_DOMAIN_ID="999")
     assert not broken["rendering"]["ok"] and "MUJOCO_GL=nonesuch" in broken["rendering"]["found"]
     assert not broken["backend pusht"]["ok"] and broken["backend pusht"]["fix"] == \
         "simseam backends provision pusht"
+    assert not broken["ROS 2 over DDS"]["ok"] and "ROS_DOMAIN_ID=999" in broken["ROS 2 over DDS"]["found"]

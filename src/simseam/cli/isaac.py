@@ -210,11 +210,12 @@ def doctor_report(environ=None, run=None, which=None) -> dict:
 
 def doctor(json_out: bool = typer.Option(False, "--json", help="Print the report as JSON.")) -> None:
     """Check what this machine can run, by running a little of each: rendering, the learned-policy stack,
-    MuJoCo Warp, the benchmark backends, and the Isaac Sim engine (interpreter, isaacsim, version,
+    MuJoCo Warp, the benchmark backends, ROS 2 (DDS, MCAP recording, the Foxglove server), and the Isaac Sim engine (interpreter, isaacsim, version,
     license, GPU, disk)."""
+    from simseam.ros2.check import ros2_checks
     from simseam.runner.machine_check import machine_checks
 
-    checks = machine_checks()
+    checks = machine_checks() + ros2_checks()
     report = doctor_report()
     if json_out:
         sys.stdout.write(json.dumps({**report, "checks": [c.to_json() for c in checks]}, indent=2) + "\n")
