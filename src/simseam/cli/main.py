@@ -64,7 +64,8 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
                               highlight=False)
 
         return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
-                            keep_failures=keep_failures, on_start=start, on_done=done, on_error=error)
+                            keep_failures=keep_failures, on_start=start, on_done=done, on_error=error,
+                            keep=on_result is None)
 
 
 def _open_run(scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):
@@ -262,7 +263,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
                 run_dir.append(entry)
                 progress.done(entry)
 
-            common = dict(seed=seed, video_dir=out if video else None, on_done=done,
+            common = dict(seed=seed, video_dir=out if video else None, on_done=done, keep=False,
                           on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
             if pol is not None:  # N worlds on the device, or a shared model: stepped together, batched
                 vec.run(pol, todo, **common)
@@ -318,7 +319,7 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
                       f"{escape(str(out))}")
         with progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure)
+                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure, keep=False)
     _finish_run(run_dir, spec_json, guard.interrupted, planned)
 
 

@@ -179,7 +179,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
 
             # episode index i = ti * episodes + e runs with seed + e
             run_episodes(rollout, policy, indices, seed=seed - ti * episodes, video_dir=video_dir,
-                         on_start=on_start, on_done=record, on_error=on_error)
+                         on_start=on_start, on_done=record, on_error=on_error, keep=False)
         finally:
             rollout.close()
 
@@ -226,7 +226,8 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     def write_spec(vec):
         spec_once(vec.spec.to_json())
 
-    common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure)
+    common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure,
+                  keep=False)
     if policy_batch is None:
         n = max(1, min(num_envs, len(todo)))
         recipe = BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
@@ -275,4 +276,4 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
             on_done(entry)
 
     run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-               on_spec=_spec_writer(run_dir), on_done=record, on_worker_failure=on_worker_failure)
+               on_spec=_spec_writer(run_dir), on_done=record, on_worker_failure=on_worker_failure, keep=False)

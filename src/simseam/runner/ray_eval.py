@@ -76,10 +76,12 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
                seed: int = 0, num_workers: int | None = None, max_attempts: int = 3,
                on_spec: Callable[[dict], None] | None = None,
                on_done: Callable[[dict], None] | None = None,
-               on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[dict]:
+               on_worker_failure: Callable[[WorkerFailure], None] | None = None,
+               keep: bool = True) -> list[dict]:
     """Run the episodes ``indices`` on the Ray cluster at ``address`` (``auto``: the one on this
     machine; ``local``: start a private one); returns the episode entries (``EpisodeResult.to_json()``)
-    in the order they finished. ``on_spec(spec_json)`` is called once the first actor is ready."""
+    in the order they finished (none with ``keep=False``: each reaches ``on_done``, memory stays flat).
+    ``on_spec(spec_json)`` is called once the first actor is ready."""
     ray = _import_ray()
     from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
 
@@ -112,6 +114,12 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
     nodes: dict[Any, str] = {}  # actor -> the Ray node id it runs on
     next_id = [0]
 
+    def finished(entry: dict) -> None:
+        if keep:
+            results.append(entry)
+        if on_done:
+            on_done(entry)
+
     def new_actor():
         a = Actor.remote(recipe, policy, policy_kwargs)
         actor_ids[a] = next_id[0]
@@ -128,9 +136,7 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
             what, res = todo.lost(index, lambda n: f"Ray worker lost {n} times ({type(exc).__name__})")
         if res is not None:
             entry = res.to_json()
-            results.append(entry)
-            if on_done:
-                on_done(entry)
+            finished(entry)
         if on_worker_failure:
             node = nodes.get(actor)
             on_worker_failure(WorkerFailure(env=-1, index=index, exitcode=None,
@@ -180,9 +186,7 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
             except RayTaskError as exc:
                 raise cause(exc) from None
             entry["worker"] = {"ray_node": nodes.get(actor), "actor": actor_ids.get(actor)}
-            results.append(entry)
-            if on_done:
-                on_done(entry)
+            finished(entry)
             idle.append(actor)
         return results
     except SimseamError:

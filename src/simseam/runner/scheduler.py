@@ -174,11 +174,13 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
               on_step: Callable[[int, int, int], None] | None = None,
               on_done: Callable[[EpisodeResult], None] | None = None,
               on_error: Callable[[EpisodeResult, str], None] | None = None,
-              on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
+              on_worker_failure: Callable[[WorkerFailure], None] | None = None,
+              keep: bool = True) -> list[EpisodeResult]:
     """Run episodes ``indices`` on ``batch`` (see the module docstring). ``on_start(env, index)``,
     ``on_step(env, index, steps)`` and ``on_done(result)`` follow each episode; ``on_error(result,
     what_next)``: a sidecar failure cost the episode; ``on_worker_failure``: an environment's process
-    died. Results in the order the episodes finished."""
+    died. Results in the order the episodes finished (none with ``keep=False``: a long run that takes each
+    result through ``on_done`` keeps its memory flat)."""
     spec, n = batch.spec, batch.num_envs
     if getattr(policy, "n", n) < n:
         raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
@@ -190,7 +192,8 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
 
     def finish(env: int, res: EpisodeResult) -> None:
         episodes.playing[env], obs[env] = None, None
-        results.append(res)
+        if keep:
+            results.append(res)
         if on_done:
             on_done(res)
 
@@ -298,10 +301,10 @@ class BatchVectorEnv:
 
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
             max_attempts: int = 3, on_start=None, on_step=None, on_done=None, on_error=None,
-            on_worker_failure=None) -> list[EpisodeResult]:
+            on_worker_failure=None, keep: bool = True) -> list[EpisodeResult]:
         return run_batch(self.batch, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
                          on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
-                         on_worker_failure=on_worker_failure)
+                         on_worker_failure=on_worker_failure, keep=keep)
 
     def close(self) -> None:
         self.batch.close()

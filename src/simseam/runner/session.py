@@ -24,11 +24,13 @@ def run_episodes(rollout: SimRollout, policy: Policy, indices: Iterable[int], *,
                  video_dir: Path | None = None, recorder=None, keep_failures: bool = True,
                  on_start: Callable[[int], StepCallback | None] | None = None,
                  on_done: Callable[[EpisodeResult, bool | None], None] | None = None,
-                 on_error: Callable[[EpisodeResult, str], None] | None = None) -> list[EpisodeResult]:
+                 on_error: Callable[[EpisodeResult, str], None] | None = None,
+                 keep: bool = True) -> list[EpisodeResult]:
     """Run the episodes ``indices``; ``on_start(i)`` may return a per-step callback;
     ``on_done(result, written)`` gets each finished episode (``written``: whether the
     recorder kept it, None without a recorder); ``on_error(result, what_next)`` is told
-    about an episode cut short by a sidecar or policy-server failure."""
+    about an episode cut short by a sidecar or policy-server failure. ``keep=False``: return no list (a
+    long run that takes each result through ``on_done`` keeps its memory flat)."""
     from simseam.policies.remote import RemotePolicyError
 
     results = []
@@ -55,7 +57,8 @@ def run_episodes(rollout: SimRollout, policy: Policy, indices: Iterable[int], *,
             if recorder is not None:
                 recorder.end_episode(keep=False)
             raise
-        results.append(res)
+        if keep:
+            results.append(res)
         if on_done:
             on_done(res, written)
     return results

@@ -891,21 +891,23 @@ class VectorEnv:
             on_step: Callable[[int, int, int], None] | None = None,
             on_done: Callable[[EpisodeResult], None] | None = None,
             on_error: Callable[[EpisodeResult, str], None] | None = None,
-            on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
+            on_worker_failure: Callable[[WorkerFailure], None] | None = None,
+            keep: bool = True) -> list[EpisodeResult]:
         """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
         ``num_envs`` environments), stepped together: the episode scheduler (``runner.scheduler``) over
         this batch. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
         (once per episode, as it finishes: order may differ from ``indices``), ``on_error(result,
-        what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``."""
+        what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``; ``keep`` as ``run_batch``'s."""
         return run_batch(self, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
                          on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
-                         on_worker_failure=on_worker_failure)
+                         on_worker_failure=on_worker_failure, keep=keep)
 
     def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,
                   video_dir: Path | None = None, max_attempts: int = 3,
                   on_done: Callable[[EpisodeResult], None] | None = None,
                   on_error: Callable[[EpisodeResult, str], None] | None = None,
-                  on_worker_failure: Callable[[WorkerFailure], None] | None = None) -> list[EpisodeResult]:
+                  on_worker_failure: Callable[[WorkerFailure], None] | None = None,
+                  keep: bool = True) -> list[EpisodeResult]:
         """Like ``run``, with the policy inside each worker: every worker builds its own instance of the
         policy spec (``make_policy(policy, **policy_kwargs)``) and plays whole episodes, sending back only
         results, as N independent processes would (the fastest way for policies that share no model:
@@ -918,7 +920,8 @@ class VectorEnv:
         results: list[EpisodeResult] = []
 
         def done(res: EpisodeResult) -> None:
-            results.append(res)
+            if keep:
+                results.append(res)
             if on_done:
                 on_done(res)
 
