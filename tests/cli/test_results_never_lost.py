@@ -223,3 +223,29 @@ def test_a_token_in_a_remote_policy_url_is_never_written_to_disk():
 
     assert _redacted("remote:ws://h:1?token=s3cret&x=1") == "remote:ws://h:1?token=<redacted>&x=1"
     assert _redacted("scripted") == "scripted"
+
+
+def test_ctrl_c_and_sigterm_while_a_run_closes_wait_for_its_summary(tmp_path, capfd):
+    """A Ctrl-C ends the episodes; a second Ctrl-C (and a SIGTERM) landing while the environments close and
+    while the summary is written are noted and held: the summary is written, the finished episode kept."""
+    from simseam.cli.common import episodes_guard
+    from simseam.runner.run_dir import RunDir
+
+    run_dir = RunDir(tmp_path / "run", {"policy": "zero", "episodes": 2})
+    finished = []
+
+    def cleanup():
+        os.kill(os.getpid(), signal.SIGINT)  # handled before os.kill returns to this frame's next bytecode
+
+    def finish(interrupted):
+        os.kill(os.getpid(), signal.SIGTERM)
+        finished.append((interrupted, run_dir.summarize(interrupted=interrupted)))
+
+    with episodes_guard(run_dir, cleanup, finish=finish):
+        run_dir.append({"index": 0, "seed": 0, "success": True, "steps": 3, "reward": 1.0})
+        raise KeyboardInterrupt
+    ((interrupted, summary),) = finished
+    assert interrupted and summary["n_episodes"] == 1 and not summary["complete"]
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["n_episodes"] == 1
+    assert capfd.readouterr().err.count("finishing the summary first") == 2
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers given back

@@ -171,9 +171,8 @@ def eval_command(
     if resume:
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
     if num_envs > 1:
-        interrupted = _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
-                                   seed=seed, video=video, indices=planned)
-        _eval_summary(p, policy, run_dir, interrupted)
+        _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
+                     seed=seed, video=video, indices=planned)
         return
 
     def done(res, task):
@@ -184,17 +183,16 @@ def eval_command(
     def error(res, what_next):
         err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
 
-    with episodes_guard(run_dir, lambda: close_policy(pol)) as guard:
+    with episodes_guard(run_dir, lambda: close_policy(pol), finish=_summary(p, policy, run_dir)):
         run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                  progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
                  on_done=done, on_error=error, indices=planned)
-    _eval_summary(p, policy, run_dir, guard.interrupted)
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
-                 num_envs: int, *, seed: int, video: bool, indices: list[int]) -> bool:
-    """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``); returns
-    whether it was interrupted. Progress as ``simseam run --num-envs``."""
+                 num_envs: int, *, seed: int, video: bool, indices: list[int]) -> None:
+    """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``), then the
+    summary. Progress as ``simseam run --num-envs``."""
     from simseam.runner.evaluate import run_eval_vector
 
     privileged = pol.requires_privileged
@@ -202,7 +200,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
         close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len([i for i in indices if i not in run_dir.done])
-    with episodes_guard(run_dir, batch.close if batch is not None else None) as guard, \
+    with episodes_guard(run_dir, batch.close if batch is not None else None, finish=_summary(p, policy, run_dir)), \
             EvalProgress(console, total=todo) as progress:
         def start(vec):
             console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
@@ -213,7 +211,6 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
                         indices=indices)
-    return guard.interrupted
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,
@@ -224,7 +221,7 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
     from simseam.runner.evaluate import run_eval_ray
 
     todo = [i for i in indices if i not in run_dir.done]
-    with episodes_guard(run_dir) as guard:
+    with episodes_guard(run_dir, finish=_summary(p, policy, run_dir)):
         probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
         privileged, uses_images = probe.requires_privileged, probe.uses_images
         close_policy(probe)
@@ -237,7 +234,11 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
                          privileged=privileged, uses_images=uses_images, seed=seed, num_workers=num_workers,
                          indices=indices,
                          on_done=progress.done, on_worker_failure=progress.worker_failure)
-    _eval_summary(p, policy, run_dir, guard.interrupted)
+
+
+def _summary(p, policy: str, run_dir):
+    """The ``finish`` of an eval's ``episodes_guard``: its summary."""
+    return lambda interrupted: _eval_summary(p, policy, run_dir, interrupted)
 
 
 def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:

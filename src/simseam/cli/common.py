@@ -4,7 +4,9 @@ as Ctrl-C, and the progress of many episodes."""
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
+import threading
 
 import typer
 from rich.console import Console
@@ -126,26 +128,52 @@ def never_started(out, interrupted: bool) -> None:
 
 
 @contextlib.contextmanager
-def episodes_guard(run_dir, cleanup=None, spec=lambda: None):
+def interrupts_deferred():
+    """Ctrl-C and SIGTERM are noted on stderr and otherwise wait: for a run that is closing its environments
+    and writing its summary (a second Ctrl-C there used to end the process without one)."""
+    if threading.current_thread() is not threading.main_thread():  # signal handlers belong to the main thread
+        yield
+        return
+
+    def note(signum, frame):
+        os.write(2, b"simseam: finishing the summary first\n")
+
+    old = {s: signal.signal(s, note) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+@contextlib.contextmanager
+def episodes_guard(run_dir, cleanup=None, spec=lambda: None, finish=None):
     """Around a run's episodes (run and eval, every executor): SIGTERM counts as Ctrl-C; Ctrl-C ends the
     run as interrupted (``guard.interrupted``); a ``SimseamError`` rebuilds the summary from the episode
     log (every finished episode kept; ``spec()`` gives the rollout's spec when known) and fails with its
-    one-line message (exit 2). The run directory is closed and ``cleanup`` called whichever way it ends."""
+    one-line message (exit 2). The run directory is closed and ``cleanup`` called whichever way it ends;
+    then ``finish(interrupted)`` writes the summary. From the end of the episodes to the end of ``finish``,
+    further Ctrl-C and SIGTERM wait (``interrupts_deferred``)."""
     from types import SimpleNamespace
 
     guard = SimpleNamespace(interrupted=False)
-    error = None
+    error, ended = None, False
     try:
         with sigterm_as_interrupt():
             yield guard
+        ended = True
     except KeyboardInterrupt:
-        guard.interrupted = True
+        guard.interrupted = ended = True
     except SimseamError as exc:
         error = exc
     finally:
-        run_dir.close()
-        if cleanup is not None:
-            cleanup()
+        with interrupts_deferred():
+            run_dir.close()
+            if cleanup is not None:
+                cleanup()
+            if error is not None:
+                run_dir.summarize(spec(), interrupted=True)
+            elif ended and finish is not None:
+                finish(guard.interrupted)
     if error is not None:
-        run_dir.summarize(spec(), interrupted=True)
         fail(error)

@@ -191,7 +191,8 @@ def run(
         rollout.close()
         close_policy(pol)
 
-    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
+    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, len(planned))  # noqa: E731
+    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
         if record_dataset is not None:  # before the run starts: a recorder that cannot start replaces nothing
             from simseam.runner.dataset_recorder import LeRobotRecorder
 
@@ -205,7 +206,6 @@ def run(
                       f"{episodes} episode(s) -> {escape(str(out))}")
         _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
                   keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
-    _finish_run(run_dir, spec_json, guard.interrupted, len(planned))
     if recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
@@ -234,7 +234,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         if pol is not None:
             pol.close()
 
-    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json) as guard:
+    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
+    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
         from simseam.runner.central_render import choose_renderer
         from simseam.runner.warp_vector import batched_in_one_process, make_vector_env
 
@@ -269,7 +270,6 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
                 vec.run(pol, todo, **common)
             else:
                 vec.run_local(policy, policy_kwargs, todo, **common)
-    _finish_run(run_dir, spec_json, guard.interrupted, planned)
 
 
 def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, acts_here: bool):
@@ -310,7 +310,8 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         run_dir.append(entry)
         progress.done(entry)
 
-    with episodes_guard(run_dir, spec=lambda: spec_json) as guard:
+    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
+    with episodes_guard(run_dir, spec=lambda: spec_json, finish=finish):
         probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
         recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
@@ -320,7 +321,6 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         with progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
                        on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure, keep=False)
-    _finish_run(run_dir, spec_json, guard.interrupted, planned)
 
 
 def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
