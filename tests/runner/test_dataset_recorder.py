@@ -87,6 +87,20 @@ def test_existing_directory_is_refused_and_only_a_dataset_is_overwritten(panda_s
     LeRobotRecorder(tmp_path / "empty", scene.spec, overwrite=True).close()  # an earlier dataset is replaced
 
 
+def test_overwrite_refuses_a_dataset_with_files_of_its_own(panda_spec, make_scene, tmp_path):
+    """collect --overwrite into a dataset holding a file the tool did not write: refused, nothing deleted
+    (catches: the whole directory removed with the user's file in it)."""
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+
+    scene = make_scene(panda_spec, image_size=(32, 32))
+    LeRobotRecorder(tmp_path / "ds", scene.spec).close()
+    (tmp_path / "ds" / "README.md").write_text("mine")
+    with pytest.raises(ConfigError, match="holds README.md beside the dataset; .*nothing was deleted"):
+        LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True)
+    assert (tmp_path / "ds" / "README.md").read_text() == "mine"
+    assert (tmp_path / "ds" / "meta" / "info.json").is_file()
+
+
 def test_recording_needs_images_and_an_integer_rate(panda_spec, make_scene, tmp_path):
     from simseam.runner.dataset_recorder import LeRobotRecorder
 

@@ -61,6 +61,10 @@ def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str,
     return features
 
 
+#: what a LeRobot dataset's root holds: ``--overwrite`` replaces a root holding nothing else
+DATASET_ENTRIES = ("meta", "data", "videos", "images")
+
+
 def check_dataset_out(root: Path, overwrite: bool, flag: str = "--out") -> None:
     """Before anything runs: ``root`` may be recorded into (absent or empty, or an earlier LeRobot
     dataset with ``overwrite``); a ``ConfigError`` naming ``flag`` otherwise. Nothing is deleted here."""
@@ -73,6 +77,11 @@ def check_dataset_out(root: Path, overwrite: bool, flag: str = "--out") -> None:
     if held and not (root / "meta" / "info.json").is_file():
         raise ConfigError(f"{flag} {root} holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''}, not a "
                           "LeRobot dataset; --overwrite replaces only a dataset (nothing was deleted)")
+    others = [name for name in held if name not in DATASET_ENTRIES]
+    if others:
+        raise ConfigError(f"{flag} {root} holds {', '.join(others[:5])}{' ...' if len(others) > 5 else ''} beside "
+                          "the dataset; --overwrite replaces only a dataset's own files (nothing was deleted): move "
+                          "them out or choose another directory")
 
 
 class LeRobotRecorder:
