@@ -121,6 +121,10 @@ def test_overwrite_never_destroys_the_dataset_or_what_is_not_a_training_run(scri
     with pytest.raises(ConfigError, match="not a LeRobot dataset"):
         train_act(tmp_path / "mistyped", ckpt, cfg, overwrite=True)
     assert (ckpt / "model.safetensors").read_bytes() == weights
+    (ckpt / "notes.txt").write_text("keep me")  # a file of the user's beside the run: never removed with it
+    with pytest.raises(ConfigError, match="holds notes.txt beside the training run; .*nothing was deleted"):
+        train_act(data, ckpt, cfg, overwrite=True)
+    assert (ckpt / "notes.txt").read_text() == "keep me" and (ckpt / "model.safetensors").read_bytes() == weights
     for field, value in (("lr", -1.0), ("time_budget_s", -5.0), ("lr", float("nan"))):
         with pytest.raises(ConfigError, match=f"--{field.replace('_', '-')} must be a positive number"):
             train_act(data, tmp_path / "bad", ActTrainConfig(**{**vars(cfg), field: value}))

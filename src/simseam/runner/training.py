@@ -209,7 +209,18 @@ def _prepare_out(out: Path, dataset: Path, overwrite: bool, resume: bool) -> tup
     if held and not any(m in held for m in TRAINING_MARKS):
         raise ConfigError(f"--out {out} holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''}, not a training "
                           "run; --overwrite replaces only a training run (nothing was deleted): choose another --out")
+    others = [name for name in held if not _training_output(name)]
+    if others:
+        raise ConfigError(f"--out {out} holds {', '.join(others[:5])}{' ...' if len(others) > 5 else ''} beside the "
+                          "training run; --overwrite replaces only a training run's own files (nothing was deleted): "
+                          "move them out or choose another --out")
     return None, bool(held)
+
+
+def _training_output(name: str) -> bool:
+    """Whether ``name`` in a training run's directory is one ``train_act`` writes (what ``--overwrite`` removes)."""
+    return name in (*TRAINING_MARKS, "config.json", "simseam_skill.json") or name.startswith(
+        ("policy_preprocessor", "policy_postprocessor"))
 
 
 def _save_checkpoint(out: Path, step: int, policy, preprocessor, postprocessor, optimizer, losses) -> Path:
