@@ -32,6 +32,17 @@ def test_negative_seed(tmp_path):
                         "--seed -1")
 
 
+def test_a_seed_beyond_32_bits_is_refused_before_the_run_starts(tmp_path):
+    """A huge --seed on a benchmark (its sidecar packs seeds in 64 bits, NumPy takes 32): a one-line error and no
+    run directory (catches: an OverflowError traceback after run.json was written)."""
+    huge = str(2**64)
+    for args in (("run", "--scene", "scenes/metaworld_reach.yaml"), ("eval", "metaworld_mt10", "--policy", "zero"),
+                 ("collect", "--scene", "scenes/franka_lift.yaml"), ("deploy", "--scene", "scenes/franka_lift.yaml")):
+        out = () if args[0] == "deploy" else ("--out", tmp_path / args[0])
+        _one_line_error(_simseam(*args, "--seed", huge, *out), f"--seed {huge}", "from 0 to 2147483647")
+        assert not (tmp_path / args[0]).exists()
+
+
 def test_error_text_is_printed_literally(tmp_path):
     scene = tmp_path / "s.yaml"
     scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [2, 256]\n")

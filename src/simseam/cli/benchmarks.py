@@ -8,8 +8,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from simseam.cli.common import EvalProgress, close_policy, console, episodes_guard, err_console, fail, never_started, \
-    policy_kwargs, redacted
+from simseam.cli.common import EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail, \
+    never_started, policy_kwargs, redacted
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -121,6 +121,7 @@ def eval_command(
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
 
+    check_seed(seed)
     if resume and out is None:
         fail(ConfigError("--resume needs --out (the run directory to continue)"))
     try:

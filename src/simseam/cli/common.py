@@ -25,9 +25,13 @@ def fail(exc: SimseamError) -> None:
     raise typer.Exit(code=2)
 
 
+#: the largest --seed: episode seeds (seed + i) stay within the 32-bit seeds NumPy and the backends take
+MAX_SEED = 2**31 - 1
+
+
 def check_seed(seed: int) -> None:
-    if seed < 0:
-        fail(ConfigError(f"--seed {seed}: seeds are non-negative integers (episode i uses seed + i)"))
+    if not 0 <= seed <= MAX_SEED:
+        fail(ConfigError(f"--seed {seed}: seeds are integers from 0 to {MAX_SEED} (episode i uses seed + i)"))
 
 
 def policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:

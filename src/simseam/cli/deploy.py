@@ -47,6 +47,7 @@ def deploy(
     Ctrl-C (or SIGTERM) stops cleanly: the recording is finalized and every
     resource released.
     """
+    from simseam.cli.common import check_seed
     from simseam.hal.sim_attached import SimAttachedHAL
     from simseam.ros2.bridge import Ros2Bridge, parse_rates
     from simseam.runner.scene_config import (
@@ -54,6 +55,7 @@ def deploy(
         load_scene_config,
     )
 
+    check_seed(seed)
     stop = threading.Event()
     handlers = {}
 
