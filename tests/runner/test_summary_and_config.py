@@ -77,6 +77,9 @@ def test_a_damaged_episode_log_is_summarized_but_never_called_complete(tmp_path)
     (tmp_path / "episodes.jsonl").write_text("\n".join(lines[:1] + lines[3:]))  # only the torn last line
     s = rebuild_summary(tmp_path)
     assert s["complete"] is True and "damaged_log_lines" not in s
+    (tmp_path / "episodes.jsonl").write_text("\n".join(lines[:1] + lines[3:5] + lines[1:2]) + "\n")
+    s = rebuild_summary(tmp_path)  # a whole last line (newline-terminated) without `success` is damage, not a tear
+    assert s["damaged_log_lines"] == [4] and s["complete"] is False
 
 
 def test_a_shard_that_holds_no_episode_is_refused():

@@ -203,7 +203,7 @@ def read_log(path: Path) -> list[dict]:
 
 
 def damaged_lines(path: Path) -> list[int]:
-    """Line numbers (1-based) of the log that hold no episode record, a torn last line excepted."""
+    """Line numbers (1-based) of the log that hold no episode record, a torn last line (no newline) excepted."""
     return _read_log(path)[1]
 
 
@@ -213,7 +213,9 @@ def _read_log(path: Path) -> tuple[list[dict], list[int]]:
         raise ConfigError(f"{path}: no {LOG_FILE} (not a simseam run directory)")
     by_index: dict[int, dict] = {}
     bad: list[int] = []
-    lines = log.read_text().splitlines()
+    text = log.read_text()
+    lines = text.splitlines()
+    torn = len(lines) if not text.endswith("\n") else 0  # a kill mid-write leaves a last line with no newline
     for n, line in enumerate(lines, 1):
         try:
             e = json.loads(line)
@@ -221,7 +223,7 @@ def _read_log(path: Path) -> tuple[list[dict], list[int]]:
                 raise ValueError
             by_index[int(e["index"])] = e
         except (ValueError, TypeError):
-            if line.strip() and n < len(lines):  # the last line may be cut short by a kill
+            if line.strip() and n != torn:
                 bad.append(n)
     return [by_index[i] for i in sorted(by_index)], bad
 
