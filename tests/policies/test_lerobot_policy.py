@@ -3,6 +3,7 @@ steps) -> saved -> loaded through ``lerobot:`` -> an episode in simseam, with ch
 
 import json
 import math
+import re
 import shutil
 
 import numpy as np
@@ -305,3 +306,23 @@ def test_a_cpu_policy_runs_torch_on_one_thread_unless_omp_num_threads_says(state
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-1] == str(threads)
+
+
+def test_a_mistyped_checkpoint_directory_is_never_looked_up_on_the_hub(tmp_path, monkeypatch):
+    """lerobot:<typo> of a local directory: 'no such directory' with the closest one, before LeRobot is imported
+    (catches: a bare name or runs/<typo> taken for a Hub id, a slow import and a Hub lookup with retries)."""
+    import simseam.policies.lerobot_policy as lp
+
+    def no_import():
+        raise AssertionError("LeRobot imported for a local directory that does not exist")
+
+    monkeypatch.setattr(lp, "_import_lerobot", no_import)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs" / "ckpt").mkdir(parents=True)
+    (tmp_path / "ckpt").mkdir()
+    for source, fragment in (("ckp", "no such directory (a Hugging Face Hub id is owner/name) (did you mean 'ckpt'?)"),
+                             ("runs/ckp", "no such directory (did you mean 'runs/ckpt'?)"),
+                             ("a/b/c", "no such directory")):
+        with pytest.raises(ConfigError, match=re.escape(f"lerobot:{source}: {fragment}")):
+            make_policy(f"lerobot:{source}")
+    assert not lp._is_local("lerobot/act_aloha_sim_transfer_cube_human")  # an owner/name stays a Hub id

@@ -82,6 +82,37 @@ def _import_lerobot():
     return PreTrainedConfig, get_policy_class, make_pre_post_processors
 
 
+def _is_local(source: str) -> bool:
+    """Whether ``lerobot:<source>`` names a directory here rather than a Hub id (``owner/name``): it exists,
+    starts with ``.``, ``/`` or ``~``, is not two parts, or its first part is a directory here (``runs/ckpt``)."""
+    parts = source.split("/")
+    return (Path(source).expanduser().exists() or source.startswith((".", "/", "~")) or len(parts) != 2
+            or Path(parts[0]).is_dir())
+
+
+def _check_checkpoint_dir(source: str, path: Path) -> None:
+    """A ``ConfigError`` unless ``path`` holds a complete LeRobot checkpoint."""
+    if not path.is_dir():
+        hub = " (a Hugging Face Hub id is owner/name)" if "/" not in source else ""
+        raise ConfigError(f"lerobot:{source}: no such directory{hub}{_did_you_mean_dir(path)}")
+    missing = [f for f in ("config.json", "model.safetensors", "policy_preprocessor.json",
+                           "policy_postprocessor.json") if not (path / f).is_file()]
+    if missing:
+        raise ConfigError(
+            f"lerobot:{source}: not a complete LeRobot checkpoint, missing {', '.join(missing)} "
+            "(save the policy and its pre/post-processors with save_pretrained)")
+
+
+def _did_you_mean_dir(path: Path) -> str:
+    """`` (did you mean 'x'?)`` for the directory beside ``path`` closest to its name, or ``""``."""
+    import difflib
+
+    parent = path.parent
+    siblings = [p.name for p in parent.iterdir() if p.is_dir()] if parent.is_dir() else []
+    close = difflib.get_close_matches(path.name, siblings, n=1, cutoff=0.6)
+    return f" (did you mean {str(parent / close[0]) if str(parent) != '.' else close[0]!r}?)" if close else ""
+
+
 #: LeRobot's single-camera policies (Diffusion / ACT trained on PushT, say) read one image named
 #: ``observation.image``: here that is the policy image ``image``, fed by the scene's only camera when
 #: it has one, else by ``camera1``, unless ``image_map`` names another
@@ -127,24 +158,15 @@ class LeRobotPolicy(BasePolicy):
 
     def __init__(self, source: str | Path, *, device: str | None = None, n_action_steps: int | None = None,
                  image_map: dict[str, str] | None = None, config_overrides: dict[str, Any] | None = None):
+        self.source = str(source)
+        path = Path(self.source).expanduser()
+        is_local = _is_local(self.source)
+        if is_local:  # checked before the (slow) imports: a mistyped directory is a fast one-line error
+            _check_checkpoint_dir(self.source, path)
+        ref = str(path) if is_local else self.source
         PreTrainedConfig, get_policy_class, make_pre_post_processors = _import_lerobot()
         import torch
 
-        self.source = str(source)
-        path = Path(self.source).expanduser()
-        is_local = path.exists() or self.source.startswith((".", "/", "~"))
-        if is_local:
-            if not path.is_dir():
-                raise ConfigError(f"lerobot:{self.source}: no such directory")
-            missing = [f for f in ("config.json", "model.safetensors", "policy_preprocessor.json",
-                                   "policy_postprocessor.json") if not (path / f).is_file()]
-            if missing:
-                raise ConfigError(
-                    f"lerobot:{self.source}: not a complete LeRobot checkpoint, missing {', '.join(missing)} "
-                    "(save the policy and its pre/post-processors with save_pretrained)")
-            ref = str(path)
-        else:
-            ref = self.source
         self.device = pick_device(device)
         if self.device == "cpu" and "OMP_NUM_THREADS" not in os.environ:
             # one observation's forward pass gains nothing from intra-op threads, and threads contending for the
