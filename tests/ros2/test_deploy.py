@@ -137,3 +137,25 @@ def test_bad_recording_and_port_input_is_one_line_and_overwrites_nothing(mobile_
     proc = simseam("deploy", "--scene", mobile_scene, "--duration", "0.1", "--record", old, "--overwrite", timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert old.read_bytes()[:8] == b"\x89MCAP0\r\n"  # replaced by a recording
+
+
+def test_deploy_shows_a_live_status_line_on_a_terminal():
+    """While deploy runs, a terminal shows its sim time, real-time factor and message counts, refreshed
+    (catches: nothing on screen between the start line and 'stopped:')."""
+    import io
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from simseam.cli.deploy import live_status, status_line
+    from simseam.ros2.bridge import BridgeStats
+
+    stats = BridgeStats(ticks=40, published={"/joint_states": 40, "/tf": 60}, commands={"/joint_command": 3},
+                        rejected=1)
+    assert status_line(stats, 20.0, 2.0) == "live: 2.0 s sim, rtf 1.00, 100 messages out, 3 commands in, 1 rejected"
+    screen = io.StringIO()
+    bridge = SimpleNamespace(stats=BridgeStats())
+    with live_status(Console(file=screen, force_terminal=True, width=120), bridge, 20.0, every_s=0.02):
+        bridge.stats.ticks = 10
+        time.sleep(0.3)
+    assert "live: 0.5 s sim" in screen.getvalue()

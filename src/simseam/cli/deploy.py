@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import threading
+import time
 from pathlib import Path
 
 import typer
@@ -111,7 +113,8 @@ def deploy(
         console.print(f"{escape(info.describe())} at {info.control_hz:g} Hz, rtf {rtf:g}"
                       + (f", {duration:g} s" if duration is not None else ", Ctrl-C to stop"))
         try:
-            stats = bridge.run(duration, stop=stop)
+            with live_status(console, bridge, info.control_hz):
+                stats = bridge.run(duration, stop=stop)
         except SimseamError as exc:
             err_console.print(f"error: {type(exc).__name__}: {exc}", style="bold red", highlight=False, markup=False)
             raise typer.Exit(code=2)
@@ -131,3 +134,34 @@ def deploy(
             rollout.close()
         for sig, old in handlers.items():
             signal.signal(sig, old)
+
+
+def status_line(stats, control_hz: float, wall_s: float) -> str:
+    """The live status of a deploy: sim time, real-time factor, messages out, commands in (and rejected)."""
+    sim_s = stats.ticks / control_hz
+    rtf = f"rtf {sim_s / wall_s:.2f}" if wall_s > 0 else "rtf -"
+    rejected = f", {stats.rejected} rejected" if stats.rejected else ""
+    return (f"live: {sim_s:.1f} s sim, {rtf}, {sum(list(stats.published.values()))} messages out, "
+            f"{sum(list(stats.commands.values()))} commands in{rejected}")
+
+
+@contextlib.contextmanager
+def live_status(out: Console, bridge, control_hz: float, every_s: float = 0.5):
+    """While the bridge runs: its ``status_line`` on ``out``, refreshed every ``every_s`` (a terminal only)."""
+    done = threading.Event()
+    t0 = time.perf_counter()
+    with out.status(status_line(bridge.stats, control_hz, 0.0)) as status:
+        def refresh():
+            while not done.wait(every_s):
+                try:
+                    status.update(status_line(bridge.stats, control_hz, time.perf_counter() - t0))
+                except RuntimeError:  # a topic's first message grew the counts mid-read: the next refresh
+                    pass
+
+        thread = threading.Thread(target=refresh, name="deploy-status", daemon=True)
+        thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            thread.join()
