@@ -43,6 +43,18 @@ def test_collect_train_run_record(tmp_path):
     assert p.returncode == 2 and "does not fit this scene" in p.stderr and "image_size: [40, 40]" in p.stderr
 
 
+def test_collect_keeps_the_video_encoders_quiet(tmp_path):
+    """collect with videos prints its own lines only (catches: SVT-AV1's banner, FFmpeg's 'Starting second
+    pass' and the datasets library's 'Map:' bars, dozens of lines per episode)."""
+    (tmp_path / "lift.yaml").write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [32, 32]\nmax_steps: 5\n")
+    p = _simseam("collect", "--scene", "lift.yaml", "--policy", "zero", "--episodes", "2", "--keep-failures",
+                 "--out", "demos", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.count("recorded") == 2 and (tmp_path / "demos" / "videos").is_dir()
+    for chatter in ("Svt[", "[mp4 @", "Map:"):
+        assert chatter not in p.stdout + p.stderr, p.stdout + p.stderr
+
+
 def test_collect_interrupted_keeps_the_recorded_episodes(tmp_path):
     import signal
     import time

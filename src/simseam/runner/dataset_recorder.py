@@ -45,6 +45,22 @@ def _require_lerobot():
     return LeRobotDataset
 
 
+def _quiet_encoders() -> None:
+    """Keep the video encoders' chatter off the terminal: SVT-AV1's banner and warnings (errors still show),
+    FFmpeg's informational lines, the datasets library's per-episode progress bars."""
+    import os
+
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1 reads it when an encoder starts: 1 = errors only
+    try:
+        import av.logging
+        import datasets
+
+        av.logging.set_libav_level(av.logging.ERROR)  # LeRobot restores FFmpeg's own printer after each video
+        datasets.disable_progress_bars()
+    except ImportError:  # pragma: no cover - part of the lerobot extra
+        pass
+
+
 def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str, dict[str, Any]]:
     """LeRobot feature spec for a rollout (see the module docstring)."""
     features: dict[str, dict[str, Any]] = {}
@@ -95,6 +111,7 @@ class LeRobotRecorder:
     def __init__(self, root: str | Path, spec: RolloutSpec, *, repo_id: str | None = None,
                  use_videos: bool = True, overwrite: bool = False):
         LeRobotDataset = _require_lerobot()
+        _quiet_encoders()
         self.root = Path(root)
         fps = float(spec.control_hz)
         if abs(fps - round(fps)) > 1e-9:
