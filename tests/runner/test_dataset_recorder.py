@@ -157,3 +157,28 @@ def test_the_cameras_statistics_are_those_of_the_recorded_pixels(panda_spec, mak
         np.testing.assert_allclose(np.ravel(got["mean"]), x.mean(axis=0), atol=1e-9)
         np.testing.assert_allclose(np.ravel(got["std"]), x.std(axis=0), atol=1e-9)
         assert min(np.ravel(got["std"])) > 0.02  # a real spread, not LeRobot's ~0
+
+
+def test_the_caller_is_told_before_an_episode_is_written(panda_spec, make_scene):
+    """on_save(i) comes before the recorder writes episode i (where its videos are encoded), and only for an
+    episode that is kept (catches: a progress bar frozen at the last step for the seconds of encoding)."""
+    from simseam.policies.base import make_policy
+    from simseam.runner.session import run_episodes
+
+    calls = []
+
+    class Recorder:
+        def add(self, observation, action):
+            pass
+
+        def end_episode(self, keep=True):
+            calls.append(("end", keep))
+            return keep
+
+    scene = make_scene(panda_spec, image_size=(32, 32), max_steps=3)
+    run_episodes(scene, make_policy("zero"), [0, 1], recorder=Recorder(), keep_failures=False,
+                 on_save=lambda i: calls.append(("save", i)))
+    assert calls == [("end", False), ("end", False)]  # failures not kept: nothing to encode, nothing said
+    calls.clear()
+    run_episodes(scene, make_policy("zero"), [0, 1], recorder=Recorder(), on_save=lambda i: calls.append(("save", i)))
+    assert calls == [("save", 0), ("end", True), ("save", 1), ("end", True)]

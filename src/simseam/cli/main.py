@@ -63,9 +63,12 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
             err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
                               highlight=False)
 
+        def save(i):  # the bar stays, its clock running, while the episode's videos are encoded
+            progress.update(current["task"], description=f"episode {i}: writing it to the dataset (encoding)")
+
         return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
                             keep_failures=keep_failures, on_start=start, on_done=done, on_error=error,
-                            keep=on_result is None)
+                            on_save=save, keep=on_result is None)
 
 
 def _open_run(scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):

@@ -25,11 +25,12 @@ def run_episodes(rollout: SimRollout, policy: Policy, indices: Iterable[int], *,
                  on_start: Callable[[int], StepCallback | None] | None = None,
                  on_done: Callable[[EpisodeResult, bool | None], None] | None = None,
                  on_error: Callable[[EpisodeResult, str], None] | None = None,
-                 keep: bool = True) -> list[EpisodeResult]:
+                 on_save: Callable[[int], None] | None = None, keep: bool = True) -> list[EpisodeResult]:
     """Run the episodes ``indices``; ``on_start(i)`` may return a per-step callback;
     ``on_done(result, written)`` gets each finished episode (``written``: whether the
     recorder kept it, None without a recorder); ``on_error(result, what_next)`` is told
-    about an episode cut short by a sidecar or policy-server failure. ``keep=False``: return no list (a
+    about an episode cut short by a sidecar or policy-server failure; ``on_save(i)`` is told before the recorder
+    writes episode ``i`` (its videos are encoded then: seconds). ``keep=False``: return no list (a
     long run that takes each result through ``on_done`` keeps its memory flat)."""
     from simseam.policies.remote import RemotePolicyError
 
@@ -42,6 +43,8 @@ def run_episodes(rollout: SimRollout, policy: Policy, indices: Iterable[int], *,
                               video_path=video_dir / f"episode_{i:03d}.mp4" if video_dir else None,
                               on_step=on_step, recorder=recorder)
             if recorder is not None:
+                if on_save is not None and (res.success or keep_failures):
+                    on_save(i)
                 written = recorder.end_episode(keep=res.success or keep_failures)
         except (SidecarError, RemotePolicyError) as exc:
             if recorder is not None:
