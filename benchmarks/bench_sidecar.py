@@ -116,6 +116,7 @@ import zmq
 from simseam.robot.spec import RobotSpec
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.sidecar.client import SidecarRollout
+from simseam.sidecar.target import SceneTarget
 from simseam.sidecar.wire import decode, encode
 
 HERE = Path(__file__).resolve().parent
@@ -643,8 +644,8 @@ def instrumented_server(argv: list[str]) -> int:
             log.append(dict(cur))
         return r
 
-    def t_build(boot):
-        scene = build(boot)
+    def t_build(*args):
+        scene = build(*args)
         step = scene.step
 
         def t_step(action, *a, **k):
@@ -775,7 +776,7 @@ def profile_in_situ(configs: dict, inproc: dict[str, StepCase], actions: np.ndar
         try:
             for transport in ways:
                 log_path = tmpdir / f"profile-{g}-{transport}.json"
-                sc = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="ipc", python=str(wrapper),
+                sc = SidecarRollout(SceneTarget(cspec.to_json(), LAYOUT, "mujoco", opts), transport="ipc", python=str(wrapper),
                                     env={**SIDECAR_ENV, PROF_ENV: str(log_path)}, local=transport in SPIN_US,
                                     spin_us=spin_us(transport), compact=transport in COMPACT_WAYS)
                 pids.append(sc.pid)
@@ -827,7 +828,7 @@ def bench_boot(spec: RobotSpec, configs: dict[str, dict], reps: int, pids: list)
             if stage.startswith("building scene"):
                 seen["building"] = time.perf_counter() - t0
 
-        sc = SidecarRollout(spec_json, LAYOUT, "mujoco", opts, transport="ipc", progress=progress)
+        sc = SidecarRollout(SceneTarget(spec_json, LAYOUT, "mujoco", opts), transport="ipc", progress=progress)
         dt = time.perf_counter() - t0
         pids.append(sc.pid)
         sc.close()
@@ -915,7 +916,8 @@ def main() -> None:
                 if way == "inproc":
                     ro = ManifestScene(cspec, LAYOUT, "mujoco", scene_options(opts))
                 else:
-                    ro = SidecarRollout(cspec.to_json(), LAYOUT, "mujoco", opts, transport="tcp" if way == "tcp" else "ipc",
+                    ro = SidecarRollout(SceneTarget(cspec.to_json(), LAYOUT, "mujoco", opts),
+                                        transport="tcp" if way == "tcp" else "ipc",
                                         local=way in SPIN_US, env=SIDECAR_ENV, spin_us=spin_us(way),
                                         compact=way in COMPACT_WAYS)
                     assert ro.fast == (way in SPIN_US), f"{way}: fast path {'not ' if not ro.fast else ''}taken"

@@ -119,11 +119,12 @@ def test_license_must_be_accepted_and_a_recorded_acceptance_is_exported(tmp_path
 def test_sidecar_scene_on_isaac_fails_closed_end_to_end(panda_spec, tmp_path, monkeypatch):
     """A real sidecar (this interpreter, no Isaac Sim): the boot fails with the provisioning command."""
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
     from simseam.sidecar.errors import RemoteError
 
     monkeypatch.setenv("SIMSEAM_LOCK_DIR", str(tmp_path))
     with pytest.raises(RemoteError) as err:
-        SidecarRollout(panda_spec.to_json(), "lift_cube", "isaac", {}, boot_timeout=120)
+        SidecarRollout(SceneTarget(panda_spec.to_json(), "lift_cube", "isaac"), boot_timeout=120)
     assert err.value.kind == "BackendUnavailableError"
     assert "simseam isaac provision" in str(err.value) and "not importable" in str(err.value)
 

@@ -274,9 +274,10 @@ def test_a_sim_scene_cannot_attach_to_real_hardware(panda_spec, make_scene):
 
 def test_works_over_a_sidecar_rollout(mobile_spec):
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
 
-    rollout = SidecarRollout(mobile_spec.to_json(), "nav_obstacles", "mujoco",
-                             dataclasses.asdict(SceneOptions(render_images=False)))
+    rollout = SidecarRollout(SceneTarget(mobile_spec.to_json(), "nav_obstacles", "mujoco",
+                                         dataclasses.asdict(SceneOptions(render_images=False))))
     try:
         hal = SimAttachedHAL.attach(rollout)
         hal.connect()

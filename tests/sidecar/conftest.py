@@ -53,6 +53,7 @@ def make_sidecar(panda_json):
     """Factory for SidecarRollouts (default: Panda lift_cube, two 32x32 cameras), each closed and
     reaped at the end of the test; the test fails if one of them is still alive after that."""
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
 
     made: list[SidecarRollout] = []
     pids: set[int] = set()  # every sidecar process seen (kept-alive ones forget theirs on close())
@@ -61,8 +62,8 @@ def make_sidecar(panda_json):
     def _make(spec_json=None, layout="lift_cube", options=None, **kwargs) -> SidecarRollout:
         kwargs.setdefault("boot_timeout", 60.0)
         kwargs.setdefault("request_timeout", 30.0)
-        r = SidecarRollout(spec_json or panda_json, layout, "mujoco",
-                           scene_options() if options is None else options, **kwargs)
+        r = SidecarRollout(SceneTarget(spec_json or panda_json, layout, "mujoco",
+                                       scene_options() if options is None else options), **kwargs)
         made.append(r)
         pids.add(r.pid)
         if r._keep_alive and r._dir:  # a kept-alive sidecar's private dir outlives its client: ours to remove

@@ -17,7 +17,7 @@ import zmq
 from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, kept, running, scene_options
 
 from simseam.seam import ConfigError, InvalidActionError, SidecarError, SimRollout, SimseamError, SimulationError
-from simseam.sidecar.client import SidecarRollout, scene_identity
+from simseam.sidecar.client import SidecarRollout
 from simseam.sidecar.errors import (
     RemoteConfigError,
     RemoteError,
@@ -27,6 +27,7 @@ from simseam.sidecar.errors import (
     SidecarProtocolError,
     SidecarTimeout,
 )
+from simseam.sidecar.target import SceneTarget
 
 
 def _server_children() -> list[int]:
@@ -122,7 +123,7 @@ def test_remote_handler_error_is_a_typed_simulation_error(make_sidecar):
 def test_boot_config_error_comes_back_with_its_message(panda_json, client_tmp):
     before = _server_children()
     with pytest.raises(RemoteConfigError) as ei:
-        SidecarRollout(panda_json, "no_such_layout", options=scene_options(), boot_timeout=60)
+        SidecarRollout(SceneTarget(panda_json, "no_such_layout", options=scene_options()), boot_timeout=60)
     err = ei.value
     assert isinstance(err, SimseamError) and isinstance(err, ValueError)
     assert not isinstance(err, SidecarTimeout)
@@ -141,16 +142,16 @@ def test_protocol_mismatch_at_hello_leaves_nothing_behind(panda_json, client_tmp
     monkeypatch.setattr(client, "PROTOCOL_VERSION", 99)
     before = _server_children()
     with pytest.raises(SidecarProtocolError, match="client speaks protocol 99, server 3"):
-        SidecarRollout(panda_json, "lift_cube", options=scene_options(render_images=False))
+        SidecarRollout(SceneTarget(panda_json, "lift_cube", options=scene_options(render_images=False)))
     assert _server_children() == before
     assert list(client_tmp.iterdir()) == []
 
 
 def test_client_side_config_errors(panda_json, tmp_path):
     with pytest.raises(ConfigError, match="transport must be 'ipc' or 'tcp'"):
-        SidecarRollout(panda_json, "lift_cube", transport="udp")
+        SidecarRollout(SceneTarget(panda_json, "lift_cube"), transport="udp")
     with pytest.raises(ConfigError, match="not found"):
-        SidecarRollout(panda_json, "lift_cube", python=str(tmp_path / "no-such-python"))
+        SidecarRollout(SceneTarget(panda_json, "lift_cube"), python=str(tmp_path / "no-such-python"))
 
 
 # ----------------------------------------------------------------------------- transport
@@ -253,7 +254,7 @@ def test_identity_mismatch_is_never_driven(make_sidecar, panda_json, make_scene,
     a.reset(seed=5)
     a.step(acts[0])
     other_opts = scene_options(render_images=False, control_hz=10.0)
-    other_identity = scene_identity(panda_json, "lift_cube", "mujoco", other_opts)
+    other_identity = SceneTarget(panda_json, "lift_cube", "mujoco", other_opts).identity()
     assert other_identity != a.identity
 
     # 1. a client for another scene, holding A's endpoint and token, is refused after hello

@@ -25,6 +25,7 @@ from typer.testing import CliRunner
 from simseam.seam import SidecarError
 from simseam.sidecar.client import SidecarRollout
 from simseam.sidecar.errors import SidecarCrashed, SidecarTimeout
+from simseam.sidecar.target import SceneTarget
 
 REPO = Path(__file__).resolve().parents[2]
 HOOKS = {"SIMSEAM_SIDECAR_TEST_HOOKS": "1"}
@@ -124,7 +125,8 @@ def test_interpreter_that_dies_at_start_is_a_boot_crash(panda_json, tmp_path, cl
         "exit 5\n")
     wrapper.chmod(0o755)
     with pytest.raises(SidecarCrashed) as ei:
-        SidecarRollout(panda_json, "lift_cube", options=scene_options(), python=str(wrapper), boot_timeout=60)
+        SidecarRollout(SceneTarget(panda_json, "lift_cube", options=scene_options()), python=str(wrapper),
+                       boot_timeout=60)
     t_raised = time.time()
     exited = float(stamp.read_text())
     assert t_raised - exited < HANG_GUARD_S, f"reported {t_raised - exited:.2f} s after the process exited " \
@@ -146,8 +148,8 @@ def test_interpreter_without_simseam_is_a_boot_crash(panda_json, tmp_path, monke
     monkeypatch.setenv("PYTHONPATH", str(REPO / "src"))
     t0 = time.monotonic()
     with pytest.raises(SidecarCrashed) as ei:
-        SidecarRollout(panda_json, "lift_cube", options=scene_options(), python=str(venv / "bin" / "python"),
-                       boot_timeout=60)
+        SidecarRollout(SceneTarget(panda_json, "lift_cube", options=scene_options()),
+                       python=str(venv / "bin" / "python"), boot_timeout=60)
     assert time.monotonic() - t0 < HANG_GUARD_S  # not the 60 s boot timeout
     err = ei.value
     assert err.exit_code == 1 and "while booting" in str(err)

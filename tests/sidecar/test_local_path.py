@@ -558,9 +558,10 @@ CLIENT = textwrap.dedent("""
     import numpy as np
     from simseam.robot.manifest import load_robot
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
 
-    r = SidecarRollout(load_robot("franka_panda").to_json(), "lift_cube",
-                       options={"render_images": True, "image_size": [64, 64]})
+    r = SidecarRollout(SceneTarget(load_robot("franka_panda").to_json(), "lift_cube",
+                                   options={"render_images": True, "image_size": [64, 64]}))
     r.reset(0)
     assert r.fast and r._slots is not None
     print(r.pid, r.endpoint, flush=True)
@@ -644,12 +645,13 @@ def test_default_spin_follows_the_cores_and_the_environment(monkeypatch):
 def test_a_bad_spin_is_a_config_error_naming_it(monkeypatch):
     from simseam.seam import ConfigError
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
 
     with pytest.raises(ConfigError, match="spin_us"):
-        SidecarRollout({}, "lift_cube", spin_us=local.MAX_SPIN_US + 1)
+        SidecarRollout(SceneTarget({}, "lift_cube"), spin_us=local.MAX_SPIN_US + 1)
     monkeypatch.setenv(local.SPIN_ENV, "soon")
     with pytest.raises(ConfigError, match=local.SPIN_ENV):
-        SidecarRollout({}, "lift_cube")
+        SidecarRollout(SceneTarget({}, "lift_cube"))
 
 
 def test_busy_polling_sides_serve_the_same_trajectory_and_take_messages_spinning(make_sidecar, make_scene, panda_spec,

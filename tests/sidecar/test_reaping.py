@@ -19,8 +19,9 @@ CLIENT = textwrap.dedent("""
     import sys, time
     from simseam.robot.manifest import load_robot
     from simseam.sidecar.client import SidecarRollout
+    from simseam.sidecar.target import SceneTarget
 
-    r = SidecarRollout(load_robot("franka_panda").to_json(), "lift_cube", options={"render_images": False})
+    r = SidecarRollout(SceneTarget(load_robot("franka_panda").to_json(), "lift_cube", options={"render_images": False}))
     r.reset(0)
     print(r.pid, r.endpoint, flush=True)
     if sys.argv[1] == "exit":

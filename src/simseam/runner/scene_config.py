@@ -184,12 +184,13 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
         return WarpRollout(spec, cfg.task, options, WarpOptions(device=eng.device))
     if eng.process == "sidecar":
         from simseam.sidecar.client import SidecarRollout
+        from simseam.sidecar.target import SceneTarget
 
         python = os.path.expanduser(eng.python) if eng.python else None
         if python and not Path(python).is_absolute() and "/" in python:
             python = str((base_dir / python).resolve())
-        return SidecarRollout(spec.to_json(), cfg.task, eng.name, dataclasses.asdict(options), python=python,
-                              transport=eng.transport, boot_timeout=eng.boot_timeout_s,
+        target = SceneTarget(spec.to_json(), cfg.task, eng.name, dataclasses.asdict(options))
+        return SidecarRollout(target, python=python, transport=eng.transport, boot_timeout=eng.boot_timeout_s,
                               request_timeout=eng.request_timeout_s, keep_alive=eng.keep_alive, progress=progress)
     engine = make_engine(eng.name, EngineOptions(timestep=eng.timestep, render_quality=eng.render_quality))
     return ManifestScene(spec, cfg.task, engine, options)

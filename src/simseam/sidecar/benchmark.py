@@ -9,6 +9,7 @@ from simseam.backends import backend_module, software_vulkan
 from simseam.backends.provision import require
 from simseam.seam.errors import ConfigError
 from simseam.sidecar.client import SidecarBatchRollout, SidecarRollout
+from simseam.sidecar.target import BackendTarget
 
 
 def open_benchmark(name: str, config: dict[str, Any], *, privileged: bool = False, progress=None,
@@ -32,8 +33,8 @@ def open_benchmark(name: str, config: dict[str, Any], *, privileged: bool = Fals
     config = module.normalize_config(config, where)
     python = require(name)
     env = software_vulkan.sidecar_env() if name in software_vulkan.RENDERS_WITH else None
-    args = (None, str(config.get("task", name)), name, config)
-    kwargs = dict(backend=name, python=str(python), boot_timeout=boot_timeout, request_timeout=request_timeout,
+    args = (BackendTarget(name, config),)
+    kwargs = dict(python=str(python), boot_timeout=boot_timeout, request_timeout=request_timeout,
                   progress=progress, local=local, env=env)
     if num_envs is not None:
         return SidecarBatchRollout(num_envs, *args, **kwargs)

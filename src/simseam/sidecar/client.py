@@ -8,8 +8,8 @@ removed), and talks to it over ZeroMQ with ``simseam.sidecar.wire``.
 Access: by default a private ``ipc://`` socket inside a fresh 0700 directory;
 with ``transport="tcp"`` a socket bound to 127.0.0.1 on a random port. Either
 way every request carries a random per-launch token, and ``hello`` checks the
-sidecar serves exactly this scene (its identity: a hash of robot spec, task,
-engine and options) before anything else is sent.
+sidecar serves exactly this target (its identity: a hash of the ``SceneTarget`` or
+``BackendTarget``, ``sidecar.target``) before anything else is sent.
 
 Failure handling: while waiting for a reply the client polls in 50 ms slices
 and checks the process, so a sidecar that dies (crash, kill -9, import error)
@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import atexit
 import collections
-import hashlib
 import json
 import os
 import queue
@@ -79,6 +78,7 @@ from simseam.sidecar.errors import (
     remote_error,
 )
 from simseam.sidecar import local
+from simseam.sidecar.target import BackendTarget, SceneTarget, Target
 from simseam.sidecar.compact import ReplyDecoder, encode_step
 from simseam.sidecar.local import MAX_SPIN_US, default_spin_us
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
@@ -88,13 +88,6 @@ SANITIZED_ENV = ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV", "PYTHONSTARTUP", "PY
 POLL_SLICE_MS = 50
 STDERR_LINES = 40
 EXIT_BUSY = 3
-
-
-def scene_identity(spec_json: dict, task: str, engine: str, options: dict) -> str:
-    """What a sidecar serves, as a short hash: two sidecars with the same identity are interchangeable."""
-    blob = json.dumps({"spec": spec_json, "task": task, "engine": engine, "options": options},
-                      sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256(blob.encode()).hexdigest()[:24]
 
 
 def registry_dir() -> Path:
@@ -202,12 +195,11 @@ class _Process:
 class SidecarRollout:
     """A ``SimRollout`` whose scene lives in a sidecar process.
 
-    ``spec_json``: a ``RobotSpec.to_json()``; ``options``: ``SceneOptions`` fields
-    (JSON types). ``python``: the sidecar's interpreter (default: this one).
-    ``progress``: called with each boot stage (a str). ``backend``: serve a benchmark
-    backend (``simseam.backends``) instead of a manifest scene; ``options`` is then its
-    config and ``spec_json`` None. Its interpreter gets this process's ``simseam`` package
-    on its path (a symlink in the private directory), so a backend venv needs no copy of it.
+    ``target``: what it serves (``sidecar.target``): a ``SceneTarget`` (a manifest scene) or a
+    ``BackendTarget`` (a benchmark backend, whose interpreter gets this process's ``simseam`` package on
+    its path, a symlink in the private directory, so a backend venv needs no copy of it); the rest says
+    how. ``python``: the sidecar's interpreter (default: this one). ``progress``: called with each boot
+    stage (a str).
 
     ``local`` (default True): with ``transport="ipc"``, use the local fast path the sidecar offers
     (Unix socket + shared-memory ring of ``local_slots`` slots; ``self.fast`` says whether it was
@@ -231,8 +223,7 @@ class SidecarRollout:
     fast = False
     compact = False
 
-    def __init__(self, spec_json: dict | None, task: str, engine: str = "mujoco", options: dict | None = None, *,
-                 backend: str | None = None, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
+    def __init__(self, target: Target, *, python: str | None = None, transport: str = "ipc", boot_timeout: float = 120.0,
                  request_timeout: float = 30.0, keep_alive: bool = False, exclusive: bool = False,
                  progress: Callable[[str], None] | None = None, env: dict[str, str] | None = None,
                  local: bool = True, local_slots: int = local.DEFAULT_SLOTS, spin_us: int | None = None,
@@ -254,10 +245,10 @@ class SidecarRollout:
         self.fast = False  # whether requests use the local fast path
         self.compact = False  # whether step messages may travel compact on it
         self._decoder = None
-        self._spec_json = spec_json
-        self._task = task
-        self._engine = engine
-        self._options = dict(options or {})
+        if not isinstance(target, (SceneTarget, BackendTarget)):
+            raise ConfigError(f"a sidecar serves a SceneTarget or a BackendTarget, got {type(target).__name__}")
+        self.target = target
+        self._engine = target.engine
         self._python = python or sys.executable
         self._transport = transport
         self._boot_timeout = boot_timeout
@@ -266,9 +257,7 @@ class SidecarRollout:
         self._exclusive = exclusive
         self._progress = progress or (lambda stage: None)
         self._extra_env = env
-        self._backend = backend
-        ident_spec = spec_json if backend is None else {"backend": backend}
-        self.identity = scene_identity(ident_spec, task, engine, self._options)
+        self.identity = target.identity()
         self._ctx = zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self._proc: _Process | None = None
@@ -291,24 +280,22 @@ class SidecarRollout:
 
                 raise BackendUnavailableError(f"Isaac Sim is not provisioned here: the sidecar interpreter "
                                               f"{self._python!r} does not exist. {provision_hint()}")
-            if self._backend is not None:
+            if isinstance(self.target, BackendTarget):
                 from simseam.backends.provision import require
 
-                require(self._backend)  # raises with the provisioning command
+                require(self.target.backend)  # raises with the provisioning command
             raise ConfigError(f"sidecar interpreter {self._python!r} not found")
         self._dir = tempfile.mkdtemp(prefix="simseam-sidecar-")  # 0700
         os.chmod(self._dir, 0o700)
         self._token = secrets.token_hex(16)
         endpoint = f"ipc://{self._dir}/scene.sock" if self._transport == "ipc" else "tcp://127.0.0.1:*"
-        boot = {"spec": self._spec_json, "task": self._task, "engine": self._engine, "options": self._options,
-                "endpoint": endpoint, "token": self._token, "identity": self.identity,
+        boot = {"target": self.target.to_json(), "endpoint": endpoint, "token": self._token, "identity": self.identity,
                 "exclusive": self._exclusive, "keep_alive": self._keep_alive,
                 "registry_dir": str(registry_dir()) if self._keep_alive else None}
         if self._num_envs is not None:
             boot["num_envs"] = self._num_envs
         env = dict(self._extra_env or {})
-        if self._backend is not None:
-            boot.update(backend=self._backend, config=self._options)
+        if isinstance(self.target, BackendTarget):  # a backend's venv gets this process's simseam package
             src = Path(self._dir) / "src"
             src.mkdir()
             os.symlink(Path(__file__).resolve().parents[1], src / "simseam")

@@ -54,6 +54,7 @@ import zmq
 from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
 from simseam.sidecar import local
 from simseam.sidecar.compact import COMPACT_VERSION, MAGIC, ReplyTemplates, decode_step
+from simseam.sidecar.target import BackendTarget, Target, target_from_json
 from simseam.sidecar.wire import PROTOCOL_VERSION, WireError, decode, encode
 
 EXIT_BUSY = 3  # exit code: an exclusive engine is already running elsewhere
@@ -313,30 +314,30 @@ def _is_ok(frames: list) -> bool:
         return False
 
 
-def build_scene(boot: dict):
-    n = boot.get("num_envs")
-    if n is not None:
-        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
-            raise ConfigError(f"boot: num_envs must be an int >= 1, got {n!r}")
-        if boot.get("backend"):
+def build_scene(target: Target, num_envs: int | None = None):
+    """The rollout ``target`` describes; with ``num_envs``, a batch of that many (the backend's own batch
+    when it has one, else copies stepped in turn)."""
+    if num_envs is not None:
+        if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ConfigError(f"boot: num_envs must be an int >= 1, got {num_envs!r}")
+        if isinstance(target, BackendTarget):
             from simseam.backends import make_backend_batch
 
-            return make_backend_batch(str(boot["backend"]), dict(boot.get("config") or {}), n)
+            return make_backend_batch(target.backend, dict(target.config), num_envs)
         from simseam.seam import SyncBatchRollout
 
-        return SyncBatchRollout([build_scene({**boot, "num_envs": None}) for _ in range(n)])
-    if boot.get("backend"):
+        return SyncBatchRollout([build_scene(target) for _ in range(num_envs)])
+    if isinstance(target, BackendTarget):
         from simseam.backends import make_backend_rollout
 
-        return make_backend_rollout(str(boot["backend"]), dict(boot.get("config") or {}))
+        return make_backend_rollout(target.backend, dict(target.config))
     from simseam.robot.spec import RobotSpec
     from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 
-    opts = dict(boot.get("options") or {})
+    opts = dict(target.options)
     if opts.get("image_size") is not None:
         opts["image_size"] = tuple(opts["image_size"])
-    return ManifestScene(RobotSpec.from_json(boot["spec"]), boot["task"], boot.get("engine", "mujoco"),
-                         SceneOptions(**opts))
+    return ManifestScene(RobotSpec.from_json(target.spec), target.task, target.engine, SceneOptions(**opts))
 
 
 def serve(boot: dict) -> int:
@@ -346,14 +347,18 @@ def serve(boot: dict) -> int:
         _die_with_parent()
     signal.signal(signal.SIGTERM, _exit_on_sigterm)
     lock = None
-    if boot.get("exclusive") or boot.get("engine") in EXCLUSIVE_ENGINES:
-        lock = _take_engine_lock(boot.get("engine", "mujoco"))
-    what = (f"building benchmark {boot['backend']!r}" if boot.get("backend") else
-            f"building task {boot['task']!r} on engine {boot.get('engine', 'mujoco')!r}")
-    _emit("boot", stage=what)
+    try:
+        target = target_from_json(boot.get("target"))
+    except ConfigError as exc:
+        _emit("error", kind=type(exc).__name__, message=str(exc), traceback="")
+        _say(f"simseam sidecar: cannot build the scene: {exc}")
+        return EXIT_BOOT_ERROR
+    if boot.get("exclusive") or target.engine in EXCLUSIVE_ENGINES:
+        lock = _take_engine_lock(target.engine)
+    _emit("boot", stage=f"building {target.describe()}")
     os.environ["SIMSEAM_SIDECAR"] = "1"  # sidecar-only engines (isaac) are made only in this process
     try:
-        scene = build_scene(boot)
+        scene = build_scene(target, boot.get("num_envs"))
     except Exception as exc:  # reported to the client as a typed error, then exit
         _emit("error", kind=type(exc).__name__, message=str(exc), traceback=traceback.format_exc())
         _say(f"simseam sidecar: cannot build the scene: {type(exc).__name__}: {exc}")
