@@ -41,14 +41,15 @@ def run_native(tmp_path):
 
 @pytest.fixture
 def open_backend():
-    """``open_backend(name, config, privileged=False)``: a SidecarRollout, closed after the test."""
+    """``open_backend(name, config, privileged=False, num_envs=None)``: a SidecarRollout (a SidecarBatchRollout of
+    ``num_envs``), closed after the test."""
     from simseam.sidecar.benchmark import open_benchmark
 
     opened = []
 
-    def make(name: str, config: dict, privileged: bool = False):
+    def make(name: str, config: dict, privileged: bool = False, num_envs: int | None = None):
         backend_python(name)
-        r = open_benchmark(name, config, privileged=privileged)
+        r = open_benchmark(name, config, privileged=privileged, num_envs=num_envs)
         opened.append(r)
         return r
 

@@ -10,24 +10,13 @@ import pytest
 from backend_util import backend_python
 
 from simseam.seam import BackendUnavailableError, ConfigError, ObsRequest
-from simseam.sidecar.benchmark import open_benchmark
 
 pytestmark = pytest.mark.backends
 
 
 @pytest.fixture
-def maniskill():
-    backend_python("maniskill")
-    opened = []
-
-    def make(config, num_envs=None):
-        r = open_benchmark("maniskill", config, num_envs=num_envs)
-        opened.append(r)
-        return r
-
-    yield make
-    for r in opened:
-        r.close()
+def maniskill(open_backend):
+    return lambda config, num_envs=None: open_backend("maniskill", config, num_envs=num_envs)
 
 
 def _single_episode(rollout, seed, actions, request):

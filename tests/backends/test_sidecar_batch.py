@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from backend_util import backend_python
 
 from simseam.policies.base import make_policy
 from simseam.policies.batch import PerEnvPolicies
 from simseam.runner.scheduler import run_batch
 from simseam.runner.session import run_episodes
 from simseam.seam import ConfigError, ObsRequest, check_batch_rollout
-from simseam.sidecar.benchmark import open_benchmark
 
 pytestmark = pytest.mark.backends
 
@@ -21,18 +19,8 @@ CONFIG = {"task": "pusht", "max_steps": 12}
 
 
 @pytest.fixture
-def pusht():
-    backend_python("pusht")
-    opened = []
-
-    def make(num_envs=None):
-        r = open_benchmark("pusht", CONFIG, num_envs=num_envs)
-        opened.append(r)
-        return r
-
-    yield make
-    for r in opened:
-        r.close()
+def pusht(open_backend):
+    return lambda num_envs=None: open_backend("pusht", CONFIG, num_envs=num_envs)
 
 
 def test_a_batch_in_one_sidecar_keeps_the_batch_contract(pusht):
@@ -77,4 +65,4 @@ def test_single_and_batch_ops_are_refused_across(pusht):
     with pytest.raises(Exception, match="serves one rollout"):
         single._request("batch_reset", {"envs": [0], "seeds": [0]})
     with pytest.raises(ConfigError, match="num_envs >= 1"):
-        open_benchmark("pusht", CONFIG, num_envs=0)
+        pusht(0)
