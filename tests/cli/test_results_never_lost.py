@@ -86,6 +86,21 @@ def test_a_run_that_fails_before_it_starts_leaves_no_half_made_directory(scene, 
         ["latest", first.name])
 
 
+def test_a_policy_that_does_not_fit_the_scene_is_found_before_the_run_starts(scene, tmp_path):
+    """The scripted expert on a joint_position scene: refused when the run is built, so --overwrite keeps the
+    old run byte for byte and collect leaves no dataset (catches: the mismatch found in the first episode,
+    after the old run was removed and run.json, spec.json and an empty log were written)."""
+    out = tmp_path / "keep"
+    assert _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "1", "--out", out).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    joint = tmp_path / "joint.yaml"
+    joint.write_text(SCENE.format(steps=4) + "control_mode: joint_position\n")
+    for cmd, where in (("run", out), ("collect", tmp_path / "demos")):
+        proc = _simseam(cmd, "--scene", joint, "--episodes", "1", "--out", where, "--overwrite")
+        assert proc.returncode == 2 and "drives cartesian_delta" in proc.stderr, proc.stdout + proc.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not (tmp_path / "demos").exists()
+
+
 def test_existing_run_is_refused_then_overwritten_or_resumed(scene, tmp_path):
     out = tmp_path / "run"
     first = _simseam("run", "--scene", scene(), "--policy", "zero", "--episodes", "2", "--out", out, "--video")

@@ -82,6 +82,12 @@ def _open_run(scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, *,
         rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged,
                                 render_images=pol.uses_images or need_images, seed=seed,
                                 progress=lambda stage: status.update(f"sidecar: {stage}"))
+    try:  # the policy's contract against the scene, before anything is written (run dir, dataset)
+        pol.reset(rollout.spec)
+    except BaseException:
+        rollout.close()
+        close_policy(pol)
+        raise
     return cfg, pol, rollout
 
 
