@@ -40,6 +40,10 @@ def load_yaml_model(path: str | Path, model: type[M], what: str) -> M:
     """Parse ``path`` as a YAML mapping and validate it with ``model``; ``what`` names the kind
     of file in messages ("robot manifest", "scene file")."""
     path = Path(path)
+    if path.is_dir():
+        yamls = sorted(p.name for p in path.glob("*.yaml"))
+        hint = f" (it holds {', '.join(yamls[:3])}{' ...' if len(yamls) > 3 else ''})" if yamls else ""
+        raise ConfigError(f"{path}: is a directory; name the {what} (a YAML file) inside it{hint}")
     try:
         data = yaml.load(path.read_text(), Loader=_Loader)
     except OSError as exc:

@@ -119,6 +119,10 @@ def test_robots_check_takes_a_built_in_name_and_names_a_directory_for_what_it_is
     m.write_text("name: x\nurdf: file:urdfdir\nbase_link: a\nee_link: b\njoints: [{name: j, role: arm}]\n")
     bad = _simseam("robots", "check", m)
     assert bad.returncode == 2 and "which is a directory, not a file" in bad.stderr
+    _one_line_error(_simseam("robots", "check", tmp_path), f"{tmp_path}: is a directory; name the robot manifest "
+                    "(a YAML file) inside it (it holds m.yaml)")
+    _one_line_error(_simseam("run", "--scene", tmp_path / "urdfdir", "--out", tmp_path / "o"),
+                    "urdfdir: is a directory; name the scene file (a YAML file) inside it")
 
 
 @pytest.mark.learning
