@@ -95,8 +95,8 @@ def test_a_policy_that_does_not_fit_the_scene_is_found_before_the_run_starts(sce
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     joint = tmp_path / "joint.yaml"
     joint.write_text(SCENE.format(steps=4) + "control_mode: joint_position\n")
-    for cmd, where in (("run", out), ("collect", tmp_path / "demos")):
-        proc = _simseam(cmd, "--scene", joint, "--episodes", "1", "--out", where, "--overwrite")
+    for cmd, where, *more in (("run", out), ("collect", tmp_path / "demos"), ("run", out, "--num-envs", "2")):
+        proc = _simseam(cmd, "--scene", joint, "--episodes", "2", "--out", where, "--overwrite", *more)
         assert proc.returncode == 2 and "drives cartesian_delta" in proc.stderr, proc.stdout + proc.stderr
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not (tmp_path / "demos").exists()
 

@@ -228,7 +228,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
     from simseam.runner.vector import VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
-    vec = pol = None
+    vec = pol = probe = None
     cfg, base_dir = scene_file
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
         run_dir.close()
@@ -242,6 +242,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             vec.close()
         if pol is not None:
             pol.close()
+        elif probe is not None:
+            close_policy(probe)
 
     finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
     with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
@@ -253,13 +255,15 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         uses_images, privileged = probe.uses_images, probe.requires_privileged
         one_batch = batched_in_one_process(cfg, uses_images or video)  # N envs stepped from here: one policy batch
         renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
-        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=one_batch or renderer == "batched")
         recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
 
         with console.status(f"starting {num_envs} environments"):
             vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
                                   privileged=privileged, render_images=uses_images or video, seed=seed)
+        probe.reset(vec.spec)  # the policy's contract against the scene, before the run starts
+        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=one_batch or renderer == "batched")
+        probe = None  # the batch owns it now, or it was closed
         spec_json = vec.spec.to_json()
         run_dir.write_spec(spec_json)
         where = "one batched policy" if pol is not None else "a policy in each worker"
