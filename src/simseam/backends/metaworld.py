@@ -8,7 +8,12 @@ episode. ``variation: sampled`` instead draws each episode's object and goal pos
 the task's own reset distribution (the one MT1 draws its 50 from) with the episode seed
 (Meta-World's ``seeded_rand_vec`` path after ``env.seed(seed)``): every seed its own episode,
 none of them one of MT1's 50, so demonstrations recorded that way leave the MT1 variations
-that ``simseam eval metaworld_mt10`` runs unseen. Each reset starts from freshly reset MuJoCo
+that ``simseam eval metaworld_mt10`` runs unseen. ``variation: lerobot`` is LeRobot's own
+Meta-World env (``lerobot-eval --env.type=metaworld``, lerobot/envs/metaworld.py): MT1 variation 0's
+settings, then each reset draws from NumPy's *global* generator (Meta-World's unseeded path; its
+``reset(seed=...)`` ignores the seed); episode ``seed`` is ``np.random.seed(seed)`` then that reset,
+which is what ``lerobot-eval --seed=<seed>`` runs as its first episode (its later episodes continue
+the global stream, each success drawing once more for the env's own reset). Each reset starts from freshly reset MuJoCo
 data (``mj_resetData``), so an episode is the same whether it is the first of its
 environment or the hundredth (MuJoCo's solver warm start would otherwise carry over).
 
@@ -18,9 +23,13 @@ Mapping to the seam:
   per step of the mocap target; grip -1 open, +1 closed), clipped to the bounds;
 - ``images``: ``{"camera1": <camera>}`` (default ``corner2``) at ``image_size`` (default 224x224),
   exactly what ``env.render()`` returns for that camera; ``cameras: false`` declares none (a
-  state-only rollout: ``simseam collect --no-cameras`` and a state policy's ``run`` set it);
+  state-only rollout: ``simseam collect --no-cameras`` and a state policy's ``run`` set it).
+  ``camera_pos: [x, y, z]`` moves the camera (LeRobot's env puts ``corner2`` at
+  ``[0.75, 0.075, 0.7]``); ``image_flip: true`` turns the image by 180 degrees (LeRobot flips
+  ``corner2``'s both axes: Meta-World renders it upside down);
 - ``state``: the 39-D Meta-World observation (hand xyz, gripper opening, two object poses, the
-  previous frame of those, the goal), cast to float32 (native: float64);
+  previous frame of those, the goal), cast to float32 (native: float64); ``state: agent_pos``
+  keeps its first 4 (hand xyz, gripper opening): LeRobot's ``agent_pos``;
 - ``environment_state`` (``environment_state: true``, the default): the 17 task slots of that
   observation, the two object poses and the goal (``state[4:18]`` and ``state[36:39]``), under
   the seam's key for a task's object state: what LeRobot's ACT reads as
@@ -73,9 +82,11 @@ NAME = "metaworld"
 HAS_EXPERT = True  # metaworld.policies: one scripted expert per task
 CAMERAS = ("corner", "corner2", "corner3", "topview", "behindGripper", "gripperPOV")
 CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
-VARIATIONS = ("mt1", "sampled")
+VARIATIONS = ("mt1", "sampled", "lerobot")
+STATES = ("full", "agent_pos")
 DEFAULTS = {"camera": "corner2", "image_size": [224, 224], "max_steps": 500, "goal_seed": 0, "expert": False,
-            "cameras": True, "variation": "mt1", "environment_state": True}
+            "cameras": True, "variation": "mt1", "environment_state": True, "camera_pos": None,
+            "image_flip": False, "state": "full"}
 DIAGNOSTICS = ("near_object", "grasp_success", "grasp_reward", "in_place_reward", "obj_to_target", "unscaled_reward")
 ROBOT_JOINTS = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "right_j5", "right_j6", "r_close",
                 "l_close")
@@ -84,6 +95,7 @@ STATE_NAMES = tuple(
     + [f"obj1_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     + [f"obj2_{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
     + [f"prev_{i}" for i in range(18)] + ["goal_x", "goal_y", "goal_z"])
+AGENT_POS = 4  # LeRobot's agent_pos: hand xyz + gripper opening, the observation's first 4
 ENV_STATE_SLOTS = (*range(4, 18), 36, 37, 38)  # obj1 pose, obj2 pose, goal: the task's part of the 39-D observation
 ENV_STATE_NAMES = tuple(STATE_NAMES[i] for i in ENV_STATE_SLOTS)
 N_GOALS = 50
@@ -101,12 +113,22 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
     out["image_size"] = check_image_size(out["image_size"], where)
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
     out["goal_seed"] = check_int(out["goal_seed"], f"{where}.goal_seed", low=0)
-    for key in ("expert", "cameras", "environment_state"):
+    for key in ("expert", "cameras", "environment_state", "image_flip"):
         if not isinstance(out[key], bool):
             raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
     if out["variation"] not in VARIATIONS:
         raise ConfigError(f"{where}.variation: {out['variation']!r}; one of {list(VARIATIONS)} (mt1: MT1's 50 fixed "
-                          "variations, seed % 50; sampled: a fresh draw from the task's reset distribution per seed)")
+                          "variations, seed % 50; sampled: a fresh draw from the task's reset distribution per seed; "
+                          "lerobot: LeRobot's env, a draw from NumPy's global generator after np.random.seed(seed))")
+    if out["state"] not in STATES:
+        raise ConfigError(f"{where}.state: {out['state']!r}; one of {list(STATES)} (full: the 39-D observation; "
+                          "agent_pos: its first 4, hand xyz and gripper opening, as LeRobot's env)")
+    pos = out["camera_pos"]
+    if pos is not None:
+        if not (isinstance(pos, (list, tuple)) and len(pos) == 3
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in pos)):
+            raise ConfigError(f"{where}.camera_pos: expected [x, y, z] in metres, got {pos!r}")
+        out["camera_pos"] = [float(x) for x in pos]
     return out
 
 
@@ -147,13 +169,18 @@ class MetaWorldRollout(BenchmarkRollout):
 
             self._expert = ENV_POLICY_MAP[name]()
         m = self.env.model
+        if config["camera_pos"] is not None:
+            m.cam_pos[m.camera(config["camera"]).id] = config["camera_pos"]
         self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in ROBOT_JOINTS])
         self._vadr = np.array([m.jnt_dofadr[m.joint(j).id] for j in ROBOT_JOINTS])
         self._native_reset(0)  # camera poses and the first observation
         cam = m.camera(config["camera"]).id
+        xmat = self.env.data.cam_xmat[cam].reshape(3, 3).copy()
+        if config["image_flip"]:
+            xmat[:, :2] *= -1  # the image turned by 180 degrees: the camera rolled half a turn about its view axis
         sensors = (SensorFacts(name=config["camera"], kind="rgb", parent="world",
                                xyz=tuple(float(x) for x in self.env.data.cam_xpos[cam]),
-                               rpy=mount_rpy(self.env.data.cam_xmat[cam]), feature_key="camera1",
+                               rpy=mount_rpy(xmat), feature_key="camera1",
                                width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),) if config["cameras"] else ()
         joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
                                   float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
@@ -167,8 +194,9 @@ class MetaWorldRollout(BenchmarkRollout):
             robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=sensors),
             task=TaskSpec(name=name, instruction=instruction(name), max_steps=config["max_steps"],
                           diagnostics=DIAGNOSTICS),
-            observation=observation_spec({"camera1": (h, w)} if config["cameras"] else {}, STATE_NAMES, ROBOT_JOINTS,
-                                         extra),
+            observation=observation_spec({"camera1": (h, w)} if config["cameras"] else {},
+                                         STATE_NAMES[:AGENT_POS] if config["state"] == "agent_pos" else STATE_NAMES,
+                                         ROBOT_JOINTS, extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               (ActionSlot("dx", "arm", -1.0, 1.0, f"{step} m"),
                                ActionSlot("dy", "arm", -1.0, 1.0, f"{step} m"),
@@ -185,7 +213,12 @@ class MetaWorldRollout(BenchmarkRollout):
 
     def _native_reset(self, seed: int) -> None:
         self._mj.mj_resetData(self.env.model, self.env.data)
-        if self.config["variation"] == "sampled":
+        if self.config["variation"] == "lerobot":
+            self.env.set_task(self._bench.train_tasks[0])  # LeRobot's env: variation 0's settings ...
+            self.env._freeze_rand_vec = False  # ... then every reset draws from NumPy's global generator
+            self.env.seeded_rand_vec = False
+            np.random.seed(seed)  # what lerobot-eval's set_seed(seed) does before its first episode
+        elif self.config["variation"] == "sampled":
             self.env.set_task(self._bench.train_tasks[0])  # the task's observability and settings ...
             self.env._freeze_rand_vec = False  # ... then its reset draws from env.np_random (seeded below)
             self.env.seeded_rand_vec = True
@@ -202,18 +235,20 @@ class MetaWorldRollout(BenchmarkRollout):
         d = self.env.data
         obs = {
             OBS_IMAGES: {k: self._render_camera(k) for k in self.spec.observation.images if request.wants_image(k)},
-            OBS_STATE: np.asarray(self._obs, dtype=np.float32),
+            OBS_STATE: np.asarray(self._obs[:AGENT_POS] if self.config["state"] == "agent_pos" else self._obs,
+                                  dtype=np.float32),
             OBS_JOINT_POSITIONS: d.qpos[self._qadr].astype(np.float32),
             OBS_JOINT_VELOCITIES: d.qvel[self._vadr].astype(np.float32),
         }
         if self.config["environment_state"]:
-            obs[OBS_ENV_STATE] = obs[OBS_STATE][list(ENV_STATE_SLOTS)]
+            obs[OBS_ENV_STATE] = np.asarray(self._obs, dtype=np.float32)[list(ENV_STATE_SLOTS)]
         if self._expert is not None:
             obs[OBS_EXPERT_ACTION] = np.asarray(self._expert.get_action(self._obs), dtype=np.float32)
         return obs
 
     def _render_camera(self, key: str) -> np.ndarray:
-        return np.ascontiguousarray(self.env.render())
+        img = self.env.render()
+        return np.ascontiguousarray(img[::-1, ::-1] if self.config["image_flip"] else img)
 
     def _sim_time_s(self) -> float:
         return float(self.env.data.time)

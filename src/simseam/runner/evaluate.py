@@ -28,6 +28,12 @@ from simseam.seam import ConfigError
 
 METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
                   "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
+#: LeRobot's Meta-World env (lerobot/envs/metaworld.py, lerobot 0.4.4) as backend options: MT1(task, seed=42), its
+#: variation 0's settings, resets drawn from NumPy's global generator; corner2 moved to LeRobot's position and
+#: flipped on both axes; 480x480 (Meta-World's default render size); agent_pos = the observation's first 4
+METAWORLD_LEROBOT = {"max_steps": 500, "variation": "lerobot", "goal_seed": 42, "camera": "corner2",
+                     "camera_pos": [0.75, 0.075, 0.7], "image_flip": True, "image_size": [480, 480],
+                     "state": "agent_pos", "environment_state": False}
 
 MANISKILL_TABLETOP = ("PickCube-v1", "PushCube-v1", "StackCube-v1", "PegInsertionSide-v1", "PullCube-v1")
 #: the step limits ManiSkill's own imitation-learning baselines (examples/baselines/act and diffusion_policy,
@@ -66,6 +72,12 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                     "info['success'] (the episode ends at success); mean of per-task success"),
     Preset("metaworld_mt50", "metaworld", None, 50, {"max_steps": 500}, suite="MT50",
            protocol="MT50: 50 tasks x 50 episodes, as metaworld_mt10"),
+    Preset("metaworld_lerobot", "metaworld", None, 50, METAWORLD_LEROBOT, suite="MT50",
+           protocol="LeRobot's own Meta-World env (lerobot-eval --env.type=metaworld, obs_type pixels_agent_pos): "
+                    "a 480x480 corner2 image from LeRobot's camera position, turned 180 degrees as LeRobot does, "
+                    "and the 4-D agent_pos; MT1(seed=42) variation 0's settings with each reset drawn from NumPy's "
+                    "global generator after np.random.seed(seed) (lerobot-eval --seed=<seed>'s first episode), "
+                    "500 steps, success = info['success'] (the episode ends at success)"),
     *(Preset(suite, "libero", tuple(f"{suite}/{i}" for i in range(90 if suite == "libero_90" else 10)), 50,
              {"max_steps": steps, "settle_steps": 10},
              protocol=f"{90 if suite == 'libero_90' else 10} tasks x 50 episodes from LIBERO's fixed initial states, "
