@@ -108,6 +108,11 @@ def test_bad_benchmark_input_is_one_line_naming_file_and_field(tmp_path):
     assert proc.returncode == 2 and "unknown eval preset 'robocasa_kitchen'" in proc.stderr
     proc = simseam("eval", "libero_goal", "--policy", "random", "--tasks", "libero_goal/12")
     assert proc.returncode == 2 and "--tasks: ['libero_goal/12'] not in preset 'libero_goal'" in proc.stderr
+    proc = simseam("eval", "metaworld_mt10", "--policy", "random", "--tasks", "rech-v3", "--out", str(tmp_path / "none"))
+    assert proc.returncode == 2 and "(did you mean 'reach-v3'?)" in proc.stderr
+    bad.write_text("benchmark: {name: metaworld, task: rech-v3}\n")
+    proc = simseam("run", "--scene", str(bad), "--out", str(tmp_path / "none"))
+    assert proc.returncode == 2 and "unknown Meta-World task 'rech-v3' (did you mean 'reach-v3'?)" in proc.stderr
     proc = simseam("eval", "libero_goal", "--policy", "random", "--tasks", "", "--out", str(tmp_path / "none"))
     assert proc.returncode == 2 and "--tasks '' names no task" in proc.stderr  # it used to run every task
     assert not (tmp_path / "none").exists()
@@ -165,3 +170,23 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path):
         assert first[key].shape == (224, 224, 3) and first[key].dtype == np.uint8
     assert first["observation/state"].shape == (8,)
     assert summary["spec"]["observation"]["images"]["entries"]["camera1"]["shape"] == [256, 256, 3]
+
+
+def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_starts(tmp_path):
+    """The policy meets the benchmark's spec (its reset) before spec.json, run.json or a log line is written."""
+    from simseam.policies.base import BasePolicy
+    from simseam.runner.evaluate import preset, run_eval
+    from simseam.runner.run_dir import RunDir
+    from simseam.seam import ConfigError
+
+    backend_python("pusht")
+
+    class Misfit(BasePolicy):
+        def reset(self, spec):
+            raise ConfigError(f"this policy wants 9-D actions, the benchmark takes {spec.action.dim}")
+
+    run_dir = RunDir(tmp_path / "run", {"preset": "pusht"})
+    with pytest.raises(ConfigError, match="this policy wants 9-D actions"):
+        run_eval(preset("pusht"), Misfit(), "misfit", ["pusht"], 2, run_dir)
+    run_dir.close()
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())

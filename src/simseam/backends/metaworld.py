@@ -77,6 +77,7 @@ from simseam.seam import (
     SensorFacts,
     TaskSpec,
 )
+from simseam.seam.errors import did_you_mean
 
 NAME = "metaworld"
 HAS_EXPERT = True  # metaworld.policies: one scripted expert per task
@@ -156,8 +157,8 @@ class MetaWorldRollout(BenchmarkRollout):
         self.config = config
         name = config["task"]
         if name not in metaworld.MT1.ENV_NAMES:
-            raise ConfigError(f"benchmark.task: unknown Meta-World task {name!r}; "
-                              f"known: {', '.join(metaworld.MT1.ENV_NAMES)}")
+            raise ConfigError(f"benchmark.task: unknown Meta-World task {name!r}"
+                              f"{did_you_mean(name, metaworld.MT1.ENV_NAMES)}; known: {', '.join(metaworld.MT1.ENV_NAMES)}")
         self._bench = metaworld.MT1(name, seed=config["goal_seed"])
         h, w = config["image_size"]
         self.env = self._bench.train_classes[name](render_mode="rgb_array", camera_name=config["camera"],

@@ -25,6 +25,7 @@ from typing import Any, Callable, Sequence
 from simseam import registry
 from simseam.runner.recipe import BenchmarkRecipe
 from simseam.seam import ConfigError
+from simseam.seam.errors import did_you_mean
 
 METAWORLD_MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
                   "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
@@ -120,7 +121,8 @@ def resolve_tasks(p: Preset, only: list[str] | None) -> list[str]:
     if only:
         unknown = [t for t in only if t not in tasks]
         if unknown:
-            raise ConfigError(f"--tasks: {unknown} not in preset {p.name!r} (its tasks: {', '.join(tasks)})")
+            raise ConfigError(f"--tasks: {unknown} not in preset {p.name!r}{did_you_mean(unknown[0], tasks)} "
+                              f"(its tasks: {', '.join(tasks)})")
         tasks = [t for t in tasks if t in only]
     return tasks
 
@@ -182,6 +184,7 @@ def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: in
         rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
                                  progress=lambda s: progress(f"{task}: {s}"))
         try:
+            policy.reset(rollout.spec)  # a policy that does not fit the benchmark fails before the run starts
             write_spec(rollout.spec.to_json())
 
             def record(res, written, task=task, ti=ti):
