@@ -218,8 +218,9 @@ def read_simseam(run: Path) -> dict[int, dict]:
     return {e["seed"]: e for e in map(json.loads, filter(str.strip, lines)) if not e.get("error")}
 
 
-#: the return tolerance per step: one float32 ulp of Meta-World's largest per-step reward (10). One known source of
-#: such differences: LeRobot hands Meta-World the policy's raw action, the seam clips it to [-1, 1] first; the
+#: the return tolerance per step: one float32 ulp of Meta-World's largest per-step reward (10). Known sources of
+#: such differences: ``simseam eval``'s environments share batched forward passes (ACT's output for a row of a batch
+#: of 2 differs from a batch of 1 in the last bits; LeRobot's side runs batches of 1), and LeRobot hands Meta-World the policy's raw action, the seam clips it to [-1, 1] first; the
 #: physics is the same (Meta-World clips the move, MuJoCo the grip control), but drawer-close's reward reads the grip
 #: (``min(max(0, grip), 1)``), float64 after a raw 1.3, float32 after a clipped float32 1.0 (docs/benchmarks.md)
 REWARD_ULP = 9.5367431640625e-07
