@@ -175,7 +175,7 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path):
 def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_starts(tmp_path):
     """The policy meets the benchmark's spec (its reset) before spec.json, run.json or a log line is written."""
     from simseam.policies.base import BasePolicy
-    from simseam.runner.evaluate import preset, run_eval
+    from simseam.runner.evaluate import preset, run_eval, run_eval_vector
     from simseam.runner.run_dir import RunDir
     from simseam.seam import ConfigError
 
@@ -188,5 +188,11 @@ def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_sta
     run_dir = RunDir(tmp_path / "run", {"preset": "pusht"})
     with pytest.raises(ConfigError, match="this policy wants 9-D actions"):
         run_eval(preset("pusht"), Misfit(), "misfit", ["pusht"], 2, run_dir)
+    run_dir.close()
+    assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
+    run_dir = RunDir(tmp_path / "run", {"preset": "pusht"})  # --num-envs 2: the check meets the workers' spec
+    with pytest.raises(ConfigError, match="this policy wants 9-D actions"):
+        run_eval_vector(preset("pusht"), ["pusht"], 2, run_dir, 2, policy="zero", policy_kwargs={},
+                        check=Misfit().reset)
     run_dir.close()
     assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())

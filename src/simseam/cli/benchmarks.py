@@ -197,11 +197,11 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
     from simseam.runner.evaluate import run_eval_vector
 
     privileged = pol.requires_privileged
-    if batch is None:  # nothing shared: each worker runs its own instance
-        close_policy(pol)
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
     todo = len([i for i in indices if i not in run_dir.done])
-    with episodes_guard(run_dir, batch.close if batch is not None else None, finish=_summary(p, policy, run_dir)), \
+    # nothing shared (batch None): each worker runs its own instance; this one meets the specs first
+    cleanup = batch.close if batch is not None else lambda: close_policy(pol)
+    with episodes_guard(run_dir, cleanup, finish=_summary(p, policy, run_dir)), \
             EvalProgress(console, total=todo) as progress:
         def start(vec):
             console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
@@ -211,7 +211,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
                         video_dir=out if video else None, on_start=start,
                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
-                        indices=indices)
+                        indices=indices, check=pol.reset)
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,

@@ -210,7 +210,8 @@ def _eval_entry(entry: dict, tasks: Sequence[str], episodes: int, seed: int) -> 
 def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
                     policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
                     seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
-                    on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None) -> None:
+                    on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None,
+                    check: Callable[[Any], None] | None = None) -> None:
     """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
     backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
     task 1, ...), so a worker changes task (closes its sidecar and starts one for the next task) at
@@ -223,7 +224,9 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
 
     Every finished episode is appended to the log with ``task`` and ``episode`` (index within its
     task) as it ends, whatever the order; ``on_start(vec)`` gets each ``VectorEnv`` once its first worker
-    is ready. ``indices``: run only these (a shard's), as ``run_eval``.
+    is ready. ``indices``: run only these (a shard's), as ``run_eval``. ``check(spec)`` (the policy's
+    reset, say) meets each vector env's spec before anything is written: a policy that does not fit the
+    benchmark fails before the run starts.
     """
     from simseam.runner.vector import VectorEnv
 
@@ -239,6 +242,8 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
             on_done(res, entry["task"])
 
     def write_spec(vec):
+        if check is not None:
+            check(vec.spec)
         spec_once(vec.spec.to_json())
 
     common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure,
