@@ -1,8 +1,15 @@
 """Shared fixtures. Tests run headless on the CPU (MUJOCO_GL=egl by default)."""
 
 import os
+import signal
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+# A suite started as a background job (`cmd &` in a script, as a CI runner may) inherits SIGINT ignored, and so
+# would every process a test starts: the Ctrl-C tests then see no Ctrl-C. Catching it here gives the children
+# the default again (an exec resets a caught signal, not an ignored one).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 import pytest  # noqa: E402
 
