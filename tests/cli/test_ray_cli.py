@@ -184,6 +184,43 @@ def test_ray_eval_equals_the_sequential_eval(cluster, tmp_path):
 
 
 @pytest.mark.backends
+def test_a_ray_policy_that_does_not_fit_is_found_before_anything_is_written(cluster, tmp_path):
+    """run --ray and eval --ray: the parent's policy meets the first actor's spec before spec.json, run.json or a
+    log line is written, so --overwrite keeps the old run byte for byte (catches: the mismatch found by an
+    actor in its first episode, after the old run was removed)."""
+    from simseam.policies.base import BasePolicy
+    from simseam.runner.evaluate import preset, run_eval_ray
+    from simseam.runner.run_dir import RunDir
+    from simseam.seam import ConfigError
+
+    address, _ = cluster
+    scene, out = tmp_path / "scene.yaml", tmp_path / "keep"
+    scene.write_text(SCENE.format(steps=4))
+    cmd = [sys.executable, "-m", "simseam.cli.main", "run", "--episodes", "2", "--out", str(out), "--ray", address]
+    first = subprocess.run([*cmd, "--scene", str(scene), "--policy", "zero"], cwd=REPO, env=_env(),
+                           capture_output=True, text=True, timeout=280)
+    assert first.returncode == 0, first.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    joint = tmp_path / "joint.yaml"
+    joint.write_text(SCENE.format(steps=4) + "control_mode: joint_position\n")
+    again = subprocess.run([*cmd, "--scene", str(joint), "--policy", "scripted", "--overwrite"], cwd=REPO,
+                           env=_env(), capture_output=True, text=True, timeout=280)
+    assert again.returncode == 2 and "drives cartesian_delta" in again.stderr, again.stdout + again.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+    class Misfit(BasePolicy):
+        def reset(self, spec):
+            raise ConfigError(f"this policy wants 9-D actions, the benchmark takes {spec.action.dim}")
+
+    run_dir = RunDir(tmp_path / "eval", {"preset": "pusht"})
+    with pytest.raises(ConfigError, match="this policy wants 9-D actions, the benchmark takes 2"):
+        run_eval_ray(preset("pusht"), ["pusht"], 2, run_dir, address, policy="zero", policy_kwargs={},
+                     num_workers=1, check=Misfit().reset)
+    run_dir.close()
+    assert not (tmp_path / "eval").exists() or not any((tmp_path / "eval").iterdir())
+
+
+@pytest.mark.backends
 def test_ray_eval_reruns_the_episode_of_a_worker_killed_mid_episode(cluster, tmp_path):
     """SIGKILL to the Ray worker process of the actor on the second node while it runs an episode (its
     process title is ``ray::EpisodeWorker.run`` only then): the episode goes back to the queue and re-runs,

@@ -9,7 +9,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from simseam.cli.common import EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail, \
-    never_started, policy_kwargs, redacted
+    never_started, policy_kwargs, redacted, SpecProbe
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -218,22 +218,20 @@ def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_di
               num_workers: int | None, seed: int, indices: list[int]) -> None:
     """``simseam eval --ray ADDRESS``: the episodes on Ray actors (``run_eval_ray``), each owning a sidecar
     of the backend and its own policy; results streamed into the episode log. Progress as ``run --ray``."""
-    from simseam.policies.base import make_policy
     from simseam.runner.evaluate import run_eval_ray
 
     todo = [i for i in indices if i not in run_dir.done]
-    with episodes_guard(run_dir, finish=_summary(p, policy, run_dir)):
-        probe = make_policy(policy, **kwargs)  # what the rollouts must provide; checked here first
-        privileged, uses_images = probe.requires_privileged, probe.uses_images
-        close_policy(probe)
+    probe = None
+    with episodes_guard(run_dir, lambda: probe and probe.close(), finish=_summary(p, policy, run_dir)):
+        probe = SpecProbe(policy, kwargs)  # meets the first actor's spec before anything is written
         console.print(f"eval [bold]{escape(p.name)}[/]: {len(todo)} episode(s) of {len(task_list)} task(s), policy "
                       f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
         if run_dir.done:
             console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
         with EvalProgress(console, total=len(todo)) as progress:
             run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
-                         privileged=privileged, uses_images=uses_images, seed=seed, num_workers=num_workers,
-                         indices=indices,
+                         privileged=probe.requires_privileged, uses_images=probe.uses_images, seed=seed,
+                         num_workers=num_workers, indices=indices, check=probe.check,
                          on_done=progress.done, on_worker_failure=progress.worker_failure)
 
 

@@ -14,7 +14,7 @@ from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail,
-                                never_started, policy_kwargs, redacted, sigterm_as_interrupt)
+                                never_started, policy_kwargs, redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -306,7 +306,6 @@ def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, ac
 def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
              todo: list[int], *, num_workers: int | None, planned: int) -> None:
     """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
-    from simseam.policies.base import make_policy
     from simseam.runner.ray_eval import run_on_ray
     from simseam.runner.recipe import SceneRecipe
 
@@ -324,16 +323,17 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         progress.done(entry)
 
     finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
-    with episodes_guard(run_dir, spec=lambda: spec_json, finish=finish):
-        probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
+    probe = None
+    with episodes_guard(run_dir, lambda: probe and probe.close(), spec=lambda: spec_json, finish=finish):
+        probe = SpecProbe(policy, policy_kwargs)  # meets the first actor's spec before anything is written
         recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
-        close_policy(probe)
         console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
                       f"{escape(str(out))}")
         with progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure, keep=False)
+                       on_spec=on_spec, check=probe.check, on_done=done, on_worker_failure=progress.worker_failure,
+                       keep=False)
 
 
 def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
@@ -481,11 +481,24 @@ def train(
     steps: int = typer.Option(20000, "--steps", min=1, help="Optimizer steps."),
     time_budget_s: float = typer.Option(None, "--time-budget-s", help="Stop after this many seconds."),
     batch_size: int = typer.Option(8, "--batch-size", min=1),
-    lr: float = typer.Option(1e-5, "--lr", help="AdamW learning rate (backbone too)."),
+    policy_type: str = typer.Option("act", "--policy-type", help="act (LeRobot's ACT) or diffusion (LeRobot's "
+                                    "Diffusion Policy: needs observation.state and cameras of one size, or the "
+                                    "object state)."),
+    lr: float = typer.Option(None, "--lr", help="AdamW learning rate, backbone too (default: act 1e-5, "
+                             "diffusion 1e-4)."),
     lr_schedule: str = typer.Option("constant", "--lr-schedule",
                                     help="constant, or cosine: decays the rate to 0 at --steps."),
     chunk_size: int = typer.Option(20, "--chunk-size", min=1, help="Actions predicted per chunk."),
-    n_action_steps: int = typer.Option(10, "--n-action-steps", min=1, help="Actions executed per chunk."),
+    n_action_steps: int = typer.Option(None, "--n-action-steps", min=1, help="Actions executed per chunk "
+                                       "(default: act 10, diffusion 8)."),
+    warmup_steps: int = typer.Option(0, "--warmup-steps", min=0, help="Linear learning-rate warm-up steps."),
+    horizon: int = typer.Option(16, "--horizon", min=1, help="diffusion: actions denoised per prediction, from the "
+                                "oldest observation read (a multiple of 2**len(--down-dims))."),
+    n_obs_steps: int = typer.Option(2, "--n-obs-steps", min=1, help="diffusion: observations read per prediction."),
+    down_dims: str = typer.Option("256,512,1024", "--down-dims", help="diffusion: the U-Net's widths, "
+                                  "comma-separated."),
+    inference_steps: int = typer.Option(10, "--inference-steps", min=1, help="diffusion: DDIM sampler steps per "
+                                        "prediction."),
     temporal_ensemble: float = typer.Option(None, "--temporal-ensemble", min=0.0,
                                             help="ACT's temporal ensembling coefficient for inference (e.g. 0.01; "
                                                  "needs --n-action-steps 1): each step averages the overlapping "
@@ -508,16 +521,23 @@ def train(
     resume: bool = typer.Option(False, "--resume", help="Continue from the newest checkpoint in --out up to "
                                 "--steps in total."),
 ) -> None:
-    """Train a LeRobot ACT policy on a dataset; the result loads with --policy lerobot:<out>.
+    """Train a LeRobot ACT or Diffusion Policy on a dataset; the result loads with --policy lerobot:<out>.
     Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
-    from simseam.runner.training import ActTrainConfig, default_loader_workers, train_act
+    from simseam.runner.training import TrainConfig, default_loader_workers, train_act
 
     check_seed(seed)
 
-    if n_action_steps > chunk_size:
+    if policy_type == "act" and n_action_steps is None:
+        n_action_steps = 10
+    if policy_type == "act" and n_action_steps > chunk_size:
         fail(ConfigError(f"--n-action-steps ({n_action_steps}) cannot exceed --chunk-size ({chunk_size})"))
-    cfg = ActTrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
-                         lr_schedule=lr_schedule,
+    try:
+        dims = tuple(int(d) for d in down_dims.split(","))
+    except ValueError:
+        fail(ConfigError(f"--down-dims {down_dims!r}: expected comma-separated integers, e.g. 256,512,1024"))
+    cfg = TrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
+                         lr_schedule=lr_schedule, policy_type=policy_type, warmup_steps=warmup_steps,
+                         horizon=horizon, n_obs_steps=n_obs_steps, down_dims=dims, inference_steps=inference_steps,
                          chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
                          temporal_ensemble_coeff=temporal_ensemble,
                          dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
@@ -539,7 +559,8 @@ def train(
         raise typer.Exit(code=130)
     if res.resumed_from:
         console.print(f"resumed from step {res.resumed_from}")
-    console.print(f"trained ACT ({res.n_params / 1e6:.1f} M params) for {res.steps} steps in {res.seconds:.0f} s "
+    kind = "ACT" if policy_type == "act" else "Diffusion Policy"
+    console.print(f"trained {kind} ({res.n_params / 1e6:.1f} M params) for {res.steps} steps in {res.seconds:.0f} s "
                   f"on {res.device}; checkpoint: {out}  (run it: --policy lerobot:{out})")
 
 

@@ -275,12 +275,13 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
                  policy_kwargs: dict, privileged: bool = False, uses_images: bool = False, seed: int = 0,
                  num_workers: int | None = None,
                  indices: Sequence[int] | None = None, on_done: Callable[[dict], None] | None = None,
-                 on_worker_failure=None) -> None:
+                 on_worker_failure=None, check: Callable[[Any], None] | None = None) -> None:
     """``run_eval`` on the Ray cluster at ``address`` (``runner.ray_eval.run_on_ray``): each actor holds
     its own policy instance (``policy`` is a spec) and one sidecar of the backend (an ``BenchmarkRecipe``,
     replaced when the next episode's task differs). Each finished episode is appended to the log with
     ``task`` and ``episode`` as it arrives (``on_done(entry)`` after); a lost actor's episode re-runs
-    elsewhere. ``indices``: run only these (a shard's)."""
+    elsewhere. ``indices``: run only these (a shard's). ``check(spec)``: as ``run_eval_vector``'s, on the
+    first actor's spec, before anything is written."""
     from simseam.runner.ray_eval import run_on_ray
 
     todo = _todo(tasks, episodes, run_dir, indices)
@@ -296,4 +297,5 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
             on_done(entry)
 
     run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-               on_spec=_spec_writer(run_dir), on_done=record, on_worker_failure=on_worker_failure, keep=False)
+               on_spec=_spec_writer(run_dir), check=check, on_done=record, on_worker_failure=on_worker_failure,
+               keep=False)

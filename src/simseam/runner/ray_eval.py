@@ -30,7 +30,7 @@ from typing import Any, Callable, Sequence
 
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import EpisodeQueue, WorkerFailure
-from simseam.seam import ConfigError, SimseamError, SimulationError
+from simseam.seam import ConfigError, RolloutSpec, SimseamError, SimulationError
 
 
 def _import_ray():
@@ -75,13 +75,15 @@ class EpisodeWorker:
 def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str, policy_kwargs: dict, indices: Sequence[int], *,
                seed: int = 0, num_workers: int | None = None, max_attempts: int = 3,
                on_spec: Callable[[dict], None] | None = None,
+               check: Callable[[RolloutSpec], None] | None = None,
                on_done: Callable[[dict], None] | None = None,
                on_worker_failure: Callable[[WorkerFailure], None] | None = None,
                keep: bool = True) -> list[dict]:
     """Run the episodes ``indices`` on the Ray cluster at ``address`` (``auto``: the one on this
     machine; ``local``: start a private one); returns the episode entries (``EpisodeResult.to_json()``)
     in the order they finished (none with ``keep=False``: each reaches ``on_done``, memory stays flat).
-    ``on_spec(spec_json)`` is called once the first actor is ready."""
+    ``on_spec(spec_json)`` is called once the first actor is ready, after ``check(spec)`` (the caller's
+    policy meets the rollouts' spec there: a policy that does not fit fails before anything is written)."""
     ray = _import_ray()
     from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
 
@@ -173,6 +175,8 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
                 nodes[actor] = info["node"]
                 if not spec_seen:
                     spec_seen = True
+                    if check is not None:
+                        check(RolloutSpec.from_json(info["spec"]))
                     if on_spec:
                         on_spec(info["spec"])
                 idle.append(actor)
