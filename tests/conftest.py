@@ -77,6 +77,10 @@ def count_successes():
 TINY_ACT = dict(dim_model=64, n_heads=2, dim_feedforward=128, n_encoder_layers=1, chunk_size=8, n_action_steps=4,
                 batch_size=4, num_workers=0, log_every=1)
 
+#: a tiny Diffusion Policy: a 2-level U-Net over 8 actions, 2 observations, 4 actions executed, 3 DDIM steps
+TINY_DP = dict(policy_type="diffusion", down_dims=(16, 32), horizon=8, n_obs_steps=2, n_action_steps=4,
+               diffusion_steps=10, inference_steps=3, batch_size=4, num_workers=0, log_every=1)
+
 
 class RecordingPolicy:
     """Wraps a policy and keeps every (state, action) pair it produced, in order."""
@@ -129,6 +133,23 @@ def tiny_act(scripted_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("act") / "ckpt"
     result = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, device="cpu", **TINY_ACT))
     return out, result
+
+
+@pytest.fixture(scope="session")
+def tiny_dp(scripted_dataset, tmp_path_factory):
+    """A tiny Diffusion Policy trained for 3 optimizer steps on ``scripted_dataset`` (through the device
+    cache); returns (checkpoint dir, TrainResult)."""
+    from simseam.runner.training import TrainConfig, train_act
+
+    out = tmp_path_factory.mktemp("dp") / "ckpt"
+    result = train_act(scripted_dataset[0], out, TrainConfig(steps=3, device="cpu", cache_on_device=True, **TINY_DP))
+    return out, result
+
+
+@pytest.fixture
+def tiny_dp_config():
+    """Keyword arguments for a tiny, fast Diffusion ``TrainConfig``."""
+    return dict(TINY_DP)
 
 
 @pytest.fixture(scope="session")

@@ -246,3 +246,91 @@ def test_degenerate_image_statistics_are_recomputed_from_the_frames(scripted_dat
         np.testing.assert_allclose(std, np.ravel(good.stats[k]["std"]), atol=0.02)  # AV1 frames: close, not equal
         assert std.min() > 0.02
     assert path.read_text() == on_disk
+
+
+def test_diffusion_checkpoint_is_complete(tiny_dp, scripted_dataset):
+    """`policy_type="diffusion"`: LeRobot's Diffusion Policy, from scratch (group norm), with the contract of the
+    scene the data came from."""
+    from simseam.policies.contract import SkillContract
+
+    out, res = tiny_dp
+    assert res.steps == 3 and all(np.isfinite(loss) for _, loss in res.losses)
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["type"] == "diffusion" and (cfg["n_obs_steps"], cfg["horizon"], cfg["n_action_steps"]) == (2, 8, 4)
+    assert cfg["use_group_norm"] and cfg["pretrained_backbone_weights"] is None
+    assert cfg["noise_scheduler_type"] == "DDIM" and cfg["num_inference_steps"] == 3
+    assert cfg["crop_shape"] == [36, 50]  # 0.9 of 40 x 56
+    assert set(cfg["input_features"]) == {"observation.images.camera1", "observation.images.camera2",
+                                          "observation.state"}
+    info = json.loads((out / "training.json").read_text())
+    assert info["config"]["policy_type"] == "diffusion" and info["config"]["lr"] == 1e-4
+    skill, recorded = SkillContract.load(out), SkillContract.load(scripted_dataset[0] / "meta")
+    assert skill.name.startswith("diffusion trained on")
+    assert {**skill.to_json(), "name": ""} == {**recorded.to_json(), "name": ""}
+    assert skill.images == {"camera1": (40, 56), "camera2": (40, 56)}
+
+
+@pytest.mark.parametrize("n_obs", [2, 3])
+def test_device_cache_history_equals_lerobot_dataset(scripted_dataset, n_obs):
+    """Diffusion's batches from the device cache: observations [B, n_obs, ...] (frames before an episode's start
+    repeat its first) and action horizons equal LeRobotDataset's with the same delta_timestamps."""
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from simseam.runner.training import _DeviceCache
+
+    root = scripted_dataset[0]
+    obs, acts = list(range(1 - n_obs, 1)), list(range(1 - n_obs, 1 - n_obs + 8))
+    cache = _DeviceCache(LeRobotDataset("simseam/test", root=root), acts, "cpu", num_workers=0, batch_size=4, seed=0,
+                         obs_offsets=obs)
+    keys = ["observation.state", "observation.images.camera1", "observation.images.camera2"]
+    delta = {"action": [i / 20 for i in acts], **{k: [i / 20 for i in obs] for k in keys}}
+    ref_ds = LeRobotDataset("simseam/test", root=root, delta_timestamps=delta)
+    ends = np.cumsum([r.steps for r in scripted_dataset[1].results])
+    idx = [0, 1, 5, int(ends[0]) - 1, int(ends[0]), int(ends[0]) + 1, int(ends[-1]) - 1]  # episode starts and ends
+    got = cache.batch(torch.as_tensor(idx))
+    for row, i in enumerate(idx):
+        ref = ref_ds[i]
+        torch.testing.assert_close(got["action"][row], ref["action"])
+        assert torch.equal(got["action_is_pad"][row], ref["action_is_pad"])
+        torch.testing.assert_close(got["observation.state"][row], ref["observation.state"])
+        for k in keys:
+            assert torch.equal(got[f"{k}_is_pad"][row], ref[f"{k}_is_pad"])
+        for k in keys[1:]:
+            assert got[k][row].shape == ref[k].shape == (n_obs, 3, 40, 56)
+            torch.testing.assert_close(got[k][row], ref[k], atol=1 / 255 + 1e-6, rtol=0)
+    assert bool(got["observation.state_is_pad"][0, 0]) and not bool(got["observation.state_is_pad"][2].any())
+    batch = next(cache.batches())
+    assert batch["observation.state"].shape == (4, n_obs, 8) and batch["action"].shape == (4, 8, 7)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(horizon=12, down_dims=(16, 32, 64)), "horizon 12: .* a multiple of 8"),
+    (dict(n_action_steps=8), "n_action_steps 8 exceeds .* horizon - n_obs_steps \\+ 1 = 7"),
+    (dict(noise_scheduler="euler"), "expected DDPM or DDIM"),
+    (dict(inference_steps=50), "inference_steps must be in \\[1, diffusion_steps=10\\]"),
+    (dict(temporal_ensemble_coeff=0.01, n_action_steps=1), "temporal ensembling is ACT's"),
+    (dict(policy_type="vqbet"), "policy type 'vqbet': expected one of act, diffusion"),
+])
+def test_diffusion_bad_config_is_one_line(scripted_dataset, tmp_path, tiny_dp_config, change, message):
+    from simseam.runner.training import TrainConfig, train_act
+
+    with pytest.raises(ConfigError, match=message) as exc:
+        train_act(scripted_dataset[0], tmp_path / "bad", TrainConfig(steps=1, device="cpu",
+                                                                     **{**tiny_dp_config, **change}))
+    assert "\n" not in str(exc.value) and not (tmp_path / "bad").exists()
+
+
+def test_diffusion_needs_proprioception(tmp_path, tiny_dp_config, scripted_dataset):
+    """A dataset without observation.state is refused in one line (LeRobot's Diffusion conditions on it)."""
+    import shutil
+
+    from simseam.runner.training import TrainConfig, train_act
+
+    root = tmp_path / "nostate"
+    shutil.copytree(scripted_dataset[0], root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    del info["features"]["observation.state"]
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(ConfigError, match="Diffusion Policy needs observation.state"):
+        train_act(root, tmp_path / "out", TrainConfig(steps=1, device="cpu", **tiny_dp_config))

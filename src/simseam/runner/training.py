@@ -1,10 +1,17 @@
-"""Train a LeRobot ACT policy on a simseam-recorded LeRobot dataset.
+"""Train a LeRobot ACT or Diffusion Policy on a simseam-recorded LeRobot dataset.
 
 The loop is LeRobot's own recipe, written out so it can run on a step and a
-wall-clock budget: features from the dataset metadata, ``ACTConfig`` (no
-pretrained backbone download: ``pretrained_backbone_weights=None`` unless asked),
-pre/post-processors built from the dataset statistics, action chunks through
-``delta_timestamps``, AdamW with the policy's parameter groups, gradient clipping.
+wall-clock budget: features from the dataset metadata, ``ACTConfig`` or ``DiffusionConfig``
+(``TrainConfig.policy_type``; no pretrained backbone download: ``pretrained_backbone_weights=None``
+unless asked), pre/post-processors built from the dataset statistics, action chunks (and, for
+Diffusion, the ``n_obs_steps`` observation history) through ``delta_timestamps``, AdamW with the
+policy's parameter groups, gradient clipping.
+
+Diffusion from scratch: the ResNet is trained with group norm (LeRobot's default without
+pretrained weights), a random crop of ``crop_fraction`` of each image while training (the center
+crop at inference), a U-Net of ``down_dims`` over a ``horizon`` of actions, and a DDIM sampler of
+``inference_steps`` steps at inference (DDPM is one option away; DDIM without added noise makes an
+episode's actions a function of its observations and the initial noise alone).
 
 The output directory is a complete ``lerobot:`` checkpoint: ``config.json`` +
 ``model.safetensors`` (``save_pretrained``), both processor pipelines, the
@@ -39,24 +46,38 @@ from simseam.seam import FEATURE_STATE as STATE_KEY
 from simseam.seam import ConfigError
 
 
+POLICY_TYPES = ("act", "diffusion")
+
+#: what ``None`` means for the fields whose default depends on the policy type (LeRobot's own defaults)
+KIND_DEFAULTS = {
+    "act": {"lr": 1e-5, "lr_backbone": 1e-5, "weight_decay": 1e-4, "n_action_steps": 20},
+    "diffusion": {"lr": 1e-4, "lr_backbone": 1e-4, "weight_decay": 1e-6, "n_action_steps": 8},
+}
+
+
 @dataclass
-class ActTrainConfig:
+class TrainConfig:
     """Hyper-parameters. ``steps`` and ``time_budget_s`` (counted from the call, preparation
-    included) both bound the run; the first one reached ends it."""
+    included) both bound the run; the first one reached ends it. ``None`` in ``lr``, ``lr_backbone``,
+    ``weight_decay``, ``n_action_steps``: the policy type's default (``KIND_DEFAULTS``)."""
 
     steps: int = 1000
     time_budget_s: float | None = None
+    #: "act" or "diffusion" (LeRobot's ACTPolicy or DiffusionPolicy)
+    policy_type: str = "act"
     batch_size: int = 8
-    lr: float = 1e-5
-    lr_backbone: float = 1e-5
+    lr: float | None = None
+    lr_backbone: float | None = None
     #: "constant" (LeRobot ACT's own) or "cosine": decays every learning rate to 0 at ``steps`` (half a cosine),
     #: so the last weights are not one noisy iterate of a constant-rate run; a ``time_budget_s`` that ends the
     #: run first leaves the rate where it was
     lr_schedule: str = "constant"
-    weight_decay: float = 1e-4
+    #: linear warm-up of the learning rate over the first steps (LeRobot's Diffusion recipe uses 500)
+    warmup_steps: int = 0
+    weight_decay: float | None = None
     grad_clip_norm: float = 10.0
     chunk_size: int = 20
-    n_action_steps: int = 20
+    n_action_steps: int | None = None
     #: ACT's temporal ensembling at inference (needs n_action_steps 1): every step averages the actions that the
     #: overlapping chunks predicted for it, weighted exp(-coeff * age); saved in the checkpoint's config
     temporal_ensemble_coeff: float | None = None
@@ -68,6 +89,18 @@ class ActTrainConfig:
     use_vae: bool = True
     kl_weight: float = 10.0
     pretrained_backbone_weights: str | None = None
+    # Diffusion Policy (policy_type "diffusion")
+    #: observations the policy reads per prediction (the current one and n_obs_steps - 1 before it)
+    n_obs_steps: int = 2
+    #: actions the U-Net denoises per prediction, from the oldest observation on (a multiple of 2**len(down_dims))
+    horizon: int = 16
+    down_dims: tuple[int, ...] = (256, 512, 1024)
+    #: the training noise schedule's steps, and the sampler's steps at inference
+    diffusion_steps: int = 100
+    inference_steps: int = 10
+    noise_scheduler: str = "DDIM"
+    #: random crop of this fraction of each image side while training (center crop at inference); 1: none
+    crop_fraction: float = 0.9
     num_workers: int = 0
     #: decode every frame once and keep the dataset on the training device (uint8 images):
     #: batches are then index gathers instead of per-sample PNG/video decoding
@@ -79,6 +112,54 @@ class ActTrainConfig:
     log_every: int = 50
     #: save a resumable checkpoint every this many steps (None: only at the end / on interrupt)
     checkpoint_every: int | None = None
+
+
+#: the name the ACT-only trainer had
+ActTrainConfig = TrainConfig
+
+
+def resolve_config(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with the policy type's defaults filled in and checked (``ConfigError`` on bad input)."""
+    import dataclasses
+
+    if cfg.policy_type not in POLICY_TYPES:
+        raise ConfigError(f"policy type {cfg.policy_type!r}: expected one of {', '.join(POLICY_TYPES)}")
+    defaults = KIND_DEFAULTS[cfg.policy_type]
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in defaults.items() if getattr(cfg, k) is None})
+    if cfg.lr_schedule not in LR_SCHEDULES:
+        raise ConfigError(f"learning-rate schedule {cfg.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
+    for name, value in (("lr", cfg.lr), ("lr_backbone", cfg.lr_backbone), ("time_budget_s", cfg.time_budget_s)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"--{name.replace('_', '-')} must be a positive number, got {value!r}")
+    if cfg.temporal_ensemble_coeff is not None and cfg.n_action_steps != 1:
+        raise ConfigError(f"temporal ensembling queries the policy every step: it needs n_action_steps 1, "
+                          f"not {cfg.n_action_steps}")
+    if cfg.policy_type == "diffusion":
+        _check_diffusion(cfg)
+    return cfg
+
+
+def _check_diffusion(cfg: TrainConfig) -> None:
+    """The Diffusion-specific fields make a policy LeRobot can build and run."""
+    if cfg.temporal_ensemble_coeff is not None:
+        raise ConfigError("temporal ensembling is ACT's; Diffusion Policy executes n_action_steps of each prediction")
+    if cfg.n_obs_steps < 1 or cfg.n_action_steps < 1 or not cfg.down_dims:
+        raise ConfigError(f"n_obs_steps ({cfg.n_obs_steps}), n_action_steps ({cfg.n_action_steps}) and down_dims "
+                          f"({cfg.down_dims}) must be at least 1 / non-empty")
+    factor = 2 ** len(cfg.down_dims)
+    if cfg.horizon < factor or cfg.horizon % factor:
+        raise ConfigError(f"diffusion horizon {cfg.horizon}: the U-Net halves it {len(cfg.down_dims)} times "
+                          f"(down_dims {list(cfg.down_dims)}): it must be a multiple of {factor}")
+    if cfg.n_action_steps > cfg.horizon - cfg.n_obs_steps + 1:
+        raise ConfigError(f"n_action_steps {cfg.n_action_steps} exceeds what one diffusion prediction covers from "
+                          f"the current step: horizon - n_obs_steps + 1 = {cfg.horizon - cfg.n_obs_steps + 1}")
+    if cfg.noise_scheduler not in ("DDPM", "DDIM"):
+        raise ConfigError(f"noise scheduler {cfg.noise_scheduler!r}: expected DDPM or DDIM")
+    if not 1 <= cfg.inference_steps <= cfg.diffusion_steps:
+        raise ConfigError(f"inference_steps must be in [1, diffusion_steps={cfg.diffusion_steps}], "
+                          f"got {cfg.inference_steps}")
+    if not 0 < cfg.crop_fraction <= 1:
+        raise ConfigError(f"crop_fraction must be in (0, 1], got {cfg.crop_fraction}")
 
 
 @dataclass
@@ -101,11 +182,12 @@ class TrainResult:
 LR_SCHEDULES = ("constant", "cosine")
 
 
-def lr_factor(cfg: ActTrainConfig, step: int) -> float:
+def lr_factor(cfg: TrainConfig, step: int) -> float:
     """The learning rate of optimizer step ``step`` (0-based), as a fraction of ``cfg.lr``."""
+    warm = min(1.0, (step + 1) / cfg.warmup_steps) if cfg.warmup_steps > 0 else 1.0
     if cfg.lr_schedule == "constant":
-        return 1.0
-    return 0.5 * (1.0 + math.cos(math.pi * min(step, cfg.steps) / cfg.steps))
+        return warm
+    return warm * 0.5 * (1.0 + math.cos(math.pi * min(step, cfg.steps) / cfg.steps))
 
 
 CHECKPOINTS = "checkpoints"
@@ -261,13 +343,25 @@ def _skill_from_dataset(meta, root: Path, name: str) -> SkillContract:
                          control_hz=float(meta.fps))
 
 
+def _gather_index(idx, starts, ends, offsets):
+    """Frame indices ``idx + offsets`` clamped into each frame's episode, and which of them fell outside it
+    (LeRobot's ``delta_timestamps``: the episode's first / last frame repeated, marked ``*_is_pad``)."""
+    import torch
+
+    raw = idx[:, None] + offsets[None, :]
+    return torch.maximum(torch.minimum(raw, ends[:, None] - 1), starts[:, None]), (raw < starts[:, None]) | (
+        raw >= ends[:, None])
+
+
 class _DeviceCache:
     """The whole dataset decoded once and held on ``device``; ``batches()`` yields shuffled
-    batches shaped like LeRobotDataset's with action ``delta_timestamps`` (action chunks
-    clamped to the episode, ``action_is_pad`` marking steps past its end)."""
+    batches shaped like LeRobotDataset's with ``delta_timestamps``: action chunks of ``chunk_offsets``
+    clamped to the episode (``action_is_pad`` marking steps past its end), and, with ``obs_offsets``
+    (Diffusion's observation history), every observation as ``[B, len(obs_offsets), ...]`` with frames
+    before the episode's start repeating its first frame (``<key>_is_pad`` marking them)."""
 
     def __init__(self, dataset, chunk_offsets: list[int], device: str, num_workers: int, batch_size: int,
-                 seed: int):
+                 seed: int, obs_offsets: list[int] | None = None):
         import torch
 
         loader = torch.utils.data.DataLoader(dataset, batch_size=256, num_workers=num_workers, shuffle=False)
@@ -288,12 +382,27 @@ class _DeviceCache:
         for e in ep.unique():
             m = ep == e
             starts[m], ends[m] = idx[m].min(), idx[m].max() + 1
-        offsets = torch.as_tensor(chunk_offsets, device=device)
-        raw = idx[:, None] + offsets[None, :]
-        self.chunk_idx = torch.maximum(torch.minimum(raw, ends[:, None] - 1), starts[:, None])
-        self.chunk_pad = (raw < starts[:, None]) | (raw >= ends[:, None])
+        self.chunk_idx, self.chunk_pad = _gather_index(idx, starts, ends, torch.as_tensor(chunk_offsets, device=device))
+        self.obs_idx = self.obs_pad = None
+        if obs_offsets is not None:
+            self.obs_idx, self.obs_pad = _gather_index(idx, starts, ends, torch.as_tensor(obs_offsets, device=device))
         self.data, self.n, self.device, self.batch_size = data, n, device, batch_size
         self._gen = torch.Generator(device="cpu").manual_seed(seed)
+
+    def batch(self, b) -> dict:
+        """The batch of frame indices ``b`` (a long tensor on the device)."""
+        rows = b if self.obs_idx is None else self.obs_idx[b]
+        out = {k: self.data[k][rows].float() / 255.0 for k in self.image_keys}
+        for k in (STATE_KEY, ENV_STATE_KEY):
+            if k in self.data:
+                out[k] = self.data[k][rows]
+        if self.obs_idx is not None:
+            for k in [*self.image_keys, STATE_KEY, ENV_STATE_KEY]:
+                if k in out:
+                    out[f"{k}_is_pad"] = self.obs_pad[b]
+        out[ACTION_KEY] = self.data[ACTION_KEY][self.chunk_idx[b]]
+        out["action_is_pad"] = self.chunk_pad[b]
+        return out
 
     def batches(self):
         import torch
@@ -301,56 +410,46 @@ class _DeviceCache:
         while True:
             order = torch.randperm(self.n, generator=self._gen).to(self.device)
             for i in range(0, self.n - self.batch_size + 1 if self.n >= self.batch_size else 1, self.batch_size):
-                b = order[i:i + self.batch_size]
-                out = {k: self.data[k][b].float() / 255.0 for k in self.image_keys}
-                for k in (STATE_KEY, ENV_STATE_KEY):
-                    if k in self.data:
-                        out[k] = self.data[k][b]
-                out[ACTION_KEY] = self.data[ACTION_KEY][self.chunk_idx[b]]
-                out["action_is_pad"] = self.chunk_pad[b]
-                yield out
+                yield self.batch(order[i:i + self.batch_size])
 
 
-def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig | None = None,
-              on_log: Callable[[int, float], None] | None = None, *, overwrite: bool = False,
-              resume: bool = False) -> TrainResult:
-    """Train ACT on the dataset at ``dataset_root`` and save a ``lerobot:`` checkpoint in ``out_dir``.
-    A KeyboardInterrupt (Ctrl-C, or SIGTERM turned into one) saves a checkpoint of the steps done,
-    then propagates."""
-    cfg = cfg or ActTrainConfig()
-    if cfg.lr_schedule not in LR_SCHEDULES:
-        raise ConfigError(f"learning-rate schedule {cfg.lr_schedule!r}: expected one of {', '.join(LR_SCHEDULES)}")
-    if cfg.temporal_ensemble_coeff is not None and cfg.n_action_steps != 1:
-        raise ConfigError(f"temporal ensembling queries the policy every step: it needs n_action_steps 1, "
-                          f"not {cfg.n_action_steps}")
-    for name, value in (("lr", cfg.lr), ("lr_backbone", cfg.lr_backbone), ("time_budget_s", cfg.time_budget_s)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ConfigError(f"--{name.replace('_', '-')} must be a positive number, got {value!r}")
-    t_start = time.perf_counter()
-    out, root = Path(out_dir), Path(dataset_root)
-    check_dataset(root)
-    resume_from, replace = _prepare_out(out, root, overwrite, resume)
+def _import_lerobot_training():
+    import importlib
+
     try:
-        import torch
-        from lerobot.configs.types import FeatureType, NormalizationMode
-        from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-        from lerobot.datasets.utils import dataset_to_policy_features
-        from lerobot.policies.act.configuration_act import ACTConfig
-        from lerobot.policies.act.modeling_act import ACTPolicy
-        from lerobot.policies.factory import make_pre_post_processors
+        for module in ("torch", "lerobot.datasets.lerobot_dataset", "lerobot.policies.factory"):
+            importlib.import_module(module)
     except ImportError as exc:
         raise ConfigError(f"training needs the lerobot extra ({exc}); `pip install 'simseam[lerobot]'`") from None
-    from simseam.policies.lerobot_policy import pick_device
 
-    device = pick_device(cfg.device)
-    torch.manual_seed(cfg.seed)
-    meta = LeRobotDatasetMetadata("simseam/local", root=root)
+
+def _policy_features(meta, root: Path, policy_type: str):
+    """(inputs, outputs): the dataset's features as LeRobot policy features; ``ConfigError`` when the
+    policy type cannot learn from them."""
+    from lerobot.configs.types import FeatureType
+    from lerobot.datasets.utils import dataset_to_policy_features
+
     features = dataset_to_policy_features(meta.features)
     outputs = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
     inputs = {k: f for k, f in features.items() if k not in outputs}
     if not any(f.type in (FeatureType.VISUAL, FeatureType.ENV) for f in inputs.values()):
-        raise ConfigError(f"{root}: ACT needs a camera or the object state (observation.environment_state); the "
-                          "dataset has neither: collect with cameras, or from a scene with `environment_state: true`")
+        raise ConfigError(f"{root}: {policy_type} needs a camera or the object state (observation.environment_state); "
+                          "the dataset has neither: collect with cameras, or from a scene with `environment_state: "
+                          "true`")
+    if policy_type == "diffusion":
+        if STATE_KEY not in inputs:
+            raise ConfigError(f"{root}: Diffusion Policy needs observation.state (proprioception); the dataset has none")
+        shapes = {tuple(f.shape) for f in inputs.values() if f.type is FeatureType.VISUAL}
+        if len(shapes) > 1:
+            raise ConfigError(f"{root}: Diffusion Policy needs every camera at one size; the dataset has "
+                              f"{sorted(shapes)}")
+    return inputs, outputs
+
+
+def _act_config(cfg: TrainConfig, inputs, outputs, device: str):
+    from lerobot.configs.types import FeatureType, NormalizationMode
+    from lerobot.policies.act.configuration_act import ACTConfig
+
     act_cfg = ACTConfig(
         input_features=inputs, output_features=outputs, device=device,
         chunk_size=cfg.chunk_size, n_action_steps=cfg.n_action_steps, dim_model=cfg.dim_model,
@@ -363,7 +462,111 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     # ACT's default mapping names VISUAL, STATE and ACTION only: without this, LeRobot's normalizer passes
     # environment_state through raw (a cube's y spans +-0.1 m beside inputs of unit spread)
     act_cfg.normalization_mapping = {**act_cfg.normalization_mapping, FeatureType.ENV.value: NormalizationMode.MEAN_STD}
-    policy = ACTPolicy(act_cfg)
+    return act_cfg
+
+
+def _diffusion_config(cfg: TrainConfig, inputs, outputs, device: str):
+    from lerobot.configs.types import FeatureType, NormalizationMode
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    visual = [f for f in inputs.values() if f.type is FeatureType.VISUAL]
+    crop = None
+    if visual and cfg.crop_fraction < 1:
+        _, h, w = visual[0].shape
+        crop = (max(1, int(h * cfg.crop_fraction)), max(1, int(w * cfg.crop_fraction)))
+    try:
+        dp_cfg = DiffusionConfig(
+            input_features=inputs, output_features=outputs, device=device, n_obs_steps=cfg.n_obs_steps,
+            horizon=cfg.horizon, n_action_steps=cfg.n_action_steps,
+            crop_shape=crop, crop_is_random=True, pretrained_backbone_weights=cfg.pretrained_backbone_weights,
+            use_group_norm=cfg.pretrained_backbone_weights is None, down_dims=tuple(cfg.down_dims),
+            noise_scheduler_type=cfg.noise_scheduler, num_train_timesteps=cfg.diffusion_steps,
+            num_inference_steps=cfg.inference_steps, optimizer_lr=cfg.lr,
+            optimizer_weight_decay=cfg.weight_decay)
+        dp_cfg.validate_features()
+    except ValueError as exc:
+        raise ConfigError(f"diffusion policy: {str(exc).splitlines()[0]}") from None
+    # LeRobot's mapping leaves environment_state raw; min-max like the state (the cube's pose spans centimetres)
+    dp_cfg.normalization_mapping = {**dp_cfg.normalization_mapping, FeatureType.ENV.value: NormalizationMode.MIN_MAX}
+    return dp_cfg
+
+
+def _build_policy(cfg: TrainConfig, inputs, outputs, device: str):
+    """(LeRobot config, policy) of ``cfg.policy_type``, and the optimizer's parameter groups."""
+    if cfg.policy_type == "diffusion":
+        from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+        pcfg = _diffusion_config(cfg, inputs, outputs, device)
+        policy = DiffusionPolicy(pcfg)
+        return pcfg, policy, [{"params": list(policy.get_optim_params())}], dict(betas=pcfg.optimizer_betas,
+                                                                                 eps=pcfg.optimizer_eps)
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    pcfg = _act_config(cfg, inputs, outputs, device)
+    policy = ACTPolicy(pcfg)
+    return pcfg, policy, policy.get_optim_params(), {}
+
+
+def _delta_indices(pcfg) -> tuple[list[int], list[int] | None]:
+    """(action offsets, observation offsets or None): the frames one training sample reads around its own."""
+    obs = getattr(pcfg, "observation_delta_indices", None)
+    return list(pcfg.action_delta_indices), (list(obs) if obs is not None else None)
+
+
+def delta_timestamps(pcfg, meta) -> dict[str, list[float]]:
+    """LeRobotDataset's ``delta_timestamps`` for the policy config ``pcfg`` (as LeRobot's ``make_dataset``)."""
+    actions, obs = _delta_indices(pcfg)
+    delta = {ACTION_KEY: [i / meta.fps for i in actions]}
+    if obs is not None:
+        delta.update({k: [i / meta.fps for i in obs] for k in meta.features if k.startswith("observation.")})
+    return delta
+
+
+def _batch_source(cfg: TrainConfig, pcfg, meta, root: Path, device: str):
+    """An endless iterator of training batches: from the device cache, or LeRobotDataset's loader."""
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    if cfg.cache_on_device:
+        actions, obs = _delta_indices(pcfg)
+        return _DeviceCache(LeRobotDataset("simseam/local", root=root), actions, device, cfg.num_workers,
+                            cfg.batch_size, cfg.seed, obs_offsets=obs).batches()
+    dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta_timestamps(pcfg, meta))
+    loader = torch.utils.data.DataLoader(
+        dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
+        num_workers=cfg.num_workers, pin_memory=device.startswith("cuda"),
+        persistent_workers=cfg.num_workers > 0, generator=torch.Generator().manual_seed(cfg.seed))
+
+    def _epochs():
+        while True:
+            yield from loader
+
+    return _epochs()
+
+
+def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: TrainConfig | None = None,
+              on_log: Callable[[int, float], None] | None = None, *, overwrite: bool = False,
+              resume: bool = False) -> TrainResult:
+    """Train ``cfg.policy_type`` (ACT by default, or Diffusion) on the dataset at ``dataset_root`` and save
+    a ``lerobot:`` checkpoint in ``out_dir``. A KeyboardInterrupt (Ctrl-C, or SIGTERM turned into one)
+    saves a checkpoint of the steps done, then propagates."""
+    cfg = resolve_config(cfg or TrainConfig())
+    t_start = time.perf_counter()
+    out, root = Path(out_dir), Path(dataset_root)
+    check_dataset(root)
+    resume_from, replace = _prepare_out(out, root, overwrite, resume)
+    _import_lerobot_training()
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from simseam.policies.lerobot_policy import pick_device
+
+    device = pick_device(cfg.device)
+    torch.manual_seed(cfg.seed)
+    meta = LeRobotDatasetMetadata("simseam/local", root=root)
+    inputs, outputs = _policy_features(meta, root, cfg.policy_type)
+    pcfg, policy, param_groups, adam = _build_policy(cfg, inputs, outputs, device)
     state = None
     if resume_from is not None:
         from safetensors.torch import load_file
@@ -372,25 +575,9 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
         state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
     policy.to(device)
     policy.train()
-    preprocessor, postprocessor = make_pre_post_processors(act_cfg, dataset_stats=image_stats(meta, root))
-    if cfg.cache_on_device:
-        cache = _DeviceCache(LeRobotDataset("simseam/local", root=root), list(act_cfg.action_delta_indices),
-                             device, cfg.num_workers, cfg.batch_size, cfg.seed)
-        batches = cache.batches()
-    else:
-        delta = {ACTION_KEY: [i / meta.fps for i in act_cfg.action_delta_indices]}
-        dataset = LeRobotDataset("simseam/local", root=root, delta_timestamps=delta)
-        loader = torch.utils.data.DataLoader(
-            dataset, batch_size=cfg.batch_size, shuffle=True, drop_last=len(dataset) >= cfg.batch_size,
-            num_workers=cfg.num_workers, pin_memory=device.startswith("cuda"),
-            persistent_workers=cfg.num_workers > 0, generator=torch.Generator().manual_seed(cfg.seed))
-
-        def _epochs():
-            while True:
-                yield from loader
-
-        batches = _epochs()
-    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    preprocessor, postprocessor = make_pre_post_processors(pcfg, dataset_stats=image_stats(meta, root))
+    batches = _batch_source(cfg, pcfg, meta, root, device)
+    optimizer = torch.optim.AdamW(param_groups, lr=cfg.lr, weight_decay=cfg.weight_decay, **adam)
     base_lrs = [g["lr"] for g in optimizer.param_groups]
     result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
                          frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
@@ -448,6 +635,6 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: ActTrainConfig
     policy.save_pretrained(out)
     preprocessor.save_pretrained(out)
     postprocessor.save_pretrained(out)
-    _skill_from_dataset(meta, root, name=f"act trained on {root.name}").save(out)
+    _skill_from_dataset(meta, root, name=f"{cfg.policy_type} trained on {root.name}").save(out)
     (out / "training.json").write_text(json.dumps({"config": asdict(cfg), **asdict(result)}, indent=2) + "\n")
     return result
