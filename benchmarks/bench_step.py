@@ -1,6 +1,7 @@
 """Per-control-step cost of the seam vs the raw physics floor, and vs robosuite's Lift.
 
     .venv/bin/python benchmarks/bench_step.py [--steps 300] [--rounds 3] [--robosuite]
+    .venv/bin/python benchmarks/bench_step.py --baseline HEAD~3 [--rounds 6]   # before / after in one run
 
 Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step):
 
@@ -18,7 +19,13 @@ Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step)
 The state-only cases are interleaved every 10 steps within a round, so the slow and fast phases
 of a shared machine hit all of them alike; the table reports the median over rounds of each
 case's per-step p50 / p90. The action stream
-is a smooth, seeded sweep (like a policy's), not white noise. Prints a table and writes JSON.
+is a smooth, seeded sweep (like a policy's), not white noise. ``x floor`` is the median over rounds
+of each round's p50 / the floor's p50 of the same round (the same process, interleaved): steadier on
+a shared machine than the times themselves. Prints a table and writes JSON, with the load average.
+
+``--baseline REV``: before / after in one run. Each round runs this script (one round, its own
+process) on ``REV``'s code and on this checkout's, alternately (``revisions.py``: the order swaps every
+round); the table puts both sides' medians side by side.
 """
 
 from __future__ import annotations
@@ -172,13 +179,59 @@ def stats(ms: np.ndarray) -> dict:
             "mean_ms": float(ms.mean()), "n": int(ms.size)}
 
 
+def ratio_medians(rounds: dict[str, list[dict]]) -> dict[str, float]:
+    """Per case: the median over rounds of its p50 / the floor's p50 in the same round."""
+    floor = [r["p50_ms"] for r in rounds["floor"]]
+    return {k: float(np.median([r["p50_ms"] / f for r, f in zip(v, floor)])) for k, v in rounds.items()}
+
+
+def compare(args) -> None:
+    """``--baseline``: this script's rounds on REV's code and on this checkout's, alternately."""
+    from revisions import alternate, resolve
+
+    load0 = os.getloadavg()
+    argv = [str(Path(__file__).resolve()), "--steps", str(args.steps), "--rounds", "1", "--json", "{json}"]
+    runs = alternate(args.baseline, argv, args.rounds)
+    sides = {}
+    for side, results in runs.items():
+        rounds = {k: [r["results"][k]["rounds"][0] for r in results] for k in results[0]["results"]}
+        ratio = ratio_medians(rounds)
+        sides[side] = {k: {"p50_ms": float(np.median([x["p50_ms"] for x in v])),
+                           "p90_ms": float(np.median([x["p90_ms"] for x in v])), "x_floor": ratio[k], "rounds": v}
+                       for k, v in rounds.items()}
+    print(f"\n{'case':24s} {'before p50':>10s} {'after p50':>10s} {'before x':>9s} {'after x':>9s}  (x floor)")
+    for k in sides["head"]:
+        b, a = sides["base"][k], sides["head"][k]
+        print(f"{k:24s} {b['p50_ms']:10.3f} {a['p50_ms']:10.3f} {b['x_floor']:9.2f} {a['x_floor']:9.2f}")
+    load1 = os.getloadavg()
+    print(f"load average (1, 5, 15 min): start {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}, "
+          f"end {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}")
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({
+        "machine": {"python": platform.python_version(), "mujoco": mujoco.__version__, "cpus": os.cpu_count()},
+        "baseline": args.baseline, "baseline_commit": resolve(args.baseline), "steps": args.steps,
+        "rounds": args.rounds, "loadavg": {"start": load0, "end": load1},
+        "before": sides["base"], "after": sides["head"],
+        "goal_state_cartesian_within_1.25x_floor": {s: sides[s]["seam_state_cartesian"]["x_floor"] <= 1.25
+                                                    for s in ("base", "head")},
+    }, indent=2))
+    print(f"wrote {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=300)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--robosuite", action="store_true", help="also run the robosuite Lift baseline (same run)")
+    ap.add_argument("--baseline", metavar="REV", help="also run REV's code, alternating rounds (before / after)")
     ap.add_argument("--json", default=str(HERE / "results" / "step.json"))
     args = ap.parse_args()
+    if args.baseline:
+        if args.robosuite:
+            raise SystemExit("--baseline and --robosuite: run them separately")
+        return compare(args)
+    load0 = os.getloadavg()
 
     spec = load_robot("franka_panda")
     cartesian = SeamCase(spec, "cartesian_delta", False, None, args.steps)
@@ -214,16 +267,18 @@ def main() -> None:
             results[f"robosuite_{case}"] = {"p50_ms": median(rs, "p50_ms"), "p90_ms": median(rs, "p90_ms"),
                                             "rounds": rs}
     floor = results["floor"]["p50_ms"]
+    ratios = ratio_medians(rounds)
     rows = []
     for name, r in results.items():
-        ratio = r["p50_ms"] / floor
+        ratio = ratios.get(name, r["p50_ms"] / floor)
+        r["x_floor"] = ratio
         rows.append((name, r["p50_ms"], r["p90_ms"], ratio))
     print(f"\n{'case':24s} {'p50 ms':>9s} {'p90 ms':>9s} {'x floor':>8s}")
     for name, p50, p90, ratio in rows:
         print(f"{name:24s} {p50:9.3f} {p90:9.3f} {ratio:8.2f}")
     goals = {
-        "state_cartesian_within_1.25x_floor": results["seam_state_cartesian"]["p50_ms"] <= 1.25 * floor,
-        "state_joint_within_1.25x_floor": results["seam_state_joint"]["p50_ms"] <= 1.25 * floor,
+        "state_cartesian_within_1.25x_floor": ratios["seam_state_cartesian"] <= 1.25,
+        "state_joint_within_1.25x_floor": ratios["seam_state_joint"] <= 1.25,
     }
     for size in ("128", "256"):
         if f"robosuite_rgb{size}" in results:
@@ -235,7 +290,8 @@ def main() -> None:
     out.write_text(json.dumps({
         "machine": {"python": platform.python_version(), "mujoco": mujoco.__version__, "cpus": os.cpu_count(),
                     "MUJOCO_GL": os.environ.get("MUJOCO_GL")},
-        "steps": args.steps, "rounds": args.rounds, "results": results, "goals": goals,
+        "steps": args.steps, "rounds": args.rounds, "loadavg": {"start": load0, "end": os.getloadavg()},
+        "results": results, "goals": goals,
     }, indent=2))
     print(f"wrote {out}")
     for c in cases.values():

@@ -166,3 +166,7 @@ class Engine(Protocol):
     def contacts_between(self, a: str, b: str) -> bool:
         """Whether objects/robot ``a`` and ``b`` touch now (``"robot"`` names the robot)."""
     def close(self) -> None: ...
+
+    # optional, looked up with getattr (an engine without it leaves the scene on SerialChain):
+    # chain_forward(base_link, tip_link, joints, tip_offset) -> an object whose forward(q) returns
+    # what SerialChain.forward returns, computed by the engine (MuJoCo: its C kinematics)

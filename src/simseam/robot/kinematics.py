@@ -7,8 +7,10 @@ joint targets. Frames: everything here is in the robot base link frame.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -45,8 +47,11 @@ class SerialChain:
     ``joint_names`` lists the chain's actuated joints (``q`` order); any other
     movable joint on the way is held at 0. Joint limits clip every IK solution.
     ``tip_offset`` (4x4, in ``tip_link``'s frame) moves the tip to a tool frame
-    the URDF lacks (a manifest's ``tcp``).
+    the URDF lacks (a manifest's ``tcp``). ``forward_source``: who computes ``forward``
+    (``"urdf"``: this class, in numpy; another name after ``with_forward``).
     """
+
+    forward_source = "urdf"
 
     def __init__(self, urdf: UrdfModel, base_link: str, tip_link: str, joint_names: list[str],
                  lower: np.ndarray, upper: np.ndarray, tip_offset: np.ndarray | None = None):
@@ -102,6 +107,15 @@ class SerialChain:
         self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
+
+    def with_forward(self, forward: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                     source: str) -> "SerialChain":
+        """A copy of this chain whose ``forward`` (and so ``solve``) is ``forward``: another implementation
+        of the same kinematics (an engine's, ``source`` names it), which the caller has checked agrees."""
+        other = copy.copy(self)
+        other.forward = forward  # type: ignore[method-assign]
+        other.forward_source = source
+        return other
 
     @property
     def arrays(self) -> ChainArrays:

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from simseam.engines.base import CameraModel, EngineOptions, ObjectModel, RobotModel
+from simseam.engines.mujoco.chain import ChainForward
 from simseam.engines.mujoco.render import CameraRenderer
 from simseam.robot.urdf import read_urdf
 from simseam.seam import BackendUnavailableError, ConfigError, SimulationError
@@ -400,6 +401,15 @@ class MujocoEngine:
         return ModelLayout(self._qadr.copy(), self._vadr.copy(), self._act.copy(), dict(self._obj_body),
                            dict(self._obj_qadr), dict(self._obj_vadr), self._geom_owner.copy(),
                            dict(self._owner_code))
+
+    def chain_forward(self, base_link: str, tip_link: str, joints: list[str],
+                      tip_offset: np.ndarray | None = None) -> ChainForward:
+        """The kinematics of the chain ``base_link`` -> ``tip_link`` (``joints`` in ``q`` order, the tool
+        ``tip_offset`` 4x4 in ``tip_link``'s frame) computed by MuJoCo: ``ChainForward.forward(q)`` gives
+        what ``SerialChain.forward`` gives. Optional primitive (see ``engines.base``); after ``build``."""
+        if self.model is None:
+            raise SimulationError("the engine is not built yet")
+        return ChainForward(self.model, base_link, tip_link, joints, tip_offset)
 
     def pose_qpos(self, qpos: np.ndarray) -> None:
         """Put the whole ``qpos`` into the model and bring body poses up to date (kinematics only), to read
