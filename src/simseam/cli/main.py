@@ -14,7 +14,7 @@ from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail,
-                                never_started, policy_kwargs, redacted, sigterm_as_interrupt)
+                                never_started, policy_kwargs, redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -306,7 +306,6 @@ def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, ac
 def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
              todo: list[int], *, num_workers: int | None, planned: int) -> None:
     """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
-    from simseam.policies.base import make_policy
     from simseam.runner.ray_eval import run_on_ray
     from simseam.runner.recipe import SceneRecipe
 
@@ -324,16 +323,17 @@ def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwa
         progress.done(entry)
 
     finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
-    with episodes_guard(run_dir, spec=lambda: spec_json, finish=finish):
-        probe = make_policy(policy, **policy_kwargs)  # what the rollouts must provide; checked here first
+    probe = None
+    with episodes_guard(run_dir, lambda: probe and probe.close(), spec=lambda: spec_json, finish=finish):
+        probe = SpecProbe(policy, policy_kwargs)  # meets the first actor's spec before anything is written
         recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
                                render_images=probe.uses_images, seed=seed)
-        close_policy(probe)
         console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
                       f"{escape(str(out))}")
         with progress:
             run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-                       on_spec=on_spec, on_done=done, on_worker_failure=progress.worker_failure, keep=False)
+                       on_spec=on_spec, check=probe.check, on_done=done, on_worker_failure=progress.worker_failure,
+                       keep=False)
 
 
 def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
