@@ -85,3 +85,30 @@ def test_collect_interrupted_keeps_the_recorded_episodes(tmp_path):
 
     ds = LeRobotDataset("simseam/test", root=tmp_path / "demos")
     assert ds.num_episodes == info["total_episodes"] and len(ds) == 30 * ds.num_episodes
+
+
+def test_train_diffusion_then_run_sequential_and_batched(tmp_path):
+    """`simseam train --policy-type diffusion`, then `simseam run --policy lerobot:dp` one environment at a time
+    and with --num-envs 2: the same episodes, step for step; a horizon the U-Net cannot halve is one line."""
+    (tmp_path / "lift.yaml").write_text("robot: franka_panda\nengine: mujoco\nlayout: lift_cube\n"
+                                        "image_size: [40, 40]\nmax_steps: 50\ncontrol_hz: 20\n")
+    p = _simseam("collect", "--scene", "lift.yaml", "--episodes", "2", "--out", "demos", "--images", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    p = _simseam("train", "--dataset", "demos", "--out", "dp", "--policy-type", "diffusion", "--horizon", "12",
+                 "--down-dims", "16,32,64", "--steps", "1", "--workers", "0", cwd=tmp_path)
+    assert p.returncode == 2 and "horizon 12" in p.stderr and "multiple of 8" in p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1 and not (tmp_path / "dp").exists()
+    p = _simseam("train", "--dataset", "demos", "--out", "dp", "--policy-type", "diffusion", "--horizon", "8",
+                 "--down-dims", "16,32", "--n-action-steps", "4", "--inference-steps", "3", "--steps", "2",
+                 "--batch-size", "4", "--workers", "0", "--cache", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "trained Diffusion Policy" in p.stdout and "for 2 steps" in p.stdout
+    assert json.loads((tmp_path / "dp" / "config.json").read_text())["n_obs_steps"] == 2
+    runs = {}
+    for out, extra in (("seq", []), ("vec", ["--num-envs", "2"])):
+        p = _simseam("run", "--scene", "lift.yaml", "--policy", "lerobot:dp", "--episodes", "3", "--out", out,
+                     *extra, cwd=tmp_path)
+        assert p.returncode == 0, p.stderr
+        runs[out] = json.loads((tmp_path / out / "summary.json").read_text())["episodes"]
+    assert [(e["seed"], e["steps"], e["success"]) for e in runs["seq"]] == \
+        [(e["seed"], e["steps"], e["success"]) for e in runs["vec"]]

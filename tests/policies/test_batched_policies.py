@@ -9,6 +9,8 @@ from simseam.policies.base import make_policy
 from simseam.policies.batch import PerEnvPolicies, make_policy_batch
 
 SEEDS = (3, 8, 11)
+#: the trained LeRobot policies batched: ACT, and Diffusion (an observation history per environment)
+CHECKPOINTS = ["tiny_act", "tiny_dp"]
 
 
 def _unbatched(make, scenes, steps, seen=None):
@@ -63,8 +65,9 @@ def test_per_env_policies_equal_one_instance_per_episode(panda_spec, make_scene)
 
 
 @pytest.mark.learning
-def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(tiny_act, panda_spec, make_scene):
-    out, _ = tiny_act
+@pytest.mark.parametrize("checkpoint", CHECKPOINTS)
+def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(request, checkpoint, panda_spec, make_scene):
+    out, _ = request.getfixturevalue(checkpoint)
     steps = 10
     scenes = [make_scene(panda_spec, image_size=(40, 56), max_steps=steps) for _ in SEEDS]
     seen = []
@@ -81,9 +84,10 @@ def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(tiny_act, panda_
 
 
 @pytest.mark.learning
-def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(tiny_act, panda_spec, make_scene):
+@pytest.mark.parametrize("checkpoint", CHECKPOINTS)
+def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(request, checkpoint, panda_spec, make_scene):
     """Environments that start at different times (a vector env refilling a slot) each replay their own chunk."""
-    out, _ = tiny_act
+    out, _ = request.getfixturevalue(checkpoint)
     scenes = [make_scene(panda_spec, image_size=(40, 56), max_steps=12) for _ in SEEDS[:2]]
     reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, 7)
     batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
@@ -103,14 +107,15 @@ def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(tiny_act, panda_sp
 
 
 @pytest.mark.learning
-def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
+@pytest.mark.parametrize("checkpoint", CHECKPOINTS)
+def test_lerobot_through_the_vector_env_equals_one_process(request, checkpoint, tmp_path):
     """`simseam run --num-envs 2 --policy lerobot:...`'s loop: worker processes render, the parent batches."""
     from simseam.runner.scene_config import build_rollout, load_scene_config
     from simseam.runner.session import run_episodes
     from simseam.runner.recipe import SceneRecipe
     from simseam.runner.vector import VectorEnv
 
-    out, _ = tiny_act
+    out, _ = request.getfixturevalue(checkpoint)
     scene = tmp_path / "scene.yaml"
     scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [40, 56]\nmax_steps: 12\n")
     cfg, base = load_scene_config(scene)
@@ -128,3 +133,43 @@ def test_lerobot_through_the_vector_env_equals_one_process(tiny_act, tmp_path):
         assert (r.seed, r.steps, r.success) == (ref.seed, ref.steps, ref.success)
         for k, v in ref.diagnostics.items():
             assert float(r.diagnostics[k]) == pytest.approx(float(v), abs=1e-3)
+
+
+@pytest.mark.learning
+def test_diffusion_history_does_not_leak_across_resets(tiny_dp, panda_spec, make_scene):
+    """After a reset, a Diffusion Policy's observation history holds the new episode's first frame only: an
+    episode started after another (sequentially, and in one environment of a batch while the other runs on)
+    acts exactly as the same episode on a fresh policy."""
+    out, _ = tiny_dp
+    first, second = (make_scene(panda_spec, image_size=(40, 56), max_steps=12) for _ in range(2))
+    fresh = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), [second], 6)[0]  # seed 3 alone
+    policy = make_policy(f"lerobot:{out}", device="cpu")
+    policy.reset(first.spec)
+    obs = first.reset(11, policy.observe_next())
+    for _ in range(5):  # mid-chunk: history and queue hold episode 11's frames and actions
+        obs = first.step(policy.act(obs), policy.observe_next()).observation
+    policy.reset(second.spec)
+    obs, after = second.reset(SEEDS[0], policy.observe_next()), []
+    for _ in range(6):
+        after.append(policy.act(obs))
+        obs = second.step(after[-1], policy.observe_next()).observation
+    np.testing.assert_array_equal(np.stack(after), fresh)
+
+    batch = make_policy_batch(f"lerobot:{out}", 2, device="cpu")
+    obs = {}
+    for env, scene, seed in ((0, first, 11), (1, second, 8)):
+        batch.reset(env, scene.spec)
+        obs[env] = scene.reset(seed, batch.observe_next(env))
+    for _ in range(5):
+        acts = batch.act_batch([0, 1], [obs[0], obs[1]])
+        for env, scene in ((0, first), (1, second)):
+            obs[env] = scene.step(acts[env], batch.observe_next(env)).observation
+    assert len(batch.history[0]) == 2 and batch.queues[0]
+    batch.reset(0, first.spec)  # env 0 starts seed 3 while env 1 is mid-episode
+    obs[0], got = first.reset(SEEDS[0], batch.observe_next(0)), []
+    for _ in range(6):
+        acts = batch.act_batch([0, 1], [obs[0], obs[1]])
+        got.append(acts[0])
+        for env, scene in ((0, first), (1, second)):
+            obs[env] = scene.step(acts[env], batch.observe_next(env)).observation
+    np.testing.assert_allclose(np.stack(got), fresh, rtol=1e-3, atol=2e-4)  # batched: float sums in another order

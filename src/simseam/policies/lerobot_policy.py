@@ -16,6 +16,14 @@ the device, ``select_action`` runs (it executes ``n_action_steps`` actions of ea
 predicted chunk before predicting again), and the postprocessor unnormalizes the
 action, returned as ``float32[action_dim]``.
 
+Policies with an observation history (Diffusion Policy's ``n_obs_steps``) get images on every step
+whose frame the next prediction reads (the ``n_obs_steps - 1`` steps before it and its own), and keep
+the history per episode: ``reset`` empties it, and the first frame of an episode fills it (LeRobot's
+``populate_queues``). Diffusion's initial noise comes from a generator reseeded (``noise_seed``) at
+every reset, so an episode's actions depend on its own observations only, not on what ran before
+nor on which of ``--num-envs`` environments runs it (with a DDIM sampler, which adds no noise while
+denoising; DDPM draws that from torch's global generator).
+
 Before the first step, ``reset`` checks the policy's contract against the scene:
 ``simseam_skill.json`` when the checkpoint has one (saved by ``simseam train``),
 else one derived from its config (images and sizes, state and action length;
@@ -152,13 +160,17 @@ class LeRobotPolicy(BasePolicy):
     maps policy image names to scene camera feature keys (overrides the skill file's);
     ``config_overrides`` sets other inference-time config fields (e.g. ACT's
     ``temporal_ensemble_coeff``) before the policy is built; unknown fields are errors.
+    ``noise_seed``: the seed of the generator a diffusion policy's initial noise comes from, reseeded
+    at every reset.
     """
 
     uses_images = True
 
     def __init__(self, source: str | Path, *, device: str | None = None, n_action_steps: int | None = None,
-                 image_map: dict[str, str] | None = None, config_overrides: dict[str, Any] | None = None):
+                 image_map: dict[str, str] | None = None, config_overrides: dict[str, Any] | None = None,
+                 noise_seed: int = 0):
         self.source = str(source)
+        self.noise_seed = noise_seed
         path = Path(self.source).expanduser()
         is_local = _is_local(self.source)
         if is_local:  # checked before the (slow) imports: a mistyped directory is a fast one-line error
@@ -184,7 +196,7 @@ class LeRobotPolicy(BasePolicy):
                 raise ConfigError(f"lerobot:{self.source}: {cfg.type} config has no field {key!r}")
             setattr(cfg, key, value)
         if n_action_steps is not None:
-            chunk = getattr(cfg, "chunk_size", None)
+            chunk = max_action_steps(cfg)
             if n_action_steps < 1 or (chunk is not None and n_action_steps > chunk):
                 raise ConfigError(f"lerobot:{self.source}: n_action_steps must be in [1, {chunk}], "
                                   f"got {n_action_steps}")
@@ -223,6 +235,28 @@ class LeRobotPolicy(BasePolicy):
     def n_action_steps(self) -> int:
         return int(self.config.n_action_steps)
 
+    @property
+    def n_obs_steps(self) -> int:
+        """Observations one prediction reads (Diffusion's history; 1 for ACT)."""
+        return int(getattr(self.config, "n_obs_steps", 1) or 1)
+
+    def reads_frame(self, actions_left: int) -> bool:
+        """Whether the frame of a step with ``actions_left`` actions still queued (0: it predicts) is read by a
+        prediction: its own, or one within the next ``n_obs_steps - 1`` steps."""
+        return actions_left <= self.n_obs_steps - 1
+
+    def noise_generator(self):
+        """A fresh generator for an episode's diffusion noise (None for policies that draw none)."""
+        if self.config.type != "diffusion":
+            return None
+        return self._torch.Generator(device="cpu").manual_seed(self.noise_seed)
+
+    def draw_noise(self, generators: list) -> Any:
+        """Initial noise ``[len(generators), horizon, action_dim]`` on the device, one row per generator."""
+        torch = self._torch
+        shape = (1, int(self.config.horizon), int(self.config.action_feature.shape[0]))
+        return torch.cat([torch.randn(shape, generator=g) for g in generators]).to(self.device)
+
     def contract_for(self, spec: RolloutSpec) -> SkillContract:
         """The contract against ``spec``: a single-camera policy's default follows a scene whose only
         camera is not ``camera1`` (PushT's ``top``, say)."""
@@ -240,13 +274,15 @@ class LeRobotPolicy(BasePolicy):
         self.chunks_predicted = 0
         self._acts = 0
         self._last_images: dict[str, Any] = {}
+        self._noise = self.noise_generator()
 
     def observe_next(self) -> ObsRequest | None:
-        """Images only for the calls that predict a chunk (every ``n_action_steps``-th: LeRobot's
-        ``select_action`` refills its queue then); the others replay the queue and read nothing."""
+        """Images only for the frames a prediction reads: the calls that predict a chunk (every
+        ``n_action_steps``-th: LeRobot's ``select_action`` refills its queue then) and, with an observation
+        history, the ``n_obs_steps - 1`` before each; the others replay the queue and read nothing."""
         if not self.uses_images:
             return STATE_ONLY
-        return None if self._acts % max(1, self.n_action_steps) == 0 else STATE_ONLY
+        return None if self.reads_frame((-self._acts) % max(1, self.n_action_steps)) else STATE_ONLY
 
     def _frame(self, observation: Observation, spec: RolloutSpec, last_images: dict[str, Any] | None,
                predicts: bool) -> dict[str, Any]:
@@ -281,32 +317,47 @@ class LeRobotPolicy(BasePolicy):
 
     def act(self, observation: Observation) -> np.ndarray:
         torch = self._torch
-        predicts = self._acts % max(1, self.n_action_steps) == 0  # select_action refills its queue now
+        left = (-self._acts) % max(1, self.n_action_steps)  # 0: select_action refills its queue now
         self._acts += 1
-        batch = self._frame(observation, self.spec, self._last_images, predicts)
+        batch = self._frame(observation, self.spec, self._last_images, self.reads_frame(left))
+        noise = {"noise": self.draw_noise([self._noise])} if self._noise is not None and left == 0 else {}
         with torch.inference_mode():
             batch = self.preprocessor(batch)
-            action = self.policy.select_action(batch)
+            action = self.policy.select_action(batch, **noise)
             action = self.postprocessor(action)
         return action.squeeze(0).to("cpu", torch.float32).numpy()
 
     def make_batch(self, n: int) -> "LeRobotBatch | None":
         """One model for ``n`` environments with per-environment chunk queues, when this policy's
         ``select_action`` is a plain chunk queue (ACT without temporal ensembling); else None (the
-        caller then builds one instance per environment)."""
+        caller then builds one instance per environment). Diffusion keeps each environment's observation
+        history beside its queue."""
         if self.config.type not in BATCHABLE_TYPES or getattr(self.config, "temporal_ensemble_coeff", None) is not None:
             return None
         return LeRobotBatch(self, n)
 
 
 #: LeRobot policy types whose ``select_action`` executes ``n_action_steps`` of each predicted chunk from a queue,
-#: so one batched ``predict_action_chunk`` with per-environment queues gives the same actions (verified: ACT)
-BATCHABLE_TYPES = frozenset({"act"})
+#: so one batched prediction with per-environment queues gives the same actions (tested: ACT, and Diffusion
+#: with its observation history kept per environment)
+BATCHABLE_TYPES = frozenset({"act", "diffusion"})
+
+
+def max_action_steps(cfg: Any) -> int | None:
+    """The most actions one prediction of the policy config ``cfg`` covers from the current step: ACT's chunk,
+    Diffusion's ``horizon - n_obs_steps + 1``; None when unknown."""
+    if getattr(cfg, "chunk_size", None) is not None:
+        return int(cfg.chunk_size)
+    if getattr(cfg, "horizon", None) is not None and getattr(cfg, "n_obs_steps", None) is not None:
+        return int(cfg.horizon) - int(cfg.n_obs_steps) + 1
+    return None
 
 
 class LeRobotBatch(PolicyBatch):
     """``lerobot:`` for N environments: one model, one chunk queue per environment; the environments
-    whose queue is empty get one forward pass together (a batch of B)."""
+    whose queue is empty get one forward pass together (a batch of B). A policy with an observation
+    history (Diffusion) keeps the last ``n_obs_steps`` frames of each environment's episode and its own
+    noise generator, both renewed by that environment's reset."""
 
     uses_images = True
     requires_privileged = False
@@ -317,6 +368,10 @@ class LeRobotBatch(PolicyBatch):
         self.n = n
         self.queues: list[deque] = [deque() for _ in range(n)]
         self.specs: list[RolloutSpec | None] = [None] * n
+        self.history: list[deque] = [deque(maxlen=policy.n_obs_steps) for _ in range(n)]
+        self.last_images: list[dict[str, Any]] = [{} for _ in range(n)]
+        self.noise: list[Any] = [None] * n
+        self._diffusion = policy.config.type == "diffusion"
         #: forward passes (batches) run, and chunks predicted over all environments
         self.forward_passes = 0
         self.chunks_predicted = 0
@@ -326,31 +381,71 @@ class LeRobotBatch(PolicyBatch):
         check_contract(self.policy.contract, spec)
         self.specs[env] = spec
         self.queues[env].clear()
+        self.history[env].clear()
+        self.last_images[env] = {}
+        self.noise[env] = self.policy.noise_generator()
 
     def observe_next(self, env: int) -> ObsRequest | None:
-        return STATE_ONLY if self.queues[env] or not self.uses_images else None
+        if not self.uses_images:
+            return STATE_ONLY
+        return None if self.policy.reads_frame(len(self.queues[env])) else STATE_ONLY
 
     def act_batch(self, envs, observations) -> np.ndarray:
         p = self.policy
-        torch = p._torch
         need = [k for k, e in enumerate(envs) if not self.queues[e]]
+        if self._diffusion:
+            for k, e in enumerate(envs):  # every step joins its environment's history (as populate_queues)
+                frame = p._frame(observations[k], self.specs[e], self.last_images[e],
+                                 p.reads_frame(len(self.queues[e])))
+                while len(self.history[e]) < self.history[e].maxlen - 1:
+                    self.history[e].append(frame)  # an episode's first frame fills its history
+                self.history[e].append(frame)
         if need:
-            frames = [p._frame(observations[k], self.specs[envs[k]], None, True) for k in need]
-            batch: dict[str, Any] = {}
-            for key, value in frames[0].items():
-                if isinstance(value, str):
-                    batch[key] = [f[key] for f in frames] if len(frames) > 1 else value
-                else:
-                    batch[key] = torch.cat([f[key] for f in frames])
-            with torch.inference_mode():
-                batch = p.preprocessor(batch)
-                chunk = p.policy.predict_action_chunk(batch)[:, : p.n_action_steps]
-                chunk = p.postprocessor(chunk)
-            chunk = chunk.to("cpu", torch.float32).numpy()
+            chunk = self._predict([envs[k] for k in need], [observations[k] for k in need])
             self.forward_passes += 1
             self.chunks_predicted += len(need)
             for k, c in zip(need, chunk):
                 self.queues[envs[k]].extend(c)
         return np.stack([self.queues[e].popleft() for e in envs]).astype(np.float32)
 
+    def _predict(self, envs: list[int], observations: list) -> np.ndarray:
+        """``[len(envs), n_action_steps, action_dim]``: the next actions of ``envs`` in one forward pass."""
+        p = self.policy
+        torch = p._torch
+        if self._diffusion:
+            batch = _stack([[*self.history[e]] for e in envs], torch)
+        else:
+            batch = _stack([[p._frame(o, self.specs[e], None, True)] for e, o in zip(envs, observations)], torch,
+                           history=False)
+        with torch.inference_mode():
+            batch = p.preprocessor(batch)
+            if self._diffusion:
+                chunk = _diffusion_actions(p, batch, p.draw_noise([self.noise[e] for e in envs]))
+            else:
+                chunk = p.policy.predict_action_chunk(batch)[:, : p.n_action_steps]
+            chunk = p.postprocessor(chunk)
+        return chunk.to("cpu", torch.float32).numpy()
 
+
+def _stack(frames: list[list[dict[str, Any]]], torch, history: bool = True) -> dict[str, Any]:
+    """Per environment a list of frames (batches of one) -> one batch: tensors ``[B, T, ...]`` (``history``)
+    or ``[B, ...]``; text fields as one string, or a list of B."""
+    batch: dict[str, Any] = {}
+    for key, value in frames[0][-1].items():
+        if isinstance(value, str):
+            batch[key] = [f[-1][key] for f in frames] if len(frames) > 1 else value
+        elif history:
+            batch[key] = torch.cat([torch.stack([x[key] for x in f], dim=1) for f in frames])
+        else:
+            batch[key] = torch.cat([f[-1][key] for f in frames])
+    return batch
+
+
+def _diffusion_actions(p: LeRobotPolicy, batch: dict[str, Any], noise) -> Any:
+    """What Diffusion's ``select_action`` predicts from a full history, for a batch of histories
+    (``[B, n_obs_steps, ...]``, normalized): its cameras stacked as it stacks them, then its sampler."""
+    torch = p._torch
+    model_in = {k: batch[k] for k in (STATE_KEY, ENV_STATE_KEY) if k in batch}
+    if p.config.image_features:
+        model_in["observation.images"] = torch.stack([batch[k] for k in p.config.image_features], dim=-4)
+    return p.policy.diffusion.generate_actions(model_in, noise=noise)
