@@ -1,6 +1,13 @@
-"""Train ACT from camera images on scripted lift_cube demonstrations and measure it through simseam.
+"""Train ACT or Diffusion Policy from camera images on scripted demonstrations and measure it through simseam.
 
-    .venv/bin/python benchmarks/train_act_lift.py [--episodes 300] [--train-s 420] [--eval-seeds 10000:10050] ...
+    .venv/bin/python benchmarks/train_act_lift.py [--policy-type act|diffusion] [--task lift_cube|bowl_plate]
+        [--episodes 300] [--train-s 420] [--eval-seeds 10000:10050] ...
+
+``--policy-type diffusion`` trains LeRobot's Diffusion Policy instead (``simseam train --policy-type
+diffusion``'s code: group-norm ResNet from scratch, its own random crop instead of the shift below, DDIM
+sampling; the batch-norm and joint-camera patches below are ACT's and are not applied). ``--task
+bowl_plate`` records the bowl-on-plate expert instead of lift_cube's (same cameras, state and actions).
+``--smoke`` marks a run with tiny numbers (a few demos and steps) as such in its JSON.
 
 Three phases, all through simseam's own code paths (the GPU machine runs it through
 ``benchmarks/device/act_lift.sh``):
@@ -77,15 +84,18 @@ def _now() -> float:
     return time.perf_counter() - T0
 
 
-def _scene(size: int, privileged: bool, max_steps: int) -> ManifestScene:
-    return ManifestScene(load_robot("franka_panda"), "lift_cube", "mujoco",
+TASKS = ("lift_cube", "bowl_plate")
+
+
+def _scene(size: int, privileged: bool, max_steps: int, task: str = "lift_cube") -> ManifestScene:
+    return ManifestScene(load_robot("franka_panda"), task, "mujoco",
                          SceneOptions(image_size=(size, size), privileged=privileged, max_steps=max_steps))
 
 
-def _collect_block(job: tuple[str, int, int, int, int, bool]) -> tuple[int, int, int]:
+def _collect_block(job: tuple[str, int, int, int, int, bool, str]) -> tuple[int, int, int]:
     """One worker: the scripted expert on seeds ``seed .. seed+n-1``, recorded at ``root``."""
-    root, seed, n, size, max_steps, videos = job
-    scene = _scene(size, privileged=True, max_steps=max_steps)
+    root, seed, n, size, max_steps, videos, task = job
+    scene = _scene(size, privileged=True, max_steps=max_steps, task=task)
     try:
         col = collect_dataset(scene, make_policy("scripted"), root, episodes=n, seed=seed, use_videos=videos,
                               overwrite=True)
@@ -94,20 +104,21 @@ def _collect_block(job: tuple[str, int, int, int, int, bool]) -> tuple[int, int,
     return col.episodes_run, col.episodes_written, col.frames_written
 
 
-def collect(root: Path, episodes: int, workers: int, size: int, max_steps: int, videos: bool) -> dict:
+def collect(root: Path, episodes: int, workers: int, size: int, max_steps: int, videos: bool,
+            task: str = "lift_cube") -> dict:
     """Seeds 0..episodes-1 in ``workers`` contiguous blocks, merged into one dataset at ``root``."""
     t = time.perf_counter()
     workers = max(1, min(workers, episodes))
     if root.exists():
         shutil.rmtree(root)
     if workers == 1:
-        runs = [_collect_block((str(root), 0, episodes, size, max_steps, videos))]
+        runs = [_collect_block((str(root), 0, episodes, size, max_steps, videos, task))]
     else:
         bounds = np.linspace(0, episodes, workers + 1).astype(int)
         shards = root.parent / (root.name + "_shards")
         shutil.rmtree(shards, ignore_errors=True)
-        jobs = [(str(shards / f"s{k:02d}"), int(bounds[k]), int(bounds[k + 1] - bounds[k]), size, max_steps, videos)
-                for k in range(workers)]
+        jobs = [(str(shards / f"s{k:02d}"), int(bounds[k]), int(bounds[k + 1] - bounds[k]), size, max_steps, videos,
+                 task) for k in range(workers)]
         with mp.get_context("spawn").Pool(workers) as pool:
             runs = pool.map(_collect_block, jobs)
         from lerobot.datasets.aggregate import aggregate_datasets
@@ -168,10 +179,12 @@ def fix_image_stats(root: Path, workers: int) -> dict:
 
 def random_shift(images, pad: int):
     """DrQ's augmentation: pad each image by ``pad`` pixels (edge replicated), crop back at a random offset
-    (one per image). ``images``: float [B, C, H, W]."""
+    (one per image). ``images``: float [..., C, H, W] (an observation history's frames each shifted alone)."""
     import torch
     import torch.nn.functional as F
 
+    if images.ndim > 4:
+        return random_shift(images.flatten(0, images.ndim - 4), pad).view(images.shape)
     b, c, h, w = images.shape
     padded = F.pad(images, (pad, pad, pad, pad), mode="replicate")
     dy = torch.randint(0, 2 * pad + 1, (b,), device=images.device)
@@ -343,7 +356,8 @@ class CurveEval:
         a = self.args
         cmd = [sys.executable, str(Path(__file__).resolve()), "--curve-eval", str(path),
                "--eval-seeds", f"{a.curve_seeds.start}:{a.curve_seeds.stop}", "--episodes", str(a.episodes),
-               "--image-size", str(a.image_size), "--max-steps", str(a.max_steps),
+               "--image-size", str(a.image_size), "--max-steps", str(a.max_steps), "--task", a.task,
+               "--policy-type", a.policy_type,
                "--curve-device", a.curve_device, "--curve-threads", str(a.curve_threads),
                "--json", str(path / "eval.json"), "--work", str(path)]
         env = {**os.environ, "OMP_NUM_THREADS": str(a.curve_threads)}
@@ -378,14 +392,15 @@ def curve_eval(args) -> int:
     torch.set_num_threads(args.curve_threads)
     t = time.perf_counter()
     pol = make_policy(f"lerobot:{args.curve_eval}", device=args.curve_device)
-    row = _row("act", evaluate(pol, list(args.eval_seeds), args.image_size, False, args.max_steps))
+    row = _row(args.policy_type, evaluate(pol, list(args.eval_seeds), args.image_size, False, args.max_steps,
+                                          args.task))
     row["eval_seconds"] = time.perf_counter() - t
     _write(args.json, row)
     return 0
 
 
-def evaluate(policy, seeds, size, privileged, max_steps):
-    scene = _scene(size, privileged, max_steps)
+def evaluate(policy, seeds, size, privileged, max_steps, task="lift_cube"):
+    scene = _scene(size, privileged, max_steps, task)
     try:
         return [run_episode(scene, policy, index=i, seed=s) for i, s in enumerate(seeds)]
     finally:
@@ -413,15 +428,34 @@ def parse_seeds(text: str) -> range:
     return range(start, end)
 
 
+#: the defaults that differ by policy type (argparse default None): ACT's are the recipe of the GPU proof
+KIND_DEFAULTS = {"act": {"n_action_steps": 1, "temporal_ensemble": 0.01, "aug_shift": 4, "warmup_steps": 0},
+                 "diffusion": {"n_action_steps": 8, "temporal_ensemble": 0.0, "aug_shift": 0, "warmup_steps": 200}}
+
+
+def _kind_defaults(args) -> None:
+    for key, value in KIND_DEFAULTS[args.policy_type].items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    name = "act_lift" if (args.policy_type, args.task) == ("act", "lift_cube") else \
+        f"{'dp' if args.policy_type == 'diffusion' else 'act'}_{args.task}"
+    if args.work is None:
+        args.work = Path("runs") / name
+    if args.json is None:
+        args.json = Path("benchmarks/results") / f"{name}_image.json"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     g = ap.add_argument_group("data")
+    g.add_argument("--task", choices=TASKS, default="lift_cube", help="franka_panda's task (scripted expert)")
     g.add_argument("--episodes", type=int, default=300, help="scripted demonstrations, seeds 0..N-1")
     g.add_argument("--collect-workers", type=int, default=1, help="processes recording the demonstrations")
     g.add_argument("--image-size", type=int, default=96)
     g.add_argument("--max-steps", type=int, default=150)
     g.add_argument("--videos", action="store_true", help="store frames as AV1 video (default: PNG images)")
     g = ap.add_argument_group("training (train_act, the code behind `simseam train`)")
+    g.add_argument("--policy-type", choices=training.POLICY_TYPES, default="act")
     g.add_argument("--steps", type=int, default=None,
                    help="fixed step count (cosine horizon); default: planned from --train-s after calibration")
     g.add_argument("--train-s", type=float, default=None, help="training seconds for this invocation (default: "
@@ -432,16 +466,26 @@ def main() -> int:
                    help="seconds of training measured before the horizon is planned")
     g.add_argument("--batch-size", type=int, default=256)
     g.add_argument("--lr", type=float, default=3e-4, help="learning rate (backbone included: it starts from scratch)")
+    g.add_argument("--warmup-steps", type=int, default=None, help="linear warm-up steps (default: act 0, diffusion "
+                   "200)")
     g.add_argument("--lr-schedule", default="cosine", choices=training.LR_SCHEDULES)
     g.add_argument("--chunk-size", type=int, default=10)
-    g.add_argument("--n-action-steps", type=int, default=1)
-    g.add_argument("--temporal-ensemble", type=float, default=0.01,
-                   help="ACT's temporal ensembling coefficient (needs --n-action-steps 1); 0: off")
+    g.add_argument("--n-action-steps", type=int, default=None, help="actions executed per prediction (default: "
+                   "act 1, diffusion 8)")
+    g.add_argument("--temporal-ensemble", type=float, default=None,
+                   help="ACT's temporal ensembling coefficient (needs --n-action-steps 1); 0: off (default: act "
+                        "0.01, diffusion off)")
+    g.add_argument("--horizon", type=int, default=16, help="diffusion: actions denoised per prediction")
+    g.add_argument("--n-obs-steps", type=int, default=2, help="diffusion: observations per prediction")
+    g.add_argument("--down-dims", default="256,512,1024", help="diffusion: the U-Net's widths")
+    g.add_argument("--inference-steps", type=int, default=10, help="diffusion: DDIM steps per prediction")
+    g.add_argument("--crop-fraction", type=float, default=0.9, help="diffusion: random crop while training")
     g.add_argument("--vae", action="store_true", help="ACT's VAE (off: the expert has one mode)")
     g.add_argument("--dim-model", type=int, default=256)
     g.add_argument("--ff-dim", type=int, default=1024)
     g.add_argument("--encoder-layers", type=int, default=4)
-    g.add_argument("--aug-shift", type=int, default=4, help="random shift of each image, pixels (0: off)")
+    g.add_argument("--aug-shift", type=int, default=None, help="random shift of each image, pixels (0: off; "
+                   "default: act 4, diffusion 0: its random crop augments)")
     g.add_argument("--image-stats", choices=("recompute", "lerobot"), default="recompute",
                    help="recompute the cameras' mean/std from every frame before training (LeRobot 0.4.4 records "
                         "an image std of ~0: fix_image_stats), or keep what LeRobot recorded")
@@ -481,9 +525,12 @@ def main() -> int:
                    help="expected seconds of a curve evaluation until one is measured (none starts unless it can "
                         "end inside the training window)")
     g.add_argument("--curve-eval", type=Path, default=None, help=argparse.SUPPRESS)  # the child's mode
-    g.add_argument("--work", type=Path, default=Path("runs/act_lift"))
-    g.add_argument("--json", type=Path, default=Path("benchmarks/results/act_lift_image.json"))
+    g.add_argument("--work", type=Path, default=None, help="default runs/<policy>_<task>")
+    g.add_argument("--json", type=Path, default=None,
+                   help="default benchmarks/results/<policy>_<task>_image.json (act, lift_cube: act_lift_image.json)")
+    g.add_argument("--smoke", action="store_true", help="a rehearsal with tiny numbers: marked so in the JSON")
     args = ap.parse_args()
+    _kind_defaults(args)
     if args.curve_eval is not None:
         return curve_eval(args)
     if min(args.eval_seeds.start, args.curve_seeds.start) < args.episodes:
@@ -499,6 +546,9 @@ def main() -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     state_path = args.work / "report.json"
     report: dict = json.loads(state_path.read_text()) if state_path.is_file() else {}
+    report["policy_type"], report["task"] = args.policy_type, args.task
+    if args.smoke:
+        report["smoke"] = True
     report.setdefault("invocations", []).append({
         "host": platform.node(), "torch": torch.__version__,
         "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
@@ -511,11 +561,12 @@ def main() -> int:
         _write(args.json, report)
 
     size = args.image_size
-    data, ckpt = args.work / "dataset", args.work / "act"
+    data, ckpt = args.work / "dataset", args.work / args.policy_type
 
     # 1. demonstrations
     if "collect" not in report:
-        report["collect"] = collect(data, args.episodes, args.collect_workers, size, args.max_steps, args.videos)
+        report["collect"] = collect(data, args.episodes, args.collect_workers, size, args.max_steps, args.videos,
+                                    args.task)
         save()
         c = report["collect"]
         print(f"collect: {c['episodes_written']}/{c['episodes_run']} episodes, {c['frames']} frames, "
@@ -537,6 +588,9 @@ def main() -> int:
         if args.deadline_s is not None:
             window = max(5.0, min(window, args.deadline_s - (0 if args.pause else args.eval_reserve_s) - _now()))
         cfg = ActTrainConfig(
+            policy_type=args.policy_type, warmup_steps=args.warmup_steps, horizon=args.horizon,
+            n_obs_steps=args.n_obs_steps, down_dims=tuple(int(d) for d in args.down_dims.split(",")),
+            inference_steps=args.inference_steps, crop_fraction=args.crop_fraction,
             steps=args.steps or train.get("planned_steps") or 10**9, batch_size=args.batch_size,
             lr=args.lr, lr_backbone=args.lr, lr_schedule=args.lr_schedule, chunk_size=args.chunk_size,
             n_action_steps=args.n_action_steps, temporal_ensemble_coeff=args.temporal_ensemble or None,
@@ -575,8 +629,9 @@ def main() -> int:
         print(f"train: {'resuming' if resume else 'from scratch'}, window {window:.0f} s, "
               f"batch {args.batch_size}, lr {args.lr} ({args.lr_schedule})", flush=True)
         try:
-            with batchnorm_backbone(args.backbone_norm == "batch"), \
-                    joint_camera_backbone(args.backbone_calls == "joint"):
+            act = args.policy_type == "act"  # the backbone patches are ACT's (Diffusion from scratch: group norm)
+            with batchnorm_backbone(act and args.backbone_norm == "batch"), \
+                    joint_camera_backbone(act and args.backbone_calls == "joint"):
                 res = train_act(data, ckpt, cfg, on_log=on_log, resume=resume, overwrite=not resume)
         except KeyboardInterrupt:
             if not args.pause:
@@ -610,21 +665,23 @@ def main() -> int:
     spec = f"lerobot:{ckpt}"
     t = time.perf_counter()
     name = (f"act, temporal ensembling {args.temporal_ensemble}" if args.temporal_ensemble
-            else f"act, n_action_steps={args.n_action_steps}")
-    rows = [_row(name, evaluate(make_policy(spec), seeds, size, False, args.max_steps))]
+            else f"{args.policy_type}, n_action_steps={args.n_action_steps}")
+    rows = [_row(name, evaluate(make_policy(spec), seeds, size, False, args.max_steps, args.task))]
     ev = {"seeds": f"{seeds[0]}:{seeds[-1] + 1}", "policies": rows, "seconds": time.perf_counter() - t}
     report["eval"] = ev
     save()
     rows.append(_row("scripted expert (privileged)", evaluate(make_policy("scripted"), seeds, size, True,
-                                                               args.max_steps)))
+                                                               args.max_steps, args.task)))
     save()
     for variant in filter(None, args.eval_variants.split(",")):
         # each variant runs as long as the first evaluation, at most
         if args.deadline_s is not None and _now() + ev["seconds"] + 15 > args.deadline_s:
             ev.setdefault("skipped_variants", []).append(variant)
             continue
-        pol = make_policy(spec, n_action_steps=int(variant), config_overrides={"temporal_ensemble_coeff": None})
-        rows.append(_row(f"act, n_action_steps={int(variant)}", evaluate(pol, seeds, size, False, args.max_steps)))
+        overrides = {"temporal_ensemble_coeff": None} if args.policy_type == "act" else None
+        pol = make_policy(spec, n_action_steps=int(variant), config_overrides=overrides)
+        rows.append(_row(f"{args.policy_type}, n_action_steps={int(variant)}",
+                         evaluate(pol, seeds, size, False, args.max_steps, args.task)))
         save()
     ev["seconds_all"] = time.perf_counter() - t
     report["total_seconds_last_invocation"] = _now()
@@ -635,7 +692,8 @@ def main() -> int:
         print(f"{r['policy']:34s} {r['success']:>4d}/{r['episodes']:<4d} {r['rate']:6.0%} "
               f"[{r['wilson95'][0]:.2f}, {r['wilson95'][1]:.2f}] {r['mean_steps']:11.1f}")
     c = report["collect"]
-    print(f"held-out seeds {ev['seeds']}; training: {train['steps']} steps x batch {args.batch_size} in "
+    print(f"{args.task}, {args.policy_type}{' (SMOKE: tiny numbers, not a result)' if args.smoke else ''}; "
+          f"held-out seeds {ev['seeds']}; training: {train['steps']} steps x batch {args.batch_size} in "
           f"{train['seconds']:.0f} s on {calls[-1]['gpu'] or train['device']}; data: {c['episodes_written']} demos / "
           f"{c['frames']} frames (seeds {c['seeds']})")
     print(f"wrote {args.json}")
