@@ -5,8 +5,21 @@
 #   run(command="LIMIT=540 bash benchmarks/device/act_lift.sh --episodes 1000 --curve-every 2500",
 #       carry=[".whl", ".gl", ".devcarry"], timeout_s=600)   # next call, same warm machine: resumes, evaluates
 # (the next call must come within the machine's ~30 s idle release, or /tmp/act_lift is gone)
-# Every argument goes to train_act_lift.py after these defaults (a later one wins): --work /tmp/act_lift
-# (kept between back-to-back calls: the machine's /tmp lives while it stays warm), --json $OUT/act_lift.json,
+# Diffusion Policy and bowl_plate, each in ONE call (collect ~40-80 s with 15 workers, train what is left of
+# LIMIT less --eval-reserve-s, about 5-6 min, then 50 held-out seeds 10000-10049; a success-vs-steps curve
+# on 10 of them, evaluated on the CPU beside training); NAME names the work dir, JSON and log:
+#   run(command="NAME=dp_lift bash benchmarks/device/act_lift.sh --policy-type diffusion --episodes 300
+#                --collect-workers 15 --curve-every 500 --curve-seeds 10000:10010 --curve-threads 8
+#                --curve-first-s 60 --eval-reserve-s 130", carry=[".whl", ".gl", ".devcarry"], timeout_s=600)
+#   run(command="NAME=act_bowl_plate bash benchmarks/device/act_lift.sh --task bowl_plate --max-steps 200
+#                --episodes 300 --collect-workers 15 --curve-every 1000 --curve-seeds 10000:10010
+#                --curve-threads 8 --curve-first-s 40 --eval-reserve-s 150", carry=[...as above], timeout_s=600)
+#   run(command="NAME=dp_bowl_plate bash benchmarks/device/act_lift.sh --policy-type diffusion --task bowl_plate
+#                --max-steps 200 --episodes 300 --collect-workers 15 --curve-every 500 --curve-seeds 10000:10010
+#                --curve-threads 8 --curve-first-s 60 --eval-reserve-s 150", carry=[...as above], timeout_s=600)
+# Every argument goes to train_act_lift.py after these defaults (a later one wins): --work /tmp/$NAME
+# (NAME defaults to act_lift; kept between back-to-back calls: the machine's /tmp lives while it stays warm),
+# --json $OUT/$NAME.json (and the log $OUT/$NAME.log; no checkpoint comes back: over the transfer limit),
 # --deadline-s (what is left of LIMIT seconds, default 570, counted from this script's start: the tool's
 # command limit is 600 s), --amp, --collect-workers 12.
 #
@@ -20,6 +33,8 @@
 #                  diffusers==0.35.2 importlib_metadata jsonlines termcolor mujoco==4.0.0 mujoco-core==4.0.0 glfw \
 #                  pyopengl pydantic==2.14.4 pydantic-core==2.50.5 annotated-types typing-inspection \
 #                  huggingface-hub==0.35.3 pyserial
+#              (Diffusion Policy needs nothing more: diffusers and einops are already imported on ACT's path,
+#              through lerobot's factory);
 #              (huggingface-hub 0.35: lerobot 0.4.4 needs < 0.36, the image has 1.x; mujoco-studio is not
 #              needed: the classic EGL renderer is in mujoco-core; torch, torchvision, numpy, pandas, pyarrow,
 #              accelerate, opencv, safetensors ... are the image's own);
@@ -40,6 +55,7 @@
 # SKIP_SETUP=1 skips the .deb and wheel installs (SITE already prepared: a rehearsal on another machine).
 set -euo pipefail
 LIMIT=${LIMIT:-570}
+NAME=${NAME:-act_lift}
 PY=${PY:-python3}
 SITE=${SITE:-/tmp/site}
 if [ -z "${SKIP_SETUP:-}" ]; then
@@ -75,5 +91,5 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader ||
 "$PY" -c 'import torch, lerobot, mujoco; print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "mujoco", mujoco.__version__)'
 echo "setup: ${SECONDS} s"
 set -o pipefail
-"$PY" benchmarks/train_act_lift.py --work /tmp/act_lift --json "$OUTDIR/act_lift.json" --amp --collect-workers 12 \
-  --deadline-s $((LIMIT - SECONDS)) "$@" 2>&1 | tee -a "$OUTDIR/act_lift.log"
+"$PY" benchmarks/train_act_lift.py --work "/tmp/$NAME" --json "$OUTDIR/$NAME.json" --amp --collect-workers 12 \
+  --deadline-s $((LIMIT - SECONDS)) "$@" 2>&1 | tee -a "$OUTDIR/$NAME.log"
