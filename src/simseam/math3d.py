@@ -30,21 +30,29 @@ def matrix_to_rpy(m: np.ndarray) -> np.ndarray:
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Rotation matrix -> unit quaternion [w, x, y, z] with w >= 0."""
-    t = np.trace(m)
+    return np.array(_quat_of(np.asarray(m).tolist()))
+
+
+def _quat_of(m: list) -> list[float]:
+    """``matrix_to_quat`` on a nested list, in Python floats (a fraction of numpy's per-call cost)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m
+    t = m00 + m11 + m22
     if t > 0:
-        s = 2.0 * np.sqrt(t + 1.0)
-        q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = np.array([(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s])
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = np.array([(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s])
+        s = 2.0 * math.sqrt(t + 1.0)
+        q = [0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s]
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = [(m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s]
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = [(m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s]
     else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = np.array([(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s])
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = [(m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0:
+        n = -n
+    return [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
 
 
 def quat_to_matrix(q) -> np.ndarray:
@@ -96,33 +104,45 @@ def matrix_to_axis_angle(m: np.ndarray, reference) -> np.ndarray:
     the vector runs smoothly through pi near it, as LIBERO's ``quat2axisangle`` of MuJoCo's body
     quaternion does; the jump moves to the rotations half a turn away from the reference.
     """
-    q = matrix_to_quat(m)
-    if float(np.dot(q, reference)) < 0.0:
-        q = -q
-    return quat_to_axis_angle(q)
+    w, x, y, z = _quat_of(np.asarray(m).tolist())
+    rw, rx, ry, rz = np.asarray(reference, dtype=np.float64).tolist()
+    if w * rw + x * rx + y * ry + z * rz < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    return np.array(_axis_angle_of(w, x, y, z))
 
 
 def quat_to_axis_angle(q) -> np.ndarray:
     """Quaternion -> rotation vector, robosuite/LIBERO ``quat2axisangle`` semantics."""
-    q = np.asarray(q, dtype=np.float64)
-    w = np.clip(q[0], -1.0, 1.0)
-    den = np.sqrt(max(1.0 - w * w, 0.0))
+    return np.array(_axis_angle_of(*np.asarray(q, dtype=np.float64).tolist()))
+
+
+def _axis_angle_of(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    w = min(max(w, -1.0), 1.0)
+    den = math.sqrt(max(1.0 - w * w, 0.0))
     if den < 1e-9:
-        return np.zeros(3)
-    return q[1:] * 2.0 * np.arccos(w) / den
+        return 0.0, 0.0, 0.0
+    k = 2.0 * math.acos(w)
+    return x * k / den, y * k / den, z * k / den
 
 
 def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     """Rotation vector (world frame) that takes ``current`` to ``target``."""
-    m = target @ current.T
-    v = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
-    cos = min(max((m[0, 0] + m[1, 1] + m[2, 2] - 1.0) * 0.5, -1.0), 1.0)
+    return np.array(rotation_error_of(target, current))
+
+
+def rotation_error_of(target: np.ndarray, current: np.ndarray) -> tuple[float, float, float]:
+    """``rotation_error`` as three Python floats (for callers that go on in floats)."""
+    m = (target @ current.T).tolist()
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m
+    vx, vy, vz = m21 - m12, m02 - m20, m10 - m01
+    cos = min(max((m00 + m11 + m22 - 1.0) * 0.5, -1.0), 1.0)
     if cos > 0.999:  # small angle: sin(a) ~ a, v = 2 sin(a) axis
-        return 0.5 * v
+        return 0.5 * vx, 0.5 * vy, 0.5 * vz
     if cos > -0.99:
         angle = math.acos(cos)
-        return v * (angle / (2.0 * math.sin(angle)))
-    return quat_to_axis_angle(matrix_to_quat(m))  # near pi: go through the quaternion
+        k = angle / (2.0 * math.sin(angle))
+        return vx * k, vy * k, vz * k
+    return _axis_angle_of(*_quat_of(m))  # near pi: go through the quaternion
 
 
 def make_transform(pos, rot: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from simseam.math3d import rotation_error, rpy_to_matrix
+from simseam.math3d import rotation_error_of, rpy_to_matrix
 from simseam.robot.urdf import MOVABLE, UrdfJoint, UrdfModel
 from simseam.seam import ConfigError, RobotFacts
 
@@ -102,19 +102,25 @@ class SerialChain:
         self._motion = np.zeros((self.n, 4, 4))
         self._motion[:, 3, 3] = 1.0
         self._eye3 = np.eye(3)
-        self._eye6 = np.eye(6)
         self._in_chain_order = bool(np.array_equal(self._q_from_names, np.arange(self.n)))
         self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
+        self._weight_cache: dict[float, np.ndarray] = {}
+        self._eye_cache: dict[float, np.ndarray] = {}
+        self._spd_solve = np.linalg.solve
 
-    def with_forward(self, forward: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-                     source: str) -> "SerialChain":
+    def with_forward(self, forward: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], source: str,
+                     spd_solve: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> "SerialChain":
         """A copy of this chain whose ``forward`` (and so ``solve``) is ``forward``: another implementation
-        of the same kinematics (an engine's, ``source`` names it), which the caller has checked agrees."""
+        of the same kinematics (an engine's, ``source`` names it), which the caller has checked agrees;
+        ``spd_solve(m, b)``: the ``x`` with ``m @ x = b`` for a symmetric positive definite ``m`` (which
+        it may overwrite), in place of ``np.linalg.solve``."""
         other = copy.copy(self)
         other.forward = forward  # type: ignore[method-assign]
         other.forward_source = source
+        if spd_solve is not None:
+            other._spd_solve = spd_solve
         return other
 
     @property
@@ -182,48 +188,62 @@ class SerialChain:
         (before the final step when ``max_iters`` ran out). ``start_fk`` is
         ``forward(q_start)`` when the caller already has it.
         """
-        q = np.clip(np.asarray(q_start, dtype=np.float64), self.lower, self.upper)
-        w = self._weights(rot_weight)
+        lower, upper = self.lower, self.upper
+        q = np.minimum(np.maximum(np.asarray(q_start, dtype=np.float64), lower), upper)  # np.clip, cheaper
+        w = self._weight_column(rot_weight)
+        step = self._dls_step if self.n >= 6 else self._priority_step
+        pull = q_rest is not None and self.n > 6
         ep = er = np.inf
         it = 0
         for it in range(max_iters):
             t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
-            e_pos = target_pos - t[:3, 3]
-            e_rot = rotation_error(target_rot, t[:3, :3])
-            ep, er = math.sqrt(e_pos @ e_pos), math.sqrt(e_rot @ e_rot)
+            # the task error in Python floats: 3-vectors cost less there than as numpy calls
+            px, py, pz = (target_pos - t[:3, 3]).tolist()
+            rx, ry, rz = rotation_error_of(target_rot, t[:3, :3])
+            ep, er = math.sqrt(px * px + py * py + pz * pz), math.sqrt(rx * rx + ry * ry + rz * rz)
             if ep < pos_tol and er < rot_tol:
                 break
-            jw = jac * w[:, None]
-            e = np.concatenate([e_pos, e_rot * rot_weight])
-            z = rest_gain * (q_rest - q) if (q_rest is not None and self.n > 6) else None
-            step = self._dls_step if self.n >= 6 else self._priority_step
+            jw = jac * w
+            e = np.array([px, py, pz, rx * rot_weight, ry * rot_weight, rz * rot_weight])
+            z = rest_gain * (q_rest - q) if pull else None
             dq = step(jw, e, z, damping)
+            q_new = q + dq
             # Joints that would cross a limit stop at it and the step is re-solved
-            # without them, so the other joints take up their share of the motion.
-            blocked = ((q + dq < self.lower) & (dq < 0)) | ((q + dq > self.upper) & (dq > 0))
-            if blocked.any():
+            # without them, so the other joints take up their share of the motion
+            # (q is within the limits, so only a step down can cross the lower one).
+            blocked = (q_new < lower) | (q_new > upper)
+            if np.count_nonzero(blocked):
                 # Blocked joints go to their limit; the rest solve for what is left.
-                dq_b = np.clip(q + dq, self.lower, self.upper)[blocked] - q[blocked]
+                dq_b = np.minimum(np.maximum(q_new, lower), upper)[blocked] - q[blocked]
                 e = e - jw[:, blocked] @ dq_b
                 jw[:, blocked] = 0.0
                 if z is not None:
                     z[blocked] = 0.0
                 dq = step(jw, e, z, damping)
                 dq[blocked] = dq_b
-            q = np.clip(q + dq, self.lower, self.upper)
+                q_new = q + dq
+            q = np.minimum(np.maximum(q_new, lower), upper)
             it += 1
         return IKResult(q=q, pos_error=ep, rot_error=er, iterations=it)
 
     def _dls_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
-        """Damped least squares step for task error ``e``, plus ``z`` projected into the null space."""
-        rhs = np.empty((6, 2))
-        rhs[:, 0] = e
-        rhs[:, 1] = 0.0 if z is None else jw @ z
-        sol = np.linalg.solve(jw @ jw.T + (damping ** 2) * self._eye6, rhs)
-        dq = jw.T @ sol[:, 0]
+        """Damped least squares step for task error ``e``, plus ``z`` projected into the null space:
+        ``J^T A^-1 e + (I - J^T A^-1 J) z`` with ``A = J J^T + d^2 I``, computed as the equal
+        ``(J^T J + d^2 I)^-1 (J^T e + d^2 z)`` (one n x n solve, one right-hand side)."""
+        d2 = damping ** 2
+        jt = jw.T
+        m = jt @ jw
+        m += self._damped_eye(d2)
+        b = jt @ e
         if z is not None:
-            dq += z - jw.T @ sol[:, 1]
-        return dq
+            b += d2 * z
+        return self._spd_solve(m, b)
+
+    def _damped_eye(self, d2: float) -> np.ndarray:
+        eye = self._eye_cache.get(d2)
+        if eye is None:
+            eye = self._eye_cache[d2] = d2 * np.eye(self.n)
+        return eye
 
     def _priority_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
         """Task-priority step for arms with fewer than 6 joints: position first,
@@ -238,8 +258,13 @@ class SerialChain:
         dq2 = jo_n.T @ np.linalg.solve(jo_n @ jo_n.T + (damping ** 2) * self._eye3, e[3:] - jo @ dq1)
         return dq1 + null @ dq2
 
-    def _weights(self, rot_weight: float) -> np.ndarray:
-        return np.array([1.0, 1.0, 1.0, rot_weight, rot_weight, rot_weight])
+    def _weight_column(self, rot_weight: float) -> np.ndarray:
+        """(6, 1) row weights of the Jacobian: 1 for position, ``rot_weight`` for orientation (cached)."""
+        w = self._weight_cache.get(rot_weight)
+        if w is None:
+            w = self._weight_cache[rot_weight] = np.array([[1.0], [1.0], [1.0], [rot_weight], [rot_weight],
+                                                           [rot_weight]])
+        return w
 
     def tabletop_reach(self, n_samples: int = 1500, z_band: tuple[float, float] = (0.0, 0.2)) -> float:
         """How far (m, horizontally) the tip reaches at tabletop height.

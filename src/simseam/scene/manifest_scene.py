@@ -153,6 +153,7 @@ class ManifestScene:
         base_pos, base_yaw = self.task.robot_base()
         self._base_pos = np.asarray(base_pos, dtype=np.float64)
         self._base_rot = quat_to_matrix(yaw_quat(base_yaw))
+        self._base_turned = base_yaw != 0.0  # else _base_rot is the identity: base frame = world frame shifted
         self._base_start = (float(base_pos[0]), float(base_pos[1]), float(base_yaw))
         lidars = robot.sensors_of("lidar_2d")
         if len(lidars) > 1:
@@ -192,6 +193,7 @@ class ManifestScene:
         self._max_step = vmax[self._arm_idx] / self.options.control_hz
         manifest = robot.joint_names
         self._eidx = np.array([manifest.index(j.name) for j in self._ejoints], dtype=int)
+        self._eidx_whole = bool(np.array_equal(self._eidx, np.arange(len(manifest))))  # the manifest's, in order
         self._bidx = (np.array([manifest.index(n) for n in robot.kinematic_base.joints])
                       if robot.kinematic_base is not None else None)
 
@@ -276,7 +278,8 @@ class ManifestScene:
 
     def _ik_chain(self) -> SerialChain:
         """The chain the Cartesian arm solves on: the engine's own kinematics of it when the engine offers
-        them (``chain_forward``; MuJoCo's C: a few microseconds a step, where numpy takes tens) and they
+        them (``chain_forward``; MuJoCo's C: a few microseconds a step, where numpy takes tens; with its
+        Cholesky solve for the damped least squares system when it has one) and they
         agree with the URDF chain's to 1e-9 at home and at 8 seeded configurations within the limits;
         else the URDF chain (``forward_source`` says which)."""
         chain, make = self.chain, getattr(self.engine, "chain_forward", None)
@@ -291,7 +294,7 @@ class ManifestScene:
         for q in (self._home[self._arm_idx], *samples):
             if not all(np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(chain.forward(q), fk.forward(q))):
                 return chain
-        return chain.with_forward(fk.forward, self.engine.name)
+        return chain.with_forward(fk.forward, self.engine.name, getattr(fk, "spd_solve", None))
 
     def _describe(self, task: str) -> RolloutSpec:
         opts = self.options
@@ -397,8 +400,15 @@ class ManifestScene:
     def eef_pose_base(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool pose in the robot base frame: (pos[3], rot[3x3])."""
         p, r = self._tool_world()
+        if not self._base_turned:  # rotating by the identity: the same numbers
+            return p - self._base_pos, r
         rt = self._base_rot.T
         return rt @ (p - self._base_pos), rt @ r
+
+    def eef_position_world(self) -> np.ndarray:
+        """Measured tool position in the world (pos[3]): ``eef_pose_world()[0]`` without its rotation."""
+        p, q = self.engine.link_pose(self.robot.tool_parent)
+        return p if self.robot.tcp is None else p + quat_to_matrix(q) @ self._tool_pos
 
     def eef_pose_world(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool pose in the world: (pos[3], quat wxyz[4])."""
@@ -452,10 +462,11 @@ class ManifestScene:
         """
         eng = self.engine
         start = self._q_sent
+        delta = target - start
         chunks = self._chunks
         for k in range(1, len(chunks) + 1):
             s = self._ramp[k - 1]
-            eng.set_joint_targets(start + s * (target - start) if s < 1.0 else target)
+            eng.set_joint_targets(start + s * delta if s < 1.0 else target)
             if twist is not None:
                 self._kbase.advance(twist, chunks[k - 1] * eng.timestep)
                 self._place_base()
@@ -466,6 +477,7 @@ class ManifestScene:
         x, y, yaw = self._kbase.pose
         self._base_pos = np.array([x, y, self._base_pos[2]])
         self._base_rot = quat_to_matrix(yaw_quat(yaw))
+        self._base_turned = yaw != 0.0
         self.engine.set_root_pose(self._base_pos, yaw_quat(yaw))
 
     def _observe(self, request: ObsRequest) -> Observation:
@@ -483,10 +495,13 @@ class ManifestScene:
                     images[key] = eng.render_rgb(name)
             if self._rgb and self._rgb[0][1] in images:
                 self._frame = images[self._rgb[0][1]]
-        n = len(self.robot.joints)
-        qpos, qvel = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
-        qpos[self._eidx] = q
-        qvel[self._eidx] = eng.joint_velocities()
+        if self._eidx_whole:
+            qpos, qvel = q.astype(np.float32), eng.joint_velocities().astype(np.float32)
+        else:
+            n = len(self.robot.joints)
+            qpos, qvel = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+            qpos[self._eidx] = q
+            qvel[self._eidx] = eng.joint_velocities()
         obs: Observation = {
             OBS_IMAGES: images,
             OBS_STATE: state,

@@ -3,7 +3,8 @@
 ``ChainForward.forward(q)`` returns what ``SerialChain.forward`` returns (the tool pose as a 4x4 in
 the base link's frame and the 6xN geometric Jacobian, linear rows first, columns in ``q`` order) but
 computes it with ``mj_kinematics``, ``mj_comPos`` and ``mj_jac`` on the engine's compiled model: a few
-microseconds instead of some tens of numpy calls. The scratch data is private, so the simulation's
+microseconds instead of some tens of numpy calls. ``spd_solve`` is MuJoCo's Cholesky solve, for the
+IK's damped least squares system. The scratch data is private, so the simulation's
 own state is never touched; only the chain's joints move in it (every other joint stays at its
 ``qpos0``, as ``SerialChain`` holds unactuated joints at 0). Whoever uses it checks first that it
 agrees with the URDF chain (``ManifestScene`` does, to 1e-9).
@@ -17,7 +18,7 @@ import numpy as np
 from simseam.seam import ConfigError
 
 
-def _slice_or_index(idx: np.ndarray) -> slice | np.ndarray:
+def slice_or_index(idx: np.ndarray) -> slice | np.ndarray:
     """A slice when ``idx`` is a run of consecutive addresses (a view, no gather), else ``idx``."""
     if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
         return slice(int(idx[0]), int(idx[0]) + idx.size)
@@ -40,8 +41,8 @@ class ChainForward:
         if any(int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
                for j in jids):
             raise ConfigError(f"chain kinematics: joints {joints} must all be hinge or slide joints")
-        self._qadr = _slice_or_index(np.array([m.jnt_qposadr[j] for j in jids]))
-        self._dofs = _slice_or_index(np.array([m.jnt_dofadr[j] for j in jids]))
+        self._qadr = slice_or_index(np.array([m.jnt_qposadr[j] for j in jids]))
+        self._dofs = slice_or_index(np.array([m.jnt_dofadr[j] for j in jids]))
         d.mocap_quat[:] = (1.0, 0.0, 0.0, 0.0)  # a mocap robot root at the origin: the base frame is the world
         d.mocap_pos[:] = 0.0
         mujoco.mj_kinematics(m, d)
@@ -82,3 +83,12 @@ class ChainForward:
         pose[:3, 3] = rt @ (pose[:3, 3] - self._base_pos)
         pose[:3, :3] = rt @ pose[:3, :3]
         return pose, np.concatenate([rt @ out[:3], rt @ out[3:]])
+
+    @staticmethod
+    def spd_solve(m: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The ``x`` with ``m @ x = b`` for a symmetric positive definite ``m`` (float64, C order; factored
+        in place): MuJoCo's Cholesky, a fraction of ``np.linalg.solve``'s cost on a 7x7."""
+        mujoco.mju_cholFactor(m, 0.0)
+        x = np.empty(b.shape[0])
+        mujoco.mju_cholSolve(x, m, b)
+        return x

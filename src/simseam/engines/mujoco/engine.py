@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from simseam.engines.base import CameraModel, EngineOptions, ObjectModel, RobotModel
-from simseam.engines.mujoco.chain import ChainForward
+from simseam.engines.mujoco.chain import ChainForward, slice_or_index
 from simseam.engines.mujoco.render import CameraRenderer
 from simseam.robot.urdf import read_urdf
 from simseam.seam import BackendUnavailableError, ConfigError, SimulationError
@@ -189,6 +189,7 @@ class MujocoEngine:
         self._renderer: CameraRenderer | None = None
         self._stale = False
         self._fresh = 0
+        self._bad_qacc = None
 
     # ------------------------------------------------------------ build phase
     def load_robot(self, robot: RobotModel) -> None:
@@ -250,6 +251,7 @@ class MujocoEngine:
         self.model.vis.map.znear = near / extent
         self.model.vis.map.zfar = far / extent
         self.data = mujoco.MjData(self.model)
+        self._bad_qacc = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]  # a view into data, read every step
         self._index()
         self.reset()
 
@@ -373,6 +375,10 @@ class MujocoEngine:
         self._qadr = np.array([m.jnt_qposadr[j] for j in jids])
         self._vadr = np.array([m.jnt_dofadr[j] for j in jids])
         self._act = np.array([m.actuator(f"act:{j}").id for j in robot.joints])
+        # what every step reads and writes: the same addresses as slices where they are runs (views, no
+        # gathers), on views of data's arrays made once
+        self._qsel, self._vsel, self._asel = (slice_or_index(a) for a in (self._qadr, self._vadr, self._act))
+        self._qpos, self._qvel, self._ctrl = self.data.qpos, self.data.qvel, self.data.ctrl
         self._root_body = m.body(self._root_name).id
         self._mocap = m.body_mocapid[self._root_body]
         self._body_ids = {name: m.body(name).id for name in self._robot_body_names}
@@ -392,6 +398,7 @@ class MujocoEngine:
             owner[self._obj_body[o.name]] = k + 2
             self._owner_code[o.name] = k + 2
         self._geom_owner = owner[m.geom_bodyid]
+        self._touch_pairs: dict[tuple[int, int], np.ndarray] = {}
 
     @property
     def layout(self) -> ModelLayout:
@@ -462,13 +469,13 @@ class MujocoEngine:
         self._stale = False
 
     def set_joint_targets(self, q: np.ndarray) -> None:
-        self.data.ctrl[self._act] = q
+        self._ctrl[self._asel] = q
 
     def joint_positions(self) -> np.ndarray:
-        return self.data.qpos[self._qadr].copy()
+        return _gather(self._qpos, self._qsel)
 
     def joint_velocities(self) -> np.ndarray:
-        return self.data.qvel[self._vadr].copy()
+        return _gather(self._qvel, self._vsel)
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         self._sync_poses()
@@ -529,8 +536,8 @@ class MujocoEngine:
         # the trajectory is unchanged) the first time something reads them.
         self._stale = True
         self._fresh = 0
-        if self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number:
-            self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number = 0
+        if self._bad_qacc.number:
+            self._bad_qacc.number = 0
             raise SimulationError(f"MuJoCo became unstable at t={self.data.time:.3f}s (bad accelerations)")
 
     def sim_time(self) -> float:
@@ -547,9 +554,13 @@ class MujocoEngine:
         n = self.data.ncon
         if n == 0:
             return False
-        g = self.data.contact.geom[:n]
-        o1, o2 = self._geom_owner[g[:, 0]], self._geom_owner[g[:, 1]]
-        return bool(np.any(((o1 == ca) & (o2 == cb)) | ((o1 == cb) & (o2 == ca))))
+        pair = self._touch_pairs.get((ca, cb))
+        if pair is None:  # [owner of geom 1, owner of geom 2] -> whether the contact is between a and b
+            k = len(self._owner_code) + 1
+            pair = self._touch_pairs[(ca, cb)] = np.zeros((k, k), dtype=bool)
+            pair[ca, cb] = pair[cb, ca] = True
+        owners = self._geom_owner[self.data.contact.geom[:n]]
+        return bool(pair[owners[:, 0], owners[:, 1]].any())
 
     # -------------------------------------------------------------- sensing
     def _renderers(self) -> CameraRenderer:
@@ -589,7 +600,13 @@ class MujocoEngine:
             self._renderer.close()
             self._renderer = None
         self.data = None
+        self._bad_qacc = self._qpos = self._qvel = self._ctrl = None
         self.model = None
+
+
+def _gather(a: np.ndarray, sel: slice | np.ndarray) -> np.ndarray:
+    """A copy of ``a[sel]`` (an index array's gather is one already)."""
+    return a[sel].copy() if isinstance(sel, slice) else a[sel]
 
 
 def _add_collision_primitives(robot: RobotModel, collision_geoms: list) -> None:

@@ -16,9 +16,11 @@ Both keep targets inside the joint limits and move them at most
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from simseam.math3d import axis_angle_to_matrix, rotation_error
+from simseam.math3d import axis_angle_to_matrix, rotation_error_of
 from simseam.robot.kinematics import IKResult, SerialChain
 from simseam.seam import ActionSlot, ControlMode
 
@@ -26,6 +28,11 @@ CARTESIAN_NAMES = ("dx", "dy", "dz", "dax", "day", "daz")
 REANCHOR_POS = 0.015  # m: tracking error beyond which a Cartesian delta restarts from the measured pose
 REANCHOR_ROT = 0.1  # rad
 ROT_WEIGHT = 0.5  # m/rad: orientation error weight in the IK
+
+
+def _norm(v: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector (the same bits), without its per-call overhead."""
+    return math.sqrt(v.dot(v))
 
 
 class ArmController:
@@ -43,7 +50,7 @@ class ArmController:
         """A new episode begins."""
 
     def rate_limit(self, q_new: np.ndarray, q_prev: np.ndarray) -> np.ndarray:
-        return np.clip(q_new, q_prev - self.max_step, q_prev + self.max_step)
+        return np.minimum(np.maximum(q_new, q_prev - self.max_step), q_prev + self.max_step)  # np.clip, cheaper
 
 
 class JointPositionArm(ArmController):
@@ -85,8 +92,8 @@ class CartesianDeltaArm(ArmController):
         pos, rot = eef
         fk = self.chain.forward(q_prev)  # the pose the last command asked for (reachable by construction)
         ref = self._ref
-        if ref is None or (np.linalg.norm(fk[0][:3, 3] - pos) > REANCHOR_POS
-                           or np.linalg.norm(rotation_error(fk[0][:3, :3], rot)) > REANCHOR_ROT):
+        if ref is None or (_norm(fk[0][:3, 3] - pos) > REANCHOR_POS
+                           or math.hypot(*rotation_error_of(fk[0][:3, :3], rot)) > REANCHOR_ROT):
             ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
         tgt_pos = ref[0] + values[:3] * self.max_translation
         tgt_rot = axis_angle_to_matrix(values[3:6] * self.max_rotation) @ ref[1]

@@ -52,9 +52,9 @@ class LiftCube(Task):
         pos, _ = eng.object_pose("cube")
         height = float(pos[2] - self.rest_z)
         success = bool(height > LIFT_HEIGHT)
-        eef, _ = scene.eef_pose_world()
+        eef = scene.eef_position_world()
         return Evaluation(float(success), success, {
             "cube_height": height,  # m above its resting height
             "eef_to_cube": math.dist(eef.tolist(), pos.tolist()),  # m, tool frame to cube centre (plain floats)
-            "grasped": bool(eng.contacts_between("cube", "robot")) and height > 0.005,
+            "grasped": height > 0.005 and bool(eng.contacts_between("cube", "robot")),  # contacts: only when lifted
         })
