@@ -86,8 +86,8 @@ def _lerobot_episode(tmp_path: Path, ckpt: Path, seed: int, steps: int) -> dict:
 
 
 def test_the_expert_covers_the_target(open_backend):
-    sim = open_backend("pusht", {}, privileged=True)
-    assert sim.spec.env_state_dim == 16
+    sim = open_backend("pusht", {"cameras": False}, privileged=True)  # what collect --no-cameras opens
+    assert sim.spec.env_state_dim == 16 and sim.spec.cameras == {} and sim.spec.can("privileged")
     for seed in (3, 11):
         obs = sim.reset(seed, ObsRequest.state_only())
         for _ in range(sim.spec.task.max_steps):

@@ -13,6 +13,8 @@ Mapping to the seam:
   [0, 512];
 - ``images``: ``{"top": pixels}`` at ``image_size`` (default 96 x 96, the env's
   ``observation_width/height``), exactly the native ``pixels`` (rendered only when requested);
+  ``cameras: false`` declares none (set for you when nothing reads images: ``collect --no-cameras``,
+  a state policy's ``run``);
 - ``state``: ``agent_pos`` (float32; native float64);
 - ``environment_state`` (``environment_state: true``, the default): the T's 8 keypoints
   flattened ``[x0, y0, ..., x7, y7]`` (float32; native float64), what the native
@@ -62,7 +64,9 @@ from simseam.seam import (
 
 NAME = "pusht"
 HAS_EXPERT = True  # pusht_expert: simulated push primitives on the privileged state
-DEFAULTS = {"task": "pusht", "image_size": [96, 96], "max_steps": 300, "expert": False, "environment_state": True}
+CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
+DEFAULTS = {"task": "pusht", "image_size": [96, 96], "max_steps": 300, "expert": False, "environment_state": True,
+            "cameras": True}
 DIAGNOSTICS = ("coverage", "block_x", "block_y", "block_angle")
 INSTRUCTION = "push the T-shaped block onto the T-shaped target"
 WORKSPACE = 512.0
@@ -76,7 +80,7 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
         raise ConfigError(f"{where}.task: PushT has one task, 'pusht'; got {out['task']!r}")
     out["image_size"] = check_image_size(out["image_size"], where)
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
-    for key in ("expert", "environment_state"):
+    for key in ("expert", "environment_state", "cameras"):
         if not isinstance(out[key], bool):
             raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
     return out
@@ -105,13 +109,14 @@ class PushTRollout(BenchmarkRollout):
             extra[OBS_ENV_STATE] = FieldSpec("float32", (16,), names=KEYPOINT_NAMES, presence="declared")
         joints = (JointFacts("agent_x", "arm", 0.0, WORKSPACE), JointFacts("agent_y", "arm", 0.0, WORKSPACE))
         sensors = (SensorFacts(name="top", kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0),
-                               feature_key="top", width=w, height=h),)
+                               feature_key="top", width=w, height=h),) if config["cameras"] else ()
         spec = RolloutSpec(
             robot=RobotFacts(name="pusht_agent", base_link="world", tool_link="agent", joints=joints,
                              sensors=sensors),
             task=TaskSpec(name="pusht", instruction=INSTRUCTION, max_steps=config["max_steps"],
                           diagnostics=DIAGNOSTICS),
-            observation=observation_spec({"top": (h, w)}, ("agent_x", "agent_y"), ("agent_x", "agent_y"), extra),
+            observation=observation_spec({"top": (h, w)} if config["cameras"] else {}, ("agent_x", "agent_y"),
+                                         ("agent_x", "agent_y"), extra),
             action=ActionSpec(ControlMode.JOINT_POSITION,
                               (ActionSlot("agent_x", "arm", 0.0, WORKSPACE, "px"),
                                ActionSlot("agent_y", "arm", 0.0, WORKSPACE, "px"))),
