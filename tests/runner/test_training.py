@@ -1,6 +1,7 @@
 """ACT training on a simseam dataset: the checkpoint is complete, the device cache gives LeRobot's batches."""
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -157,6 +158,16 @@ def test_the_cosine_schedule_decays_every_rate_to_zero_at_the_last_step():
     assert [lr_factor(cosine, s) for s in (0, 50, 100, 150)] == pytest.approx([1.0, 0.5, 0.0, 0.0], abs=1e-12)
     assert all(lr_factor(cosine, s) > lr_factor(cosine, s + 1) for s in range(99))
     assert {lr_factor(ActTrainConfig(steps=100), s) for s in range(0, 120, 7)} == {1.0}
+
+
+def test_warmup_rises_linearly_then_follows_the_schedule():
+    from simseam.runner.training import TrainConfig, lr_factor
+
+    warm = TrainConfig(steps=100, lr_schedule="constant", warmup_steps=10)
+    assert [lr_factor(warm, s) for s in (0, 4, 9, 10, 60)] == pytest.approx([0.1, 0.5, 1.0, 1.0, 1.0])
+    cos = TrainConfig(steps=100, lr_schedule="cosine", warmup_steps=10)
+    assert lr_factor(cos, 4) == pytest.approx(0.5 * 0.5 * (1 + math.cos(math.pi * 4 / 100)))
+    assert lr_factor(cos, 50) == pytest.approx(0.5) and lr_factor(cos, 100) == pytest.approx(0.0)
 
 
 def test_training_with_the_cosine_schedule_ends_at_rate_zero_and_a_bad_schedule_is_refused(
