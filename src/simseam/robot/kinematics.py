@@ -208,21 +208,22 @@ class SerialChain:
             z = rest_gain * (q_rest - q) if pull else None
             dq = step(jw, e, z, damping)
             q_new = q + dq
+            q_lim = np.minimum(np.maximum(q_new, lower), upper)
             # Joints that would cross a limit stop at it and the step is re-solved
             # without them, so the other joints take up their share of the motion
             # (q is within the limits, so only a step down can cross the lower one).
-            blocked = (q_new < lower) | (q_new > upper)
-            if np.count_nonzero(blocked):
+            if q_lim.tolist() != q_new.tolist():  # cheaper than a numpy comparison and reduction
+                blocked = (q_new < lower) | (q_new > upper)
                 # Blocked joints go to their limit; the rest solve for what is left.
-                dq_b = np.minimum(np.maximum(q_new, lower), upper)[blocked] - q[blocked]
+                dq_b = q_lim[blocked] - q[blocked]
                 e = e - jw[:, blocked] @ dq_b
                 jw[:, blocked] = 0.0
                 if z is not None:
                     z[blocked] = 0.0
                 dq = step(jw, e, z, damping)
                 dq[blocked] = dq_b
-                q_new = q + dq
-            q = np.minimum(np.maximum(q_new, lower), upper)
+                q_lim = np.minimum(np.maximum(q + dq, lower), upper)
+            q = q_lim
             it += 1
         return IKResult(q=q, pos_error=ep, rot_error=er, iterations=it)
 

@@ -57,26 +57,27 @@ class ChainForward:
         self._qpos = d.qpos
         self._xpos, self._xmat = d.xpos[self._tip], d.xmat[self._tip].reshape(3, 3)  # views into d
         self._jac = np.zeros((6, m.nv))
+        self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._point = np.zeros(3)
         self._pose = np.eye(4)
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose (4x4) in the base frame and the 6xN geometric Jacobian (linear; angular)."""
-        m, d, jac = self._m, self._d, self._jac
+        m, d = self._m, self._d
         self._qpos[self._qadr] = q
         mujoco.mj_kinematics(m, d)
         mujoco.mj_comPos(m, d)  # cdof and subtree_com: what mj_jac reads
         pose = self._pose.copy()
         if self._has_offset:
-            pose[:3, 3] = self._xpos + self._xmat @ self._off_pos
+            point = self._point
+            point[:] = self._xpos + self._xmat @ self._off_pos
             pose[:3, :3] = self._xmat @ self._off_rot
         else:
-            pose[:3, 3] = self._xpos
+            point = self._xpos  # a view of the tip body's position in d
             pose[:3, :3] = self._xmat
-        point = self._point
-        point[:] = pose[:3, 3]
-        mujoco.mj_jac(m, d, jac[:3], jac[3:], point, self._tip)
-        out = jac[:, self._dofs]
+        pose[:3, 3] = point
+        mujoco.mj_jac(m, d, self._jacp, self._jacr, point, self._tip)
+        out = self._jac[:, self._dofs]
         if self._at_origin:
             return pose, out.copy() if isinstance(self._dofs, slice) else out
         rt = self._base_rot_t

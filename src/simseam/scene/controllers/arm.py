@@ -76,6 +76,7 @@ class CartesianDeltaArm(ArmController):
         self.q_home = np.asarray(q_home, float)
         self.max_translation, self.max_rotation = float(max_translation), float(max_rotation)
         self.ik_iters = int(ik_iters)
+        self._scale = np.array([self.max_translation] * 3 + [self.max_rotation] * 3)
         unit_t, unit_r = f"x {max_translation:g} m", f"x {max_rotation:g} rad"
         self.slots = tuple(ActionSlot(n, "arm", -1.0, 1.0, unit_t if i < 3 else unit_r)
                            for i, n in enumerate(CARTESIAN_NAMES))
@@ -91,12 +92,13 @@ class CartesianDeltaArm(ArmController):
         ``eef``: the measured tool pose (pos, rot) in the base frame."""
         pos, rot = eef
         fk = self.chain.forward(q_prev)  # the pose the last command asked for (reachable by construction)
-        ref = self._ref
-        if ref is None or (_norm(fk[0][:3, 3] - pos) > REANCHOR_POS
-                           or math.hypot(*rotation_error_of(fk[0][:3, :3], rot)) > REANCHOR_ROT):
+        ref, t = self._ref, fk[0]
+        if ref is None or (_norm(t[:3, 3] - pos) > REANCHOR_POS
+                           or math.hypot(*rotation_error_of(t[:3, :3], rot)) > REANCHOR_ROT):
             ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
-        tgt_pos = ref[0] + values[:3] * self.max_translation
-        tgt_rot = axis_angle_to_matrix(values[3:6] * self.max_rotation) @ ref[1]
+        delta = values * self._scale  # [m, m, m, rad, rad, rad]
+        tgt_pos = ref[0] + delta[:3]
+        tgt_rot = axis_angle_to_matrix(delta[3:6]) @ ref[1]
         ik = self.chain.solve(q_prev, tgt_pos, tgt_rot, max_iters=self.ik_iters, rot_weight=ROT_WEIGHT,
                               q_rest=self.q_home, start_fk=fk)
         self.last_ik = ik
