@@ -16,9 +16,9 @@ Cases (Franka Panda, lift_cube layout, MuJoCo, 20 Hz control, 2 ms physics step)
   camera counts and sizes, run by benchmarks/robosuite_lift.py in its own venv
   (benchmarks/setup_robosuite.sh), one case after the other, never concurrently.
 
-The state-only cases are interleaved every 10 steps within a round, so the slow and fast phases
-of a shared machine hit all of them alike; the table reports the median over rounds of each
-case's per-step p50 / p90. The action stream
+The state-only cases are interleaved every 10 steps within a round (the first of them rotating), so
+the slow and fast phases of a shared machine hit all of them alike; the table reports the median
+over rounds of each case's per-step p50 / p90. The action stream
 is a smooth, seeded sweep (like a policy's), not white noise. ``x floor`` is the median over rounds
 of each round's p50 / the floor's p50 of the same round (the same process, interleaved): steadier on
 a shared machine than the times themselves. Prints a table and writes JSON, with the load average.
@@ -161,12 +161,16 @@ def run_robosuite(steps: int) -> dict | None:
 
 def interleaved(cases: dict, steps: int, block: int = 10) -> dict[str, np.ndarray]:
     """Time ``steps`` steps of each case, alternating between cases every ``block`` steps,
-    so that a shared machine's slow and fast phases fall on every case alike."""
+    so that a shared machine's slow and fast phases fall on every case alike. The case that goes
+    first rotates every block: the one right after the floor ran measurably slower than an identical
+    copy of it two places later (1.43x vs 1.33x the floor, one run), a cache effect of the switch."""
     for c in cases.values():
         c.start()
     times = {k: np.empty(steps) for k in cases}
-    for b0 in range(0, steps, block):
-        for name, c in cases.items():
+    names = list(cases)
+    for k, b0 in enumerate(range(0, steps, block)):
+        for name in names[k % len(names):] + names[:k % len(names)]:
+            c = cases[name]
             for i in range(b0, min(steps, b0 + block)):
                 t0 = time.perf_counter()
                 c.step(i)

@@ -341,7 +341,7 @@ def check_action(action: Any, action_dim: int) -> np.ndarray:
     if arr.ndim != 1 or arr.shape[0] != action_dim:
         raise InvalidActionError(f"action has shape {tuple(arr.shape)}, expected ({action_dim},)")
     finite = np.isfinite(arr)
-    if not finite.all():
+    if np.count_nonzero(finite) != finite.size:  # not finite.all(): its reduction machinery costs more per call
         bad = int(np.flatnonzero(~finite)[0])
         raise InvalidActionError(f"action[{bad}] is {float(arr[bad])}; every entry must be finite")
     return arr
