@@ -104,3 +104,20 @@ def test_kinematics_that_disagree_leave_the_scene_on_the_urdf_chain(panda_spec, 
     assert scene.arm.chain is scene.chain and scene.arm.chain.forward_source == "urdf"
     scene.reset(0)
     scene.step(scene.spec.action.pack(arm=[0.3, 0, 0, 0, 0, 0]))
+
+
+def test_the_damped_least_squares_solve_equals_numpys():
+    """ChainForward.dls_solve (MuJoCo's products and Cholesky) against SerialChain._normal_solve (numpy),
+    with and without the null-space term, and with blocked (zeroed) columns."""
+    spec, urdf_path, chain = panda()
+    eng = _built(panda_model(spec, urdf_path))
+    fk = eng.chain_forward(spec.base_link, spec.ee_link, [j.sim_name for j in spec.arm_joints])
+    rng = np.random.default_rng(7)
+    for k, q in enumerate(rng.uniform(chain.lower, chain.upper, (10, chain.n))):
+        jw = fk.forward(q)[1] * np.array([[1.0], [1.0], [1.0], [0.5], [0.5], [0.5]])
+        if k % 3 == 2:
+            jw[:, [1, 4]] = 0.0
+        e, z = rng.normal(size=6) * 0.01, (rng.normal(size=7) * 0.05 if k % 2 else None)
+        want = chain._normal_solve(jw, e, None if z is None else z.copy(), 4e-4)
+        np.testing.assert_allclose(fk.dls_solve(jw, e, z, 4e-4), want, rtol=1e-9, atol=1e-12)
+    eng.close()

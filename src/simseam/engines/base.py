@@ -170,3 +170,5 @@ class Engine(Protocol):
     # optional, looked up with getattr (an engine without it leaves the scene on SerialChain):
     # chain_forward(base_link, tip_link, joints, tip_offset) -> an object whose forward(q) returns
     # what SerialChain.forward returns, computed by the engine (MuJoCo: its C kinematics)
+    # link_frame(link) -> (pos[3], rotation 3x3): link_pose with the rotation as a matrix, for engines
+    # that hold one (MuJoCo's xmat); the scene converts link_pose's quaternion otherwise

@@ -19,7 +19,7 @@ from simseam.robot.urdf import MOVABLE, UrdfJoint, UrdfModel
 from simseam.seam import ConfigError, RobotFacts
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class IKResult:
     q: np.ndarray
     pos_error: float  # metres
@@ -108,19 +108,19 @@ class SerialChain:
         self._any_prism = bool(self._prism.any())
         self._weight_cache: dict[float, np.ndarray] = {}
         self._eye_cache: dict[float, np.ndarray] = {}
-        self._spd_solve = np.linalg.solve
+        self._dls_solve = self._normal_solve
 
     def with_forward(self, forward: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], source: str,
-                     spd_solve: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> "SerialChain":
+                     dls_solve: Callable[..., np.ndarray] | None = None) -> "SerialChain":
         """A copy of this chain whose ``forward`` (and so ``solve``) is ``forward``: another implementation
         of the same kinematics (an engine's, ``source`` names it), which the caller has checked agrees;
-        ``spd_solve(m, b)``: the ``x`` with ``m @ x = b`` for a symmetric positive definite ``m`` (which
-        it may overwrite), in place of ``np.linalg.solve``."""
+        ``dls_solve(jw, e, z, d2)``: what ``_normal_solve`` computes, by the same engine (checked by
+        the engine's tests to agree)."""
         other = copy.copy(self)
         other.forward = forward  # type: ignore[method-assign]
         other.forward_source = source
-        if spd_solve is not None:
-            other._spd_solve = spd_solve
+        if dls_solve is not None:
+            other._dls_solve = dls_solve
         return other
 
     @property
@@ -231,14 +231,17 @@ class SerialChain:
         """Damped least squares step for task error ``e``, plus ``z`` projected into the null space:
         ``J^T A^-1 e + (I - J^T A^-1 J) z`` with ``A = J J^T + d^2 I``, computed as the equal
         ``(J^T J + d^2 I)^-1 (J^T e + d^2 z)`` (one n x n solve, one right-hand side)."""
-        d2 = damping ** 2
+        return self._dls_solve(jw, e, z, damping ** 2)
+
+    def _normal_solve(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, d2: float) -> np.ndarray:
+        """``(jw^T jw + d2 I)^-1 (jw^T e + d2 z)`` (``z`` None: 0)."""
         jt = jw.T
         m = jt @ jw
         m += self._damped_eye(d2)
         b = jt @ e
         if z is not None:
             b += d2 * z
-        return self._spd_solve(m, b)
+        return np.linalg.solve(m, b)
 
     def _damped_eye(self, d2: float) -> np.ndarray:
         eye = self._eye_cache.get(d2)

@@ -68,6 +68,13 @@ SETTLE_S = 0.1  # physics time after placing props, before the first observation
 _FULL = ObsRequest()
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as a slice when it is a run of consecutive indices (a view, cheaper per step), else itself."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
 @dataclass(frozen=True)
 class SceneOptions:
     """Scene knobs. ``image_size`` (H, W) overrides every RGB sensor's size;
@@ -163,6 +170,7 @@ class ManifestScene:
         self.engine = self._build_engine(engine, base_yaw)
         if isinstance(self.arm, CartesianDeltaArm):
             self.arm.chain = self._ik_chain()
+        self._link_frame = getattr(self.engine, "link_frame", None)  # an optional engine primitive
         self._substeps = max(1, int(round(1.0 / (opts.control_hz * self.engine.timestep))))
         n_chunks = min(RAMP_CHUNKS, self._substeps)
         self._chunks = np.diff(np.linspace(0, self._substeps, n_chunks + 1).round().astype(int)).tolist()
@@ -186,6 +194,7 @@ class ManifestScene:
         names = [j.name for j in self._ejoints]
         self._arm_idx = np.array([i for i, j in enumerate(self._ejoints) if j.role == "arm"], dtype=int)
         self._grip_idx = np.array([names.index(n) for n in robot.gripper.joints] if robot.gripper else [], dtype=int)
+        self._grip_sel = _as_slice(self._grip_idx)  # what every step indexes with
         self._lower = np.array([-np.inf if j.lower is None else j.lower for j in self._ejoints])
         self._upper = np.array([np.inf if j.upper is None else j.upper for j in self._ejoints])
         self._home = np.clip(np.array([j.home for j in self._ejoints]), self._lower, self._upper)
@@ -294,7 +303,7 @@ class ManifestScene:
         for q in (self._home[self._arm_idx], *samples):
             if not all(np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(chain.forward(q), fk.forward(q))):
                 return chain
-        return chain.with_forward(fk.forward, self.engine.name, getattr(fk, "spd_solve", None))
+        return chain.with_forward(fk.forward, self.engine.name, getattr(fk, "dls_solve", None))
 
     def _describe(self, task: str) -> RolloutSpec:
         opts = self.options
@@ -351,7 +360,7 @@ class ManifestScene:
         target = self._q_target
         target[self._arm_idx] = self.arm.targets(arm, target[self._arm_idx], self._eef)
         if self.gripper is not None:
-            target[self._grip_idx] = self.gripper.targets(grip)
+            target[self._grip_sel] = self.gripper.targets(grip)
         self._servo(target, base)
         self._steps += 1
         obs = self._observe(observe or _FULL)
@@ -391,8 +400,11 @@ class ManifestScene:
 
     def _tool_world(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool frame in the world: (pos[3], rot[3x3]); a tcp's offset composed on its parent link."""
-        p, q = self.engine.link_pose(self.robot.tool_parent)
-        r = quat_to_matrix(q)
+        if self._link_frame is not None:
+            p, r = self._link_frame(self.robot.tool_parent)
+        else:
+            p, q = self.engine.link_pose(self.robot.tool_parent)
+            r = quat_to_matrix(q)
         if self.robot.tcp is None:
             return p, r
         return p + r @ self._tool_pos, r @ self._tool_rot
@@ -486,7 +498,7 @@ class ManifestScene:
         q = eng.joint_positions()
         self._eef = pos, rot = self.eef_pose_base()
         state = np.empty(len(self._state_names), dtype=np.float32)
-        self.task.state(pos, rot, q[self._grip_idx], state, self.rot_reference)
+        self.task.state(pos, rot, q[self._grip_sel], state, self.rot_reference)
         images = {}
         self._frame = None
         if self.options.render_images:

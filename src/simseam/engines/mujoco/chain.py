@@ -3,9 +3,9 @@
 ``ChainForward.forward(q)`` returns what ``SerialChain.forward`` returns (the tool pose as a 4x4 in
 the base link's frame and the 6xN geometric Jacobian, linear rows first, columns in ``q`` order) but
 computes it with ``mj_kinematics``, ``mj_comPos`` and ``mj_jac`` on the engine's compiled model: a few
-microseconds instead of some tens of numpy calls. ``spd_solve`` is MuJoCo's Cholesky solve, for the
-IK's damped least squares system. The scratch data is private, so the simulation's
-own state is never touched; only the chain's joints move in it (every other joint stays at its
+microseconds instead of some tens of numpy calls; ``dls_solve`` solves the IK's damped least
+squares system with MuJoCo's small-matrix products and Cholesky. The scratch data is private, so the
+simulation's own state is never touched; only the chain's joints move in it (every other joint stays at its
 ``qpos0``, as ``SerialChain`` holds unactuated joints at 0). Whoever uses it checks first that it
 agrees with the URDF chain (``ManifestScene`` does, to 1e-9).
 """
@@ -60,6 +60,7 @@ class ChainForward:
         self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._point = np.zeros(3)
         self._pose = np.eye(4)
+        self._eyes: dict[tuple[int, float], np.ndarray] = {}
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose (4x4) in the base frame and the 6xN geometric Jacobian (linear; angular)."""
@@ -85,11 +86,25 @@ class ChainForward:
         pose[:3, :3] = rt @ pose[:3, :3]
         return pose, np.concatenate([rt @ out[:3], rt @ out[3:]])
 
-    @staticmethod
-    def spd_solve(m: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The ``x`` with ``m @ x = b`` for a symmetric positive definite ``m`` (float64, C order; factored
-        in place): MuJoCo's Cholesky, a fraction of ``np.linalg.solve``'s cost on a 7x7."""
+    def dls_solve(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, d2: float) -> np.ndarray:
+        """``(jw^T jw + d2 I)^-1 (jw^T e + d2 z)`` (``z`` None: 0), as ``SerialChain._normal_solve`` but
+        with MuJoCo's small-matrix products and Cholesky solve (``jw``: float64, C order): the damped
+        least squares system of the IK, without numpy's BLAS and LAPACK call overhead."""
+        n = jw.shape[1]
+        m = np.empty((n, n))
+        mujoco.mju_mulMatTMat(m, jw, jw)
+        m += self._damped_eye(n, d2)
+        b = np.empty(n)
+        mujoco.mju_mulMatTVec(b, jw, e)
+        if z is not None:
+            mujoco.mju_addToScl(b, z, d2)
         mujoco.mju_cholFactor(m, 0.0)
-        x = np.empty(b.shape[0])
+        x = np.empty(n)
         mujoco.mju_cholSolve(x, m, b)
         return x
+
+    def _damped_eye(self, n: int, d2: float) -> np.ndarray:
+        key = (n, d2)
+        if key not in self._eyes:
+            self._eyes[key] = d2 * np.eye(n)
+        return self._eyes[key]

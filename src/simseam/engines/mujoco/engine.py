@@ -485,6 +485,16 @@ class MujocoEngine:
             raise ConfigError(f"link {link!r} is not part of the robot; links: {', '.join(self._body_ids)}") from None
         return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
 
+    def link_frame(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """World frame of a robot link as (pos[3], rotation 3x3): ``link_pose`` with the rotation matrix
+        MuJoCo's kinematics computed from the same quaternion (no conversion per call). Optional primitive."""
+        self._sync_poses()
+        try:
+            bid = self._body_ids[link]
+        except KeyError:
+            raise ConfigError(f"link {link!r} is not part of the robot; links: {', '.join(self._body_ids)}") from None
+        return self.data.xpos[bid].copy(), self.data.xmat[bid].reshape(3, 3).copy()
+
     def set_root_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
         if self._mocap >= 0:
             self.data.mocap_pos[self._mocap] = pos
