@@ -95,8 +95,8 @@ def robot_spec():
 @dataclasses.dataclass(frozen=True)
 class BenchRecipe:
     """A worker's rollout without the scene-file layer (no pydantic): the vector runner only calls
-    ``build()`` and reads ``scene`` (the central renderer's support check), ``render_images`` and
-    ``pose_states``."""
+    ``build()`` and ``rollout_for()`` and reads ``scene`` (the central renderer's support check),
+    ``render_images`` and ``pose_states``."""
 
     image: int | None
     steps: int
@@ -113,6 +113,10 @@ class BenchRecipe:
         opts = SceneOptions(control_hz=20, image_size=size, max_steps=self.steps, render_images=self.render_images,
                             privileged=self.privileged, seed=self.seed)
         return ManifestScene(robot_spec(), "lift_cube", "mujoco", opts)
+
+    def rollout_for(self, rollout, index: int, seed: int):
+        """Every episode on the worker's one scene (as ``SceneRecipe``): what the runner asks a recipe."""
+        return rollout, seed
 
 
 class InstantRollout:
