@@ -2,7 +2,7 @@
 ``lerobot-eval --env.type=pusht --env.obs_type=environment_state_agent_pos`` (offline, its gym-pusht env) and by
 ``simseam eval pusht`` on the same seeds, compared episode by episode.
 
-    .venv/bin/python benchmarks/pusht_lerobot_eval.py [--demos 120] [--train-s 720] [--seed 1000]
+    .venv/bin/python benchmarks/pusht_lerobot_eval.py [--demos 250] [--train-s 840] [--seed 1000]
         [--episodes 50] [--checkpoint DIR] [--work DIR] [--compare-only] [--json FILE]
 
 What LeRobot's PushT env gives a policy (lerobot 0.4.4, ``PushtEnv`` config, obs_type
@@ -17,15 +17,19 @@ renaming. Both sides run batches of one (``--eval.batch_size=1``; ``--num-envs 1
 
 The checkpoint is made through simseam (skipped with ``--checkpoint``):
 
-1. ``simseam collect --policy scripted --no-cameras`` from ``benchmark: {name: pusht}``, seeds
-   ``0 .. demos-1``: simseam's PushT expert (``simseam.backends.pusht_expert``), successes only;
-2. ``simseam train``: ACT from scratch on the state (no VAE, chunks of ``--chunk`` actions of which
-   ``--n-action-steps`` are executed, a small transformer), within ``--train-s`` seconds.
+1. ``simseam collect --policy scripted --no-cameras --action-noise 6`` from ``benchmark: {name: pusht}``,
+   seeds ``0 .. demos-1``: simseam's PushT expert (``simseam.backends.pusht_expert``), its targets executed
+   with 6 px of Gaussian noise (so the demonstrations show recoveries) and recorded clean, successes only;
+2. ``simseam train``: ACT from scratch on the state (no VAE, chunks of ``--chunk`` 10 actions of which
+   ``--n-action-steps`` 2 are executed, dim 64, one encoder and one decoder layer, 0.12 M parameters,
+   batch 64, cosine from 5e-4 over ``--train-steps``), within ``--train-s`` seconds.
 
 The baseline, measured in the same run (``--no-expert`` skips it): the demonstrations' expert, ``simseam eval pusht
 --policy scripted``, on the same seeds. Compared per seed: success, and the return (LeRobot's ``sum_reward``, the sum of
 ``clip(coverage / 0.95, 0, 1)``) to 1e-9 (``RETURN_TOL``); LeRobot's ``max_reward`` is reported beside
-simseam's last coverage. LeRobot's interpreter needs gym-pusht and its dependencies, which the main venv
+simseam's last coverage. The returns differ only in summation order: LeRobot sums an episode's float64
+rewards with torch (``einops.reduce``), simseam adds them one by one; summed one by one, LeRobot's own rewards
+give simseam's return to the last bit (traced on seed 1000, docs/benchmarks.md). LeRobot's interpreter needs gym-pusht and its dependencies, which the main venv
 does not have: they are linked from the pusht backend's venv into a temporary site directory first on its
 path. Every process runs with ``OMP_NUM_THREADS=1``. Prints a table, writes JSON (default
 ``benchmarks/results/pusht_lerobot_eval.json``).
@@ -68,15 +72,17 @@ def make_checkpoint(args, work: Path, log: Path) -> dict:
     scene.write_text("# simseam's PushT expert (benchmarks/pusht_lerobot_eval.py)\nbenchmark: {name: pusht}\n")
     data, ckpt = work / "demos", work / "act"
     collect_s = _run([SIMSEAM, "collect", "--scene", str(scene), "--policy", "scripted", "--episodes",
-                      str(args.demos), "--seed", "0", "--no-cameras", "--out", str(data), "--overwrite"], log)
+                      str(args.demos), "--seed", "0", "--no-cameras", "--action-noise", str(args.action_noise),
+                      "--out", str(data), "--overwrite"], log)
     train_s_wall = _run([SIMSEAM, "train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                          "--workers", "0", "--device", "cpu", "--no-vae", "--steps", str(args.train_steps),
-                         "--time-budget-s", str(args.train_s), "--batch-size", "64", "--lr", "3e-4",
+                         "--time-budget-s", str(args.train_s), "--batch-size", "64", "--lr", "5e-4",
                          "--lr-schedule", "cosine", "--chunk-size", str(args.chunk), "--n-action-steps",
-                         str(args.n_action_steps), "--dim-model", "128", "--ff-dim", "512", "--encoder-layers", "2"],
+                         str(args.n_action_steps), "--dim-model", "64", "--ff-dim", "256", "--encoder-layers", "1"],
                         log)
     info = json.loads((data / "meta" / "info.json").read_text())
-    return {"dir": str(ckpt), "demos": {"seeds": f"0:{args.demos}", "episodes_kept": info["total_episodes"],
+    return {"dir": str(ckpt), "demos": {"seeds": f"0:{args.demos}", "action_noise_px": args.action_noise,
+                                        "episodes_kept": info["total_episodes"],
                                         "frames": info["total_frames"], "seconds": round(collect_s, 1)},
             "training": {**training_facts(ckpt), "wall_seconds": round(train_s_wall, 1)}}
 
@@ -202,11 +208,13 @@ def finish(report: dict, work: Path, seed: int, seeds: list[int], out_json: Path
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--demos", type=int, default=120)
-    ap.add_argument("--train-s", type=float, default=720.0, help="training wall-clock cap, seconds")
-    ap.add_argument("--train-steps", type=int, default=20000)
-    ap.add_argument("--chunk", type=int, default=20)
-    ap.add_argument("--n-action-steps", type=int, default=10)
+    ap.add_argument("--demos", type=int, default=250)
+    ap.add_argument("--action-noise", type=float, default=6.0,
+                    help="px of Gaussian noise on the executed actions while collecting (the expert's own recorded)")
+    ap.add_argument("--train-s", type=float, default=840.0, help="training wall-clock cap, seconds")
+    ap.add_argument("--train-steps", type=int, default=22000)
+    ap.add_argument("--chunk", type=int, default=10)
+    ap.add_argument("--n-action-steps", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1000, help="first evaluation seed (lerobot-eval's default)")
     ap.add_argument("--episodes", type=int, default=50)
     ap.add_argument("--no-expert", dest="expert", action="store_false",
