@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from simseam.math3d import axis_angle_to_matrix, rotation_error_of
+from simseam.math3d import axis_angle_times, rotation_error_of
 from simseam.robot.kinematics import IKResult, SerialChain
 from simseam.seam import ActionSlot, ControlMode
 
@@ -98,7 +98,7 @@ class CartesianDeltaArm(ArmController):
             ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
         delta = values * self._scale  # [m, m, m, rad, rad, rad]
         tgt_pos = ref[0] + delta[:3]
-        tgt_rot = axis_angle_to_matrix(delta[3:6]) @ ref[1]
+        tgt_rot = axis_angle_times(delta[3:6], ref[1])
         ik = self.chain.solve(q_prev, tgt_pos, tgt_rot, max_iters=self.ik_iters, rot_weight=ROT_WEIGHT,
                               q_rest=self.q_home, start_fk=fk)
         self.last_ik = ik
