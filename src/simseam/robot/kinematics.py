@@ -106,7 +106,6 @@ class SerialChain:
         self._c1, self._c2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cross-product index cycles
         self._revolute_f = (~self._prism).astype(np.float64)
         self._any_prism = bool(self._prism.any())
-        self._weight_cache: dict[float, np.ndarray] = {}
         self._eye_cache: dict[float, np.ndarray] = {}
         self._dls_solve = self._normal_solve
 
@@ -190,7 +189,6 @@ class SerialChain:
         """
         lower, upper = self.lower, self.upper
         q = np.minimum(np.maximum(np.asarray(q_start, dtype=np.float64), lower), upper)  # np.clip, cheaper
-        w = self._weight_column(rot_weight)
         step = self._dls_step if self.n >= 6 else self._priority_step
         pull = q_rest is not None and self.n > 6
         ep = er = np.inf
@@ -203,7 +201,8 @@ class SerialChain:
             ep, er = math.sqrt(px * px + py * py + pz * pz), math.sqrt(rx * rx + ry * ry + rz * rz)
             if ep < pos_tol and er < rot_tol:
                 break
-            jw = jac * w
+            jw = jac.copy()  # the Jacobian's rows weighted as the error: position 1, orientation rot_weight
+            jw[3:] *= rot_weight
             e = np.array([px, py, pz, rx * rot_weight, ry * rot_weight, rz * rot_weight])
             z = rest_gain * (q_rest - q) if pull else None
             dq = step(jw, e, z, damping)
@@ -261,14 +260,6 @@ class SerialChain:
         jo_n = jo @ null
         dq2 = jo_n.T @ np.linalg.solve(jo_n @ jo_n.T + (damping ** 2) * self._eye3, e[3:] - jo @ dq1)
         return dq1 + null @ dq2
-
-    def _weight_column(self, rot_weight: float) -> np.ndarray:
-        """(6, 1) row weights of the Jacobian: 1 for position, ``rot_weight`` for orientation (cached)."""
-        w = self._weight_cache.get(rot_weight)
-        if w is None:
-            w = self._weight_cache[rot_weight] = np.array([[1.0], [1.0], [1.0], [rot_weight], [rot_weight],
-                                                           [rot_weight]])
-        return w
 
     def tabletop_reach(self, n_samples: int = 1500, z_band: tuple[float, float] = (0.0, 0.2)) -> float:
         """How far (m, horizontally) the tip reaches at tabletop height.
