@@ -3,15 +3,18 @@
 gym-pusht ships no expert (its dataset is human teleoperation). This one reads the simulator's
 privileged state (the agent's and the T's poses and velocities), as ManiSkill's motion planner reads
 its scene. A *push* is: reach a point just outside the T's outline (beside one of its edges), then
-move the target through the T along the edge's inward normal, turned by -30, 0 or +30 degrees, for
-up to 80 px. Every candidate push (contact points every ~15 px along the outline x 3 directions) is
-simulated on a twin PushT world (a second ``PushTEnv`` whose agent and block take the live ones'
-state), with the env's own PD control and 10 physics substeps per step; its cost is recorded after
-each push length of ``LENGTHS``. The cost is the mean distance of the T's 8 keypoints to the goal's
-plus 0.02 px per px the agent travels to the push's start. The cheapest push is executed (reach,
-then push), then the next one is planned from where the world is. Targets move at most ``REACH_SPEED`` px per step while reaching and
-``PUSH_SPEED`` while pushing; the reach goes around the T (on a circle about its centre of gravity)
-when the straight way would touch it.
+move the agent's target through the T along the edge's inward normal, turned by each of ``TURNS``,
+for one of ``LENGTHS`` px. Every candidate (contact points every ~``EDGE_SPACING`` px along the
+outline) is first pushed with the agent placed at its start, on a twin world (gym-pusht's own walls,
+agent and T, ``_Twin``) with the env's PD control and 10 physics substeps per step; its cost is the
+mean distance of the T's 8 keypoints to the goal's, plus ``TRAVEL_COST`` per px to the push's start
+(less near the goal). The ``RERANK`` best are then replayed in full (reach and push) from the live
+state, and the best is executed; then the next push is planned from where the world is. Below
+``FINE`` px of cost the pushes are short and slow (``FINE_*``), and pushes straight through the
+centre of gravity towards the goal's join them. When no push lowers the cost by ``IMPROVE``, the
+one after which the best next push is best is taken (one push of look-ahead). Targets move at most
+``REACH_SPEED`` px per step while reaching; the reach goes around the T (on a circle about its
+centre of gravity) when the straight way would touch it.
 
 Deterministic: the plan depends on the world's state alone. Imports numpy at module level; gym_pusht,
 pymunk and shapely only in ``PushTExpert``.
@@ -82,10 +85,6 @@ class _Twin:
         self.k_p, self.k_v, self.dt = 100, 20, 0.01  # PushTEnv's PD gains and physics step
 
 
-def twin_world(env_cls) -> _Twin:
-    return _Twin(env_cls)
-
-
 def snapshot(agent, block) -> tuple:
     """The world's moving state: agent position and velocity, the T's position, angle, velocity, spin."""
     return (tuple(agent.position), tuple(agent.velocity), tuple(block.position), float(block.angle),
@@ -100,7 +99,7 @@ class PushTExpert:
         import shapely.geometry as sg
 
         self._sg = sg
-        self.twin = twin_world(PushTEnv)
+        self.twin = _Twin(PushTEnv)
         self._local = np.array([np.array(v) for s in self.twin.block.shapes for v in s.get_vertices()])
         self._goal_kp = keypoints(*GOAL, self._local)
         self._contacts = contacts()
