@@ -8,7 +8,8 @@
 #              src/ (git archive HEAD src | tar -x -C .mscarry; .mscarry/src/COMMIT: git rev-parse HEAD).
 # Writes $OUT/pickcube_act (a lerobot: checkpoint + training.json), which comes back; then, here:
 #   .venv/bin/python benchmarks/maniskill_policy.py --work W --checkpoint <that directory>
-# The recipe is maniskill_policy.py's (Recipe); STEPS, LR, DIM_MODEL, FF_DIM, ENCODER_LAYERS override it.
+# The recipe is maniskill_policy.py's (Recipe); STEPS, LR, DIM_MODEL, FF_DIM, ENCODER_LAYERS override it;
+# TIME_BUDGET_S caps the training (the checkpoint is saved at the cap, the cosine schedule then unfinished).
 set -euo pipefail
 SITE=${SITE:-/tmp/site}
 if [ ! -f "$SITE/.installed" ]; then
@@ -36,7 +37,8 @@ steps = r.steps
 cfg = ActTrainConfig(steps=steps, batch_size=r.batch_size, lr=r.lr, lr_backbone=r.lr, lr_schedule=r.lr_schedule,
                      chunk_size=r.chunk_size, n_action_steps=r.n_action_steps, temporal_ensemble_coeff=r.temporal_ensemble,
                      dim_model=r.dim_model, dim_feedforward=r.ff_dim, n_encoder_layers=r.encoder_layers, use_vae=False,
-                     device="cuda", cache_on_device=True, num_workers=0, log_every=max(1, min(100, steps // 10)))
+                     device="cuda", cache_on_device=True, num_workers=0, log_every=max(1, min(100, steps // 10)),
+                     time_budget_s=float(os.environ["TIME_BUDGET_S"]) if "TIME_BUDGET_S" in os.environ else None)
 res = train_act(".mscarry/pickcube_data", os.environ["OUT"] + "/" + os.environ.get("NAME", "pickcube_act"), cfg,
                 on_log=lambda s, loss: print(f"step {s:7d}  loss {loss:.4f}"))
 print("trained", res.steps, "steps in", round(res.seconds, 1), "s")
