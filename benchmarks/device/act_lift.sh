@@ -68,7 +68,7 @@ fi
 tar -C "$SITE" -xJf .devcarry/pybullet_franka.tar.xz
 mkdir -p "$SITE/pybullet-3.2.7.dist-info"
 printf 'Metadata-Version: 2.1\nName: pybullet\nVersion: 3.2.7\n' > "$SITE/pybullet-3.2.7.dist-info/METADATA"
-if ! PYTHONPATH="$SITE" "$PY" -c 'import av' 2>/dev/null; then
+if ! PYTHONPATH="$SITE" "$PY" -c 'import av' 2>/dev/null || grep -qs "PNG-only run" "$SITE/av/__init__.py"; then
   mkdir -p "$SITE/av"
   cat > "$SITE/av/__init__.py" <<'PY'
 """PyAV is not on this machine (its wheel is over the transfer cap); any use fails loudly."""
@@ -78,6 +78,9 @@ def __getattr__(name):
 PY
   cat > "$SITE/av/logging.py" <<'PY'
 WARNING = 24  # libav's AV_LOG_WARNING
+ERROR = 16
+def set_libav_level(level):  # simseam's recorder quiets libav's log; there is no libav here
+    pass
 def __getattr__(name):
     raise ImportError(f"av.logging.{name}: PyAV is not installed on this machine (PNG-only run)")
 PY
