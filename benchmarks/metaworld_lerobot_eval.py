@@ -68,7 +68,9 @@ def scene_yaml(task: str, size: int) -> str:
             f"(benchmarks/metaworld_lerobot_eval.py)\nbenchmark: {{name: metaworld, task: {task}, {fields}}}\n")
 
 
-def _run(argv: list[str], log: Path, env: dict | None = None) -> float:
+def run_logged(argv: list[str], log: Path, env: dict | None = None) -> float:
+    """Run ``argv`` from the repository root, its output appended to ``log``; its wall seconds (a non-zero
+    exit raises, naming the log)."""
     t0 = time.perf_counter()
     with log.open("a") as f:
         f.write(f"$ {' '.join(argv)}\n")
@@ -83,9 +85,9 @@ def make_checkpoint(task: str, demos: int, train_s: float, steps: int, work: Pat
     scene = work / "scene_demos.yaml"
     scene.write_text(scene_yaml(task, TRAIN_SIZE))
     data, ckpt = work / "demos", work / "act"
-    collect_s = _run([SIMSEAM, "collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(demos),
+    collect_s = run_logged([SIMSEAM, "collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(demos),
                       "--seed", "0", "--images", "--out", str(data), "--overwrite"], log)
-    train_s_wall = _run([SIMSEAM, "train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
+    train_s_wall = run_logged([SIMSEAM, "train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                          "--workers", "0", "--device", "cpu", "--no-vae", "--steps", str(steps),
                          "--time-budget-s", str(train_s), "--batch-size", "32", "--lr", "3e-4",
                          "--lr-schedule", "cosine", "--chunk-size", "10", "--n-action-steps", "10",
@@ -191,7 +193,7 @@ def lerobot_cli(ckpt: Path, task: str, seed: int, work: Path, site: Path, log: P
     ``lerobot_cli_<seed>/eval_info.json``."""
     out = work / f"lerobot_cli_{seed}"
     shutil.rmtree(out, ignore_errors=True)
-    _run([sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={ckpt}",
+    run_logged([sys.executable, "-m", "lerobot.scripts.lerobot_eval", f"--policy.path={ckpt}",
           "--env.type=metaworld", f"--env.task={task}", "--eval.n_episodes=1", "--eval.batch_size=1",
           "--policy.device=cpu", f"--seed={seed}", f"--output_dir={out}",
           f"--rename_map={json.dumps(RENAME)}"], log, env=lerobot_env(site))
@@ -374,7 +376,7 @@ def main() -> int:
                                              str(out), "--task", args.task, "--checkpoint", str(serve)],
                                             stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, env=lerobot_env(site)))
     t0 = time.perf_counter()
-    _run([SIMSEAM, "eval", "metaworld_lerobot", "--tasks", args.task, "--policy", f"lerobot:{serve}", "--seed",
+    run_logged([SIMSEAM, "eval", "metaworld_lerobot", "--tasks", args.task, "--policy", f"lerobot:{serve}", "--seed",
           str(args.seed), "--episodes", str(args.episodes), "--device", "cpu", "--out", str(work / "simseam_eval"),
           "--overwrite"], log)
     report["seconds"] = {"simseam_eval": round(time.perf_counter() - t0, 1)}

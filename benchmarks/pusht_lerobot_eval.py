@@ -48,6 +48,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from metaworld_lerobot_eval import run_logged  # benchmarks/ is the script's directory
+
 ROOT = Path(__file__).resolve().parents[1]
 SIMSEAM = str(Path(sys.executable).with_name("simseam"))
 #: gym-pusht 0.1.8 and what it imports that the main venv lacks (the pusht backend venv has them all)
@@ -56,25 +58,14 @@ PUSHT_PACKAGES = ("gym_pusht", "pymunk", "pygame", "pygame.libs", "shapely", "sh
 RETURN_TOL = 1e-9
 
 
-def _run(argv: list[str], log: Path, env: dict | None = None) -> float:
-    t0 = time.perf_counter()
-    with log.open("a") as f:
-        f.write(f"$ {' '.join(argv)}\n")
-        f.flush()
-        rc = subprocess.run(argv, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, env=env).returncode
-    if rc != 0:
-        raise RuntimeError(f"{Path(argv[0]).name} {argv[1]} exited {rc}; its output is in {log}")
-    return time.perf_counter() - t0
-
-
 def make_checkpoint(args, work: Path, log: Path) -> dict:
     scene = work / "scene_demos.yaml"
     scene.write_text("# simseam's PushT expert (benchmarks/pusht_lerobot_eval.py)\nbenchmark: {name: pusht}\n")
     data, ckpt = work / "demos", work / "act"
-    collect_s = _run([SIMSEAM, "collect", "--scene", str(scene), "--policy", "scripted", "--episodes",
+    collect_s = run_logged([SIMSEAM, "collect", "--scene", str(scene), "--policy", "scripted", "--episodes",
                       str(args.demos), "--seed", "0", "--no-cameras", "--action-noise", str(args.action_noise),
                       "--out", str(data), "--overwrite"], log)
-    train_s_wall = _run([SIMSEAM, "train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
+    train_s_wall = run_logged([SIMSEAM, "train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                          "--workers", "0", "--device", "cpu", "--no-vae", "--steps", str(args.train_steps),
                          "--time-budget-s", str(args.train_s), "--batch-size", "64", "--lr", "5e-4",
                          "--lr-schedule", "cosine", "--chunk-size", str(args.chunk), "--n-action-steps",
@@ -252,7 +243,7 @@ def main() -> int:
             f.flush()
             lerobot = subprocess.Popen(argv, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT, env=lerobot_env(site))
         try:
-            _run([SIMSEAM, "eval", "pusht", "--policy", f"lerobot:{ckpt}", "--seed", str(args.seed), "--episodes",
+            run_logged([SIMSEAM, "eval", "pusht", "--policy", f"lerobot:{ckpt}", "--seed", str(args.seed), "--episodes",
                   str(args.episodes), "--device", "cpu", "--num-envs", "1", "--out", str(work / "simseam_eval"),
                   "--overwrite"], log)
             report["seconds"] = {"simseam_eval": round(time.perf_counter() - t0, 1)}
@@ -263,7 +254,7 @@ def main() -> int:
             raise SystemExit(f"lerobot-eval exited {rc}; its output is in {log}")
         report["seconds"]["lerobot_eval"] = round(time.perf_counter() - t0, 1)
         if args.expert:
-            report["seconds"]["expert_eval"] = round(_run(
+            report["seconds"]["expert_eval"] = round(run_logged(
                 [SIMSEAM, "eval", "pusht", "--policy", "scripted", "--seed", str(args.seed), "--episodes",
                  str(args.episodes), "--out", str(work / "expert_eval"), "--overwrite"], log), 1)
     finish(report, work, args.seed, seeds, args.json)
