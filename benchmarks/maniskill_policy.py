@@ -3,6 +3,13 @@
 
     .venv/bin/python benchmarks/maniskill_policy.py [--eval-seeds 10000:10100] [--demos 320] [--train-steps 6000]
         [--train-s 900] [--workers 2] [--work DIR] [--json FILE] [--checkpoint DIR] [--n-action-steps K]
+        [--collect-only]
+
+    # the recipe that reaches 96/100 (docs/policies.md): 480 demonstrations here, ACT dim 256 trained on a GPU
+    .venv/bin/python benchmarks/maniskill_policy.py --demos 480 --work W --collect-only
+    #   then benchmarks/device/maniskill_train.sh (its header) with STEPS=16000 DIM_MODEL=256 FF_DIM=1024
+    #   ENCODER_LAYERS=4, and here:
+    .venv/bin/python benchmarks/maniskill_policy.py --work W --checkpoint W/ckpt --json benchmarks/results/X.json
 
 Four phases:
 
@@ -154,9 +161,25 @@ def collect(recipe: Recipe, root: Path, workers: int) -> dict:
     aggregate_datasets([f"simseam/shard{k}" for k in range(len(kept))], "simseam/local", roots=kept, aggr_root=root)
     shutil.copy(kept[0] / "meta" / "simseam_skill.json", root / "meta" / "simseam_skill.json")
     shutil.rmtree(shards, ignore_errors=True)
-    return {"episodes_run": sum(r[0] for r in runs), "episodes_written": sum(r[1] for r in runs),
-            "frames_written": sum(r[2] for r in runs), "workers": workers,
-            "seconds": round(time.perf_counter() - t0, 1)}
+    report = {"seeds": f"0:{recipe.demos}", "episodes_run": sum(r[0] for r in runs),
+              "episodes_written": sum(r[1] for r in runs), "frames_written": sum(r[2] for r in runs),
+              "workers": workers, "seconds": round(time.perf_counter() - t0, 1)}
+    (root.parent / "collect.json").write_text(json.dumps(report) + "\n")  # read back by a --checkpoint run
+    return report
+
+
+def _recorded_collection(work: Path) -> dict | None:
+    """The collection report written beside the dataset (``collect.json``), if any."""
+    path = work / "collect.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _demo_seeds(recipe: Recipe, collected: dict | None) -> range:
+    """The seeds the demonstrations came from: the collection's report, else the recipe's."""
+    if collected is None:
+        return range(0, recipe.demos)
+    start, end = (int(x) for x in collected.get("seeds", f"0:{collected['episodes_run']}").split(":"))
+    return range(start, end)
 
 
 def _eval(policy: str, seeds: range, out: Path, device: str, log: Path, n_action_steps: int | None = None) -> dict:
@@ -182,14 +205,15 @@ def _eval(policy: str, seeds: range, out: Path, device: str, log: Path, n_action
 
 def prove(recipe: Recipe, seeds: range, work: Path, train_s: float, device: str, workers: int,
           checkpoint: Path | None = None, n_action_steps: int | None = None, expert: bool = True) -> dict:
-    if seeds.start < recipe.demos:
-        raise SystemExit(f"--eval-seeds {seeds.start}:{seeds.stop} overlaps the demonstration seeds "
-                         f"0:{recipe.demos}; evaluate on held-out seeds (START >= {recipe.demos})")
     data, ckpt = work / "pickcube_data", checkpoint or work / "pickcube_act"
     log = work / "pickcube.log"
     if checkpoint is not None and not (data / "meta" / "info.json").exists():
         raise SystemExit(f"--checkpoint: {data} holds no dataset (the one the checkpoint was trained on)")
-    collected = collect(recipe, data, workers) if checkpoint is None else None
+    demo_seeds = _demo_seeds(recipe, _recorded_collection(work) if checkpoint is not None else None)
+    if seeds.start < demo_seeds.stop and demo_seeds.start < seeds.stop:
+        raise SystemExit(f"--eval-seeds {seeds.start}:{seeds.stop} overlaps the demonstration seeds "
+                         f"{demo_seeds.start}:{demo_seeds.stop}; evaluate on held-out seeds")
+    collected = collect(recipe, data, workers) if checkpoint is None else _recorded_collection(work)
     info = json.loads((data / "meta" / "info.json").read_text())
     train_wall = None
     if checkpoint is None:
@@ -206,8 +230,10 @@ def prove(recipe: Recipe, seeds: range, work: Path, train_s: float, device: str,
     policy = _eval(f"lerobot:{ckpt}", seeds, work / "eval_act", device, log, n_action_steps)
     planner = _eval("scripted", seeds, work / "eval_expert", device, log) if expert else None
     return {
-        "task": TASK, "scene": SCENE, "preset": PRESET, "recipe": asdict(recipe),
-        "demos": {"seeds": f"0:{recipe.demos}", "tail_steps_after_success": recipe.tail,
+        "task": TASK, "scene": SCENE, "preset": PRESET,
+        # a checkpoint trained elsewhere reports its own training config, not this script's recipe
+        "recipe": asdict(recipe) if checkpoint is None else {"tail": recipe.tail, **training["config"]},
+        "demos": {"seeds": f"{demo_seeds.start}:{demo_seeds.stop}", "tail_steps_after_success": recipe.tail,
                   "episodes_kept": info["total_episodes"], "frames": info["total_frames"],
                   "collect": collected,
                   "state_dim": info["features"]["observation.state"]["shape"][0],
@@ -234,6 +260,8 @@ def main() -> int:
     ap.add_argument("--n-action-steps", type=int, default=None,
                     help="evaluate executing this many actions per chunk (default: the checkpoint's)")
     ap.add_argument("--no-expert", action="store_true", help="skip the planner's own evaluation")
+    ap.add_argument("--collect-only", action="store_true", help="only collect the demonstrations into "
+                    "--work's pickcube_data (to train elsewhere: benchmarks/device/maniskill_train.sh)")
     ap.add_argument("--work", type=Path, default=None, help="keep the dataset, checkpoint and runs here "
                     "(default: a new temporary directory)")
     ap.add_argument("--checkpoint", type=Path, default=None, help="evaluate this checkpoint, trained on "
@@ -244,6 +272,9 @@ def main() -> int:
     recipe = Recipe(**{**asdict(Recipe()), **{k: v for k, v in overrides.items() if v is not None}})
     work = args.work or Path(tempfile.mkdtemp(prefix="maniskill_policy_"))
     work.mkdir(parents=True, exist_ok=True)
+    if args.collect_only:
+        print(json.dumps(collect(recipe, work / "pickcube_data", args.workers)))
+        return 0
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "train_budget_s": args.train_s, "work": str(work)}
     try:
@@ -255,11 +286,11 @@ def main() -> int:
     finally:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=2) + "\n")
-    d, t = report["demos"], report["training"]
+    d, t, rec = report["demos"], report["training"], report["recipe"]
     print(f"ManiSkill3 {TASK}, state ({d['state_dim']}-D), pd_joint_pos ({d['action_dim']}-D), "
           f"preset {PRESET} ({report['eval']['max_steps']} steps)")
     print(f"demos {d['episodes_kept']} (seeds {d['seeds']}, {d['frames']} frames, {d['tail_steps_after_success']} "
-          f"steps past success); training {t['steps']} steps x {recipe.batch_size} in {t['seconds']:.0f} s on "
+          f"steps past success); training {t['steps']} steps x {rec['batch_size']} in {t['seconds']:.0f} s on "
           f"{t['device']}, {t['n_params']} parameters, final loss {t['final_loss']:.4f}")
     print(f"{'policy':34} {'eval seeds':>12} {'success':>9} {'Wilson 95 %':>15} {'steps':>6} {'eval s':>7}")
     for key in ("eval", "expert"):
@@ -267,7 +298,7 @@ def main() -> int:
         if r is None:
             continue
         lo, hi = r["wilson95"]
-        name = f"ACT (chunk {recipe.chunk_size}, {r['n_action_steps'] or recipe.n_action_steps} per call)" \
+        name = f"ACT (chunk {rec['chunk_size']}, {r['n_action_steps'] or rec['n_action_steps']} per call)" \
             if key == "eval" else "motion planner (scripted)"
         print(f"{name:34} {r['seeds']:>12} {r['successes']:4d}/{r['episodes']:<4d} [{lo:.3f}, {hi:.3f}] "
               f"{r['mean_steps_to_success'] or 0:6.1f} {r['seconds']:7.0f}")
