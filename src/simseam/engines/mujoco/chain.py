@@ -60,6 +60,8 @@ class ChainForward:
         self._jacp, self._jacr = self._jac[:3], self._jac[3:]
         self._point = np.zeros(3)
         self._pose = np.eye(4)
+        n = len(jids)
+        self._normal, self._rhs = np.empty((n, n)), np.empty(n)  # dls_solve's system, rewritten by each call
         self._eyes: dict[tuple[int, float], np.ndarray] = {}
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,11 +75,12 @@ class ChainForward:
             point = self._point
             point[:] = self._xpos + self._xmat @ self._off_pos
             pose[:3, :3] = self._xmat @ self._off_rot
-        else:
+            mujoco.mj_jac(m, d, self._jacp, self._jacr, point, self._tip)
+        else:  # the tip body's origin: mj_jacBody is mj_jac there, with one array argument less to convert
             point = self._xpos  # a view of the tip body's position in d
             pose[:3, :3] = self._xmat
+            mujoco.mj_jacBody(m, d, self._jacp, self._jacr, self._tip)
         pose[:3, 3] = point
-        mujoco.mj_jac(m, d, self._jacp, self._jacr, point, self._tip)
         out = self._jac[:, self._dofs]
         if self._at_origin:
             return pose, out.copy() if isinstance(self._dofs, slice) else out
@@ -91,10 +94,9 @@ class ChainForward:
         with MuJoCo's small-matrix products and Cholesky solve (``jw``: float64, C order): the damped
         least squares system of the IK, without numpy's BLAS and LAPACK call overhead."""
         n = jw.shape[1]
-        m = np.empty((n, n))
+        m, b = (self._normal, self._rhs) if n == self._rhs.size else (np.empty((n, n)), np.empty(n))
         mujoco.mju_mulMatTMat(m, jw, jw)
         m += self._damped_eye(n, d2)
-        b = np.empty(n)
         mujoco.mju_mulMatTVec(b, jw, e)
         if z is not None:
             mujoco.mju_addToScl(b, z, d2)

@@ -383,6 +383,11 @@ class MujocoEngine:
         self._mocap = m.body_mocapid[self._root_body]
         self._body_ids = {name: m.body(name).id for name in self._robot_body_names}
         self._obj_body = {o.name: m.body(f"obj:{o.name}").id for o in self._objects}
+        # each body's pose as views of data's arrays (position, quaternion, rotation 3x3), made once:
+        # reading a pose is then two copies
+        xpos, xquat, xmat = self.data.xpos, self.data.xquat, self.data.xmat.reshape(-1, 3, 3)
+        self._link_views = {n: (xpos[b], xquat[b], xmat[b]) for n, b in self._body_ids.items()}
+        self._obj_views = {n: (xpos[b], xquat[b]) for n, b in self._obj_body.items()}
         self._obj_qadr = {
             o.name: m.jnt_qposadr[m.body_jntadr[self._obj_body[o.name]]] for o in self._objects if o.dynamic
         }
@@ -479,21 +484,21 @@ class MujocoEngine:
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         self._sync_poses()
-        try:
-            bid = self._body_ids[link]
-        except KeyError:
-            raise ConfigError(f"link {link!r} is not part of the robot; links: {', '.join(self._body_ids)}") from None
-        return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
+        pos, quat, _ = self._link(link)
+        return pos.copy(), quat.copy()
 
     def link_frame(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         """World frame of a robot link as (pos[3], rotation 3x3): ``link_pose`` with the rotation matrix
         MuJoCo's kinematics computed from the same quaternion (no conversion per call). Optional primitive."""
         self._sync_poses()
+        pos, _, rot = self._link(link)
+        return pos.copy(), rot.copy()
+
+    def _link(self, link: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         try:
-            bid = self._body_ids[link]
+            return self._link_views[link]
         except KeyError:
             raise ConfigError(f"link {link!r} is not part of the robot; links: {', '.join(self._body_ids)}") from None
-        return self.data.xpos[bid].copy(), self.data.xmat[bid].reshape(3, 3).copy()
 
     def set_root_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
         if self._mocap >= 0:
@@ -514,8 +519,11 @@ class MujocoEngine:
 
     def object_pose(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         self._sync_poses()
-        bid = self._obj(name)
-        return self.data.xpos[bid].copy(), self.data.xquat[bid].copy()
+        try:
+            pos, quat = self._obj_views[name]
+        except KeyError:
+            raise ConfigError(f"unknown object {name!r}; objects: {', '.join(self._obj_body)}") from None
+        return pos.copy(), quat.copy()
 
     def set_object_pose(self, name: str, pos: np.ndarray, quat: np.ndarray) -> None:
         self._obj(name)
@@ -540,7 +548,7 @@ class MujocoEngine:
         return vel
 
     def step(self, n_substeps: int) -> None:
-        mujoco.mj_step(self.model, self.data, nstep=int(n_substeps))
+        mujoco.mj_step(self.model, self.data, int(n_substeps))  # nstep positional: a keyword costs the binding more
         # mj_step integrates qpos/qvel last, so poses, cameras and contacts describe the state
         # one substep earlier; they are recomputed (mj_forward, a pure function of the state, so
         # the trajectory is unchanged) the first time something reads them.
@@ -611,6 +619,7 @@ class MujocoEngine:
             self._renderer = None
         self.data = None
         self._bad_qacc = self._qpos = self._qvel = self._ctrl = None
+        self._link_views, self._obj_views = {}, {}
         self.model = None
 
 
