@@ -81,12 +81,16 @@ def axis_angle_to_matrix(v) -> np.ndarray:
 
 def axis_angle_times(v, r: np.ndarray) -> np.ndarray:
     """``axis_angle_to_matrix(v) @ r``, the product formed in Python floats (cheaper than a 3x3 BLAS call)."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = _rodrigues(*np.asarray(v, dtype=np.float64).tolist())
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = np.asarray(r).tolist()
-    return np.array([
-        [a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22],
-        [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22],
-        [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22]])
+    return np.array(axis_angle_times_rows(*np.asarray(v, dtype=np.float64).tolist(), np.asarray(r).tolist()))
+
+
+def axis_angle_times_rows(x: float, y: float, z: float, r: list) -> list[list[float]]:
+    """``axis_angle_times([x, y, z], r)`` with ``r`` and the result nested lists (no numpy call)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = _rodrigues(x, y, z)
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = r
+    return [[a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22],
+            [a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22],
+            [a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22]]
 
 
 def _rodrigues(x: float, y: float, z: float) -> list[list[float]]:
@@ -117,11 +121,17 @@ def matrix_to_axis_angle(m: np.ndarray, reference) -> np.ndarray:
     the vector runs smoothly through pi near it, as LIBERO's ``quat2axisangle`` of MuJoCo's body
     quaternion does; the jump moves to the rotations half a turn away from the reference.
     """
-    w, x, y, z = _quat_of(np.asarray(m).tolist())
-    rw, rx, ry, rz = np.asarray(reference, dtype=np.float64).tolist()
+    return np.array(axis_angle_of(np.asarray(m).tolist(), np.asarray(reference, dtype=np.float64).tolist()))
+
+
+def axis_angle_of(m: list, reference) -> tuple[float, float, float]:
+    """``matrix_to_axis_angle`` of a nested list, ``reference`` four Python floats, the result three
+    (for callers that go on in floats: no numpy call)."""
+    w, x, y, z = _quat_of(m)
+    rw, rx, ry, rz = reference
     if w * rw + x * rx + y * ry + z * rz < 0.0:
         w, x, y, z = -w, -x, -y, -z
-    return np.array(_axis_angle_of(w, x, y, z))
+    return _axis_angle_of(w, x, y, z)
 
 
 def quat_to_axis_angle(q) -> np.ndarray:
@@ -146,8 +156,13 @@ def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
 def rotation_error_of(target: np.ndarray, current: np.ndarray) -> tuple[float, float, float]:
     """``rotation_error`` as three Python floats (for callers that go on in floats). The product
     ``target @ current.T`` is formed in Python floats too: cheaper than a 3x3 BLAS call, per step."""
-    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = np.asarray(target).tolist()
-    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = np.asarray(current).tolist()
+    return rotation_error_rows(np.asarray(target).tolist(), np.asarray(current).tolist())
+
+
+def rotation_error_rows(target: list, current: list) -> tuple[float, float, float]:
+    """``rotation_error_of`` of two 3x3 nested lists (no numpy call)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = target
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = current
     m00, m11 = a00 * b00 + a01 * b01 + a02 * b02, a10 * b10 + a11 * b11 + a12 * b12
     m22 = a20 * b20 + a21 * b21 + a22 * b22
     m01, m10 = a00 * b10 + a01 * b11 + a02 * b12, a10 * b00 + a11 * b01 + a12 * b02
@@ -162,6 +177,21 @@ def rotation_error_of(target: np.ndarray, current: np.ndarray) -> tuple[float, f
         k = angle / (2.0 * math.sin(angle))
         return vx * k, vy * k, vz * k
     return _axis_angle_of(*_quat_of([[m00, m01, m02], [m10, m11, m12], [m20, m21, m22]]))  # near pi: quaternion
+
+
+def rotation_angle_rows(a: list, b: list) -> float:
+    """The angle (rad, in [0, pi]) of the rotation between two 3x3 nested lists: of ``a @ b.T``, whose
+    trace is the sum of the elementwise products (no numpy call, no rotation vector)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    tr = a00 * b00 + a01 * b01 + a02 * b02 + a10 * b10 + a11 * b11 + a12 * b12 + a20 * b20 + a21 * b21 + a22 * b22
+    return math.acos(min(max((tr - 1.0) * 0.5, -1.0), 1.0))
+
+
+def pose_rows(t: np.ndarray) -> tuple[list[float], list[list[float]]]:
+    """A 4x4 pose as Python floats: (position[3], rotation rows 3x3), for callers that go on in floats."""
+    (r00, r01, r02, x), (r10, r11, r12, y), (r20, r21, r22, z), _ = t.tolist()
+    return [x, y, z], [[r00, r01, r02], [r10, r11, r12], [r20, r21, r22]]
 
 
 def make_transform(pos, rot: np.ndarray) -> np.ndarray:

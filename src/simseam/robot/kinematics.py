@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from simseam.math3d import rotation_error_of, rpy_to_matrix
+from simseam.math3d import pose_rows, rotation_error_rows, rpy_to_matrix
 from simseam.robot.urdf import MOVABLE, UrdfJoint, UrdfModel
 from simseam.seam import ConfigError, RobotFacts
 
@@ -171,7 +171,7 @@ class SerialChain:
             jac[3:, self._q_from_names] = zs.T
         return tip, jac
 
-    def solve(self, q_start: np.ndarray, target_pos: np.ndarray, target_rot: np.ndarray, *,
+    def solve(self, q_start: np.ndarray, target_pos: np.ndarray | list, target_rot: np.ndarray | list, *,
               max_iters: int = 1, pos_tol: float = 2e-4, rot_tol: float = 2e-3,
               rot_weight: float = 0.5, damping: float = 0.02, q_rest: np.ndarray | None = None,
               rest_gain: float = 0.05, start_fk: tuple[np.ndarray, np.ndarray] | None = None) -> IKResult:
@@ -185,19 +185,23 @@ class SerialChain:
         With redundancy the null space pulls gently towards ``q_rest``.
         ``pos_error``/``rot_error`` are measured at the last evaluated ``q``
         (before the final step when ``max_iters`` ran out). ``start_fk`` is
-        ``forward(q_start)`` when the caller already has it.
+        ``forward(q_start)`` when the caller already has it. The target may come as arrays or as
+        Python floats (a list, nested for the rotation).
         """
         lower, upper = self.lower, self.upper
         q = np.minimum(np.maximum(np.asarray(q_start, dtype=np.float64), lower), upper)  # np.clip, cheaper
+        # the task error is formed in Python floats: 3-vectors cost less there than as numpy calls
+        tx, ty, tz = target_pos.tolist() if isinstance(target_pos, np.ndarray) else target_pos
+        target_rot = target_rot.tolist() if isinstance(target_rot, np.ndarray) else target_rot
         step = self._dls_step if self.n >= 6 else self._priority_step
         pull = q_rest is not None and self.n > 6
         ep = er = np.inf
         it = 0
         for it in range(max_iters):
             t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
-            # the task error in Python floats: 3-vectors cost less there than as numpy calls
-            px, py, pz = (target_pos - t[:3, 3]).tolist()
-            rx, ry, rz = rotation_error_of(target_rot, t[:3, :3])
+            (x, y, z), rot = pose_rows(t)
+            px, py, pz = tx - x, ty - y, tz - z
+            rx, ry, rz = rotation_error_rows(target_rot, rot)
             ep, er = math.sqrt(px * px + py * py + pz * pz), math.sqrt(rx * rx + ry * ry + rz * rz)
             if ep < pos_tol and er < rot_tol:
                 break

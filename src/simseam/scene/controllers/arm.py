@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from simseam.math3d import axis_angle_times, rotation_error_of
+from simseam.math3d import axis_angle_times_rows, pose_rows, rotation_angle_rows
 from simseam.robot.kinematics import IKResult, SerialChain
 from simseam.seam import ActionSlot, ControlMode
 
@@ -28,11 +28,6 @@ CARTESIAN_NAMES = ("dx", "dy", "dz", "dax", "day", "daz")
 REANCHOR_POS = 0.015  # m: tracking error beyond which a Cartesian delta restarts from the measured pose
 REANCHOR_ROT = 0.1  # rad
 ROT_WEIGHT = 0.5  # m/rad: orientation error weight in the IK
-
-
-def _norm(v: np.ndarray) -> float:
-    """``np.linalg.norm`` of a vector (the same bits), without its per-call overhead."""
-    return math.sqrt(v.dot(v))
 
 
 class ArmController:
@@ -81,7 +76,8 @@ class CartesianDeltaArm(ArmController):
         self.slots = tuple(ActionSlot(n, "arm", -1.0, 1.0, unit_t if i < 3 else unit_r)
                            for i, n in enumerate(CARTESIAN_NAMES))
         self.last_ik: IKResult | None = None
-        self._ref: tuple[np.ndarray, np.ndarray] | None = None
+        #: the pose the next delta adds to: (position[3], rotation rows 3x3), Python floats
+        self._ref: tuple[list[float], list[list[float]]] | None = None
 
     def reset(self) -> None:
         self._ref = None
@@ -90,15 +86,17 @@ class CartesianDeltaArm(ArmController):
     def targets(self, values: np.ndarray, q_prev: np.ndarray, eef: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """Arm targets for a delta already in [-1, 1]; ``q_prev``: the last arm targets;
         ``eef``: the measured tool pose (pos, rot) in the base frame."""
-        pos, rot = eef
+        # the poses in Python floats: 3-vectors and 3x3s cost less there than as numpy calls
+        pos, rot = eef[0].tolist(), eef[1].tolist()
         fk = self.chain.forward(q_prev)  # the pose the last command asked for (reachable by construction)
-        ref, t = self._ref, fk[0]
-        if ref is None or (_norm(t[:3, 3] - pos) > REANCHOR_POS
-                           or math.hypot(*rotation_error_of(t[:3, :3], rot)) > REANCHOR_ROT):
-            ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
-        delta = values * self._scale  # [m, m, m, rad, rad, rad]
-        tgt_pos = ref[0] + delta[:3]
-        tgt_rot = axis_angle_times(delta[3:6], ref[1])
+        asked_pos, asked_rot = pose_rows(fk[0])
+        if self._ref is None or (math.dist(asked_pos, pos) > REANCHOR_POS
+                                 or rotation_angle_rows(asked_rot, rot) > REANCHOR_ROT):
+            self._ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
+        (x, y, z), ref_rot = self._ref
+        dx, dy, dz, ax, ay, az = (values * self._scale).tolist()  # [m, m, m, rad, rad, rad]
+        tgt_pos = [x + dx, y + dy, z + dz]
+        tgt_rot = axis_angle_times_rows(ax, ay, az, ref_rot)
         ik = self.chain.solve(q_prev, tgt_pos, tgt_rot, max_iters=self.ik_iters, rot_weight=ROT_WEIGHT,
                               q_rest=self.q_home, start_fk=fk)
         self.last_ik = ik
