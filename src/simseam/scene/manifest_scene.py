@@ -144,6 +144,7 @@ class ManifestScene:
         self._index_joints()
         tcp = robot.tcp
         # The tool frame: a URDF link, or a manifest tcp fixed to one (composed here, engines never see it).
+        self._tool_parent = robot.tool_parent  # what every step reads the measured tool frame from
         self._tool_rot = rpy_to_matrix(tcp.rpy) if tcp else np.eye(3)
         self._tool_pos = np.asarray(tcp.xyz, dtype=np.float64) if tcp else np.zeros(3)
         self._tip_offset = make_transform(self._tool_pos, self._tool_rot) if tcp else None
@@ -154,9 +155,13 @@ class ManifestScene:
         #: the home tool orientation (base frame, a quaternion of fixed sign): the state's axis-angle
         #: is continuous around it (``math3d.matrix_to_axis_angle``)
         self.rot_reference = sign_reference(matrix_to_quat(self.chain.forward(self._home[self._arm_idx])[0][:3, :3]))
+        self._rot_reference = tuple(self.rot_reference.tolist())  # as Task.state takes it
         self.task = task_cls(robot, self.chain.tabletop_reach(), self.chain)
         self.task.check_robot()
         self._make_controllers(mode)
+        # where each controller's slots lie in an action, read from the spec once (every step splits one)
+        spec = self.action_spec
+        self._act_arm, self._act_grip, self._act_base = spec.arm, spec.grip, spec.base
         base_pos, base_yaw = self.task.robot_base()
         self._base_pos = np.asarray(base_pos, dtype=np.float64)
         self._base_rot = quat_to_matrix(yaw_quat(base_yaw))
@@ -311,6 +316,7 @@ class ManifestScene:
         t = self.task
         privileged = t.object_names() if opts.privileged else None
         self._state_names = t.state_names()
+        self._state_dim = len(self._state_names)
         env_state = t.env_state_names() if opts.environment_state else None
         if env_state == ():
             raise ConfigError(f"task {task!r} tracks no object: it has no environment_state to observe")
@@ -356,12 +362,11 @@ class ManifestScene:
         if not self._episode_ready:
             raise SimulationError("step() called before reset()")
         a = self.action_spec.clip(self.action_spec.validate(action))
-        arm, grip, base = self.action_spec.unpack(a)
         target = self._q_target
-        target[self._arm_idx] = self.arm.targets(arm, target[self._arm_idx], self._eef)
+        target[self._arm_idx] = self.arm.targets(a[self._act_arm], target[self._arm_idx], self._eef)
         if self.gripper is not None:
-            target[self._grip_sel] = self.gripper.targets(grip)
-        self._servo(target, base)
+            target[self._grip_sel] = self.gripper.targets(float(a[self._act_grip]))
+        self._servo(target, None if self._act_base is None else a[self._act_base])
         self._steps += 1
         obs = self._observe(observe or _FULL)
         ev = self.task.evaluate(self)
@@ -401,9 +406,9 @@ class ManifestScene:
     def _tool_world(self) -> tuple[np.ndarray, np.ndarray]:
         """Measured tool frame in the world: (pos[3], rot[3x3]); a tcp's offset composed on its parent link."""
         if self._link_frame is not None:
-            p, r = self._link_frame(self.robot.tool_parent)
+            p, r = self._link_frame(self._tool_parent)
         else:
-            p, q = self.engine.link_pose(self.robot.tool_parent)
+            p, q = self.engine.link_pose(self._tool_parent)
             r = quat_to_matrix(q)
         if self.robot.tcp is None:
             return p, r
@@ -419,7 +424,7 @@ class ManifestScene:
 
     def eef_position_world(self) -> np.ndarray:
         """Measured tool position in the world (pos[3]): ``eef_pose_world()[0]`` without its rotation."""
-        p, q = self.engine.link_pose(self.robot.tool_parent)
+        p, q = self.engine.link_pose(self._tool_parent)
         return p if self.robot.tcp is None else p + quat_to_matrix(q) @ self._tool_pos
 
     def eef_pose_world(self) -> tuple[np.ndarray, np.ndarray]:
@@ -497,8 +502,8 @@ class ManifestScene:
         eng = self.engine
         q = eng.joint_positions()
         self._eef = pos, rot = self.eef_pose_base()
-        state = np.empty(len(self._state_names), dtype=np.float32)
-        self.task.state(pos, rot, q[self._grip_sel], state, self.rot_reference)
+        state = np.empty(self._state_dim, dtype=np.float32)
+        self.task.state(pos, rot, q[self._grip_sel], state, self._rot_reference)
         images = {}
         self._frame = None
         if self.options.render_images:

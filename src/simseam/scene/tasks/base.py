@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
-from simseam.math3d import matrix_to_axis_angle
+from simseam.math3d import axis_angle_of
 from simseam.robot.spec import RobotSpec
 from simseam import registry
 from simseam.seam import ConfigError
@@ -31,10 +31,11 @@ TABLE_HALF = (0.55, 0.7, TABLE_TOP / 2)
 TABLE_CENTER_X = 0.35  # table centre in front of the robot base (m)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Evaluation:
     """A task's judgement after a control step: ``diagnostics`` maps each name in
-    ``Task.diagnostics`` to a float (SI units) or a bool."""
+    ``Task.diagnostics`` to a float (SI units) or a bool. Slotted, not frozen: made every step, and a
+    frozen dataclass's ``__init__`` sets each field through ``object.__setattr__``."""
 
     reward: float
     success: bool
@@ -135,10 +136,8 @@ class Task:
               rot_reference: np.ndarray) -> None:
         """Fill ``out`` (float32[len(state_names())]) from the measured tool pose (base frame) and
         the gripper finger positions; the axis-angle is continuous around ``rot_reference`` (the
-        robot's home tool orientation, a quaternion: ``math3d.matrix_to_axis_angle``)."""
-        out[:3] = eef_pos
-        out[3:6] = matrix_to_axis_angle(eef_rot, rot_reference)
-        out[6:] = gripper_q
+        robot's home tool orientation, a quaternion of Python floats: ``math3d.matrix_to_axis_angle``)."""
+        out[:] = [*eef_pos.tolist(), *axis_angle_of(eef_rot.tolist(), rot_reference), *gripper_q.tolist()]
 
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
         """Reward, success and diagnostics after a control step."""

@@ -49,12 +49,12 @@ class LiftCube(Task):
 
     def evaluate(self, scene) -> Evaluation:
         eng = scene.engine
-        pos, _ = eng.object_pose("cube")
-        height = float(pos[2] - self.rest_z)
-        success = bool(height > LIFT_HEIGHT)
+        pos = eng.object_pose("cube")[0].tolist()  # plain floats: the same numbers, fewer numpy calls
+        height = pos[2] - self.rest_z
+        success = height > LIFT_HEIGHT
         eef = scene.eef_position_world()
         return Evaluation(float(success), success, {
             "cube_height": height,  # m above its resting height
-            "eef_to_cube": math.dist(eef.tolist(), pos.tolist()),  # m, tool frame to cube centre (plain floats)
+            "eef_to_cube": math.dist(eef.tolist(), pos),  # m, tool frame to cube centre
             "grasped": height > 0.005 and bool(eng.contacts_between("cube", "robot")),  # contacts: only when lifted
         })
