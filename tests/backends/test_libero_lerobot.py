@@ -1,0 +1,111 @@
+"""LIBERO through the seam is LIBERO as LeRobot evaluates it: the real LeRobot 0.4.4 ``LiberoEnv``
+(``make_env``, ``make_env_pre_post_processors``' ``LiberoProcessorStep``, ``lerobot_eval.rollout``) on the
+same libero package the backend runs, in a subprocess of the LIBERO venv's interpreter with the main
+venv's site-packages appended (tests/backends/lerobot_libero_episode.py; it never imports simseam),
+against simseam's ``libero`` backend through its sidecar, same task, initial state and actions.
+
+What a LeRobot policy is shown (its images back in uint8, its 8-D float32 ``observation.state``) and
+what simseam's observation holds are compared per step: both cameras pixel-exact (so the 180 degree
+rotation agrees), the state's position and gripper bit-exact and its axis-angle within 4 float32 ulp
+(LeRobot converts the quaternion in float32, simseam in float64 then rounds: measured <= 2 ulp,
+<= 2.4e-7), reward / success / termination at the same step.
+
+The seed is part of the episode: LIBERO's reset places the fixtures that have no joint (libero_spatial's
+stove and wooden cabinet) from NumPy's global generator, which ``env.seed`` seeds, and the initial state
+does not cover them. Episode ``e`` of ``lerobot-eval --seed=1000`` (initial state ``e``, ``env.seed(1000 +
+e)``) is therefore episode ``e`` of ``simseam eval --seed 1000`` (seed ``1000 + e``: initial state ``(1000
++ e) % 50 = e``, ``env.seed(1000 + e)``), compared here for e = 0; simseam's default ``--seed 0`` starts
+the robot and the objects identically but moves the fixtures (shown too).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sysconfig
+from pathlib import Path
+
+import numpy as np
+import pytest
+from backend_util import backend_python
+
+pytestmark = pytest.mark.backends
+
+HERE = Path(__file__).resolve().parent
+LEROBOT_SEED = 1000  # lerobot-eval's default --seed: its episode e runs env.reset(seed=1000 + e), initial state e
+CASES = [("libero_spatial", 3), ("libero_goal", 8)]
+
+
+def actions(n: int = 8) -> np.ndarray:
+    """Distinct on every axis (a swapped or sign-flipped axis shows), the gripper open (-1) then closed (+1)."""
+    a = np.empty((n, 7), dtype=np.float32)
+    a[:, :6] = [0.6, -0.4, 0.3, 0.25, -0.15, 0.35]
+    a[n // 2:, :6] *= -0.5
+    a[:, 6] = np.where(np.arange(n) < n // 2, -1.0, 1.0)
+    return a
+
+
+@pytest.fixture(scope="module")
+def lerobot_episodes(tmp_path_factory):
+    """{(suite, task): the LeRobot episode's arrays}, one subprocess for all cases."""
+    python = backend_python("libero")
+    tmp = tmp_path_factory.mktemp("lerobot_libero")
+    np.save(tmp / "actions.npy", actions())
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
+    env.update(MUJOCO_GL=env.get("MUJOCO_GL", "egl"), HF_HUB_OFFLINE="1", OMP_NUM_THREADS="1")
+    jobs = [f"{suite}/{task}/{LEROBOT_SEED}" for suite, task in CASES]
+    out = subprocess.run([python, str(HERE / "lerobot_libero_episode.py"), sysconfig.get_paths()["purelib"],
+                          str(tmp / "actions.npy"), str(tmp), *jobs],
+                         capture_output=True, text=True, env=env, timeout=560)
+    assert out.returncode == 0, f"LeRobot's LIBERO episode failed:\n{out.stderr[-4000:]}"
+    episodes = {}
+    for suite, task in CASES:
+        with np.load(tmp / f"{suite}_{task}_{LEROBOT_SEED}.npz") as z:
+            episodes[suite, task] = {k: z[k] for k in z.files}
+    return episodes
+
+
+@pytest.mark.parametrize("suite, task", CASES)
+def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suite, task):
+    lr = lerobot_episodes[suite, task]
+    acts = actions()
+    n = len(acts)
+    assert lr["image"].shape == (n, 256, 256, 3) and lr["state"].shape == (n, 8) and lr["state"].dtype == np.float32
+    r = open_backend("libero", {"suite": suite, "task": task})  # the preset's settings: 256x256, 10 settle steps
+    assert str(lr["task"]) == r.spec.task.instruction
+    other = r.reset(LEROBOT_SEED % 50)  # simseam eval --seed 0's episode 0: initial state 0, env.seed(0)
+    other = {"image": np.array(other["images"]["camera1"]), "state": np.array(other["state"])}
+    obs = r.reset(LEROBOT_SEED)  # simseam eval --seed 1000's episode 0: lerobot-eval's first episode
+    seam = {"image": [np.array(obs["images"]["camera1"])], "wrist": [np.array(obs["images"]["camera2"])],
+            "state": [np.array(obs["state"])], "reward": [], "success": [], "terminated": []}
+    for i, a in enumerate(acts):
+        res = r.step(a)
+        if i + 1 < n:  # the policy sees the observations before each of its n actions
+            seam["image"].append(np.array(res.observation["images"]["camera1"]))
+            seam["wrist"].append(np.array(res.observation["images"]["camera2"]))
+            seam["state"].append(np.array(res.observation["state"]))
+        seam["reward"].append(res.reward)
+        seam["success"].append(res.info["success"])
+        seam["terminated"].append(res.terminated)
+    seam = {k: np.asarray(v) for k, v in seam.items()}
+
+    for t in range(n):  # images: pixel-exact, rotation included, both cameras
+        np.testing.assert_array_equal(seam["image"][t], lr["image"][t], err_msg=f"agentview, step {t}")
+        np.testing.assert_array_equal(seam["wrist"][t], lr["wrist"][t], err_msg=f"wrist, step {t}")
+    assert seam["state"].dtype == np.float32
+    np.testing.assert_array_equal(seam["state"][:, [0, 1, 2, 6, 7]], lr["state"][:, [0, 1, 2, 6, 7]])
+    np.testing.assert_array_max_ulp(seam["state"][:, 3:6], lr["state"][:, 3:6], maxulp=4)  # LeRobot: float32 math
+    np.testing.assert_array_equal(seam["reward"], lr["reward"])
+    np.testing.assert_array_equal(seam["success"], lr["success"])
+    np.testing.assert_array_equal(seam["terminated"][:-1], lr["done"][:-1])  # lr's last: its step limit
+    # not vacuous: the arm moved on every axis, the axis-angle too, the fingers opened and then closed
+    assert np.all(np.ptp(seam["state"][:, :6], axis=0) > 1e-3)
+    fingers = seam["state"][:, 6] - seam["state"][:, 7]
+    assert fingers[n // 2] > fingers[-1] + 0.003, "the +1 (close) half did not close the gripper"
+    assert not np.array_equal(seam["image"][0], seam["image"][-1])
+    # the seed moves the fixtures only: the same robot and objects, another picture
+    np.testing.assert_array_equal(other["state"], seam["state"][0])
+    assert not np.array_equal(other["image"], seam["image"][0])
+    # the one documented difference: LeRobot's step limit for the suite is its own
+    assert int(lr["default_max_steps"]) == {"libero_spatial": 280, "libero_goal": 300}[suite]
+    assert r.spec.task.max_steps == {"libero_spatial": 220, "libero_goal": 300}[suite]
