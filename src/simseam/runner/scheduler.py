@@ -267,22 +267,30 @@ def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, vi
     step_ms = (time.perf_counter() - t0) * 1e3
     fails = batch.failures()
     ended = []
+    playing, success_key, max_steps = episodes.playing, spec.task.success_key, spec.task.max_steps
+    frames = videos.writers  # the environments whose frames the scheduler writes (none: skip the call)
+    # Python scalars once per step (the same values a per-element float()/bool() of the arrays gives)
+    rewards, terminated, truncated = (np.asarray(x).tolist() for x in (r.reward, r.terminated, r.truncated))
+    observations, infos = r.observations, r.infos
     for k, env in enumerate(busy):
-        if env in fails:
+        if fails and env in fails:
             failed(env, fails[env])
             continue
-        res = episodes.playing[env]
+        res = playing[env]
         res.steps += 1
-        res.reward += float(r.reward[k])
+        res.reward += rewards[k]
         res.step_ms.append(step_ms)
         res.policy_ms.append(policy_ms)
-        res.success |= bool(r.infos[k].get(spec.task.success_key))
-        obs[env] = r.observations[k]
-        videos.frame(env)
+        info = infos[k]
+        if info.get(success_key):
+            res.success = True
+        obs[env] = observations[k]
+        if frames:
+            videos.frame(env)
         if on_step:
             on_step(env, res.index, res.steps)
-        if r.terminated[k] or r.truncated[k] or res.steps >= spec.task.max_steps:
-            res.diagnostics = dict(r.infos[k].get(INFO_DIAGNOSTICS) or {})
+        if terminated[k] or truncated[k] or res.steps >= max_steps:
+            res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
             ended.append((env, res))
     return ended
 

@@ -543,6 +543,9 @@ class _Slot:
     writer: Any = None
     video_path: Any = None
     pipe_poll: Any = None  # a select.poll on conn: the busy-poll for its reply (lockstep)
+    fd: int = -1  # conn's file descriptor
+    sentinel: int = -1  # the process's sentinel (readable when it has ended)
+    waiter: Any = None  # a select.poll on conn and the sentinel: waiting for its reply
 
 
 class VectorEnv:
@@ -594,6 +597,10 @@ class VectorEnv:
         proc.start()
         child.close()
         s.proc, s.conn, s.state = proc, parent, BOOTING
+        s.fd, s.sentinel = parent.fileno(), proc.sentinel
+        s.waiter = select.poll()
+        s.waiter.register(s.fd, select.POLLIN)
+        s.waiter.register(s.sentinel, select.POLLIN)
         if self.spin_us:
             s.pipe_poll = select.poll()
             s.pipe_poll.register(parent.fileno(), select.POLLIN)
@@ -667,10 +674,53 @@ class VectorEnv:
         if spin and s.pipe_poll is not None:
             spin_until_readable(s.pipe_poll, self.spin_us * 1e-6)
         while True:
-            ready = wait_any([s.conn, s.proc.sentinel])
-            msg = self._recv(s, readable=s.conn in ready)
+            ready = s.waiter.poll()  # its pipe, or its end (the sentinel)
+            msg = self._recv(s, readable=any(fd == s.fd for fd, _ in ready))
             if msg is None or msg[0] != "nothing":
                 return msg
+
+    def _replies(self, slots: list[_Slot], spin: bool = False) -> list:
+        """The workers' replies to the commands just sent to ``slots``, in their order (None: the worker
+        died), each read as soon as it arrives (a slow worker does not hold up reading the others'). With
+        ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
+        if len(slots) == 1:
+            return [self._reply(slots[0], spin)]
+        out: list = [None] * len(slots)
+        poll = select.poll()
+        where: dict[int, int] = {}
+        for j, s in enumerate(slots):
+            poll.register(s.fd, select.POLLIN)
+            poll.register(s.sentinel, select.POLLIN)
+            where[s.fd] = where[s.sentinel] = j
+        left = len(slots)
+        spin_s = self.spin_us * 1e-6 if spin else 0.0
+        deadline = time.perf_counter() + spin_s if spin_s else 0.0
+        while left:
+            if spin_s:
+                ready = poll.poll(0)
+                if not ready:
+                    if time.perf_counter() < deadline:
+                        os.sched_yield()
+                        continue
+                    ready = poll.poll()
+            else:
+                ready = poll.poll()
+            for fd, _ in ready:
+                j = where.get(fd)
+                if j is None:  # this slot's other descriptor, in the same batch: answered already
+                    continue
+                s = slots[j]
+                msg = self._recv(s, readable=fd == s.fd)
+                if msg is not None and msg[0] == "nothing":
+                    continue
+                out[j] = msg
+                left -= 1
+                del where[s.fd], where[s.sentinel]
+                poll.unregister(s.fd)
+                poll.unregister(s.sentinel)
+                if spin_s:
+                    deadline = time.perf_counter() + spin_s  # the next reply's own budget
+        return out
 
     def _replace(self, s: _Slot) -> int | None:
         """``s``'s worker died: a fresh one takes its place. Returns the dead one's exit code."""
@@ -719,7 +769,7 @@ class VectorEnv:
     # -- the batch (seam/batch.py)
     def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list:
         self._check_open()
-        idx = env_indices(envs, self.num_envs, "reset").tolist()
+        idx = self._envs(envs, "reset")
         seeds = list(seeds)
         if len(seeds) != len(idx):
             raise ConfigError(f"reset: {len(idx)} environments but {len(seeds)} seeds")
@@ -734,31 +784,49 @@ class VectorEnv:
                 video = None
             s.recording = video is not None
             self._send(s, ("reset", seed, want, video))
-        answers = [self._answer(s, self._reply(s)) for s in slots]
+        answers = [self._answer(s, msg) for s, msg in zip(slots, self._replies(slots))]
         out = [None if a is None else a[0] for a in answers]
         self._draw(slots, out)
         return out
 
     def step(self, envs: Sequence[int], actions, observe=None) -> BatchStepResult:
         self._check_open()
-        idx = env_indices(envs, self.num_envs, "step").tolist()
+        idx = self._envs(envs, "step")
+        k = len(idx)
         a = np.asarray(actions, dtype=np.float32)
-        if a.shape != (len(idx), self.spec.action_dim) or not np.isfinite(a).all():
-            batch_actions(self.spec, actions, len(idx))  # the InvalidActionError naming the row
-        requests = per_env_requests(observe, len(idx), "step")
+        if a.shape != (k, self.spec.action_dim) or not np.isfinite(a).all():
+            batch_actions(self.spec, actions, k)  # the InvalidActionError naming the row
+        requests = per_env_requests(observe, k, "step")
         slots = [self.slots[e] for e in idx]
+        central = self.central
         for s, row, want in zip(slots, a, requests):
-            if self.central is not None:
+            if central is not None:
                 s.want, want = want, worker_request(want)
             self._step(s, row, want)
-        answers = [self._answer(s, self._reply(s, spin=bool(self.spin_us))) for s in slots]
-        obs = [None if x is None else x[0] for x in answers]
+        obs, rewards, terminated, truncated, infos = [], [], [], [], []
+        for s, msg in zip(slots, self._replies(slots, spin=bool(self.spin_us))):
+            if msg is not None and msg[0] == "obs" and central is None:  # the usual reply, as _answer takes it
+                o, (reward, term, trunc, info) = msg[1], msg[2]
+            else:
+                x = self._answer(s, msg)
+                o, (reward, term, trunc, info) = (None, (0.0, False, False, {})) if x is None else x
+            obs.append(o)
+            rewards.append(reward)
+            terminated.append(term)
+            truncated.append(trunc)
+            infos.append(info)
         self._draw(slots, obs)
-        rest = [(0.0, False, False, {}) if x is None else x[1] for x in answers]
-        return BatchStepResult(np.asarray(idx, dtype=np.int64), obs,
-                               np.array([r[0] for r in rest], dtype=np.float64),
-                               np.array([r[1] for r in rest], dtype=bool),
-                               np.array([r[2] for r in rest], dtype=bool), [r[3] for r in rest])
+        return BatchStepResult(np.array(idx, dtype=np.int64), obs, np.array(rewards, dtype=np.float64),
+                               np.array(terminated, dtype=bool), np.array(truncated, dtype=bool), infos)
+
+    def _envs(self, envs: Sequence[int], where: str) -> list[int]:
+        """``envs`` as a list of distinct indices in ``[0, num_envs)`` (``env_indices``' rule; a list of
+        Python ints, what the scheduler passes, is checked without numpy)."""
+        if type(envs) is list:
+            n = self.num_envs
+            if all(type(e) is int and 0 <= e < n for e in envs) and len(set(envs)) == len(envs):
+                return envs
+        return env_indices(envs, self.num_envs, where).tolist()
 
     def render(self, env: int) -> np.ndarray | None:
         self._check_open()
@@ -976,7 +1044,7 @@ class VectorEnv:
                 and getattr(action, "shape", None) == block.action.shape):
             block.action[:] = action
             try:
-                os.write(s.conn.fileno(), _FAST_STEP_FRAMES[0 if request is None else 1])
+                os.write(s.fd, _FAST_STEP_FRAMES[0 if request is None else 1])
             except (OSError, ValueError):
                 pass  # a dead worker: its sentinel tells the loop
             return
