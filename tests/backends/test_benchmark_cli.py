@@ -126,14 +126,18 @@ def test_benchmarks_list_shows_tasks_and_instructions():
     assert "metaworld_mt10" in proc.stdout
 
 
-def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path):
+def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path, run_native):
     """simseam eval libero_spatial --policy remote:...?format=libero against an openpi-style server
     (openpi_client's own packer): the keys, 224x224 resized upright images, 8-D state, the task's
-    instruction, one request per 5-action chunk; results through the run directory."""
+    instruction, one request per 5-action chunk; results through the run directory. The content is
+    what openpi's examples/libero/main.py sends: the native env's frames rotated (``[::-1, ::-1]``),
+    through openpi_client's own ``image_tools.convert_to_uint8(resize_with_pad(img, 224, 224))``,
+    pixel-exact, and its state ``concat(eef_pos, quat2axisangle(eef_quat), gripper_qpos)`` (sent as
+    float32: equal to openpi's float64 values rounded to float32)."""
     import threading
 
     import numpy as np
-    from openpi_client import msgpack_numpy
+    from openpi_client import image_tools, msgpack_numpy
     from websockets.sync.server import serve
 
     backend_python("libero")
@@ -170,6 +174,18 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path):
         assert first[key].shape == (224, 224, 3) and first[key].dtype == np.uint8
     assert first["observation/state"].shape == (8,)
     assert summary["spec"]["observation"]["images"]["entries"]["camera1"]["shape"] == [256, 256, 3]
+    # the content, against the native env driven as openpi's client drives it (episode 0: seed 0, initial
+    # state 0), the server's actions replayed; requests at steps 0, 5, 10
+    dummy = np.tile(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0], dtype=np.float32), (10, 1))
+    native = run_native("libero", {"suite": "libero_spatial", "task": 3, "image_size": [256, 256],
+                                   "settle_steps": 10}, 0, dummy)
+    for k, t in enumerate((0, 5, 10)):
+        for key, frames in (("observation/image", native["image"]), ("observation/wrist_image", native["wrist"])):
+            openpi = image_tools.convert_to_uint8(image_tools.resize_with_pad(np.ascontiguousarray(frames[t]), 224, 224))
+            np.testing.assert_array_equal(received[k][key], openpi, err_msg=f"{key}, step {t}")
+        assert received[k]["observation/state"].dtype == np.float32
+        np.testing.assert_array_equal(received[k]["observation/state"], native["state"][t].astype(np.float32))
+    assert not np.array_equal(received[0]["observation/wrist_image"], received[2]["observation/wrist_image"])
 
 
 def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_starts(tmp_path):
