@@ -270,7 +270,8 @@ def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, vi
     playing, success_key, max_steps = episodes.playing, spec.task.success_key, spec.task.max_steps
     frames = videos.writers  # the environments whose frames the scheduler writes (none: skip the call)
     # Python scalars once per step (the same values a per-element float()/bool() of the arrays gives)
-    rewards, terminated, truncated = (np.asarray(x).tolist() for x in (r.reward, r.terminated, r.truncated))
+    rewards, terminated, truncated = np.asarray(r.reward).tolist(), np.asarray(r.terminated).tolist(), \
+        np.asarray(r.truncated).tolist()
     observations, infos = r.observations, r.infos
     for k, env in enumerate(busy):
         if fails and env in fails:
