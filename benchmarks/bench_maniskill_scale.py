@@ -262,13 +262,13 @@ def vulkan_env() -> dict[str, str]:
         return {}
 
 
-def backend_launch(python: str, extra: dict[str, str], tmp: Path) -> tuple[str, dict[str, str]]:
+def backend_launch(python: str, extra: dict[str, str]) -> tuple[str, dict[str, str]]:
     """The backend interpreter (a wrapper appending ``extra['PYTHONPATH']`` when set) and its extra env."""
     extra = dict(extra)
     path = extra.pop("PYTHONPATH", "")
     if not path:
         return python, extra
-    wrapper = tmp / "backend-python"
+    wrapper = Path(tempfile.mkdtemp(prefix="ms-backend-")) / "python"  # /tmp: not a noexec output folder
     real = shutil.which(python) or python
     wrapper.write_text("#!/bin/sh\n"
                        f'PYTHONPATH="${{PYTHONPATH:+$PYTHONPATH:}}{path}"\n'
@@ -340,7 +340,8 @@ def run_case(kind: str, n: int, args, backend_python: str, backend_extra: dict[s
             "native_ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds["native"]),
             "seam_ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds["seam"]),
             "boot_s": boot_s, "case_s": time.monotonic() - t, "warmup": warm, "rounds_detail": rounds,
-            "ready": {"native": ready["native"][0], "seam": ready["seam"][0]}}
+            "ready": {"native": ready["native"][0], "seam": ready["seam"][0]},
+            "seam_spin_us": [x.get("spin_us") for x in ready["seam"]]}
 
 
 def table(results: list[dict]) -> str:
@@ -399,7 +400,7 @@ def main() -> None:
         if not sep:
             ap.error(f"--backend-env: KEY=VALUE, got {kv!r}")
         extra[key] = value
-    backend_python, backend_extra = backend_launch(args.backend_python or default_backend_python(), extra, logs)
+    backend_python, backend_extra = backend_launch(args.backend_python or default_backend_python(), extra)
     info = {"machine": machine(), "backend_python": args.backend_python or default_backend_python(),
             "backend_env": extra, "vk_icd_filenames": os.environ.get("VK_ICD_FILENAMES", ""),
             "argv": sys.argv, "simseam_src": src}
@@ -416,7 +417,7 @@ def main() -> None:
             print(f"{kind} N={n}: native {r['native_rate']:.1f}/s, seam {r['seam_rate']:.1f}/s, overhead "
                   f"{100 * r['overhead']:+.1f} % (paired {100 * r['overhead_paired']:+.1f} %); boot {r['boot_s']:.0f} s, "
                   f"case {r['case_s']:.0f} s; render {rn.get('render_device')}, seam fast={rs.get('fast')} "
-                  f"compact={rs.get('compact')} spin_us={rs.get('spin_us')}", flush=True)
+                  f"compact={rs.get('compact')} spin_us={sorted(set(r['seam_spin_us']))}", flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps({**info, "results": results}, indent=1))
     print()

@@ -18,7 +18,7 @@
 #           the last call then:
 #             bash benchmarks/device/maniskill_upload.sh install      (-> /tmp/mssite, /tmp/msroot, /tmp/ms/env.sh)
 #             bash benchmarks/device/maniskill_upload.sh run "$OUT"   (prints and runs the benchmark)
-#           (when the script itself is not in the sent checkout: bash /tmp/ms/maniskill_upload.sh install|run)
+#           (install copies this script to /tmp/ms too: later calls may run bash /tmp/ms/maniskill_upload.sh run)
 # PYVER=3.11 prepare builds the same for a cp311 interpreter (a local rehearsal with the backend venv's
 # python as "the machine's python3": PY=... install / run).
 set -euo pipefail
@@ -27,7 +27,7 @@ MS="${MS_ROOT:-/tmp/ms}"
 SITE="${MS_SITE:-/tmp/mssite}"
 SYSROOT="${MS_SYSROOT:-/tmp/msroot}"
 PY="${PY:-python3}"
-CHUNK_BYTES=60000000
+CHUNK_BYTES=62914560   # 60 MiB: one call carries at most 64 MiB
 # torch's own dependencies: installed there only when that python3 cannot import them already
 TORCH_DEPS="filelock fsspec jinja2 markupsafe networkx sympy mpmath typing_extensions"
 case "$cmd" in
@@ -78,8 +78,14 @@ case "$cmd" in
     git -C "$ROOT" rev-parse HEAD > "$DIR/stage/simseam.rev"
     tar -C "$DIR/stage" -cf - . | xz -T0 -6 > "$DIR/ms.tar.xz"
     rm -rf "$DIR/stage"
-    split -b "$CHUNK_BYTES" -d -a 1 "$DIR/ms.tar.xz" "$DIR/ms.part"
-    n=$(ls "$DIR"/ms.part* | wc -l)
+    bash "$0" split "$DIR"
+    ;;
+  split)   # DIR/ms.tar.xz -> DIR/c1 .. cK: K = ceil(size / 60 MiB) pieces of equal size
+    DIR="$2"
+    size=$(stat -c %s "$DIR/ms.tar.xz")
+    n=$(( (size + CHUNK_BYTES - 1) / CHUNK_BYTES ))
+    rm -rf "$DIR"/c[0-9]*
+    split -n "$n" -d -a 1 "$DIR/ms.tar.xz" "$DIR/ms.part"
     mkdir -p "$DIR/c1"
     sha256sum "$DIR/ms.tar.xz" | awk '{print $1}' > "$DIR/c1/ms.sha256"
     echo "$n" > "$DIR/c1/ms.count"
@@ -88,10 +94,15 @@ case "$cmd" in
       i=$((i + 1)); mkdir -p "$DIR/c$i"; mv "$part" "$DIR/c$i/"
     done
     rm -f "$DIR/ms.tar.xz"
-    du -sb "$DIR"/c* | awk '{printf "%s %.1f MiB\n", $2, $1 / 1048576}'
+    du -sb "$DIR"/c* | awk '{printf "%s %d bytes (%.1f MiB)\n", $2, $1, $1 / 1048576}'
     ;;
   receive)
     mkdir -p "$MS"; cp -r "$2"/. "$MS"/; ls -la "$MS"
+    # what the machine has (cheap; for the report): its python, torch, the NVIDIA Vulkan ICD, libX11 / libvulkan
+    env -u PYTHONPATH "$PY" -c "import sys, numpy, torch; print(sys.version.split()[0], 'numpy', numpy.__version__, \
+'torch', torch.__version__)" 2>&1 | tail -1 || true
+    ls /usr/share/vulkan/icd.d /etc/vulkan/icd.d 2>/dev/null | tr '\n' ' ' || true; echo
+    ldconfig -p 2>/dev/null | grep -E "libX11.so.6 |libvulkan.so.1 |libGLX_nvidia.so.0 " || true
     ;;
   install)
     cd "$MS"
@@ -131,9 +142,10 @@ case "$cmd" in
     for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d /usr/local/nvidia/share/vulkan/icd.d /usr/local/share/vulkan/icd.d; do
       [ -f "$d/nvidia_icd.json" ] && ICD="$d/nvidia_icd.json" && break
     done
-    [ -n "$ICD" ] || ICD="$(find / -xdev \( -path /proc -o -path /sys \) -prune -o -name 'nvidia_icd*.json' -print 2>/dev/null | head -1)"
+    [ -n "$ICD" ] || ICD="$(timeout 20 find / -xdev \( -path /proc -o -path /sys -o -path /tmp -o -path '*/sapien/vulkan_library' \) \
+      -prune -o -name 'nvidia_icd*.json' -print 2>/dev/null | head -1 || true)"
     if [ -z "$ICD" ]; then   # the driver's Vulkan library without its ICD file: write one
-      GLX="$(ldconfig -p 2>/dev/null | awk '/libGLX_nvidia.so.0 /{print $NF; exit}')"
+      GLX="$(ldconfig -p 2>/dev/null | awk '/libGLX_nvidia.so.0 /{print $NF; exit}' || true)"
       if [ -n "$GLX" ]; then
         ICD="$SYSROOT/nvidia_icd.json"
         printf '{"file_format_version": "1.0.0", "ICD": {"library_path": "%s", "api_version": "1.3.0"}}\n' "$GLX" > "$ICD"
@@ -165,20 +177,22 @@ PY
     OUTDIR="${2:-${OUT:-$MS/out}}"; mkdir -p "$OUTDIR"
     # shellcheck disable=SC1091
     . "$MS/env.sh"
-    BENCH=("$PY" "$MS/bench_maniskill_scale.py" --backend-python "$PY" --backend-env "PYTHONPATH=$SITE")
-    MAIN=(--n 1 16 --kinds state rgb --steps "${STEPS:-400}" --rounds "${ROUNDS:-4}")
+    B="$(cd "$(dirname "$0")" && pwd)/../bench_maniskill_scale.py"   # the sent checkout's, else the carried copy
+    [ -f "$B" ] || B="$MS/bench_maniskill_scale.py"
+    BENCH=("$PY" "$B" --backend-python "$PY" --backend-env "PYTHONPATH=$SITE")
+    MAIN=(--n ${N:-1 16} --kinds ${KINDS:-state rgb} --steps "${STEPS:-400}" --rounds "${ROUNDS:-4}")
     echo "+ ${BENCH[*]} ${MAIN[*]} --out $OUTDIR/maniskill_scale.json --logs $OUTDIR/logs"
     t0=$(date +%s)
     timeout "${RUN_TIMEOUT:-420}" "${BENCH[@]}" "${MAIN[@]}" --out "$OUTDIR/maniskill_scale.json" \
       --logs "$OUTDIR/logs" 2>&1 | tee "$OUTDIR/maniskill_scale.txt"
     left=$(( ${SPIN0_UNTIL:-360} - ($(date +%s) - t0) ))
-    if [ "$left" -gt 60 ]; then   # time left: N = 16 again with the sidecars' busy-polling off
+    if [ "$left" -gt 60 ] && [ -z "${NO_SPIN0:-}" ]; then   # time left: N = 16 again with the sidecars' busy-polling off
       echo "+ ${BENCH[*]} --n 16 --kinds state rgb --steps ${STEPS:-400} --rounds 2 --spin-us 0 --out $OUTDIR/maniskill_scale_spin0.json"
       timeout "$left" "${BENCH[@]}" --n 16 --kinds state rgb --steps "${STEPS:-400}" --rounds 2 --spin-us 0 \
         --out "$OUTDIR/maniskill_scale_spin0.json" --logs "$OUTDIR/logs_spin0" 2>&1 | tee "$OUTDIR/maniskill_scale_spin0.txt" || true
     fi
     ;;
   *)
-    echo "usage: $0 prepare [DIR] | receive DIR | install | run [OUTDIR]" >&2; exit 2
+    echo "usage: $0 prepare [DIR] | split DIR | receive DIR | install | run [OUTDIR]" >&2; exit 2
     ;;
 esac
