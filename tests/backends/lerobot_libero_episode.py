@@ -4,10 +4,12 @@ Run with the LIBERO backend's interpreter, the main venv's site-packages APPENDE
 LIBERO's own numpy / mujoco / robosuite are the ones imported, torch and lerobot come from the main
 venv); it never imports simseam:
 
-    <libero venv>/bin/python lerobot_libero_episode.py MAIN_SITE_PACKAGES ACTIONS.npy OUT_DIR SUITE/TASK/SEED...
+    <libero venv>/bin/python lerobot_libero_episode.py MAIN_SITE_PACKAGES ACTIONS.npy OUT_DIR JOBS_JSON
 
-(one episode per SUITE/TASK/SEED, written to OUT_DIR/SUITE_TASK_SEED.npz; one interpreter for all of
-them, as torch and lerobot take most of the time to import).
+JOBS_JSON: a list of ``{"name", "suite", "task", "seed"}`` (optionally ``"libero_config"``: a
+``LIBERO_CONFIG_PATH`` directory whose initial states the job reads instead), one episode each, written
+to OUT_DIR/<name>.npz; one interpreter for all of them, as torch and lerobot take most of the time to
+import.
 
 What runs is LeRobot's own evaluation path: ``make_env(LiberoEnv(task=SUITE, task_ids=[TASK]))`` (a
 ``SyncVectorEnv`` of one ``lerobot.envs.libero.LiberoEnv``, at the size ``lerobot-eval`` renders),
@@ -30,6 +32,7 @@ rollout, ``max_steps`` (the episode's limit: the actions' count), ``default_max_
 own limit for the suite, ``TASK_SUITE_MAX_STEPS``) and ``task`` (the instruction the policy is given).
 """
 
+import json
 import os
 import sys
 import tempfile
@@ -81,7 +84,6 @@ def legacy_init_states(tasks, root: Path) -> None:
         (root / "init" / t.problem_folder).mkdir(parents=True, exist_ok=True)
         torch.save(suite.get_task_init_states(task), root / "init" / t.problem_folder / t.init_states_file)
     (root / "config.yaml").write_text(f"init_states: {root / 'init'}\n")
-    os.environ["LIBERO_CONFIG_PATH"] = str(root)
 
 
 def episode(suite: str, task: int, seed: int, actions: np.ndarray, out: Path) -> None:
@@ -107,10 +109,12 @@ def episode(suite: str, task: int, seed: int, actions: np.ndarray, out: Path) ->
 def main():
     torch.set_num_threads(1)
     actions = np.load(sys.argv[2])
-    jobs = [job.split("/") for job in sys.argv[4:]]
-    legacy_init_states([(suite, int(task)) for suite, task, _ in jobs], Path(tempfile.mkdtemp(prefix="lerobot_libero_")))
-    for suite, task, seed in jobs:
-        episode(suite, int(task), int(seed), actions, Path(sys.argv[3]) / f"{suite}_{task}_{seed}.npz")
+    jobs = json.loads(sys.argv[4])
+    root = Path(tempfile.mkdtemp(prefix="lerobot_libero_"))
+    legacy_init_states([(j["suite"], j["task"]) for j in jobs if "libero_config" not in j], root)
+    for j in jobs:
+        os.environ["LIBERO_CONFIG_PATH"] = j.get("libero_config", str(root))
+        episode(j["suite"], j["task"], j["seed"], actions, Path(sys.argv[3]) / f"{j['name']}.npz")
 
 
 if __name__ == "__main__":

