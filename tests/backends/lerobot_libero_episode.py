@@ -29,7 +29,8 @@ LeRobot's own loader then reads it, unchanged.
 Writes: ``image`` / ``wrist`` (T, H, W, 3) uint8 (the policy's images times 255; the script checks
 that this is exact), ``state`` (T, 8) float32, ``reward`` / ``success`` / ``done`` (T,) from the
 rollout, ``max_steps`` (the episode's limit: the actions' count), ``default_max_steps`` (LeRobot's
-own limit for the suite, ``TASK_SUITE_MAX_STEPS``) and ``task`` (the instruction the policy is given).
+own limit for the suite, ``TASK_SUITE_MAX_STEPS``), ``task`` (the instruction the policy is given) and
+``next_init_state`` (the initial state the env's next reset would use: its ``init_state_id`` after the episode).
 """
 
 import json
@@ -102,7 +103,7 @@ def episode(suite: str, task: int, seed: int, actions: np.ndarray, out: Path) ->
              state=np.stack([o["observation.state"][0].numpy() for o in seen]),
              reward=r["reward"][0].numpy(), success=r["success"][0].numpy(), done=r["done"][0].numpy(),
              max_steps=env.call("_max_episode_steps")[0], default_max_steps=TASK_SUITE_MAX_STEPS[suite],
-             task=np.array(seen[0]["task"][0]))
+             task=np.array(seen[0]["task"][0]), next_init_state=env.call("init_state_id")[0])
     env.close()
 
 

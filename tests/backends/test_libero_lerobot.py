@@ -138,6 +138,7 @@ def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suit
     # the one documented difference: LeRobot's step limit for the suite is its own
     assert int(lr["default_max_steps"]) == {"libero_spatial": 280, "libero_goal": 300}[suite]
     assert r.spec.task.max_steps == {"libero_spatial": 220, "libero_goal": 300}[suite]
+    assert lr["next_init_state"] == 1  # an episode that did not succeed: LeRobot's next one starts from state 1
 
 
 def test_libero_success_step_matches_lerobots(lerobot_episodes, open_backend, monkeypatch):
@@ -157,3 +158,6 @@ def test_libero_success_step_matches_lerobots(lerobot_episodes, open_backend, mo
     np.testing.assert_array_equal(lr["success"], [True])
     np.testing.assert_array_equal(lr["done"], [True])
     assert lr["max_steps"] == len(actions())  # so "done" is its termination, not its step limit
+    # LeRobot's LiberoEnv resets itself on termination, which advances its initial-state counter once more:
+    # after a success its next episode starts from state 2, skipping state 1 (simseam's episode e: state e)
+    assert lr["next_init_state"] == 2
