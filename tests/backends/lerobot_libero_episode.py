@@ -111,11 +111,12 @@ def main():
     torch.set_num_threads(1)
     actions = np.load(sys.argv[2])
     jobs = json.loads(sys.argv[4])
-    root = Path(tempfile.mkdtemp(prefix="lerobot_libero_"))
-    legacy_init_states([(j["suite"], j["task"]) for j in jobs if "libero_config" not in j], root)
-    for j in jobs:
-        os.environ["LIBERO_CONFIG_PATH"] = j.get("libero_config", str(root))
-        episode(j["suite"], j["task"], j["seed"], actions, Path(sys.argv[3]) / f"{j['name']}.npz")
+    with tempfile.TemporaryDirectory(prefix="lerobot_libero_") as tmp:
+        root = Path(tmp)
+        legacy_init_states([(j["suite"], j["task"]) for j in jobs if "libero_config" not in j], root)
+        for j in jobs:
+            os.environ["LIBERO_CONFIG_PATH"] = j.get("libero_config", str(root))
+            episode(j["suite"], j["task"], j["seed"], actions, Path(sys.argv[3]) / f"{j['name']}.npz")
 
 
 if __name__ == "__main__":

@@ -135,7 +135,7 @@ def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suit
     # the seed moves the fixtures only: the same robot and objects, another picture
     np.testing.assert_array_equal(other["state"], seam["state"][0])
     assert not np.array_equal(other["image"], seam["image"][0])
-    # the one documented difference: LeRobot's step limit for the suite is its own
+    # a documented difference: LeRobot's step limit for the suite is its own
     assert int(lr["default_max_steps"]) == {"libero_spatial": 280, "libero_goal": 300}[suite]
     assert r.spec.task.max_steps == {"libero_spatial": 220, "libero_goal": 300}[suite]
     assert lr["next_init_state"] == 1  # an episode that did not succeed: LeRobot's next one starts from state 1
