@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# One GPU-machine call (16 cores): lockstep (one batched policy in the parent over N worker processes)
+# against N bare processes at N = 1 and 16, the vector runner before and after a change, alternating
+# in the same call (issue 22 item 8: lockstep >= 0.8 of bare at N = cores). State-only lift_cube, no GPU
+# use; only mujoco, PyOpenGL and the GL loader debs are installed there.
+#
+#   here:  bash benchmarks/device/vector_lockstep.sh prepare BEFORE [AFTER] [DIR]
+#            BEFORE / AFTER: revisions (AFTER default HEAD; committed sources only, git archive);
+#            DIR default .cache/vectorcarry (~25 MB: the cp312 mujoco and PyOpenGL wheels, the Panda as a
+#            RobotSpec JSON with its URDF and meshes, src-before/, src-after/, bench_vector.py of AFTER)
+#   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
+#            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~6 of the 10 minutes
+#
+# Each side runs bench_vector.py --n 1 16 --steps 600 --rounds 3 --cases state --modes vector vector_spin
+# bare (vector: the default busy-poll rule, which is off at N = cores; vector_spin: forced on), in the
+# order before after before after.
+set -uo pipefail
+cmd="${1:-}"
+case "$cmd" in
+  prepare)
+    ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
+    BEFORE="${2:?prepare BEFORE [AFTER] [DIR]}" AFTER="${3:-HEAD}" DIR="${4:-$ROOT/.cache/vectorcarry}"
+    PY="${PYTHON:-$ROOT/.venv/bin/python}"
+    rm -rf "$DIR"; mkdir -p "$DIR"
+    W="$ROOT/.cache/warpcarry"  # warp_upload.sh's wheels, when there
+    if ls "$W"/c1/mujoco_core-*.whl "$W"/c2/mujoco-*.whl "$W"/c3/pyopengl-*.whl > /dev/null 2>&1; then
+      cp "$W"/c1/mujoco_core-*.whl "$W"/c2/mujoco-*.whl "$W"/c3/pyopengl-*.whl "$DIR/"
+    else
+      "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+        --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux2014_x86_64 \
+        -d "$DIR" mujoco==4.0.0 mujoco-core==4.0.0 PyOpenGL==3.1.10
+    fi
+    (cd "$ROOT" && git archive "$BEFORE" src | tar -x -C "$DIR" --transform 's,^src,src-before,' \
+      && git archive "$AFTER" src | tar -x -C "$DIR" --transform 's,^src,src-after,' \
+      && git show "$AFTER":benchmarks/bench_vector.py > "$DIR/bench_vector.py" \
+      && echo "before $(git rev-parse --short "$BEFORE") after $(git rev-parse --short "$AFTER")" > "$DIR/REVS")
+    "$PY" - "$DIR" <<'PY'
+import json, shutil, sys
+from pathlib import Path
+from simseam.robot.assets import resolve_asset
+from simseam.robot.manifest import load_robot
+d = Path(sys.argv[1])
+r = load_robot("franka_panda")
+(d / "panda.json").write_text(json.dumps(r.to_json()))
+shutil.copytree(Path(resolve_asset(r.urdf)).parent, d / "franka_panda")
+PY
+    du -sh "$DIR"; cat "$DIR/REVS"
+    ;;
+  run)
+    DIR="${2:-.cache/vectorcarry}"
+    for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+    rm -rf /tmp/vl; mkdir -p /tmp/vl; cp -r "$DIR"/. /tmp/vl/
+    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/vl/site /tmp/vl/*.whl
+    LOG=$OUT/log.txt
+    export MUJOCO_GL=egl PYTHONUNBUFFERED=1
+    echo "$(cat /tmp/vl/REVS); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
+    i=0
+    for s in before after before after; do
+      i=$((i + 1))
+      echo "== bench_vector $i $s ($SECONDS s, load $(cut -d' ' -f1-3 /proc/loadavg))" | tee -a "$LOG"
+      PYTHONPATH=/tmp/vl/site:/tmp/vl/src-$s timeout 140 python3 /tmp/vl/bench_vector.py \
+        --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
+        --n 1 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --modes vector vector_spin bare \
+        --out "$OUT/vector_${i}_$s.json" 2>&1 | grep '^|' | tee -a "$LOG"
+    done
+    echo "total $SECONDS s" | tee -a "$LOG"
+    ;;
+  *)
+    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR]" >&2; exit 2
+    ;;
+esac
