@@ -199,8 +199,8 @@ class SerialChain:
         it = 0
         for it in range(max_iters):
             t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
-            (x, y, z), rot = pose_rows(t)
-            px, py, pz = tx - x, ty - y, tz - z
+            (cx, cy, cz), rot = pose_rows(t)  # the current tool pose
+            px, py, pz = tx - cx, ty - cy, tz - cz
             rx, ry, rz = rotation_error_rows(target_rot, rot)
             ep, er = math.sqrt(px * px + py * py + pz * pz), math.sqrt(rx * rx + ry * ry + rz * rz)
             if ep < pos_tol and er < rot_tol:
