@@ -57,8 +57,9 @@ PY
     i=0
     for s in before after before after; do
       i=$((i + 1))
+      if [ $SECONDS -gt 440 ]; then echo "== stopped before run $i: $SECONDS s used" | tee -a "$LOG"; break; fi
       echo "== bench_vector $i $s ($SECONDS s, load $(cut -d' ' -f1-3 /proc/loadavg))" | tee -a "$LOG"
-      PYTHONPATH=/tmp/vl/site:/tmp/vl/src-$s timeout 140 python3 /tmp/vl/bench_vector.py \
+      PYTHONPATH=/tmp/vl/site:/tmp/vl/src-$s timeout 130 python3 /tmp/vl/bench_vector.py \
         --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
         --n 1 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --modes vector vector_spin bare \
         --out "$OUT/vector_${i}_$s.json" 2>&1 | grep '^|' | tee -a "$LOG"
