@@ -60,13 +60,17 @@ def test_the_reduced_proof_lifts_the_cube_on_80_percent_of_held_out_seeds(proof)
 
 @pytest.fixture(scope="module")
 def sequential(proof, tmp_path_factory):
-    """The checkpoint and its sequential outcomes on the first PATH_SEEDS evaluation seeds."""
+    """The checkpoint and its sequential outcomes (``--num-envs 1``: one process, one episode after
+    another) on the first PATH_SEEDS evaluation seeds; the proof's own evaluation (worker processes, the
+    default on a machine of 2 cores or more) agrees with them."""
     work, r = proof
     assert r.returncode == 0, r.stderr[-3000:]
-    outcomes = _outcomes(work / "lift_eval")
-    first = {s: outcomes[s] for s in range(EVAL[0], EVAL[0] + PATH_SEEDS)}
+    ckpt = work / "lift_act"
+    first = _run(ckpt, tmp_path_factory.mktemp("sequential") / "run", "--num-envs", "1")
     assert any(ok for ok, _ in first.values()), first  # a comparison over failures alone would prove little
-    return work / "lift_act", first
+    outcomes = _outcomes(work / "lift_eval")
+    assert {s: outcomes[s] for s in first} == first
+    return ckpt, first
 
 
 def _run(ckpt, out, *extra, scene=SCENE, policy=None):
@@ -91,7 +95,7 @@ def test_batched_inference_gives_the_same_answer(sequential, tmp_path):
     shutil.copytree(ckpt, plain)
     config = json.loads((plain / "config.json").read_text())
     (plain / "config.json").write_text(json.dumps({**config, "temporal_ensemble_coeff": None}))
-    alone = _run(plain, tmp_path / "alone")
+    alone = _run(plain, tmp_path / "alone", "--num-envs", "1")
     assert any(ok for ok, _ in alone.values()), alone
     assert _run(plain, tmp_path / "batched", "--num-envs", "2") == alone
 
