@@ -69,10 +69,30 @@ def bowl_on_plate_config(libero_python: str, root: Path) -> Path:
     return root
 
 
+class _LeRobotPeer:
+    """LeRobot's side, running in its own process while the tests run simseam's side (the two overlap: most
+    of the peer's time is importing torch and LeRobot); ``peer[name]`` waits for it the first time."""
+
+    def __init__(self, proc: subprocess.Popen, tmp: Path, jobs: list[dict], config: Path):
+        self.proc, self.tmp, self.jobs, self.libero_config = proc, tmp, jobs, config
+        self._episodes: dict | None = None
+
+    def __getitem__(self, name: str) -> dict:
+        if self._episodes is None:
+            rc = self.proc.wait(timeout=560)
+            log = (self.tmp / "peer.log").read_text()
+            assert rc == 0, f"LeRobot's LIBERO episode failed:\n{log[-4000:]}"
+            self._episodes = {}
+            for job in self.jobs:
+                with np.load(self.tmp / f"{job['name']}.npz") as z:
+                    self._episodes[job["name"]] = {k: z[k] for k in z.files}
+        return self._episodes[name]
+
+
 @pytest.fixture(scope="module")
 def lerobot_episodes(tmp_path_factory):
-    """{name: the LeRobot episode's arrays}: (suite, task) for CASES, "bowl_on_plate" (with its
-    LIBERO_CONFIG_PATH directory under "libero_config"); one subprocess for all."""
+    """The LeRobot episodes ({name: arrays}): (suite, task) for CASES and "bowl_on_plate" (its
+    LIBERO_CONFIG_PATH directory: ``.libero_config``); one subprocess for all, started at once."""
     python = backend_python("libero")
     tmp = tmp_path_factory.mktemp("lerobot_libero")
     np.save(tmp / "actions.npy", actions())
@@ -83,25 +103,23 @@ def lerobot_episodes(tmp_path_factory):
     jobs = [{"name": f"{suite}_{task}", "suite": suite, "task": task, "seed": LEROBOT_SEED} for suite, task in CASES]
     jobs.append({"name": "bowl_on_plate", "suite": "libero_spatial", "task": 3, "seed": LEROBOT_SEED,
                  "libero_config": str(config)})
-    out = subprocess.run([python, str(HERE / "lerobot_libero_episode.py"), sysconfig.get_paths()["purelib"],
-                          str(tmp / "actions.npy"), str(tmp), json.dumps(jobs)],
-                         capture_output=True, text=True, env=env, timeout=560)
-    assert out.returncode == 0, f"LeRobot's LIBERO episode failed:\n{out.stderr[-4000:]}"
-    episodes = {"libero_config": config}
-    for job in jobs:
-        with np.load(tmp / f"{job['name']}.npz") as z:
-            episodes[job["name"]] = {k: z[k] for k in z.files}
-    return episodes
+    with (tmp / "peer.log").open("w") as log:
+        proc = subprocess.Popen([python, str(HERE / "lerobot_libero_episode.py"), sysconfig.get_paths()["purelib"],
+                                 str(tmp / "actions.npy"), str(tmp), json.dumps(jobs)],
+                                stdout=log, stderr=subprocess.STDOUT, env=env)
+    try:
+        yield _LeRobotPeer(proc, tmp, jobs, config)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 @pytest.mark.parametrize("suite, task", CASES)
 def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suite, task):
-    lr = lerobot_episodes[f"{suite}_{task}"]
     acts = actions()
     n = len(acts)
-    assert lr["image"].shape == (n, 256, 256, 3) and lr["state"].shape == (n, 8) and lr["state"].dtype == np.float32
     r = open_backend("libero", {"suite": suite, "task": task})  # the preset's settings: 256x256, 10 settle steps
-    assert str(lr["task"]) == r.spec.task.instruction
     other = r.reset(LEROBOT_SEED % 50)  # simseam eval --seed 0's episode 0: initial state 0, env.seed(0)
     other = {"image": np.array(other["images"]["camera1"]), "state": np.array(other["state"])}
     obs = r.reset(LEROBOT_SEED)  # simseam eval --seed 1000's episode 0: lerobot-eval's first episode
@@ -118,6 +136,9 @@ def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suit
         seam["terminated"].append(res.terminated)
     seam = {k: np.asarray(v) for k, v in seam.items()}
 
+    lr = lerobot_episodes[f"{suite}_{task}"]
+    assert lr["image"].shape == (n, 256, 256, 3) and lr["state"].shape == (n, 8) and lr["state"].dtype == np.float32
+    assert str(lr["task"]) == r.spec.task.instruction
     for t in range(n):  # images: pixel-exact, rotation included, both cameras
         np.testing.assert_array_equal(seam["image"][t], lr["image"][t], err_msg=f"agentview, step {t}")
         np.testing.assert_array_equal(seam["wrist"][t], lr["wrist"][t], err_msg=f"wrist, step {t}")
@@ -144,14 +165,15 @@ def test_libero_matches_lerobots_libero_env(lerobot_episodes, open_backend, suit
 def test_libero_success_step_matches_lerobots(lerobot_episodes, open_backend, monkeypatch):
     """The success rule: the same initial state (the bowl set on the plate: the goal holds once it has landed)
     in both; LIBERO's check fires on the first step in both, reward 1, and both end the episode there."""
-    lr = lerobot_episodes["bowl_on_plate"]
-    monkeypatch.setenv("LIBERO_CONFIG_PATH", str(lerobot_episodes["libero_config"]))
+    monkeypatch.setenv("LIBERO_CONFIG_PATH", str(lerobot_episodes.libero_config))
     r = open_backend("libero", {"suite": "libero_spatial", "task": 3})
     obs = r.reset(LEROBOT_SEED)
-    np.testing.assert_array_equal(np.array(obs["images"]["camera1"]), lr["image"][0])
-    np.testing.assert_array_equal(np.array(obs["images"]["camera2"]), lr["wrist"][0])
+    first = {"camera1": np.array(obs["images"]["camera1"]), "camera2": np.array(obs["images"]["camera2"])}
     res = r.step(actions()[0])
     assert (res.reward, res.info["success"], res.terminated) == (1.0, True, True)
+    lr = lerobot_episodes["bowl_on_plate"]
+    np.testing.assert_array_equal(first["camera1"], lr["image"][0])
+    np.testing.assert_array_equal(first["camera2"], lr["wrist"][0])
     # LeRobot's rollout: success on step 1, terminated there (its policy saw one observation)
     assert lr["image"].shape[0] == 1
     np.testing.assert_array_equal(lr["reward"], [1.0])
