@@ -49,6 +49,9 @@ import threading
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_libero_scale import machine  # noqa: E402  (host, cores, CPU and GPU names)
+
 HERE = Path(__file__).resolve()
 PREFIX = "@@ "
 DEFAULT_TASK = "PickCube-v1"
@@ -221,23 +224,6 @@ class Worker:
             self.proc.kill()
             self.proc.wait()
         self._err.close()
-
-
-def machine() -> dict:
-    info = {"host": platform.node(), "python": platform.python_version(), "cores": len(os.sched_getaffinity(0)),
-            "cpu": "", "gpu": ""}
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    if shutil.which("nvidia-smi"):
-        out = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
-                             text=True)
-        info["gpu"] = out.stdout.strip()
-    return info
 
 
 def default_backend_python() -> str:
