@@ -8,10 +8,6 @@ step the batched policy (``PolicyBatch``: ``reset(env, spec)``, ``observe_next(e
 ``act_batch(envs, observations)``) acts for every busy environment at once, and the batch steps
 exactly those, observing what each environment's policy will read next.
 
-A batch with ``step_columns(envs, actions, observe)`` (the worker processes) answers a step as lists
-(observations, rewards as floats, terminated and truncated as bools, infos) instead of a
-``BatchStepResult``: the same values, nothing stacked into arrays to be read back one by one.
-
 A policy with ``act_device(observation)`` on a batch with ``device_observation()`` /
 ``step_device(actions)`` (MuJoCo Warp) reads the batch's device arrays and answers device actions
 for every environment: no host copy of observations or actions.
@@ -263,26 +259,20 @@ def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, vi
         if actions.shape != (len(busy), spec.action_dim):
             raise SimulationError(f"act_batch returned shape {actions.shape} for {len(busy)} environments")
     policy_ms = (time.perf_counter() - t0) * 1e3
-    columns = None if device else getattr(batch, "step_columns", None)
     t0 = time.perf_counter()
-    if columns is not None:  # the batch's columns as lists (the worker processes): nothing stacked to unstack
-        observations, rewards, terminated, truncated, infos = columns(busy, actions,
-                                                                      [policy.observe_next(e) for e in busy])
-        step_ms = (time.perf_counter() - t0) * 1e3
+    if device:
+        r = batch.step_device(actions, busy)
     else:
-        if device:
-            r = batch.step_device(actions, busy)
-        else:
-            r = batch.step(busy, actions, [policy.observe_next(e) for e in busy])
-        step_ms = (time.perf_counter() - t0) * 1e3
-        # Python scalars once per step (the same values a per-element float()/bool() of the arrays gives)
-        rewards, terminated, truncated = np.asarray(r.reward).tolist(), np.asarray(r.terminated).tolist(), \
-            np.asarray(r.truncated).tolist()
-        observations, infos = r.observations, r.infos
+        r = batch.step(busy, actions, [policy.observe_next(e) for e in busy])
+    step_ms = (time.perf_counter() - t0) * 1e3
     fails = batch.failures()
     ended = []
     playing, success_key, max_steps = episodes.playing, spec.task.success_key, spec.task.max_steps
     frames = videos.writers  # the environments whose frames the scheduler writes (none: skip the call)
+    # Python scalars once per step (the same values a per-element float()/bool() of the arrays gives)
+    rewards, terminated, truncated = np.asarray(r.reward).tolist(), np.asarray(r.terminated).tolist(), \
+        np.asarray(r.truncated).tolist()
+    observations, infos = r.observations, r.infos
     for k, env in enumerate(busy):
         if fails and env in fails:
             failed(env, fails[env])

@@ -793,15 +793,6 @@ class VectorEnv:
     def step(self, envs: Sequence[int], actions, observe=None) -> BatchStepResult:
         self._check_open()
         idx = self._envs(envs, "step")
-        obs, rewards, terminated, truncated, infos = self.step_columns(idx, actions, observe)
-        return BatchStepResult(np.array(idx, dtype=np.int64), obs, np.array(rewards, dtype=np.float64),
-                               np.array(terminated, dtype=bool), np.array(truncated, dtype=bool), infos)
-
-    def step_columns(self, envs: Sequence[int], actions, observe=None) -> tuple[list, list, list, list, list]:
-        """``step`` without stacking: its columns as lists (observations, rewards as Python floats,
-        terminated and truncated as bools, infos), what the scheduler reads (``runner.scheduler``)."""
-        self._check_open()
-        idx = self._envs(envs, "step")
         k = len(idx)
         a = np.asarray(actions, dtype=np.float32)
         # one reduction finds a NaN or an infinity (a sum that only overflows goes the slow way and passes)
@@ -822,12 +813,13 @@ class VectorEnv:
                 x = self._answer(s, msg)
                 o, (reward, term, trunc, info) = (None, (0.0, False, False, {})) if x is None else x
             obs.append(o)
-            rewards.append(float(reward))
-            terminated.append(bool(term))
-            truncated.append(bool(trunc))
+            rewards.append(reward)
+            terminated.append(term)
+            truncated.append(trunc)
             infos.append(info)
         self._draw(slots, obs)
-        return obs, rewards, terminated, truncated, infos
+        return BatchStepResult(np.array(idx, dtype=np.int64), obs, np.array(rewards, dtype=np.float64),
+                               np.array(terminated, dtype=bool), np.array(truncated, dtype=bool), infos)
 
     def _envs(self, envs: Sequence[int], where: str) -> list[int]:
         """``envs`` as a list of distinct indices in ``[0, num_envs)`` (``env_indices``' rule; a list of
