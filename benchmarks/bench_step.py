@@ -194,7 +194,8 @@ def compare(args) -> None:
     from revisions import alternate, resolve
 
     load0 = os.getloadavg()
-    argv = [str(Path(__file__).resolve()), "--steps", str(args.steps), "--rounds", "1", "--json", "{json}"]
+    argv = [str(Path(__file__).resolve()), "--steps", str(args.steps), "--rounds", "1", "--json", "{json}",
+            "--robot", args.robot]
     runs = alternate(args.baseline, argv, args.rounds)
     sides = {}
     for side, results in runs.items():
@@ -230,6 +231,8 @@ def main() -> None:
     ap.add_argument("--robosuite", action="store_true", help="also run the robosuite Lift baseline (same run)")
     ap.add_argument("--baseline", metavar="REV", help="also run REV's code, alternating rounds (before / after)")
     ap.add_argument("--json", default=str(HERE / "results" / "step.json"))
+    ap.add_argument("--robot", default="franka_panda",
+                    help="the Panda's manifest: a built-in name or a path (a machine without the asset cache)")
     args = ap.parse_args()
     if args.baseline:
         if args.robosuite:
@@ -237,7 +240,7 @@ def main() -> None:
         return compare(args)
     load0 = os.getloadavg()
 
-    spec = load_robot("franka_panda")
+    spec = load_robot(args.robot)
     cartesian = SeamCase(spec, "cartesian_delta", False, None, args.steps)
     cases = {
         "floor": FloorCase(SeamCase(spec, "cartesian_delta", False, None, args.steps)),

@@ -7,7 +7,8 @@
 lift_cube on the Panda (``collision: primitives``), both cameras (camera1 + wrist camera2) at
 ``--image``², ``--worlds`` worlds. For each world count:
 
-1. **The split.** A control step alone (physics: the captured CUDA graph of the substeps), then the
+1. **The split.** The same scene built state-only, its control step timed the same way (what the
+   cameras cost the physics step itself, if anything). A control step alone (physics: the captured CUDA graph of the substeps), then the
    render's parts one at a time, each synchronised: ``camlight`` (camera and light poses),
    ``refit_bvh`` (the scene BVH over every world's geoms), ``render`` (the ray casting) and the unpack
    into uint8 images. Per call, in ms, and as a share of a camera step.
@@ -21,7 +22,9 @@ lift_cube on the Panda (``collision: primitives``), both cameras (camera1 + wris
    - ``flat``: the same geometry without specular highlights and vertex-normal smoothing;
    - ``collision``: the robot drawn with its collision geometry (render-only coarse geometry: with
      ``collision: primitives``, capsules and boxes instead of the visual meshes);
-   - ``collision_flat``: both.
+   - ``collision_flat``: both;
+   - ``untextured``: the default without textures (flat material colours);
+   - ``collision_flat_untextured``: all three.
 3. **Cadence.** env-steps/s when the images are asked for every k-th control step (k = 1, 2, 5, 10,
    20), as a chunked policy does (an ACT executing chunks of k actions reads the cameras once per
    chunk; the scene renders only when an observation request asks for images), with the default
@@ -48,6 +51,9 @@ VARIANTS = {
     "flat": {"enable_specular": False, "enable_vertex_normals": False},
     "collision": {"geometry": "collision"},
     "collision_flat": {"geometry": "collision", "enable_specular": False, "enable_vertex_normals": False},
+    "untextured": {"use_textures": False},
+    "collision_flat_untextured": {"geometry": "collision", "enable_specular": False,
+                                  "enable_vertex_normals": False, "use_textures": False},
 }
 CADENCES = (1, 2, 5, 10, 20)
 
@@ -71,12 +77,12 @@ def _context(b, variant: dict):
 
     from simseam.engines.mujoco.engine import GROUP_ROBOT_COLLISION, GROUP_ROBOT_VISUAL, GROUP_WORLD
 
-    opts = dict(variant)
+    opts = {"use_textures": True, **variant}
     robot_group = GROUP_ROBOT_COLLISION if opts.pop("geometry", "visual") == "collision" else GROUP_ROBOT_VISUAL
     res = [(w, h) for (h, w) in b.cameras.values()]
     names = [f"cam:{name}" for name, _, _ in b.host.plan.cameras]
     return mjw.create_render_context(b.mjm, nworld=b.num_envs, cam_res=res, render_rgb=True, render_depth=False,
-                                     cam_active=names, use_textures=True,
+                                     cam_active=names,
                                      enabled_geom_groups=[GROUP_WORLD, robot_group],
                                      background_color=(0.0, 0.0, 0.0, 1.0), **opts)
 
@@ -169,23 +175,51 @@ def bench(robot, n: int, args) -> dict:
     from simseam.scene.warp import BatchedScene, WarpOptions
 
     r = dataclasses.replace(robot, collision="primitives")
+    state_step = _state_only_step(r, n, args)
     opts = SceneOptions(render_images=True, image_size=(args.image, args.image))
     b = BatchedScene(r, "lift_cube", n, opts, WarpOptions(device=args.device))
     try:
         b.reset(np.arange(n), np.arange(n))
-        acts = np.random.default_rng(0).uniform(-1, 1, size=(n, b.action_dim)).astype(np.float32)
+        acts = _actions(b)
         for _ in range(3):  # compile, capture the step's graph, settle into motion
             b.step(acts)
             b.render()
-        return {"worlds": n, "image": args.image, "substeps": b.substeps, "split": split(b, acts, args.steps),
+        return {"worlds": n, "image": args.image, "substeps": b.substeps,
+                "state_only_step_ms": round(state_step * 1e3, 3), "split": split(b, acts, args.steps),
                 "variants": variants(b, acts, args.steps), "cadence": cadence(b, acts, args.steps)}
+    finally:
+        b.close()
+
+
+def _actions(b):
+    import numpy as np
+
+    return np.random.default_rng(0).uniform(-1, 1, size=(b.num_envs, b.action_dim)).astype(np.float32)
+
+
+def _state_only_step(robot, n: int, args) -> float:
+    """Seconds per control step of the same scene built state-only (no render context), timed the same
+    way as the camera scene's step: what the cameras cost the physics step itself, if anything."""
+    import numpy as np
+
+    from simseam.scene.manifest_scene import SceneOptions
+    from simseam.scene.warp import BatchedScene, WarpOptions
+
+    b = BatchedScene(robot, "lift_cube", n, SceneOptions(render_images=False), WarpOptions(device=args.device))
+    try:
+        b.reset(np.arange(n), np.arange(n))
+        acts = _actions(b)
+        for _ in range(3):
+            b.step(acts)
+        return _timed(lambda: b.step(acts), args.steps, b.device)
     finally:
         b.close()
 
 
 def _print(row: dict) -> None:
     n = row["worlds"]
-    print(f"\n{n} worlds, 2 x {row['image']}^2 RGB, lift_cube, {row['substeps']} substeps per control step")
+    print(f"\n{n} worlds, 2 x {row['image']}^2 RGB, lift_cube, {row['substeps']} substeps per control step; "
+          f"the state-only scene's step: {row['state_only_step_ms']:.3f} ms")
     print(f"{'part':14} {'ms':>9} {'share':>7}")
     for k, v in row["split"].items():
         print(f"{k:14} {v['ms']:9.3f} {v['share_of_camera_step']:7.3f}")
