@@ -298,7 +298,7 @@ def test_lockstep_with_busy_polling_equals_one_process(tmp_path, monkeypatch):
     reference = _sequential(scene, "scripted", range(3), seed=2)
     pol = make_policy_batch("scripted", 2)
     with VectorEnv(_recipe(scene, pol, 2), 2) as vec:
-        assert vec.spin_us == 5000 and all(s.pipe_poll is not None for s in vec.slots)
+        assert vec.spin_us == 5000
         results = vec.run(pol, range(3), seed=2)
     assert {r.index: _outcome(r) for r in results} == reference
 

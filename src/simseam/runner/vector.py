@@ -159,6 +159,13 @@ _FAST_FRAME = struct.pack("!i", 1) + _FAST_REPLY  # how multiprocessing's Connec
 _FAST_STEP_FRAMES = tuple(struct.pack("!i", 2) + _FAST_STEP + bytes([i]) for i in range(len(_FAST_REQUESTS)))
 
 
+def _rings(env: int) -> tuple[bytes, bytes]:
+    """What worker ``env`` writes into the bell when its reply waits in its pipe, and in its step block:
+    one native int, ``2 * env`` (+1: the block). One write of 4 bytes is atomic, so the workers' rings
+    never interleave and one read takes every ring there is."""
+    return struct.pack("i", 2 * env), struct.pack("i", 2 * env + 1)
+
+
 def _read_message(fd: int) -> bytes:
     """One message of a ``Connection`` (4-byte big-endian size, then the payload) read straight from its
     file descriptor: a fast reply costs one ``read``. Reads exactly one message, never beyond it, so
@@ -252,6 +259,7 @@ class _StepBlock:
         self.sig = None
         self.mm: mmap.mmap | None = None
         self.v: dict = {}
+        self.announced = False  # the last write announced a new block over the pipe
 
     def action(self) -> np.ndarray:
         return self.v["action"].copy()
@@ -299,7 +307,8 @@ class _StepBlock:
         sig = _signature(obs, result.info, pose)
         if sig is None:
             return False
-        if sig != self.sig:
+        self.announced = sig != self.sig
+        if self.announced:
             self._new_layout(sig)
         v = self.v
         for k, arr in v["arrays"]:
@@ -382,11 +391,13 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 0, sidecar_spin_us: int | None = None,
-                 spin_us: int = 0) -> None:
+def _worker_main(conn, bell, env: int, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 0,
+                 sidecar_spin_us: int | None = None, spin_us: int = 0) -> None:
     """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends.
-    ``sidecar_spin_us``: the busy-poll budget of a sidecar rollout's local path (unless the user's
-    environment sets it); ``spin_us``: this worker's busy-poll for its next command."""
+    ``bell``: the write end of the pipe every worker rings (``_ring``) when its reply to a reset or a
+    step is there; ``env``: this worker's environment; ``sidecar_spin_us``: the busy-poll budget of a
+    sidecar rollout's local path (unless the user's environment sets it); ``spin_us``: this worker's
+    busy-poll for its next command."""
     if sidecar_spin_us is not None:
         os.environ.setdefault(SPIN_ENV, str(sidecar_spin_us))
     if parent_pid:
@@ -415,6 +426,15 @@ def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 
             partial_video_path(video).unlink(missing_ok=True)
         writer, video = None, None
 
+    bell_fd, (in_pipe, in_block) = bell.fileno(), _rings(env)
+
+    def answer(msg) -> None:
+        """A reset's or a step's reply through the pipe, the bell rung first (a reply larger than the pipe
+        holds is read while it is written)."""
+        data = reduction.ForkingPickler.dumps(msg)
+        os.write(bell_fd, in_pipe)
+        conn.send_bytes(data)
+
     spin_s = spin_us * 1e-6
     if spin_s:
         pipe_poll = select.poll()
@@ -432,6 +452,7 @@ def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 
             else:
                 msg = pickle.loads(buf)
                 op = msg[0]
+            send = answer if op in ("reset", "step") else conn.send
             try:
                 if op == "reset":
                     _, seed, request, video_path = msg
@@ -446,7 +467,7 @@ def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 
                             writer = VideoWriter(partial_video_path(video), fps=rollout.spec.control_hz)
                             writer.append(frame)
                     obs, layout = images.detach(obs)
-                    conn.send(("obs", obs, None, layout, render_state()))
+                    answer(("obs", obs, None, layout, render_state()))
                 elif op == "step":
                     _, action, request = msg
                     r = rollout.step(action, request)
@@ -454,10 +475,13 @@ def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 
                         writer.append(rollout.render())
                     obs, layout = images.detach(r.observation)
                     pose = render_state()
-                    if layout is None and block.write(obs, r, pose):
+                    if layout is not None or not block.write(obs, r, pose):
+                        answer(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
+                    elif block.announced:  # the new block's handle waits in the pipe: read it first
+                        os.write(bell_fd, in_pipe)
                         conn.send_bytes(_FAST_REPLY)
                     else:
-                        conn.send(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
+                        os.write(bell_fd, in_block)
                 elif op == "render":
                     conn.send(("frame", rollout.render()))
                 elif op == "finish":  # the episode ended normally: keep its video
@@ -494,12 +518,12 @@ def _worker_main(conn, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 
                     try:
                         rollout.restart()
                     except SimseamError as again:
-                        conn.send(("fatal", _portable(again)))
+                        send(("fatal", _portable(again)))
                         return
-                conn.send(("episode_error", f"{type(exc).__name__}: {exc}",
-                           "restarting the sidecar" if restart else "continuing"))
+                send(("episode_error", f"{type(exc).__name__}: {exc}",
+                      "restarting the sidecar" if restart else "continuing"))
             except Exception as exc:  # noqa: BLE001
-                conn.send(("fatal", _portable(exc)))
+                send(("fatal", _portable(exc)))
     finally:
         drop_video()
         rollout.close()
@@ -543,7 +567,6 @@ class _Slot:
     pose: Any = None
     writer: Any = None
     video_path: Any = None
-    pipe_poll: Any = None  # a select.poll on conn: the busy-poll for its reply (lockstep)
     fd: int = -1  # conn's file descriptor
     sentinel: int = -1  # the process's sentinel (readable when it has ended)
     waiter: Any = None  # a select.poll on conn and the sentinel: waiting for its reply
@@ -578,6 +601,15 @@ class VectorEnv:
             recipe = dataclasses.replace(recipe, render_images=True, pose_states=True)
             self.central = CentralRenderer(recipe, num_envs, device=render_device)
         self.recipe = recipe
+        # the bell (see _rings): every worker's replies to resets and steps announced on one pipe, read here
+        # with the workers' sentinels through one poll
+        self._bell_r, self._bell_w = self._ctx.Pipe(duplex=False)
+        self._bell = self._bell_r.fileno()
+        os.set_blocking(self._bell, False)
+        self._poll = select.poll()
+        self._poll.register(self._bell, select.POLLIN)
+        self._sentinels: dict[int, _Slot] = {}  # the sentinels in the poll
+        self._dead: set[int] = set()  # environments whose worker was found dead while nothing was asked of it
         cores = len(os.sched_getaffinity(0))
         self.sidecar_spin_us = sidecar_spin_us(num_envs, cores)
         self.spin_us = vector_spin_us(num_envs, cores)  # lockstep only: run_local workers wait for whole episodes
@@ -591,9 +623,13 @@ class VectorEnv:
 
     # -- processes
     def _spawn(self, s: _Slot) -> None:
+        if self._sentinels.pop(s.sentinel, None) is not None:  # the dead worker's, still open
+            self._poll.unregister(s.sentinel)
+        self._dead.discard(s.env)
         parent, child = self._ctx.Pipe()
         proc = self._ctx.Process(target=_worker_main, daemon=True,
-                                 args=(child, self.recipe, os.getpid(), self.sidecar_spin_us, self.spin_us),
+                                 args=(child, self._bell_w, s.env, self.recipe, os.getpid(), self.sidecar_spin_us,
+                                       self.spin_us),
                                  name=f"simseam-env-{s.env}")
         proc.start()
         child.close()
@@ -602,9 +638,8 @@ class VectorEnv:
         s.waiter = select.poll()
         s.waiter.register(s.fd, select.POLLIN)
         s.waiter.register(s.sentinel, select.POLLIN)
-        if self.spin_us:
-            s.pipe_poll = select.poll()
-            s.pipe_poll.register(parent.fileno(), select.POLLIN)
+        self._poll.register(s.sentinel, select.POLLIN)
+        self._sentinels[s.sentinel] = s
         if s.mm is not None:
             s.mm.close()
         if s.block is not None:
@@ -670,10 +705,9 @@ class VectorEnv:
             return None
         return ("nothing",)
 
-    def _reply(self, s: _Slot, spin: bool = False):
-        """The worker's reply to the command just sent (waiting for it), or None when the worker died."""
-        if spin and s.pipe_poll is not None:
-            spin_until_readable(s.pipe_poll, self.spin_us * 1e-6)
+    def _reply(self, s: _Slot):
+        """The worker's reply to the command just sent (not a reset or a step: those ring the bell), waiting
+        for it, or None when the worker died."""
         while True:
             ready = s.waiter.poll()  # its pipe, or its end (the sentinel)
             msg = self._recv(s, readable=any(fd == s.fd for fd, _ in ready))
@@ -681,47 +715,49 @@ class VectorEnv:
                 return msg
 
     def _replies(self, slots: list[_Slot], spin: bool = False) -> list:
-        """The workers' replies to the commands just sent to ``slots``, in their order (None: the worker
-        died), each read as soon as it arrives (a slow worker does not hold up reading the others'). With
-        ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
-        if len(slots) == 1:
-            return [self._reply(slots[0], spin)]
+        """The workers' replies to the resets or steps just sent to ``slots``, in their order (None: the
+        worker died), each read as soon as its worker rings the bell (a slow worker does not hold up
+        reading the others'). With ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
         out: list = [None] * len(slots)
-        poll = select.poll()
-        where: dict[int, int] = {}
-        for j, s in enumerate(slots):
-            poll.register(s.fd, select.POLLIN)
-            poll.register(s.sentinel, select.POLLIN)
-            where[s.fd] = where[s.sentinel] = j
-        left = len(slots)
+        waiting = {s.env: j for j, s in enumerate(slots) if s.env not in self._dead}
         spin_s = self.spin_us * 1e-6 if spin else 0.0
-        deadline = time.perf_counter() + spin_s if spin_s else 0.0
-        while left:
-            if spin_s:
-                ready = poll.poll(0)
-                if not ready:
-                    if time.perf_counter() < deadline:
-                        os.sched_yield()
-                        continue
-                    ready = poll.poll()
-            else:
-                ready = poll.poll()
-            for fd, _ in ready:
-                j = where.get(fd)
-                if j is None:  # this slot's other descriptor, in the same batch: answered already
-                    continue
-                s = slots[j]
-                msg = self._recv(s, readable=fd == s.fd)
-                if msg is not None and msg[0] == "nothing":
-                    continue
-                out[j] = msg
-                left -= 1
-                del where[s.fd], where[s.sentinel]
-                poll.unregister(s.fd)
-                poll.unregister(s.sentinel)
-                if spin_s:
-                    deadline = time.perf_counter() + spin_s  # the next reply's own budget
+        while waiting:
+            for fd, _ in self._events(spin_s):
+                if fd == self._bell:
+                    self._rung(slots, waiting, out)
+                else:
+                    self._ended(fd, slots, waiting, out)
         return out
+
+    def _events(self, spin_s: float) -> list:
+        """The next events of the bell and the sentinels, busy-polling up to ``spin_s`` before sleeping."""
+        if spin_s:
+            deadline = time.perf_counter() + spin_s
+            while not (ready := self._poll.poll(0)) and time.perf_counter() < deadline:
+                os.sched_yield()
+            if ready:
+                return ready
+        return self._poll.poll()
+
+    def _rung(self, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
+        """Every ring in the bell: each a reply of a worker in ``waiting`` (see ``_rings``), read into ``out``."""
+        try:
+            rings = os.read(self._bell, 4096)
+        except BlockingIOError:
+            return
+        for ring in memoryview(rings).cast("i"):
+            j = waiting.pop(ring >> 1)
+            s = slots[j]
+            out[j] = s.block.read() if ring & 1 else self._recv(s, readable=True)
+
+    def _ended(self, sentinel: int, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
+        """A worker process ended: a reply it rang for before it died is read; if it owed one, its entry in
+        ``out`` stays None; else its next reset or step finds it dead (``_dead``)."""
+        self._rung(slots, waiting, out)
+        s = self._sentinels.pop(sentinel)
+        self._poll.unregister(sentinel)
+        if waiting.pop(s.env, None) is None:
+            self._dead.add(s.env)
 
     def _replace(self, s: _Slot) -> int | None:
         """``s``'s worker died: a fresh one takes its place. Returns the dead one's exit code."""
@@ -944,6 +980,8 @@ class VectorEnv:
                 s.block.close()
             self._drop_central_video(s)
             s.proc, s.conn, s.mm, s.block = None, None, None, None
+        self._bell_r.close()
+        self._bell_w.close()
         if self.central is not None:
             self.central.close()
             self.central = None
