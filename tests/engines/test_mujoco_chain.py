@@ -108,16 +108,20 @@ def test_kinematics_that_disagree_leave_the_scene_on_the_urdf_chain(panda_spec, 
 
 def test_the_damped_least_squares_solve_equals_numpys():
     """ChainForward.dls_solve (MuJoCo's products and Cholesky) against SerialChain._normal_solve (numpy),
-    with and without the null-space term, and with blocked (zeroed) columns."""
+    with and without the null-space term, with blocked (zeroed) columns, and a rotation weight that is
+    not a power of two; and forward_rows against forward."""
     spec, urdf_path, chain = panda()
     eng = _built(panda_model(spec, urdf_path))
     fk = eng.chain_forward(spec.base_link, spec.ee_link, [j.sim_name for j in spec.arm_joints])
     rng = np.random.default_rng(7)
     for k, q in enumerate(rng.uniform(chain.lower, chain.upper, (10, chain.n))):
-        jw = fk.forward(q)[1] * np.array([[1.0], [1.0], [1.0], [0.5], [0.5], [0.5]])
+        pos, rot, jac = fk.forward_rows(q)
+        pose, want_jac = fk.forward(q)
+        assert pos == pose[:3, 3].tolist() and rot == pose[:3, :3].tolist() and np.array_equal(jac, want_jac)
         if k % 3 == 2:
-            jw[:, [1, 4]] = 0.0
-        e, z = rng.normal(size=6) * 0.01, (rng.normal(size=7) * 0.05 if k % 2 else None)
-        want = chain._normal_solve(jw, e, None if z is None else z.copy(), 4e-4)
-        np.testing.assert_allclose(fk.dls_solve(jw, e, z, 4e-4), want, rtol=1e-9, atol=1e-12)
+            jac[:, [1, 4]] = 0.0
+        err = (rng.normal(size=6) * 0.01).tolist()
+        z, w = (rng.normal(size=7) * 0.05 if k % 2 else None), (0.5 if k < 5 else 0.3)
+        want = chain._normal_solve(jac, err, None if z is None else z.copy(), 4e-4, w)
+        np.testing.assert_allclose(fk.dls_solve(jac, err, z, 4e-4, w), want, rtol=1e-9, atol=1e-12)
     eng.close()

@@ -110,14 +110,17 @@ class SerialChain:
         self._dls_solve = self._normal_solve
 
     def with_forward(self, forward: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], source: str,
-                     dls_solve: Callable[..., np.ndarray] | None = None) -> "SerialChain":
+                     dls_solve: Callable[..., np.ndarray] | None = None,
+                     forward_rows: Callable[[np.ndarray], tuple] | None = None) -> "SerialChain":
         """A copy of this chain whose ``forward`` (and so ``solve``) is ``forward``: another implementation
         of the same kinematics (an engine's, ``source`` names it), which the caller has checked agrees;
-        ``dls_solve(jw, e, z, d2)``: what ``_normal_solve`` computes, by the same engine (checked by
-        the engine's tests to agree)."""
+        ``forward_rows``: ``forward_rows`` on the same kinematics; ``dls_solve(jac, err, z, d2, rot_weight)``:
+        what ``_normal_solve`` computes, by the same engine (both checked by the engine's tests to agree)."""
         other = copy.copy(self)
         other.forward = forward  # type: ignore[method-assign]
         other.forward_source = source
+        if forward_rows is not None:
+            other.forward_rows = forward_rows  # type: ignore[method-assign]
         if dls_solve is not None:
             other._dls_solve = dls_solve
         return other
@@ -171,10 +174,17 @@ class SerialChain:
             jac[3:, self._q_from_names] = zs.T
         return tip, jac
 
+    def forward_rows(self, q: np.ndarray) -> tuple[list[float], list[list[float]], np.ndarray]:
+        """``forward(q)`` as the IK reads it: the tip position and rotation rows in Python floats, and the
+        Jacobian (a new array)."""
+        t, jac = self.forward(q)
+        pos, rot = pose_rows(t)
+        return pos, rot, jac
+
     def solve(self, q_start: np.ndarray, target_pos: np.ndarray | list, target_rot: np.ndarray | list, *,
               max_iters: int = 1, pos_tol: float = 2e-4, rot_tol: float = 2e-3,
               rot_weight: float = 0.5, damping: float = 0.02, q_rest: np.ndarray | None = None,
-              rest_gain: float = 0.05, start_fk: tuple[np.ndarray, np.ndarray] | None = None) -> IKResult:
+              rest_gain: float = 0.05, start: tuple[list, list, np.ndarray] | None = None) -> IKResult:
         """Damped least squares IK towards a base-frame target pose, within joint limits.
 
         Each iteration is one Newton step from the last ``q``; with ``q_start``
@@ -184,8 +194,8 @@ class SerialChain:
         (m/rad), so position wins when the arm cannot reach both (a 5-DoF arm).
         With redundancy the null space pulls gently towards ``q_rest``.
         ``pos_error``/``rot_error`` are measured at the last evaluated ``q``
-        (before the final step when ``max_iters`` ran out). ``start_fk`` is
-        ``forward(q_start)`` when the caller already has it. The target may come as arrays or as
+        (before the final step when ``max_iters`` ran out). ``start`` is
+        ``forward_rows(q_start)`` when the caller already has it. The target may come as arrays or as
         Python floats (a list, nested for the rotation).
         """
         lower, upper = self.lower, self.upper
@@ -193,51 +203,51 @@ class SerialChain:
         # the task error is formed in Python floats: 3-vectors cost less there than as numpy calls
         tx, ty, tz = target_pos.tolist() if isinstance(target_pos, np.ndarray) else target_pos
         target_rot = target_rot.tolist() if isinstance(target_rot, np.ndarray) else target_rot
-        step = self._dls_step if self.n >= 6 else self._priority_step
+        step = self._dls_solve if self.n >= 6 else self._priority_step
         pull = q_rest is not None and self.n > 6
+        d2 = damping ** 2
         ep = er = np.inf
         it = 0
         for it in range(max_iters):
-            t, jac = start_fk if (it == 0 and start_fk is not None) else self.forward(q)
-            (cx, cy, cz), rot = pose_rows(t)  # the current tool pose
+            (cx, cy, cz), rot, jac = start if (it == 0 and start is not None) else self.forward_rows(q)
             px, py, pz = tx - cx, ty - cy, tz - cz
             rx, ry, rz = rotation_error_rows(target_rot, rot)
             ep, er = math.sqrt(px * px + py * py + pz * pz), math.sqrt(rx * rx + ry * ry + rz * rz)
             if ep < pos_tol and er < rot_tol:
                 break
-            jw = jac.copy()  # the Jacobian's rows weighted as the error: position 1, orientation rot_weight
-            jw[3:] *= rot_weight
-            e = np.array([px, py, pz, rx * rot_weight, ry * rot_weight, rz * rot_weight])
+            err = [px, py, pz, rx, ry, rz]
             z = rest_gain * (q_rest - q) if pull else None
-            dq = step(jw, e, z, damping)
-            q_new = q + dq
+            q_new = q + step(jac, err, z, d2, rot_weight)
             q_lim = np.minimum(np.maximum(q_new, lower), upper)
-            # Joints that would cross a limit stop at it and the step is re-solved
-            # without them, so the other joints take up their share of the motion
-            # (q is within the limits, so only a step down can cross the lower one).
             if q_lim.tolist() != q_new.tolist():  # cheaper than a numpy comparison and reduction
-                blocked = (q_new < lower) | (q_new > upper)
-                # Blocked joints go to their limit; the rest solve for what is left.
-                dq_b = q_lim[blocked] - q[blocked]
-                e = e - jw[:, blocked] @ dq_b
-                jw[:, blocked] = 0.0
-                if z is not None:
-                    z[blocked] = 0.0
-                dq = step(jw, e, z, damping)
-                dq[blocked] = dq_b
-                q_lim = np.minimum(np.maximum(q + dq, lower), upper)
+                q_lim = self._step_blocked(step, q, q_new, q_lim, jac, err, z, d2, rot_weight)
             q = q_lim
             it += 1
         return IKResult(q=q, pos_error=ep, rot_error=er, iterations=it)
 
-    def _dls_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
-        """Damped least squares step for task error ``e``, plus ``z`` projected into the null space:
-        ``J^T A^-1 e + (I - J^T A^-1 J) z`` with ``A = J J^T + d^2 I``, computed as the equal
-        ``(J^T J + d^2 I)^-1 (J^T e + d^2 z)`` (one n x n solve, one right-hand side)."""
-        return self._dls_solve(jw, e, z, damping ** 2)
+    def _step_blocked(self, step: Callable[..., np.ndarray], q: np.ndarray, q_new: np.ndarray, q_lim: np.ndarray,
+                      jac: np.ndarray, err: list, z: np.ndarray | None, d2: float, rot_weight: float) -> np.ndarray:
+        """``step``'s result from ``q`` when ``q_new`` crosses a joint limit: joints that would cross one stop at
+        it and the step is re-solved without them, so the other joints take up their share of the motion
+        (``q`` is within the limits, so only a step down can cross the lower one)."""
+        blocked = (q_new < self.lower) | (q_new > self.upper)
+        dq_b = q_lim[blocked] - q[blocked]  # blocked joints go to their limit; the rest solve for what is left
+        jac = jac.copy()
+        err = (np.array(err) - jac[:, blocked] @ dq_b).tolist()
+        jac[:, blocked] = 0.0
+        if z is not None:
+            z[blocked] = 0.0
+        dq = step(jac, err, z, d2, rot_weight)
+        dq[blocked] = dq_b
+        return np.minimum(np.maximum(q + dq, self.lower), self.upper)
 
-    def _normal_solve(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, d2: float) -> np.ndarray:
-        """``(jw^T jw + d2 I)^-1 (jw^T e + d2 z)`` (``z`` None: 0)."""
+    def _normal_solve(self, jac: np.ndarray, err: list, z: np.ndarray | None, d2: float,
+                      rot_weight: float) -> np.ndarray:
+        """The damped least squares step for the task error ``err`` (position; rotation), plus ``z``
+        projected into the null space: ``J^T A^-1 e + (I - J^T A^-1 J) z`` with ``A = J J^T + d^2 I``,
+        computed as the equal ``(J^T J + d2 I)^-1 (J^T e + d2 z)`` (one n x n solve, one right-hand side;
+        ``z`` None: 0), ``J`` and ``e`` with their rotation rows weighted by ``rot_weight``."""
+        jw, e = self._weighted(jac, err, rot_weight)
         jt = jw.T
         m = jt @ jw
         m += self._damped_eye(d2)
@@ -252,17 +262,27 @@ class SerialChain:
             eye = self._eye_cache[d2] = d2 * np.eye(self.n)
         return eye
 
-    def _priority_step(self, jw: np.ndarray, e: np.ndarray, z: np.ndarray | None, damping: float) -> np.ndarray:
+    @staticmethod
+    def _weighted(jac: np.ndarray, err: list, rot_weight: float) -> tuple[np.ndarray, np.ndarray]:
+        """The Jacobian's rows and the error weighted alike: position 1, orientation ``rot_weight``."""
+        jw, e = jac.copy(), np.array(err)
+        jw[3:] *= rot_weight
+        e[3:] *= rot_weight
+        return jw, e
+
+    def _priority_step(self, jac: np.ndarray, err: list, z: np.ndarray | None, d2: float,
+                       rot_weight: float) -> np.ndarray:
         """Task-priority step for arms with fewer than 6 joints: position first,
-        orientation only within the position task's null space."""
+        orientation only within the position task's null space (``_normal_solve``'s arguments)."""
+        jw, e = self._weighted(jac, err, rot_weight)
         jp, jo = jw[:3], jw[3:]
-        jp_pinv = jp.T @ np.linalg.inv(jp @ jp.T + (damping ** 2) * self._eye3)
+        jp_pinv = jp.T @ np.linalg.inv(jp @ jp.T + d2 * self._eye3)
         dq1 = jp_pinv @ e[:3]
         # The projector uses the exact pseudo-inverse: a damped one leaks, and the
         # secondary task would then undo part of the position motion.
         null = np.eye(self.n) - np.linalg.pinv(jp, rcond=1e-4) @ jp
         jo_n = jo @ null
-        dq2 = jo_n.T @ np.linalg.solve(jo_n @ jo_n.T + (damping ** 2) * self._eye3, e[3:] - jo @ dq1)
+        dq2 = jo_n.T @ np.linalg.solve(jo_n @ jo_n.T + d2 * self._eye3, e[3:] - jo @ dq1)
         return dq1 + null @ dq2
 
     def tabletop_reach(self, n_samples: int = 1500, z_band: tuple[float, float] = (0.0, 0.2)) -> float:

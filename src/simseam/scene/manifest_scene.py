@@ -308,7 +308,8 @@ class ManifestScene:
         for q in (self._home[self._arm_idx], *samples):
             if not all(np.allclose(a, b, rtol=0.0, atol=1e-9) for a, b in zip(chain.forward(q), fk.forward(q))):
                 return chain
-        return chain.with_forward(fk.forward, self.engine.name, getattr(fk, "dls_solve", None))
+        return chain.with_forward(fk.forward, self.engine.name, getattr(fk, "dls_solve", None),
+                                  getattr(fk, "forward_rows", None))
 
     def _describe(self, task: str) -> RolloutSpec:
         opts = self.options

@@ -149,7 +149,7 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
 
     @wp.func
     def dls_step(jw: jac_t, e: wp.spatial_vector, zn: vecn, damping: float):
-        """``SerialChain._dls_step``: damped least squares for ``e``, plus ``zn`` in the null space."""
+        """``SerialChain._normal_solve``: damped least squares for ``e``, plus ``zn`` in the null space."""
         a66 = wp.spatial_matrix()
         for r in range(6):
             for c in range(6):

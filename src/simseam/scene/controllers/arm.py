@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from simseam.math3d import axis_angle_times_rows, pose_rows, rotation_angle_rows
+from simseam.math3d import axis_angle_times_rows, rotation_angle_rows
 from simseam.robot.kinematics import IKResult, SerialChain
 from simseam.seam import ActionSlot, ControlMode
 
@@ -88,8 +88,8 @@ class CartesianDeltaArm(ArmController):
         ``eef``: the measured tool pose (pos, rot) in the base frame."""
         # the poses in Python floats: 3-vectors and 3x3s cost less there than as numpy calls
         pos, rot = eef[0].tolist(), eef[1].tolist()
-        fk = self.chain.forward(q_prev)  # the pose the last command asked for (reachable by construction)
-        asked_pos, asked_rot = pose_rows(fk[0])
+        fk = self.chain.forward_rows(q_prev)  # the pose the last command asked for (reachable by construction)
+        asked_pos, asked_rot, _ = fk
         if self._ref is None or (math.dist(asked_pos, pos) > REANCHOR_POS
                                  or rotation_angle_rows(asked_rot, rot) > REANCHOR_ROT):
             self._ref = (pos, rot)  # first step, blocked or disturbed: restart from the measured pose
@@ -98,7 +98,7 @@ class CartesianDeltaArm(ArmController):
         tgt_pos = [x + dx, y + dy, z + dz]
         tgt_rot = axis_angle_times_rows(ax, ay, az, ref_rot)
         ik = self.chain.solve(q_prev, tgt_pos, tgt_rot, max_iters=self.ik_iters, rot_weight=ROT_WEIGHT,
-                              q_rest=self.q_home, start_fk=fk)
+                              q_rest=self.q_home, start=fk)
         self.last_ik = ik
         self._ref = (tgt_pos, tgt_rot)
         return self.rate_limit(ik.q, q_prev)
