@@ -188,6 +188,36 @@ def state_names(tree: dict, prefix: str = "") -> list[str]:
     return names
 
 
+def joint_slots(names: list[str], n: int) -> tuple[slice, slice] | None:
+    """Where ManiSkill's state vector holds the robot's ``n`` joint positions and velocities (its agent's
+    ``qpos`` and ``qvel``, read from the robot when the state was computed), or None when it does not."""
+    out = []
+    for key in ("agent.qpos", "agent.qvel"):
+        want = [f"{key}.{i}" for i in range(n)]
+        start = names.index(want[0]) if want[0] in names else -1
+        if start < 0 or names[start:start + n] != want:
+            return None
+        out.append(slice(start, start + n))
+    return out[0], out[1]
+
+
+def camera_rgb(u, name: str = "base_camera"):
+    """Camera ``name``'s RGB frames (a uint8 torch tensor [num_envs, H, W, 3]) of the unwrapped env ``u``:
+    exactly ``u.get_sensor_images()[name]["rgb"]``, rendering only that camera's colour texture. ManiSkill's
+    ``get_sensor_images`` captures every sensor and, in the state observation modes, downloads each camera's
+    depth texture too and turns it into a picture: a second GPU read-back and sync per step that nobody reads.
+    Same steps otherwise: hide the hidden objects, update the render, capture, read, convert."""
+    from mani_skill.sensors.camera import camera_observations_to_images
+
+    for obj in u._hidden_objects:
+        obj.hide_visual()
+    u.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+    sensor = u.scene.sensors[name]
+    sensor.capture()
+    return camera_observations_to_images(sensor.get_obs(rgb=True, depth=False, position=False,
+                                                        segmentation=False))["rgb"]
+
+
 def require_gpu_physics() -> None:
     """``sim_backend: physx_cuda`` fails closed here, before SAPIEN is asked for GPU physics (it would try
     to download NVIDIA's PhysX GPU library): without that library (``simseam.backends.physx_gpu``), or
@@ -249,6 +279,7 @@ class ManiSkillRollout(BenchmarkRollout):
         names = state_names(self._u.get_obs(unflattened=True))
         if len(names) != self._obs.shape[0]:
             raise RuntimeError(f"maniskill {task}: {len(names)} state names for a {self._obs.shape[0]}-D state")
+        self._joints = joint_slots(names, len(joints))  # joint positions / velocities: slices of the state
         info = self._info
         self._diagnostics = tuple(k for k, v in info.items()
                                   if k not in SKIP_INFO and hasattr(v, "shape") and tuple(v.shape) == (1,))
@@ -358,11 +389,15 @@ class ManiSkillRollout(BenchmarkRollout):
         return a
 
     def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
-        qpos = self._u.agent.robot.get_qpos()[0].cpu().numpy().astype(np.float32)
-        qvel = self._u.agent.robot.get_qvel()[0].cpu().numpy().astype(np.float32)
+        state = np.array(self._obs, dtype=np.float32)
+        if self._joints is not None:  # the state's own copy of get_qpos / get_qvel, read when it was computed
+            qpos, qvel = state[self._joints[0]].copy(), state[self._joints[1]].copy()
+        else:
+            qpos = self._u.agent.robot.get_qpos()[0].cpu().numpy().astype(np.float32)
+            qvel = self._u.agent.robot.get_qvel()[0].cpu().numpy().astype(np.float32)
         obs = {
             OBS_IMAGES: {k: self._render_camera(k) for k in self.spec.observation.images if request.wants_image(k)},
-            OBS_STATE: np.array(self._obs, dtype=np.float32),
+            OBS_STATE: state,
             OBS_JOINT_POSITIONS: qpos,
             OBS_JOINT_VELOCITIES: qvel,
         }
@@ -373,8 +408,7 @@ class ManiSkillRollout(BenchmarkRollout):
         return obs
 
     def _render_camera(self, key: str) -> np.ndarray:
-        images = self._u.get_sensor_images()
-        return np.ascontiguousarray(images["base_camera"]["rgb"][0].cpu().numpy().astype(np.uint8))
+        return np.ascontiguousarray(camera_rgb(self._u)[0].cpu().numpy().astype(np.uint8))
 
     def _sim_time_s(self) -> float:
         return self._t / float(self._u.control_freq)

@@ -153,8 +153,9 @@ class ManiSkillBatch:
 
     def _rgb(self, rows) -> np.ndarray:
         """The camera's frames of ``rows`` (uint8[k, H, W, 3]), rendered for the whole batch once."""
-        images = self._u.get_sensor_images()
-        return images["base_camera"]["rgb"][rows].cpu().numpy().astype(np.uint8)
+        from simseam.backends.maniskill import camera_rgb
+
+        return camera_rgb(self._u)[rows].cpu().numpy().astype(np.uint8)
 
     def render(self, env: int) -> np.ndarray | None:
         self._check_open()
