@@ -199,7 +199,7 @@ class ManifestScene:
         names = [j.name for j in self._ejoints]
         self._arm_idx = np.array([i for i, j in enumerate(self._ejoints) if j.role == "arm"], dtype=int)
         self._grip_idx = np.array([names.index(n) for n in robot.gripper.joints] if robot.gripper else [], dtype=int)
-        self._grip_sel = _as_slice(self._grip_idx)  # what every step indexes with
+        self._arm_sel, self._grip_sel = _as_slice(self._arm_idx), _as_slice(self._grip_idx)  # what every step indexes with
         self._lower = np.array([-np.inf if j.lower is None else j.lower for j in self._ejoints])
         self._upper = np.array([np.inf if j.upper is None else j.upper for j in self._ejoints])
         self._home = np.clip(np.array([j.home for j in self._ejoints]), self._lower, self._upper)
@@ -364,7 +364,7 @@ class ManifestScene:
             raise SimulationError("step() called before reset()")
         a = self.action_spec.clip(self.action_spec.validate(action))
         target = self._q_target
-        target[self._arm_idx] = self.arm.targets(a[self._act_arm], target[self._arm_idx], self._eef)
+        target[self._arm_sel] = self.arm.targets(a[self._act_arm], target[self._arm_sel], self._eef)
         if self.gripper is not None:
             target[self._grip_sel] = self.gripper.targets(float(a[self._act_grip]))
         self._servo(target, None if self._act_base is None else a[self._act_base])
@@ -502,9 +502,10 @@ class ManifestScene:
         """The observation keys ``self.spec.observation`` declares, narrowed by ``request``."""
         eng = self.engine
         q = eng.joint_positions()
-        self._eef = pos, rot = self.eef_pose_base()
+        pos, rot = self.eef_pose_base()
+        self._eef = eef = pos.tolist(), rot.tolist()  # for the task's state and the next step's Cartesian arm
         state = np.empty(self._state_dim, dtype=np.float32)
-        self.task.state(pos, rot, q[self._grip_sel], state, self._rot_reference)
+        self.task.state(*eef, q[self._grip_sel], state, self._rot_reference)
         images = {}
         self._frame = None
         if self.options.render_images:

@@ -83,11 +83,11 @@ class CartesianDeltaArm(ArmController):
         self._ref = None
         self.last_ik = None
 
-    def targets(self, values: np.ndarray, q_prev: np.ndarray, eef: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    def targets(self, values: np.ndarray, q_prev: np.ndarray, eef: tuple[list, list]) -> np.ndarray:
         """Arm targets for a delta already in [-1, 1]; ``q_prev``: the last arm targets;
-        ``eef``: the measured tool pose (pos, rot) in the base frame."""
-        # the poses in Python floats: 3-vectors and 3x3s cost less there than as numpy calls
-        pos, rot = eef[0].tolist(), eef[1].tolist()
+        ``eef``: the measured tool pose in the base frame, in Python floats (position, rotation rows):
+        3-vectors and 3x3s cost less there than as numpy calls."""
+        pos, rot = eef
         fk = self.chain.forward_rows(q_prev)  # the pose the last command asked for (reachable by construction)
         asked_pos, asked_rot, _ = fk
         if self._ref is None or (math.dist(asked_pos, pos) > REANCHOR_POS

@@ -132,12 +132,13 @@ class Task:
         return ("eef_pos.x", "eef_pos.y", "eef_pos.z", "eef_axis_angle.x", "eef_axis_angle.y",
                 "eef_axis_angle.z", *(f"gripper_qpos.{n}" for n in grip))
 
-    def state(self, eef_pos: np.ndarray, eef_rot: np.ndarray, gripper_q: np.ndarray, out: np.ndarray,
-              rot_reference: np.ndarray) -> None:
-        """Fill ``out`` (float32[len(state_names())]) from the measured tool pose (base frame) and
-        the gripper finger positions; the axis-angle is continuous around ``rot_reference`` (the
-        robot's home tool orientation, a quaternion of Python floats: ``math3d.matrix_to_axis_angle``)."""
-        out[:] = [*eef_pos.tolist(), *axis_angle_of(eef_rot.tolist(), rot_reference), *gripper_q.tolist()]
+    def state(self, eef_pos: list[float], eef_rot: list[list[float]], gripper_q: np.ndarray, out: np.ndarray,
+              rot_reference: tuple[float, ...]) -> None:
+        """Fill ``out`` (float32[len(state_names())]) from the measured tool pose (base frame, Python floats:
+        the position and the rotation's rows) and the gripper finger positions; the axis-angle is continuous
+        around ``rot_reference`` (the robot's home tool orientation, a quaternion of Python floats:
+        ``math3d.matrix_to_axis_angle``)."""
+        out[:] = [*eef_pos, *axis_angle_of(eef_rot, rot_reference), *gripper_q.tolist()]
 
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
         """Reward, success and diagnostics after a control step."""
