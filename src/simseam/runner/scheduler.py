@@ -8,9 +8,16 @@ step the batched policy (``PolicyBatch``: ``reset(env, spec)``, ``observe_next(e
 ``act_batch(envs, observations)``) acts for every busy environment at once, and the batch steps
 exactly those, observing what each environment's policy will read next.
 
+Pipelined lockstep (``groups`` K > 1): environment ``j`` belongs to group ``j % K``, and the groups take
+turns: the scheduler receives group ``g``'s step (``step_receive``), does its bookkeeping (ended
+episodes, resets, videos, callbacks), lets the policy act for its busy environments and starts their
+next step (``step_send``) while the other groups' steps are in flight, so this process's work overlaps
+the workers' stepping. K = 1 is plain lockstep; the per-episode results do not depend on K for a
+deterministic per-environment policy. A step's ``step_ms`` is the time spent sending and receiving it.
+
 A policy with ``act_device(observation)`` on a batch with ``device_observation()`` /
 ``step_device(actions)`` (MuJoCo Warp) reads the batch's device arrays and answers device actions
-for every environment: no host copy of observations or actions.
+for every environment: no host copy of observations or actions (one group only).
 
 Failures (``BatchRollout.failures``): an environment whose process died loses its episode through no
 fault of the episode, which goes back to the front of the queue (at most ``max_attempts`` times, then
@@ -37,7 +44,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.seam import INFO_DIAGNOSTICS, SimulationError
+from simseam.seam import INFO_DIAGNOSTICS, ConfigError, SimulationError
 
 
 class EpisodeQueue:
@@ -168,25 +175,35 @@ class _Videos:
             self.drop(env)
 
 
+def check_groups(groups: int, num_envs: int) -> None:
+    """The number of policy groups of a lockstep run: 1 .. ``num_envs`` (else a ``ConfigError``)."""
+    if isinstance(groups, bool) or not isinstance(groups, int) or not 1 <= groups <= num_envs:
+        raise ConfigError(f"policy groups must be an integer in 1..{num_envs} (the environments), got {groups!r}")
+
+
 def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-              max_attempts: int = 3,
+              max_attempts: int = 3, groups: int = 1,
               on_start: Callable[[int, int], None] | None = None,
               on_step: Callable[[int, int, int], None] | None = None,
               on_done: Callable[[EpisodeResult], None] | None = None,
               on_error: Callable[[EpisodeResult, str], None] | None = None,
               on_worker_failure: Callable[[WorkerFailure], None] | None = None,
               keep: bool = True) -> list[EpisodeResult]:
-    """Run episodes ``indices`` on ``batch`` (see the module docstring). ``on_start(env, index)``,
-    ``on_step(env, index, steps)`` and ``on_done(result)`` follow each episode; ``on_error(result,
-    what_next)``: a sidecar failure cost the episode; ``on_worker_failure``: an environment's process
-    died. Results in the order the episodes finished (none with ``keep=False``: a long run that takes each
-    result through ``on_done`` keeps its memory flat)."""
+    """Run episodes ``indices`` on ``batch`` (see the module docstring). ``groups``: the pipelined lockstep's
+    number of groups (1: every environment steps together). ``on_start(env, index)``, ``on_step(env, index,
+    steps)`` and ``on_done(result)`` follow each episode; ``on_error(result, what_next)``: a sidecar failure
+    cost the episode; ``on_worker_failure``: an environment's process died. Results in the order the
+    episodes finished (none with ``keep=False``: a long run that takes each result through ``on_done``
+    keeps its memory flat)."""
     spec, n = batch.spec, batch.num_envs
     if getattr(policy, "n", n) < n:
         raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
+    check_groups(groups, n)
+    device = callable(getattr(policy, "act_device", None)) and callable(getattr(batch, "device_observation", None))
+    if device and groups > 1:
+        raise ConfigError("a device policy (act_device) steps every world at once: it takes policy groups 1")
     episodes = _Episodes(indices, n, seed, max_attempts)
     videos = _Videos(batch, video_dir)
-    device = callable(getattr(policy, "act_device", None)) and callable(getattr(batch, "device_observation", None))
     obs: list = [None] * n
     results: list[EpisodeResult] = []
 
@@ -232,39 +249,66 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
                     videos.frame(env)
             envs = [e for e in started if e in fails]  # start them again with the next episodes
 
+    def send(members: list[int]) -> _Flight | None:
+        """The policy acts for the busy environments of ``members`` and their step starts (None: none busy)."""
+        busy = [e for e in members if episodes.playing[e] is not None]
+        return _send(batch, policy, busy, obs, device) if busy else None
+
+    members = [list(range(g, n, groups)) for g in range(groups)]
     try:
         start(range(n))
-        while busy := episodes.busy():
-            ended = _step_all(batch, policy, busy, obs, episodes, videos, device, failed, on_step)
-            for env, res in ended:
-                res.video = videos.finish(env)
-                finish(env, res)
-            free = [env for env in busy if episodes.playing[env] is None]  # ended, or failed in the step
-            if free:
-                start(free)
+        flights = [send(m) for m in members]
+        while any(flights):
+            for g, flight in enumerate(flights):
+                if flight is None:
+                    continue
+                ended = _receive(batch, flight, obs, episodes, videos, device, failed, on_step)
+                for env, res in ended:
+                    res.video = videos.finish(env)
+                    finish(env, res)
+                free = [env for env in flight.envs if episodes.playing[env] is None]  # ended, or failed in the step
+                if free:
+                    start(free)
+                flights[g] = send(members[g])
     finally:
         videos.close()
     return results
 
 
-def _step_all(batch, policy, busy: list[int], obs: list, episodes: _Episodes, videos: _Videos, device: bool,
-              failed: Callable, on_step) -> list[tuple[int, EpisodeResult]]:
-    """One control step of every busy environment; the episodes that ended, with their environments."""
-    spec = batch.spec
+@dataclass
+class _Flight:
+    """A group's step in flight: its environments, the policy's time for them and the send's, and (the
+    device path, stepped at the receive) the device actions."""
+
+    envs: list[int]
+    policy_ms: float
+    send_ms: float = 0.0
+    device_actions: object = None
+
+
+def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
+    """The policy acts for ``envs`` and their step starts (``step_send``; the device path keeps the actions)."""
     t0 = time.perf_counter()
     if device:
         actions = policy.act_device(batch.device_observation())
-    else:
-        actions = np.asarray(policy.act_batch(busy, [obs[e] for e in busy]), dtype=np.float32)
-        if actions.shape != (len(busy), spec.action_dim):
-            raise SimulationError(f"act_batch returned shape {actions.shape} for {len(busy)} environments")
-    policy_ms = (time.perf_counter() - t0) * 1e3
+        return _Flight(envs, (time.perf_counter() - t0) * 1e3, device_actions=actions)
+    actions = np.asarray(policy.act_batch(envs, [obs[e] for e in envs]), dtype=np.float32)
+    if actions.shape != (len(envs), batch.spec.action_dim):
+        raise SimulationError(f"act_batch returned shape {actions.shape} for {len(envs)} environments")
+    t1 = time.perf_counter()
+    batch.step_send(envs, actions, [policy.observe_next(e) for e in envs])
+    return _Flight(envs, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
+
+
+def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Videos, device: bool,
+             failed: Callable, on_step) -> list[tuple[int, EpisodeResult]]:
+    """The end of one control step of ``flight``'s environments; the episodes that ended, with their
+    environments."""
+    spec, busy = batch.spec, flight.envs
     t0 = time.perf_counter()
-    if device:
-        r = batch.step_device(actions, busy)
-    else:
-        r = batch.step(busy, actions, [policy.observe_next(e) for e in busy])
-    step_ms = (time.perf_counter() - t0) * 1e3
+    r = batch.step_device(flight.device_actions, busy) if device else batch.step_receive(busy)
+    step_ms = flight.send_ms + (time.perf_counter() - t0) * 1e3
+    policy_ms = flight.policy_ms
     fails = batch.failures()
     ended = []
     playing, success_key, max_steps = episodes.playing, spec.task.success_key, spec.task.max_steps
@@ -309,8 +353,11 @@ class BatchVectorEnv:
         self.restarts = 0  # the worker processes' counter of restarted workers: none here
 
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3, on_start=None, on_step=None, on_done=None, on_error=None,
+            max_attempts: int = 3, groups: int = 1, on_start=None, on_step=None, on_done=None, on_error=None,
             on_worker_failure=None, keep: bool = True) -> list[EpisodeResult]:
+        if groups != 1:  # a batched simulator keeps simulating the environments left out of a step
+            raise ConfigError(f"policy groups {groups}: pipelined lockstep needs worker processes; these "
+                              f"{self.num_envs} environments step together in one batch (use 1 group)")
         return run_batch(self.batch, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
                          on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
                          on_worker_failure=on_worker_failure, keep=keep)

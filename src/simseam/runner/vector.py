@@ -4,7 +4,8 @@
 rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` whose sidecar the
 worker owns) and answers ``reset`` / ``step`` / ``render`` / video commands over a pipe. The workers
 together are a ``BatchRollout`` (seam/batch.py): ``reset`` and ``step`` send each named worker its
-command and wait for every reply; ``run(policy, indices)`` is the episode scheduler
+command and wait for every reply (``step_send`` / ``step_receive``: the step in two halves, so the
+policy acts for one group of workers while another steps); ``run(policy, indices)`` is the episode scheduler
 (``runner.scheduler``) over this batch, the same loop as every other batch's. ``run_local`` puts
 the policy inside each worker instead (policies that share no model): workers play whole episodes
 and send back only their results. Episode ``i`` always uses seed ``seed + i``, so the per-episode
@@ -570,6 +571,8 @@ class _Slot:
     fd: int = -1  # conn's file descriptor
     sentinel: int = -1  # the process's sentinel (readable when it has ended)
     waiter: Any = None  # a select.poll on conn and the sentinel: waiting for its reply
+    stepping: bool = False  # a step sent (step_send), its reply not yet received (step_receive)
+    rung: int | None = None  # its ring (see _rings), read while other workers' replies were awaited
 
 
 class VectorEnv:
@@ -715,11 +718,17 @@ class VectorEnv:
                 return msg
 
     def _replies(self, slots: list[_Slot], spin: bool = False) -> list:
-        """The workers' replies to the resets or steps just sent to ``slots``, in their order (None: the
-        worker died), each read as soon as its worker rings the bell (a slow worker does not hold up
-        reading the others'). With ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
+        """The workers' replies to the resets or steps sent to ``slots``, in their order (None: the worker
+        died), each read as soon as its worker rings the bell (a slow worker does not hold up reading the
+        others'); a reply that rang while other workers' were awaited is taken from ``rung``. With
+        ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
         out: list = [None] * len(slots)
-        waiting = {s.env: j for j, s in enumerate(slots) if s.env not in self._dead}
+        waiting = {}
+        for j, s in enumerate(slots):
+            if s.rung is not None:
+                out[j], s.rung = self._read_ring(s, s.rung), None
+            elif s.env not in self._dead:
+                waiting[s.env] = j
         spin_s = self.spin_us * 1e-6 if spin else 0.0
         while waiting:
             for fd, _ in self._events(spin_s):
@@ -740,19 +749,27 @@ class VectorEnv:
         return self._poll.poll()
 
     def _rung(self, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
-        """Every ring in the bell: each a reply of a worker in ``waiting`` (see ``_rings``), read into ``out``."""
+        """Every ring in the bell (see ``_rings``): a reply of a worker in ``waiting`` is read into ``out``;
+        any other worker's (its step in flight, pipelined) is kept in its ``rung`` for its own receive."""
         try:
             rings = os.read(self._bell, 4096)
         except BlockingIOError:
             return
         for ring in memoryview(rings).cast("i"):
-            j = waiting.pop(ring >> 1)
-            s = slots[j]
-            out[j] = s.block.read() if ring & 1 else self._recv(s, readable=True)
+            j = waiting.pop(ring >> 1, None)
+            if j is None:
+                self.slots[ring >> 1].rung = ring
+            else:
+                out[j] = self._read_ring(slots[j], ring)
+
+    def _read_ring(self, s: _Slot, ring: int):
+        """The reply ``ring`` announced: in the worker's step block, or in its pipe."""
+        return s.block.read() if ring & 1 else self._recv(s, readable=True)
 
     def _ended(self, sentinel: int, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
         """A worker process ended: a reply it rang for before it died is read; if it owed one, its entry in
-        ``out`` stays None; else its next reset or step finds it dead (``_dead``)."""
+        ``out`` stays None; else its next reset or step, or the receive of its step in flight, finds it dead
+        (``_dead``)."""
         self._rung(slots, waiting, out)
         s = self._sentinels.pop(sentinel)
         self._poll.unregister(sentinel)
@@ -812,6 +829,7 @@ class VectorEnv:
             raise ConfigError(f"reset: {len(idx)} environments but {len(seeds)} seeds")
         requests = per_env_requests(observe, len(idx), "reset")
         slots = [self.slots[e] for e in idx]
+        self._check_idle(slots, "reset")
         self._wait_booted(slots)
         for s, seed, want in zip(slots, seeds, requests):
             video, s.video = s.video, None
@@ -827,6 +845,12 @@ class VectorEnv:
         return out
 
     def step(self, envs: Sequence[int], actions, observe=None) -> BatchStepResult:
+        idx = self._envs(envs, "step")
+        self.step_send(idx, actions, observe)
+        return self.step_receive(idx)
+
+    def step_send(self, envs: Sequence[int], actions, observe=None) -> None:
+        """Start the step of ``envs``: each worker gets its action (``step_receive`` collects the replies)."""
         self._check_open()
         idx = self._envs(envs, "step")
         k = len(idx)
@@ -836,13 +860,25 @@ class VectorEnv:
             batch_actions(self.spec, actions, k)  # the InvalidActionError naming the row
         requests = per_env_requests(observe, k, "step")
         slots = [self.slots[e] for e in idx]
+        self._check_idle(slots, "step_send")
         central = self.central
         for s, row, want in zip(slots, a, requests):
             if central is not None:
                 s.want, want = want, worker_request(want)
+            s.stepping = True
             self._step(s, row, want)
+
+    def step_receive(self, envs: Sequence[int]) -> BatchStepResult:
+        """The results of the step ``step_send`` started for ``envs``, waiting for exactly those workers."""
+        idx = self._envs(envs, "step_receive")
+        slots = [self.slots[e] for e in idx]
+        if not all(s.stepping for s in slots):
+            raise ConfigError(f"step_receive: envs {[s.env for s in slots if not s.stepping]} have no step in flight")
+        replies = self._replies(slots, spin=bool(self.spin_us))
+        central = self.central
         obs, rewards, terminated, truncated, infos = [], [], [], [], []
-        for s, msg in zip(slots, self._replies(slots, spin=bool(self.spin_us))):
+        for s, msg in zip(slots, replies):
+            s.stepping = False
             if msg is not None and msg[0] == "obs" and central is None:  # the usual reply, as _answer takes it
                 o, (reward, term, trunc, info) = msg[1], msg[2]
             else:
@@ -856,6 +892,11 @@ class VectorEnv:
         self._draw(slots, obs)
         return BatchStepResult(np.array(idx, dtype=np.int64), obs, np.array(rewards, dtype=np.float64),
                                np.array(terminated, dtype=bool), np.array(truncated, dtype=bool), infos)
+
+    @staticmethod
+    def _check_idle(slots: list[_Slot], where: str) -> None:
+        if any(s.stepping for s in slots):
+            raise ConfigError(f"{where}: envs {[s.env for s in slots if s.stepping]} have a step in flight")
 
     def _envs(self, envs: Sequence[int], where: str) -> list[int]:
         """``envs`` as a list of distinct indices in ``[0, num_envs)`` (``env_indices``' rule; a list of
@@ -994,7 +1035,7 @@ class VectorEnv:
 
     # -- episodes
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3,
+            max_attempts: int = 3, groups: int = 1,
             on_start: Callable[[int, int], None] | None = None,
             on_step: Callable[[int, int, int], None] | None = None,
             on_done: Callable[[EpisodeResult], None] | None = None,
@@ -1003,11 +1044,12 @@ class VectorEnv:
             keep: bool = True) -> list[EpisodeResult]:
         """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
         ``num_envs`` environments), stepped together: the episode scheduler (``runner.scheduler``) over
-        this batch. Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
+        this batch; ``groups`` > 1: pipelined lockstep (the policy acts for one group of workers while the
+        others step; see ``runner.scheduler``). Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
         (once per episode, as it finishes: order may differ from ``indices``), ``on_error(result,
         what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``; ``keep`` as ``run_batch``'s."""
         return run_batch(self, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
-                         on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
+                         groups=groups, on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
                          on_worker_failure=on_worker_failure, keep=keep)
 
     def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,

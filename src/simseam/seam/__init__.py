@@ -11,7 +11,8 @@ any interpreter that hosts an engine can import it.
 - ``keys``: the one vocabulary of observation, info and feature names
 - ``errors``: the error hierarchy
 - ``batch``: the ``BatchRollout`` protocol (N environments reset and stepped by index),
-  ``BatchStepResult`` and ``SyncBatchRollout`` (a batch of separate rollouts)
+  ``BatchStepResult``, ``SyncBatchRollout`` (a batch of separate rollouts) and ``SyncStepPair`` (the
+  step send / receive pair of a batch that steps synchronously)
 - ``checker``: ``check_rollout``, the conformance check every backend passes, and
   ``check_batch_rollout`` for batches
 
@@ -37,7 +38,7 @@ The observation contract, key by key (shapes in ``rollout.spec.observation``):
   beside ``state`` (LeRobot's ``observation.environment_state``).
 """
 
-from simseam.seam.batch import BatchRollout, BatchStepResult, EnvFailure, SyncBatchRollout
+from simseam.seam.batch import BatchRollout, BatchStepResult, EnvFailure, SyncBatchRollout, SyncStepPair
 from simseam.seam.checker import RolloutContractError, check_batch_rollout, check_rollout, observation_problems
 from simseam.seam.errors import (
     BackendUnavailableError,
@@ -77,6 +78,6 @@ __all__ = [
     "CAP_RESTART", "ConfigError", "ControlMode", "FULL", "FieldSpec", "GripperFacts", "InvalidActionError",
     "JointFacts", "LinkFacts", "NormBound", "ObsRequest", "Observation", "ObservationSpec", "OPTIONAL_OBS_KEYS",
     "REQUIRED_OBS_KEYS", "RobotFacts", "RolloutContractError", "RolloutSpec", "STATE_ONLY", "SensorFacts",
-    "SidecarError", "SimRollout", "SimseamError", "SimulationError", "StepResult", "SyncBatchRollout", "TaskSpec", "check_action", "check_batch_rollout",
+    "SidecarError", "SimRollout", "SimseamError", "SimulationError", "StepResult", "SyncBatchRollout", "SyncStepPair", "TaskSpec", "check_action", "check_batch_rollout",
     "check_rollout", "observation_problems",
 ]

@@ -17,6 +17,13 @@ Contract (checked by ``simseam.seam.check_batch_rollout``):
   a non-finite value raises ``InvalidActionError`` and changes nothing; values outside the slot
   bounds are clipped. An environment left out of a step does not advance its episode, but a
   batched simulator may keep simulating it: reset it before stepping it again.
+- ``step_send(envs, actions, observe)`` / ``step_receive(envs)``: ``step`` in two halves, so a runner
+  can act for some environments while others step (pipelined lockstep, ``runner.scheduler``).
+  ``step_send`` starts the step of ``envs`` (the same arguments and checks as ``step``);
+  ``step_receive(envs)`` returns its ``BatchStepResult`` (``envs`` exactly as sent). Steps of
+  disjoint sets of environments may be in flight together, received in any order, and the others
+  may be reset meanwhile; ``step`` is ``step_send`` then ``step_receive``. ``SyncStepPair`` gives a
+  batch that steps synchronously the pair (the step runs in ``step_receive``).
 - ``observe`` is ``None`` (everything), one ``ObsRequest`` for all, or one per environment.
 - ``render(env)``: ``uint8[H, W, 3]`` of that environment's first RGB camera, or None.
 - ``failures()``: the environments whose episode ended by a failure of their own since the last call
@@ -100,6 +107,10 @@ class BatchRollout(Protocol):
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> BatchStepResult: ...
 
+    def step_send(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> None: ...
+
+    def step_receive(self, envs: Sequence[int]) -> BatchStepResult: ...
+
     def render(self, env: int) -> np.ndarray | None: ...
 
     def failures(self) -> dict[int, EnvFailure]: ...
@@ -145,7 +156,26 @@ def batch_actions(spec: RolloutSpec, actions: Any, k: int) -> np.ndarray:
     return out
 
 
-class SyncBatchRollout:
+class SyncStepPair:
+    """``step_send`` / ``step_receive`` for a batch whose ``step`` is synchronous: the send is kept and
+    the receive runs it (``step``), so a pipelined runner drives any batch alike."""
+
+    def step_send(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> None:
+        sent = self.__dict__.setdefault("_sent_steps", {})
+        key = tuple(np.asarray(envs, dtype=np.int64).reshape(-1).tolist())
+        if key in sent:
+            raise ConfigError(f"step_send: envs {list(key)} already have a step in flight")
+        sent[key] = (envs, actions, observe)
+
+    def step_receive(self, envs: Sequence[int]) -> BatchStepResult:
+        key = tuple(np.asarray(envs, dtype=np.int64).reshape(-1).tolist())
+        sent = self.__dict__.get("_sent_steps", {})
+        if key not in sent:
+            raise ConfigError(f"step_receive: no step of envs {list(key)} in flight")
+        return self.step(*sent.pop(key))
+
+
+class SyncBatchRollout(SyncStepPair):
     """A ``BatchRollout`` over separate single rollouts of one spec (in-process scenes, sidecars), stepped
     one after another in this process: the batch of any backend that does not batch itself."""
 

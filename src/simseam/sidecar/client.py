@@ -67,7 +67,7 @@ from simseam.seam import (
     StepResult,
     check_action,
 )
-from simseam.seam.batch import (BatchStepResult, EnvFailure, Requests, batch_actions, env_indices,
+from simseam.seam.batch import (BatchStepResult, EnvFailure, Requests, SyncStepPair, batch_actions, env_indices,
                                 per_env_requests)
 from simseam.sidecar.errors import (
     SidecarAccessError,
@@ -612,7 +612,7 @@ class SidecarRollout:
         self.close()
 
 
-class SidecarBatchRollout(SidecarRollout):
+class SidecarBatchRollout(SyncStepPair, SidecarRollout):
     """A ``BatchRollout`` (seam/batch.py) of ``num_envs`` environments served by one sidecar: the backend's
     own batch when it simulates them together (ManiSkill3's GPU physics), else ``num_envs`` copies the
     sidecar steps in turn. Same boot, transport, crash handling and arguments as ``SidecarRollout``

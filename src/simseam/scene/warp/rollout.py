@@ -31,7 +31,7 @@ from simseam.seam import (
     SimulationError,
     StepResult,
 )
-from simseam.seam.batch import Requests, batch_actions, env_indices, per_env_requests
+from simseam.seam.batch import Requests, SyncStepPair, batch_actions, env_indices, per_env_requests
 
 _FULL = ObsRequest()
 
@@ -127,7 +127,7 @@ class WarpRollout:
         self.close()
 
 
-class WarpBatchRollout:
+class WarpBatchRollout(SyncStepPair):
     """The worlds of a ``BatchedScene`` as a ``BatchRollout`` (seam/batch.py): reset and stepped by index.
     Every control step advances every world's physics (MuJoCo Warp steps them together). A world left
     out of ``step`` does not advance its episode; it holds still meanwhile (a zero Cartesian delta, or

@@ -1,0 +1,105 @@
+"""Pipelined lockstep (``run_batch(groups=K)``): the policy acts for one group of workers while the others
+step. Per-episode results equal plain lockstep's (K = 1) and one process's whatever K, through a worker
+killed mid-run and with videos; the worker processes' step send / receive pair keeps the replies of the
+other groups in flight for their own receive."""
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from simseam.policies.batch import make_policy_batch
+from simseam.runner.scene_config import load_scene_config
+from simseam.runner.recipe import SceneRecipe
+from simseam.runner.scheduler import BatchVectorEnv, run_batch
+from simseam.runner.vector import VectorEnv
+from simseam.seam import STATE_ONLY, ConfigError, SyncBatchRollout
+
+from test_vector import _outcome, _recipe, _scene, _sequential
+
+
+def _run(scene, n: int, groups: int, indices, seed: int, **kwargs) -> dict[int, tuple]:
+    pol = make_policy_batch("scripted", n)
+    with VectorEnv(_recipe(scene, pol, seed), n) as vec:
+        return {r.index: _outcome(r) for r in vec.run(pol, indices, seed=seed, groups=groups, **kwargs)}
+
+
+def test_groups_give_the_results_of_one_process(tmp_path):
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(7), seed=4)
+    assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
+    for groups in (1, 2, 3):
+        assert _run(scene, 3, groups, range(7), seed=4) == reference, groups
+
+
+def test_a_worker_killed_mid_run_with_groups_reruns_its_episode_once(tmp_path):
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(5), seed=1)
+    pol = make_policy_batch("scripted", 3)
+    failures, done, killed = [], [], []
+    with VectorEnv(_recipe(scene, pol, 1), 3) as vec:
+        def on_step(env, index, steps):  # episode 2, mid-way: SIGKILL its worker (another group is in flight)
+            if index == 2 and steps == 6 and not killed:
+                killed.append(env)
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(5), seed=1, groups=2, on_step=on_step, on_done=done.append,
+                          on_worker_failure=failures.append)
+        assert vec.restarts == 1
+    assert killed and len(failures) == 1 and failures[0].index == 2
+    assert sorted(r.index for r in done) == list(range(5))
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_videos_with_groups_are_one_per_episode(tmp_path):
+    scene = _scene(tmp_path, steps=12)
+    out = tmp_path / "videos"
+    out.mkdir()
+    pol = make_policy_batch("scripted", 2)
+    with VectorEnv(_recipe(scene, pol, 0), 2) as vec:
+        results = vec.run(pol, range(3), seed=0, groups=2, video_dir=out)
+    assert sorted(p.name for p in out.iterdir()) == ["episode_000.mp4", "episode_001.mp4", "episode_002.mp4"]
+    assert all(r.video for r in results)
+
+
+def test_replies_of_other_groups_wait_for_their_receive_and_a_reset_meanwhile_works(tmp_path):
+    """Group A = [0, 2] and group B = [1] in flight together; B's reply arrives while A's are awaited
+    and is kept; B's env is reset while A is in flight; each result equals the plain step's."""
+    cfg, base = load_scene_config(_scene(tmp_path, steps=20))
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False)
+    a = lambda vec, k: np.full((k, vec.spec.action_dim), 0.1, np.float32)  # noqa: E731
+    with VectorEnv(recipe, 3) as vec:
+        vec.reset([0, 1, 2], [5, 5, 5], STATE_ONLY)
+        plain = vec.step([0, 1, 2], a(vec, 3), STATE_ONLY).observations
+        vec.reset([0, 1, 2], [5, 5, 5], STATE_ONLY)
+        vec.step_send([1], a(vec, 1), STATE_ONLY)
+        vec.step_send([0, 2], a(vec, 2), STATE_ONLY)
+        with pytest.raises(ConfigError, match="in flight"):
+            vec.step_send([2], a(vec, 1), STATE_ONLY)
+        got = vec.step_receive([0, 2]).observations
+        late = vec.step_receive([1]).observations
+        vec.step_send([0, 2], a(vec, 2), STATE_ONLY)
+        vec.reset([1], [5], STATE_ONLY)  # B reset while A steps
+        vec.step_send([1], a(vec, 1), STATE_ONLY)
+        again = vec.step_receive([1]).observations
+        vec.step_receive([0, 2])
+        with pytest.raises(ConfigError, match="no step in flight"):
+            vec.step_receive([0])
+    for o, p in zip(got + late + again, [plain[0], plain[2], plain[1], plain[1]]):
+        assert np.array_equal(o["state"], p["state"])
+
+
+def test_groups_out_of_range_and_on_a_one_process_batch_are_refused(tmp_path):
+    from simseam.runner.scene_config import build_rollout
+
+    cfg, base = load_scene_config(_scene(tmp_path, steps=5))
+    batch = SyncBatchRollout([build_rollout(cfg, base, privileged=True, render_images=False) for _ in range(2)])
+    pol = make_policy_batch("scripted", 2)
+    with batch:
+        for bad in (0, 3):
+            with pytest.raises(ConfigError, match=r"policy groups must be an integer in 1\.\.2"):
+                run_batch(batch, pol, range(2), groups=bad)
+        with pytest.raises(ConfigError, match="worker processes"):
+            BatchVectorEnv(batch).run(pol, range(2), groups=2)
+        assert len(run_batch(batch, pol, range(3), groups=2)) == 3  # the sync pair: any batch pipelines alike
