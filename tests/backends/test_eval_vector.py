@@ -74,6 +74,17 @@ def test_two_workers_across_tasks_equal_the_sequential_run(reference, tmp_path):
     assert "push-v3" in proc.stdout and "mean of tasks" in proc.stdout
 
 
+def test_policy_groups_step_the_workers_from_here_with_the_same_results(reference, tmp_path):
+    """--policy-groups 2: the scripted experts act in this process (one per environment), one group of
+    workers stepping while the policy acts for the other; the episodes are the sequential run's."""
+    want, _ = reference
+    out = tmp_path / "run"
+    proc = simseam(*ARGS, "--num-envs", "2", "--policy-groups", "2", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "metaworld: 2 environments (one batched policy, one task at a time, 2 policy groups)" in proc.stdout
+    assert outcomes(out) == want
+
+
 def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path):
     """The vector tests' technique: freeze a busy worker; if it has sent nothing, it is mid-episode: kill it."""
     from simseam.runner.evaluate import preset, run_eval_vector

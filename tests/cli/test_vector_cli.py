@@ -75,6 +75,19 @@ def test_num_envs_gives_the_same_episodes_as_one_process(scene, tmp_path):
     assert s1["spec"] == s2["spec"]
 
 
+def test_policy_groups_give_the_same_episodes_as_one_process(scene, tmp_path):
+    """--policy-groups 2: the scripted policy acts in this process for one group of workers while the
+    other steps (pipelined lockstep); the episodes are those of one process."""
+    one, piped = tmp_path / "one", tmp_path / "piped"
+    args = ("run", "--scene", scene(steps=30), "--policy", "scripted", "--episodes", "4", "--seed", "5")
+    a = _simseam(*args, "--num-envs", "1", "--out", one)
+    b = _simseam(*args, "--num-envs", "3", "--policy-groups", "2", "--out", piped)
+    assert a.returncode == 0, a.stderr
+    assert b.returncode == 0, b.stderr
+    assert "one batched policy, 2 policy groups" in b.stdout
+    assert _outcomes(one) == _outcomes(piped) and len(_outcomes(one)) == 4
+
+
 def test_a_worker_killed_mid_run_costs_nothing(scene, tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=200)),
@@ -166,6 +179,10 @@ def test_bad_vector_options_are_one_line_errors(scene, tmp_path):
                     "engine: {name: mujoco, process: sidecar, keep_alive: true}\n")
     r = _simseam("run", "--scene", keep, "--episodes", "2", "--num-envs", "2", "--out", tmp_path / "z")
     assert r.returncode == 2 and "engine.keep_alive" in r.stderr and "--num-envs 1" in r.stderr
+    for groups, expected in (("3", "--policy-groups 3: expected 1..2"), ("0", "--policy-groups 0: expected 1..2")):
+        r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--num-envs", "2", "--policy-groups",
+                     groups, "--out", tmp_path / f"g{groups}")
+        assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
 def test_batched_renderer_gives_the_same_episodes_and_writes_the_videos(scene, tmp_path):

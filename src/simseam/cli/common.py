@@ -34,6 +34,21 @@ def check_seed(seed: int) -> None:
         fail(ConfigError(f"--seed {seed}: seeds are integers from 0 to {MAX_SEED} (episode i uses seed + i)"))
 
 
+POLICY_GROUPS_HELP = ("Step the --num-envs workers in lockstep from this process, the policy acting for one of K "
+                      "groups of workers while the others step (pipelined lockstep; 1..--num-envs, default 1: "
+                      "plain lockstep for lerobot:/remote: policies, others run inside each worker). Results do "
+                      "not depend on it. docs/evaluation.md")
+
+
+def check_policy_groups(groups: int, num_envs: int | None, ray: bool) -> None:
+    """``--policy-groups``: 1 .. ``--num-envs`` (when given), and not with ``--ray`` (a ``ConfigError``)."""
+    if groups < 1 or (num_envs is not None and groups > num_envs):
+        raise ConfigError(f"--policy-groups {groups}: expected 1..{num_envs or 'N'} (at most --num-envs)")
+    if ray and groups > 1:
+        raise ConfigError("--policy-groups pipelines the policy acting in this process; with --ray each Ray "
+                          "worker runs its own")
+
+
 def policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:
     kwargs = {}
     if device:

@@ -13,8 +13,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (EvalProgress, check_seed, close_policy, console, episodes_guard, err_console, fail,
-                                never_started, policy_kwargs, redacted, sigterm_as_interrupt, SpecProbe)
+from simseam.cli.common import (POLICY_GROUPS_HELP, EvalProgress, check_policy_groups, check_seed, close_policy,
+                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted,
+                                sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -117,6 +118,7 @@ def run(
                                  "worker process; lerobot:/remote: policies act for all of them in one batch, others "
                                  "run inside each worker (default: sized to the cores and the episodes; 1 with "
                                  "--record-dataset). Results do not depend on it."),
+    policy_groups: int = typer.Option(1, "--policy-groups", help=POLICY_GROUPS_HELP),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes e with e % K == i (batch "
                               "schedulers, e.g. Slurm arrays); combine the K run directories with simseam merge."),
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
@@ -142,6 +144,7 @@ def run(
 
         shard_ik = parse_shard(shard) if shard is not None else None
         planned = check_shard_holds_episodes(shard_indices(episodes, shard_ik), shard_ik, episodes)
+        check_policy_groups(policy_groups, num_envs, ray_address is not None)
         if record_dataset is not None and (num_envs or 1) > 1:
             raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
         if record_dataset is not None:
@@ -184,7 +187,7 @@ def run(
         num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
     if num_envs > 1 or renderer == "batched":
         _run_vector(scene, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer)
+                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer, groups=policy_groups)
         return
     try:
         cfg, pol, rollout = _open_run((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps),
@@ -221,13 +224,16 @@ def run(
 
 
 def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
-                todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers") -> None:
-    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md)."""
+                todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers",
+                groups: int = 1) -> None:
+    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md), the
+    policy in this process in ``groups`` groups (pipelined lockstep, at most N) or inside each worker."""
     from simseam.policies.base import make_policy
     from simseam.runner.recipe import SceneRecipe
     from simseam.runner.vector import VectorEnv
 
     num_envs = max(1, min(num_envs, len(todo)))
+    groups = min(groups, num_envs)
     vec = pol = probe = None
     cfg, base_dir = scene_file
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
@@ -262,13 +268,16 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
                                   privileged=privileged, render_images=uses_images or video, seed=seed)
         probe.reset(vec.spec)  # the policy's contract against the scene, before the run starts
-        pol = _vector_policy(probe, policy, policy_kwargs, num_envs, acts_here=one_batch or renderer == "batched")
+        pol = _vector_policy(probe, policy, policy_kwargs, num_envs,
+                             acts_here=one_batch or renderer == "batched" or groups > 1)
         probe = None  # the batch owns it now, or it was closed
         spec_json = vec.spec.to_json()
         run_dir.write_spec(spec_json)
         where = "one batched policy" if pol is not None else "a policy in each worker"
         if renderer == "batched":
             where += ", cameras drawn here in one batch"
+        if pol is not None and groups > 1:
+            where += f", {groups} policy groups"
         console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
                       f"on {num_envs} environments ({where}) -> {escape(str(out))}")
         with EvalProgress(console, total=len(todo)) as progress:
@@ -279,8 +288,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
 
             common = dict(seed=seed, video_dir=out if video else None, on_done=done, keep=False,
                           on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
-            if pol is not None:  # N worlds on the device, or a shared model: stepped together, batched
-                vec.run(pol, todo, **common)
+            if pol is not None:  # N worlds on the device, a shared model, or groups: stepped together, batched
+                vec.run(pol, todo, groups=groups, **common)
             else:
                 vec.run_local(policy, policy_kwargs, todo, **common)
 
@@ -288,8 +297,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
 def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, acts_here: bool):
     """The policy batch that acts in this process for ``num_envs`` workers, or None when each worker runs
     its own instance (whole episodes at a time). A policy that shares a model or a server batches; any other
-    acts here only when the workers must be stepped from here (``acts_here``: N worlds in this process, or
-    the cameras drawn here), one instance per environment (``probe`` is the first)."""
+    acts here only when the workers must be stepped from here (``acts_here``: N worlds in this process, the
+    cameras drawn here, or policy groups), one instance per environment (``probe`` is the first)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import PerEnvPolicies, shared_batch
 
