@@ -9,8 +9,9 @@ default, as simseam's maniskill backend requests it) and each N in ``--n``:
   ManiSkill's own camera observation mode), ``torch.set_num_threads(1)`` as the backend sets it;
 - **seam**: N worker processes, each owning one ``SidecarRollout`` of ``BackendTarget("maniskill", ...)``
   (one env per sidecar: the sidecar ``simseam eval --num-envs N`` starts per worker on physx_cpu), the
-  sidecar's interpreter the backend's (``--backend-python``); ``rgb``: ``cameras: true`` and every step's
-  observation carries ``camera1``.
+  sidecar's interpreter the backend's (``--backend-python``), busy-polling as that command's workers'
+  sidecars do (``runner.vector.sidecar_spin_us``: not at all where 2N + 1 processes exceed the cores;
+  ``--spin-us`` overrides it); ``rgb``: ``cameras: true`` and every step's observation carries ``camera1``.
 
 Both sides step the same seeded uniform random actions (the seam's grip negated, so ManiSkill receives
 identical actions), reset with ``env.reset(seed)`` every ``--episode-steps`` (ManiSkill's PickCube limit,
@@ -19,9 +20,17 @@ the env built, one warm-up round per side), then the rounds alternate native / s
 worker times its own round with ``time.monotonic()`` (one clock for every process on Linux); a round's
 rate is ``N * steps / (last end - first start)``. Reported per case: the median round rate per side and
 ``overhead = native_rate / seam_rate - 1`` (from the medians; ``overhead_paired``: the median of the
-per-pair ratios). Prints a markdown table and writes JSON.
+per-pair ratios). Each worker also reports the CPU time its round took, and the time it waited runnable on a
+run queue (``/proc/PID/task/*/schedstat``, all threads): its own, and for the seam its sidecar's, per env-step
+(``*_cpu_ms_per_step``, ``*_runq_wait_ms_per_step``: [worker] or [worker, sidecar]); on a shared or
+oversubscribed machine the CPU time says what each side costs where the rates mostly say what else ran.
+``--seam-variant NAME=SRC[@SPIN_US]`` adds seam sides that import simseam from another source tree (an older
+commit's ``src``) and/or busy-poll differently, alternated with the others in the same run: before / after.
+Prints a markdown table and writes JSON.
 
     .venv/bin/python benchmarks/bench_maniskill_scale.py --n 1 2 --steps 20 --rounds 2     # here, CPU
+    git archive REV src | tar -x -C /tmp/before       # then, before / after in one run:
+    .venv/bin/python benchmarks/bench_maniskill_scale.py --n 1 --kinds state --seam-variant before=/tmp/before/src
     # the GPU machine (benchmarks/device/maniskill_upload.sh run prints the exact command):
     python3 bench_maniskill_scale.py --n 1 16 --backend-python python3 --backend-env PYTHONPATH=/tmp/mssite
 
@@ -72,8 +81,30 @@ def _actions(seed: int, index: int, rnd: int, steps: int):
     return rng.uniform(-1.0, 1.0, size=(steps, 7)).astype(np.float32)
 
 
-def _worker_loop(reset, step, args) -> None:
-    """Answer ``{"steps", "round"}`` requests on stdin: reset every ``episode_steps``, step, time it."""
+def schedstat(pid: int) -> tuple[int, int]:
+    """Nanoseconds process ``pid`` (all its threads) has run on a CPU, and has waited runnable on a run
+    queue (``/proc/PID/task/*/schedstat``; (0, 0) where unreadable). Threads that exited are not counted:
+    the difference over a round is what the live ones did."""
+    run = wait = 0
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return 0, 0
+    for t in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{t}/schedstat") as f:
+                a, b, _ = f.read().split()
+        except (OSError, ValueError):
+            continue
+        run += int(a)
+        wait += int(b)
+    return run, wait
+
+
+def _worker_loop(reset, step, args, pids: tuple[int, ...] = ()) -> None:
+    """Answer ``{"steps", "round"}`` requests on stdin: reset every ``episode_steps``, step, time it; and
+    the CPU time (and run-queue wait) of this process and of ``pids`` (the sidecar) over the round."""
+    procs = (os.getpid(), *pids)
     for line in sys.stdin:
         req = json.loads(line)
         if req.get("quit"):
@@ -81,6 +112,7 @@ def _worker_loop(reset, step, args) -> None:
         steps, rnd = int(req["steps"]), int(req["round"])
         acts = _actions(args.seed, args.index, rnd, steps)
         episode = 0
+        c0 = [schedstat(p) for p in procs]
         t0 = time.monotonic()
         for i in range(steps):
             if i % args.episode_steps == 0:
@@ -88,7 +120,10 @@ def _worker_loop(reset, step, args) -> None:
                 episode += 1
             step(acts[i])
         t1 = time.monotonic()
-        _send({"t0": t0, "t1": t1, "steps": steps, "resets": episode})
+        c1 = [schedstat(p) for p in procs]
+        _send({"t0": t0, "t1": t1, "steps": steps, "resets": episode,
+               "cpu_s": [(b[0] - a[0]) * 1e-9 for a, b in zip(c0, c1)],
+               "wait_s": [(b[1] - a[1]) * 1e-9 for a, b in zip(c0, c1)]})
 
 
 def native_worker(args) -> None:
@@ -166,11 +201,13 @@ def seam_worker(args) -> None:
 
     obs = reset(0)
     image = obs["images"].get("camera1")
-    _send({"ready": True, "build_s": time.monotonic() - t, "pid": os.getpid(), "sidecar_pid": rollout.pid,
+    import simseam
+
+    _send({"ready": True, "simseam": str(Path(simseam.__file__).resolve().parent), "build_s": time.monotonic() - t, "pid": os.getpid(), "sidecar_pid": rollout.pid,
            "engine": rollout.spec.engine, "fast": bool(rollout.fast), "compact": bool(rollout.compact),
            "spin_us": int(rollout._spin_us), "image": list(np.shape(image)) if image is not None else None})
     try:
-        _worker_loop(reset, step, args)
+        _worker_loop(reset, step, args, (rollout.pid,))
     finally:
         rollout.close()
 
@@ -264,11 +301,26 @@ def backend_launch(python: str, extra: dict[str, str]) -> tuple[str, dict[str, s
     return str(wrapper), extra
 
 
+def runner_spin_us(n: int) -> int | None:
+    """The sidecar busy-poll the vector runner gives N workers here (``runner.vector.sidecar_spin_us``): 0
+    when the N workers, their N sidecars and the parent outnumber the cores, else None (the sidecar's own
+    default). A SidecarRollout left to its own default decides from the 1-minute load average, which cannot
+    see N workers that all start at once: at N = cores they would all spin."""
+    from simseam.runner.vector import sidecar_spin_us
+
+    return sidecar_spin_us(n, len(os.sched_getaffinity(0)))
+
+
 def start(side: str, kind: str, n: int, args, backend_python: str, backend_extra: dict[str, str], src: str,
           logs: Path) -> list[Worker]:
-    common = ["--worker", side, "--kind", kind, "--task", args.task, "--seed", str(args.seed),
+    """N workers of ``side``: "native", "seam", or a ``--seam-variant`` name (a seam side whose worker, and
+    so its sidecar, imports simseam from that variant's source tree)."""
+    mode = "native" if side == "native" else "seam"
+    common = ["--worker", mode, "--kind", kind, "--task", args.task, "--seed", str(args.seed),
               "--episode-steps", str(args.episode_steps), "--image-size", *map(str, args.image_size)]
     base = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    variants = {name: (path, spin) for name, path, spin in args.seam_variant}
+    runner_spin = runner_spin_us(n)
     workers = []
     for i in range(n):
         log = logs / f"{kind}_n{n}_{side}{i}.log"
@@ -277,10 +329,15 @@ def start(side: str, kind: str, n: int, args, backend_python: str, backend_extra
             argv = [backend_python, str(HERE), *common, "--index", str(i)]
         else:
             env = dict(os.environ)
+            spin = runner_spin if args.spin_us is None else args.spin_us
+            if side != "seam":  # the variant's simseam first, before this one's (and whatever else is on the path)
+                path, spin = variants[side]
+                spin = runner_spin if spin is None else spin
+                env["PYTHONPATH"] = os.pathsep.join(p for p in (path, os.environ.get("PYTHONPATH")) if p)
             argv = [sys.executable, str(HERE), *common, "--index", str(i), "--backend-python", backend_python,
                     "--backend-env-json", json.dumps(backend_extra)]
-            if args.spin_us is not None:
-                argv += ["--spin-us", str(args.spin_us)]
+            if spin is not None:
+                argv += ["--spin-us", str(spin)]
         workers.append(Worker(argv, env, log))
     return workers
 
@@ -294,54 +351,82 @@ def run_round(workers: list[Worker], steps: int, rnd: int, timeout: float) -> di
     t1 = max(r["t1"] for r in replies)
     total = sum(r["steps"] for r in replies)
     per_env = [1000.0 * (r["t1"] - r["t0"]) / r["steps"] for r in replies]
+    # CPU per env-step: [worker] (native) or [worker, sidecar] (seam), summed over the workers
+    cpu = [1000.0 * sum(x) / total for x in zip(*(r["cpu_s"] for r in replies))]
+    wait = [1000.0 * sum(x) / total for x in zip(*(r["wait_s"] for r in replies))]
     return {"rate": total / (t1 - t0), "wall_s": t1 - t0, "steps": total,
-            "ms_per_step_env": statistics.median(per_env), "ms_per_step_env_max": max(per_env)}
+            "ms_per_step_env": statistics.median(per_env), "ms_per_step_env_max": max(per_env),
+            "cpu_ms_per_step": cpu, "runq_wait_ms_per_step": wait}
 
 
 def run_case(kind: str, n: int, args, backend_python: str, backend_extra: dict[str, str], src: str,
              logs: Path) -> dict:
     t = time.monotonic()
+    names = ["native", "seam", *(v[0] for v in args.seam_variant)]
     sides = {}
     try:
-        for side in ("native", "seam"):
+        for side in names:
             sides[side] = start(side, kind, n, args, backend_python, backend_extra, src, logs)
         deadline = time.monotonic() + args.boot_timeout
         ready = {side: [w.recv(deadline) for w in ws] for side, ws in sides.items()}
         boot_s = time.monotonic() - t
         warm = {side: run_round(ws, args.warmup_steps, 99, args.round_timeout) for side, ws in sides.items()}
-        rounds: dict[str, list[dict]] = {"native": [], "seam": []}
+        rounds: dict[str, list[dict]] = {side: [] for side in names}
         for r in range(args.rounds):
-            order = ("native", "seam") if r % 2 == 0 else ("seam", "native")
-            for side in order:
+            for side in (names if r % 2 == 0 else names[::-1]):  # ABBA (ABCCBA, ...)
                 rounds[side].append(run_round(sides[side], args.steps, r, args.round_timeout))
     finally:
         for ws in sides.values():
             for w in ws:
                 w.close()
-    native = statistics.median(x["rate"] for x in rounds["native"])
-    seam = statistics.median(x["rate"] for x in rounds["seam"])
-    paired = statistics.median(a["rate"] / b["rate"] - 1 for a, b in zip(rounds["native"], rounds["seam"]))
-    return {"kind": kind, "n": n, "steps": args.steps, "rounds": args.rounds, "native_rate": native,
-            "seam_rate": seam, "overhead": native / seam - 1, "overhead_paired": paired,
-            "native_ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds["native"]),
-            "seam_ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds["seam"]),
-            "boot_s": boot_s, "case_s": time.monotonic() - t, "warmup": warm, "rounds_detail": rounds,
-            "ready": {"native": ready["native"][0], "seam": ready["seam"][0]},
-            "seam_spin_us": [x.get("spin_us") for x in ready["seam"]]}
+    out = {"kind": kind, "n": n, "steps": args.steps, "rounds": args.rounds,
+           "native_rate": statistics.median(x["rate"] for x in rounds["native"]),
+           "native_ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds["native"]),
+           "native_cpu_ms_per_step": _median_cols(x["cpu_ms_per_step"] for x in rounds["native"]),
+           "native_runq_wait_ms_per_step": _median_cols(x["runq_wait_ms_per_step"] for x in rounds["native"])}
+    for side in names[1:]:
+        rate = statistics.median(x["rate"] for x in rounds[side])
+        stats = {"rate": rate, "overhead": out["native_rate"] / rate - 1,
+                 "overhead_paired": statistics.median(a["rate"] / b["rate"] - 1
+                                                      for a, b in zip(rounds["native"], rounds[side])),
+                 "ms_per_step_env": statistics.median(x["ms_per_step_env"] for x in rounds[side]),
+                 "cpu_ms_per_step": _median_cols(x["cpu_ms_per_step"] for x in rounds[side]),
+                 "runq_wait_ms_per_step": _median_cols(x["runq_wait_ms_per_step"] for x in rounds[side]),
+                 "spin_us": [x.get("spin_us") for x in ready[side]]}
+        if side == "seam":  # (overhead, overhead_paired: the keys earlier results used)
+            out.update({"seam_rate": rate, "overhead": stats.pop("overhead"),
+                        "overhead_paired": stats.pop("overhead_paired"), **{f"seam_{k}": v for k, v in stats.items()}})
+        else:
+            out.setdefault("variants", {})[side] = stats
+    out.update({"boot_s": boot_s, "case_s": time.monotonic() - t, "warmup": warm, "rounds_detail": rounds,
+                "ready": {side: ready[side][0] for side in names}})
+    return out
+
+
+def _median_cols(rows) -> list[float]:
+    """Column-wise medians of per-round lists ([worker] or [worker, sidecar])."""
+    return [statistics.median(col) for col in zip(*rows)]
 
 
 def table(results: list[dict]) -> str:
     lines = ["| kind | N | native env-steps/s | seam env-steps/s | overhead (medians) | overhead (paired) | "
-             "native ms/step/env | seam ms/step/env | target |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+             "native ms/step/env | seam ms/step/env | native CPU ms/step | seam CPU ms/step (worker + sidecar) | "
+             "target |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in results:
         target = TARGETS.get(r["kind"])
-        mark = ""
-        if target is not None and r["n"] == 16:
-            mark = f"<= {100 * target:.0f} %: {'met' if r['overhead'] <= target else 'NOT met'}"
-        lines.append(f"| {r['kind']} | {r['n']} | {r['native_rate']:.1f} | {r['seam_rate']:.1f} | "
-                     f"{100 * r['overhead']:+.1f} % | {100 * r['overhead_paired']:+.1f} % | "
-                     f"{r['native_ms_per_step_env']:.2f} | {r['seam_ms_per_step_env']:.2f} | {mark} |")
+        seams = [("", {"overhead": r["overhead"], "overhead_paired": r["overhead_paired"],
+                       **{k[5:]: v for k, v in r.items() if k.startswith("seam_")}}),
+                 *((f" ({name})", v) for name, v in r.get("variants", {}).items())]
+        for label, x in seams:
+            mark = ""
+            if target is not None and r["n"] == 16:
+                mark = f"<= {100 * target:.0f} %: {'met' if x['overhead'] <= target else 'NOT met'}"
+            lines.append(f"| {r['kind']}{label} | {r['n']} | {r['native_rate']:.1f} | {x['rate']:.1f} | "
+                         f"{100 * x['overhead']:+.1f} % | {100 * x['overhead_paired']:+.1f} % | "
+                         f"{r['native_ms_per_step_env']:.2f} | {x['ms_per_step_env']:.2f} | "
+                         f"{sum(r['native_cpu_ms_per_step']):.2f} | {sum(x['cpu_ms_per_step']):.2f} "
+                         f"({' + '.join(f'{c:.2f}' for c in x['cpu_ms_per_step'])}) | {mark} |")
     return "\n".join(lines)
 
 
@@ -359,7 +444,13 @@ def main() -> None:
     ap.add_argument("--backend-python", default=None, help="interpreter of the native workers and the sidecars")
     ap.add_argument("--backend-env", nargs="*", default=[], metavar="KEY=VALUE",
                     help="added to the backend side's environment (PYTHONPATH: appended via a wrapper)")
-    ap.add_argument("--spin-us", type=int, default=None, help="sidecar busy-poll (default: simseam's own)")
+    ap.add_argument("--spin-us", type=int, default=None,
+                    help="sidecar busy-poll (default: the vector runner's rule for N workers: 0 where 2N + 1 "
+                         "exceed the cores, else the sidecar's own default)")
+    ap.add_argument("--seam-variant", nargs="*", default=[], metavar="NAME=SRC",
+                    help="extra seam sides, each importing simseam from SRC (e.g. an older commit's src: git "
+                         "archive REV src | tar -x -C DIR; '.' for this one) and busy-polling SPIN_US (default: "
+                         "--spin-us), alternated with the others: before/after in one run")
     ap.add_argument("--boot-timeout", type=float, default=600.0)
     ap.add_argument("--round-timeout", type=float, default=600.0)
     ap.add_argument("--out", default=None, help="JSON (default benchmarks/results/maniskill_scale.json)")
@@ -386,6 +477,16 @@ def main() -> None:
         if not sep:
             ap.error(f"--backend-env: KEY=VALUE, got {kv!r}")
         extra[key] = value
+    variants = []
+    for kv in args.seam_variant:
+        name, sep, rest = kv.partition("=")
+        path, at, spin = rest.partition("@")
+        path = str(Path(path).resolve()) if path not in ("", ".") else src
+        if not sep or name in ("native", "seam") or not Path(path, "simseam").is_dir() or (at and not spin.isdigit()):
+            ap.error(f"--seam-variant: NAME=SRC[@SPIN_US] with SRC/simseam a directory (. for this one), NAME not "
+                     f"native/seam; got {kv!r}")
+        variants.append((name, path, int(spin) if at else args.spin_us))
+    args.seam_variant = variants
     backend_python, backend_extra = backend_launch(args.backend_python or default_backend_python(), extra)
     info = {"machine": machine(), "backend_python": args.backend_python or default_backend_python(),
             "backend_env": extra, "vk_icd_filenames": os.environ.get("VK_ICD_FILENAMES", ""),
@@ -403,7 +504,10 @@ def main() -> None:
             print(f"{kind} N={n}: native {r['native_rate']:.1f}/s, seam {r['seam_rate']:.1f}/s, overhead "
                   f"{100 * r['overhead']:+.1f} % (paired {100 * r['overhead_paired']:+.1f} %); boot {r['boot_s']:.0f} s, "
                   f"case {r['case_s']:.0f} s; render {rn.get('render_device')}, seam fast={rs.get('fast')} "
-                  f"compact={rs.get('compact')} spin_us={sorted(set(r['seam_spin_us']))}", flush=True)
+                  f"compact={rs.get('compact')} spin_us={sorted(set(r['seam_spin_us']))}"
+                  + "".join(f"; {name}: {v['rate']:.1f}/s, overhead {100 * v['overhead']:+.1f} % (paired "
+                            f"{100 * v['overhead_paired']:+.1f} %)" for name, v in r.get("variants", {}).items()),
+                  flush=True)
             out.parent.mkdir(parents=True, exist_ok=True)
             out.write_text(json.dumps({**info, "results": results}, indent=1))
     print()
