@@ -26,7 +26,9 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process; each side busy-polls its pipe when every process has
 a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
-(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``);
+``vector_g2`` / ``vector_g4`` pipelined lockstep with 2 / 4 policy groups (``run(groups=K)``: the policy
+acts for one group while the others step; at most N groups); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -215,6 +217,9 @@ class ZeroPolicy:
 
 # lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
 SPIN_MODES = {"vector0": 0, "vector_spin": 2000}
+# pipelined lockstep modes: their number of policy groups (at most N)
+GROUP_MODES = {"vector_g2": 2, "vector_g4": 4}
+VECTOR_MODES = ("vector", *SPIN_MODES, *GROUP_MODES)
 
 
 def _cpu() -> float:
@@ -223,7 +228,7 @@ def _cpu() -> float:
 
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
-               spin_us: int | None = None) -> dict:
+               spin_us: int | None = None, groups: int = 1) -> dict:
     images = CASES[case][0] is not None
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
     if spin_us is not None:
@@ -243,13 +248,14 @@ def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "wo
             vec.central.render([state] * n)
         pol = ZeroBatch(n, images)
         t0, c0 = time.perf_counter(), _cpu()
-        results = vec.run(pol, range(episodes))
+        # groups passed only when pipelined: the plain modes also run on sources before run(groups=)
+        results = vec.run(pol, range(episodes), **({"groups": min(groups, n)} if groups > 1 else {}))
         wall, cpu = time.perf_counter() - t0, _cpu() - c0
     steps_done = sum(r.steps for r in results)
     if images:
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
-            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin}
+            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n)}
 
 
 def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
@@ -305,7 +311,7 @@ def main() -> None:
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
     ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=["vector", "vector0", "vector_spin", "local", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=[*VECTOR_MODES, "local", "bare"])
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
@@ -326,7 +332,7 @@ def main() -> None:
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
-            for renderer in (args.renderers if images and mode in ("vector", "vector0", "vector_spin") else ["workers"]):
+            for renderer in (args.renderers if images and mode in VECTOR_MODES else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
     for case in args.cases:
@@ -341,7 +347,8 @@ def main() -> None:
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
                     else:
-                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode))
+                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
+                                       groups=GROUP_MODES.get(mode, 1))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)
@@ -365,7 +372,7 @@ def main() -> None:
                 row["vs_bare"] = sps / bare_sps
             rows.append(row)
             main_us = r.get("main_cpu_us_per_env_step")
-            print(f"{case:14s} {mode:7s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
+            print(f"{case:14s} {mode:11s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
                   f"{row['episodes_per_hour']:9.0f} episodes/h  efficiency {eff:.2f}"
                   + (f"  vs bare {row['vs_bare']:.2f}" if "vs_bare" in row else "")
                   + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else ""), flush=True)

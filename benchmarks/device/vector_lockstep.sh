@@ -9,11 +9,12 @@
 #            DIR default .cache/vectorcarry (~25 MB: the cp312 mujoco and PyOpenGL wheels, the Panda as a
 #            RobotSpec JSON with its URDF and meshes, src-before/, src-after/, bench_vector.py of AFTER)
 #   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
-#            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~6 of the 10 minutes
+#            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
 #
 # Each side runs bench_vector.py --n 1 16 --steps 600 --rounds 3 --cases state --modes vector vector_spin
 # bare (vector: the default busy-poll rule, which is off at N = cores; vector_spin: forced on), in the
-# order before after before after.
+# order before after before after; AFTER also runs vector_g2 vector_g4 (pipelined lockstep, 2 / 4 policy
+# groups: run(groups=K), which BEFORE's sources may not have) and gets a longer time limit.
 set -uo pipefail
 cmd="${1:-}"
 case "$cmd" in
@@ -57,11 +58,13 @@ PY
     i=0
     for s in before after before after; do
       i=$((i + 1))
-      if [ $SECONDS -gt 440 ]; then echo "== stopped before run $i: $SECONDS s used" | tee -a "$LOG"; break; fi
+      modes="vector vector_spin bare" limit=130
+      if [ $s = after ]; then modes="$modes vector_g2 vector_g4" limit=200; fi
+      if [ $((SECONDS + limit)) -gt 590 ]; then echo "== stopped before run $i: $SECONDS s used" | tee -a "$LOG"; break; fi
       echo "== bench_vector $i $s ($SECONDS s, load $(cut -d' ' -f1-3 /proc/loadavg))" | tee -a "$LOG"
-      PYTHONPATH=/tmp/vl/site:/tmp/vl/src-$s timeout 130 python3 /tmp/vl/bench_vector.py \
+      PYTHONPATH=/tmp/vl/site:/tmp/vl/src-$s timeout $limit python3 /tmp/vl/bench_vector.py \
         --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
-        --n 1 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --modes vector vector_spin bare \
+        --n 1 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --modes $modes \
         --out "$OUT/vector_${i}_$s.json" 2>&1 | grep '^|' | tee -a "$LOG"
     done
     echo "total $SECONDS s" | tee -a "$LOG"
