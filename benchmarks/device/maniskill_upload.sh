@@ -74,6 +74,10 @@ case "$cmd" in
     cp -r "$CACHE/debs" "$DIR/stage/debs"
     cp "$CACHE/requirements.txt" "$DIR/stage/"
     git -C "$ROOT" archive HEAD src | tar -x -C "$DIR/stage"
+    if [ -n "${BEFORE:-}" ]; then   # an older commit's src too: run then adds it as the seam side "before"
+      mkdir -p "$DIR/stage/before"; git -C "$ROOT" archive "$BEFORE" src | tar -x -C "$DIR/stage/before"
+      git -C "$ROOT" rev-parse "$BEFORE" > "$DIR/stage/before/simseam.rev"
+    fi
     cp "$ROOT/benchmarks/bench_maniskill_scale.py" "$ROOT/benchmarks/device/maniskill_upload.sh" "$DIR/stage/"
     git -C "$ROOT" rev-parse HEAD > "$DIR/stage/simseam.rev"
     tar -C "$DIR/stage" -cf - . | xz -T0 -6 > "$DIR/ms.tar.xz"
@@ -114,8 +118,8 @@ case "$cmd" in
     if command -v xz >/dev/null; then tar -xJf ms.tar.xz -C x
     else "$PY" -c "import sys, tarfile; tarfile.open(sys.argv[1], 'r:xz').extractall(sys.argv[2])" ms.tar.xz x; fi
     rm -f ms.tar.xz
-    rm -rf "$SITE" src debs; mv x/site "$SITE"; mv x/src x/debs x/bench_maniskill_scale.py x/maniskill_upload.sh \
-      x/simseam.rev x/requirements.txt .; rm -rf x
+    rm -rf "$SITE" src debs before; mv x/site "$SITE"; mv x/src x/debs x/bench_maniskill_scale.py x/maniskill_upload.sh \
+      x/simseam.rev x/requirements.txt .; [ -d x/before ] && mv x/before .; rm -rf x
     for m in $TORCH_DEPS; do   # the machine's own, where it has them (torch needs them)
       if env -u PYTHONPATH "$PY" -c "import $m" 2>/dev/null; then
         rm -rf "${SITE:?}/$m" "$SITE"/"$m"-*.dist-info "$SITE"/"$(echo "$m" | sed 's/_/-/g')"-*.dist-info
@@ -181,15 +185,21 @@ PY
     [ -f "$B" ] || B="$MS/bench_maniskill_scale.py"
     BENCH=("$PY" "$B" --backend-python "$PY" --backend-env "PYTHONPATH=$SITE")
     MAIN=(--n ${N:-1 16} --kinds ${KINDS:-state rgb} --steps "${STEPS:-400}" --rounds "${ROUNDS:-4}")
+    VARIANTS=(${VARIANTS:-})   # e.g. VARIANTS="spin1000=.@1000": more seam sides, alternated in the same run
+    [ -d "$MS/before/src" ] && VARIANTS+=("before=$MS/before/src")   # prepared with BEFORE=REV
+    [ ${#VARIANTS[@]} -gt 0 ] && MAIN+=(--seam-variant "${VARIANTS[@]}")
     echo "+ ${BENCH[*]} ${MAIN[*]} --out $OUTDIR/maniskill_scale.json --logs $OUTDIR/logs"
     t0=$(date +%s)
     timeout "${RUN_TIMEOUT:-420}" "${BENCH[@]}" "${MAIN[@]}" --out "$OUTDIR/maniskill_scale.json" \
       --logs "$OUTDIR/logs" 2>&1 | tee "$OUTDIR/maniskill_scale.txt"
     left=$(( ${SPIN0_UNTIL:-360} - ($(date +%s) - t0) ))
-    if [ "$left" -gt 60 ] && [ -z "${NO_SPIN0:-}" ]; then   # time left: N = 16 again with the sidecars' busy-polling off
-      echo "+ ${BENCH[*]} --n 16 --kinds state rgb --steps ${STEPS:-400} --rounds 2 --spin-us 0 --out $OUTDIR/maniskill_scale_spin0.json"
-      timeout "$left" "${BENCH[@]}" --n 16 --kinds state rgb --steps "${STEPS:-400}" --rounds 2 --spin-us 0 \
-        --out "$OUTDIR/maniskill_scale_spin0.json" --logs "$OUTDIR/logs_spin0" 2>&1 | tee "$OUTDIR/maniskill_scale_spin0.txt" || true
+    # time left: N = 16 again, the seam as it ran before 05f2162 (every sidecar busy-polling 1000 us) beside
+    # the runner's rule (none at 2N + 1 > cores), alternated
+    if [ "$left" -gt 60 ] && [ -z "${NO_SPIN0:-}" ]; then
+      echo "+ ${BENCH[*]} --n 16 --kinds state rgb --steps ${STEPS:-400} --rounds 2 --seam-variant spin1000=.@1000 --out $OUTDIR/maniskill_scale_spin.json"
+      timeout "$left" "${BENCH[@]}" --n 16 --kinds state rgb --steps "${STEPS:-400}" --rounds 2 \
+        --seam-variant spin1000=.@1000 --out "$OUTDIR/maniskill_scale_spin.json" --logs "$OUTDIR/logs_spin" 2>&1 \
+        | tee "$OUTDIR/maniskill_scale_spin.txt" || true
     fi
     ;;
   *)
