@@ -20,7 +20,8 @@ Contract (checked by ``simseam.seam.check_batch_rollout``):
 - ``step_send(envs, actions, observe)`` / ``step_receive(envs)``: ``step`` in two halves, so a runner
   can act for some environments while others step (pipelined lockstep, ``runner.scheduler``).
   ``step_send`` starts the step of ``envs`` (the same arguments and checks as ``step``);
-  ``step_receive(envs)`` returns its ``BatchStepResult`` (``envs`` exactly as sent). Steps of
+  ``step_receive(envs)`` returns its ``BatchStepResult`` (``envs`` exactly as sent; envs with no step
+  in flight raise ``ConfigError``). Steps of
   disjoint sets of environments may be in flight together, received in any order, and the others
   may be reset meanwhile; ``step`` is ``step_send`` then ``step_receive``. ``SyncStepPair`` gives a
   batch that steps synchronously the pair (the step runs in ``step_receive``).

@@ -226,8 +226,9 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
 
     Checks: the spec (JSON round trip) and ``num_envs``; observations against the spec for every
     environment and per-environment requests; results in the order of ``envs``; that two environments
-    given the same seed and actions give the same episode, stepped together or one at a time, and the
-    same again later; that resetting one environment leaves another's episode as it was; that a bad
+    given the same seed and actions give the same episode, stepped together or one at a time (by
+    ``step_send`` / ``step_receive``), and the same again later; that a receive with no step in flight
+    raises ``ConfigError``; that resetting one environment leaves another's episode as it was; that a bad
     action (shape, NaN) raises ``InvalidActionError`` and changes nothing; that actions act as their
     clipped value; bad indices raise ``ConfigError``; ``info`` carries success, steps and diagnostics;
     ``render``; ``failures()`` empty; ``close``.
@@ -311,14 +312,21 @@ def _batch_episodes(batch: Any, spec: RolloutSpec, n: int, seed: int, steps: int
         together.append(_copied(r.observations[0][OBS_STATE]))
         if not _same(r.observations[0][OBS_STATE], r.observations[1][OBS_STATE]):
             problems.append(f"step {i + 1}: envs {pair} got the same seed and actions but different states")
-    for env in pair:  # one at a time, later: the same episode again
+    for env in pair:  # one at a time, later, in two halves (step_send / step_receive): the same episode again
         batch.reset([env], [seed], ObsRequest.state_only())
         for i, a in enumerate(actions):
-            r = batch.step([env], a[None, :], ObsRequest.state_only())
+            batch.step_send([env], a[None, :], ObsRequest.state_only())
+            r = batch.step_receive([env])
             if not _same(r.observations[0][OBS_STATE], together[i]):
-                problems.append(f"env {env} stepped alone: step {i + 1} differs from the same seed stepped "
-                                "in a pair (or the same seed did not give the same episode)")
+                problems.append(f"env {env} stepped alone by step_send / step_receive: step {i + 1} differs "
+                                "from the same seed stepped in a pair (or the same seed did not give the same "
+                                "episode)")
                 break
+    try:
+        batch.step_receive([pair[0]])
+        problems.append("step_receive of an environment with no step in flight did not raise ConfigError")
+    except ConfigError:
+        pass
     batch.reset(pair, [seed, seed + 1], ObsRequest.state_only())  # a neighbour's reset changes nothing
     batch.step(pair, np.stack([actions[0], actions[0]]), ObsRequest.state_only())
     batch.reset([n - 1], [seed + 2], ObsRequest.state_only())
