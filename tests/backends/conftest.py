@@ -15,13 +15,33 @@ from backend_util import backend_python
 HERE = Path(__file__).resolve().parent
 
 
+class _NativeEpisode:
+    """A native episode running in its own process (the backend's venv); ``result()`` waits for its arrays."""
+
+    def __init__(self, backend: str, proc: subprocess.Popen, out: Path, log: Path):
+        self.backend, self.proc, self.out, self.log = backend, proc, out, log
+        self._arrays: dict | None = None
+
+    def result(self) -> dict:
+        if self._arrays is None:
+            rc = self.proc.wait(timeout=280)
+            assert rc == 0, f"native {self.backend} episode failed:\n{self.log.read_text()[-3000:]}"
+            with np.load(self.out) as z:
+                self._arrays = {k: z[k] for k in z.files}
+        return self._arrays
+
+
 @pytest.fixture
 def run_native(tmp_path):
-    """``run_native(backend, config, seed, actions) -> dict of arrays`` from the native env (its own venv)."""
+    """``run_native(backend, config, seed, actions) -> dict of arrays`` from the native env (its own venv).
+    ``run_native.start(...)`` starts the same episode and returns at once (``.result()`` waits for it): the
+    peer, mostly importing its simulator, runs while the test drives the seam's side."""
+    started = []
 
-    def run(backend: str, config: dict, seed: int, actions: np.ndarray) -> dict:
+    def start(backend: str, config: dict, seed: int, actions: np.ndarray) -> _NativeEpisode:
         python = backend_python(backend)
-        np.save(tmp_path / "actions.npy", np.asarray(actions, dtype=np.float32))
+        k = len(started)
+        np.save(tmp_path / f"actions{k}.npy", np.asarray(actions, dtype=np.float32))
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
         env.setdefault("MUJOCO_GL", "egl")
         if backend == "maniskill":  # SAPIEN renders with the same Vulkan driver as simseam's sidecar
@@ -29,14 +49,23 @@ def run_native(tmp_path):
 
             env.update(sidecar_env())
         env["PYGAME_HIDE_SUPPORT_PROMPT"] = "1"
-        out = subprocess.run([python, str(HERE / "native_episode.py"), backend, json.dumps(config), str(seed),
-                              str(tmp_path / "actions.npy"), str(tmp_path / "native.npz")],
-                             capture_output=True, text=True, env=env, timeout=280)
-        assert out.returncode == 0, f"native {backend} episode failed:\n{out.stderr[-3000:]}"
-        with np.load(tmp_path / "native.npz") as z:
-            return {k: z[k] for k in z.files}
+        log = tmp_path / f"native{k}.log"
+        with log.open("w") as f:  # a file, not a pipe: nobody reads it while the test runs
+            proc = subprocess.Popen([python, str(HERE / "native_episode.py"), backend, json.dumps(config), str(seed),
+                                     str(tmp_path / f"actions{k}.npy"), str(tmp_path / f"native{k}.npz")],
+                                    stdout=subprocess.DEVNULL, stderr=f, env=env)
+        started.append(proc)
+        return _NativeEpisode(backend, proc, tmp_path / f"native{k}.npz", log)
 
-    return run
+    def run(backend: str, config: dict, seed: int, actions: np.ndarray) -> dict:
+        return start(backend, config, seed, actions).result()
+
+    run.start = start
+    yield run
+    for proc in started:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 @pytest.fixture

