@@ -129,6 +129,10 @@ case "$cmd" in
         echo "using the machine's $m"
       fi
     done
+    # the driver's libraries may be linked into /lib after the machine's ld cache was built: without this,
+    # SAPIEN's Vulkan instance failed with ErrorIncompatibleDriver on 2026-12-03 (the ICD's libGLX_nvidia.so.0
+    # not in the cache) and worked once ldconfig had run
+    if command -v ldconfig >/dev/null; then ldconfig || true; fi
     # system libraries: unpack a deb only where this machine lacks its library
     rm -rf "$SYSROOT"; mkdir -p "$SYSROOT"
     LIB="$SYSROOT/usr/lib/x86_64-linux-gnu"

@@ -6,7 +6,8 @@
 #            (committed sources by git archive; DIR default .cache/stepcarry, ~20 MB: the cp312 wheels of
 #            mujoco, PyOpenGL, pydantic, PyYAML, the Panda's manifest with its URDF and meshes)
 #   there: bash benchmarks/device/step_before_after.sh run [DIR]     (carry DIR and .gl)
-#            -> $OUT/log.txt, $OUT/step_<i>_<side>.json and $OUT/step_before_after.json (medians per side)
+#            -> $OUT/log.txt, $OUT/step_before_after.json (medians per side) and $OUT/rounds.tgz (each round's JSON:
+#               a call returns at most 8 files)
 set -euo pipefail
 cmd="${1:-}"
 case "$cmd" in
@@ -68,6 +69,7 @@ for k in sides["after"]:
     print(f"{k:24s} {b['p50_ms_median']:10.3f} {a['p50_ms_median']:10.3f} {b['x_floor_median']:9.3f} {a['x_floor_median']:9.3f}")
 json.dump({"revs": open("/tmp/sc/REVS").read().strip(), "sides": sides}, open(f"{out}/step_before_after.json", "w"), indent=2)
 PY
+    tar -C "$OUT" -czf "$OUT/rounds.tgz" $(cd "$OUT" && ls step_*_*.json) && rm -f "$OUT"/step_*_before.json "$OUT"/step_*_after.json
     echo "total $SECONDS s" | tee -a "$LOG"
     ;;
   *)
