@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -58,75 +59,125 @@ def test_the_reduced_proof_lifts_the_cube_on_80_percent_of_held_out_seeds(proof)
     assert lo < rate < hi or rate == 1.0
 
 
+class _Paths:
+    """Every path's ``simseam run`` of the checkpoint, started as soon as it exists and run two at a time:
+    each is mostly a fresh interpreter importing torch and LeRobot, one core's work, so two overlap on a
+    2-core machine. ``paths[name]`` waits for that run and returns its outcomes (seed -> (success, steps));
+    a run that failed fails the test that asks for it. Whatever is still running at teardown is killed."""
+
+    def __init__(self, ckpt: Path, work: Path):
+        self.ckpt, self.work = ckpt, work
+        self.procs: list[subprocess.Popen] = []
+        self.pool = ThreadPoolExecutor(max_workers=2)
+        self.jobs = {}
+
+    def start(self, name, job, *args, **kw):
+        self.jobs[name] = self.pool.submit(job, *args, **kw)
+
+    def __getitem__(self, name):
+        return self.jobs[name].result()
+
+    def simseam(self, *args):
+        proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", *map(str, args)], cwd=REPO, env=cli_env(),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.procs.append(proc)
+        out, err = proc.communicate(timeout=900)
+        assert proc.returncode == 0, f"simseam {args[0]} exited {proc.returncode}\n{out[-3000:]}\n{err[-3000:]}"
+
+    def run(self, ckpt, out, *extra, scene=SCENE, policy=None):
+        device = [] if policy else ["--device", "cpu"]  # a remote: policy runs on its server's device
+        self.simseam("run", "--scene", scene, "--policy", policy or f"lerobot:{ckpt}", *device,
+                     "--seed", EVAL[0], "--episodes", PATH_SEEDS, "--out", out, *extra)
+        return _outcomes(out)
+
+    def served(self, out):
+        server = Child([sys.executable, "-m", "simseam.cli.main", "serve-policy", "--policy", f"lerobot:{self.ckpt}",
+                        "--scene", str(SCENE), "--port", "0"], env={"HF_HUB_OFFLINE": "1"})
+        try:
+            url = server.wait_line(r"serving .* on (ws://[^\s]+:\d+)", timeout=300).group(1)
+            return self.run(self.ckpt, out, policy=f"remote:{url}")
+        finally:
+            server.kill()
+
+    def close(self):
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.kill()
+        self.pool.shutdown(wait=True)
+
+
 @pytest.fixture(scope="module")
-def sequential(proof, tmp_path_factory):
-    """The checkpoint and its sequential outcomes (``--num-envs 1``: one process, one episode after
-    another) on the first PATH_SEEDS evaluation seeds; the proof's own evaluation (worker processes, the
-    default on a machine of 2 cores or more) agrees with them."""
+def paths(proof, tmp_path_factory):
+    """The checkpoint's runs through every path (below), started together right after the proof."""
     work, r = proof
     assert r.returncode == 0, r.stderr[-3000:]
-    ckpt = work / "lift_act"
-    first = _run(ckpt, tmp_path_factory.mktemp("sequential") / "run", "--num-envs", "1")
-    assert any(ok for ok, _ in first.values()), first  # a comparison over failures alone would prove little
-    outcomes = _outcomes(work / "lift_eval")
-    assert {s: outcomes[s] for s in first} == first
-    return ckpt, first
-
-
-def _run(ckpt, out, *extra, scene=SCENE, policy=None):
-    device = [] if policy else ["--device", "cpu"]  # a remote: policy runs on its server's device
-    _simseam("run", "--scene", scene, "--policy", policy or f"lerobot:{ckpt}", *device,
-             "--seed", EVAL[0], "--episodes", PATH_SEEDS, "--out", out, *extra)
-    return _outcomes(out)
-
-
-def test_worker_processes_give_the_same_answer(sequential, tmp_path):
-    """--num-envs 2 with this checkpoint: temporal ensembling keeps a history per episode, so each worker's
-    episodes get their own policy (LeRobotPolicy.make_batch declines to batch it)."""
-    ckpt, expected = sequential
-    assert _run(ckpt, tmp_path / "vec", "--num-envs", "2") == expected
-
-
-def test_batched_inference_gives_the_same_answer(sequential, tmp_path):
-    """The same weights without temporal ensembling batch the workers' observations into one forward pass;
-    compared with one policy per episode on the same seeds."""
-    ckpt, _ = sequential
-    plain = tmp_path / "plain"
+    ckpt, tmp = work / "lift_act", tmp_path_factory.mktemp("paths")
+    # the same weights without temporal ensembling: the workers' observations batch into one forward pass
+    plain = tmp / "plain"
     shutil.copytree(ckpt, plain)
     config = json.loads((plain / "config.json").read_text())
     (plain / "config.json").write_text(json.dumps({**config, "temporal_ensemble_coeff": None}))
-    alone = _run(plain, tmp_path / "alone", "--num-envs", "1")
-    assert any(ok for ok, _ in alone.values()), alone
-    assert _run(plain, tmp_path / "batched", "--num-envs", "2") == alone
-
-
-def test_the_scene_in_a_sidecar_gives_the_same_answer(sequential, tmp_path):
-    ckpt, expected = sequential
-    scene = tmp_path / "sidecar.yaml"
-    scene.write_text(SCENE.read_text().replace("engine: mujoco", "engine: {name: mujoco, process: sidecar}"))
-    assert _run(ckpt, tmp_path / "sidecar", scene=scene) == expected
-
-
-def test_the_policy_served_by_serve_policy_gives_the_same_answer(sequential, tmp_path):
-    ckpt, expected = sequential
-    server = Child([sys.executable, "-m", "simseam.cli.main", "serve-policy", "--policy", f"lerobot:{ckpt}",
-                    "--scene", str(SCENE), "--port", "0"], env={"HF_HUB_OFFLINE": "1"})
+    sidecar = tmp / "sidecar.yaml"
+    sidecar.write_text(SCENE.read_text().replace("engine: mujoco", "engine: {name: mujoco, process: sidecar}"))
+    p = _Paths(ckpt, tmp)
     try:
-        url = server.wait_line(r"serving .* on (ws://[^\s]+:\d+)", timeout=300).group(1)
-        assert _run(ckpt, tmp_path / "remote", policy=f"remote:{url}") == expected
+        p.start("sequential", p.run, ckpt, tmp / "sequential", "--num-envs", "1")
+        p.start("workers", p.run, ckpt, tmp / "vec", "--num-envs", "2")
+        p.start("plain_alone", p.run, plain, tmp / "alone", "--num-envs", "1")
+        p.start("plain_batched", p.run, plain, tmp / "batched", "--num-envs", "2")
+        p.start("sidecar", p.run, ckpt, tmp / "sidecar", scene=sidecar)
+        p.start("served", p.served, tmp / "remote")
+        p.start("ray", p.run, ckpt, tmp / "ray", "--ray", "local", "--num-envs", "2")  # two Ray actors
+        for i in range(2):
+            p.start(f"shard{i}", p.run, ckpt, tmp / f"shard{i}", "--shard", f"{i}/2")
+        yield p
     finally:
-        server.kill()
+        p.close()
 
 
-def test_ray_gives_the_same_answer(sequential, tmp_path):
-    ckpt, expected = sequential
-    assert _run(ckpt, tmp_path / "ray", "--ray", "local", "--num-envs", "2") == expected  # two Ray actors
+@pytest.fixture(scope="module")
+def sequential(proof, paths):
+    """The checkpoint's sequential outcomes (``--num-envs 1``: one process, one episode after another) on the
+    first PATH_SEEDS evaluation seeds; the proof's own evaluation (worker processes, the default on a machine
+    of 2 cores or more) agrees with them."""
+    work, _ = proof
+    first = paths["sequential"]
+    assert any(ok for ok, _ in first.values()), first  # a comparison over failures alone would prove little
+    outcomes = _outcomes(work / "lift_eval")
+    assert {s: outcomes[s] for s in first} == first
+    return first
 
 
-def test_shards_merged_give_the_same_answer(sequential, tmp_path):
-    ckpt, expected = sequential
-    shards = [tmp_path / f"shard{i}" for i in range(2)]
-    for i, d in enumerate(shards):
-        _run(ckpt, d, "--shard", f"{i}/2")
+def test_worker_processes_give_the_same_answer(sequential, paths):
+    """--num-envs 2 with this checkpoint: temporal ensembling keeps a history per episode, so each worker's
+    episodes get their own policy (LeRobotPolicy.make_batch declines to batch it)."""
+    assert paths["workers"] == sequential
+
+
+def test_batched_inference_gives_the_same_answer(paths):
+    """The same weights without temporal ensembling batch the workers' observations into one forward pass;
+    compared with one policy per episode on the same seeds."""
+    alone = paths["plain_alone"]
+    assert any(ok for ok, _ in alone.values()), alone
+    assert paths["plain_batched"] == alone
+
+
+def test_the_scene_in_a_sidecar_gives_the_same_answer(sequential, paths):
+    assert paths["sidecar"] == sequential
+
+
+def test_the_policy_served_by_serve_policy_gives_the_same_answer(sequential, paths):
+    assert paths["served"] == sequential
+
+
+def test_ray_gives_the_same_answer(sequential, paths):
+    assert paths["ray"] == sequential  # two Ray actors
+
+
+def test_shards_merged_give_the_same_answer(sequential, paths, tmp_path):
+    shards = [paths.work / f"shard{i}" for i in range(2)]
+    for i in range(2):
+        paths[f"shard{i}"]
     _simseam("merge", "--out", tmp_path / "merged", *shards)
-    assert _outcomes(tmp_path / "merged") == expected
+    assert _outcomes(tmp_path / "merged") == sequential
