@@ -51,9 +51,10 @@ def seam_episode(rollout, seed: int, actions: np.ndarray) -> dict:
 def test_maniskill_matches_native(open_backend, run_native, task, seed):
     cfg = {"task": task}
     actions = np.random.default_rng(seed).uniform(-1, 1, (30, 7)).astype(np.float32)
-    native = run_native("maniskill", cfg, seed, native_actions(actions))
+    peer = run_native.start("maniskill", cfg, seed, native_actions(actions))
     r = open_backend("maniskill", cfg)
     seam = seam_episode(r, seed, actions)
+    native = peer.result()
     assert seam["state"].dtype == native["state"].dtype == np.float32
     np.testing.assert_array_equal(seam["state"], native["state"])
     np.testing.assert_array_equal(seam["reward"], native["reward"].astype(np.float32).astype(np.float64))
@@ -74,8 +75,9 @@ def test_maniskill_joint_position_mode_matches_native(open_backend, run_native):
     rng = np.random.default_rng(4)
     arm = q0 + np.cumsum(rng.normal(0, 0.03, (20, 7)), axis=0)
     actions = np.hstack([arm, rng.choice([-1.0, 1.0], (20, 1))]).astype(np.float32)
-    native = run_native("maniskill", cfg, 2, native_actions(actions))
+    peer = run_native.start("maniskill", cfg, 2, native_actions(actions))
     seam = seam_episode(r, 2, actions)
+    native = peer.result()
     np.testing.assert_array_equal(seam["state"], native["state"])
     np.testing.assert_array_equal(seam["reward"], native["reward"].astype(np.float32).astype(np.float64))
     assert np.ptp(native["state"][:, 0]) > 0.01
@@ -124,7 +126,7 @@ def test_maniskill_cameras_match_native_pixel_for_pixel_on_this_cpu(open_backend
     cfg = {"task": "PickCube-v1", "cameras": True, "image_size": [48, 64]}
     seed = 7
     actions = np.random.default_rng(seed).uniform(-1, 1, (6, 7)).astype(np.float32)
-    native = run_native("maniskill", {"task": "PickCube-v1", "image_size": [48, 64]}, seed, native_actions(actions))
+    peer = run_native.start("maniskill", {"task": "PickCube-v1", "image_size": [48, 64]}, seed, native_actions(actions))
     r = open_backend("maniskill", cfg)
     assert r.spec.observation.images == {"camera1": r.spec.observation.images["camera1"]}
     obs = r.reset(seed)
@@ -133,7 +135,7 @@ def test_maniskill_cameras_match_native_pixel_for_pixel_on_this_cpu(open_backend
         frames.append(r.step(a).observation["images"]["camera1"].copy())
     seam = np.stack(frames)
     assert seam.shape == (7, 48, 64, 3) and seam.dtype == np.uint8 and seam.std() > 20  # a scene, not a blank
-    np.testing.assert_array_equal(seam, native["rgb"])
+    np.testing.assert_array_equal(seam, peer.result()["rgb"])
     assert r.step(actions[0], ObsRequest.state_only()).observation["images"] == {}
 
 
@@ -185,13 +187,15 @@ def test_maniskill_motion_planning_expert_through_eval_matches_native(tmp_path, 
     backend_python("maniskill")
     out = tmp_path / "eval"
     tasks = {"PickCube-v1": "solvePickCube", "StackCube-v1": "solveStackCube"}
+    peers = {task: run_native.start("maniskill", {"task": task, "solver": solver, "episodes": 3}, 0, np.zeros(1))
+             for task, solver in tasks.items()}  # ManiSkill's own solver runs while the eval runs
     proc = simseam("eval", "maniskill_tabletop", "--policy", "scripted", "--episodes", "3", "--tasks",
                    ",".join(tasks), "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n_episodes"] == 6 and summary["spec"]["action"]["control_mode"] == "joint_position"
-    for task, solver in tasks.items():
-        native = run_native("maniskill", {"task": task, "solver": solver, "episodes": 3}, 0, np.zeros(1))
+    for task in tasks:
+        native = peers[task].result()
         assert native["success"].all(), (task, native)  # the solver works here: not a vacuous comparison
         seam = sorted((e["seed"], e["success"], e["steps"]) for e in summary["episodes"] if e["task"] == task)
         assert [s for s, _, _ in seam] == [0, 1, 2]
@@ -206,6 +210,8 @@ def test_maniskill_mp_preset_gives_the_expert_its_plans_length(tmp_path, run_nat
     limit) on seeds where every plan runs past the registered 50 steps: the expert succeeds on each, at exactly
     the step where ManiSkill's solver first succeeds on its own env; the spec says the control mode and limit."""
     backend_python("maniskill")
+    peer = run_native.start("maniskill", {"task": "PickCube-v1", "solver": "solvePickCube", "episodes": 3}, 10000,
+                            np.zeros(1))  # ManiSkill's own solver runs while the eval runs
     out = tmp_path / "eval"
     proc = simseam("eval", "maniskill_tabletop_mp", "--policy", "scripted", "--episodes", "3", "--tasks",
                    "PickCube-v1", "--seed", "10000", "--out", str(out))
@@ -213,8 +219,7 @@ def test_maniskill_mp_preset_gives_the_expert_its_plans_length(tmp_path, run_nat
     summary = json.loads((out / "summary.json").read_text())
     assert summary["spec"]["action"]["control_mode"] == "joint_position"
     assert summary["spec"]["task"]["max_steps"] == 100
-    native = run_native("maniskill", {"task": "PickCube-v1", "solver": "solvePickCube", "episodes": 3}, 10000,
-                        np.zeros(1))
+    native = peer.result()
     assert all(50 < f <= 100 for f in native["first_success"]), native  # none would fit the registered 50
     seam = sorted((e["seed"], e["success"], e["steps"]) for e in summary["episodes"])
     assert seam == [(10000 + i, True, int(f)) for i, f in enumerate(native["first_success"])], (seam, native)
