@@ -20,10 +20,7 @@ case "$cmd" in
       --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux2014_x86_64 \
       -d "$DIR" mujoco==4.0.0 mujoco-core==4.0.0 PyOpenGL==3.1.10 pydantic==2.14.4 pydantic-core==2.50.5 \
       annotated-types==0.8.0 typing-inspection==0.4.5 pyyaml==6.0.2 2>&1 | grep -v "Location 'file" || true
-    (cd "$ROOT" && git archive "$BEFORE" src | tar -x -C "$DIR" --transform 's,^src,src-before,' \
-      && git archive "$AFTER" src | tar -x -C "$DIR" --transform 's,^src,src-after,' \
-      && git show "$AFTER":benchmarks/bench_step.py > "$DIR/bench_step.py" \
-      && echo "before $(git rev-parse --short "$BEFORE") after $(git rev-parse --short "$AFTER")" > "$DIR/REVS")
+    . "$ROOT/benchmarks/device/sides.sh"; archive_sides "$ROOT" "$BEFORE" "$AFTER" "$DIR" bench_step.py
     "$PY" - "$DIR" <<'PY'
 import re, shutil, sys
 from pathlib import Path

@@ -31,10 +31,7 @@ case "$cmd" in
         --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux2014_x86_64 \
         -d "$DIR" mujoco==4.0.0 mujoco-core==4.0.0 PyOpenGL==3.1.10
     fi
-    (cd "$ROOT" && git archive "$BEFORE" src | tar -x -C "$DIR" --transform 's,^src,src-before,' \
-      && git archive "$AFTER" src | tar -x -C "$DIR" --transform 's,^src,src-after,' \
-      && git show "$AFTER":benchmarks/bench_vector.py > "$DIR/bench_vector.py" \
-      && echo "before $(git rev-parse --short "$BEFORE") after $(git rev-parse --short "$AFTER")" > "$DIR/REVS")
+    . "$ROOT/benchmarks/device/sides.sh"; archive_sides "$ROOT" "$BEFORE" "$AFTER" "$DIR" bench_vector.py
     "$PY" - "$DIR" <<'PY'
 import json, shutil, sys
 from pathlib import Path
