@@ -183,7 +183,6 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
     f64 = wp.float64
     jp_t = wp.types.matrix(shape=(3, n), dtype=f64)
     matnn = wp.types.matrix(shape=(n, n), dtype=f64)
-    vecn64 = wp.types.vector(length=n, dtype=f64)
 
     @wp.func
     def priority_step(jw: jac_t, e: wp.spatial_vector, damping: float):
