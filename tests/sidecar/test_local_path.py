@@ -665,16 +665,19 @@ def test_busy_polling_sides_serve_the_same_trajectory_and_take_messages_spinning
         return got
 
     monkeypatch.setattr(local, "spin_until_readable", spy)
-    # 20 ms each side: far longer than a state-only step or this loop's turn, so the sidecar takes the
-    # next request in its busy-poll loop (not its poller) and the client its replies in its own
+    ref = make_scene(panda_spec, "lift_cube", image_size=(32, 32), render_images=False)
+    steps = actions(seed=3, n=20, dim=7)
+    expected = [ref.reset(seed=5)] + [ref.step(a) for a in steps]
+    # 20 ms each side: far longer than a state-only step or this loop's turn (the reference ran
+    # first, so the client sends each request as soon as the last reply is read), so the sidecar
+    # takes the next request in its busy-poll loop (not its poller) and the client its replies in its own
     r = make_sidecar(options=scene_options(render_images=False), spin_us=local.MAX_SPIN_US)
     assert r.fast
-    ref = make_scene(panda_spec, "lift_cube", image_size=(32, 32), render_images=False)
-    assert_same(r.reset(seed=5), ref.reset(seed=5))
-    for a in actions(seed=3, n=20, dim=7):
-        e, got = ref.step(a), r.step(a)
-        assert_same(got.observation, e.observation)
-        assert (got.reward, got.terminated, got.truncated) == (e.reward, e.terminated, e.truncated)
+    got = [r.reset(seed=5)] + [r.step(a) for a in steps]
+    assert_same(got[0], expected[0])
+    for g, e in zip(got[1:], expected[1:]):
+        assert_same(g.observation, e.observation)
+        assert (g.reward, g.terminated, g.truncated) == (e.reward, e.terminated, e.truncated)
     assert len(caught) == 21 and sum(caught) >= 10, caught  # replies taken while spinning
     reply = r._request("close", {})
     assert reply["requests"] >= 21 and reply["spun"] >= 10, reply  # requests taken while spinning
