@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/bench_vector.py [--n 1 2 4 8 16] [--steps 300] [--episodes-per-env 2]
         [--cases state overhead rgb128 rgb256 sidecar_state] [--modes vector local bare]
-        [--renderers workers batched] [--rounds 1] [--robot-json panda.json --urdf .../panda.urdf]
+        [--renderers workers batched] [--rounds 1] [--profile] [--robot-json panda.json --urdf .../panda.urdf]
         [--out benchmarks/results/vector.json]
 
     # the GPU machine's sweep (docs/evaluation.md; no pydantic there: --robot-json + --urdf):
@@ -27,8 +27,9 @@ Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker
 together by one batched policy in this process; each side busy-polls its pipe when every process has
 a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
 (``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``);
-``vector_g2`` / ``vector_g4`` pipelined lockstep with 2 / 4 policy groups (``run(groups=K)``: the policy
-acts for one group while the others step; at most N groups); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy
+acts for one group while the others step; at most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with
+the busy-poll forced on; ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -216,10 +217,10 @@ class ZeroPolicy:
 
 
 # lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
-SPIN_MODES = {"vector0": 0, "vector_spin": 2000}
+SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_g4_spin": 2000, "vector_g8_spin": 2000}
 # pipelined lockstep modes: their number of policy groups (at most N)
-GROUP_MODES = {"vector_g2": 2, "vector_g4": 4}
-VECTOR_MODES = ("vector", *SPIN_MODES, *GROUP_MODES)
+GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8}
+VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES)))
 
 
 def _cpu() -> float:
@@ -256,6 +257,23 @@ def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "wo
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
             "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n)}
+
+
+def profile_vector(case: str, n: int, steps: int, episodes: int, top: int = 15, **kw) -> list[dict]:
+    """One more run of a vector mode under cProfile, not in the timed rounds: this process's ``top``
+    functions by their own wall time (a blocking poll counts its wait), in microseconds per env-step.
+    cProfile slows the Python calls, not the system calls: compare shares, not sums."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    r = run_vector(case, n, steps, episodes, **kw)
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # (file, line, name) -> (calls, primitive calls, own s, cumulative s, callers)
+    rows = sorted(stats.items(), key=lambda kv: kv[1][2], reverse=True)[:top]
+    return [{"function": f"{Path(f).name}:{line}({name})", "calls_per_env_step": v[0] / r["env_steps"],
+             "own_us_per_env_step": v[2] / r["env_steps"] * 1e6} for (f, line, name), v in rows]
 
 
 def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
@@ -314,6 +332,9 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=[*VECTOR_MODES, "local", "bare"])
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
+    ap.add_argument("--profile", action="store_true",
+                    help="after the rounds at the largest N, one more run of each vector mode under cProfile: "
+                         "this process's functions by own time per env-step (printed, and in the JSON)")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/vector.json"))
     ap.add_argument("--robot", default=ROBOT, help="built-in robot name or manifest path (absolute)")
     ap.add_argument("--robot-json", default=None, help="a RobotSpec as JSON (machines without pydantic)")
@@ -335,6 +356,7 @@ def main() -> None:
             for renderer in (args.renderers if images and mode in VECTOR_MODES else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
+    profiles: dict[tuple, list] = {}
     for case in args.cases:
         for n in args.n:
             episodes = args.episodes_per_env * n
@@ -352,6 +374,15 @@ def main() -> None:
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)
+            if args.profile and n == max(args.n):
+                for (c, mode, renderer) in points:
+                    if c == case and mode in VECTOR_MODES:
+                        profiles[(case, mode, renderer)] = prof = profile_vector(
+                            case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
+                            groups=GROUP_MODES.get(mode, 1))
+                        print(f"\nprofile: {case} {mode} {renderer} N={n} (us per env-step, own time)")
+                        for p in prof:
+                            print(f"  {p['own_us_per_env_step']:7.2f}  {p['calls_per_env_step']:5.2f} calls  {p['function']}")
     rows = []
     for (case, mode, renderer) in points:
         base = None
@@ -366,6 +397,8 @@ def main() -> None:
             eff = sps / (n / args.n[0] * base)
             row = {"case": case, "mode": mode, "renderer": renderer, "n": n, **r, "env_steps_per_s": sps,
                    "episodes_per_hour": r["episodes"] / r["wall_s"] * 3600, "efficiency": eff}
+            if n == max(args.n) and (case, mode, renderer) in profiles:
+                row["profile"] = profiles[(case, mode, renderer)]
             bare = measured.get((case, "bare", "workers", n))
             if bare and mode != "bare":  # this mode's throughput over N bare processes' at the same N
                 bare_sps = sorted(x["env_steps"] / x["wall_s"] for x in bare)[len(bare) // 2]

@@ -10,6 +10,10 @@
 #            RobotSpec JSON with its URDF and meshes, src-before/, src-after/, bench_vector.py of AFTER)
 #   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
 #            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
+#   there: bash benchmarks/device/vector_lockstep.sh grid [DIR]     (AFTER only, N = 16, ~4 minutes)
+#            every lockstep variant against bare: plain, 4 and 8 policy groups, each with the default
+#            busy-poll rule and with it forced on; then each under cProfile (bench_vector --profile)
+#            -> $OUT/log.txt, $OUT/vector_grid.json
 #
 # Each side runs bench_vector.py --n 1 16 --steps 600 --rounds 3 --cases state --modes vector vector_spin
 # bare (vector: the default busy-poll rule, which is off at N = cores; vector_spin: forced on), in the
@@ -66,7 +70,22 @@ PY
     done
     echo "total $SECONDS s" | tee -a "$LOG"
     ;;
+  grid)
+    DIR="${2:-.cache/vectorcarry}"
+    for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+    rm -rf /tmp/vl; mkdir -p /tmp/vl; cp -r "$DIR"/. /tmp/vl/
+    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/vl/site /tmp/vl/*.whl
+    LOG=$OUT/log.txt
+    export MUJOCO_GL=egl PYTHONUNBUFFERED=1
+    echo "$(cat /tmp/vl/REVS) (grid: after only); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
+    PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 500 python3 /tmp/vl/bench_vector.py \
+      --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
+      --n 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --profile \
+      --modes vector vector_spin vector_g4 vector_g4_spin vector_g8 vector_g8_spin bare \
+      --out "$OUT/vector_grid.json" 2>&1 | grep -v '^  state' | tee -a "$LOG"
+    echo "total $SECONDS s" | tee -a "$LOG"
+    ;;
   *)
-    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR]" >&2; exit 2
+    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR] | grid [DIR]" >&2; exit 2
     ;;
 esac
