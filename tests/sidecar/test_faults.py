@@ -160,8 +160,9 @@ def test_interpreter_without_simseam_is_a_boot_crash(panda_json, tmp_path, monke
 def test_hung_sidecar_hits_the_request_timeout(make_sidecar):
     """A 120 s hang against a 0.5 s request timeout: SidecarTimeout (the hang ending would return
     normally instead), raised no earlier than the limit."""
-    rollout = make_sidecar(options=scene_options(render_images=False), env=HOOKS, request_timeout=0.5)
-    rollout.reset(seed=0)
+    rollout = make_sidecar(options=scene_options(render_images=False), env=HOOKS, request_timeout=60)
+    rollout.reset(seed=0)  # under the long limit: on a loaded machine a reset may take more than 0.5 s
+    rollout.request_timeout = 0.5
     pid = rollout.pid
     t0 = time.monotonic()
     with pytest.raises(SidecarTimeout) as ei:
