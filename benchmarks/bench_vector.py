@@ -29,7 +29,7 @@ a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-
 (``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``);
 ``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy
 acts for one group while the others step; at most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with
-the busy-poll forced on; ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+the busy-poll forced on, ``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -217,9 +217,11 @@ class ZeroPolicy:
 
 
 # lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
-SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_g4_spin": 2000, "vector_g8_spin": 2000}
+SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_g4_spin": 2000, "vector_g8_spin": 2000,
+              "vector_g8_spin200": 200}
 # pipelined lockstep modes: their number of policy groups (at most N)
-GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8}
+GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8,
+               "vector_g8_spin200": 8}
 VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES)))
 
 
