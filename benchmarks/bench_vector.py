@@ -39,7 +39,9 @@ throughput(N) / throughput of ``bare`` at the same N (with ``--modes ... bare``)
 runs at one N back to back, ``--rounds`` times, before the next N (a drift in the machine's speed hits
 them alike); the median round is reported. ``main_us`` is this
 process's own CPU time (user + system) per env-step in the vector modes: what bounds lockstep
-efficiency at large N. Prints a table and writes JSON.
+efficiency at large N. ``step us`` is one rollout step as timed inside the process that runs it (a
+lockstep worker or a bare process; ``StepTimer``): its mean wall and CPU time, so a lockstep loss
+splits into steps that got slower (cold caches, a shared core) and time between the steps. Prints a table and writes JSON.
 
 Scenes are built without pydantic (``BenchRecipe``: a RobotSpec, the task, SceneOptions), so the GPU
 machine needs only numpy, mujoco (+ PyOpenGL for EGL), and warp-lang + mujoco-warp for ``batched``.
@@ -115,11 +117,86 @@ class BenchRecipe:
         size = (self.image, self.image) if self.image else None
         opts = SceneOptions(control_hz=20, image_size=size, max_steps=self.steps, render_images=self.render_images,
                             privileged=self.privileged, seed=self.seed)
-        return ManifestScene(robot_spec(), "lift_cube", "mujoco", opts)
+        return timed(ManifestScene(robot_spec(), "lift_cube", "mujoco", opts))
 
     def rollout_for(self, rollout, index: int, seed: int):
         """Every episode on the worker's one scene (as ``SceneRecipe``): what the runner asks a recipe."""
         return rollout, seed
+
+
+STEP_TIMES_ENV = "SIMSEAM_BENCH_STEP_TIMES"
+
+
+class StepTimer:
+    """A rollout whose steps are timed where they run (wall, and this thread's CPU): what one physics step
+    costs inside a lockstep worker against inside a bare process. Each process writes its times to
+    ``$SIMSEAM_BENCH_STEP_TIMES/<pid>.json`` at every reset and at close."""
+
+    def __init__(self, rollout, out_dir: str):
+        self._rollout, self._out = rollout, Path(out_dir) / f"{os.getpid()}.json"
+        self._wall: list[float] = []
+        self._cpu: list[float] = []
+
+    def __getattr__(self, name):
+        return getattr(self._rollout, name)
+
+    def step(self, action, observe=None):
+        t, c = time.perf_counter(), time.thread_time()
+        r = self._rollout.step(action, observe)
+        self._cpu.append(time.thread_time() - c)
+        self._wall.append(time.perf_counter() - t)
+        return r
+
+    def reset(self, seed, observe=None):
+        self._write()
+        return self._rollout.reset(seed, observe)
+
+    def close(self):
+        self._write()
+        self._rollout.close()
+
+    def _write(self):
+        if self._wall:
+            self._out.write_text(json.dumps({"wall": self._wall, "cpu": self._cpu}))
+
+
+def timed(rollout):
+    out = os.environ.get(STEP_TIMES_ENV)
+    return StepTimer(rollout, out) if out else rollout
+
+
+def step_times(out_dir: str) -> dict:
+    """Every process's step times in ``out_dir``: the mean wall and CPU microseconds per step over all of them."""
+    wall, cpu = [], []
+    for f in Path(out_dir).glob("*.json"):
+        d = json.loads(f.read_text())
+        wall += d["wall"]
+        cpu += d["cpu"]
+    if not wall:
+        return {}
+    return {"step_wall_us": float(np.mean(wall)) * 1e6, "step_cpu_us": float(np.mean(cpu)) * 1e6}
+
+
+class _StepTimesDir:
+    """``$SIMSEAM_BENCH_STEP_TIMES`` set to a fresh directory for the processes started inside (spawned
+    workers read it when they build their rollouts); ``times`` holds the result after the block."""
+
+    def __enter__(self):
+        import tempfile
+
+        self._dir = tempfile.TemporaryDirectory(prefix="bench-steps-")
+        self._saved = os.environ.get(STEP_TIMES_ENV)
+        os.environ[STEP_TIMES_ENV] = self._dir.name
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is None:
+            os.environ.pop(STEP_TIMES_ENV, None)
+        else:
+            os.environ[STEP_TIMES_ENV] = self._saved
+        self.times = step_times(self._dir.name)
+        self._dir.cleanup()
+        return False
 
 
 class InstantRollout:
@@ -159,7 +236,7 @@ class InstantRecipe(BenchRecipe):
         scene = BenchRecipe(None, self.steps).build()
         spec = scene.spec
         scene.close()
-        return InstantRollout(spec)
+        return timed(InstantRollout(spec))
 
 
 def recipe_for(case: str, steps: int):
@@ -232,6 +309,13 @@ def _cpu() -> float:
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
                spin_us: int | None = None, groups: int = 1) -> dict:
+    with _StepTimesDir() as timer:  # the workers time their steps (StepTimer)
+        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups)
+    return {**r, **timer.times}
+
+
+def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spin_us: int | None,
+                groups: int) -> dict:
     images = CASES[case][0] is not None
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
     if spin_us is not None:
@@ -307,6 +391,12 @@ def run_bare(case: str, n: int, steps: int, episodes: int) -> dict:
     ready, out, go = ctx.Queue(), ctx.Queue(), ctx.Event()
     procs = [ctx.Process(target=_bare_worker, args=(case, steps, list(range(k, episodes, n)), ready, go, out))
              for k in range(n)]
+    with _StepTimesDir() as timer:
+        wall, total = _bare_run(procs, ready, go, out)
+    return {"wall_s": wall, "env_steps": total, "episodes": episodes, **timer.times}
+
+
+def _bare_run(procs, ready, go, out) -> tuple[float, int]:
     for p in procs:
         p.start()
     try:
@@ -321,7 +411,7 @@ def run_bare(case: str, n: int, steps: int, episodes: int) -> dict:
             p.join(30)
             if p.is_alive():
                 p.kill()
-    return {"wall_s": wall, "env_steps": total, "episodes": episodes}
+    return wall, total
 
 
 def main() -> None:
@@ -410,17 +500,19 @@ def main() -> None:
             print(f"{case:14s} {mode:11s} {renderer:8s} N={n:3d}  {sps:9.1f} env-steps/s  "
                   f"{row['episodes_per_hour']:9.0f} episodes/h  efficiency {eff:.2f}"
                   + (f"  vs bare {row['vs_bare']:.2f}" if "vs_bare" in row else "")
-                  + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else ""), flush=True)
+                  + (f"  main {main_us:6.1f} us/env-step" if main_us is not None else "")
+                  + (f"  step {r['step_cpu_us']:6.1f} us cpu" if "step_cpu_us" in r else ""), flush=True)
     print()
     print(f"| case | mode | renderer | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency | vs bare | "
-          "main us/env-step |")
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|")
+          "main us/env-step | step us (wall / cpu) |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         main_us = r.get("main_cpu_us_per_env_step")
         vs = r.get("vs_bare")
+        step = f"{r['step_wall_us']:.0f} / {r['step_cpu_us']:.0f}" if "step_cpu_us" in r else ""
         print(f"| {r['case']} | {r['mode']} | {r['renderer']} | {r['n']} | {r['env_steps_per_s']:.0f} | "
               f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if vs is None else f'{vs:.2f}'} | "
-              f"{'' if main_us is None else f'{main_us:.1f}'} |")
+              f"{'' if main_us is None else f'{main_us:.1f}'} | {step} |")
     machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
                "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL")}
     try:
