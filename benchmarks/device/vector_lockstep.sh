@@ -7,13 +7,15 @@
 #   here:  bash benchmarks/device/vector_lockstep.sh prepare BEFORE [AFTER] [DIR]
 #            BEFORE / AFTER: revisions (AFTER default HEAD; committed sources only, git archive);
 #            DIR default .cache/vectorcarry (~25 MB: the cp312 mujoco and PyOpenGL wheels, the Panda as a
-#            RobotSpec JSON with its URDF and meshes, src-before/, src-after/, bench_vector.py of AFTER)
+#            RobotSpec JSON with its URDF and meshes, src-before/, src-after/, bench_vector.py and
+#            bench_idle_step.py of AFTER)
 #   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
 #            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
 #   there: bash benchmarks/device/vector_lockstep.sh grid [DIR]     (AFTER only, N = 16, ~4 minutes)
 #            every lockstep variant against bare: plain, 4 and 8 policy groups, each with the default
-#            busy-poll rule and with it forced on (8 groups also with a 200 us one); then each under cProfile (bench_vector --profile)
-#            -> $OUT/log.txt, $OUT/vector_grid.json
+#            busy-poll rule and with it forced on (8 groups also with a 200 us one); then each under
+#            cProfile (bench_vector --profile); then bench_idle_step.py (a step after an idle gap)
+#            -> $OUT/log.txt, $OUT/vector_grid.json, $OUT/idle_step.json
 #
 # Each side runs bench_vector.py --n 1 16 --steps 600 --rounds 3 --cases state --modes vector vector_spin
 # bare (vector: the default busy-poll rule, which is off at N = cores; vector_spin: forced on), in the
@@ -36,6 +38,8 @@ case "$cmd" in
         -d "$DIR" mujoco==4.0.0 mujoco-core==4.0.0 PyOpenGL==3.1.10
     fi
     . "$ROOT/benchmarks/device/sides.sh"; archive_sides "$ROOT" "$BEFORE" "$AFTER" "$DIR" bench_vector.py
+    (cd "$ROOT" && git show "$AFTER:benchmarks/bench_idle_step.py" > "$DIR/bench_idle_step.py" 2>/dev/null) \
+      || rm -f "$DIR/bench_idle_step.py"  # (grid's last part; older revisions have none)
     "$PY" - "$DIR" <<'PY'
 import json, shutil, sys
 from pathlib import Path
@@ -83,6 +87,8 @@ PY
       --n 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --profile \
       --modes vector vector_spin vector_g4 vector_g4_spin vector_g8 vector_g8_spin vector_g8_spin200 bare \
       --out "$OUT/vector_grid.json" 2>&1 | grep -v '^  state' | tee -a "$LOG"
+    PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 60 python3 /tmp/vl/bench_idle_step.py \
+      --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf --out "$OUT/idle_step.json" 2>&1 | tee -a "$LOG"
     echo "total $SECONDS s" | tee -a "$LOG"
     ;;
   *)
