@@ -26,10 +26,12 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process; each side busy-polls its pipe when every process has
 a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
-(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``);
-``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy
-acts for one group while the others step; at most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with
-the busy-poll forced on, ``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent); ``local`` is ``VectorEnv.run_local`` (the built-in ``zero``
+(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``),
+``vector_spin200`` with a 200 us one; ``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep
+with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy acts for one group while the others step; at
+most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with the busy-poll forced on,
+``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent); ``local`` is
+``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -294,8 +296,8 @@ class ZeroPolicy:
 
 
 # lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
-SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_g4_spin": 2000, "vector_g8_spin": 2000,
-              "vector_g8_spin200": 200}
+SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_spin200": 200, "vector_g4_spin": 2000,
+              "vector_g8_spin": 2000, "vector_g8_spin200": 200}
 # pipelined lockstep modes: their number of policy groups (at most N)
 GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8,
                "vector_g8_spin200": 8}

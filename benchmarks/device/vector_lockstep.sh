@@ -13,7 +13,7 @@
 #            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
 #   there: bash benchmarks/device/vector_lockstep.sh grid [DIR]     (AFTER only, N = 16, ~4 minutes)
 #            every lockstep variant against bare: plain, 4 and 8 policy groups, each with the default
-#            busy-poll rule and with it forced on (8 groups also with a 200 us one); then each under
+#            busy-poll rule and with it forced on (plain and 8 groups also with a 200 us one); then each under
 #            cProfile (bench_vector --profile); then bench_idle_step.py (a step after an idle gap)
 #            -> $OUT/log.txt, $OUT/vector_grid.json, $OUT/idle_step.json
 #
@@ -85,7 +85,7 @@ PY
     PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 500 python3 /tmp/vl/bench_vector.py \
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
       --n 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --profile \
-      --modes vector vector_spin vector_g4 vector_g4_spin vector_g8 vector_g8_spin vector_g8_spin200 bare \
+      --modes vector vector_spin vector_spin200 vector_g4 vector_g4_spin vector_g8 vector_g8_spin vector_g8_spin200 bare \
       --out "$OUT/vector_grid.json" 2>&1 | grep -v '^  state' | tee -a "$LOG"
     PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 60 python3 /tmp/vl/bench_idle_step.py \
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf --out "$OUT/idle_step.json" 2>&1 | tee -a "$LOG"
