@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -78,10 +77,8 @@ def main() -> None:
     print("|---|---:|---:|")
     for r in rows:
         print(f"| {r['gap']} | {r['step_cpu_us']:.0f} | {r['vs_no_gap']:.2f} |")
-    machine = {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-               "load": os.getloadavg()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"machine": machine, "blocks": args.blocks,
+    args.out.write_text(json.dumps({"machine": bench_vector.machine_facts(), "blocks": args.blocks,
                                     "steps_per_block": args.steps_per_block, "rows": rows}, indent=2))
     print(f"\nwrote {args.out}", file=sys.stderr)
 

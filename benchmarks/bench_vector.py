@@ -52,6 +52,7 @@ machine needs only numpy, mujoco (+ PyOpenGL for EGL), and warp-lang + mujoco-wa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import multiprocessing as mp
@@ -59,6 +60,7 @@ import os
 import platform
 import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -179,26 +181,22 @@ def step_times(out_dir: str) -> dict:
     return {"step_wall_us": float(np.mean(wall)) * 1e6, "step_cpu_us": float(np.mean(cpu)) * 1e6}
 
 
-class _StepTimesDir:
+@contextlib.contextmanager
+def _step_times_dir():
     """``$SIMSEAM_BENCH_STEP_TIMES`` set to a fresh directory for the processes started inside (spawned
-    workers read it when they build their rollouts); ``times`` holds the result after the block."""
-
-    def __enter__(self):
-        import tempfile
-
-        self._dir = tempfile.TemporaryDirectory(prefix="bench-steps-")
-        self._saved = os.environ.get(STEP_TIMES_ENV)
-        os.environ[STEP_TIMES_ENV] = self._dir.name
-        return self
-
-    def __exit__(self, *exc):
-        if self._saved is None:
-            os.environ.pop(STEP_TIMES_ENV, None)
-        else:
-            os.environ[STEP_TIMES_ENV] = self._saved
-        self.times = step_times(self._dir.name)
-        self._dir.cleanup()
-        return False
+    workers read it when they build their rollouts); the dict it yields gets their ``step_times``."""
+    times: dict = {}
+    saved = os.environ.get(STEP_TIMES_ENV)
+    with tempfile.TemporaryDirectory(prefix="bench-steps-") as out:
+        os.environ[STEP_TIMES_ENV] = out
+        try:
+            yield times
+        finally:
+            if saved is None:
+                os.environ.pop(STEP_TIMES_ENV, None)
+            else:
+                os.environ[STEP_TIMES_ENV] = saved
+            times.update(step_times(out))
 
 
 class InstantRollout:
@@ -311,9 +309,9 @@ def _cpu() -> float:
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
                spin_us: int | None = None, groups: int = 1) -> dict:
-    with _StepTimesDir() as timer:  # the workers time their steps (StepTimer)
+    with _step_times_dir() as times:  # the workers time their steps (StepTimer)
         r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups)
-    return {**r, **timer.times}
+    return {**r, **times}
 
 
 def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spin_us: int | None,
@@ -393,9 +391,9 @@ def run_bare(case: str, n: int, steps: int, episodes: int) -> dict:
     ready, out, go = ctx.Queue(), ctx.Queue(), ctx.Event()
     procs = [ctx.Process(target=_bare_worker, args=(case, steps, list(range(k, episodes, n)), ready, go, out))
              for k in range(n)]
-    with _StepTimesDir() as timer:
+    with _step_times_dir() as times:
         wall, total = _bare_run(procs, ready, go, out)
-    return {"wall_s": wall, "env_steps": total, "episodes": episodes, **timer.times}
+    return {"wall_s": wall, "env_steps": total, "episodes": episodes, **times}
 
 
 def _bare_run(procs, ready, go, out) -> tuple[float, int]:
@@ -414,6 +412,21 @@ def _bare_run(procs, ready, go, out) -> tuple[float, int]:
             if p.is_alive():
                 p.kill()
     return wall, total
+
+
+def machine_facts() -> dict:
+    """Where a benchmark ran: cores, platform, Python, the GL backend, the load, the GPU (if any)."""
+    import subprocess
+
+    machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
+               "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL"), "load": os.getloadavg()}
+    try:
+        gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                             text=True, timeout=10)
+        machine["gpu"] = gpu.stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        machine["gpu"] = None
+    return machine
 
 
 def main() -> None:
@@ -515,16 +528,7 @@ def main() -> None:
         print(f"| {r['case']} | {r['mode']} | {r['renderer']} | {r['n']} | {r['env_steps_per_s']:.0f} | "
               f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if vs is None else f'{vs:.2f}'} | "
               f"{'' if main_us is None else f'{main_us:.1f}'} | {step} |")
-    machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
-               "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL")}
-    try:
-        import subprocess
-
-        gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
-                             text=True, timeout=10)
-        machine["gpu"] = gpu.stdout.strip() or None
-    except (OSError, subprocess.SubprocessError):
-        machine["gpu"] = None
+    machine = machine_facts()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": machine, "steps_per_episode": args.steps,
                                     "episodes_per_env": args.episodes_per_env, "rows": rows}, indent=2))

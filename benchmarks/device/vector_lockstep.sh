@@ -23,6 +23,14 @@
 # groups: run(groups=K), which BEFORE's sources may not have) and gets a longer time limit.
 set -uo pipefail
 cmd="${1:-}"
+
+unpack() {  # there: the GL loader debs, the carry DIR in /tmp/vl, its wheels in /tmp/vl/site; LOG and the env
+  for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+  rm -rf /tmp/vl; mkdir -p /tmp/vl; cp -r "$1"/. /tmp/vl/
+  python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/vl/site /tmp/vl/*.whl
+  LOG=$OUT/log.txt
+  export MUJOCO_GL=egl PYTHONUNBUFFERED=1
+}
 case "$cmd" in
   prepare)
     ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
@@ -54,11 +62,7 @@ PY
     ;;
   run)
     DIR="${2:-.cache/vectorcarry}"
-    for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
-    rm -rf /tmp/vl; mkdir -p /tmp/vl; cp -r "$DIR"/. /tmp/vl/
-    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/vl/site /tmp/vl/*.whl
-    LOG=$OUT/log.txt
-    export MUJOCO_GL=egl PYTHONUNBUFFERED=1
+    unpack "$DIR"
     echo "$(cat /tmp/vl/REVS); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
     i=0
     for s in before after before after; do
@@ -76,11 +80,7 @@ PY
     ;;
   grid)
     DIR="${2:-.cache/vectorcarry}"
-    for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
-    rm -rf /tmp/vl; mkdir -p /tmp/vl; cp -r "$DIR"/. /tmp/vl/
-    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/vl/site /tmp/vl/*.whl
-    LOG=$OUT/log.txt
-    export MUJOCO_GL=egl PYTHONUNBUFFERED=1
+    unpack "$DIR"
     echo "$(cat /tmp/vl/REVS) (grid: after only); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
     PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 500 python3 /tmp/vl/bench_vector.py \
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
