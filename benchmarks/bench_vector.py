@@ -30,7 +30,10 @@ a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-
 ``vector_spin200`` with a 200 us one; ``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep
 with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy acts for one group while the others step; at
 most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with the busy-poll forced on,
-``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent); ``local`` is
+``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent);
+``vector_ready1`` / ``vector_ready4`` / ``vector_ready8`` the ready rule (``run(ready=M)``: the policy
+acts for the workers whose steps are in once M of them are; at most N), ``vector_ready1_spin`` /
+``vector_ready4_spin`` / ``vector_ready8_spin`` the same with the busy-poll forced on; ``local`` is
 ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
@@ -295,11 +298,15 @@ class ZeroPolicy:
 
 # lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
 SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_spin200": 200, "vector_g4_spin": 2000,
-              "vector_g8_spin": 2000, "vector_g8_spin200": 200}
+              "vector_g8_spin": 2000, "vector_g8_spin200": 200, "vector_ready1_spin": 2000,
+              "vector_ready4_spin": 2000, "vector_ready8_spin": 2000}
 # pipelined lockstep modes: their number of policy groups (at most N)
 GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8,
                "vector_g8_spin200": 8}
-VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES)))
+# the ready rule's modes (run(ready=M)): the policy acts once M workers' steps are in (at most N)
+READY_MODES = {"vector_ready1": 1, "vector_ready4": 4, "vector_ready8": 8, "vector_ready1_spin": 1,
+               "vector_ready4_spin": 4, "vector_ready8_spin": 8}
+VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES)))
 
 
 def _cpu() -> float:
@@ -308,14 +315,14 @@ def _cpu() -> float:
 
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
-               spin_us: int | None = None, groups: int = 1) -> dict:
+               spin_us: int | None = None, groups: int = 1, ready: int | None = None) -> dict:
     with _step_times_dir() as times:  # the workers time their steps (StepTimer)
-        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups)
+        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups, ready)
     return {**r, **times}
 
 
 def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spin_us: int | None,
-                groups: int) -> dict:
+                groups: int, ready: int | None = None) -> dict:
     images = CASES[case][0] is not None
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
     if spin_us is not None:
@@ -335,14 +342,16 @@ def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spi
             vec.central.render([state] * n)
         pol = ZeroBatch(n, images)
         t0, c0 = time.perf_counter(), _cpu()
-        # groups passed only when pipelined: the plain modes also run on sources before run(groups=)
-        results = vec.run(pol, range(episodes), **({"groups": min(groups, n)} if groups > 1 else {}))
+        # groups / ready passed only when used: the plain modes also run on sources before run(groups=)
+        rule = {"groups": min(groups, n)} if groups > 1 else {"ready": min(ready, n)} if ready else {}
+        results = vec.run(pol, range(episodes), **rule)
         wall, cpu = time.perf_counter() - t0, _cpu() - c0
     steps_done = sum(r.steps for r in results)
     if images:
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
-            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n)}
+            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n),
+            "ready": min(ready, n) if ready else None}
 
 
 def profile_vector(case: str, n: int, steps: int, episodes: int, top: int = 15, **kw) -> list[dict]:
@@ -477,7 +486,7 @@ def main() -> None:
                         r = run_local(case, n, args.steps, episodes)
                     else:
                         r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                                       groups=GROUP_MODES.get(mode, 1))
+                                       groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)
@@ -486,7 +495,7 @@ def main() -> None:
                     if c == case and mode in VECTOR_MODES:
                         profiles[(case, mode, renderer)] = prof = profile_vector(
                             case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                            groups=GROUP_MODES.get(mode, 1))
+                            groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
                         print(f"\nprofile: {case} {mode} {renderer} N={n} (us per env-step, own time)")
                         for p in prof:
                             print(f"  {p['own_us_per_env_step']:7.2f}  {p['calls_per_env_step']:5.2f} calls  {p['function']}")

@@ -11,11 +11,11 @@
 #            bench_idle_step.py of AFTER)
 #   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
 #            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
-#   there: bash benchmarks/device/vector_lockstep.sh grid [DIR]     (AFTER only, N = 16, ~4 minutes)
-#            every lockstep variant against bare: plain, 4 and 8 policy groups, each with the default
-#            busy-poll rule and with it forced on (plain and 8 groups also with a 200 us one); then each under
-#            cProfile (bench_vector --profile); then bench_idle_step.py (a step after an idle gap)
-#            -> $OUT/log.txt, $OUT/vector_grid.json, $OUT/idle_step.json
+#   there: bash benchmarks/device/vector_lockstep.sh grid [DIR] [MODE ...]   (AFTER only, N = 16, ~4 minutes)
+#            lockstep variants against bare (default: plain, 4 and 8 policy groups, each with the default
+#            busy-poll rule and with it forced on, plain and 8 groups also with a 200 us one; or the bench_vector
+#            modes given); then each under cProfile (bench_vector --profile); then bench_idle_step.py (a step
+#            after an idle gap) -> $OUT/log.txt, $OUT/vector_grid.json, $OUT/idle_step.json
 #
 # Each side runs bench_vector.py --n 1 16 --steps 600 --rounds 3 --cases state --modes vector vector_spin
 # bare (vector: the default busy-poll rule, which is off at N = cores; vector_spin: forced on), in the
@@ -80,18 +80,20 @@ PY
     ;;
   grid)
     DIR="${2:-.cache/vectorcarry}"
+    shift $(($# < 2 ? $# : 2))
+    MODES="${*:-vector vector_spin vector_spin200 vector_g4 vector_g4_spin vector_g8 vector_g8_spin vector_g8_spin200}"
     unpack "$DIR"
     echo "$(cat /tmp/vl/REVS) (grid: after only); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
     PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 500 python3 /tmp/vl/bench_vector.py \
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
       --n 16 --steps 600 --episodes-per-env 2 --rounds 3 --cases state --profile \
-      --modes vector vector_spin vector_spin200 vector_g4 vector_g4_spin vector_g8 vector_g8_spin vector_g8_spin200 bare \
+      --modes $MODES bare \
       --out "$OUT/vector_grid.json" 2>&1 | grep -v '^  state' | tee -a "$LOG"
     PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout 60 python3 /tmp/vl/bench_idle_step.py \
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf --out "$OUT/idle_step.json" 2>&1 | tee -a "$LOG"
     echo "total $SECONDS s" | tee -a "$LOG"
     ;;
   *)
-    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR] | grid [DIR]" >&2; exit 2
+    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR] | grid [DIR] [MODE ...]" >&2; exit 2
     ;;
 esac

@@ -25,12 +25,85 @@ def _run(scene, n: int, groups: int, indices, seed: int, **kwargs) -> dict[int, 
         return {r.index: _outcome(r) for r in vec.run(pol, indices, seed=seed, groups=groups, **kwargs)}
 
 
+class _Sizes:
+    """A policy batch that records the size of every batch it acts for."""
+
+    def __init__(self, inner):
+        self.inner, self.n, self.sizes = inner, inner.n, []
+
+    def act_batch(self, envs, observations):
+        self.sizes.append(len(envs))
+        return self.inner.act_batch(envs, observations)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
 def test_groups_give_the_results_of_one_process(tmp_path):
     scene = _scene(tmp_path, steps=30)
     reference = _sequential(scene, "scripted", range(7), seed=4)
     assert sum(r[2] for r in reference.values()) >= 3  # the scripted expert mostly succeeds: a real signal
     for groups in (1, 2, 3):
         assert _run(scene, 3, groups, range(7), seed=4) == reference, groups
+
+
+def test_the_ready_rule_gives_the_results_of_one_process_and_acts_on_partial_batches(tmp_path):
+    """``ready`` M: the policy acts once M workers' steps are in, for every one in by then. The
+    per-episode results equal one process's whatever M, the policy acts exactly once per step taken,
+    and M = N acts on whole batches while N episodes are in flight (plain lockstep)."""
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(7), seed=4)
+    for ready in (1, 2, 3):
+        pol = _Sizes(make_policy_batch("scripted", 3))
+        with VectorEnv(_recipe(scene, pol.inner, 4), 3) as vec:
+            results = vec.run(pol, range(7), seed=4, ready=ready)
+        assert {r.index: _outcome(r) for r in results} == reference, ready
+        assert sum(pol.sizes) == sum(r.steps for r in results), ready
+        assert all(1 <= k <= 3 for k in pol.sizes)
+        if ready == 3:
+            assert pol.sizes[:20] == [3] * 20, pol.sizes[:20]
+
+
+def test_the_ready_rule_reruns_a_killed_workers_episode_once(tmp_path):
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(5), seed=1)
+    pol = make_policy_batch("scripted", 3)
+    failures, killed = [], []
+    with VectorEnv(_recipe(scene, pol, 1), 3) as vec:
+        def on_step(env, index, steps):
+            if index == 2 and steps == 6 and not killed:
+                killed.append(env)
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(5), seed=1, ready=1, on_step=on_step, on_worker_failure=failures.append)
+        assert vec.restarts == 1
+    assert killed and len(failures) == 1 and failures[0].index == 2
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_a_receive_of_at_least_m_returns_those_in_and_keeps_the_rest_in_flight(tmp_path):
+    cfg, base = load_scene_config(_scene(tmp_path, steps=20))
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False)
+    a = lambda vec, k: np.full((k, vec.spec.action_dim), 0.1, np.float32)  # noqa: E731
+    with VectorEnv(recipe, 3) as vec:
+        vec.reset([0, 1, 2], [5, 5, 5], STATE_ONLY)
+        plain = vec.step([0, 1, 2], a(vec, 3), STATE_ONLY).observations
+        vec.reset([0, 1, 2], [5, 5, 5], STATE_ONLY)
+        vec.step_send([0, 1, 2], a(vec, 3), STATE_ONLY)
+        first = vec.step_receive([0, 1, 2], at_least=1)
+        got = dict(zip(first.envs.tolist(), first.observations))
+        assert 1 <= len(got) <= 3 and first.envs.tolist() == sorted(got)
+        rest = [e for e in (0, 1, 2) if e not in got]
+        if rest:
+            with pytest.raises(ConfigError, match="in flight"):
+                vec.step_send(rest, a(vec, len(rest)), STATE_ONLY)
+            more = vec.step_receive(rest)
+            got.update(zip(more.envs.tolist(), more.observations))
+        with pytest.raises(ConfigError, match="at_least"):
+            vec.step_send([0], a(vec, 1), STATE_ONLY)
+            vec.step_receive([0], at_least=2)
+    for e in (0, 1, 2):
+        assert np.array_equal(got[e]["state"], plain[e]["state"])
 
 
 def test_a_worker_killed_mid_run_with_groups_reruns_its_episode_once(tmp_path):
@@ -100,6 +173,13 @@ def test_groups_out_of_range_and_on_a_one_process_batch_are_refused(tmp_path):
         for bad in (0, 3):
             with pytest.raises(ConfigError, match=r"policy groups must be an integer in 1\.\.2"):
                 run_batch(batch, pol, range(2), groups=bad)
+            with pytest.raises(ConfigError, match=r"--policy-ready must be an integer in 1\.\.2"):
+                run_batch(batch, pol, range(2), ready=bad)
+        with pytest.raises(ConfigError, match="choose one"):
+            run_batch(batch, pol, range(2), groups=2, ready=1)
+        with pytest.raises(ConfigError, match="worker processes"):
+            BatchVectorEnv(batch).run(pol, range(2), ready=1)
+        assert len(run_batch(batch, pol, range(3), ready=1)) == 3  # a synchronous pair returns every env
         with pytest.raises(ConfigError, match="worker processes"):
             BatchVectorEnv(batch).run(pol, range(2), groups=2)
         assert len(run_batch(batch, pol, range(3), groups=2)) == 3  # the sync pair: any batch pipelines alike

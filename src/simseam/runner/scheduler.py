@@ -15,6 +15,15 @@ next step (``step_send``) while the other groups' steps are in flight, so this p
 the workers' stepping. K = 1 is plain lockstep; the per-episode results do not depend on K for a
 deterministic per-environment policy. A step's ``step_ms`` is the time spent sending and receiving it.
 
+The ready rule (``ready`` M, 1 <= M <= N; not with groups): every busy environment's step is in
+flight, and each turn the scheduler receives the steps that are in once at least M are
+(``step_receive(envs, at_least=M)``), does their bookkeeping, lets the policy act for those at once
+and sends their next steps, while the others' steps go on. No turn waits for the slowest environment
+and this process's work overlaps the stepping; the batches the policy sees vary in size and
+membership, so the per-episode results equal plain lockstep's for a policy whose action for one
+environment does not depend on the others in its batch (a batched network's float sums may differ
+in the last bits, as between any two batch sizes). M = N is plain lockstep.
+
 A policy with ``act_device(observation)`` on a batch with ``device_observation()`` /
 ``step_device(actions)`` (MuJoCo Warp) reads the batch's device arrays and answers device actions
 for every environment: no host copy of observations or actions (one group only).
@@ -175,6 +184,16 @@ class _Videos:
             self.drop(env)
 
 
+def check_ready(ready: int | None, num_envs: int, groups: int = 1) -> None:
+    """The ready rule's batch: None (off) or 1 .. ``num_envs``, and not with policy groups (a ``ConfigError``)."""
+    if ready is None:
+        return
+    if isinstance(ready, bool) or not isinstance(ready, int) or not 1 <= ready <= num_envs:
+        raise ConfigError(f"--policy-ready must be an integer in 1..{num_envs} (the environments), got {ready!r}")
+    if groups != 1:
+        raise ConfigError(f"--policy-ready {ready} and --policy-groups {groups}: choose one")
+
+
 def check_groups(groups: int, num_envs: int) -> None:
     """The number of policy groups of a lockstep run: 1 .. ``num_envs`` (else a ``ConfigError``)."""
     if isinstance(groups, bool) or not isinstance(groups, int) or not 1 <= groups <= num_envs:
@@ -182,7 +201,7 @@ def check_groups(groups: int, num_envs: int) -> None:
 
 
 def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-              max_attempts: int = 3, groups: int = 1,
+              max_attempts: int = 3, groups: int = 1, ready: int | None = None,
               on_start: Callable[[int, int], None] | None = None,
               on_step: Callable[[int, int, int], None] | None = None,
               on_done: Callable[[EpisodeResult], None] | None = None,
@@ -190,7 +209,9 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
               on_worker_failure: Callable[[WorkerFailure], None] | None = None,
               keep: bool = True) -> list[EpisodeResult]:
     """Run episodes ``indices`` on ``batch`` (see the module docstring). ``groups``: the pipelined lockstep's
-    number of groups (1: every environment steps together). ``on_start(env, index)``, ``on_step(env, index,
+    number of groups (1: every environment steps together); ``ready`` M: the policy acts for the
+    environments whose steps are in as soon as M of them are (see the module docstring; not with groups).
+    ``on_start(env, index)``, ``on_step(env, index,
     steps)`` and ``on_done(result)`` follow each episode; ``on_error(result, what_next)``: a sidecar failure
     cost the episode; ``on_worker_failure``: an environment's process died. Results in the order the
     episodes finished (none with ``keep=False``: a long run that takes each result through ``on_done``
@@ -199,9 +220,11 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
     if getattr(policy, "n", n) < n:
         raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
     check_groups(groups, n)
+    check_ready(ready, n, groups)
     device = callable(getattr(policy, "act_device", None)) and callable(getattr(batch, "device_observation", None))
-    if device and groups > 1:
-        raise ConfigError("a device policy (act_device) steps every world at once: it takes policy groups 1")
+    if device and (groups > 1 or ready):
+        raise ConfigError("a device policy (act_device) steps every world at once: it takes policy groups 1 "
+                          "and no --policy-ready")
     episodes = _Episodes(indices, n, seed, max_attempts)
     videos = _Videos(batch, video_dir)
     obs: list = [None] * n
@@ -254,25 +277,50 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
         busy = [e for e in members if episodes.playing[e] is not None]
         return _send(batch, policy, busy, obs, device) if busy else None
 
-    members = [list(range(g, n, groups)) for g in range(groups)]
+    def turn(flight: _Flight, at_least: int | None = None) -> list[int]:
+        """Receive ``flight``'s step (``at_least``: as soon as that many are in), finish the episodes that
+        ended, start the next ones; the environments received."""
+        got, ended = _receive(batch, flight, obs, episodes, videos, device, failed, on_step, at_least)
+        for env, res in ended:
+            res.video = videos.finish(env)
+            finish(env, res)
+        free = [env for env in got if episodes.playing[env] is None]  # ended, or failed in the step
+        if free:
+            start(free)
+        return got
+
     try:
         start(range(n))
+        if ready:
+            _run_ready(send, turn, ready, n)
+            return results
+        members = [list(range(g, n, groups)) for g in range(groups)]
         flights = [send(m) for m in members]
         while any(flights):
             for g, flight in enumerate(flights):
-                if flight is None:
-                    continue
-                ended = _receive(batch, flight, obs, episodes, videos, device, failed, on_step)
-                for env, res in ended:
-                    res.video = videos.finish(env)
-                    finish(env, res)
-                free = [env for env in flight.envs if episodes.playing[env] is None]  # ended, or failed in the step
-                if free:
-                    start(free)
-                flights[g] = send(members[g])
+                if flight is not None:
+                    turn(flight)
+                    flights[g] = send(members[g])
     finally:
         videos.close()
     return results
+
+
+def _run_ready(send: Callable, turn: Callable, ready: int, n: int) -> None:
+    """The ready rule's loop: every busy environment's step is in flight; each turn receives at least
+    ``ready`` of them (fewer only when fewer are in flight), and the policy acts for those at once."""
+    sent: dict[int, _Flight] = {}  # each environment in flight -> the send that started its step
+    first = send(list(range(n)))
+    sent.update(dict.fromkeys(first.envs, first) if first else {})
+    while sent:
+        envs = list(sent)
+        flight = _Flight(envs, 0.0, sends={e: sent[e] for e in envs})
+        got = turn(flight, min(ready, len(envs)))
+        for env in got:
+            del sent[env]
+        nxt = send(got)
+        if nxt is not None:
+            sent.update(dict.fromkeys(nxt.envs, nxt))
 
 
 @dataclass
@@ -284,6 +332,7 @@ class _Flight:
     policy_ms: float
     send_ms: float = 0.0
     device_actions: object = None
+    sends: dict | None = None  # the ready rule: each environment's own send (its policy and send times)
 
 
 def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
@@ -301,14 +350,20 @@ def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
 
 
 def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Videos, device: bool,
-             failed: Callable, on_step) -> list[tuple[int, EpisodeResult]]:
-    """The end of one control step of ``flight``'s environments; the episodes that ended, with their
-    environments."""
-    spec, busy = batch.spec, flight.envs
+             failed: Callable, on_step, at_least: int | None = None) -> tuple[list[int], list[tuple[int, EpisodeResult]]]:
+    """The end of one control step of ``flight``'s environments (``at_least``: of those in once that many
+    are); the environments received, and the episodes that ended with their environments."""
+    spec = batch.spec
     t0 = time.perf_counter()
-    r = batch.step_device(flight.device_actions, busy) if device else batch.step_receive(busy)
-    step_ms = flight.send_ms + (time.perf_counter() - t0) * 1e3
-    policy_ms = flight.policy_ms
+    if device:
+        r = batch.step_device(flight.device_actions, flight.envs)
+    elif at_least is None:
+        r = batch.step_receive(flight.envs)
+    else:
+        r = batch.step_receive(flight.envs, at_least=at_least)
+    wait_ms = (time.perf_counter() - t0) * 1e3
+    busy = flight.envs if at_least is None else r.envs.tolist()
+    step_ms, policy_ms = flight.send_ms + wait_ms, flight.policy_ms
     fails = batch.failures()
     ended = []
     playing, success_key, max_steps = episodes.playing, spec.task.success_key, spec.task.max_steps
@@ -324,6 +379,9 @@ def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Vi
         res = playing[env]
         res.steps += 1
         res.reward += rewards[k]
+        if flight.sends is not None:
+            own = flight.sends[env]
+            step_ms, policy_ms = own.send_ms + wait_ms, own.policy_ms
         res.step_ms.append(step_ms)
         res.policy_ms.append(policy_ms)
         info = infos[k]
@@ -337,7 +395,7 @@ def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Vi
         if terminated[k] or truncated[k] or res.steps >= max_steps:
             res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
             ended.append((env, res))
-    return ended
+    return busy, ended
 
 
 class BatchVectorEnv:
@@ -353,11 +411,14 @@ class BatchVectorEnv:
         self.restarts = 0  # the worker processes' counter of restarted workers: none here
 
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3, groups: int = 1, on_start=None, on_step=None, on_done=None, on_error=None,
-            on_worker_failure=None, keep: bool = True) -> list[EpisodeResult]:
+            max_attempts: int = 3, groups: int = 1, ready: int | None = None, on_start=None, on_step=None,
+            on_done=None, on_error=None, on_worker_failure=None, keep: bool = True) -> list[EpisodeResult]:
         if groups != 1:  # a batched simulator keeps simulating the environments left out of a step
             raise ConfigError(f"policy groups {groups}: pipelined lockstep needs worker processes; these "
                               f"{self.num_envs} environments step together in one batch (use 1 group)")
+        if ready is not None:
+            raise ConfigError(f"--policy-ready {ready}: acting on the environments that are in needs worker "
+                              f"processes; these {self.num_envs} environments step together in one batch")
         return run_batch(self.batch, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
                          on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
                          on_worker_failure=on_worker_failure, keep=keep)

@@ -107,6 +107,9 @@ def default_num_envs(episodes: int, cores: int | None = None) -> int:
     return max(1, min(int(cores), int(episodes)))
 
 
+PENDING = object()  #: a reply not in yet (``_replies`` with ``need``)
+
+
 # ---------------------------------------------------------------------------------------------- worker
 class _SharedImages:
     """Worker side of the image transport: an observation's images are written into one shared memory
@@ -717,25 +720,31 @@ class VectorEnv:
             if msg is None or msg[0] != "nothing":
                 return msg
 
-    def _replies(self, slots: list[_Slot], spin: bool = False) -> list:
+    def _replies(self, slots: list[_Slot], spin: bool = False, need: int | None = None) -> list:
         """The workers' replies to the resets or steps sent to ``slots``, in their order (None: the worker
         died), each read as soon as its worker rings the bell (a slow worker does not hold up reading the
         others'); a reply that rang while other workers' were awaited is taken from ``rung``. With
-        ``spin``, each wait busy-polls up to ``spin_us`` before sleeping."""
-        out: list = [None] * len(slots)
+        ``spin``, each wait busy-polls up to ``spin_us`` before sleeping. ``need``: return once that many
+        are in, with every other reply already rung; ``PENDING`` marks those not in yet."""
+        out: list = [PENDING] * len(slots)
         waiting = {}
         for j, s in enumerate(slots):
             if s.rung is not None:
                 out[j], s.rung = self._read_ring(s, s.rung), None
-            elif s.env not in self._dead:
+            elif s.env in self._dead:
+                out[j] = None
+            else:
                 waiting[s.env] = j
         spin_s = self.spin_us * 1e-6 if spin else 0.0
-        while waiting:
+        least = len(slots) - (len(slots) if need is None else need)  # how many may stay out
+        while len(waiting) > least:
             for fd, _ in self._events(spin_s):
                 if fd == self._bell:
                     self._rung(slots, waiting, out)
                 else:
                     self._ended(fd, slots, waiting, out)
+        if waiting:
+            self._rung(slots, waiting, out)  # every reply there is by now
         return out
 
     def _events(self, spin_s: float) -> list:
@@ -773,8 +782,11 @@ class VectorEnv:
         self._rung(slots, waiting, out)
         s = self._sentinels.pop(sentinel)
         self._poll.unregister(sentinel)
-        if waiting.pop(s.env, None) is None:
+        j = waiting.pop(s.env, None)
+        if j is None:
             self._dead.add(s.env)
+        else:
+            out[j] = None
 
     def _replace(self, s: _Slot) -> int | None:
         """``s``'s worker died: a fresh one takes its place. Returns the dead one's exit code."""
@@ -868,13 +880,20 @@ class VectorEnv:
             s.stepping = True
             self._step(s, row, want)
 
-    def step_receive(self, envs: Sequence[int]) -> BatchStepResult:
-        """The results of the step ``step_send`` started for ``envs``, waiting for exactly those workers."""
+    def step_receive(self, envs: Sequence[int], at_least: int | None = None) -> BatchStepResult:
+        """The results of the steps ``step_send`` started for ``envs``, waiting for exactly those workers;
+        with ``at_least``, for that many of them (and every other one that is in by then)."""
         idx = self._envs(envs, "step_receive")
         slots = [self.slots[e] for e in idx]
         if not all(s.stepping for s in slots):
             raise ConfigError(f"step_receive: envs {[s.env for s in slots if not s.stepping]} have no step in flight")
-        replies = self._replies(slots, spin=bool(self.spin_us))
+        if at_least is not None and not 1 <= at_least <= len(idx):
+            raise ConfigError(f"step_receive: at_least must be in 1..{len(idx)}, got {at_least!r}")
+        replies = self._replies(slots, spin=bool(self.spin_us), need=at_least)
+        if at_least is not None:
+            got = [j for j, m in enumerate(replies) if m is not PENDING]
+            if len(got) < len(idx):
+                idx, slots, replies = [idx[j] for j in got], [slots[j] for j in got], [replies[j] for j in got]
         central = self.central
         obs, rewards, terminated, truncated, infos = [], [], [], [], []
         for s, msg in zip(slots, replies):
@@ -1035,7 +1054,7 @@ class VectorEnv:
 
     # -- episodes
     def run(self, policy, indices: Sequence[int], *, seed: int = 0, video_dir: Path | None = None,
-            max_attempts: int = 3, groups: int = 1,
+            max_attempts: int = 3, groups: int = 1, ready: int | None = None,
             on_start: Callable[[int, int], None] | None = None,
             on_step: Callable[[int, int, int], None] | None = None,
             on_done: Callable[[EpisodeResult], None] | None = None,
@@ -1045,11 +1064,12 @@ class VectorEnv:
         """Run the episodes ``indices`` on the workers with ``policy`` (a ``PolicyBatch`` of at least
         ``num_envs`` environments), stepped together: the episode scheduler (``runner.scheduler``) over
         this batch; ``groups`` > 1: pipelined lockstep (the policy acts for one group of workers while the
-        others step; see ``runner.scheduler``). Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
+        others step; see ``runner.scheduler``); ``ready`` M: the policy acts for the workers whose steps are
+        in as soon as M are (see ``runner.scheduler``). Callbacks: ``on_start(env, index)``, ``on_step(env, index, steps)``, ``on_done(result)``
         (once per episode, as it finishes: order may differ from ``indices``), ``on_error(result,
         what_next)`` (a sidecar failure cost the episode), ``on_worker_failure``; ``keep`` as ``run_batch``'s."""
         return run_batch(self, policy, indices, seed=seed, video_dir=video_dir, max_attempts=max_attempts,
-                         groups=groups, on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
+                         groups=groups, ready=ready, on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
                          on_worker_failure=on_worker_failure, keep=keep)
 
     def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,

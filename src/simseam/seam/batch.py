@@ -23,8 +23,11 @@ Contract (checked by ``simseam.seam.check_batch_rollout``):
   ``step_receive(envs)`` returns its ``BatchStepResult`` (``envs`` exactly as sent; envs with no step
   in flight raise ``ConfigError``). Steps of
   disjoint sets of environments may be in flight together, received in any order, and the others
-  may be reset meanwhile; ``step`` is ``step_send`` then ``step_receive``. ``SyncStepPair`` gives a
-  batch that steps synchronously the pair (the step runs in ``step_receive``).
+  may be reset meanwhile; ``step`` is ``step_send`` then ``step_receive``. ``step_receive(envs,
+  at_least=m)`` (1 <= m <= len(envs)) may return as soon as ``m`` of them are in, with every one that
+  is in by then: the result's ``envs`` say which, in the order of ``envs``; the others stay in flight,
+  received later by naming what is left of ``envs``. ``SyncStepPair`` gives a batch that steps
+  synchronously the pair (the step runs in ``step_receive``, which returns every environment).
 - ``observe`` is ``None`` (everything), one ``ObsRequest`` for all, or one per environment.
 - ``render(env)``: ``uint8[H, W, 3]`` of that environment's first RGB camera, or None.
 - ``failures()``: the environments whose episode ended by a failure of their own since the last call
@@ -110,7 +113,7 @@ class BatchRollout(Protocol):
 
     def step_send(self, envs: Sequence[int], actions: np.ndarray, observe: Requests = None) -> None: ...
 
-    def step_receive(self, envs: Sequence[int]) -> BatchStepResult: ...
+    def step_receive(self, envs: Sequence[int], at_least: int | None = None) -> BatchStepResult: ...
 
     def render(self, env: int) -> np.ndarray | None: ...
 
@@ -168,7 +171,7 @@ class SyncStepPair:
             raise ConfigError(f"step_send: envs {list(key)} already have a step in flight")
         sent[key] = (envs, actions, observe)
 
-    def step_receive(self, envs: Sequence[int]) -> BatchStepResult:
+    def step_receive(self, envs: Sequence[int], at_least: int | None = None) -> BatchStepResult:
         key = tuple(np.asarray(envs, dtype=np.int64).reshape(-1).tolist())
         sent = self.__dict__.get("_sent_steps", {})
         if key not in sent:
