@@ -306,17 +306,7 @@ GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin":
 # the ready rule's modes (run(ready=M)): the policy acts once M workers' steps are in (at most N)
 READY_MODES = {"vector_ready1": 1, "vector_ready4": 4, "vector_ready8": 8, "vector_ready1_spin": 1,
                "vector_ready4_spin": 4, "vector_ready8_spin": 8}
-# EXPERIMENT: modes that set the workers' niceness / the parent's own busy-poll (env, at construction)
-_W = {"SIMSEAM_VECTOR_PARENT_SPIN_US": "0"}
-_N = {"SIMSEAM_VECTOR_WORKER_NICE": "10"}
-ENV_MODES = {"vector_wspin": _W, "vector_wspin_nice": {**_W, **_N}, "vector_nice": _N, "vector_spin_nice": _N,
-             "vector_g4_nice": _N, "vector_g4_wspin_nice": {**_W, **_N}, "vector_ready4_wspin_nice": {**_W, **_N},
-             "vector_ready1_wspin_nice": {**_W, **_N}}
-SPIN_MODES.update({"vector_wspin": 2000, "vector_wspin_nice": 2000, "vector_spin_nice": 2000,
-                   "vector_g4_wspin_nice": 2000, "vector_ready4_wspin_nice": 2000, "vector_ready1_wspin_nice": 2000})
-GROUP_MODES.update({"vector_g4_nice": 4, "vector_g4_wspin_nice": 4})
-READY_MODES.update({"vector_ready4_wspin_nice": 4, "vector_ready1_wspin_nice": 1})
-VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES, *ENV_MODES)))
+VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES)))
 
 
 def _cpu() -> float:
@@ -325,18 +315,9 @@ def _cpu() -> float:
 
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
-               spin_us: int | None = None, groups: int = 1, ready: int | None = None, env: dict | None = None) -> dict:
-    saved = {k: os.environ.get(k) for k in env or {}}
-    os.environ.update(env or {})
-    try:
-        with _step_times_dir() as times:  # the workers time their steps (StepTimer)
-            r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups, ready)
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+               spin_us: int | None = None, groups: int = 1, ready: int | None = None) -> dict:
+    with _step_times_dir() as times:  # the workers time their steps (StepTimer)
+        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups, ready)
     return {**r, **times}
 
 
@@ -505,8 +486,7 @@ def main() -> None:
                         r = run_local(case, n, args.steps, episodes)
                     else:
                         r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                                       groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode),
-                                       env=ENV_MODES.get(mode))
+                                       groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)
@@ -515,8 +495,7 @@ def main() -> None:
                     if c == case and mode in VECTOR_MODES:
                         profiles[(case, mode, renderer)] = prof = profile_vector(
                             case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                            groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode),
-                            env=ENV_MODES.get(mode))
+                            groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
                         print(f"\nprofile: {case} {mode} {renderer} N={n} (us per env-step, own time)")
                         for p in prof:
                             print(f"  {p['own_us_per_env_step']:7.2f}  {p['calls_per_env_step']:5.2f} calls  {p['function']}")

@@ -404,8 +404,6 @@ def _worker_main(conn, bell, env: int, recipe: SceneRecipe | BenchmarkRecipe, pa
     busy-poll for its next command."""
     if sidecar_spin_us is not None:
         os.environ.setdefault(SPIN_ENV, str(sidecar_spin_us))
-    if os.environ.get("SIMSEAM_VECTOR_WORKER_NICE"):  # EXPERIMENT (device grid): workers below the parent
-        os.nice(int(os.environ["SIMSEAM_VECTOR_WORKER_NICE"]))
     if parent_pid:
         _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
@@ -738,8 +736,6 @@ class VectorEnv:
             else:
                 waiting[s.env] = j
         spin_s = self.spin_us * 1e-6 if spin else 0.0
-        if os.environ.get("SIMSEAM_VECTOR_PARENT_SPIN_US"):  # EXPERIMENT (device grid)
-            spin_s = int(os.environ["SIMSEAM_VECTOR_PARENT_SPIN_US"]) * 1e-6
         least = len(slots) - (len(slots) if need is None else need)  # how many may stay out
         while len(waiting) > least:
             for fd, _ in self._events(spin_s):
