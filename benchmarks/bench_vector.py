@@ -306,106 +306,7 @@ GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin":
 # the ready rule's modes (run(ready=M)): the policy acts once M workers' steps are in (at most N)
 READY_MODES = {"vector_ready1": 1, "vector_ready4": 4, "vector_ready8": 8, "vector_ready1_spin": 1,
                "vector_ready4_spin": 4, "vector_ready8_spin": 8}
-INLINE_MODES = {"vector_inline": None, "vector_inline_spin": 2000}  # EXPERIMENT: InlineBatch
-VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES, *INLINE_MODES)))
-
-
-class InlineBatch:
-    """EXPERIMENT: N environments as N - 1 worker processes plus one rollout in this process (env 0),
-    stepped while the workers step: the parent uses its core instead of waiting on a 17th one."""
-
-    def __init__(self, recipe, n: int):
-        from simseam.seam.batch import BatchStepResult
-
-        self._R = BatchStepResult
-        self.vec = VectorEnv(recipe, n - 1)
-        self.local = recipe.build()
-        self.spec, self.num_envs = self.vec.spec, n
-        self._sent = None
-
-    def _split(self, envs, rows=None):
-        idx = [int(e) for e in envs]
-        w = [j for j, e in enumerate(idx) if e != 0]
-        return idx, (0 in idx), w, [idx[j] - 1 for j in w]
-
-    def reset(self, envs, seeds, observe=None):
-        idx, loc, w, wenv = self._split(envs)
-        req = observe if not isinstance(observe, (list, tuple)) else None
-        got = self.vec.reset(wenv, [seeds[j] for j in w], req) if wenv else []
-        out = [None] * len(idx)
-        for j, o in zip(w, got):
-            out[j] = o
-        if loc:
-            out[idx.index(0)] = self.local.reset(seeds[idx.index(0)], req)
-        return out
-
-    def step_send(self, envs, actions, observe=None):
-        idx, loc, w, wenv = self._split(envs)
-        a = np.asarray(actions, np.float32)
-        req = observe if not isinstance(observe, (list, tuple)) else (observe[0] if observe else None)
-        if wenv:
-            self.vec.step_send(wenv, a[w], req)
-        self._sent = (idx, a[idx.index(0)] if loc else None, req, wenv)
-
-    def step_receive(self, envs, at_least=None):
-        idx, action, req, wenv = self._sent
-        local = self.local.step(action, req) if action is not None else None
-        r = self.vec.step_receive(wenv) if wenv else None
-        obs, rew, term, trunc, infos = [], [], [], [], []
-        k = 0
-        for e in idx:
-            if e == 0:
-                x = local
-                obs.append(x.observation), rew.append(x.reward), term.append(x.terminated)
-                trunc.append(x.truncated), infos.append(x.info)
-            else:
-                obs.append(r.observations[k]), rew.append(r.reward[k]), term.append(r.terminated[k])
-                trunc.append(r.truncated[k]), infos.append(r.infos[k])
-                k += 1
-        return self._R(np.array(idx, np.int64), obs, np.array(rew, np.float64), np.array(term, bool),
-                       np.array(trunc, bool), infos)
-
-    def step(self, envs, actions, observe=None):
-        self.step_send(envs, actions, observe)
-        return self.step_receive(envs)
-
-    def render(self, env):
-        return None
-
-    def failures(self):
-        return {e + 1: f for e, f in self.vec.failures().items()}
-
-    def close(self):
-        self.vec.close()
-        self.local.close()
-
-
-def run_inline(case: str, n: int, steps: int, episodes: int, spin_us: int | None = None) -> dict:
-    from simseam.runner.scheduler import run_batch
-
-    saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
-    if spin_us is not None:
-        os.environ["SIMSEAM_VECTOR_SPIN_US"] = str(spin_us)
-    try:
-        with _step_times_dir() as times:
-            batch = InlineBatch(recipe_for(case, steps), n)
-            try:
-                batch.vec._wait_booted(batch.vec.slots)
-                pol = ZeroBatch(n, False)
-                t0, c0 = time.perf_counter(), _cpu()
-                results = run_batch(batch, pol, range(episodes))
-                wall, cpu = time.perf_counter() - t0, _cpu() - c0
-            finally:
-                batch.close()
-    finally:
-        if saved is None:
-            os.environ.pop("SIMSEAM_VECTOR_SPIN_US", None)
-        else:
-            os.environ["SIMSEAM_VECTOR_SPIN_US"] = saved
-    steps_done = sum(r.steps for r in results)
-    return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
-            "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin_us, "groups": 1, "ready": None,
-            **times}
+VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES)))
 
 
 def _cpu() -> float:
@@ -583,8 +484,6 @@ def main() -> None:
                         r = run_bare(case, n, args.steps, episodes)
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
-                    elif mode in INLINE_MODES:
-                        r = run_inline(case, n, args.steps, episodes, spin_us=INLINE_MODES[mode])
                     else:
                         r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
                                        groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
@@ -593,7 +492,7 @@ def main() -> None:
                           file=sys.stderr, flush=True)
             if args.profile and n == max(args.n):
                 for (c, mode, renderer) in points:
-                    if c == case and mode in VECTOR_MODES and mode not in INLINE_MODES:
+                    if c == case and mode in VECTOR_MODES:
                         profiles[(case, mode, renderer)] = prof = profile_vector(
                             case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
                             groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
