@@ -64,23 +64,6 @@ def test_the_ready_rule_gives_the_results_of_one_process_and_acts_on_partial_bat
             assert pol.sizes[:20] == [3] * 20, pol.sizes[:20]
 
 
-def test_the_ready_rule_reruns_a_killed_workers_episode_once(tmp_path):
-    scene = _scene(tmp_path, steps=30)
-    reference = _sequential(scene, "scripted", range(5), seed=1)
-    pol = make_policy_batch("scripted", 3)
-    failures, killed = [], []
-    with VectorEnv(_recipe(scene, pol, 1), 3) as vec:
-        def on_step(env, index, steps):
-            if index == 2 and steps == 6 and not killed:
-                killed.append(env)
-                os.kill(vec.pids()[env], signal.SIGKILL)
-
-        results = vec.run(pol, range(5), seed=1, ready=1, on_step=on_step, on_worker_failure=failures.append)
-        assert vec.restarts == 1
-    assert killed and len(failures) == 1 and failures[0].index == 2
-    assert {r.index: _outcome(r) for r in results} == reference
-
-
 def test_a_receive_of_at_least_m_returns_those_in_and_keeps_the_rest_in_flight(tmp_path):
     cfg, base = load_scene_config(_scene(tmp_path, steps=20))
     recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False)
@@ -106,7 +89,8 @@ def test_a_receive_of_at_least_m_returns_those_in_and_keeps_the_rest_in_flight(t
         assert np.array_equal(got[e]["state"], plain[e]["state"])
 
 
-def test_a_worker_killed_mid_run_with_groups_reruns_its_episode_once(tmp_path):
+@pytest.mark.parametrize("rule", [{"groups": 2}, {"ready": 1}], ids=["groups", "ready"])
+def test_a_worker_killed_mid_run_reruns_its_episode_once(tmp_path, rule):
     scene = _scene(tmp_path, steps=30)
     reference = _sequential(scene, "scripted", range(5), seed=1)
     pol = make_policy_batch("scripted", 3)
@@ -117,7 +101,7 @@ def test_a_worker_killed_mid_run_with_groups_reruns_its_episode_once(tmp_path):
                 killed.append(env)
                 os.kill(vec.pids()[env], signal.SIGKILL)
 
-        results = vec.run(pol, range(5), seed=1, groups=2, on_step=on_step, on_done=done.append,
+        results = vec.run(pol, range(5), seed=1, **rule, on_step=on_step, on_done=done.append,
                           on_worker_failure=failures.append)
         assert vec.restarts == 1
     assert killed and len(failures) == 1 and failures[0].index == 2

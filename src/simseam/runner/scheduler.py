@@ -313,9 +313,7 @@ def _run_ready(send: Callable, turn: Callable, ready: int, n: int) -> None:
     first = send(list(range(n)))
     sent.update(dict.fromkeys(first.envs, first) if first else {})
     while sent:
-        envs = list(sent)
-        flight = _Flight(envs, 0.0, sends={e: sent[e] for e in envs})
-        got = turn(flight, min(ready, len(envs)))
+        got = turn(_Flight(list(sent), 0.0, sends=sent), min(ready, len(sent)))
         for env in got:
             del sent[env]
         nxt = send(got)
