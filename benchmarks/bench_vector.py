@@ -25,15 +25,15 @@ succeeds: a trivial zero-action policy), ``episodes-per-env x N`` episodes per p
 
 Modes: ``vector`` is ``simseam.runner.vector.VectorEnv.run`` (lockstep: N worker processes stepped
 together by one batched policy in this process; each side busy-polls its pipe when every process has
-a core beyond the load, ``vector_spin_us``); ``vector0`` the same with the busy-poll off
-(``SIMSEAM_VECTOR_SPIN_US=0``), ``vector_spin`` with it forced on (``DEFAULT_VECTOR_SPIN_US``),
-``vector_spin200`` with a 200 us one; ``vector_g2`` / ``vector_g4`` / ``vector_g8`` pipelined lockstep
-with 2 / 4 / 8 policy groups (``run(groups=K)``: the policy acts for one group while the others step; at
-most N groups), ``vector_g4_spin`` / ``vector_g8_spin`` the same with the busy-poll forced on,
-``vector_g8_spin200`` with a 200 us one (about a policy group's turn in the parent);
-``vector_ready1`` / ``vector_ready4`` / ``vector_ready8`` the ready rule (``run(ready=M)``: the policy
-acts for the workers whose steps are in once M of them are; at most N), ``vector_ready1_spin`` /
-``vector_ready4_spin`` / ``vector_ready8_spin`` the same with the busy-poll forced on; ``local`` is
+a core beyond the load, ``vector_spin_us``). Its variants are named ``vector[0][_xK][_gG|_readyM][_spin[US]]``
+(``mode_rule``): ``0`` the busy-poll off (``SIMSEAM_VECTOR_SPIN_US=0``); ``_xK`` K environments on each
+of the N worker processes (``VectorEnv(envs_per_worker=K)``: K x N environments; a worker steps one
+while the policy's action for another is on its way); ``_gG`` pipelined lockstep with G policy groups
+(``run(groups=G)``: the policy acts for one group while the others step); ``_readyM`` the ready rule
+(``run(ready=M)``: the policy acts for the environments whose steps are in once M of them are);
+``_spin`` the busy-poll forced on (``DEFAULT_VECTOR_SPIN_US``, or US microseconds). G and M are capped
+at the environments. E.g. ``vector_g4_spin``, ``vector_x2_ready8`` (32 environments on 16 workers at
+N = 16, the policy acting once 8 steps are in). ``local`` is
 ``VectorEnv.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
@@ -61,6 +61,7 @@ import json
 import multiprocessing as mp
 import os
 import platform
+import re
 import resource
 import sys
 import tempfile
@@ -296,17 +297,28 @@ class ZeroPolicy:
         return np.zeros(self.dim, np.float32)
 
 
-# lockstep modes that force the busy-poll budget (SIMSEAM_VECTOR_SPIN_US); "vector" keeps the default rule
-SPIN_MODES = {"vector0": 0, "vector_spin": 2000, "vector_spin200": 200, "vector_g4_spin": 2000,
-              "vector_g8_spin": 2000, "vector_g8_spin200": 200, "vector_ready1_spin": 2000,
-              "vector_ready4_spin": 2000, "vector_ready8_spin": 2000}
-# pipelined lockstep modes: their number of policy groups (at most N)
-GROUP_MODES = {"vector_g2": 2, "vector_g4": 4, "vector_g8": 8, "vector_g4_spin": 4, "vector_g8_spin": 8,
-               "vector_g8_spin200": 8}
-# the ready rule's modes (run(ready=M)): the policy acts once M workers' steps are in (at most N)
-READY_MODES = {"vector_ready1": 1, "vector_ready4": 4, "vector_ready8": 8, "vector_ready1_spin": 1,
-               "vector_ready4_spin": 4, "vector_ready8_spin": 8}
-VECTOR_MODES = tuple(dict.fromkeys(("vector", *SPIN_MODES, *GROUP_MODES, *READY_MODES)))
+# a lockstep mode's name: vector[0][_xK][_gG | _readyM][_spin[US]]. vector0: the busy-poll off; _xK: K
+# environments on each of the N worker processes (VectorEnv(envs_per_worker=K)); _gG: G policy groups
+# (run(groups=G)); _readyM: the ready rule (run(ready=M)); _spin: the busy-poll forced on (2000 us, or US).
+# Without _spin or 0 the default busy-poll rule holds (vector_spin_us). G and M are capped at the environments.
+MODE_RE = re.compile(r"vector(?P<off>0)?(?:_x(?P<k>[1-9]\d*))?(?:_g(?P<g>[1-9]\d*)|_ready(?P<m>[1-9]\d*))?"
+                     r"(?:_spin(?P<us>\d+)?(?P<on>))?")
+
+
+def mode_rule(mode: str) -> dict | None:
+    """A lockstep mode's keyword arguments for run_vector, or None when ``mode`` is not one."""
+    hit = MODE_RE.fullmatch(mode)
+    if hit is None:
+        return None
+    spin = 0 if hit["off"] else int(hit["us"] or 2000) if hit["on"] is not None else None
+    return {"spin_us": spin, "groups": int(hit["g"] or 1), "ready": int(hit["m"]) if hit["m"] else None,
+            "envs_per_worker": int(hit["k"] or 1)}
+
+
+def check_mode(mode: str) -> str:
+    if mode in ("local", "bare") or mode_rule(mode) is not None:
+        return mode
+    raise argparse.ArgumentTypeError(f"{mode!r}: expected local, bare or vector[0][_xK][_gG|_readyM][_spin[US]]")
 
 
 def _cpu() -> float:
@@ -315,20 +327,24 @@ def _cpu() -> float:
 
 
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
-               spin_us: int | None = None, groups: int = 1, ready: int | None = None) -> dict:
+               spin_us: int | None = None, groups: int = 1, ready: int | None = None, envs_per_worker: int = 1) -> dict:
     with _step_times_dir() as times:  # the workers time their steps (StepTimer)
-        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups, ready)
+        r = _run_vector(case, n, steps, episodes, renderer, spin_us, groups, ready, envs_per_worker)
     return {**r, **times}
 
 
 def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spin_us: int | None,
-                groups: int, ready: int | None = None) -> dict:
+                groups: int, ready: int | None = None, envs_per_worker: int = 1) -> dict:
+    """N worker processes (``envs_per_worker`` K > 1: K x N environments, K on each) run ``episodes``."""
     images = CASES[case][0] is not None
+    procs, n = n, n * envs_per_worker  # from here on n counts environments
+    per_worker = {"envs_per_worker": envs_per_worker} if envs_per_worker > 1 else {}  # (sources before it)
     saved = os.environ.get("SIMSEAM_VECTOR_SPIN_US")
     if spin_us is not None:
         os.environ["SIMSEAM_VECTOR_SPIN_US"] = str(spin_us)
     try:
-        vec = VectorEnv(recipe_for(case, steps), n, **({"renderer": renderer} if renderer != "workers" else {}))
+        vec = VectorEnv(recipe_for(case, steps), n, **per_worker,
+                        **({"renderer": renderer} if renderer != "workers" else {}))
     finally:
         if saved is None:
             os.environ.pop("SIMSEAM_VECTOR_SPIN_US", None)
@@ -351,7 +367,7 @@ def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spi
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
             "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n),
-            "ready": min(ready, n) if ready else None}
+            "ready": min(ready, n) if ready else None, "processes": procs, "envs_per_worker": envs_per_worker}
 
 
 def profile_vector(case: str, n: int, steps: int, episodes: int, top: int = 15, **kw) -> list[dict]:
@@ -445,7 +461,7 @@ def main() -> None:
     ap.add_argument("--episodes-per-env", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="repeat each point; the median round is reported")
     ap.add_argument("--cases", nargs="+", default=["state", "rgb128"], choices=list(CASES))
-    ap.add_argument("--modes", nargs="+", default=["vector", "local"], choices=[*VECTOR_MODES, "local", "bare"])
+    ap.add_argument("--modes", nargs="+", default=["vector", "local"], type=check_mode)
     ap.add_argument("--renderers", nargs="+", default=["workers"], choices=["workers", "batched"],
                     help="camera cases in the vector modes: who draws the cameras")
     ap.add_argument("--profile", action="store_true",
@@ -469,7 +485,7 @@ def main() -> None:
         for mode in args.modes:
             if mode == "local" and images:
                 continue  # the built-in zero policy reads no images
-            for renderer in (args.renderers if images and mode in VECTOR_MODES else ["workers"]):
+            for renderer in (args.renderers if images and mode_rule(mode) is not None else ["workers"]):
                 points.append((case, mode, renderer))
     measured: dict[tuple, list] = {}
     profiles: dict[tuple, list] = {}
@@ -485,17 +501,15 @@ def main() -> None:
                     elif mode == "local":
                         r = run_local(case, n, args.steps, episodes)
                     else:
-                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                                       groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
+                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
                           file=sys.stderr, flush=True)
             if args.profile and n == max(args.n):
                 for (c, mode, renderer) in points:
-                    if c == case and mode in VECTOR_MODES:
+                    if c == case and mode_rule(mode) is not None:
                         profiles[(case, mode, renderer)] = prof = profile_vector(
-                            case, n, args.steps, episodes, renderer=renderer, spin_us=SPIN_MODES.get(mode),
-                            groups=GROUP_MODES.get(mode, 1), ready=READY_MODES.get(mode))
+                            case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
                         print(f"\nprofile: {case} {mode} {renderer} N={n} (us per env-step, own time)")
                         for p in prof:
                             print(f"  {p['own_us_per_env_step']:7.2f}  {p['calls_per_env_step']:5.2f} calls  {p['function']}")

@@ -1,7 +1,8 @@
 """Pipelined lockstep (``run_batch(groups=K)``): the policy acts for one group of workers while the others
 step. Per-episode results equal plain lockstep's (K = 1) and one process's whatever K, through a worker
 killed mid-run and with videos; the worker processes' step send / receive pair keeps the replies of the
-other groups in flight for their own receive."""
+other groups in flight for their own receive. Workers of two environments each give the same results,
+and a killed one costs both its episodes once each."""
 
 import os
 import signal
@@ -167,3 +168,59 @@ def test_groups_out_of_range_and_on_a_one_process_batch_are_refused(tmp_path):
         with pytest.raises(ConfigError, match="worker processes"):
             BatchVectorEnv(batch).run(pol, range(2), groups=2)
         assert len(run_batch(batch, pol, range(3), groups=2)) == 3  # the sync pair: any batch pipelines alike
+
+
+@pytest.mark.parametrize("rule", [{}, {"groups": 2}, {"ready": 1}, {"ready": 2}],
+                         ids=["lockstep", "groups2", "ready1", "ready2"])
+def test_two_environments_per_worker_give_the_results_of_one_process(tmp_path, rule):
+    """``envs_per_worker`` 2: four environments on two worker processes, each worker serving its two in
+    turn (one steps while the other's action is on its way). Per-episode results equal one process's."""
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(7), seed=4)
+    pol = make_policy_batch("scripted", 4)
+    with VectorEnv(_recipe(scene, pol, 4), 4, envs_per_worker=2) as vec:
+        assert vec.num_workers == 2 and len(set(vec.pids())) == 2
+        assert vec.pids()[0] == vec.pids()[1] != vec.pids()[2] == vec.pids()[3]
+        results = vec.run(pol, range(7), seed=4, **rule)
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+@pytest.mark.parametrize("rule", [{}, {"ready": 1}], ids=["lockstep", "ready"])
+def test_a_killed_worker_of_two_environments_reruns_both_episodes_once(tmp_path, rule):
+    """Both environments of a killed worker lose their episodes; each goes back to the queue once, a
+    fresh worker takes both environments, and the results still equal one process's."""
+    scene = _scene(tmp_path, steps=30)
+    reference = _sequential(scene, "scripted", range(6), seed=1)
+    pol = make_policy_batch("scripted", 4)
+    failures, done, killed = [], [], []
+    with VectorEnv(_recipe(scene, pol, 1), 4, envs_per_worker=2) as vec:
+        playing, at_kill = {}, {}
+
+        def on_start(env, index):
+            playing[env] = index
+
+        def on_step(env, index, steps):  # episode 2, mid-way: SIGKILL its worker (its sibling is mid-episode)
+            if index == 2 and steps == 6 and not killed:
+                killed.append(env)
+                at_kill.update(playing)
+                os.kill(vec.pids()[env], signal.SIGKILL)
+
+        results = vec.run(pol, range(6), seed=1, **rule, on_start=on_start, on_step=on_step, on_done=done.append,
+                          on_worker_failure=failures.append)
+        assert vec.restarts == 1
+    sibling = killed[0] ^ 1  # the other environment of that worker, mid-episode too (6 episodes, 4 environments)
+    assert sorted((f.env, f.index) for f in failures) == sorted([(killed[0], 2), (sibling, at_kill[sibling])])
+    assert all(f.exitcode == -signal.SIGKILL for f in failures)
+    assert sorted(r.index for r in done) == list(range(6))
+    assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_envs_per_worker_out_of_range_and_with_policies_inside_the_workers_are_refused(tmp_path):
+    cfg, base = load_scene_config(_scene(tmp_path, steps=20))
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False)
+    for k in (0, 3, True, 1.5):
+        with pytest.raises(ConfigError, match="envs per worker"):
+            VectorEnv(recipe, 2, envs_per_worker=k)
+    with VectorEnv(recipe, 2, envs_per_worker=2) as vec:
+        with pytest.raises(ConfigError, match="run_local"):
+            vec.run_local("zero", {}, range(2))

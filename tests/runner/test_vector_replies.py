@@ -38,7 +38,7 @@ def _vec(slots):
     vec._sentinels, vec._dead = {}, set()
     for s in slots:
         vec._poll.register(s.sentinel, select.POLLIN)
-        vec._sentinels[s.sentinel] = s
+        vec._sentinels[s.sentinel] = [s]
     return vec
 
 

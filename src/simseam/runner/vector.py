@@ -1,9 +1,12 @@
-"""Vectorized episodes: N worker processes, each owning one rollout, driven by one batched policy.
+"""Vectorized episodes: worker processes, each owning one rollout or a few, driven by one batched policy.
 
 ``VectorEnv(recipe, num_envs)`` starts ``num_envs`` worker processes (``spawn``); each builds the
 rollout of the same scene config (in-process MuJoCo, or a ``SidecarRollout`` whose sidecar the
-worker owns) and answers ``reset`` / ``step`` / ``render`` / video commands over a pipe. The workers
-together are a ``BatchRollout`` (seam/batch.py): ``reset`` and ``step`` send each named worker its
+worker owns) and answers ``reset`` / ``step`` / ``render`` / video commands over a pipe.
+``envs_per_worker`` K > 1: each worker holds K environments (one pipe each) and serves their commands
+in the order they come, so it steps one while the policy's action for another is on its way (the round
+trip to this process, otherwise idle time of every worker, is hidden; with the ready rule or K policy
+groups). The workers together are a ``BatchRollout`` (seam/batch.py): ``reset`` and ``step`` send each named worker its
 command and wait for every reply (``step_send`` / ``step_receive``: the step in two halves, so the
 policy acts for one group of workers while another steps); ``run(policy, indices)`` is the episode scheduler
 (``runner.scheduler``) over this batch, the same loop as every other batch's. ``run_local`` puts
@@ -22,8 +25,8 @@ worker dies with this process (Linux).
 Failures:
 
 - a worker process that dies (killed, segfault, OOM) costs nothing: a fresh worker is started in
-  its place and the batch reports its environment as lost (``failures``), so the scheduler puts the
-  episode back at the front of the queue and re-runs it from its reset (at most ``max_attempts``
+  its place and the batch reports its environments as lost (``failures``: each one mid-episode, at its
+  next step), so the scheduler puts those episodes back at the front of the queue and re-runs each from its reset (at most ``max_attempts``
   times; then it is recorded with its error). An episode is handed to ``on_done`` exactly once,
   when it has finished;
 - a sidecar crash inside a worker costs that episode, recorded with its error, exactly as in the
@@ -95,6 +98,12 @@ def sidecar_spin_us(num_envs: int, cores: int) -> int | None:
     sidecar and this process have a core of their own, else 0 (spinning would steal the cores the
     simulators need)."""
     return None if 2 * num_envs + 1 <= cores else 0
+
+
+def check_envs_per_worker(k: int, num_envs: int) -> None:
+    """How many environments one worker process holds: 1 .. ``num_envs`` (else a ``ConfigError``)."""
+    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= num_envs:
+        raise ConfigError(f"envs per worker must be an integer in 1..{num_envs} (the environments), got {k!r}")
 
 
 def default_num_envs(episodes: int, cores: int | None = None) -> int:
@@ -395,11 +404,162 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _worker_main(conn, bell, env: int, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 0,
+class _EnvServer:
+    """One environment of a worker process: its rollout, and the pipe over which it answers the parent's
+    commands for that environment (``serve``). A worker holds one or several (``envs_per_worker``)."""
+
+    def __init__(self, conn, bell_fd: int, env: int, recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int):
+        self.conn, self.bell_fd, self.recipe, self.parent_pid = conn, bell_fd, recipe, parent_pid
+        self.in_pipe, self.in_block = _rings(env)
+        self.images = _SharedImages(conn, parent_pid)
+        self.rollout = self.block = None
+        self.render_state = lambda: None
+        self.writer = None
+        self.video: Path | None = None
+        self.policy = self.policy_key = None  # the "episode" command's own policy (built on first use)
+
+    def boot(self) -> BaseException | None:
+        """Build the rollout and tell the parent its spec; the error, sent to the parent too, if that fails."""
+        try:
+            self.rollout = rollout = self.recipe.build()
+            # optional, as rollout_for: a recipe needs only build()
+            if getattr(self.recipe, "pose_states", False):
+                if not callable(getattr(getattr(rollout, "engine", None), "render_state", None)):
+                    raise ConfigError("renderer 'batched': the workers' rollouts have no MuJoCo render state")
+                self.render_state = rollout.engine.render_state
+            self.block = _StepBlock(self.conn, self.parent_pid, rollout.spec.action_dim)
+            self.conn.send(("ready", rollout.spec.to_json()))
+            return None
+        except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
+            exc = _portable(exc)
+            self.conn.send(("fatal", exc))
+            return exc
+
+    def answer(self, msg) -> None:
+        """A reset's or a step's reply through the pipe, the bell rung first (a reply larger than the pipe
+        holds is read while it is written)."""
+        data = reduction.ForkingPickler.dumps(msg)
+        os.write(self.bell_fd, self.in_pipe)
+        self.conn.send_bytes(data)
+
+    def serve(self, buf: bytes) -> bool:
+        """Carry out one command (``buf``: as it came through the pipe); False once told to close."""
+        if buf[:1] == _FAST_STEP:  # a step whose action waits in the step block
+            op, msg = "step", ("step", self.block.action(), _FAST_REQUESTS[buf[1]])
+        else:
+            msg = pickle.loads(buf)
+            op = msg[0]
+        if op == "close":
+            return False
+        send = self.answer if op in ("reset", "step") else self.conn.send
+        try:
+            handler = self._HANDLERS.get(op)
+            if handler is None:
+                send(("fatal", SimulationError(f"vector worker: unknown command {op!r}")))
+            else:
+                handler(self, msg)
+        except SidecarError as exc:
+            return self._sidecar_failed(exc, send)
+        except Exception as exc:  # noqa: BLE001
+            send(("fatal", _portable(exc)))
+        return True
+
+    def _sidecar_failed(self, exc: SidecarError, send) -> bool:
+        """A sidecar failure costs the episode: restart the sidecar when the rollout can (False: it could
+        not, the worker ends)."""
+        self.drop_video()
+        restart = self.rollout.spec.can(CAP_RESTART)
+        if restart:
+            try:
+                self.rollout.restart()
+            except SimseamError as again:
+                send(("fatal", _portable(again)))
+                return False
+        send(("episode_error", f"{type(exc).__name__}: {exc}", "restarting the sidecar" if restart else "continuing"))
+        return True
+
+    def _reset(self, msg) -> None:
+        _, seed, request, video_path = msg
+        self.drop_video()
+        obs = self.rollout.reset(seed, request)
+        if video_path is not None:
+            frame = self.rollout.render()
+            if frame is not None:
+                from simseam.runner.video import VideoWriter
+
+                self.video = Path(video_path)
+                self.writer = VideoWriter(partial_video_path(self.video), fps=self.rollout.spec.control_hz)
+                self.writer.append(frame)
+        obs, layout = self.images.detach(obs)
+        self.answer(("obs", obs, None, layout, self.render_state()))
+
+    def _step(self, msg) -> None:
+        _, action, request = msg
+        r = self.rollout.step(action, request)
+        if self.writer is not None:
+            self.writer.append(self.rollout.render())
+        obs, layout = self.images.detach(r.observation)
+        pose = self.render_state()
+        if layout is not None or not self.block.write(obs, r, pose):
+            self.answer(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
+        elif self.block.announced:  # the new block's handle waits in the pipe: read it first
+            os.write(self.bell_fd, self.in_pipe)
+            self.conn.send_bytes(_FAST_REPLY)
+        else:
+            os.write(self.bell_fd, self.in_block)
+
+    def _render(self, msg) -> None:
+        self.conn.send(("frame", self.rollout.render()))
+
+    def _finish(self, msg) -> None:
+        """The episode ended normally: keep its video."""
+        path = None
+        if self.writer is not None:
+            self.writer.close()
+            os.replace(partial_video_path(self.video), self.video)
+            path = str(self.video)
+        self.writer, self.video = None, None
+        self.conn.send(("ok", path))
+
+    def _episode(self, msg) -> None:
+        """A whole episode with this worker's own policy instance."""
+        _, index, seed, policy_spec, video_dir = msg
+        self.rollout, seed = self.recipe.rollout_for(self.rollout, index, seed)  # (simseam eval: this episode's task)
+        if self.policy is None or self.policy_key != policy_spec:
+            from simseam.policies.base import make_policy
+
+            self.policy = make_policy(policy_spec[0], **dict(policy_spec[1]))
+            self.policy_key = policy_spec
+        from simseam.runner.session import run_episodes
+
+        errors: list[str] = []
+        res = run_episodes(self.rollout, self.policy, [index], seed=seed,
+                           video_dir=Path(video_dir) if video_dir else None,
+                           on_error=lambda r, what_next: errors.append(what_next))[0]
+        self.conn.send(("episode", res, errors[0] if errors else None))
+
+    _HANDLERS = {"reset": _reset, "step": _step, "render": _render, "finish": _finish, "episode": _episode}
+
+    def drop_video(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            partial_video_path(self.video).unlink(missing_ok=True)
+        self.writer, self.video = None, None
+
+    def close(self) -> None:
+        self.drop_video()
+        if self.rollout is not None:
+            self.rollout.close()
+        close = getattr(self.policy, "close", None)
+        if callable(close):
+            close()
+
+
+def _worker_main(conns, bell, envs: Sequence[int], recipe: SceneRecipe | BenchmarkRecipe, parent_pid: int = 0,
                  sidecar_spin_us: int | None = None, spin_us: int = 0) -> None:
-    """A worker process: build the rollout, then serve commands until ``close`` or the pipe ends.
-    ``bell``: the write end of the pipe every worker rings (``_ring``) when its reply to a reset or a
-    step is there; ``env``: this worker's environment; ``sidecar_spin_us``: the busy-poll budget of a
+    """A worker process: build the rollouts of ``envs`` (one pipe each in ``conns``), then serve their
+    commands until ``close`` or a pipe ends. ``bell``: the write end of the pipe every worker rings
+    (``_rings``) when a reply to a reset or a step is there; ``sidecar_spin_us``: the busy-poll budget of a
     sidecar rollout's local path (unless the user's environment sets it); ``spin_us``: this worker's
     busy-poll for its next command."""
     if sidecar_spin_us is not None:
@@ -407,133 +567,41 @@ def _worker_main(conn, bell, env: int, recipe: SceneRecipe | BenchmarkRecipe, pa
     if parent_pid:
         _die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    images = _SharedImages(conn, parent_pid or os.getppid())
+    servers = [_EnvServer(conn, bell.fileno(), env, recipe, parent_pid or os.getppid())
+               for conn, env in zip(conns, envs)]
     try:
-        rollout = recipe.build()
-        pose_states = getattr(recipe, "pose_states", False)  # optional, as rollout_for: a recipe needs only build()
-        if pose_states and not callable(getattr(getattr(rollout, "engine", None), "render_state", None)):
-            raise ConfigError("renderer 'batched': the workers' rollouts have no MuJoCo render state")
-        block = _StepBlock(conn, parent_pid or os.getppid(), rollout.spec.action_dim)
-        conn.send(("ready", rollout.spec.to_json()))
-    except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
-        conn.send(("fatal", _portable(exc)))
-        return
-    render_state = rollout.engine.render_state if pose_states else (lambda: None)
-    writer = None
-    video: Path | None = None
-    policy = policy_key = None  # the "episode" command's own policy (built on first use)
+        for j, server in enumerate(servers):
+            error = server.boot()
+            if error is not None:  # the environments not built yet report it too
+                for later in servers[j + 1:]:
+                    later.conn.send(("fatal", error))
+                return
+        _serve(servers, spin_us * 1e-6)
+    finally:
+        for server in servers:
+            server.close()
 
-    def drop_video():
-        nonlocal writer, video
-        if writer is not None:
-            writer.close()
-            partial_video_path(video).unlink(missing_ok=True)
-        writer, video = None, None
 
-    bell_fd, (in_pipe, in_block) = bell.fileno(), _rings(env)
-
-    def answer(msg) -> None:
-        """A reset's or a step's reply through the pipe, the bell rung first (a reply larger than the pipe
-        holds is read while it is written)."""
-        data = reduction.ForkingPickler.dumps(msg)
-        os.write(bell_fd, in_pipe)
-        conn.send_bytes(data)
-
-    spin_s = spin_us * 1e-6
-    if spin_s:
-        pipe_poll = select.poll()
-        pipe_poll.register(conn.fileno(), select.POLLIN)
-    try:
-        while True:
-            if spin_s:
-                spin_until_readable(pipe_poll, spin_s)
+def _serve(servers: list[_EnvServer], spin_s: float) -> None:
+    """Each environment's commands, in the order they come, until every one is closed or a pipe ends
+    (the parent is gone). With ``spin_s``, each wait busy-polls that long before sleeping."""
+    poll = select.poll()
+    by_fd = {}
+    for server in servers:
+        by_fd[server.conn.fileno()] = server
+        poll.register(server.conn.fileno(), select.POLLIN)
+    while by_fd:
+        if spin_s:
+            spin_until_readable(poll, spin_s)
+        for fd, _ in poll.poll():
+            server = by_fd[fd]
             try:
-                buf = conn.recv_bytes()
+                buf = server.conn.recv_bytes()
             except EOFError:  # the parent is gone
                 return
-            if buf[:1] == _FAST_STEP:  # a step whose action waits in the step block
-                op, msg = "step", ("step", block.action(), _FAST_REQUESTS[buf[1]])
-            else:
-                msg = pickle.loads(buf)
-                op = msg[0]
-            send = answer if op in ("reset", "step") else conn.send
-            try:
-                if op == "reset":
-                    _, seed, request, video_path = msg
-                    drop_video()
-                    obs = rollout.reset(seed, request)
-                    if video_path is not None:
-                        frame = rollout.render()
-                        if frame is not None:
-                            from simseam.runner.video import VideoWriter
-
-                            video = Path(video_path)
-                            writer = VideoWriter(partial_video_path(video), fps=rollout.spec.control_hz)
-                            writer.append(frame)
-                    obs, layout = images.detach(obs)
-                    answer(("obs", obs, None, layout, render_state()))
-                elif op == "step":
-                    _, action, request = msg
-                    r = rollout.step(action, request)
-                    if writer is not None:
-                        writer.append(rollout.render())
-                    obs, layout = images.detach(r.observation)
-                    pose = render_state()
-                    if layout is not None or not block.write(obs, r, pose):
-                        answer(("obs", obs, (r.reward, r.terminated, r.truncated, r.info), layout, pose))
-                    elif block.announced:  # the new block's handle waits in the pipe: read it first
-                        os.write(bell_fd, in_pipe)
-                        conn.send_bytes(_FAST_REPLY)
-                    else:
-                        os.write(bell_fd, in_block)
-                elif op == "render":
-                    conn.send(("frame", rollout.render()))
-                elif op == "finish":  # the episode ended normally: keep its video
-                    path = None
-                    if writer is not None:
-                        writer.close()
-                        os.replace(partial_video_path(video), video)
-                        path = str(video)
-                    writer, video = None, None
-                    conn.send(("ok", path))
-                elif op == "episode":  # a whole episode with this worker's own policy instance
-                    _, index, seed, policy_spec, video_dir = msg
-                    rollout, seed = recipe.rollout_for(rollout, index, seed)  # (simseam eval: this episode's task)
-                    if policy is None or policy_key != policy_spec:
-                        from simseam.policies.base import make_policy
-
-                        policy = make_policy(policy_spec[0], **dict(policy_spec[1]))
-                        policy_key = policy_spec
-                    from simseam.runner.session import run_episodes
-
-                    errors: list[str] = []
-                    res = run_episodes(rollout, policy, [index], seed=seed,
-                                       video_dir=Path(video_dir) if video_dir else None,
-                                       on_error=lambda r, what_next: errors.append(what_next))[0]
-                    conn.send(("episode", res, errors[0] if errors else None))
-                elif op == "close":
-                    return
-                else:
-                    conn.send(("fatal", SimulationError(f"vector worker: unknown command {op!r}")))
-            except SidecarError as exc:
-                drop_video()
-                restart = rollout.spec.can(CAP_RESTART)
-                if restart:
-                    try:
-                        rollout.restart()
-                    except SimseamError as again:
-                        send(("fatal", _portable(again)))
-                        return
-                send(("episode_error", f"{type(exc).__name__}: {exc}",
-                      "restarting the sidecar" if restart else "continuing"))
-            except Exception as exc:  # noqa: BLE001
-                send(("fatal", _portable(exc)))
-    finally:
-        drop_video()
-        rollout.close()
-        close = getattr(policy, "close", None)
-        if callable(close):
-            close()
+            if not server.serve(buf):
+                poll.unregister(fd)
+                del by_fd[fd]
 
 
 def _portable(exc: BaseException) -> BaseException:
@@ -560,7 +628,7 @@ class _Slot:
     state: str = BOOTING
     boot_deadline: float = 0.0
     index: int | None = None  # run_local: the episode the worker is playing
-    generation: int = 0
+    worker: int = 0  # the worker process that holds this environment (``envs_per_worker`` share one)
     video: str | None = None  # the video the worker records from its next reset (start_video)
     recording: bool = False  # the worker is recording this episode's video
     mm: Any = None  # the worker's shared image block, mapped here
@@ -576,23 +644,32 @@ class _Slot:
     waiter: Any = None  # a select.poll on conn and the sentinel: waiting for its reply
     stepping: bool = False  # a step sent (step_send), its reply not yet received (step_receive)
     rung: int | None = None  # its ring (see _rings), read while other workers' replies were awaited
+    # its episode died with its worker, which another environment of that worker found dead: a fresh
+    # worker holds it now, and its next step reports the loss (a reset starts over)
+    orphaned: bool = False
+    orphan_exitcode: int | None = None
 
 
 class VectorEnv:
-    """``num_envs`` worker processes each holding a rollout built from ``recipe`` (see the module
-    docstring): a ``BatchRollout`` (seam/batch.py) whose environments are the workers. ``spec`` is the
-    rollout's spec (from the first worker ready). Use as a context manager, or call ``close()``."""
+    """``num_envs`` rollouts built from ``recipe``, ``envs_per_worker`` to a worker process (environment
+    ``j`` in worker ``j // envs_per_worker``; see the module docstring): a ``BatchRollout``
+    (seam/batch.py). ``spec`` is the rollout's spec (from the first environment ready). Use as a context
+    manager, or call ``close()``."""
 
     def __init__(self, recipe: SceneRecipe | BenchmarkRecipe, num_envs: int, *, start_method: str = "spawn",
-                 boot_timeout: float = BOOT_TIMEOUT_S, renderer: str = "workers", render_device: str | None = None):
+                 boot_timeout: float = BOOT_TIMEOUT_S, renderer: str = "workers", render_device: str | None = None,
+                 envs_per_worker: int = 1):
         if num_envs < 1:
             raise SimulationError(f"num_envs must be >= 1, got {num_envs}")
+        check_envs_per_worker(envs_per_worker, num_envs)
         if renderer not in ("workers", "batched"):
             raise ConfigError(f"VectorEnv: renderer must be 'workers' or 'batched', got {renderer!r}")
         self.num_envs = num_envs
         self.boot_timeout = boot_timeout
         self._ctx = mp.get_context(start_method)
-        self.slots = [_Slot(env=j) for j in range(num_envs)]
+        self.envs_per_worker = envs_per_worker
+        self.slots = [_Slot(env=j, worker=j // envs_per_worker) for j in range(num_envs)]
+        self.num_workers = self.slots[-1].worker + 1
         self.spec: RolloutSpec | None = None
         self.restarts = 0  #: workers started again after one died
         self._failures: dict[int, EnvFailure] = {}
@@ -614,38 +691,52 @@ class VectorEnv:
         os.set_blocking(self._bell, False)
         self._poll = select.poll()
         self._poll.register(self._bell, select.POLLIN)
-        self._sentinels: dict[int, _Slot] = {}  # the sentinels in the poll
+        self._sentinels: dict[int, list[_Slot]] = {}  # the sentinels in the poll, and their workers' environments
         self._dead: set[int] = set()  # environments whose worker was found dead while nothing was asked of it
         cores = len(os.sched_getaffinity(0))
         self.sidecar_spin_us = sidecar_spin_us(num_envs, cores)
-        self.spin_us = vector_spin_us(num_envs, cores)  # lockstep only: run_local workers wait for whole episodes
+        self.spin_us = vector_spin_us(self.num_workers, cores)  # lockstep only: run_local workers wait for whole episodes
         try:
-            for s in self.slots:
-                self._spawn(s)
+            for w in range(self.num_workers):
+                self._spawn(w)
             self._wait_booted(self.slots[:1])  # the spec, and a config error before anything else starts
         except BaseException:
             self.close()
             raise
 
     # -- processes
-    def _spawn(self, s: _Slot) -> None:
-        if self._sentinels.pop(s.sentinel, None) is not None:  # the dead worker's, still open
-            self._poll.unregister(s.sentinel)
-        self._dead.discard(s.env)
-        parent, child = self._ctx.Pipe()
+    def _members(self, worker: int) -> list[_Slot]:
+        """The environments worker process ``worker`` holds."""
+        k = self.envs_per_worker
+        return self.slots[worker * k:(worker + 1) * k]
+
+    def _spawn(self, worker: int) -> None:
+        """Start worker process ``worker``, one pipe per environment it holds."""
+        members = self._members(worker)
+        old = members[0].sentinel
+        if self._sentinels.pop(old, None) is not None:  # the dead worker's, still open
+            self._poll.unregister(old)
+        pipes = [self._ctx.Pipe() for _ in members]
+        envs = [s.env for s in members]
         proc = self._ctx.Process(target=_worker_main, daemon=True,
-                                 args=(child, self._bell_w, s.env, self.recipe, os.getpid(), self.sidecar_spin_us,
-                                       self.spin_us),
-                                 name=f"simseam-env-{s.env}")
+                                 args=([child for _, child in pipes], self._bell_w, envs, self.recipe, os.getpid(),
+                                       self.sidecar_spin_us, self.spin_us),
+                                 name=f"simseam-env-{envs[0]}" + (f"-{envs[-1]}" if len(envs) > 1 else ""))
         proc.start()
-        child.close()
-        s.proc, s.conn, s.state = proc, parent, BOOTING
-        s.fd, s.sentinel = parent.fileno(), proc.sentinel
+        for s, (parent, child) in zip(members, pipes):
+            child.close()
+            self._attach(s, proc, parent)
+        self._poll.register(proc.sentinel, select.POLLIN)
+        self._sentinels[proc.sentinel] = members
+
+    def _attach(self, s: _Slot, proc, conn) -> None:
+        """``s`` is now held by the fresh worker ``proc``, over ``conn``."""
+        self._dead.discard(s.env)
+        s.proc, s.conn, s.state = proc, conn, BOOTING
+        s.fd, s.sentinel = conn.fileno(), proc.sentinel
         s.waiter = select.poll()
         s.waiter.register(s.fd, select.POLLIN)
         s.waiter.register(s.sentinel, select.POLLIN)
-        self._poll.register(s.sentinel, select.POLLIN)
-        self._sentinels[s.sentinel] = s
         if s.mm is not None:
             s.mm.close()
         if s.block is not None:
@@ -653,7 +744,6 @@ class VectorEnv:
         s.mm = s.block = None
         s.recording = False
         s.boot_deadline = time.monotonic() + self.boot_timeout
-        s.generation += 1
 
     def _wait_booted(self, slots: Sequence[_Slot]) -> None:
         for s in slots:
@@ -731,7 +821,7 @@ class VectorEnv:
         for j, s in enumerate(slots):
             if s.rung is not None:
                 out[j], s.rung = self._read_ring(s, s.rung), None
-            elif s.env in self._dead:
+            elif s.env in self._dead or s.orphaned:
                 out[j] = None
             else:
                 waiting[s.env] = j
@@ -776,38 +866,47 @@ class VectorEnv:
         return s.block.read() if ring & 1 else self._recv(s, readable=True)
 
     def _ended(self, sentinel: int, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
-        """A worker process ended: a reply it rang for before it died is read; if it owed one, its entry in
-        ``out`` stays None; else its next reset or step, or the receive of its step in flight, finds it dead
-        (``_dead``)."""
+        """A worker process ended: a reply it rang for before it died is read; for each of its environments
+        that owed one, the entry in ``out`` stays None; any other finds it dead (``_dead``) at its next
+        reset or step, or the receive of its step in flight."""
         self._rung(slots, waiting, out)
-        s = self._sentinels.pop(sentinel)
         self._poll.unregister(sentinel)
-        j = waiting.pop(s.env, None)
-        if j is None:
-            self._dead.add(s.env)
-        else:
-            out[j] = None
+        for s in self._sentinels.pop(sentinel):
+            j = waiting.pop(s.env, None)
+            if j is None:
+                self._dead.add(s.env)
+            else:
+                out[j] = None
 
     def _replace(self, s: _Slot) -> int | None:
-        """``s``'s worker died: a fresh one takes its place. Returns the dead one's exit code."""
-        try:
-            s.conn.close()
-        except OSError:
-            pass
-        s.proc.join(5.0)  # its pipe closed: it is gone or going
+        """``s``'s worker died: a fresh one takes its place. Its other environments' episodes died with it
+        (``orphaned``). Returns the dead one's exit code."""
+        members = self._members(s.worker)
+        for m in members:
+            try:
+                m.conn.close()
+            except OSError:
+                pass
+        s.proc.join(5.0)  # its pipes closed: it is gone or going
         if s.proc.is_alive():
             s.proc.kill()
             s.proc.join(5.0)
         exitcode = s.proc.exitcode
-        self._drop_central_video(s)
-        s.index = None
-        self._spawn(s)
+        for m in members:
+            self._drop_central_video(m)
+            m.index = None
+            m.orphaned, m.orphan_exitcode = m is not s, exitcode
+        self._spawn(s.worker)
         self.restarts += 1
         return exitcode
 
     def _lost(self, s: _Slot) -> None:
-        """``s``'s worker died: its environment's episode is lost (``failures``), a fresh worker takes its place."""
-        exitcode = self._replace(s)
+        """``s``'s worker died: its environment's episode is lost (``failures``), a fresh worker takes its
+        place (unless another of its environments already found it dead: ``orphaned``)."""
+        if s.orphaned:
+            s.orphaned, exitcode = False, s.orphan_exitcode
+        else:
+            exitcode = self._replace(s)
         self._failures[s.env] = EnvFailure(WORKER_DIED, lost=True, what_next="a fresh worker takes its place",
                                            exitcode=exitcode)
 
@@ -844,6 +943,7 @@ class VectorEnv:
         self._check_idle(slots, "reset")
         self._wait_booted(slots)
         for s, seed, want in zip(slots, seeds, requests):
+            s.orphaned = False  # a new episode: nothing of the one its dead worker held is owed
             video, s.video = s.video, None
             if self.central is not None:  # this process draws the frames (and writes the video)
                 s.want, want = want, worker_request(want)
@@ -878,7 +978,8 @@ class VectorEnv:
             if central is not None:
                 s.want, want = want, worker_request(want)
             s.stepping = True
-            self._step(s, row, want)
+            if not s.orphaned:  # (an orphan's receive reports its loss)
+                self._step(s, row, want)
 
     def step_receive(self, envs: Sequence[int], at_least: int | None = None) -> BatchStepResult:
         """The results of the steps ``step_send`` started for ``envs``, waiting for exactly those workers;
@@ -1085,6 +1186,10 @@ class VectorEnv:
         if self.central is not None:
             raise ConfigError("renderer 'batched' draws the frames in this process, so it steps the workers "
                               "together (run); run_local keeps the policy and its cameras inside each worker")
+        if self.envs_per_worker > 1:
+            raise ConfigError(f"{self.envs_per_worker} environments per worker hide the round trip of a policy "
+                              "acting in this process (run); run_local plays whole episodes in each worker, "
+                              "where one environment per worker is fastest")
         spec_key = (policy, tuple(sorted((policy_kwargs or {}).items())))
         todo = EpisodeQueue(indices, seed, max_attempts)
         results: list[EpisodeResult] = []
