@@ -74,14 +74,21 @@ def test_two_workers_across_tasks_equal_the_sequential_run(reference, tmp_path):
     assert "push-v3" in proc.stdout and "mean of tasks" in proc.stdout
 
 
-def test_policy_groups_step_the_workers_from_here_with_the_same_results(reference, tmp_path):
-    """--policy-groups 2: the scripted experts act in this process (one per environment), one group of
-    workers stepping while the policy acts for the other; the episodes are the sequential run's."""
+@pytest.mark.parametrize("flags, words", [
+    (("--num-envs", "2", "--policy-groups", "2"), "2 environments (one batched policy, one task at a time, "
+                                                   "2 policy groups)"),
+    (("--num-envs", "3", "--envs-per-worker", "2", "--policy-ready", "1"),
+     "3 environments (one batched policy, one task at a time, acting once 1 step is in, 2 environments per worker)"),
+], ids=["groups", "ready_two_per_worker"])
+def test_lockstep_rules_step_the_workers_from_here_with_the_same_results(reference, tmp_path, flags, words):
+    """--policy-groups 2, or --envs-per-worker 2 with --policy-ready 1: the scripted experts act in this
+    process (one per environment) while the workers step (two sidecars in one worker in the second); the
+    episodes are the sequential run's."""
     want, _ = reference
     out = tmp_path / "run"
-    proc = simseam(*ARGS, "--num-envs", "2", "--policy-groups", "2", "--out", str(out))
+    proc = simseam(*ARGS, *flags, "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "metaworld: 2 environments (one batched policy, one task at a time, 2 policy groups)" in proc.stdout
+    assert f"metaworld: {words}" in proc.stdout
     assert outcomes(out) == want
 
 

@@ -88,6 +88,19 @@ def test_policy_groups_give_the_same_episodes_as_one_process(scene, tmp_path):
     assert _outcomes(one) == _outcomes(piped) and len(_outcomes(one)) == 4
 
 
+def test_two_environments_per_worker_and_the_ready_rule_give_the_same_episodes_as_one_process(scene, tmp_path):
+    """--envs-per-worker 2 --policy-ready 2: four environments on two worker processes, the scripted policy
+    acting in this process once two steps are in; the episodes are those of one process."""
+    one, paired = tmp_path / "one", tmp_path / "paired"
+    args = ("run", "--scene", scene(steps=30), "--policy", "scripted", "--episodes", "5", "--seed", "5")
+    a = _simseam(*args, "--num-envs", "1", "--out", one)
+    b = _simseam(*args, "--num-envs", "4", "--envs-per-worker", "2", "--policy-ready", "2", "--out", paired)
+    assert a.returncode == 0, a.stderr
+    assert b.returncode == 0, b.stderr
+    assert "on 4 environments (one batched policy, acting once 2 steps are in, 2 environments per worker)" in b.stdout
+    assert _outcomes(one) == _outcomes(paired) and len(_outcomes(one)) == 5
+
+
 def test_a_worker_killed_mid_run_costs_nothing(scene, tmp_path):
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "simseam.cli.main", "run", "--scene", str(scene(steps=200)),
@@ -182,6 +195,12 @@ def test_bad_vector_options_are_one_line_errors(scene, tmp_path):
     for groups, expected in (("3", "--policy-groups 3: expected 1..2"), ("0", "--policy-groups 0: expected 1..2")):
         r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--num-envs", "2", "--policy-groups",
                      groups, "--out", tmp_path / f"g{groups}")
+        assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    for flags, expected in ((["--policy-ready", "3"], "--policy-ready 3: expected 1..2"),
+                            (["--envs-per-worker", "0"], "--envs-per-worker 0: expected 1..2"),
+                            (["--policy-ready", "1", "--policy-groups", "2"], "choose one")):
+        r = _simseam("run", "--scene", scene(steps=4), "--episodes", "2", "--num-envs", "2", *flags,
+                     "--out", tmp_path / "_".join(flags))
         assert r.returncode == 2 and expected in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 

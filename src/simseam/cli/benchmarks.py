@@ -8,8 +8,8 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from simseam.cli.common import POLICY_GROUPS_HELP, EvalProgress, check_policy_groups, check_seed, close_policy, \
-    console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted, SpecProbe
+from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
+    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted, SpecProbe
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -109,6 +109,8 @@ def eval_command(
                                  "one batch, others run inside each worker (default: sized to the cores and the "
                                  "episodes). Results do not depend on it."),
     policy_groups: int = typer.Option(1, "--policy-groups", help=POLICY_GROUPS_HELP),
+    policy_ready: int = typer.Option(None, "--policy-ready", help=POLICY_READY_HELP),
+    envs_per_worker: int = typer.Option(1, "--envs-per-worker", help=ENVS_PER_WORKER_HELP),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes whose global index "
                               "(task_index * episodes + e) % K == i; combine the K run directories with "
                               "simseam merge."),
@@ -127,7 +129,7 @@ def eval_command(
         fail(ConfigError("--resume needs --out (the run directory to continue)"))
     try:
         shard_ik = parse_shard(shard) if shard is not None else None
-        check_policy_groups(policy_groups, num_envs, ray_address is not None)
+        check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
         if ray_address is not None and video:
             raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
         p = preset(preset_name)
@@ -154,8 +156,11 @@ def eval_command(
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
-        num_envs = default_num_envs(len(todo))
+        num_envs = default_num_envs(len(todo), envs_per_worker=envs_per_worker)
     num_envs = max(1, min(num_envs, len(todo) or 1))
+    from simseam.runner.scheduler import Lockstep
+
+    rule = Lockstep(policy_groups, policy_ready, envs_per_worker).fit(num_envs)
     kwargs = policy_kwargs(device, n_action_steps)
     batch = None
     try:
@@ -164,7 +169,7 @@ def eval_command(
             from simseam.policies.batch import shared_batch
 
             batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
-            if batch is None and policy_groups > 1:  # the policy acts here, one instance per environment
+            if batch is None and rule.acts_here:  # the policy acts here, one instance per environment
                 from simseam.policies.batch import PerEnvPolicies
 
                 made = [pol]
@@ -180,7 +185,7 @@ def eval_command(
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
     if num_envs > 1:
         _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
-                     seed=seed, video=video, indices=planned, groups=policy_groups)
+                     seed=seed, video=video, indices=planned, lockstep=rule)
         return
 
     def done(res, task):
@@ -198,15 +203,16 @@ def eval_command(
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
-                 num_envs: int, *, seed: int, video: bool, indices: list[int], groups: int = 1) -> None:
-    """``simseam eval --num-envs N`` (N > 1): the episodes on N workers (``run_eval_vector``; a policy
-    ``batch`` in ``groups`` groups), then the summary. Progress as ``simseam run --num-envs``."""
+                 num_envs: int, *, seed: int, video: bool, indices: list[int], lockstep=None) -> None:
+    """``simseam eval --num-envs N`` (N > 1): the episodes on N environments in worker processes
+    (``run_eval_vector``; a policy ``batch`` stepped by the ``lockstep`` rule), then the summary. Progress
+    as ``simseam run --num-envs``."""
     from simseam.runner.evaluate import run_eval_vector
 
     privileged = pol.requires_privileged
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
-    if batch is not None and groups > 1:
-        where += f", {min(groups, num_envs)} policy groups"
+    if batch is not None and lockstep is not None:
+        where += lockstep.describe()
     todo = len([i for i in indices if i not in run_dir.done])
     # nothing shared (batch None): each worker runs its own instance; this one meets the specs first
     cleanup = batch.close if batch is not None else lambda: close_policy(pol)
@@ -220,7 +226,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
                         video_dir=out if video else None, on_start=start,
                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
-                        indices=indices, check=pol.reset, groups=groups)
+                        indices=indices, check=pol.reset, lockstep=lockstep)
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,

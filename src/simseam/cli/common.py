@@ -40,13 +40,28 @@ POLICY_GROUPS_HELP = ("Step the --num-envs workers in lockstep from this process
                       "not depend on it. docs/evaluation.md")
 
 
-def check_policy_groups(groups: int, num_envs: int | None, ray: bool) -> None:
-    """``--policy-groups``: 1 .. ``--num-envs`` (when given), and not with ``--ray`` (a ``ConfigError``)."""
-    if groups < 1 or (num_envs is not None and groups > num_envs):
-        raise ConfigError(f"--policy-groups {groups}: expected 1..{num_envs or 'N'} (at most --num-envs)")
-    if ray and groups > 1:
-        raise ConfigError("--policy-groups pipelines the policy acting in this process; with --ray each Ray "
-                          "worker runs its own")
+POLICY_READY_HELP = ("The ready rule: every --num-envs environment's step in flight at once, the policy acting "
+                     "in this process for those whose steps are in as soon as M are (1..--num-envs; no turn "
+                     "waits for the slowest worker; not with --policy-groups). docs/evaluation.md")
+
+ENVS_PER_WORKER_HELP = ("Environments in each worker process (1..--num-envs, default 1; --num-envs then defaults to "
+                        "K x the cores): a worker steps one while the action for another is on its way, the "
+                        "policy acting in this process. Fastest lockstep: 2 with --policy-ready (a quarter of "
+                        "--num-envs). docs/evaluation.md")
+
+
+def check_lockstep(groups: int, ready: int | None, envs_per_worker: int, num_envs: int | None, ray: bool) -> None:
+    """``--policy-groups``, ``--policy-ready`` and ``--envs-per-worker``: each 1 .. ``--num-envs`` (when
+    given), groups and the ready rule not together, none with ``--ray`` (a ``ConfigError``)."""
+    most = num_envs or "N"
+    for flag, value in (("--policy-groups", groups), ("--policy-ready", ready), ("--envs-per-worker", envs_per_worker)):
+        if value is not None and (value < 1 or (num_envs is not None and value > num_envs)):
+            raise ConfigError(f"{flag} {value}: expected 1..{most} (at most --num-envs)")
+    if ready is not None and groups != 1:
+        raise ConfigError(f"--policy-ready {ready} and --policy-groups {groups}: choose one")
+    if ray and (groups > 1 or ready is not None or envs_per_worker > 1):
+        raise ConfigError("--policy-groups, --policy-ready and --envs-per-worker step the workers from this "
+                          "process; with --ray each Ray worker runs its own policy")
 
 
 def policy_kwargs(device: str | None, n_action_steps: int | None) -> dict:

@@ -13,7 +13,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (POLICY_GROUPS_HELP, EvalProgress, check_policy_groups, check_seed, close_policy,
+from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
+                                check_lockstep, check_seed, close_policy,
                                 console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted,
                                 sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
@@ -119,6 +120,8 @@ def run(
                                  "run inside each worker (default: sized to the cores and the episodes; 1 with "
                                  "--record-dataset). Results do not depend on it."),
     policy_groups: int = typer.Option(1, "--policy-groups", help=POLICY_GROUPS_HELP),
+    policy_ready: int = typer.Option(None, "--policy-ready", help=POLICY_READY_HELP),
+    envs_per_worker: int = typer.Option(1, "--envs-per-worker", help=ENVS_PER_WORKER_HELP),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes e with e % K == i (batch "
                               "schedulers, e.g. Slurm arrays); combine the K run directories with simseam merge."),
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto (the one on this "
@@ -144,7 +147,7 @@ def run(
 
         shard_ik = parse_shard(shard) if shard is not None else None
         planned = check_shard_holds_episodes(shard_indices(episodes, shard_ik), shard_ik, episodes)
-        check_policy_groups(policy_groups, num_envs, ray_address is not None)
+        check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
         if record_dataset is not None and (num_envs or 1) > 1:
             raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
         if record_dataset is not None:
@@ -184,10 +187,13 @@ def run(
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
-        num_envs = 1 if record_dataset is not None else default_num_envs(len(todo))
+        num_envs = 1 if record_dataset is not None else default_num_envs(len(todo), envs_per_worker=envs_per_worker)
     if num_envs > 1 or renderer == "batched":
+        from simseam.runner.scheduler import Lockstep
+
         _run_vector(scene, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer, groups=policy_groups)
+                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer,
+                    lockstep=Lockstep(policy_groups, policy_ready, envs_per_worker))
         return
     try:
         cfg, pol, rollout = _open_run((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps),
@@ -225,15 +231,18 @@ def run(
 
 def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
                 todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers",
-                groups: int = 1) -> None:
-    """``simseam run --num-envs N`` (N > 1): the episodes on N worker processes (docs/evaluation.md), the
-    policy in this process in ``groups`` groups (pipelined lockstep, at most N) or inside each worker."""
+                lockstep=None) -> None:
+    """``simseam run --num-envs N`` (N > 1): the episodes on N environments in worker processes
+    (docs/evaluation.md), the policy in this process (stepped by the ``lockstep`` rule, capped at N) or
+    inside each worker."""
     from simseam.policies.base import make_policy
     from simseam.runner.recipe import SceneRecipe
     from simseam.runner.vector import VectorEnv
 
+    from simseam.runner.scheduler import Lockstep
+
     num_envs = max(1, min(num_envs, len(todo)))
-    groups = min(groups, num_envs)
+    rule = (lockstep or Lockstep()).fit(num_envs)
     vec = pol = probe = None
     cfg, base_dir = scene_file
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
@@ -264,20 +273,25 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
         recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
                                render_images=uses_images or video, seed=seed)
 
+        if one_batch and rule.envs_per_worker > 1:
+            raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {scene} steps its {num_envs} environments "
+                              "in one batch in this process, not in worker processes")
         with console.status(f"starting {num_envs} environments"):
-            vec = make_vector_env(cfg, base_dir, num_envs, lambda: VectorEnv(recipe, num_envs, renderer=renderer),
+            vec = make_vector_env(cfg, base_dir, num_envs,
+                                  lambda: VectorEnv(recipe, num_envs, renderer=renderer,
+                                                    envs_per_worker=rule.envs_per_worker),
                                   privileged=privileged, render_images=uses_images or video, seed=seed)
         probe.reset(vec.spec)  # the policy's contract against the scene, before the run starts
         pol = _vector_policy(probe, policy, policy_kwargs, num_envs,
-                             acts_here=one_batch or renderer == "batched" or groups > 1)
+                             acts_here=one_batch or renderer == "batched" or rule.acts_here)
         probe = None  # the batch owns it now, or it was closed
         spec_json = vec.spec.to_json()
         run_dir.write_spec(spec_json)
         where = "one batched policy" if pol is not None else "a policy in each worker"
         if renderer == "batched":
             where += ", cameras drawn here in one batch"
-        if pol is not None and groups > 1:
-            where += f", {groups} policy groups"
+        if pol is not None:
+            where += rule.describe()
         console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
                       f"on {num_envs} environments ({where}) -> {escape(str(out))}")
         with EvalProgress(console, total=len(todo)) as progress:
@@ -289,7 +303,7 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
             common = dict(seed=seed, video_dir=out if video else None, on_done=done, keep=False,
                           on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
             if pol is not None:  # N worlds on the device, a shared model, or groups: stepped together, batched
-                vec.run(pol, todo, groups=groups, **common)
+                vec.run(pol, todo, groups=rule.groups, ready=rule.ready, **common)
             else:
                 vec.run_local(policy, policy_kwargs, todo, **common)
 
@@ -298,7 +312,7 @@ def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, ac
     """The policy batch that acts in this process for ``num_envs`` workers, or None when each worker runs
     its own instance (whole episodes at a time). A policy that shares a model or a server batches; any other
     acts here only when the workers must be stepped from here (``acts_here``: N worlds in this process, the
-    cameras drawn here, or policy groups), one instance per environment (``probe`` is the first)."""
+    cameras drawn here, or a lockstep rule), one instance per environment (``probe`` is the first)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import PerEnvPolicies, shared_batch
 

@@ -211,7 +211,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
                     policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
                     seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
                     on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None,
-                    check: Callable[[Any], None] | None = None, groups: int = 1) -> None:
+                    check: Callable[[Any], None] | None = None, lockstep=None) -> None:
     """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
     backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
     task 1, ...), so a worker changes task (closes its sidecar and starts one for the next task) at
@@ -220,8 +220,9 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     - ``policy_batch`` None (scripted, zero, random: nothing shared): one policy instance inside each
       worker, whole episodes at a time (``VectorEnv.run_local``), all tasks on one set of workers;
     - a ``PolicyBatch`` (``lerobot:``, ``remote:``, or one instance per environment): stepped together in
-      this process in ``groups`` groups (pipelined lockstep, at most the workers), one vector env per task
-      (each task's spec, its instruction included, reaches the policy at every reset).
+      this process by the ``lockstep`` rule (``runner.scheduler.Lockstep``: policy groups, the ready rule,
+      environments per worker; each capped at the environments), one vector env per task (each task's
+      spec, its instruction included, reaches the policy at every reset).
 
     Every finished episode is appended to the log with ``task`` and ``episode`` (index within its
     task) as it ends, whatever the order; ``on_start(vec)`` gets each ``VectorEnv`` once its first worker
@@ -229,6 +230,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
     reset, say) meets each vector env's spec before anything is written: a policy that does not fit the
     benchmark fails before the run starts.
     """
+    from simseam.runner.scheduler import Lockstep
     from simseam.runner.vector import VectorEnv
 
     todo = _todo(tasks, episodes, run_dir, indices)
@@ -264,12 +266,13 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
         if not indices:
             continue
         n = max(1, min(num_envs, len(indices)))
+        rule = (lockstep or Lockstep()).fit(n)
         with VectorEnv(BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                                  first_task=ti, per_task=p.per_task), n) as vec:
+                                  first_task=ti, per_task=p.per_task), n, envs_per_worker=rule.envs_per_worker) as vec:
             write_spec(vec)
             if on_start:
                 on_start(vec)
-            vec.run(policy_batch, indices, seed=seed - ti * episodes, groups=min(groups, n), **common)
+            vec.run(policy_batch, indices, seed=seed - ti * episodes, groups=rule.groups, ready=rule.ready, **common)
 
 
 def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: str, *, policy: str,

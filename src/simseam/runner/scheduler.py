@@ -184,6 +184,35 @@ class _Videos:
             self.drop(env)
 
 
+@dataclass(frozen=True)
+class Lockstep:
+    """How worker processes are stepped from this process: ``groups`` policy groups or the ready rule
+    ``ready`` (``run_batch``), ``envs_per_worker`` environments in each worker (``VectorEnv``)."""
+
+    groups: int = 1
+    ready: int | None = None
+    envs_per_worker: int = 1
+
+    @property
+    def acts_here(self) -> bool:
+        """Whether the policy must act in this process (anything but plain lockstep)."""
+        return self.groups > 1 or self.ready is not None or self.envs_per_worker > 1
+
+    def fit(self, num_envs: int) -> "Lockstep":
+        """Each number capped at ``num_envs`` (fewer episodes than environments asked for)."""
+        return Lockstep(min(self.groups, num_envs), None if self.ready is None else min(self.ready, num_envs),
+                        min(self.envs_per_worker, num_envs))
+
+    def describe(self) -> str:
+        """For a run's first line ('' for plain lockstep)."""
+        words = f", {self.groups} policy groups" if self.groups > 1 else ""
+        if self.ready is not None:
+            words += f", acting once {self.ready} step{' is' if self.ready == 1 else 's are'} in"
+        if self.envs_per_worker > 1:
+            words += f", {self.envs_per_worker} environments per worker"
+        return words
+
+
 def check_ready(ready: int | None, num_envs: int, groups: int = 1) -> None:
     """The ready rule's batch: None (off) or 1 .. ``num_envs``, and not with policy groups (a ``ConfigError``)."""
     if ready is None:

@@ -106,14 +106,15 @@ def check_envs_per_worker(k: int, num_envs: int) -> None:
         raise ConfigError(f"envs per worker must be an integer in 1..{num_envs} (the environments), got {k!r}")
 
 
-def default_num_envs(episodes: int, cores: int | None = None) -> int:
-    """Sized to the cores this process may use and the episode count (at least 1)."""
+def default_num_envs(episodes: int, cores: int | None = None, envs_per_worker: int = 1) -> int:
+    """Sized to the cores this process may use (``envs_per_worker`` environments each) and the episode
+    count (at least 1)."""
     if cores is None:
         try:
             cores = len(os.sched_getaffinity(0))
         except AttributeError:  # not Linux
             cores = os.cpu_count() or 1
-    return max(1, min(int(cores), int(episodes)))
+    return max(1, min(int(cores) * envs_per_worker, int(episodes)))
 
 
 PENDING = object()  #: a reply not in yet (``_replies`` with ``need``)
