@@ -742,7 +742,7 @@ class VectorEnv:
             s.mm.close()
         if s.block is not None:
             s.block.close()
-        s.mm = s.block = None
+        s.mm = s.block = s.rung = None
         s.recording = False
         s.boot_deadline = time.monotonic() + self.boot_timeout
 
@@ -893,6 +893,7 @@ class VectorEnv:
             s.proc.kill()
             s.proc.join(5.0)
         exitcode = s.proc.exitcode
+        self._keep_rings(skip={m.env for m in members})  # what it rang before it died is moot now
         for m in members:
             self._drop_central_video(m)
             m.index = None
@@ -900,6 +901,20 @@ class VectorEnv:
         self._spawn(s.worker)
         self.restarts += 1
         return exitcode
+
+    def _keep_rings(self, skip: set[int]) -> None:
+        """Every ring in the bell kept for its environment's own receive (``rung``), those of ``skip``
+        dropped."""
+        while True:
+            try:
+                rings = os.read(self._bell, 4096)
+            except BlockingIOError:
+                return
+            if not rings:
+                return
+            for ring in memoryview(rings).cast("i"):
+                if ring >> 1 not in skip:
+                    self.slots[ring >> 1].rung = ring
 
     def _lost(self, s: _Slot) -> None:
         """``s``'s worker died: its environment's episode is lost (``failures``), a fresh worker takes its
