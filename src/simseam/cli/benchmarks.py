@@ -203,7 +203,7 @@ def eval_command(
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
-                 num_envs: int, *, seed: int, video: bool, indices: list[int], lockstep=None) -> None:
+                 num_envs: int, *, seed: int, video: bool, indices: list[int], lockstep) -> None:
     """``simseam eval --num-envs N`` (N > 1): the episodes on N environments in worker processes
     (``run_eval_vector``; a policy ``batch`` stepped by the ``lockstep`` rule), then the summary. Progress
     as ``simseam run --num-envs``."""
@@ -211,7 +211,7 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
 
     privileged = pol.requires_privileged
     where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
-    if batch is not None and lockstep is not None:
+    if batch is not None:
         where += lockstep.describe()
     todo = len([i for i in indices if i not in run_dir.done])
     # nothing shared (batch None): each worker runs its own instance; this one meets the specs first

@@ -230,8 +230,8 @@ def run(
 
 
 def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
-                todo: list[int], *, num_envs: int, video: bool, planned: int, renderer: str = "workers",
-                lockstep=None) -> None:
+                todo: list[int], *, num_envs: int, video: bool, planned: int, lockstep,
+                renderer: str = "workers") -> None:
     """``simseam run --num-envs N`` (N > 1): the episodes on N environments in worker processes
     (docs/evaluation.md), the policy in this process (stepped by the ``lockstep`` rule, capped at N) or
     inside each worker."""
@@ -239,10 +239,8 @@ def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_k
     from simseam.runner.recipe import SceneRecipe
     from simseam.runner.vector import VectorEnv
 
-    from simseam.runner.scheduler import Lockstep
-
     num_envs = max(1, min(num_envs, len(todo)))
-    rule = (lockstep or Lockstep()).fit(num_envs)
+    rule = lockstep.fit(num_envs)
     vec = pol = probe = None
     cfg, base_dir = scene_file
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running

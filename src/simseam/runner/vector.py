@@ -848,14 +848,22 @@ class VectorEnv:
                 return ready
         return self._poll.poll()
 
+    def _bell_rings(self) -> list[int]:
+        """Every ring in the bell now (see ``_rings``), taken out of it."""
+        rings: list[int] = []
+        while True:
+            try:
+                got = os.read(self._bell, 4096)
+            except BlockingIOError:
+                return rings
+            rings += memoryview(got).cast("i").tolist()
+            if len(got) < 4096:
+                return rings
+
     def _rung(self, slots: list[_Slot], waiting: dict[int, int], out: list) -> None:
-        """Every ring in the bell (see ``_rings``): a reply of a worker in ``waiting`` is read into ``out``;
-        any other worker's (its step in flight, pipelined) is kept in its ``rung`` for its own receive."""
-        try:
-            rings = os.read(self._bell, 4096)
-        except BlockingIOError:
-            return
-        for ring in memoryview(rings).cast("i"):
+        """Every ring in the bell: a reply of a worker in ``waiting`` is read into ``out``; any other
+        worker's (its step in flight, pipelined) is kept in its ``rung`` for its own receive."""
+        for ring in self._bell_rings():
             j = waiting.pop(ring >> 1, None)
             if j is None:
                 self.slots[ring >> 1].rung = ring
@@ -905,16 +913,9 @@ class VectorEnv:
     def _keep_rings(self, skip: set[int]) -> None:
         """Every ring in the bell kept for its environment's own receive (``rung``), those of ``skip``
         dropped."""
-        while True:
-            try:
-                rings = os.read(self._bell, 4096)
-            except BlockingIOError:
-                return
-            if not rings:
-                return
-            for ring in memoryview(rings).cast("i"):
-                if ring >> 1 not in skip:
-                    self.slots[ring >> 1].rung = ring
+        for ring in self._bell_rings():
+            if ring >> 1 not in skip:
+                self.slots[ring >> 1].rung = ring
 
     def _lost(self, s: _Slot) -> None:
         """``s``'s worker died: its environment's episode is lost (``failures``), a fresh worker takes its
