@@ -64,8 +64,9 @@ class TaskState(Protocol):
     def object_velocity(self, name: str) -> Any:
         """float[N, 6]: the prop's linear then angular velocity (world frame); zeros for a static prop."""
 
-    def contacts(self, a: str, b: str) -> Any:
-        """bool[N]: whether ``a`` and ``b`` (prop names, or ``robot``) touch."""
+    def contacts(self, a: str, b: str, where: Any = None) -> Any:
+        """bool[N]: whether ``a`` and ``b`` (prop names, or ``robot``) touch; with ``where`` (bool[N]) only
+        those worlds need an answer (the others give False), which lets an engine skip its collision pass."""
 
     def eef_position_world(self) -> Any:
         """float[N, 3]: the measured tool position."""
@@ -136,3 +137,50 @@ def yaw_quats(xp, yaw):
     h = 0.5 * yaw
     zero = xp.zeros_like(h)
     return xp.stack([xp.cos(h), zero, zero, xp.sin(h)], axis=-1)
+
+
+# ------------------------------------------------------------------------------------------ one world
+_NO = np.zeros(1, dtype=bool)
+_YES = np.ones(1, dtype=bool)
+
+
+class SceneState:
+    """``TaskState`` of one ``ManifestScene`` (any engine of primitives): N = 1, NumPy, read on demand
+    from the scene's engine, so a task pays only for what it reads."""
+
+    __slots__ = ("scene", "params")
+    xp = np
+    num_worlds = 1
+
+    def __init__(self, scene, params: dict[str, np.ndarray]):
+        self.scene = scene
+        self.params = params
+
+    def object_pos(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_pose(name)[0][None]
+
+    def object_quat(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_pose(name)[1][None]
+
+    def object_velocity(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_velocity(name)[None]
+
+    def contacts(self, a: str, b: str, where=None) -> np.ndarray:
+        """bool[1]; ``where`` (bool[N]): only those worlds are asked (the rest answer False), so a task
+        that needs a contact only in some state spares the others the collision pass."""
+        if where is not None and not where[0]:
+            return _NO
+        return _YES if self.scene.engine.contacts_between(a, b) else _NO
+
+    def eef_position_world(self) -> np.ndarray:
+        return self.scene.eef_position_world()[None]
+
+    def eef_pose_base(self) -> tuple[np.ndarray, np.ndarray]:
+        pos, rot = self.scene.eef_pose_base()
+        return pos[None], rot[None]
+
+    def base_pose(self) -> np.ndarray:
+        return self.scene.base_pose()[None]
+
+    def to_base(self, pos, quat) -> np.ndarray:
+        return self.scene.to_base(np.asarray(pos)[0], np.asarray(quat)[0])[None]
