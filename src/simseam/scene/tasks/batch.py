@@ -10,7 +10,7 @@ definition over a batched physics state, one row per world. The same code runs
 So task code is written against the NumPy API with the namespace it is handed (``state.xp``): arithmetic
 and comparisons, ``xp.where``, ``xp.sqrt``, ``xp.abs``, ``xp.arctan2``, ``xp.arccos``, ``xp.sin``,
 ``xp.cos``, ``xp.clip``, ``xp.minimum`` / ``xp.maximum``, ``xp.sum`` / ``xp.any`` / ``xp.all`` with
-``axis``, ``xp.linalg.norm(..., axis=-1)``, ``xp.einsum``, ``xp.matmul``, ``xp.stack`` /
+``axis`` (and ``norm`` below), ``xp.einsum``, ``xp.matmul``, ``xp.stack`` /
 ``xp.concatenate``, slicing. NumPy and CuPy both implement that subset; nothing else is assumed. A task
 never branches on the engine or on N, and never converts to Python scalars (that would force a device
 sync per world).
@@ -26,7 +26,8 @@ import numpy as np
 
 @dataclass(slots=True)
 class BatchEvaluation:
-    """A task's judgement of N worlds after a control step: ``reward`` float[N], ``success`` bool[N] and,
+    """A task's judgement of N worlds after a control step: ``reward`` float[N] (or bool[N] for a sparse
+    reward: 1.0 where True), ``success`` bool[N] and,
     for each name in ``Task.diagnostics``, a float or bool array [N] (SI units), all of ``state.xp``."""
 
     reward: Any
@@ -82,6 +83,12 @@ class TaskState(Protocol):
 
 
 # ------------------------------------------------------------------------------------------ batched math
+def norm(xp, v):
+    """float[...]: the Euclidean norm over the last axis (cheaper than ``xp.linalg.norm`` on NumPy's
+    small arrays, where the CPU engine's single world pays per call)."""
+    return xp.sqrt((v * v).sum(axis=-1))
+
+
 def quat_to_matrix(xp, q):
     """wxyz float[N, 4] -> float[N, 3, 3] (unit quaternions)."""
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -114,7 +121,7 @@ def matrix_to_quat(xp, m):
     second = ((m00 > m11) & (m00 > m22))[..., None]
     third = (m11 > m22)[..., None]
     q = xp.where(first, quats[0], xp.where(second, quats[1], xp.where(third, quats[2], quats[3])))
-    q = q / xp.linalg.norm(q, axis=-1, keepdims=True)
+    q = q / norm(xp, q)[..., None]
     return xp.where(q[..., :1] < 0.0, -q, q)
 
 
@@ -124,7 +131,7 @@ def rotation_angle(xp, target, current):
     m = xp.matmul(target, xp.swapaxes(current, -1, -2))
     v = xp.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], axis=-1)
     c = (m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2] - 1.0) * 0.5
-    return xp.arctan2(0.5 * xp.linalg.norm(v, axis=-1), c)
+    return xp.arctan2(0.5 * norm(xp, v), c)
 
 
 def wrap_angle(xp, a):

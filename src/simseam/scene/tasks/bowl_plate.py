@@ -16,7 +16,7 @@ import numpy as np
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
 from simseam.scene.tasks.base import TABLE_TOP, Task
-from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm
 
 BOWL_BASE_R = 0.045
 BOWL_WALL_R = 0.052  # centre radius of the wall segments
@@ -82,12 +82,12 @@ class BowlPlate(Task):
     def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
         xp = state.xp
         bowl, plate = state.object_pos("bowl"), state.object_pos("plate")
-        offset = xp.linalg.norm(bowl[:, :2] - plate[:, :2], axis=-1)  # m, horizontal distance of the centres
+        offset = norm(xp, bowl[:, :2] - plate[:, :2])  # m, horizontal distance of the centres
         centred = offset < PLATE_R - 0.02
         on_top = xp.abs(bowl[:, 2] - (plate[:, 2] + 2 * PLATE_HALF_H)) < 0.015
-        still = xp.linalg.norm(state.object_velocity("bowl")[:, :3], axis=-1) < 0.05
+        still = norm(xp, state.object_velocity("bowl")[:, :3]) < 0.05
         placed = centred & on_top & still
         released = ~state.contacts("bowl", "robot")
         success = placed & released
-        return BatchEvaluation(xp.where(success, 1.0, 0.0), success, {
+        return BatchEvaluation(success, success, {
             "bowl_to_plate": offset, "bowl_on_plate": centred & on_top, "released": released})

@@ -12,7 +12,7 @@ import numpy as np
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
 from simseam.scene.tasks.base import TABLE_TOP, Task
-from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm
 
 CUBE_HALF = 0.02
 LIFT_HEIGHT = 0.10
@@ -52,8 +52,8 @@ class LiftCube(Task):
         height = pos[:, 2] - REST_Z  # m above its resting height
         success = height > LIFT_HEIGHT
         lifted = height > 0.005
-        return BatchEvaluation(xp.where(success, 1.0, 0.0), success, {
+        return BatchEvaluation(success, success, {
             "cube_height": height,
-            "eef_to_cube": xp.linalg.norm(state.eef_position_world() - pos, axis=-1),  # m, tool frame to cube
+            "eef_to_cube": norm(xp, state.eef_position_world() - pos),  # m, tool frame to cube
             "grasped": lifted & state.contacts("cube", "robot", where=lifted),  # contacts: only when lifted
         })

@@ -18,7 +18,7 @@ import numpy as np
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
 from simseam.scene.tasks.base import Task
-from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, wrap_angle, yaw_quats
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm, wrap_angle, yaw_quats
 from simseam.seam import ConfigError
 
 N_OBSTACLES = 6
@@ -88,7 +88,7 @@ class NavObstacles(Task):
         p["touched"] = touched
         base, goal = state.base_pose(), p["goal"]
         dyaw = xp.abs(wrap_angle(xp, goal[:, 2] - base[:, 2]))
-        dist = xp.linalg.norm(goal[:, :2] - base[:, :2], axis=-1)
+        dist = norm(xp, goal[:, :2] - base[:, :2])
         success = ~touched & (dist < GOAL_POS_TOL) & (dyaw < GOAL_YAW_TOL)
-        return BatchEvaluation(xp.where(success, 1.0, 0.0), success,
+        return BatchEvaluation(success, success,
                                {"distance_to_goal": dist, "yaw_error": dyaw, "touched": touched})

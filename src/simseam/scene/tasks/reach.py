@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from simseam.scene.tasks.base import Task
-from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, matrix_to_quat, rotation_angle
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, matrix_to_quat, norm, rotation_angle
 from simseam.seam import ConfigError
 
 POS_TOL = 0.02  # m
@@ -72,8 +72,8 @@ class Reach(Task):
     def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
         xp, p = state.xp, state.params
         pos, rot = state.eef_pose_base()
-        e_pos = xp.linalg.norm(pos - p["target_pos"], axis=-1)
+        e_pos = norm(xp, pos - p["target_pos"])
         e_rot = rotation_angle(xp, p["target_rot"], rot)
         success = (e_pos < POS_TOL) & (e_rot < ROT_TOL)
-        return BatchEvaluation(xp.where(success, 1.0, 0.0), success,
+        return BatchEvaluation(success, success,
                                {"position_error": e_pos, "orientation_error": e_rot})

@@ -112,7 +112,6 @@ class BatchedScene:
         if self._cartesian and n_arm < 3:
             raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 3 arm joints; robot "
                               f"{robot.name!r} has {n_arm} (use control_mode: joint_position)")
-        self.task_name = task
         mjm = host.engine.model
         self.mjm = mjm
         self.substeps = plan.substeps
