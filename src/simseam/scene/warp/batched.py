@@ -85,6 +85,21 @@ class BatchStep:
     steps: np.ndarray  # int64[N]: control steps of each world's episode
 
 
+def _check_batched_task(task) -> None:
+    """A task written for one world only (its own ``reset`` / ``evaluate``, no ``sample`` /
+    ``evaluate_batch``) cannot run on N worlds: a ``ConfigError`` saying what to write."""
+    from simseam.scene.tasks.base import Task
+
+    cls = type(task)
+    missing = [name for name, one in (("evaluate_batch", "evaluate"), ("sample", "reset"))
+               if getattr(cls, name) is getattr(Task, name) and getattr(cls, one) is not getattr(Task, one)]
+    if cls.evaluate_batch is Task.evaluate_batch and "evaluate_batch" not in missing:
+        missing.append("evaluate_batch")
+    if missing:
+        raise ConfigError(f"engine 'mujoco_warp': task {task.name!r} is written for one world only; write its "
+                          f"{' and '.join(missing)} (docs/extending.md, a task on both engines)")
+
+
 class BatchedScene:
     """``num_envs`` worlds of ``task`` with ``robot`` (see the module docstring)."""
 
@@ -103,6 +118,7 @@ class BatchedScene:
                               "(only RGB cameras are supported)")
         # the reference scene on the CPU engine: semantics, model, and every reset state
         self.host = host = ManifestScene(robot, task, "mujoco", options)
+        _check_batched_task(host.task)
         spec = host.spec
         self._spec = dataclasses.replace(spec, engine="mujoco_warp")
         mode = spec.action.control_mode
@@ -345,6 +361,34 @@ class BatchedScene:
         self.steps[worlds] = 0
         self.seeds[worlds] = seeds
         self._host_obs = None
+
+    def set_state(self, worlds, qpos, qvel) -> None:
+        """Put each of ``worlds`` in a given physics state (float[k, nq], float[k, nv]: e.g. the CPU engine's
+        ``data.qpos`` / ``qvel``), its task params kept; poses, contacts and the observation follow. For
+        comparing the engines on the same states (``evaluate``)."""
+        self._check_open()
+        worlds = np.asarray(worlds, dtype=np.int64).reshape(-1)
+        qpos, qvel = np.atleast_2d(qpos).astype(np.float32), np.atleast_2d(qvel).astype(np.float32)
+        if qpos.shape != (worlds.size, self.mjm.nq) or qvel.shape != (worlds.size, self.mjm.nv):
+            raise ConfigError(f"set_state: {worlds.size} worlds need qpos [{worlds.size}, {self.mjm.nq}] and qvel "
+                              f"[{worlds.size}, {self.mjm.nv}], got {qpos.shape} and {qvel.shape}")
+        with wp.ScopedDevice(self.device):
+            rows = wp.array(worlds.astype(np.int32), dtype=int)
+            for src, dst in ((qpos, self.d.qpos), (qvel, self.d.qvel)):
+                wp.launch(K.scatter_rows_kernel, dim=src.shape, inputs=[wp.array(src, dtype=float), rows, dst])
+            self._sense()
+            self.task_state.new_step()
+        self._host_obs = None
+
+    def evaluate(self) -> dict:
+        """The task's judgement of every world's current state, on the host: ``reward`` float[N], ``success``
+        bool[N], ``diagnostics`` (name -> [N]); what a step reports."""
+        with wp.ScopedDevice(self.device), array_stream(self.xp, self.device):
+            self._eval = self.host.task.evaluate_batch(self.task_state)
+        self._host_obs = None
+        h = self.host_arrays()
+        return {"reward": self._to_host(self._eval.reward).astype(np.float32), "success": h["success"],
+                "diagnostics": h["diagnostics"]}
 
     # ---------------------------------------------------------------------------------------- step
     def step(self, actions) -> BatchStep:
