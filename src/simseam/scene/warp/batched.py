@@ -149,8 +149,9 @@ class BatchedScene:
             self.d = mjw.put_data(mjm, host.engine.data, nworld=n, nconmax=wopts.nconmax, njmax=wopts.njmax)
             self._make_buffers(host, mjm)
             self._make_cameras(host, mjm)
-            self.task_state = WarpTaskState(self)
-            self._make_params()
+            with array_stream(self.xp, self.device):
+                self.task_state = WarpTaskState(self)
+                self._make_params()
         self._eval = None
         self.build_s = time.perf_counter() - t0
         self._graphs: dict = {}  # name -> captured CUDA graph

@@ -41,10 +41,14 @@ def array_view(xp, arr):
 
 
 def array_stream(xp, device):
-    """A context in which ``xp``'s work runs on Warp's stream of ``device`` (no-op for NumPy)."""
+    """A context in which ``xp``'s arrays live on ``device`` (whichever GPU it is) and its work runs on
+    Warp's stream there, in order with Warp's launches (no-op for NumPy)."""
     if xp is np:
         return contextlib.nullcontext()
-    return xp.cuda.ExternalStream(wp.get_stream(device).cuda_stream)
+    stack = contextlib.ExitStack()
+    stack.enter_context(xp.cuda.Device(device.ordinal))
+    stack.enter_context(xp.cuda.ExternalStream(wp.get_stream(device).cuda_stream))
+    return stack
 
 
 class WarpTaskState:
