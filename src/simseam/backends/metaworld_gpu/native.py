@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 
 HEADER = struct.Struct("<Q")
+# a mesh's derived arrays (polygon normals...) are not reproducible between two compiles; no reset moves them
+DERIVED = ("mesh_",)
 SKIP_ATTRS = ("init_qpos", "init_qvel", "_prev_obs", "_last_stable_obs", "width", "height", "curr_path_length",
               "num_resets", "_np_random_seed")
 
@@ -102,7 +104,8 @@ def _reset_state(rollout: Any, seed: int, fresh: dict[str, np.ndarray]) -> dict[
     env = rollout.env
     m, d = env.model, env.data
     now = model_arrays(m)
-    changed = {k: v for k, v in now.items() if k in fresh and (v.shape != fresh[k].shape or not np.array_equal(v, fresh[k]))}
+    changed = {k: v for k, v in now.items()
+               if k in fresh and not k.startswith(DERIVED) and (v.shape != fresh[k].shape or not np.array_equal(v, fresh[k]))}
     return {
         "seed": seed, "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "mocap_pos": d.mocap_pos.copy(),
         "mocap_quat": d.mocap_quat.copy(), "ctrl": d.ctrl.copy(), "act": d.act.copy(),
