@@ -1,0 +1,248 @@
+"""Native Meta-World v3 states with Meta-World's own judgement of them: what the batched reward code
+(``rewards.py``) is checked against.
+
+Run with the metaworld backend venv's interpreter (it imports numpy, metaworld and mujoco only, inside
+functions, like the backend itself)::
+
+    <metaworld venv>/bin/python -m simseam.backends.metaworld_gpu.record OUT_DIR --tasks reach-v3,push-v3 \\
+        --seeds 0,1,2 --max-steps 150
+
+For each task it writes ``OUT_DIR/<task>.npz``: one row per judged state, of three kinds (``kind``):
+
+- ``EXPERT`` (0): the scripted expert's rollout (``metaworld.policies``; MT1 variation ``seed % 50`` and
+  ``env.seed(seed)``, as ``simseam.backends.metaworld`` resets), each ``env.step``'s state, reward and
+  info, until ``--after-success`` steps past the first success or ``--max-steps``;
+- ``RANDOM`` (1): uniform random actions from the same reset, through ``env.step``;
+- ``CRAFTED`` (2): states of the expert's rollout with the task's object joints moved (a free object
+  also set down at its goal, near it, or away from it), a random action, judged by
+  ``env.evaluate_state`` on the clipped observation, as ``env.step`` judges.
+
+Each row holds the observation as judged (``obs``), the action (``action``, stored as float64; it was
+passed as float32, as the seam sends it, where ``action_float32``: the odd episodes), ``reward``, the
+info dict (``info:<key>``), MuJoCo's arrays after that state's ``mj_forward``
+(``qpos``, ``qvel``, ``xpos``, ``xquat``, ``site_xpos``, ``geom_xpos``), the active contacts (flat:
+``contact_geom`` [C, 2], ``contact_force`` [C] = ``efc_force[efc_address]`` read as Meta-World reads it,
+``contact_row`` [C]) and the env's reset attributes as they stood when judged (``param:<name>``;
+``None`` is NaN); ``reset:<name>`` keeps each episode's attributes right after ``reset``. ``names``
+(JSON) maps body, site, geom and joint names to indices.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+EXPERT, RANDOM, CRAFTED = 0, 1, 2
+INFO_KEYS = ("success", "near_object", "grasp_success", "grasp_reward", "in_place_reward", "obj_to_target",
+             "unscaled_reward")
+#: the reset attributes any task's reward reads (and the pads' / ``_last_rand_vec`` for reference)
+PARAM_NAMES = ("_target_pos", "obj_init_pos", "init_tcp", "init_left_pad", "init_right_pad", "hand_init_pos",
+               "_target_to_obj_init", "_obj_to_target_init", "dial_push_position", "_handle_init_pos",
+               "_lever_pos_init", "peg_head_pos_init", "stick_init_pos", "window_handle_pos_init",
+               "_last_rand_vec")
+ARM_QPOS = 9  # 7 arm joints and 2 fingers come first in every Meta-World model
+
+
+def model_names(model) -> dict:
+    """Body, site, geom and joint (qpos adr, qvel adr, type) indices by name."""
+    def table(count, kind):
+        return {getattr(model, kind)(i).name: i for i in range(count) if getattr(model, kind)(i).name}
+
+    joints = {model.joint(i).name: [int(model.jnt_qposadr[i]), int(model.jnt_dofadr[i]), int(model.jnt_type[i])]
+              for i in range(model.njnt) if model.joint(i).name}
+    return {"body": table(model.nbody, "body"), "site": table(model.nsite, "site"),
+            "geom": table(model.ngeom, "geom"), "joint": joints}
+
+
+def params_of(env, np) -> dict:
+    out = {}
+    for name in PARAM_NAMES:
+        if hasattr(env, name):
+            value = getattr(env, name)
+            out[name] = np.array(np.nan if value is None else value, dtype=np.float64)
+    return out
+
+
+def contacts_of(data, np) -> tuple:
+    """Each active contact's geoms and the force Meta-World's ``touching_object`` sums for it
+    (``efc_force[efc_address]``, Python indexing, so an address of -1 reads the last row)."""
+    n = int(data.ncon)
+    geom = np.array(data.contact.geom[:n], dtype=np.int64).reshape(n, 2)
+    adr = np.array(data.contact.efc_address[:n], dtype=np.int64)
+    efc = np.array(data.efc_force)
+    force = np.array([efc[a] if efc.size else 0.0 for a in adr], dtype=np.float64)
+    return geom, force
+
+
+class Rows:
+    """The rows of one task, gathered as lists and stacked at the end."""
+
+    def __init__(self, np):
+        self.np = np
+        self.cols: dict[str, list] = {}
+        self.contacts: list = []
+
+    def add(self, env, kind: int, episode: int, step: int, obs, action, reward, info) -> None:
+        np, d = self.np, env.data
+        row = {"kind": kind, "episode": episode, "step": step, "obs": np.array(obs, dtype=np.float64),
+               "action": np.array(action, dtype=np.float64),
+               "action_float32": np.asarray(action).dtype == np.float32, "reward": float(reward),
+               "qpos": np.array(d.qpos), "qvel": np.array(d.qvel), "xpos": np.array(d.xpos),
+               "xquat": np.array(d.xquat), "site_xpos": np.array(d.site_xpos), "geom_xpos": np.array(d.geom_xpos)}
+        row.update({f"info:{k}": float(info[k]) for k in INFO_KEYS})
+        row.update({f"param:{k}": v for k, v in params_of(env, np).items()})
+        for k, v in row.items():
+            self.cols.setdefault(k, []).append(v)
+        self.contacts.append(contacts_of(d, np))
+
+    def arrays(self) -> dict:
+        np = self.np
+        out = {k: np.stack([np.asarray(x) for x in v]) for k, v in self.cols.items()}
+        out["contact_geom"] = np.concatenate([g for g, _ in self.contacts]).reshape(-1, 2)
+        out["contact_force"] = np.concatenate([f for _, f in self.contacts])
+        out["contact_row"] = np.concatenate([np.full(len(f), i, dtype=np.int64)
+                                             for i, (_, f) in enumerate(self.contacts)])
+        return out
+
+
+def reset(env, bench, seed: int, mujoco):
+    """The backend's reset for episode ``seed`` (MT1 variation ``seed % 50``, fresh MuJoCo data)."""
+    mujoco.mj_resetData(env.model, env.data)
+    env.set_task(bench.train_tasks[seed % len(bench.train_tasks)])
+    env.seed(seed)
+    obs, _ = env.reset()
+    return obs
+
+
+def action_dtype(episode: int, np):
+    """float32 (what the seam sends) in odd episodes, float64 (the expert's own) in even ones: Meta-World
+    computes its gripper terms in the action's dtype, so a float32 action rounds some rewards to float32
+    (NumPy's promotion of a float32 scalar with Python floats), a float64 one keeps them float64."""
+    return np.float32 if episode % 2 else np.float64
+
+
+def expert_rollout(env, policy, obs, rows, episode: int, max_steps: int, after_success: int, np) -> list:
+    """Step the expert; return the (qpos, qvel, mocap pos, mocap quat) before each step, for crafting."""
+    states, first = [], None
+    for t in range(max_steps):
+        action = np.clip(policy.get_action(obs), -1, 1).astype(action_dtype(episode, np))
+        d = env.data
+        states.append((np.array(d.qpos), np.array(d.qvel), np.array(d.mocap_pos), np.array(d.mocap_quat)))
+        obs, reward, _, _, info = env.step(action)
+        rows.add(env, EXPERT, episode, t, obs, action, reward, info)
+        if info["success"] and first is None:
+            first = t
+        if first is not None and t >= first + after_success:
+            break
+    return states
+
+
+def random_rollout(env, obs, rows, episode: int, steps: int, rng, np) -> None:
+    for t in range(steps):
+        action = rng.uniform(-1, 1, 4).astype(action_dtype(episode, np))
+        obs, reward, _, _, info = env.step(action)
+        rows.add(env, RANDOM, episode, t, obs, action, reward, info)
+
+
+def object_dofs(names: dict) -> tuple[list, list]:
+    """qpos addresses past the arm: (free joints' position addresses, hinge and slide addresses)."""
+    free, scalar = [], []
+    for adr, _dof, jtype in names["joint"].values():
+        if adr < ARM_QPOS:
+            continue
+        if jtype == 0:
+            free.append(adr)
+        elif jtype in (2, 3):
+            scalar.append(adr)
+    return sorted(free), sorted(scalar)
+
+
+def judge_state(env, mujoco, np):
+    """Meta-World's step tail on the state in ``env.data``: ``mj_forward``, the clipped observation."""
+    mujoco.mj_forward(env.model, env.data)
+    space = env.sawyer_observation_space
+    return np.clip(env._get_obs(), space.low, space.high)
+
+
+def crafted_states(env, states, rows, episode: int, count: int, rng, names, mujoco, np) -> None:
+    """Expert states with the object joints moved; a free object sometimes set at (or near) the goal."""
+    free, scalar = object_dofs(names)
+    picks = np.linspace(0, len(states) - 1, count).round().astype(int) if states else []
+    for k, i in enumerate(picks):
+        qpos, qvel, mpos, mquat = (a.copy() for a in states[i])
+        env.data.qpos[:], env.data.qvel[:] = qpos, qvel
+        env.data.mocap_pos[:], env.data.mocap_quat[:] = mpos, mquat
+        mujoco.mj_forward(env.model, env.data)
+        for adr in scalar:
+            env.data.qpos[adr] += rng.normal(0.0, 0.03)
+        if free:
+            adr = free[0]
+            if k % 3 == 0:  # at / near / a little off its goal (what the observation reads as the object)
+                shift = np.asarray(env._target_pos) - np.array(env._get_obs()[4:7])
+                env.data.qpos[adr:adr + 3] += shift + rng.normal(0.0, 0.03, 3)
+            else:
+                env.data.qpos[adr:adr + 3] += rng.normal(0.0, 0.02, 3)
+        obs = judge_state(env, mujoco, np)
+        action = np.concatenate([rng.uniform(-1, 1, 3), rng.choice([-1.0, 0.2, 0.8, 1.0], 1)])
+        action = action.astype(action_dtype(episode, np))
+        reward, info = env.evaluate_state(obs, action)
+        rows.add(env, CRAFTED, episode, int(i), obs, action, reward, info)
+
+
+def record_task(name: str, seeds: list[int], max_steps: int, after_success: int, random_steps: int,
+                crafted: int) -> dict:
+    import warnings
+
+    import metaworld
+    import mujoco
+    import numpy as np
+    from metaworld.policies import ENV_POLICY_MAP
+
+    warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")
+    bench = metaworld.MT1(name, seed=0)
+    env = bench.train_classes[name]()
+    env.max_path_length = 10**9
+    names = model_names(env.model)
+    rows, resets = Rows(np), []
+    for episode, seed in enumerate(seeds):
+        rng = np.random.default_rng(seed)
+        obs = reset(env, bench, seed, mujoco)
+        resets.append(params_of(env, np))
+        states = expert_rollout(env, ENV_POLICY_MAP[name](), obs, rows, episode, max_steps, after_success, np)
+        crafted_states(env, states, rows, episode, crafted, rng, names, mujoco, np)
+        obs = reset(env, bench, seed, mujoco)
+        random_rollout(env, obs, rows, episode, random_steps, rng, np)
+    out = rows.arrays()
+    out.update({f"reset:{k}": np.stack([r[k] for r in resets]) for k in resets[0]})
+    out["seeds"] = np.asarray(seeds)
+    out["names"] = np.asarray(json.dumps(names))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    import numpy as np
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("out", type=Path)
+    p.add_argument("--tasks", required=True, help="comma-separated Meta-World v3 env names")
+    p.add_argument("--seeds", default="0,1,2")
+    p.add_argument("--max-steps", type=int, default=150)
+    p.add_argument("--after-success", type=int, default=5)
+    p.add_argument("--random-steps", type=int, default=15)
+    p.add_argument("--crafted", type=int, default=12)
+    a = p.parse_args(argv)
+    a.out.mkdir(parents=True, exist_ok=True)
+    seeds = [int(s) for s in a.seeds.split(",")]
+    for task in a.tasks.split(","):
+        arrays = record_task(task, seeds, a.max_steps, a.after_success, a.random_steps, a.crafted)
+        tmp = a.out / f".{task}.npz"
+        np.savez(tmp, **arrays)
+        tmp.replace(a.out / f"{task}.npz")
+        print(task, len(arrays["reward"]), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
