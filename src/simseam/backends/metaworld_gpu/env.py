@@ -11,6 +11,9 @@ normalised finger gap, object poses padded to 14, the previous frame, the goal o
 observable) clipped to the observation space. After a reset the observation is unclipped and its previous
 frame is the current one, as ``SawyerXYZEnv.reset``. Truncation at ``max_path_length`` (500). A world whose
 state is not finite is flagged in ``errors`` (its task and seed in ``error_message``); the others go on.
+After each step every world is judged by Meta-World's batched reward and success rules (``judge``:
+``rewards.evaluate`` over ``state()``); a rule's reset attribute that the native reset leaves unset
+(bin-picking's ``_target_to_obj_init``) is NaN until the rule's first judgement writes it.
 """
 
 from __future__ import annotations
@@ -78,9 +81,13 @@ class MetaWorldBatch:
             for key, value in state["attrs"].items():
                 if key not in self.params:
                     self.params[key] = xp.zeros((self.num_worlds, *np.shape(value)))
+        for key in judged_params(self.task):
+            if key not in self.params:
+                self.params[key] = xp.full((self.num_worlds,), np.nan)
         idx = xp.asarray(rows)
-        for key, arr in self.params.items():
-            arr[idx] = xp.asarray(np.stack([np.asarray(s["attrs"].get(key, 0.0)) for s in states]))
+        for key, arr in list(self.params.items()):
+            fill = np.full(arr.shape[1:], np.nan) if key not in states[0]["attrs"] else 0.0
+            self.params[key][idx] = xp.asarray(np.stack([np.asarray(s["attrs"].get(key, fill)) for s in states]))
         goal = np.stack([np.asarray(s["attrs"]["_target_pos"]) for s in states])
         if self.info["partially_observable"]:
             goal = np.zeros_like(goal)
@@ -94,10 +101,11 @@ class MetaWorldBatch:
     # ------------------------------------------------------------------------------------------- step
     def step(self, actions) -> dict[str, Any]:
         """One control step of every world; ``actions`` float[N, 4] (host or ``xp``). Returns ``obs``,
-        ``truncated`` bool[N] (host), ``errors`` bool[N] (host: a world newly non-finite)."""
+        ``truncated`` bool[N] (host), ``errors`` bool[N] (host: a world newly non-finite), and Meta-World's
+        judgement, host arrays: ``reward`` float[N], ``success`` bool[N], ``diagnostics`` {name: float[N]}."""
         xp = self.xp
-        a = xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 4)
-        a = xp.clip(a, -1.0, 1.0)  # the seam's clip to the action bounds
+        a = xp.asarray(actions).reshape(self.num_worlds, 4)
+        a = xp.clip(a, -1.0, 1.0)  # the seam's clip; the delta in the action's dtype, as SawyerXYZEnv's float32
         self.action = a
         pos = self.physics.mocap_pos()
         pos = pos + (a[:, :3] * float(self.info["action_scale"]))[:, None, :]
@@ -115,7 +123,10 @@ class MetaWorldBatch:
                                    & xp.all(xp.isfinite(self.physics.poses().qvel), axis=1)))
         new = bad & ~self.errors
         self.errors |= bad
-        return {"obs": self.obs, "truncated": self.steps >= self.max_steps, "errors": new}
+        judged = judge(self.task, self.state())
+        return {"obs": self.obs, "truncated": self.steps >= self.max_steps, "errors": new,
+                "reward": _to_host(judged.reward), "success": _to_host(judged.success).astype(bool),
+                "diagnostics": {k: _to_host(v) for k, v in judged.diagnostics.items()}}
 
     def error_message(self, world: int) -> str:
         return (f"Meta-World task {self.task!r}, seed {int(self.seeds[world])}: the simulation of world {world} "
@@ -167,6 +178,21 @@ class MetaWorldBatch:
 
     def close(self) -> None:
         self.physics.close()
+
+
+def judge(task: str, state: MetaWorldState) -> Any:
+    """Meta-World's reward and success for every world of ``state`` (a ``BatchEvaluation``): the one place the
+    batched rules (``rewards.evaluate``) are called."""
+    from simseam.backends.metaworld_gpu.rewards import evaluate
+
+    return evaluate(task, state)
+
+
+def judged_params(task: str) -> tuple[str, ...]:
+    """The reset attributes ``judge`` reads of ``state.params`` for ``task``."""
+    from simseam.backends.metaworld_gpu.rewards import TASK_PARAMS
+
+    return TASK_PARAMS.get(task, ())
 
 
 def _to_host(a: Any) -> np.ndarray:

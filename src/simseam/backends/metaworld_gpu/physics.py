@@ -116,26 +116,30 @@ class WarpPhysics:
         return a.numpy()
 
     def load(self, rows: np.ndarray, states: list[dict[str, Any]]) -> None:
-        wp = self._wp
-        with wp.ScopedDevice(self.device):
-            for key in self.batched:
-                arr = getattr(self.m, key).numpy()
-                for r, state in zip(rows, states):
-                    value = state["model"].get(key)
-                    arr[r] = self._pristine[key] if value is None else _widen(np.asarray(value), self._pristine[key])
-                getattr(self.m, key).assign(arr)
-            unknown = {k for s in states for k in s["model"]} - set(self.batched) - {"eq_data"}
-            if unknown:
-                raise ValueError(f"reset changes model fields {sorted(unknown)} that are not batched per world")
-            for key in STATE_FIELDS:
-                dst = getattr(self.d, key)
-                if dst.size == 0:
-                    continue
-                arr = dst.numpy()
-                for r, state in zip(rows, states):
-                    arr[r] = np.asarray(state[key]).reshape(arr[r].shape)
-                dst.assign(arr)
+        """Scatter the reset states into rows ``rows`` of the device arrays (only those rows move: the
+        stacked rows go to the device once per field, no whole-array host round trip), then forward."""
+        unknown = {k for s in states for k in s["model"]} - set(self.batched) - {"eq_data"}
+        if unknown:
+            raise ValueError(f"reset changes model fields {sorted(unknown)} that are not batched per world")
+        xp, idx = self.xp, self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        for key in self.batched:
+            rowsof = [self._pristine[key] if s["model"].get(key) is None
+                      else _widen(np.asarray(s["model"][key]), self._pristine[key]) for s in states]
+            self.view(getattr(self.m, key))[idx] = xp.asarray(np.stack(rowsof))
+        for key in STATE_FIELDS:
+            dst = getattr(self.d, key)
+            if dst.size == 0:
+                continue
+            view = self.view(dst)
+            view[idx] = xp.asarray(np.stack([np.asarray(s[key]).reshape(view.shape[1:]) for s in states]))
+        self._xp_done()
+        with self._wp.ScopedDevice(self.device):
             self._mjw.forward(self.m, self.d)
+
+    def _xp_done(self) -> None:
+        """Wait for what CuPy wrote into the device arrays before Warp reads them (CuPy's stream)."""
+        if self.device.is_cuda:
+            self.xp.cuda.get_current_stream().synchronize()
 
     def control(self, mocap_pos: Any, mocap_quat: Any, ctrl: Any) -> None:
         self.view(self.d.mocap_pos)[...] = mocap_pos
@@ -143,6 +147,7 @@ class WarpPhysics:
         self.view(self.d.ctrl)[...] = ctrl
 
     def advance(self, substeps: int) -> None:
+        self._xp_done()
         with self._wp.ScopedDevice(self.device):
             for _ in range(substeps):
                 self._mjw.step(self.m, self.d)

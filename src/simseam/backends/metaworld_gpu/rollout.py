@@ -1,0 +1,220 @@
+"""``MetaWorldBatchRollout``: N environments of one Meta-World v3 task on MuJoCo Warp (``MetaWorldBatch``) as
+the seam's ``BatchRollout``, with the observations, reward, success, diagnostics, termination and
+truncation of the CPU backend's ``MetaWorldRollout`` (``backends/metaworld.py``), so an episode's line in
+``episodes.jsonl`` reads the same on either engine.
+
+- config: the CPU backend's (``normalize_config``): ``variation``, ``goal_seed``, ``max_steps``, ``state``,
+  ``environment_state``; no cameras (the port is state-only: a config asking for images is refused);
+- reset: each environment's seed picks its native reset (MT1 variation ``seed % 50``, ``sampled``,
+  ``lerobot``), whatever the other environments hold or which of them end first;
+- step: every world's physics advances (an environment left out holds a zero action until its reset);
+  ``terminated`` = Meta-World's success, ``truncated`` = not success at ``max_steps``;
+- ``privileged`` (``--policy scripted``): ``expert_action`` is Meta-World's own scripted expert, asked of
+  the native worker once per reset or step for all the environments in it;
+- a world whose state goes non-finite: its episode ends as a failure (``failures()``, its task and
+  seed in the message); the others carry on.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from simseam.backends.base import observation_spec
+from simseam.backends.metaworld import (
+    AGENT_POS,
+    DIAGNOSTICS,
+    ENV_STATE_NAMES,
+    ENV_STATE_SLOTS,
+    ROBOT_JOINTS,
+    STATE_NAMES,
+    instruction,
+    normalize_config,
+)
+from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+from simseam.seam import (
+    INFO_DIAGNOSTICS,
+    INFO_STEPS,
+    OBS_ENV_STATE,
+    OBS_EXPERT_ACTION,
+    OBS_IMAGES,
+    OBS_JOINT_POSITIONS,
+    OBS_JOINT_VELOCITIES,
+    OBS_SIM_TIME_NS,
+    OBS_STATE,
+    OBS_TASK,
+    ActionSlot,
+    ActionSpec,
+    ConfigError,
+    ControlMode,
+    FieldSpec,
+    JointFacts,
+    RobotFacts,
+    RolloutSpec,
+    SimulationError,
+    TaskSpec,
+)
+from simseam.seam.batch import BatchStepResult, EnvFailure, SyncStepPair, batch_actions, env_indices
+
+ENGINE = "mujoco_warp"
+
+
+def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
+    """The CPU backend's config, checked, for the state-only GPU port (cameras refused)."""
+    out = normalize_config({**config, "cameras": config.get("cameras", False)})
+    if out["cameras"]:
+        raise ConfigError(f"Meta-World on {ENGINE} is state-only: no cameras yet (task {out['task']!r}); use a "
+                          "state policy or the CPU backend")
+    return out
+
+
+class MetaWorldBatchRollout(SyncStepPair):
+    """``num_envs`` environments of ``config['task']`` (``worker``: a started ``NativeWorker``, shared)."""
+
+    def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
+                 device: str | None = None, engine: str = ENGINE):
+        self.config = gpu_config(config)
+        self.worker, self.privileged = worker, bool(privileged)
+        c = self.config
+        self.world = MetaWorldBatch(c["task"], num_envs, worker, engine=engine, device=device,
+                                    variation=c["variation"], goal_seed=c["goal_seed"])
+        names = self.world.names
+        self._qadr = np.array([names.joint_qpos[j][0] for j in ROBOT_JOINTS])
+        self._vadr = np.array([names.joint_qvel[j][0] for j in ROBOT_JOINTS])
+        self._spec = self._make_spec()
+        self._dt_ns = self._spec_dt_ns()
+        self._seed_stream = np.random.default_rng(0)
+        self._started = np.zeros(num_envs, dtype=bool)
+        self._success = np.zeros(num_envs, dtype=bool)
+        self._failures: dict[int, EnvFailure] = {}
+        self._closed = False
+
+    def _make_spec(self) -> RolloutSpec:
+        c, info, m = self.config, self.world.info, self.world.model.model
+        joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
+                                  float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
+                       for j in ROBOT_JOINTS)
+        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if self.privileged else {}
+        if c["environment_state"]:
+            extra[OBS_ENV_STATE] = FieldSpec("float32", (len(ENV_STATE_SLOTS),), names=ENV_STATE_NAMES,
+                                             presence="declared")
+        step = float(info["action_scale"])
+        slots = tuple(ActionSlot(k, "arm", -1.0, 1.0, f"{step} m") for k in ("dx", "dy", "dz"))
+        return RolloutSpec(
+            robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=()),
+            task=TaskSpec(name=c["task"], instruction=instruction(c["task"]), max_steps=c["max_steps"],
+                          diagnostics=DIAGNOSTICS),
+            observation=observation_spec({}, STATE_NAMES[:AGENT_POS] if c["state"] == "agent_pos" else STATE_NAMES,
+                                         ROBOT_JOINTS, extra),
+            action=ActionSpec(ControlMode.CARTESIAN_DELTA,
+                              (*slots, ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed")),
+                              max_translation=step),
+            engine=f"metaworld-{info['metaworld']}/{ENGINE}-mujoco-{_mujoco_version()}",
+            control_hz=1.0 / (float(m.opt.timestep) * int(info["frame_skip"])),
+            backend="inprocess",
+            capabilities=("privileged",) if self.privileged else (),
+        )
+
+    def _spec_dt_ns(self) -> int:
+        return int(round(float(self.world.model.model.opt.timestep) * int(self.world.info["frame_skip"]) * 1e9))
+
+    @property
+    def spec(self) -> RolloutSpec:
+        return self._spec
+
+    @property
+    def num_envs(self) -> int:
+        return self.world.num_worlds
+
+    # ------------------------------------------------------------------------------------------ episodes
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "reset")
+        seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
+        if len(seeds) != idx.size:
+            raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
+        if idx.size:
+            self.world.reset(idx, seeds)
+        self._started[idx], self._success[idx] = True, False
+        return self._observations(idx)
+
+    def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "step")
+        if not self._started[idx].all():
+            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
+        a = batch_actions(self._spec, actions, idx.size)
+        full = np.zeros((self.num_envs, 4), dtype=np.float32)  # the others hold still until their reset
+        full[idx] = a
+        r = self.world.step(full)
+        success = r["success"][idx]
+        steps = self.world.steps[idx]
+        for e in np.flatnonzero(r["errors"][idx]):
+            env = int(idx[e])
+            self._failures[env] = EnvFailure(self.world.error_message(env))
+            self._started[env] = False
+        diag = {k: r["diagnostics"][k][idx] for k in DIAGNOSTICS}
+        infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]),
+                  INFO_DIAGNOSTICS: {k: float(v[i]) for k, v in diag.items()}} for i in range(idx.size)]
+        truncated = ~success & (steps >= self._spec.task.max_steps)
+        return BatchStepResult(idx, self._observations(idx), r["reward"][idx].astype(np.float64), success.copy(),
+                               truncated, infos)
+
+    def _observations(self, idx: np.ndarray) -> list[dict[str, Any]]:
+        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays)."""
+        if not idx.size:
+            return []
+        full = _host(self.world.obs)[idx]
+        poses = self.world.physics.poses()
+        qpos, qvel = _host(poses.qpos)[idx], _host(poses.qvel)[idx]
+        state = full[:, :AGENT_POS] if self.config["state"] == "agent_pos" else full
+        expert = (np.asarray(self.worker.call("expert", task=self.config["task"], obs=full), dtype=np.float32)
+                  if self.privileged else None)
+        text, out = self._spec.task.instruction, []
+        for i, w in enumerate(idx.tolist()):
+            obs = {OBS_IMAGES: {}, OBS_STATE: state[i].astype(np.float32), OBS_TASK: text,
+                   OBS_JOINT_POSITIONS: qpos[i, self._qadr].astype(np.float32),
+                   OBS_JOINT_VELOCITIES: qvel[i, self._vadr].astype(np.float32),
+                   OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
+            if self.config["environment_state"]:
+                obs[OBS_ENV_STATE] = full[i, list(ENV_STATE_SLOTS)].astype(np.float32)
+            if expert is not None:
+                obs[OBS_EXPERT_ACTION] = expert[i]
+            out.append(obs)
+        return out
+
+    # ------------------------------------------------------------------------------------------- the rest
+    def render(self, env: int) -> None:
+        self._check_open()
+        env_indices([env], self.num_envs, "render")
+        return None  # state-only: no cameras
+
+    def failures(self) -> dict[int, EnvFailure]:
+        out, self._failures = self._failures, {}
+        return out
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.world.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the batch is closed")
+
+    def __enter__(self) -> "MetaWorldBatchRollout":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)
+
+
+def _mujoco_version() -> str:
+    import mujoco
+
+    return mujoco.__version__
