@@ -114,13 +114,18 @@ def eval_command(
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes whose global index "
                               "(task_index * episodes + e) % K == i; combine the K run directories with "
                               "simseam merge."),
+    engine: str = typer.Option(None, "--engine", help="mujoco_warp: the preset's environments as worlds of one "
+                               "batch per task on MuJoCo Warp (Meta-World presets; state-only), in this process; "
+                               "default: the preset's backend, a CPU process per environment."),
+    sim_device: str = typer.Option(None, "--sim-device", help="--engine mujoco_warp: the Warp device of the "
+                                   "worlds (cuda:K or cpu; default Warp's preferred one)."),
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto, ray://HOST:PORT or "
                                     "HOST:PORT, or local; each Ray worker owns a sidecar of the backend and its own "
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.policies.base import make_policy
-    from simseam.runner.evaluate import eval_config, eval_indices, preset, resolve_tasks, run_eval
+    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, preset, resolve_tasks, run_eval
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
 
@@ -133,6 +138,13 @@ def eval_command(
         if ray_address is not None and video:
             raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
         p = preset(preset_name)
+        check_engine(p, engine)
+        if engine is not None and (ray_address is not None or video or policy_groups != 1 or policy_ready
+                                   or envs_per_worker != 1):
+            raise ConfigError(f"--engine {engine}: its worlds step together in this process; drop --ray, --video, "
+                              "--policy-groups, --policy-ready and --envs-per-worker")
+        if sim_device is not None and engine is None:
+            raise ConfigError("--sim-device belongs to --engine mujoco_warp")
         only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks is not None else None
         if only == []:
             raise ConfigError(f"--tasks {tasks!r} names no task (comma-separated names or indices; leave it out "
@@ -144,11 +156,17 @@ def eval_command(
         config = eval_config(p, redacted(policy), task_list, n, seed, video)
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
+        if engine is not None:
+            config["engine"] = engine
         planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
+    if engine is not None:
+        _eval_batched(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, num_envs,
+                      engine=engine, sim_device=sim_device, seed=seed, indices=planned)
+        return
     if ray_address is not None:
         _eval_ray(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,
                   num_workers=num_envs, seed=seed, indices=planned)
@@ -227,6 +245,43 @@ def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str],
                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
                         on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
                         indices=indices, check=pol.reset, lockstep=lockstep)
+
+
+def _eval_batched(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path,
+                  num_envs: int | None, *, engine: str, sim_device: str | None, seed: int, indices: list[int]) -> None:
+    """``simseam eval --engine mujoco_warp``: each task's episodes as the worlds of one batch
+    (``run_eval_batched``; ``--num-envs`` worlds, default the task's episodes), the policy stepped for all of
+    them at once (its own batch, or one instance per world). Progress and summary as the vector path."""
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import PerEnvPolicies, shared_batch
+    from simseam.runner.evaluate import run_eval_batched
+
+    todo = len([i for i in indices if i not in run_dir.done])
+    worlds = max(1, num_envs or n)
+    batch = None
+    try:
+        pol = make_policy(policy, **kwargs)
+        if pol.uses_images:
+            raise ConfigError(f"--engine {engine}: the port is state-only; policy {policy!r} reads images")
+        batch = shared_batch(pol, worlds, lambda: make_policy(policy, **kwargs))
+        if batch is None:
+            made = [pol]
+            batch = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **kwargs), worlds)
+    except SimseamError as exc:
+        run_dir.close()
+        fail(exc)
+    console.print(f"eval [bold]{escape(p.name)}[/] on [bold]{escape(engine)}[/]: {len(task_list)} task(s) x {n} "
+                  f"episode(s), policy [bold]{escape(policy)}[/], {worlds} world(s) per task -> {escape(str(out))}")
+    with episodes_guard(run_dir, batch.close, finish=_summary(p, policy, run_dir)), \
+            EvalProgress(console, total=todo) as progress:
+        def start(vec):
+            console.print(f"[dim]{escape(vec.spec.task.name)}: {vec.num_envs} world(s) on {escape(engine)}[/]",
+                          highlight=False)
+
+        run_eval_batched(p, task_list, n, run_dir, worlds, policy_batch=batch, engine=engine, device=sim_device,
+                         privileged=pol.requires_privileged, seed=seed, on_start=start,
+                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
+                         on_error=progress.episode_error, indices=indices, check=pol.reset)
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,

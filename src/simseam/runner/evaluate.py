@@ -303,3 +303,61 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
     run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
                on_spec=_spec_writer(run_dir), check=check, on_done=record, on_worker_failure=on_worker_failure,
                keep=False)
+
+
+#: eval engines beside the preset's own backend: engine -> the backends that have a port to it
+ENGINE_PORTS: dict[str, tuple[str, ...]] = {"mujoco_warp": ("metaworld",)}
+
+
+def check_engine(p: Preset, engine: str | None) -> None:
+    """``--engine``: None (the preset's backend, one CPU process per environment) or an engine with a port of
+    the preset's benchmark; else a one-line error naming the presets that have one."""
+    if engine is None:
+        return
+    if engine not in ENGINE_PORTS:
+        raise ConfigError(f"--engine {engine!r}: one of {list(ENGINE_PORTS)} (leave it out for the preset's own "
+                          "backend)")
+    if p.backend not in ENGINE_PORTS[engine]:
+        ported = [q.name for q in PRESETS.values() if q.backend in ENGINE_PORTS[engine]]
+        raise ConfigError(f"--engine {engine}: preset {p.name!r} has no {engine} port; presets with one: "
+                          f"{', '.join(ported)}")
+
+
+def run_eval_batched(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy_batch,
+                     engine: str = "mujoco_warp", device: str | None = None, privileged: bool = False,
+                     seed: int = 0, on_start=None, on_done=None, on_error=None,
+                     indices: Sequence[int] | None = None, check: Callable[[Any], None] | None = None) -> None:
+    """``run_eval`` on ``engine``'s batch (Meta-World on MuJoCo Warp: ``MetaWorldBatchRollout``), one batch of
+    ``min(num_envs, episodes left)`` worlds per task, the tasks one after another (each task is its own
+    model), all driven by ``policy_batch`` in this process. Episode ``e`` of a task gets seed ``seed + e``
+    whichever world runs it and whenever the others end; every finished episode is appended to the log as
+    ``run_eval`` writes it (``task``, ``episode``); a world that goes non-finite ends its episode as an error
+    (``on_error``) and the others carry on."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+    from simseam.runner.scheduler import BatchVectorEnv
+
+    todo = _todo(tasks, episodes, run_dir, indices)
+    spec_once = _spec_writer(run_dir)
+
+    def record(res):
+        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
+        run_dir.append(entry)
+        if on_done:
+            on_done(res, entry["task"])
+
+    with NativeWorker() as worker:
+        for ti, task in enumerate(tasks):
+            mine = [i for i in todo if i // episodes == ti]
+            if not mine:
+                continue
+            cfg = {**p.backend_config(False, task), "task": task, "cameras": False}
+            batch = MetaWorldBatchRollout(cfg, max(1, min(num_envs, len(mine))), worker, privileged=privileged,
+                                          device=device)
+            with BatchVectorEnv(batch) as vec:
+                if check is not None:
+                    check(vec.spec)
+                spec_once(vec.spec.to_json())
+                if on_start:
+                    on_start(vec)
+                vec.run(policy_batch, mine, seed=seed - ti * episodes, on_done=record, on_error=on_error, keep=False)
