@@ -1,0 +1,92 @@
+"""``simseam eval metaworld_* --engine mujoco_warp`` on Warp's CPU device, against the native env's resets
+and experts in Meta-World's provisioned venv: the CLI end to end, episode i's seed and result whatever the
+number of worlds and whichever episodes end first, the episode lines of the CPU path, a world gone
+non-finite ending alone, and the one-line error for a preset with no port."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from simseam.cli.main import app
+
+pytestmark = pytest.mark.backends
+
+TASK = "reach-v3"
+#: the keys of an eval episode's line on the CPU path (runner.episodes.EpisodeResult.to_json + task, episode)
+CPU_LINE_KEYS = {"index", "seed", "success", "steps", "reward", "step_latency_ms", "policy_latency_ms", "video",
+                 "error", "diagnostics", "task", "episode"}
+
+
+def _lines(out) -> list[dict]:
+    return sorted((json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()),
+                  key=lambda r: r["index"])
+
+
+def test_eval_cli_on_warp_cpu_device(tmp_path):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", TASK, "--episodes",
+                                   "3", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    lines = _lines(out)
+    assert [(r["task"], r["episode"], r["seed"]) for r in lines] == [(TASK, e, e) for e in range(3)]
+    assert all(set(r) == CPU_LINE_KEYS for r in lines)
+    assert all(r["success"] and r["error"] is None and 0 < r["steps"] < 500 for r in lines)  # the expert reaches
+    assert set(lines[0]["diagnostics"]) == {"near_object", "grasp_success", "grasp_reward", "in_place_reward",
+                                            "obj_to_target", "unscaled_reward"}
+    run = json.loads((out / "run.json").read_text())
+    assert run["engine"] == "mujoco_warp"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["per_task"][TASK]["n_success"] == 3
+
+
+def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
+    """Episodes 0..3 on 1 world and on 3 (the shorter episodes end first, the next start in their worlds):
+    the same seed, steps, success and reward per episode."""
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import PerEnvPolicies
+    from simseam.runner.evaluate import preset, run_eval_batched
+    from simseam.runner.run_dir import RunDir
+
+    runs = {}
+    for worlds in (1, 3):
+        out = tmp_path / f"w{worlds}"
+        p = preset("metaworld_mt10")
+        run_dir = RunDir(out, {"worlds": worlds})
+        batch = PerEnvPolicies(lambda: make_policy("scripted"), worlds)
+        run_eval_batched(p, [TASK], 4, run_dir, worlds, policy_batch=batch, device="cpu", privileged=True, seed=10)
+        run_dir.close()
+        runs[worlds] = _lines(out)
+    one, three = runs[1], runs[3]
+    assert [r["seed"] for r in one] == [r["seed"] for r in three] == [10, 11, 12, 13]
+    for a, b in zip(one, three):
+        assert (a["steps"], a["success"]) == (b["steps"], b["success"])
+        assert a["reward"] == pytest.approx(b["reward"], rel=1e-9)
+    assert len({r["steps"] for r in one}) > 1  # episodes of different lengths: worlds freed at different steps
+
+
+def test_non_finite_world_ends_alone():
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    with NativeWorker() as worker, MetaWorldBatchRollout({"task": TASK}, 2, worker, device="cpu") as batch:
+        batch.reset([0, 1], [5, 6])
+        batch.world.physics.view(batch.world.physics.d.qvel)[1, :] = np.nan
+        r = batch.step([0, 1], np.zeros((2, 4), dtype=np.float32))
+        fails = batch.failures()
+        assert list(fails) == [1]
+        assert TASK in fails[1].message and "seed 6" in fails[1].message
+        assert np.isfinite(r.observations[0]["state"]).all()
+        r = batch.step([0], np.zeros((1, 4), dtype=np.float32))  # the other world carries on
+        assert np.isfinite(r.observations[0]["state"]).all() and batch.failures() == {}
+
+
+def test_engine_on_a_preset_with_no_port_is_one_line():
+    res = CliRunner().invoke(app, ["eval", "pusht", "--policy", "zero", "--engine", "mujoco_warp"])
+    assert res.exit_code != 0
+    assert "preset 'pusht' has no mujoco_warp port" in res.output
+    assert "metaworld_mt10, metaworld_mt50, metaworld_lerobot" in res.output
