@@ -90,3 +90,27 @@ def test_engine_on_a_preset_with_no_port_is_one_line():
     assert res.exit_code != 0
     assert "preset 'pusht' has no mujoco_warp port" in res.output
     assert "metaworld_mt10, metaworld_mt50, metaworld_lerobot" in res.output
+
+
+def test_benchmark_scene_file_on_mujoco_warp(tmp_path):
+    """``engine: mujoco_warp`` in a Meta-World scene file: ``simseam run`` steps its worlds in one batch, each
+    episode its own seed (the same episodes as the eval's: seeds 0 and 1 of reach-v3's MT1 variations)."""
+    scene = tmp_path / "mw.yaml"
+    scene.write_text(f"benchmark: {{name: metaworld, task: {TASK}}}\nengine: {{name: mujoco_warp, num_envs: 2, "
+                     "device: cpu}\n")
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["run", "--scene", str(scene), "--policy", "scripted", "--episodes", "2",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    lines = _lines(out)
+    assert [r["seed"] for r in lines] == [0, 1] and all(r["success"] for r in lines)
+    assert json.loads((out / "spec.json").read_text())["engine"].startswith("metaworld-")
+
+
+def test_benchmark_scene_with_no_port_is_one_line(tmp_path):
+    scene = tmp_path / "pusht.yaml"
+    scene.write_text("benchmark: {name: pusht}\nengine: {name: mujoco_warp}\n")
+    res = CliRunner().invoke(app, ["run", "--scene", str(scene), "--policy", "zero", "--episodes", "1",
+                                   "--out", str(tmp_path / "run")])
+    assert res.exit_code != 0
+    assert "benchmark 'pusht' has no mujoco_warp port; benchmarks with one: metaworld" in res.output

@@ -184,11 +184,20 @@ def run(
         _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
         return
+    from simseam.runner.warp_vector import benchmark_on_batched_engine
+
+    try:
+        ported = benchmark_on_batched_engine(cfg)  # a benchmark's port to a batched engine: N worlds here
+    except ConfigError as exc:
+        run_dir.close()
+        fail(exc)
+    if num_envs is None and ported:
+        num_envs = cfg.engine.num_envs or 1
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
         num_envs = 1 if record_dataset is not None else default_num_envs(len(todo), envs_per_worker=envs_per_worker)
-    if num_envs > 1 or renderer == "batched":
+    if num_envs > 1 or renderer == "batched" or ported:
         from simseam.runner.scheduler import Lockstep
 
         _run_vector(scene, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,

@@ -24,6 +24,7 @@ from typing import Any, Callable, Sequence
 
 from simseam import registry
 from simseam.runner.recipe import BenchmarkRecipe
+from simseam.runner.warp_vector import BENCHMARK_PORTS
 from simseam.seam import ConfigError
 from simseam.seam.errors import did_you_mean
 
@@ -305,8 +306,8 @@ def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: s
                keep=False)
 
 
-#: eval engines beside the preset's own backend: engine -> the backends that have a port to it
-ENGINE_PORTS: dict[str, tuple[str, ...]] = {"mujoco_warp": ("metaworld",)}
+#: eval engines beside the preset's own backend: engine -> the backends with a port to it
+ENGINE_PORTS = BENCHMARK_PORTS
 
 
 def check_engine(p: Preset, engine: str | None) -> None:

@@ -5,7 +5,9 @@
 worker processes. A policy with ``act_device(state)`` gets the batch's device arrays instead
 (``BatchedScene.device_observation()``, no host copy). ``make_vector_env`` picks it for scenes whose
 engine is ``mujoco_warp``, a sidecar batch (``SidecarBatchRollout``) for a benchmark whose backend
-simulates the environments together (ManiSkill3 on ``physx_cuda``), and the worker processes otherwise.
+simulates the environments together (ManiSkill3 on ``physx_cuda``), a benchmark's port to a batched engine
+(``engine: mujoco_warp`` with ``benchmark: {name: metaworld}``: ``MetaWorldBatchRollout``), and the worker
+processes otherwise.
 """
 
 from __future__ import annotations
@@ -50,6 +52,34 @@ class WarpVectorEnv(BatchVectorEnv):
         return super().run(policy, indices, **kwargs)
 
 
+#: batched engines that run a benchmark of their own: engine -> the benchmarks (backends) with a port to it
+BENCHMARK_PORTS: dict[str, tuple[str, ...]] = {"mujoco_warp": ("metaworld",)}
+
+
+def benchmark_on_batched_engine(cfg) -> bool:
+    """Whether the scene is a ``benchmark:`` on a batched engine (``engine: mujoco_warp`` with
+    ``benchmark: {name: metaworld, ...}``: its port, N worlds in this process); an engine with no port of
+    that benchmark is a one-line error."""
+    if cfg.benchmark is None or cfg.engine.name not in BENCHMARK_PORTS:
+        return False
+    if cfg.benchmark.name not in BENCHMARK_PORTS[cfg.engine.name]:
+        raise ConfigError(f"engine {cfg.engine.name}: benchmark {cfg.benchmark.name!r} has no {cfg.engine.name} "
+                          f"port; benchmarks with one: {', '.join(BENCHMARK_PORTS[cfg.engine.name])}")
+    return True
+
+
+def open_benchmark_batch(cfg, num_envs: int | None, *, privileged: bool = False, render_images: bool = True):
+    """The ``BatchRollout`` of a benchmark scene on its batched engine (Meta-World on MuJoCo Warp):
+    ``num_envs`` worlds (default the scene's ``engine.num_envs``, else 1) on ``engine.device``."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.runner.scene_config import benchmark_config
+
+    config = {**benchmark_config(cfg, render_images), "name": cfg.benchmark.name}
+    n = num_envs or cfg.engine.num_envs or 1
+    return MetaWorldBatchRollout.open({k: v for k, v in config.items() if k != "name"}, n, privileged=privileged,
+                                      device=cfg.engine.device)
+
+
 def batched_in_one_process(cfg, render_images: bool = True) -> bool:
     """Whether ``make_vector_env`` gives this scene's environments as one batch (MuJoCo Warp's worlds, a
     backend's own batch), stepped from this process, rather than as worker processes."""
@@ -58,6 +88,8 @@ def batched_in_one_process(cfg, render_images: bool = True) -> bool:
 
     if cfg.benchmark is None:
         return engine_info(cfg.engine.name).batched
+    if benchmark_on_batched_engine(cfg):
+        return True
     from simseam.runner.scene_config import benchmark_config
 
     native = getattr(backend_module(cfg.benchmark.name), "batches_natively", None)
@@ -77,6 +109,9 @@ def make_vector_env(cfg, base_dir: Path, num_envs: int, recipe_factory: Callable
     if cfg.benchmark is None:
         return WarpVectorEnv.from_config(cfg, base_dir, num_envs, privileged=privileged,
                                          render_images=render_images, seed=seed)
+    if benchmark_on_batched_engine(cfg):
+        return BatchVectorEnv(open_benchmark_batch(cfg, num_envs, privileged=privileged,
+                                                   render_images=render_images))
     from simseam.runner.scene_config import benchmark_config
     from simseam.sidecar.benchmark import open_benchmark
 

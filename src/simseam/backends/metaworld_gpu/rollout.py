@@ -89,6 +89,22 @@ class MetaWorldBatchRollout(SyncStepPair):
         self._success = np.zeros(num_envs, dtype=bool)
         self._failures: dict[int, EnvFailure] = {}
         self._closed = False
+        self._own_worker = False
+
+    @classmethod
+    def open(cls, config: dict[str, Any], num_envs: int, *, privileged: bool = False, device: str | None = None,
+             python: str | None = None) -> "MetaWorldBatchRollout":
+        """A batch with its own native worker (Meta-World's provisioned venv, or ``python``), closed with it."""
+        from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+        worker = NativeWorker(python)
+        try:
+            batch = cls(config, num_envs, worker, privileged=privileged, device=device)
+        except BaseException:
+            worker.close()
+            raise
+        batch._own_worker = True
+        return batch
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model
@@ -198,6 +214,8 @@ class MetaWorldBatchRollout(SyncStepPair):
         if not self._closed:
             self._closed = True
             self.world.close()
+            if self._own_worker:
+                self.worker.close()
 
     def _check_open(self) -> None:
         if self._closed:
