@@ -185,9 +185,5 @@ def register_task(cls: type[Task]) -> type[Task]:
     return registry.add(TASKS, cls.name, cls)
 
 
-def task_names() -> list[str]:
-    return sorted(TASKS)
-
-
 def get_task(name: str) -> type[Task]:
     return registry.load(TASKS, name, "task")
