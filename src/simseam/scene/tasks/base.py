@@ -167,8 +167,8 @@ class Task:
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
         """``evaluate_batch`` for the one world of ``scene`` (the CPU engine), as Python values."""
         ev = self.evaluate_batch(SceneState(scene, self.params))
-        return Evaluation(float(ev.reward[0]), bool(ev.success[0]),
-                          {k: v[0].item() for k, v in ev.diagnostics.items()})
+        return Evaluation(float(ev.reward.item()), bool(ev.success.item()),
+                          {k: v.item() for k, v in ev.diagnostics.items()})
 
 
 #: every task by name (simseam.registry: "module:Class", imported when asked for)
