@@ -167,8 +167,8 @@ class Task:
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
         """``evaluate_batch`` for the one world of ``scene`` (the CPU engine), as Python values."""
         ev = self.evaluate_batch(SceneState(scene, self.params))
-        return Evaluation(float(ev.reward[0]), bool(ev.success[0]),
-                          {k: v[0].item() for k, v in ev.diagnostics.items()})
+        return Evaluation(float(ev.reward.item()), bool(ev.success.item()),
+                          {k: v.item() for k, v in ev.diagnostics.items()})
 
 
 #: every task by name (simseam.registry: "module:Class", imported when asked for)
@@ -183,10 +183,6 @@ TASKS: dict[str, str | type[Task]] = {
 def register_task(cls: type[Task]) -> type[Task]:
     """Class decorator for a task defined outside this table: adds its row (under its ``name``)."""
     return registry.add(TASKS, cls.name, cls)
-
-
-def task_names() -> list[str]:
-    return sorted(TASKS)
 
 
 def get_task(name: str) -> type[Task]:

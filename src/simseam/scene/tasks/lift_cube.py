@@ -55,5 +55,5 @@ class LiftCube(Task):
         return BatchEvaluation(success, success, {
             "cube_height": height,
             "eef_to_cube": norm(xp, state.eef_position_world() - pos),  # m, tool frame to cube
-            "grasped": lifted & state.contacts("cube", "robot", where=lifted),  # contacts: only when lifted
+            "grasped": state.contacts("cube", "robot", where=lifted),  # asked only where lifted (False elsewhere)
         })

@@ -164,8 +164,7 @@ class BatchedScene:
     # ------------------------------------------------------------------------------------ construction
     def _make_buffers(self, host, mjm) -> None:
         n = self.num_envs
-        chain, ca = host.chain, host.chain.arrays
-        arm = host.arm
+        ca = host.chain.arrays
         spec, plan, layout = host.spec, host.plan, host.engine.layout
         self._nej = len(plan.joints)
         self._adim = adim = spec.action.dim
@@ -195,32 +194,29 @@ class BatchedScene:
         self._axes = wp.array(ca.axes.astype(np.float32), dtype=wp.vec3)
         self._prism = wp.array(ca.prismatic.astype(np.int32), dtype=int)
         self._tail = wp.mat44(*ca.tail.astype(np.float32).reshape(-1).tolist())
-        self._lower = wp.array(chain.lower.astype(np.float32), dtype=float)
-        self._upper = wp.array(chain.upper.astype(np.float32), dtype=float)
-        self._max_step = wp.array(np.minimum(arm.max_step, 1e6).astype(np.float32), dtype=float)
+        self._lower = wp.array(ca.lower.astype(np.float32), dtype=float)
+        self._upper = wp.array(ca.upper.astype(np.float32), dtype=float)
+        self._max_step = wp.array(np.minimum(plan.arm_max_step, 1e6).astype(np.float32), dtype=float)
         self._q_home = wp.array(self._home[plan.arm_idx], dtype=float)
-        g = host.gripper
-        self._grip_open = wp.array((g.open if g else np.zeros(0)).astype(np.float32), dtype=float)
-        self._grip_closed = wp.array((g.closed if g else np.zeros(0)).astype(np.float32), dtype=float)
+        self._grip_open = wp.array(plan.grip_open.astype(np.float32), dtype=float)
+        self._grip_closed = wp.array(plan.grip_closed.astype(np.float32), dtype=float)
         names = [s.name for s in spec.action.slots]
         self._grip_slot = names.index("grip") if "grip" in names else -1
-        self._arm_kernel = K.make_arm_kernel(chain.n, self._cartesian, chain.n > 6, bool(ca.prismatic.any()))
-        if self._cartesian:
-            self._max_t, self._max_r = float(arm.max_translation), float(arm.max_rotation)
-        else:
-            self._max_t = self._max_r = 0.0
+        n_chain = len(ca.q_index)
+        self._arm_kernel = K.make_arm_kernel(n_chain, self._cartesian, n_chain > 6, bool(ca.prismatic.any()))
+        self._max_t, self._max_r = plan.max_translation, plan.max_rotation
         # observation constants
         from simseam.scene.controllers.arm import REANCHOR_POS, REANCHOR_ROT, ROT_WEIGHT
 
         self._reanchor = (REANCHOR_POS, REANCHOR_ROT, ROT_WEIGHT)
         robot = host.robot
-        self._tool_body = int(mjm.body(robot.tool_parent).id)
+        self._tool_body = int(mjm.body(plan.tool_link).id)
         base_pos, base_rot = host.base_frame()
         self._tool_pos = wp.vec3(*plan.tool_pos.astype(np.float32).tolist())
         self._tool_rot = wp.mat33(*plan.tool_rot.astype(np.float32).reshape(-1).tolist())
         self._base_pos = wp.vec3(*base_pos.astype(np.float32).tolist())
         self._base_rot = wp.mat33(*base_rot.astype(np.float32).reshape(-1).tolist())
-        self._rot_reference = wp.vec4(*host.rot_reference.astype(np.float32).tolist())
+        self._rot_reference = wp.vec4(*plan.rot_reference.astype(np.float32).tolist())
         manifest = robot.joint_names
         qadr = np.zeros(len(manifest), dtype=np.int32)
         vadr = np.zeros(len(manifest), dtype=np.int32)
