@@ -131,3 +131,18 @@ def test_a_non_finite_world_ends_alone(worker):
     assert np.isfinite(np.array(env.obs)[0]).all()
     assert env.step(np.zeros((2, 4)))["errors"].tolist() == [False, False]  # reported once
     env.close()
+
+
+@pytest.mark.parametrize("task", ["door-open-v3", "plate-slide-v3", "hammer-v3"])
+def test_model_checks_of_a_few_more_tasks(worker, task):
+    """The model checks on tasks of other kinds (a hinged door, a puck flush on the table: the pair MuJoCo
+    4.0 keeps at zero distance, two objects); all 50: benchmarks/metaworld_model_checks.py."""
+    from simseam.backends.metaworld_gpu.model import check_model, compile_model
+
+    info = worker.call("describe", task=task)
+    (settled,) = worker.call("resets", task=task, variation="mt1", goal_seed=0, seeds=[0])
+    model, _ = compile_model(info)
+    report = check_model(model, info, settled)
+    assert report["worst"]["body_mass"] <= 1e-6
+    touching = report["contacts"]["touching_here_only"]
+    assert touching == ([[3, 37]] if task == "plate-slide-v3" else [])
