@@ -114,3 +114,24 @@ def test_benchmark_scene_with_no_port_is_one_line(tmp_path):
                                    "--out", str(tmp_path / "run")])
     assert res.exit_code != 0
     assert "benchmark 'pusht' has no mujoco_warp port; benchmarks with one: metaworld" in res.output
+
+
+def test_graph_option_leaves_the_cpu_device_path_unchanged():
+    """``graph=True`` (the default: CUDA graphs on a CUDA device) runs the launches directly on the CPU
+    device, and gives the same states bit for bit as ``graph=False`` over a few steps from two resets."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    actions = np.random.default_rng(4).uniform(-1, 1, size=(6, 2, 4)).astype(np.float32)
+    obs = {}
+    with NativeWorker() as worker:
+        for graph in (True, False):
+            batch = MetaWorldBatch(TASK, 2, worker, device="cpu", graph=graph)
+            assert batch.physics.graph is False
+            batch.reset([0, 1], [2, 9])
+            for a in actions:
+                batch.step(a)
+            assert batch.physics._graphs == {}
+            obs[graph] = np.array(batch.obs)
+            batch.close()
+    np.testing.assert_array_equal(obs[True], obs[False])

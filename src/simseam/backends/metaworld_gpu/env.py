@@ -39,7 +39,7 @@ class MetaWorldBatch:
     (float[N, 39] of ``xp``), ``state()`` (``MetaWorldState`` for the reward code)."""
 
     def __init__(self, task: str, num_worlds: int, worker: Any, *, engine: str = "mujoco_warp",
-                 device: str | None = None, variation: str = "mt1", goal_seed: int = 0):
+                 device: str | None = None, variation: str = "mt1", goal_seed: int = 0, graph: bool = True):
         if task not in OBJECTS:
             raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
         if engine not in ENGINES:
@@ -54,7 +54,7 @@ class MetaWorldBatch:
         if engine == "mujoco":
             self.physics = CpuPhysics(mjm, self.num_worlds)
         else:
-            self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]))
+            self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]), graph=graph)
         self.xp = xp = self.physics.xp
         n = self.num_worlds
         self.steps = np.zeros(n, dtype=np.int64)

@@ -8,6 +8,10 @@ Both: ``load(rows, states)`` puts native reset states into those worlds (model f
 the compiled values then changed as the reset changed them); ``control(mocap_pos, mocap_quat, ctrl)``;
 ``advance(n)`` = n ``mj_step`` then ``mj_forward`` (Meta-World's ``do_simulation`` then its ``mj_forward``);
 ``poses()`` -> ``state.Poses`` and ``contacts()`` -> ``state.Contacts`` as arrays of ``xp``.
+
+On a CUDA device ``WarpPhysics`` replays the control step's physics (``advance``) and the reset's forward
+as captured CUDA graphs (``graph=False``: launched one by one, as the CPU device always does); a reset
+scatters its rows into the device arrays in place (the graphs keep pointing at them).
 """
 
 from __future__ import annotations
@@ -91,7 +95,7 @@ class WarpPhysics:
     """N worlds on MuJoCo Warp (``device``: a Warp device name; default Warp's preferred one)."""
 
     def __init__(self, mjm: Any, num_worlds: int, device: str | None = None, batched: tuple[str, ...] = (),
-                 nconmax: int = 64, njmax: int = 256):
+                 nconmax: int = 64, njmax: int = 256, graph: bool = True):
         import mujoco
         import mujoco_warp as mjw
         import warp as wp
@@ -108,6 +112,10 @@ class WarpPhysics:
             self.m = mjw.put_model(mjm, batch_sizes={k: num_worlds for k in self.batched})
             self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else _cupy()
+        #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
+        self.graph = bool(graph) and self.device.is_cuda
+        self._graphs: dict[str, Any] = {}
+        self._ran: set[str] = set()
 
     def view(self, a: Any) -> Any:
         """A warp array as an ``xp`` array sharing its memory (NumPy on the CPU, CuPy on CUDA)."""
@@ -134,7 +142,25 @@ class WarpPhysics:
             view[idx] = xp.asarray(np.stack([np.asarray(s[key]).reshape(view.shape[1:]) for s in states]))
         self._xp_done()
         with self._wp.ScopedDevice(self.device):
-            self._mjw.forward(self.m, self.d)
+            self._launch("forward", lambda: self._mjw.forward(self.m, self.d))
+
+    def _launch(self, name: str, fn) -> None:
+        """Run ``fn`` (device launches only). With ``graph`` its first call runs directly (kernels compile
+        and load outside any capture), the second is captured as a CUDA graph, later ones replay it. The
+        resets write the same arrays in place, so a captured graph stays valid."""
+        if not self.graph:
+            fn()
+            return
+        graph = self._graphs.get(name)
+        if graph is None:
+            if name not in self._ran:
+                self._ran.add(name)
+                fn()
+                return
+            with self._wp.ScopedCapture(device=self.device) as cap:
+                fn()
+            self._graphs[name] = graph = cap.graph
+        self._wp.capture_launch(graph)
 
     def _xp_done(self) -> None:
         """Wait for what CuPy wrote into the device arrays before Warp reads them (CuPy's stream)."""
@@ -149,10 +175,13 @@ class WarpPhysics:
     def advance(self, substeps: int) -> None:
         self._xp_done()
         with self._wp.ScopedDevice(self.device):
-            for _ in range(substeps):
-                self._mjw.step(self.m, self.d)
-            self._mjw.forward(self.m, self.d)
+            self._launch(f"advance{substeps}", lambda: self._advance(substeps))
             self._wp.synchronize_device(self.device)
+
+    def _advance(self, substeps: int) -> None:
+        for _ in range(substeps):
+            self._mjw.step(self.m, self.d)
+        self._mjw.forward(self.m, self.d)
 
     def mocap_pos(self) -> Any:
         return self.view(self.d.mocap_pos).copy()
@@ -175,6 +204,7 @@ class WarpPhysics:
 
     def close(self) -> None:
         self.m = self.d = None
+        self._graphs.clear()
 
 
 def _cupy():
