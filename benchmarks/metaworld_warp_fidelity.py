@@ -10,9 +10,9 @@ Per task and seed (MT1 variation ``seed % 50``, as ``simseam eval metaworld_*``)
   CPU MuJoCo 4.0; per step, the largest gap of the 39-D observation: Warp vs CPU (engine) and CPU vs native
   (version); median and worst over steps and seeds.
 
-Success on Warp and CPU needs the batched reward / success code (``backends/metaworld_gpu/rewards.py``,
-``evaluate(state) -> BatchEvaluation``); until it exists those success fields are null and the entry says
-so. McNemar's exact test per task on the paired successes (Warp vs CPU; CPU vs native), Holm's correction
+Success on Warp and CPU is Meta-World's rule written once over the batched state
+(``backends/metaworld_gpu/rewards.py``, called by ``MetaWorldBatch.step``), at any step, with the expert's
+actions cast to float32 as ``simseam eval`` passes them. McNemar's exact test per task on the paired successes (Warp vs CPU; CPU vs native), Holm's correction
 across tasks. Prints a table; writes ``benchmarks/results/metaworld_warp_fidelity.json`` (one entry per
 task under ``tasks``); an existing file is kept unless ``--overwrite``.
 
@@ -55,29 +55,18 @@ def holm(pvalues: dict[str, float]) -> dict[str, float]:
     return out
 
 
-def _evaluator():
-    try:
-        from simseam.backends.metaworld_gpu import rewards
-    except ImportError:
-        return None
-    return getattr(rewards, "evaluate", None)
-
-
-def closed_loop(worker, task: str, engine: str, seeds: list[int], steps: int, device: str | None) -> list[Any]:
-    """The expert driving ``engine``; per seed: success at any step, or None without reward code."""
+def closed_loop(worker, task: str, engine: str, seeds: list[int], steps: int, device: str | None) -> list[bool]:
+    """The expert driving ``engine``; per seed: success at any step (Meta-World's batched rule)."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
-    evaluate = _evaluator()
     env = MetaWorldBatch(task, len(seeds), worker, engine=engine, device=device)
     env.reset(list(range(len(seeds))), seeds)
     success = np.zeros(len(seeds), dtype=bool)
     for _ in range(steps):
         actions = worker.call("expert", task=task, obs=np.asarray(_host(env.obs), dtype=np.float64))
-        env.step(actions)
-        if evaluate is not None:
-            success |= np.asarray(_host(evaluate(env.state()).success), dtype=bool)
+        success |= env.step(np.asarray(actions, dtype=np.float32))["success"]
     env.close()
-    return success.tolist() if evaluate is not None else [None] * len(seeds)
+    return success.tolist()
 
 
 def open_loop(worker, task: str, engine: str, seeds: list[int], actions: np.ndarray, device: str | None) -> np.ndarray:
@@ -150,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         for task in tasks:
             results[task] = one_task(worker, task, seeds, args.steps, args.device)
             r = results[task]
-            print(f"{task:28s} native {sum(r['native_success'])}/{len(seeds)}  "
+            print(f"{task:28s} success native {sum(r['native_success'])} cpu {sum(r['cpu_success'])} "
+                  f"warp {sum(r['warp_success'])} /{len(seeds)}  "
                   f"engine gap med {r['engine_gap']['median']:.1e} worst {r['engine_gap']['worst']:.1e}  "
                   f"version gap med {r['version_gap']['median']:.1e} worst {r['version_gap']['worst']:.1e}  "
                   f"({r['seconds']} s)", flush=True)
