@@ -5,13 +5,16 @@ Run with the metaworld backend venv's interpreter (it imports numpy, metaworld a
 functions, like the backend itself)::
 
     <metaworld venv>/bin/python -m simseam.backends.metaworld_gpu.record OUT_DIR --tasks reach-v3,push-v3 \\
-        --seeds 0,1,2 --max-steps 150
+        --seeds 0,1,2 --max-steps 150      # or --tasks all [--shard 0/2]: the 50 MT50 tasks
 
-For each task it writes ``OUT_DIR/<task>.npz``: one row per judged state, of three kinds (``kind``):
+(it needs nothing of simseam, so ``python .../record.py`` runs it as well).
 
-- ``EXPERT`` (0): the scripted expert's rollout (``metaworld.policies``; MT1 variation ``seed % 50`` and
-  ``env.seed(seed)``, as ``simseam.backends.metaworld`` resets), each ``env.step``'s state, reward and
-  info, until ``--after-success`` steps past the first success or ``--max-steps``;
+For each task it writes ``OUT_DIR/<task>.npz`` (and ``OUT_DIR/mt50.json``, Meta-World's list of the 50):
+one row per judged state, of three kinds (``kind``):
+
+- ``EXPERT`` (0): the scripted expert's rollout (``metaworld.policies``) from the reset of ``seed`` (drawn
+  from the task's reset distribution, see ``make_env``), each ``env.step``'s state, reward and info,
+  until ``--after-success`` steps past the first success or ``--max-steps``;
 - ``RANDOM`` (1): uniform random actions from the same reset, through ``env.step``;
 - ``CRAFTED`` (2): states of the expert's rollout with the task's object joints moved (a free object
   also set down at its goal, near it, or away from it), a random action, judged by
@@ -107,10 +110,29 @@ class Rows:
         return out
 
 
-def reset(env, bench, seed: int, mujoco):
-    """The backend's reset for episode ``seed`` (MT1 variation ``seed % 50``, fresh MuJoCo data)."""
+def make_env(name: str):
+    """The task's env as MT1 / MT50 set it up (goal observed), each reset drawn from the task's own reset
+    distribution with the episode's seed (Meta-World's ``seeded_rand_vec`` path; ``variation: sampled`` in
+    ``simseam.backends.metaworld``): no ``metaworld.MT1``, whose 50 fixed variations cost 50 resets to make."""
+    import pickle
+
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+    from metaworld.types import Task
+
+    cls = ALL_V3_ENVIRONMENTS[name]
+    env = cls()
+    placeholder = env._random_reset_space.low  # replaced by every reset's own draw (below)
+    env.set_task(Task(env_name=name, data=pickle.dumps({"env_cls": cls, "rand_vec": placeholder,
+                                                        "partially_observable": False})))
+    env._freeze_rand_vec = False
+    env.seeded_rand_vec = True
+    env.max_path_length = 10**9
+    return env
+
+
+def reset(env, seed: int, mujoco):
+    """Episode ``seed``: fresh MuJoCo data, ``env.seed(seed)``, ``reset`` (deterministic per seed)."""
     mujoco.mj_resetData(env.model, env.data)
-    env.set_task(bench.train_tasks[seed % len(bench.train_tasks)])
     env.seed(seed)
     obs, _ = env.reset()
     return obs
@@ -195,24 +217,21 @@ def record_task(name: str, seeds: list[int], max_steps: int, after_success: int,
                 crafted: int) -> dict:
     import warnings
 
-    import metaworld
     import mujoco
     import numpy as np
     from metaworld.policies import ENV_POLICY_MAP
 
     warnings.filterwarnings("ignore", message="Constant\\(s\\) may be too high")
-    bench = metaworld.MT1(name, seed=0)
-    env = bench.train_classes[name]()
-    env.max_path_length = 10**9
+    env = make_env(name)
     names = model_names(env.model)
     rows, resets = Rows(np), []
     for episode, seed in enumerate(seeds):
         rng = np.random.default_rng(seed)
-        obs = reset(env, bench, seed, mujoco)
+        obs = reset(env, seed, mujoco)
         resets.append(params_of(env, np))
         states = expert_rollout(env, ENV_POLICY_MAP[name](), obs, rows, episode, max_steps, after_success, np)
         crafted_states(env, states, rows, episode, crafted, rng, names, mujoco, np)
-        obs = reset(env, bench, seed, mujoco)
+        obs = reset(env, seed, mujoco)
         random_rollout(env, obs, rows, episode, random_steps, rng, np)
     out = rows.arrays()
     out.update({f"reset:{k}": np.stack([r[k] for r in resets]) for k in resets[0]})
@@ -221,12 +240,26 @@ def record_task(name: str, seeds: list[int], max_steps: int, after_success: int,
     return out
 
 
+def task_list(spec: str, shard: str) -> list[str]:
+    """``all`` (Meta-World's MT50 names) or a comma-separated list; ``shard`` ``i/n`` keeps every n-th from i."""
+    import metaworld
+
+    names = list(metaworld.MT1.ENV_NAMES) if spec == "all" else spec.split(",")
+    unknown = [n for n in names if n not in metaworld.MT1.ENV_NAMES]
+    if unknown:
+        raise SystemExit(f"record: unknown Meta-World task(s) {unknown}; known: {', '.join(metaworld.MT1.ENV_NAMES)}")
+    i, n = (int(x) for x in shard.split("/"))
+    return names[i::n]
+
+
 def main(argv: list[str] | None = None) -> int:
+    import metaworld
     import numpy as np
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("out", type=Path)
-    p.add_argument("--tasks", required=True, help="comma-separated Meta-World v3 env names")
+    p.add_argument("--tasks", default="all", help="comma-separated Meta-World v3 env names, or all (MT50)")
+    p.add_argument("--shard", default="0/1", help="i/n: record every n-th task from the i-th (parallel runs)")
     p.add_argument("--seeds", default="0,1,2")
     p.add_argument("--max-steps", type=int, default=150)
     p.add_argument("--after-success", type=int, default=5)
@@ -234,12 +267,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--crafted", type=int, default=12)
     a = p.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "mt50.json").write_text(json.dumps(list(metaworld.MT1.ENV_NAMES)))
     seeds = [int(s) for s in a.seeds.split(",")]
-    for task in a.tasks.split(","):
+    for task in task_list(a.tasks, a.shard):
         arrays = record_task(task, seeds, a.max_steps, a.after_success, a.random_steps, a.crafted)
         tmp = a.out / f".{task}.npz"
         np.savez(tmp, **arrays)
-        tmp.replace(a.out / f"{task}.npz")
+        tmp.replace(a.out / f"{task}.npz")  # a finished task's file appears whole, never half-written
         print(task, len(arrays["reward"]), flush=True)
     return 0
 

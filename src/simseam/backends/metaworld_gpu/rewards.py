@@ -486,7 +486,8 @@ def door_open(state) -> BatchEvaluation:
     above = xp.where(hand[:, 2] >= floor, 1, tolerance(xp, floor - hand[:, 2], 0.0, 0.01, floor / 2.0))
     handle = norm(xp, hand - door - vec(xp, obj, [0.05, 0.03, -0.01]))
     ready = hamacher(xp, above, tolerance(xp, handle, 0, 0.12 / 2.0, 0.5))
-    opened = 0.2 * (theta < -pi / 90.0).astype(obj.dtype) + 0.8 * tolerance(xp, pi / 2.0 + pi / 6 - (-theta), 0, 0.5, pi / 3.0)
+    swung = (theta < -pi / 90.0).astype(obj.dtype)
+    opened = 0.2 * swung + 0.8 * tolerance(xp, pi / 2.0 + pi / 6 - (-theta), 0, 0.5, pi / 3.0)
     reward = 2.0 * hamacher(xp, ready, grab) + 8.0 * opened
     success = xp.abs(obj[:, 0] - _p(state, "_target_pos")[:, 0]) <= 0.08
     reward = xp.where(success, 10.0, reward)
