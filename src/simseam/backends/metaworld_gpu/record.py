@@ -18,7 +18,8 @@ one row per judged state, of three kinds (``kind``):
 - ``RANDOM`` (1): uniform random actions from the same reset, through ``env.step``;
 - ``CRAFTED`` (2): states of the expert's rollout with the task's object joints moved (a free object
   also set down at its goal, near it, or away from it), a random action, judged by
-  ``env.evaluate_state`` on the clipped observation, as ``env.step`` judges.
+  ``env.evaluate_state`` on the clipped observation, as ``env.step`` judges; and, for a task with a free
+  object, that object put between the open fingers after a reset, then steps closing and lifting.
 
 Each row holds the observation as judged (``obs``), the action (``action``, stored as float64; it was
 passed as float32, as the seam sends it, where ``action_float32``: the odd episodes), ``reward``, the
@@ -26,7 +27,8 @@ info dict (``info:<key>``), MuJoCo's arrays after that state's ``mj_forward``
 (``qpos``, ``qvel``, ``xpos``, ``xquat``, ``site_xpos``, ``geom_xpos``), the active contacts (flat:
 ``contact_geom`` [C, 2], ``contact_force`` [C] = ``efc_force[efc_address]`` read as Meta-World reads it,
 ``contact_row`` [C]) and the env's reset attributes as they stood when judged (``param:<name>``;
-``None`` is NaN); ``reset:<name>`` keeps each episode's attributes right after ``reset``. ``names``
+``None`` is NaN), ``touching_main`` (``env.touching_main_object``, NaN where the task has no main object
+geom); ``reset:<name>`` keeps each episode's attributes right after ``reset``. ``names``
 (JSON) maps body, site, geom and joint names to indices.
 """
 
@@ -45,7 +47,8 @@ PARAM_NAMES = ("_target_pos", "obj_init_pos", "init_tcp", "init_left_pad", "init
                "_target_to_obj_init", "_obj_to_target_init", "dial_push_position", "_handle_init_pos",
                "_lever_pos_init", "peg_head_pos_init", "stick_init_pos", "window_handle_pos_init",
                "_last_rand_vec")
-ARM_QPOS = 9  # 7 arm joints and 2 fingers come first in every Meta-World model
+ROBOT_JOINTS = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "right_j5", "right_j6", "r_close",
+                "l_close")
 
 
 def model_names(model) -> dict:
@@ -79,6 +82,15 @@ def contacts_of(data, np) -> tuple:
     return geom, force
 
 
+def touching_main(env, np) -> float:
+    """``env.touching_main_object`` (1.0 / 0.0), NaN where the task names no main object geom."""
+    try:
+        geom = env._get_id_main_object()
+    except Exception:  # a task whose default main object (objGeom) its model lacks
+        return np.nan
+    return np.nan if geom is None else float(env.touching_object(geom))
+
+
 class Rows:
     """The rows of one task, gathered as lists and stacked at the end."""
 
@@ -95,6 +107,7 @@ class Rows:
                "qpos": np.array(d.qpos), "qvel": np.array(d.qvel), "xpos": np.array(d.xpos),
                "xquat": np.array(d.xquat), "site_xpos": np.array(d.site_xpos), "geom_xpos": np.array(d.geom_xpos)}
         row.update({f"info:{k}": float(info[k]) for k in INFO_KEYS})
+        row["touching_main"] = touching_main(env, np)
         row.update({f"param:{k}": v for k, v in params_of(env, np).items()})
         for k, v in row.items():
             self.cols.setdefault(k, []).append(v)
@@ -168,12 +181,14 @@ def random_rollout(env, obs, rows, episode: int, steps: int, rng, np) -> None:
         rows.add(env, RANDOM, episode, t, obs, action, reward, info)
 
 
-def object_dofs(names: dict) -> tuple[list, list]:
-    """qpos addresses past the arm: (free joints' position addresses, hinge and slide addresses)."""
+def object_dofs(model) -> tuple[list, list]:
+    """qpos addresses of the joints that are not the Sawyer's (some are unnamed, and a model may put them
+    before the arm): (free joints' position addresses, hinge and slide addresses)."""
     free, scalar = [], []
-    for adr, _dof, jtype in names["joint"].values():
-        if adr < ARM_QPOS:
+    for j in range(model.njnt):
+        if model.joint(j).name in ROBOT_JOINTS:
             continue
+        adr, jtype = int(model.jnt_qposadr[j]), int(model.jnt_type[j])
         if jtype == 0:
             free.append(adr)
         elif jtype in (2, 3):
@@ -188,9 +203,9 @@ def judge_state(env, mujoco, np):
     return np.clip(env._get_obs(), space.low, space.high)
 
 
-def crafted_states(env, states, rows, episode: int, count: int, rng, names, mujoco, np) -> None:
+def crafted_states(env, states, rows, episode: int, count: int, rng, mujoco, np) -> None:
     """Expert states with the object joints moved; a free object sometimes set at (or near) the goal."""
-    free, scalar = object_dofs(names)
+    free, scalar = object_dofs(env.model)
     picks = np.linspace(0, len(states) - 1, count).round().astype(int) if states else []
     for k, i in enumerate(picks):
         qpos, qvel, mpos, mquat = (a.copy() for a in states[i])
@@ -213,8 +228,25 @@ def crafted_states(env, states, rows, episode: int, count: int, rng, names, mujo
         rows.add(env, CRAFTED, episode, int(i), obs, action, reward, info)
 
 
+def grasp_steps(env, rows, episode: int, steps: int, mujoco, np) -> None:
+    """From a fresh reset, a free object moved between the open fingers (its observed position onto the
+    tool centre), then ``steps`` steps closing the gripper and lifting: grasped states, judged by ``step``."""
+    free, _ = object_dofs(env.model)
+    if not free:
+        return
+    adr = free[0]
+    shift = np.asarray(env.tcp_center) - np.array(env._get_obs()[4:7])
+    env.data.qpos[adr:adr + 3] += shift
+    env.data.qvel[:] = 0
+    mujoco.mj_forward(env.model, env.data)
+    for t in range(steps):
+        action = np.array([0.0, 0.0, 0.0 if t < steps // 2 else 1.0, 1.0]).astype(action_dtype(episode, np))
+        obs, reward, _, _, info = env.step(action)
+        rows.add(env, CRAFTED, episode, t, obs, action, reward, info)
+
+
 def record_task(name: str, seeds: list[int], max_steps: int, after_success: int, random_steps: int,
-                crafted: int) -> dict:
+                crafted: int, grasp: int) -> dict:
     import warnings
 
     import mujoco
@@ -230,9 +262,11 @@ def record_task(name: str, seeds: list[int], max_steps: int, after_success: int,
         obs = reset(env, seed, mujoco)
         resets.append(params_of(env, np))
         states = expert_rollout(env, ENV_POLICY_MAP[name](), obs, rows, episode, max_steps, after_success, np)
-        crafted_states(env, states, rows, episode, crafted, rng, names, mujoco, np)
+        crafted_states(env, states, rows, episode, crafted, rng, mujoco, np)
         obs = reset(env, seed, mujoco)
         random_rollout(env, obs, rows, episode, random_steps, rng, np)
+        reset(env, seed, mujoco)
+        grasp_steps(env, rows, episode, grasp, mujoco, np)
     out = rows.arrays()
     out.update({f"reset:{k}": np.stack([r[k] for r in resets]) for k in resets[0]})
     out["seeds"] = np.asarray(seeds)
@@ -265,12 +299,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--after-success", type=int, default=5)
     p.add_argument("--random-steps", type=int, default=15)
     p.add_argument("--crafted", type=int, default=12)
+    p.add_argument("--grasp-steps", type=int, default=10)
     a = p.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "mt50.json").write_text(json.dumps(list(metaworld.MT1.ENV_NAMES)))
     seeds = [int(s) for s in a.seeds.split(",")]
     for task in task_list(a.tasks, a.shard):
-        arrays = record_task(task, seeds, a.max_steps, a.after_success, a.random_steps, a.crafted)
+        arrays = record_task(task, seeds, a.max_steps, a.after_success, a.random_steps, a.crafted,
+                             a.grasp_steps)
         tmp = a.out / f".{task}.npz"
         np.savez(tmp, **arrays)
         tmp.replace(a.out / f"{task}.npz")  # a finished task's file appears whole, never half-written
