@@ -21,6 +21,7 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ import pytest
 from backend_util import backend_python
 from metaworld_replay import INFO_KEYS, Recording
 
-from simseam.backends.metaworld_gpu import record
+from simseam.backends.metaworld_gpu import record, reward_utils
 from simseam.backends.metaworld_gpu.rewards import GRASPED_GEOM, TASK_PARAMS, TASK_REWARDS, evaluate
 
 pytestmark = pytest.mark.backends
@@ -38,8 +39,18 @@ FLAGS = ("success", "near_object", "grasp_success")  # flags in most tasks (a fe
 SEEDS = "0,1,2"  # 0 and 2 step with float64 actions, 1 with float32 ones
 
 
+@dataclass
+class Recorded:
+    names: list[str]  # Meta-World's MT50 env names
+    tasks: dict[str, Recording]
+    shaping: dict[str, np.ndarray]  # Meta-World's own shaping terms on a grid (record.shaping_reference)
+
+    def __getitem__(self, task: str) -> Recording:
+        return self.tasks[task]
+
+
 @pytest.fixture(scope="module")
-def recordings(tmp_path_factory) -> dict[str, Recording]:
+def recordings(tmp_path_factory) -> Recorded:
     """All 50 tasks recorded natively, in two recorder processes (the metaworld venv's interpreter)."""
     out = tmp_path_factory.mktemp("metaworld_rewards")
     python = backend_python("metaworld")
@@ -61,7 +72,9 @@ def recordings(tmp_path_factory) -> dict[str, Recording]:
                 proc.kill()
                 proc.wait()
     names = json.loads((out / "mt50.json").read_text())
-    return {"__names__": names, **{n: Recording(out / f"{n}.npz") for n in names}}
+    with np.load(out / "shaping.npz") as z:
+        shaping = {k: z[k] for k in z.files}
+    return Recorded(names, {n: Recording(out / f"{n}.npz") for n in names}, shaping)
 
 
 def _check(rec: Recording, ev, rows, tol_f64: float, tol_f32a: float, where: str) -> None:
@@ -87,13 +100,32 @@ def _check(rec: Recording, ev, rows, tol_f64: float, tol_f32a: float, where: str
 
 
 def test_every_mt50_task_has_a_rule_and_reads_only_what_reset_records(recordings):
-    names = recordings["__names__"]
+    names = recordings.names
     assert sorted(TASK_REWARDS) == sorted(names) and len(names) == 50
     for name in names:
         rec = recordings[name]
         assert set(TASK_PARAMS[name]) <= set(rec.param_names()), name
         kinds = np.bincount(rec["kind"], minlength=3)
         assert (kinds > 0).all(), f"{name}: rows of each kind (expert, random, crafted): {kinds}"
+
+
+def test_shaping_terms_are_metaworlds(recordings):
+    """tolerance (long_tail and gaussian; one margin for all worlds and one per world; a zero margin),
+    the Hamacher product (zeros included) and the rect-prism term (either corner order), against Meta-World's
+    reward_utils: equal, but for a few gaussian tails below 1e-280 (the last bits of an underflowing exp)."""
+    ref, x = recordings.shaping, recordings.shaping["tol_x"]
+    for kind in reward_utils.SIGMOIDS:
+        for i, (lo, hi) in enumerate(record.SHAPING_BOUNDS):
+            for j, margin in enumerate(record.SHAPING_MARGINS):
+                for m in (margin, np.full_like(x, margin)):
+                    mine = reward_utils.tolerance(np, x, lo, hi, m, kind)
+                    np.testing.assert_allclose(mine, ref[f"tol:{kind}"][i, j], rtol=1e-15, atol=1e-250,
+                                               err_msg=f"{kind} bounds {(lo, hi)} margin {margin}")
+    ab = ref["ham_ab"]
+    np.testing.assert_array_equal(reward_utils.hamacher(np, ab[:, 0], ab[:, 1]), ref["ham"])
+    rect = reward_utils.rect_prism(np, ref["rect_curr"], ref["rect_zero"], ref["rect_one"])
+    np.testing.assert_array_equal(rect, ref["rect"])
+    assert 50 < (ref["rect"] != 1).sum() < 200  # points inside and outside the boxes
 
 
 @pytest.mark.parametrize("task", sorted(TASK_REWARDS))

@@ -9,8 +9,9 @@ functions, like the backend itself)::
 
 (it needs nothing of simseam, so ``python .../record.py`` runs it as well).
 
-For each task it writes ``OUT_DIR/<task>.npz`` (and ``OUT_DIR/mt50.json``, Meta-World's list of the 50):
-one row per judged state, of three kinds (``kind``):
+It writes ``OUT_DIR/mt50.json`` (Meta-World's list of the 50), ``OUT_DIR/shaping.npz`` (Meta-World's own
+shaping terms on a grid, ``shaping_reference``) and, for each task, ``OUT_DIR/<task>.npz``: one row per
+judged state, of three kinds (``kind``):
 
 - ``EXPERT`` (0): the scripted expert's rollout (``metaworld.policies``) from the reset of ``seed`` (drawn
   from the task's reset distribution, see ``make_env``), each ``env.step``'s state, reward and info,
@@ -274,6 +275,35 @@ def record_task(name: str, seeds: list[int], max_steps: int, after_success: int,
     return out
 
 
+#: the inputs ``shaping_reference`` evaluates Meta-World's shaping terms on
+SHAPING_BOUNDS = ((0.0, 0.0), (0.0, 0.05), (0.015, 0.05), (-0.1, 0.1))
+SHAPING_MARGINS = (0.0, 0.01, 0.3)
+
+
+def shaping_reference() -> dict:
+    """Meta-World's own ``tolerance`` (both sigmoids it uses, every bound and margin above, x on a grid that
+    holds the bounds), ``hamacher_product`` (a, b on an 11 x 11 grid of [0, 1]) and ``rect_prism_tolerance``
+    (points in and out of boxes given in either corner order), for checking ``reward_utils``."""
+    import numpy as np
+    from metaworld.utils import reward_utils as ru
+
+    x = np.unique(np.concatenate([np.linspace(-0.2, 0.3, 101), np.ravel(SHAPING_BOUNDS)]))
+    out = {"tol_x": x}
+    for kind in ("long_tail", "gaussian"):
+        out[f"tol:{kind}"] = np.array([[[ru.tolerance(float(v), bounds=b, margin=m, sigmoid=kind) for v in x]
+                                        for m in SHAPING_MARGINS] for b in SHAPING_BOUNDS])
+    grid = np.linspace(0.0, 1.0, 11)
+    out["ham_ab"] = np.stack(np.meshgrid(grid, grid, indexing="ij"), axis=-1).reshape(-1, 2)
+    out["ham"] = np.array([ru.hamacher_product(float(a), float(b)) for a, b in out["ham_ab"]])
+    rng = np.random.default_rng(0)
+    zero, one = rng.uniform(-0.1, 0.1, (200, 3)), rng.uniform(-0.1, 0.1, (200, 3))
+    curr = np.where(rng.uniform(size=(200, 1)) < 0.5, zero + rng.uniform(0, 1, (200, 3)) * (one - zero),
+                    rng.uniform(-0.1, 0.1, (200, 3)))
+    out.update(rect_curr=curr, rect_zero=zero, rect_one=one,
+               rect=np.array([ru.rect_prism_tolerance(c, z, o) for c, z, o in zip(curr, zero, one)]))
+    return out
+
+
 def task_list(spec: str, shard: str) -> list[str]:
     """``all`` (Meta-World's MT50 names) or a comma-separated list; ``shard`` ``i/n`` keeps every n-th from i."""
     import metaworld
@@ -303,6 +333,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "mt50.json").write_text(json.dumps(list(metaworld.MT1.ENV_NAMES)))
+    np.savez(a.out / "shaping.npz", **shaping_reference())
     seeds = [int(s) for s in a.seeds.split(",")]
     for task in task_list(a.tasks, a.shard):
         arrays = record_task(task, seeds, a.max_steps, a.after_success, a.random_steps, a.crafted,
