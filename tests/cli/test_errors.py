@@ -133,3 +133,17 @@ def test_a_device_that_is_no_torch_device_is_named(tmp_path):
     with pytest.raises(ConfigError, match=r"--device 'gpu0': not a torch device \(cpu, cuda, cuda:N, mps\)"):
         pick_device("gpu0")
     assert pick_device("cpu") == "cpu"
+
+
+def test_an_empty_out_is_refused_before_anything_is_written(tmp_path):
+    """``--out ""`` would be the current directory: a run, a dataset or a checkpoint among whatever is there
+    (catches: a run's files written into the working directory)."""
+    for args in (("run", "--scene", "scenes/franka_lift.yaml", "--episodes", "1", "--out", ""),
+                 ("run", "--scene", "scenes/franka_lift.yaml", "--out", tmp_path / "r", "--record-dataset", ""),
+                 ("eval", "metaworld_mt10", "--policy", "zero", "--out", ""),
+                 ("collect", "--scene", "scenes/franka_lift.yaml", "--out", ""),
+                 ("merge", "--out", "", tmp_path), ("train", "--dataset", tmp_path, "--out", ""),
+                 ("report", tmp_path, "--out", "")):
+        flag = "--record-dataset" if "--record-dataset" in args else "--out"
+        _one_line_error(_simseam(*args, cwd=tmp_path), f"{flag} '': an empty path")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -152,15 +152,41 @@ def test_where_the_page_goes_and_nothing_is_replaced_silently(tmp_path):
     with pytest.raises(ConfigError, match="2 runs on one page need --out FILE"):
         write_report([a, b])
     assert write_report([a]) == a / "report.html"
-    (a / "report.html").write_text("mine")
-    with pytest.raises(ConfigError, match="report.html already exists; pass --overwrite"):
+    with pytest.raises(ConfigError, match="report.html already exists \\(an earlier results page\\); pass --overwrite"):
         write_report([a])
-    assert (a / "report.html").read_text() == "mine"
     assert "<svg" in write_report([a], overwrite=True).read_text()
     with pytest.raises(ConfigError, match="is not a directory"):
         write_report([a, b], tmp_path / "nowhere" / "page.html")
     assert write_report([a, b], tmp_path / "both.html").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "both.html"]  # no temp file left
+
+
+def test_overwrite_replaces_an_earlier_page_and_nothing_else(tmp_path):
+    """--out names a run's episode log, a README, a page the user edited into something else: never replaced,
+    --overwrite or not, and the error does not suggest --overwrite (catches: the log replaced by the page)."""
+    a = make_run(tmp_path / "a", [episode(0, True), episode(1, False)])
+    log = (a / "episodes.jsonl").read_bytes()
+    readme = tmp_path / "README.md"
+    readme.write_text("# mine\n")
+    (a / "report.html").write_text("<html>my own notes</html>")
+    for target in (a / "episodes.jsonl", a / "run.json", readme, a / "report.html"):
+        before = target.read_bytes()
+        for overwrite in (False, True):
+            with pytest.raises(ConfigError) as info:
+                write_report([a], target, overwrite=overwrite)
+            assert str(target) in str(info.value) and "--overwrite to" not in str(info.value)
+            assert target.read_bytes() == before
+    assert (a / "episodes.jsonl").read_bytes() == log
+    with pytest.raises(ConfigError, match="summary.json is a run's own file"):  # not there yet, still a run file
+        write_report([a], tmp_path / "summary.json")
+    page = write_report([a], tmp_path / "page.html")
+    first = page.read_text()
+    assert write_report([a], page, overwrite=True) == page and page.read_text().startswith(first[:60])
+    link = tmp_path / "link.html"
+    link.symlink_to(readme)
+    with pytest.raises(ConfigError, match="not a simseam results page"):
+        write_report([a], link, overwrite=True)
+    assert readme.read_text() == "# mine\n"
 
 
 def test_a_run_replaced_with_overwrite_takes_its_old_page_with_it(tmp_path):

@@ -34,6 +34,22 @@ def check_seed(seed: int) -> None:
         fail(ConfigError(f"--seed {seed}: seeds are integers from 0 to {MAX_SEED} (episode i uses seed + i)"))
 
 
+def out_path(flag: str = "--out"):
+    """The parser of an output option (``--out``, ``--record-dataset``): a path, never the empty string, which
+    would otherwise be the current directory (a run, a dataset or a page written among whatever is there)."""
+    from pathlib import Path
+
+    def parse(value) -> Path:
+        if isinstance(value, Path):
+            return value
+        if not str(value).strip():
+            fail(ConfigError(f"{flag} {str(value)!r}: an empty path; name the directory or file to write "
+                             f"({flag} . for the current directory)"))
+        return Path(value)
+
+    return parse
+
+
 POLICY_GROUPS_HELP = ("Step the --num-envs workers in lockstep from this process, the policy acting for one of K "
                       "groups of workers while the others step (pipelined lockstep; 1..--num-envs, default 1: "
                       "plain lockstep for lerobot:/remote: policies, others run inside each worker). Results do "

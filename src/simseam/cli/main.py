@@ -15,8 +15,8 @@ from rich.table import Table
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
                                 check_lockstep, check_seed, close_policy,
-                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted,
-                                sigterm_as_interrupt, SpecProbe)
+                                console, episodes_guard, err_console, fail, never_started, out_path, policy_kwargs,
+                                redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -100,13 +100,13 @@ def run(
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Number of episodes."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
-    out: Path = typer.Option(None, "--out", help="Output directory (run.json, episodes.jsonl, summary.json, "
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH", help="Output directory (run.json, episodes.jsonl, summary.json, "
                              "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out (and the dataset in --record-dataset)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config): skip the "
                                 "episodes it already recorded."),
     video: bool = typer.Option(False, "--video/--no-video", help="Write one MP4 per episode (first RGB camera)."),
-    record_dataset: Path = typer.Option(None, "--record-dataset", help="Also record the episodes as a new "
+    record_dataset: Path = typer.Option(None, "--record-dataset", parser=out_path("--record-dataset"), metavar="PATH", help="Also record the episodes as a new "
                                         "LeRobot dataset in this directory."),
     keep_failures: bool = typer.Option(True, "--keep-failures/--successes-only",
                                        help="With --record-dataset: record failed episodes too."),
@@ -396,7 +396,7 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
 
 @app.command()
 def merge(
-    out: Path = typer.Option(..., "--out", help="New run directory for the merged run."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="New run directory for the merged run."),
     runs: list[Path] = typer.Argument(..., help="Run directories to merge (e.g. the K shards of --shard i/K)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a run already in --out."),
     prefer_first: bool = typer.Option(False, "--prefer-first", help="An episode recorded with different results "
@@ -430,7 +430,7 @@ def collect(
     scene: Path = typer.Option(..., "--scene", help="Scene YAML."),
     policy: str = typer.Option("scripted", "--policy", help="Policy spec (default: the scripted expert)."),
     episodes: int = typer.Option(50, "--episodes", min=1, help="Episodes to run."),
-    out: Path = typer.Option(..., "--out", help="New LeRobot dataset directory."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="New LeRobot dataset directory."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
@@ -498,7 +498,7 @@ def collect(
 @app.command()
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="LeRobot dataset directory (from `simseam collect`)."),
-    out: Path = typer.Option(..., "--out", help="Checkpoint directory (then: --policy lerobot:<out>)."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="Checkpoint directory (then: --policy lerobot:<out>)."),
     steps: int = typer.Option(20000, "--steps", min=1, help="Optimizer steps."),
     time_budget_s: float = typer.Option(None, "--time-budget-s", help="Stop after this many seconds."),
     batch_size: int = typer.Option(8, "--batch-size", min=1),
