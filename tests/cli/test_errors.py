@@ -43,6 +43,19 @@ def test_a_seed_beyond_32_bits_is_refused_before_the_run_starts(tmp_path):
         assert not (tmp_path / args[0]).exists()
 
 
+def test_the_last_episode_seed_is_checked_before_the_run_starts(tmp_path):
+    """``--seed 2147483647 --episodes 2`` would run seed 2147483648, which --seed alone refuses: the whole range
+    seed .. seed + episodes - 1 is checked first (catches: the second episode run beyond 32 bits)."""
+    top = str(2**31 - 1)
+    for args in (("run", "--scene", "scenes/franka_lift.yaml", "--episodes", "2"),
+                 ("collect", "--scene", "scenes/franka_lift.yaml", "--episodes", "2"),
+                 ("eval", "metaworld_mt10", "--policy", "zero", "--episodes", "2")):
+        _one_line_error(_simseam(*args, "--seed", top, "--out", tmp_path / args[0]),
+                        f"--seed {top} --episodes 2: the last episode would use seed 2147483648",
+                        "use --seed 2147483646 or less")
+        assert not (tmp_path / args[0]).exists()
+
+
 def test_error_text_is_printed_literally(tmp_path):
     scene = tmp_path / "s.yaml"
     scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [2, 256]\n")

@@ -95,7 +95,8 @@ def eval_command(
     preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
-    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH", help="Run directory (default: a new runs/<timestamp>)."),
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="Run directory (default: a new runs/<timestamp>)."),
     episodes: int = typer.Option(None, "--episodes", min=1, help="Episodes per task (default: the protocol's; "
                                  "fewer is recorded as a non-standard run)."),
     tasks: str = typer.Option(None, "--tasks", help="Comma-separated subset of the preset's tasks."),
@@ -140,6 +141,7 @@ def eval_command(
                               "for every task)")
         task_list = resolve_tasks(p, only)
         n = episodes or p.episodes
+        check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
         config = eval_config(p, redacted(policy), task_list, n, seed, video)

@@ -136,7 +136,7 @@ def run(
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.scene_config import load_scene_config
 
-    check_seed(seed)
+    check_seed(seed, episodes)
 
     default_out = out is None
     if default_out and resume:
@@ -448,7 +448,7 @@ def collect(
     Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
     from simseam.runner.dataset_recorder import LeRobotRecorder, check_dataset_out
 
-    check_seed(seed)
+    check_seed(seed, episodes)
 
     try:
         check_dataset_out(out, overwrite)
