@@ -224,7 +224,9 @@ def run(
                       f"{episodes} episode(s) -> {escape(str(out))}")
         _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
                   keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
-    if recorder is not None:
+    if recorder is not None and recorder.discarded:
+        console.print(f"dataset: no episode recorded, so no dataset was left in {escape(str(record_dataset))}")
+    elif recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
 
@@ -481,16 +483,28 @@ def collect(
             rec.close()
         rollout.close()
         close_policy(pol)
+    _collect_end(rec, out, results, episodes, interrupted)
+
+
+def _collect_end(rec, out: Path, results: list, episodes: int, interrupted: bool) -> None:
+    """What ``collect`` says when it ends: the dataset, or that nothing was kept (and nothing left in ``out``,
+    so the same command can run again); exit 130 when interrupted, 1 when no episode was recorded."""
     n_ok = sum(r.success for r in results)
     written = rec.episodes_written if rec is not None else 0
-    console.print(f"dataset {escape(str(out))}: {written} episode(s), "
-                  f"{rec.frames_written if rec is not None else 0} frames ({n_ok}/{len(results)} episodes succeeded)")
+    if written:
+        console.print(f"dataset {escape(str(out))}: {written} episode(s), {rec.frames_written} frames "
+                      f"({n_ok}/{len(results)} episodes succeeded)")
+    elif rec is not None:
+        console.print(f"dataset {escape(str(out))}: no episode recorded, so no dataset was left there "
+                      f"({n_ok}/{len(results)} episodes succeeded)")
     if interrupted:
-        err_console.print(f"interrupted after {len(results)} of {episodes} episodes; the dataset keeps the "
-                          f"{written} recorded", markup=False, highlight=False)
+        err_console.print(f"interrupted after {len(results)} of {episodes} episodes; " + (
+            f"the dataset keeps the {written} recorded" if written else "nothing was recorded"),
+            markup=False, highlight=False)
         raise typer.Exit(code=130)
     if written == 0:
-        err_console.print("no episode was recorded (all failed; --keep-failures records them anyway)",
+        err_console.print(f"no episode was recorded (all {len(results)} failed; --keep-failures records them "
+                          f"anyway); nothing was left in {out}, so the same command can run again",
                           style="red", markup=False, highlight=False)
         raise typer.Exit(code=1)
 
