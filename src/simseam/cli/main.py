@@ -43,14 +43,16 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as progress:
-        current = {}
+        # one bar, reset for each episode: a task per episode would grow Rich's per-task caches (its columns
+        # keep a rendering per task id, never dropped: 1.7 kB of resident memory an episode, bench_memory.py)
+        bar = progress.add_task("", total=rollout.spec.task.max_steps, visible=False)
 
         def start(i):
-            current["task"] = progress.add_task(f"episode {i}", total=rollout.spec.task.max_steps)
-            return lambda n: progress.update(current["task"], completed=n)
+            progress.reset(bar, total=rollout.spec.task.max_steps, description=f"episode {i}", visible=True)
+            return lambda n: progress.update(bar, completed=n)
 
         def done(res, written):
-            progress.remove_task(current.pop("task"))
+            progress.update(bar, visible=False)
             if on_result is not None:
                 on_result(res)
             step_ms = res.to_json()["step_latency_ms"]["mean"]  # None when the episode took no step
@@ -66,7 +68,7 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
                               highlight=False)
 
         def save(i):  # the bar stays, its clock running, while the episode's videos are encoded
-            progress.update(current["task"], description=f"episode {i}: writing it to the dataset (encoding)")
+            progress.update(bar, description=f"episode {i}: writing it to the dataset (encoding)")
 
         return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
                             keep_failures=keep_failures, on_start=start, on_done=done, on_error=error,
@@ -100,13 +102,15 @@ def run(
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Number of episodes."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
-    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH", help="Output directory (run.json, episodes.jsonl, summary.json, "
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="Output directory (run.json, episodes.jsonl, summary.json, "
                              "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out (and the dataset in --record-dataset)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config): skip the "
                                 "episodes it already recorded."),
     video: bool = typer.Option(False, "--video/--no-video", help="Write one MP4 per episode (first RGB camera)."),
-    record_dataset: Path = typer.Option(None, "--record-dataset", parser=out_path("--record-dataset"), metavar="PATH", help="Also record the episodes as a new "
+    record_dataset: Path = typer.Option(None, "--record-dataset", parser=out_path("--record-dataset"),
+                                        metavar="PATH", help="Also record the episodes as a new "
                                         "LeRobot dataset in this directory."),
     keep_failures: bool = typer.Option(True, "--keep-failures/--successes-only",
                                        help="With --record-dataset: record failed episodes too."),
@@ -398,7 +402,8 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
 
 @app.command()
 def merge(
-    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="New run directory for the merged run."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="New run directory for the merged run."),
     runs: list[Path] = typer.Argument(..., help="Run directories to merge (e.g. the K shards of --shard i/K)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a run already in --out."),
     prefer_first: bool = typer.Option(False, "--prefer-first", help="An episode recorded with different results "
@@ -432,7 +437,8 @@ def collect(
     scene: Path = typer.Option(..., "--scene", help="Scene YAML."),
     policy: str = typer.Option("scripted", "--policy", help="Policy spec (default: the scripted expert)."),
     episodes: int = typer.Option(50, "--episodes", min=1, help="Episodes to run."),
-    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="New LeRobot dataset directory."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="New LeRobot dataset directory."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
@@ -512,7 +518,8 @@ def _collect_end(rec, out: Path, results: list, episodes: int, interrupted: bool
 @app.command()
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="LeRobot dataset directory (from `simseam collect`)."),
-    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH", help="Checkpoint directory (then: --policy lerobot:<out>)."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="Checkpoint directory (then: --policy lerobot:<out>)."),
     steps: int = typer.Option(20000, "--steps", min=1, help="Optimizer steps."),
     time_budget_s: float = typer.Option(None, "--time-budget-s", help="Stop after this many seconds."),
     batch_size: int = typer.Option(8, "--batch-size", min=1),

@@ -15,7 +15,8 @@ from simseam.seam import SimseamError
 def report(
     runs: list[Path] = typer.Argument(None, metavar="RUN_DIR...", help="Run directories (simseam run / eval), "
                                       "shown side by side in this order."),
-    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH", help="The HTML file to write (default, for one run: "
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="The HTML file to write (default, for one run: "
                              "RUN_DIR/report.html; several runs need it)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the page already there."),
     videos: int = typer.Option(6, "--videos", min=0, help="Episode videos embedded per run (failures first)."),
