@@ -469,7 +469,9 @@ def collect(
             rollout = ActionNoise(rollout, action_noise)
     except SimseamError as exc:
         fail(exc)
-    results: list = []
+    from collections import Counter
+
+    counts = Counter()  # episodes run and succeeded (counts only: a long collection keeps its memory flat)
     interrupted = False
     rec = None
     try:
@@ -479,7 +481,7 @@ def collect(
                           f"{escape(rollout.spec.describe())} into {escape(str(out))}"
                           + (f" (action noise {action_noise:g})" if action_noise > 0 else ""))
             _episodes(rollout, pol, range(episodes), seed=seed, video_dir=None, recorder=rec,
-                      keep_failures=keep_failures, on_result=results.append)
+                      keep_failures=keep_failures, on_result=lambda r: counts.update(run=1, ok=int(r.success)))
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
@@ -489,27 +491,27 @@ def collect(
             rec.close()
         rollout.close()
         close_policy(pol)
-    _collect_end(rec, out, results, episodes, interrupted)
+    _collect_end(rec, out, counts, episodes, interrupted)
 
 
-def _collect_end(rec, out: Path, results: list, episodes: int, interrupted: bool) -> None:
+def _collect_end(rec, out: Path, counts, episodes: int, interrupted: bool) -> None:
     """What ``collect`` says when it ends: the dataset, or that nothing was kept (and nothing left in ``out``,
     so the same command can run again); exit 130 when interrupted, 1 when no episode was recorded."""
-    n_ok = sum(r.success for r in results)
+    n_run, n_ok = counts["run"], counts["ok"]
     written = rec.episodes_written if rec is not None else 0
     if written:
         console.print(f"dataset {escape(str(out))}: {written} episode(s), {rec.frames_written} frames "
-                      f"({n_ok}/{len(results)} episodes succeeded)")
+                      f"({n_ok}/{n_run} episodes succeeded)")
     elif rec is not None:
         console.print(f"dataset {escape(str(out))}: no episode recorded, so no dataset was left there "
-                      f"({n_ok}/{len(results)} episodes succeeded)")
+                      f"({n_ok}/{n_run} episodes succeeded)")
     if interrupted:
-        err_console.print(f"interrupted after {len(results)} of {episodes} episodes; " + (
+        err_console.print(f"interrupted after {n_run} of {episodes} episodes; " + (
             f"the dataset keeps the {written} recorded" if written else "nothing was recorded"),
             markup=False, highlight=False)
         raise typer.Exit(code=130)
     if written == 0:
-        err_console.print(f"no episode was recorded (all {len(results)} failed; --keep-failures records them "
+        err_console.print(f"no episode was recorded (all {n_run} failed; --keep-failures records them "
                           f"anyway); nothing was left in {out}, so the same command can run again",
                           style="red", markup=False, highlight=False)
         raise typer.Exit(code=1)
