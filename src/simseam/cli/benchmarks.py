@@ -9,7 +9,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
-    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted, SpecProbe
+    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, out_path, \
+    policy_kwargs, redacted, SpecProbe
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -94,7 +95,8 @@ def eval_command(
     preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
-    out: Path = typer.Option(None, "--out", help="Run directory (default: a new runs/<timestamp>)."),
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="Run directory (default: a new runs/<timestamp>)."),
     episodes: int = typer.Option(None, "--episodes", min=1, help="Episodes per task (default: the protocol's; "
                                  "fewer is recorded as a non-standard run)."),
     tasks: str = typer.Option(None, "--tasks", help="Comma-separated subset of the preset's tasks."),
@@ -139,6 +141,7 @@ def eval_command(
                               "for every task)")
         task_list = resolve_tasks(p, only)
         n = episodes or p.episodes
+        check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
         config = eval_config(p, redacted(policy), task_list, n, seed, video)

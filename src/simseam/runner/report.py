@@ -18,8 +18,8 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from simseam.runner.report_html import render
-from simseam.runner.run_dir import CONFIG_FILE, LOG_FILE, REPORT_FILE, SUMMARY_FILE, summary_of
+from simseam.runner.report_html import PAGE_HEAD, render
+from simseam.runner.run_dir import CONFIG_FILE, LOG_FILE, REPORT_FILE, RUN_FILES, SUMMARY_FILE, summary_of
 from simseam.seam import ConfigError
 
 #: videos embedded per run by default; each is the run's MP4 file, base64-encoded (a third larger)
@@ -175,10 +175,32 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
 
 
 def check_target(target: Path, overwrite: bool) -> None:
+    """``ConfigError`` unless the page may go to ``target``: a new file, or (with ``overwrite``) an earlier
+    page. Nothing else is ever replaced, ``overwrite`` or not: a run's episode log, its config, any file."""
     if target.is_dir():
         raise ConfigError(f"--out {target}: is a directory (name the HTML file to write)")
     if not target.parent.is_dir():
         raise ConfigError(f"--out {target}: {target.parent} is not a directory")
-    if target.exists() and not overwrite:
-        raise ConfigError(f"{target} already exists; pass --overwrite to replace it, or --out FILE to write "
-                          "the page elsewhere")
+    if target.name in RUN_FILES:
+        raise ConfigError(f"--out {target}: {target.name} is a run's own file; the page goes to a file of its own "
+                          "(e.g. report.html)")
+    if not target.exists() and not target.is_symlink():
+        return
+    if not is_page(target):
+        raise ConfigError(f"--out {target}: already exists and is not a simseam results page, so it is never "
+                          "replaced (not even with --overwrite); choose another --out FILE")
+    if not overwrite:
+        raise ConfigError(f"{target} already exists (an earlier results page); pass --overwrite to replace it, "
+                          "or --out FILE to write the page elsewhere")
+
+
+def is_page(path: Path) -> bool:
+    """Whether ``path`` is a page ``simseam report`` wrote (a regular file opening with the page's head)."""
+    if path.is_symlink() or not path.is_file():
+        return False
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(PAGE_HEAD) + 16)
+    except OSError:
+        return False
+    return head.startswith(PAGE_HEAD.encode())

@@ -30,6 +30,10 @@ pre { background: #f6f6f6; padding: .8em; overflow: auto; max-height: 30em; }
 """
 
 
+#: how every page opens (``report.is_page``: the one kind of file ``--out --overwrite`` may replace)
+PAGE_HEAD = '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>simseam results: '
+
+
 def esc(value) -> str:
     return html.escape(str(value), quote=True)
 
@@ -38,9 +42,8 @@ def render(runs: list) -> str:
     """The page of ``runs`` (``report.Run``s, in the order given: their columns and colours)."""
     body = "\n".join([header(runs), success_section(runs), latency_section(runs), videos_section(runs),
                       config_section(runs)])
-    title = "simseam results: " + ", ".join(r.label for r in runs)
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
-            f"<style>{CSS}</style></head>\n<body>\n{body}\n</body></html>\n")
+    title = ", ".join(r.label for r in runs)
+    return f"{PAGE_HEAD}{esc(title)}</title><style>{CSS}</style></head>\n<body>\n{body}\n</body></html>\n"
 
 
 def swatch(run) -> str:
