@@ -36,6 +36,20 @@ app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
 app.command("report")(report)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from simseam import origin
+
+        console.print(origin.one_line(), soft_wrap=True, highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                       help="Print simseam's version, the source it runs and its git revision.")) -> None:
+    """Run robot policies in simulation."""
 def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
               keep_failures: bool = True, on_result=None) -> list:
     """``runner.session.run_episodes`` with a progress bar and one line per episode."""
