@@ -9,7 +9,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
-    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted, SpecProbe
+    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, policy_kwargs, \
+    print_notes, redacted, SpecProbe
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -145,6 +146,9 @@ def eval_command(
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
+        from simseam.runner.provenance import for_benchmark
+
+        config["provenance"] = for_benchmark(p.backend, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
@@ -183,6 +187,7 @@ def eval_command(
                   + (f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else ""))
     if resume:
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
+        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
     if num_envs > 1:
         _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
                      seed=seed, video=video, indices=planned, lockstep=rule)

@@ -29,6 +29,12 @@ def fail(exc: SimseamError) -> None:
 MAX_SEED = 2**31 - 1
 
 
+def print_notes(notes: list[str], what: str) -> None:
+    """Name each provenance difference that does not change the episode (``--resume``, ``merge``, ``compare``)."""
+    for note in notes:
+        err_console.print(f"note: {what}: {note}", style="yellow", markup=False, highlight=False)
+
+
 def check_seed(seed: int) -> None:
     if not 0 <= seed <= MAX_SEED:
         fail(ConfigError(f"--seed {seed}: seeds are integers from 0 to {MAX_SEED} (episode i uses seed + i)"))

@@ -15,7 +15,7 @@ from rich.table import Table
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
                                 check_lockstep, check_seed, close_policy,
-                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted,
+                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, print_notes, redacted,
                                 sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
@@ -188,12 +188,16 @@ def run(
             config["shard"] = list(shard_ik)
         if renderer != "workers":
             config["renderer"] = renderer
+        from simseam.runner.provenance import for_scene
+
+        config["provenance"] = for_scene(cfg, base_dir, scene, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
+        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
     if ray_address is not None:
         _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
@@ -423,6 +427,7 @@ def merge(
         summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
     except SimseamError as exc:
         fail(exc)
+    print_notes(summary.get("provenance_notes") or [], "the merged runs differ (the episodes are the same)")
     if summary.get("per_task"):  # shards of simseam eval: the eval summary's per-task table
         from simseam.cli.benchmarks import print_task_table
 
