@@ -1,4 +1,4 @@
-"""``simseam`` command line: run | eval | summarize | report | collect | train | serve-policy | deploy | robots |
+"""``simseam`` command line: run | eval | summarize | report | compare | collect | train | serve-policy | deploy | robots |
 backends | benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
+from simseam.cli.compare import compare
 from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
                                 check_lockstep, check_seed, close_policy,
                                 console, episodes_guard, err_console, fail, never_started, policy_kwargs, print_notes, redacted,
@@ -36,6 +37,7 @@ app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
 app.command("report")(report)
+app.command("compare")(compare)
 
 
 def _print_version(value: bool) -> None:
