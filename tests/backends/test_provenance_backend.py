@@ -20,8 +20,11 @@ def pins(name: str) -> dict[str, str]:
 def test_an_eval_records_the_backends_packages_from_its_venv(tmp_path):
     provision.require("pusht")
     out = tmp_path / "run"
-    proc = simseam("eval", "pusht", "--policy", "zero", "--episodes", "1", "--num-envs", "1", "--out", out)
+    proc = simseam("eval", "pusht", "--policy", "zero", "--episodes", "1", "--num-envs", "1", "--out", out,
+                   "--ci-width", "0.1")
     assert proc.returncode == 0, proc.stderr
+    # 0/1: a +-10-point interval at rate 0 needs 16 episodes (the table's column and the line below it)
+    assert "episodes for +-10%" in proc.stdout and "at the observed rate: pusht 16 (has 1)" in proc.stdout
     prov = json.loads((out / "run.json").read_text())["provenance"]
     packages = prov["benchmark"]["packages"]
     assert prov["benchmark"]["name"] == "pusht" and "engine" not in prov

@@ -93,3 +93,22 @@ def test_the_report_page_shows_the_comparison_in_headless_chromium(runs):
         assert "2 episode(s) only in zero, not compared: reach seed 4, reach seed 5" in text
         assert "other is not compared with expert: other and expert differ in what changes the episode" in text
     assert all(u == page.as_uri() or u.startswith("data:") for u in browser.requests), browser.requests
+
+
+def test_ci_width_says_how_many_episodes_a_narrower_interval_needs(runs):
+    """At 4/4 a +-10-point interval needs 16 episodes (Wilson at k = n: z^2 / (2 (n + z^2)) <= 0.1); summary.json
+    holds it, and a width outside (0, 0.5) is refused before anything runs."""
+    from simseam.runner.summary import needed_episodes
+
+    out = runs / "sized"
+    proc = simseam("run", "--scene", runs / "reach.yaml", "--policy", "scripted", "--episodes", "4", "--num-envs", "1",
+                   "--out", out, "--ci-width", "0.1")
+    assert proc.returncode == 0, proc.stderr
+    assert "episodes per task for a +-10% Wilson 95% interval at the observed rate: this run 16 (has 4)" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["ci_width"] == 0.1 and summary["episodes_for_ci_width"] == needed_episodes(1.0, 0.1) == 16
+    default = json.loads((runs / "expert" / "summary.json").read_text())  # +-5 points unless asked
+    assert default["ci_width"] == 0.05 and default["episodes_for_ci_width"] == 35
+    bad = simseam("run", "--scene", runs / "reach.yaml", "--policy", "zero", "--out", runs / "bad", "--ci-width", "0.5")
+    assert bad.returncode == 2 and "--ci-width 0.5: a half-width between 0 and 0.5" in bad.stderr
+    assert not (runs / "bad").exists()

@@ -14,10 +14,10 @@ from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.compare import compare
-from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
-                                check_lockstep, check_seed, close_policy,
-                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, print_notes, redacted,
-                                sigterm_as_interrupt, SpecProbe)
+from simseam.cli.common import (CI_WIDTH_HELP, ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP,
+                                EvalProgress, check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy,
+                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, print_notes,
+                                redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -147,6 +147,7 @@ def run(
                                  "workers (each its own EGL context), batched (this process, one MuJoCo Warp batch "
                                  "for all workers; in-process MuJoCo scenes, RGB cameras), auto (batched when a "
                                  "CUDA device is present and the scene is supported). docs/evaluation.md"),
+    ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir
@@ -185,7 +186,8 @@ def run(
             raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
-                  "record_dataset": str(record_dataset) if record_dataset else None}
+                  "record_dataset": str(record_dataset) if record_dataset else None,
+                  "ci_width": checked_ci_width(ci_width)}
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         if renderer != "workers":
@@ -391,6 +393,7 @@ def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
         f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
     )
+    console.print(ci_width_line(summary), markup=False, highlight=False)
     if summary["complete"]:
         report_after_run(out)
 

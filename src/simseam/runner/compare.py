@@ -25,12 +25,12 @@ from typing import Any
 
 from simseam.runner.provenance import describe, differences
 from simseam.runner.run_dir import config_differences, summary_of
-from simseam.runner.summary import wilson_interval
+from simseam.runner.summary import needed_episodes, wilson_interval  # noqa: F401 - needed_episodes: --ci-width
 from simseam.seam import ConfigError
 
 #: config entries that may differ between compared runs (the rest changes the episode)
 MAY_DIFFER = ("policy", "episodes", "episodes_per_task", "seed", "video", "record_dataset", "shard", "renderer",
-              "standard", "tasks", "scene_file", "provenance")
+              "standard", "tasks", "scene_file", "provenance", "ci_width")
 Z95 = 1.959964
 
 
@@ -150,23 +150,3 @@ def pairs_any(summaries: list[dict]) -> bool:
     """Whether the later runs share at least one episode with the first (the page then compares them)."""
     first = _by_key(summaries[0])
     return any(k in first for s in summaries[1:] for k in _by_key(s))
-
-
-def needed_episodes(rate: float, half_width: float, z: float = Z95) -> int:
-    """Episodes a task needs for a Wilson 95 % interval of half-width ``half_width`` at success rate ``rate``
-    (the smallest n whose interval at k = rate * n is that narrow; at most 1,000,000)."""
-    if not 0 < half_width < 0.5:
-        raise ConfigError(f"--ci-width {half_width!r}: a half-width between 0 and 0.5 (e.g. 0.05 for +-5 points)")
-    rate = min(max(rate, 0.0), 1.0)
-    lo, hi = 1, 1_000_000
-
-    def narrow(n: int) -> bool:
-        a, b = wilson_interval(round(rate * n), n, z)
-        return (b - a) / 2 <= half_width
-
-    if not narrow(hi):
-        return hi
-    while lo < hi:  # the half-width shrinks with n (up to the rounding of k): bisect on it
-        mid = (lo + hi) // 2
-        lo, hi = (mid + 1, hi) if not narrow(mid) else (lo, mid)
-    return lo

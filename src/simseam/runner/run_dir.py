@@ -80,8 +80,9 @@ def point_latest(run: Path) -> None:
 
 #: what a run's config records but does not decide: the path the scene file was named by (its parsed
 #: contents, ``scene``, are compared instead: the same file reached through another path is the same run),
-#: and what can move its number (``provenance``), compared by ``runner.provenance.differences``
-NOT_COMPARED = ("scene_file", "provenance")
+#: what can move its number (``provenance``), compared by ``runner.provenance.differences``, and the interval
+#: width its summary sizes the episodes for (``ci_width``: a resumed run may ask for another)
+NOT_COMPARED = ("scene_file", "provenance", "ci_width")
 
 
 def provenance_check(old: dict, new: dict, what: str) -> list[str]:
