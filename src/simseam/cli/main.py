@@ -1,4 +1,4 @@
-"""``simseam`` command line: run | eval | summarize | report | collect | train | serve-policy | deploy | robots |
+"""``simseam`` command line: run | eval | summarize | report | compare | collect | train | serve-policy | deploy | robots |
 backends | benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
@@ -13,9 +13,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
-                                check_lockstep, check_seed, close_policy,
+from simseam.cli.compare import compare
+from simseam.cli.common import (CI_WIDTH_HELP, ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP,
+                                EvalProgress, check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy,
                                 console, episodes_guard, err_console, fail, never_started, out_path, policy_kwargs,
+                                print_notes,
                                 redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
@@ -36,6 +38,21 @@ app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
 app.command("report")(report)
+app.command("compare")(compare)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from simseam import origin
+
+        console.print(origin.one_line(), soft_wrap=True, highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                       help="Print simseam's version, the source it runs and its git revision.")) -> None:
+    """Run robot policies in simulation."""
 def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
               keep_failures: bool = True, on_result=None) -> list:
     """``runner.session.run_episodes`` with a progress bar and one line per episode."""
@@ -135,6 +152,7 @@ def run(
                                  "workers (each its own EGL context), batched (this process, one MuJoCo Warp batch "
                                  "for all workers; in-process MuJoCo scenes, RGB cameras), auto (batched when a "
                                  "CUDA device is present and the scene is supported). docs/evaluation.md"),
+    ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir
@@ -173,17 +191,22 @@ def run(
             raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
-                  "record_dataset": str(record_dataset) if record_dataset else None}
+                  "record_dataset": str(record_dataset) if record_dataset else None,
+                  "ci_width": checked_ci_width(ci_width)}
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         if renderer != "workers":
             config["renderer"] = renderer
+        from simseam.runner.provenance import for_scene
+
+        config["provenance"] = for_scene(cfg, base_dir, scene, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
+        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
     if ray_address is not None:
         _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
@@ -377,6 +400,7 @@ def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
         f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
     )
+    console.print(ci_width_line(summary), markup=False, highlight=False)
     if summary["complete"]:
         report_after_run(out)
 
@@ -416,6 +440,7 @@ def merge(
         summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
     except SimseamError as exc:
         fail(exc)
+    print_notes(summary.get("provenance_notes") or [], "the merged runs differ (the episodes are the same)")
     if summary.get("per_task"):  # shards of simseam eval: the eval summary's per-task table
         from simseam.cli.benchmarks import print_task_table
 

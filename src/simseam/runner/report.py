@@ -1,7 +1,8 @@
 """The results page of one or more run directories (``simseam report``): one self-contained HTML file.
 
 It shows, for each run side by side: success per task with its Wilson 95 % interval (a chart and a table),
-the step and policy latency of its episodes, a few episode videos, and the run's config. Everything is
+when the runs share episodes their paired comparison (``runner.compare``: each run against the first), the
+step and policy latency of its episodes, a few episode videos, and the run's config. Everything is
 inline: the CSS, the charts (SVG drawn here), the videos (the run's own H.264 MP4 files as ``data:`` URIs,
 a few per run, see ``choose_videos``). The page loads nothing from anywhere, so it opens offline, attached
 to a mail, or from an archive.
@@ -161,7 +162,7 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
     runs = load_runs(paths, videos=videos, incomplete=incomplete)
     target = report_path(paths, out)
     check_target(target, overwrite)
-    page = render(runs)
+    page = render(runs, paired_comparison(runs))
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
     try:
         with os.fdopen(fd, "w") as f:
@@ -172,6 +173,22 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
         Path(tmp).unlink(missing_ok=True)
         raise
     return target
+
+
+def paired_comparison(runs: list[Run]) -> list[dict] | None:
+    """Each later run against the first (``runner.compare``), when they share episodes; None otherwise. A
+    pair that ``simseam compare`` would refuse (the episodes differ) is named, not compared."""
+    from simseam.runner.compare import compare_pair, pairs_any
+
+    if len(runs) < 2 or not pairs_any([r.summary for r in runs]):
+        return None
+    out = []
+    for r in runs[1:]:
+        try:
+            out.append(compare_pair(runs[0].summary, r.summary, (runs[0].label, r.label)))
+        except ConfigError as exc:
+            out.append({"first": runs[0].label, "second": r.label, "refused": str(exc)})
+    return out
 
 
 def check_target(target: Path, overwrite: bool) -> None:
