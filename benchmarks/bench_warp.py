@@ -122,7 +122,7 @@ def bench_expert(robot, collision: str, n: int, args) -> dict:
     next_seed = n
     b.reset(np.arange(n), seeds)
     h = b.host_arrays()
-    pol.act(h["eef_pose"], h["cube"])  # warm-up: compile, graph capture
+    pol.act(h["eef_pose"], h["objects"]["cube"])  # warm-up: compile, graph capture
     b.step(np.zeros((n, b.action_dim), np.float32))
     b.reset(np.arange(n), seeds)
     pol.reset(np.arange(n))
@@ -132,7 +132,7 @@ def bench_expert(robot, collision: str, n: int, args) -> dict:
     t0 = time.perf_counter()
     for _ in range(args.expert_steps):
         h = b.host_arrays()
-        r_ = b.step(pol.act(h["eef_pose"], h["cube"]))
+        r_ = b.step(pol.act(h["eef_pose"], h["objects"]["cube"]))
         done = np.flatnonzero(r_.terminated | r_.truncated)
         if done.size:
             finished += done.size

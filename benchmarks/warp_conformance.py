@@ -74,9 +74,9 @@ def replay(robot, n, device):
         r = b.step(np.tile(a, (n, 1)))
         h = b.host_arrays()
         tool_err.append(float(np.abs(h["state"][0, :3] - tool[k]).max()))
-        cube_err.append(float(np.abs(h["cube"][0, :3] - cube[k]).max()))
+        cube_err.append(float(np.abs(h["objects"]["cube"][0, :3] - cube[k]).max()))
         identical &= bool((h["state"] == h["state"][0]).all())
-        spread = max(spread, float(np.abs(h["state"] - h["state"][0]).max()), float(np.abs(h["cube"] - h["cube"][0]).max()))
+        spread = max(spread, float(np.abs(h["state"] - h["state"][0]).max()), float(np.abs(h["objects"]["cube"] - h["objects"]["cube"][0]).max()))
     first = touch.index(True) if True in touch else len(acts)
     row = {"check": "replay", "robot": robot.name, "worlds": n, "seed": seed, "cpu_success_step": success_at,
            "batch_success": bool(r.success[0]), "batch_success_step": int(r.steps[0]) if r.terminated[0] else None,

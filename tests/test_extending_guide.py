@@ -90,11 +90,11 @@ def test_the_guide_has_one_example_per_extension_point():
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_example_runs_and_keeps_its_promise(name, tmp_path):
     ex = GUIDE_EXAMPLES[name]
-    procs = run_example(ex, tmp_path)
+    procs = run_example(ex, tmp_path, timeout=600.0 if name == "task" else 120.0)  # the task runs on MuJoCo Warp too
     assert procs and all(p.returncode == 0 for p in procs), _report(procs)
     script_out = procs[-1].stdout
     promise = {
-        "task": "push_cube: check_rollout passed; success when the cube is on the goal",
+        "task": "push_cube: check_rollout passed; success when the cube is on the goal, on both engines",
         "engine": "my_engine: check_rollout passed",
         "backend": "pointmass: check_rollout and check_batch_rollout passed",
         "policy": "greedy_reach: 5/5 reach episodes succeeded",

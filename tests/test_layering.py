@@ -3,6 +3,7 @@ seam import nothing heavier than numpy (+ the engine SDK), so an Isaac Sim or si
 them."""
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +12,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "simseam"
 
 #: simseam's packages from the bottom up, as docs/ARCHITECTURE.md draws them; a module imports its own
 #: package or a package of a lower rank, never one of its rank or above
-LAYERS = [("seam", "math3d"), ("config_files", "registry"), ("robot",), ("policies",), ("engines",), ("scene",),
+LAYERS = [("seam", "math3d", "origin"), ("config_files", "registry"), ("robot",), ("policies",), ("engines",), ("scene",),
           ("backends",), ("sidecar",), ("runner",), ("gym", "hal", "ros2", "serving"), ("cli",)]
 RANK = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}
 
@@ -112,5 +113,21 @@ def test_the_gpu_scene_reads_the_scenes_public_plan_not_its_internals():
     """scene/warp builds N worlds from a ManifestScene: through ``plan``, ``engine.layout``,
     ``chain.arrays`` and ``base_frame()``, never a private attribute of another object."""
     assert _foreign_private_reads("host._arm_idx\nself._ok\nchain.arrays") == ["host._arm_idx (line 1)"]
-    found = {p.name: _foreign_private_reads(p.read_text()) for p in sorted((SRC / "scene" / "warp").glob("*.py"))}
+    files = sorted((SRC / "scene" / "warp").glob("*.py")) + sorted((SRC / "engines" / "mujoco_warp").glob("*.py"))
+    found = {p.name: _foreign_private_reads(p.read_text()) for p in files}
     assert not any(found.values()), found
+
+
+# what the batched scene may read of its host ManifestScene: the compiled plan and the public views
+HOST_READS = {"plan", "spec", "robot", "task", "base_frame", "reset", "close", "link_in_base",
+              "engine.layout", "engine.model", "engine.data", "engine.pose_qpos", "chain.arrays"}
+
+
+def test_the_gpu_scene_reads_only_the_named_public_views_of_its_host_scene():
+    """Beyond private attributes: scene/warp reads only the listed views of its host scene (``HOST_READS``),
+    not the controllers or the gripper (their constants are in ``plan``)."""
+    reads = set()
+    for p in sorted((SRC / "scene" / "warp").glob("*.py")):
+        for first, second in re.findall(r"\bhost\.(\w+)(?:\.(\w+))?", p.read_text()):
+            reads.add(f"{first}.{second}" if first in ("engine", "chain") else first)
+    assert reads and reads <= HOST_READS, sorted(reads - HOST_READS)

@@ -41,7 +41,7 @@ def test_the_batched_engine_is_in_the_table_but_builds_no_primitives():
     from simseam.engines.registry import engine_info
 
     info = engine_info("mujoco_warp")
-    assert info.batched and info.processes == ("inprocess",) and info.module == "simseam.scene.warp"
+    assert info.batched and info.processes == ("inprocess",) and info.factory == "simseam.scene.warp:open_batch"
     with pytest.raises(ConfigError, match="engine 'mujoco_warp' runs N worlds as one batched scene"):
         make_engine("mujoco_warp")
 

@@ -75,8 +75,8 @@ def test_one_world_replays_a_cpu_scripted_episode_within_tolerance(panda, state_
         r = b.step(np.tile(a, (3, 1)))
         h = b.host_arrays()
         errs.append(float(np.abs(h["state"][0, :3] - eef_cpu[k, :3]).max()))
-        cube_errs.append(float(np.abs(h["cube"][0, :3] - eef_cpu[k, 3:]).max()))
-        if first_contact is None and h["touching"][0]:
+        cube_errs.append(float(np.abs(h["objects"]["cube"][0, :3] - eef_cpu[k, 3:]).max()))
+        if first_contact is None and b.contacts("cube", "robot")[0]:
             first_contact = k
         # identical worlds stay identical
         np.testing.assert_array_equal(h["state"][0], h["state"][1])
@@ -217,8 +217,8 @@ def test_the_worlds_keep_the_batched_seam_contract_with_cameras(panda):
 
 
 def test_unsupported_configurations_are_clear_errors(panda, state_opts):
-    with pytest.raises(ConfigError, match="mujoco_warp.*lift_cube.*reach.*bowl_plate"):
-        BatchedScene(panda, "bowl_plate", 2, state_opts)
+    with pytest.raises(ConfigError, match="mujoco_warp.*panda_mobile.*kinematic base"):
+        BatchedScene(load_robot("panda_mobile"), "nav_obstacles", 2, state_opts)
     with pytest.raises(ConfigError, match="num_envs"):
         BatchedScene(panda, "lift_cube", 0, state_opts)
 
@@ -348,7 +348,7 @@ def test_batched_lift_expert_equals_the_per_world_expert(batch3):
     for _ in range(45):
         obs = world_observations(b, range(3), [STATE_ONLY] * 3)
         h = b.host_arrays()
-        got = vec.act(h["eef_pose"], h["cube"])
+        got = vec.act(h["eef_pose"], h["objects"]["cube"])
         want = np.stack([p.act(o) for p, o in zip(pols, obs)])
         np.testing.assert_allclose(got, want, atol=1e-5)
         phases.update(vec.phase.tolist())
@@ -375,7 +375,7 @@ class _DevicePolicy:
     def act_device(self, obs):
         self.seen.append(type(obs["privileged"]["eef_pose"]))
         eef = np.from_dlpack(obs["privileged"]["eef_pose"])
-        cube = np.from_dlpack(obs["privileged"]["cube"])
+        cube = np.from_dlpack(obs["privileged"]["objects"]["cube"])
         return self.expert.act(eef, cube)
 
 

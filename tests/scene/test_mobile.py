@@ -23,7 +23,7 @@ def _clear_obstacles(scene, far=60.0):
     """Move every obstacle of nav_obstacles out of the lidar's range."""
     for k in range(6):
         scene.engine.set_object_pose(f"obstacle{k}", np.array([far + 3 * k, far, 0.0]), yaw_quat(0.0))
-    scene.task.obstacles = []
+    scene.task.params["active"][:] = False
 
 
 def test_body_twist_moves_and_turns_the_base_by_the_commanded_amount(mobile_spec, make_scene):

@@ -7,31 +7,39 @@ from dataclasses import dataclass
 
 from simseam import registry
 from simseam.engines.base import Engine, EngineOptions
+from simseam.engines.isaac import SIDECAR_ENV
 from simseam.seam import BackendUnavailableError, ConfigError
 
 
 @dataclass(frozen=True)
 class EngineInfo:
-    """``module``: where it lives (imported only when made); ``processes``: where it may run
-    (``inprocess``, ``sidecar``); ``batched``: N worlds in one process, built as a batched scene
-    (``simseam.scene.warp``) rather than as an ``Engine`` of primitives under a ``ManifestScene``."""
+    """``factory``: what makes it, ``"module:attribute"`` (imported only when made): an ``Engine`` class
+    for an engine of primitives, or for a batched engine the function that builds N worlds of a scene
+    (``(robot, task, num_envs, options, device) -> BatchedScene``); ``processes``: where it may run
+    (``inprocess``, ``sidecar``); ``batched``: N worlds in one process, built as a batched scene rather
+    than as an ``Engine`` of primitives under a ``ManifestScene``; ``hint``: ``"module:function"`` giving
+    the set-up hint when it cannot run here (optional)."""
 
     name: str
-    module: str
+    factory: str
     processes: tuple[str, ...]
     batched: bool
     description: str
+    hint: str = ""
 
 
 ENGINES: dict[str, EngineInfo] = {
-    "mujoco": EngineInfo("mujoco", "simseam.engines.mujoco.engine", ("inprocess", "sidecar"), False,
+    "mujoco": EngineInfo("mujoco", "simseam.engines.mujoco.engine:MujocoEngine", ("inprocess", "sidecar"), False,
                          "MuJoCo on the CPU (the default)"),
-    "isaac": EngineInfo("isaac", "simseam.engines.isaac.engine", ("sidecar",), False,
-                        "Isaac Sim (PhysX, RTX cameras), in a sidecar with its own interpreter"),
-    "mujoco_warp": EngineInfo("mujoco_warp", "simseam.scene.warp", ("inprocess",), True,
+    "isaac": EngineInfo("isaac", "simseam.engines.isaac.engine:IsaacEngine", ("sidecar",), False,
+                        "Isaac Sim (PhysX, RTX cameras), in a sidecar with its own interpreter",
+                        hint="simseam.engines.isaac.provision:provision_hint"),
+    "mujoco_warp": EngineInfo("mujoco_warp", "simseam.scene.warp:open_batch", ("inprocess",), True,
                               "MuJoCo Warp: N worlds of a scene in one process on a GPU"),
 }
 ENGINE_NAMES = tuple(ENGINES)
+#: name -> what makes it (registry.load imports it when asked for)
+_FACTORIES: dict[str, object] = {name: info.factory for name, info in ENGINES.items()}
 
 
 def engine_info(name: str) -> EngineInfo:
@@ -39,27 +47,30 @@ def engine_info(name: str) -> EngineInfo:
 
 
 def make_engine(name: str, options: EngineOptions | None = None) -> Engine:
-    """Create an engine in this process. ``isaac`` only ever runs in a sidecar: it is made
-    only where the sidecar server marked the process (``SIMSEAM_SIDECAR=1``), and fails
-    closed (``BackendUnavailableError`` with the provisioning command) when Isaac Sim is
-    not installed in that interpreter. A batched engine (``mujoco_warp``) is no engine of
-    primitives: its scenes are built by ``simseam.scene.warp``. Nothing falls back to another engine."""
+    """Create an engine of primitives in this process. One that runs only in a sidecar (``isaac``) is made
+    only where the sidecar server marked the process (``SIMSEAM_SIDECAR=1``); an engine whose SDK is not
+    installed there fails closed (``BackendUnavailableError`` with its set-up hint). A batched engine
+    (``mujoco_warp``) is no engine of primitives: ``open_batched`` builds its scenes. Nothing falls back
+    to another engine."""
     info = engine_info(name)
     if info.batched:
-        raise ConfigError(f"engine {name!r} runs N worlds as one batched scene ({info.module}), not under a "
+        raise ConfigError(f"engine {name!r} runs N worlds as one batched scene ({info.factory}), not under a "
                           "ManifestScene; a scene file with engine: {name: " + name + "} builds it")
-    if name == "isaac":
-        from simseam.engines.isaac import SIDECAR_ENV
-        from simseam.engines.isaac.provision import provision_hint
+    if "inprocess" not in info.processes and os.environ.get(SIDECAR_ENV) != "1":
+        raise BackendUnavailableError(
+            f"engine {name!r} runs only in a sidecar process with its own interpreter, never in the client "
+            f"process (engine: {{name: {name}, process: sidecar, python: ...}}). " + _hint(info))
+    return registry.load(_FACTORIES, name, "engine")(options)
 
-        if os.environ.get(SIDECAR_ENV) != "1":
-            raise BackendUnavailableError(
-                "engine 'isaac' runs only in a sidecar process with its own Isaac Sim interpreter, never "
-                "in the client process (engine: {name: isaac, process: sidecar, python: ...}). " + provision_hint()
-            )
-        from simseam.engines.isaac.engine import IsaacEngine
 
-        return IsaacEngine(options)
-    from simseam.engines.mujoco.engine import MujocoEngine
+def open_batched(name: str, robot, task: str, num_envs: int, options=None, device: str | None = None):
+    """N worlds of a manifest scene on the batched engine ``name`` (its ``factory``)."""
+    info = engine_info(name)
+    if not info.batched:
+        raise ConfigError(f"a batched scene needs a batched engine "
+                          f"({', '.join(n for n, i in ENGINES.items() if i.batched)}), got {name!r}")
+    return registry.load(_FACTORIES, name, "engine")(robot, task, num_envs, options, device)
 
-    return MujocoEngine(options)
+
+def _hint(info: EngineInfo) -> str:
+    return registry.load({info.name: info.hint}, info.name, "engine hint")() if info.hint else ""

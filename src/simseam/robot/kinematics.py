@@ -32,13 +32,16 @@ class ChainArrays:
     """A chain's constants in chain order, for batched kinematics elsewhere (the MuJoCo Warp kernels):
     ``q_index[k]``: which of the chain's joint names (its ``q`` order) is the k-th joint along the chain;
     ``fixed[k]``: the 4x4 transform before joint k; ``axes[k]``: its unit axis; ``prismatic[k]``;
-    ``tail``: the transform after the last joint (to the tool frame)."""
+    ``tail``: the transform after the last joint (to the tool frame); ``lower`` / ``upper``: the joints'
+    limits in ``q`` order."""
 
     q_index: np.ndarray
     fixed: np.ndarray
     axes: np.ndarray
     prismatic: np.ndarray
     tail: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
 
 
 class SerialChain:
@@ -128,7 +131,7 @@ class SerialChain:
     @property
     def arrays(self) -> ChainArrays:
         return ChainArrays(self._q_from_names.copy(), self._fixed_arr.copy(), self._axes_arr.copy(),
-                           self._prism.copy(), self._tail.copy())
+                           self._prism.copy(), self._tail.copy(), self.lower.copy(), self.upper.copy())
 
     @classmethod
     def of_robot(cls, robot: RobotFacts) -> "SerialChain":

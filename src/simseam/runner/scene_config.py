@@ -179,9 +179,10 @@ def build_rollout(cfg: SceneConfig, base_dir: Path, *, privileged: bool = False,
     eng = cfg.engine
     info = check_engine(cfg)
     if info.batched:  # one world of the GPU-batched engine (runner.warp_vector runs N)
-        from simseam.scene.warp import WarpOptions, WarpRollout
+        from simseam.engines.registry import open_batched
+        from simseam.scene.warp import WarpRollout
 
-        return WarpRollout(spec, cfg.task, options, WarpOptions(device=eng.device))
+        return WarpRollout(None, cfg.task, scene=open_batched(eng.name, spec, cfg.task, 1, options, eng.device))
     if eng.process == "sidecar":
         from simseam.sidecar.client import SidecarRollout
         from simseam.sidecar.target import SceneTarget

@@ -19,17 +19,16 @@ from simseam.seam import ConfigError
 
 def build_batched_scene(cfg, base_dir: Path, num_envs: int | None = None, *, privileged: bool = False,
                         render_images: bool = True, seed: int = 0, device: str | None = None):
-    """The ``BatchedScene`` a scene file with ``engine: {name: mujoco_warp, num_envs: N}`` describes."""
-    from simseam.scene.warp import BatchedScene, WarpOptions
+    """The batched scene a scene file with ``engine: {name: mujoco_warp, num_envs: N}`` describes, built by
+    the engine table's factory for its engine."""
+    from simseam.engines.registry import open_batched
     from simseam.runner.scene_config import check_engine, resolve_robot, scene_options
 
     eng = cfg.engine
-    if not check_engine(cfg).batched:
-        raise ConfigError(f"a batched scene needs a batched engine (mujoco_warp), got {eng.name!r}")
+    check_engine(cfg)
     n = num_envs or eng.num_envs or 1
     options = scene_options(cfg, privileged=privileged, render_images=render_images, seed=seed)
-    return BatchedScene(resolve_robot(cfg, base_dir), cfg.task, n, options,
-                        WarpOptions(device=device or eng.device))
+    return open_batched(eng.name, resolve_robot(cfg, base_dir), cfg.task, n, options, device or eng.device)
 
 
 class WarpVectorEnv(BatchVectorEnv):

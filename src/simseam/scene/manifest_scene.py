@@ -106,7 +106,11 @@ class ScenePlan:
     kinematic base), ``joint_index[k]``: joint k's place in the manifest; ``arm_idx`` / ``grip_idx``:
     the arm's and the gripper's joints among ``joints``; ``home``: their reset positions; the tool frame
     (``tool_pos``, ``tool_rot``) on the tool link; ``state_names``: the task's state vector;
-    ``cameras``: the RGB cameras as (sensor name, feature key, (H, W))."""
+    ``cameras``: the RGB cameras as (sensor name, feature key, (H, W)); the controllers' constants:
+    ``arm_max_step`` (each arm joint's most per control step), ``max_translation`` / ``max_rotation``
+    (a Cartesian arm's step per unit action; 0 in joint mode), ``grip_open`` / ``grip_closed`` (the
+    fingers' positions; empty without a gripper); ``rot_reference``: the home tool orientation the
+    state's axis-angle stays continuous around (wxyz); ``tool_link``: the link the tool frame rides on."""
 
     substeps: int
     chunks: tuple[int, ...]
@@ -120,6 +124,13 @@ class ScenePlan:
     tool_rot: np.ndarray
     state_names: tuple[str, ...]
     cameras: tuple[tuple[str, str, tuple[int, int]], ...]
+    arm_max_step: np.ndarray
+    max_translation: float
+    max_rotation: float
+    grip_open: np.ndarray
+    grip_closed: np.ndarray
+    rot_reference: np.ndarray
+    tool_link: str
 
 
 class ManifestScene:
@@ -185,13 +196,21 @@ class ManifestScene:
         self.plan = ScenePlan(self._substeps, tuple(self._chunks), tuple(self._ramp), tuple(self._ejoints),
                               self._eidx.copy(), self._arm_idx.copy(), self._grip_idx.copy(), self._home.copy(),
                               self._tool_pos.copy(), self._tool_rot.copy(), tuple(self._state_names),
-                              tuple((n, k, self._sizes[n]) for n, k in self._rgb))
+                              tuple((n, k, self._sizes[n]) for n, k in self._rgb), *self._controller_plan())
         self._seed_stream = np.random.default_rng(opts.seed)
         self._episode_ready = False
         self._closed = False
         self._frame: np.ndarray | None = None
 
     # ------------------------------------------------------------ construction
+    def _controller_plan(self) -> tuple:
+        """``ScenePlan``'s controller constants (see its docstring), in its field order."""
+        arm, g = self.arm, self.gripper
+        none = np.zeros(0)
+        return (np.asarray(arm.max_step, float).copy(), float(getattr(arm, "max_translation", 0.0)),
+                float(getattr(arm, "max_rotation", 0.0)), (g.open if g else none).copy(),
+                (g.closed if g else none).copy(), self.rot_reference.copy(), self.robot.tool_parent)
+
     def _index_joints(self) -> None:
         """Engine joints (every manifest joint but the kinematic base's), their limits and roles."""
         robot = self.robot

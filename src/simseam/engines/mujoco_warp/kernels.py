@@ -6,9 +6,10 @@ They mirror the scene's host code line by line (float32 on the device):
   least-squares Newton step, joint-limit blocking re-solve, null-space pull to home, re-anchoring
   on the measured pose, joint speed limit) and ``JointPositionArm``; then the gripper mapping;
 - ``servo_kernel``: the smoothstep ramp of the servo setpoints (``ManifestScene._servo``);
-- ``make_observe_kernel``: the tool pose in the base frame, the state vector (``Task.state``),
-  privileged poses and ``lift_cube``'s success / diagnostics;
-- ``grasp_kernel``: ``contacts_between('cube', 'robot')`` over the batch's contacts;
+- ``make_observe_kernel``: the tool pose (world and base frame), the state vector (``Task.state``) and
+  the joints: the robot's part of the observation (a task's own reads are batched array code,
+  ``simseam.scene.tasks.batch``, run on views of the physics state);
+- ``contact_pair_kernel``: ``contacts_between(a, b)`` over the batch's contacts;
 - row scatters for per-world resets and the RGB unpacking of MuJoCo Warp's renderer.
 """
 
@@ -408,6 +409,11 @@ def copy_rows_kernel(src: wp.array2d[float], dst: wp.array2d[float], active: wp.
 
 # ------------------------------------------------------------------------------------------ observe
 def make_observe_kernel(n_state_grip: int):
+    """The robot's part of the observation (``ManifestScene._observe``): the tool pose (world and base
+    frame), the state vector (``Task.state``: position, axis-angle, finger positions), the joints in
+    manifest order. What a task reads of its props comes from the physics state itself
+    (``simseam.scene.warp.task_state``)."""
+
     @wp.kernel(module="unique", enable_backward=False)
     def observe_kernel(
         qpos: wp.array2d[float],
@@ -423,28 +429,22 @@ def make_observe_kernel(n_state_grip: int):
         joint_qadr: wp.array[int],  # manifest order
         joint_vadr: wp.array[int],
         grip_qadr: wp.array[int],
-        cube_body: int,
-        rest_z: float,
-        lift_height: float,
         # out
+        eef_world: wp.array[wp.vec3],
         eef_pos: wp.array[wp.vec3],
         eef_rot: wp.array[wp.mat33],
         state: wp.array2d[float],
         joint_pos: wp.array2d[float],
         joint_vel: wp.array2d[float],
         eef_pose: wp.array2d[float],  # privileged: [x y z qw qx qy qz], base frame
-        cube_pose: wp.array2d[float],
-        cube_height: wp.array[float],
-        eef_to_cube: wp.array[float],
-        success: wp.array[int],
     ):
         w = wp.tid()
         r = xmat[w, tool_body]
         p_world = xpos[w, tool_body] + r * tool_pos
-        r_world = r * tool_rot
         bt = wp.transpose(base_rot)
         p = bt * (p_world - base_pos)
-        rb = bt * r_world
+        rb = bt * (r * tool_rot)
+        eef_world[w] = p_world
         eef_pos[w] = p
         eef_rot[w] = rb
         aa = mat_to_axis_angle(rb, rot_reference)
@@ -457,54 +457,37 @@ def make_observe_kernel(n_state_grip: int):
             joint_pos[w, j] = qpos[w, joint_qadr[j]]
             joint_vel[w, j] = qvel[w, joint_vadr[j]]
         qe = mat_to_quat_wxyz(rb)
-        cp_world = xpos[w, cube_body]
-        cp = bt * (cp_world - base_pos)
-        qc = mat_to_quat_wxyz(bt * xmat[w, cube_body])
         for a in range(3):
             eef_pose[w, a] = p[a]
-            cube_pose[w, a] = cp[a]
         for a in range(4):
             eef_pose[w, 3 + a] = qe[a]
-            cube_pose[w, 3 + a] = qc[a]
-        h = cp_world[2] - rest_z
-        cube_height[w] = h
-        eef_to_cube[w] = wp.length(p_world - cp_world)
-        success[w] = wp.where(h > lift_height, 1, 0)
 
     return observe_kernel
 
 
 @wp.kernel(enable_backward=False)
-def grasp_kernel(nacon: wp.array[int], geom: wp.array[wp.vec2i], worldid: wp.array[int],
-                 geom_owner: wp.array[int], a: int, b: int, touching: wp.array[int]):
-    """touching[w] = 1 when world w has a contact between owners ``a`` and ``b``."""
+def contact_pair_kernel(nacon: wp.array[int], geom: wp.array[wp.vec2i], worldid: wp.array[int],
+                        geom_owner: wp.array[int], a: int, b: int, where: wp.array[int], touching: wp.array[int]):
+    """touching[w] = 1 when world w (with where[w] != 0) has a contact between owners ``a`` and ``b``
+    (``MujocoEngine.contacts_between`` over the batch's contacts)."""
     c = wp.tid()
     if c >= nacon[0]:
         return
     g = geom[c]
     if g[0] < 0 or g[1] < 0:
         return
+    w = worldid[c]
+    if where[w] == 0:
+        return
     o1 = geom_owner[g[0]]
     o2 = geom_owner[g[1]]
     if (o1 == a and o2 == b) or (o1 == b and o2 == a):
-        touching[worldid[c]] = 1
+        touching[w] = 1
 
 
 # ------------------------------------------------------------------------------------------ resets
 @wp.kernel(enable_backward=False)
 def scatter_rows_kernel(src: wp.array2d[float], rows: wp.array[int], dst: wp.array2d[float]):
-    k, j = wp.tid()
-    dst[rows[k], j] = src[k, j]
-
-
-@wp.kernel(enable_backward=False)
-def scatter_vec3_kernel(src: wp.array2d[wp.vec3], rows: wp.array[int], dst: wp.array2d[wp.vec3]):
-    k, j = wp.tid()
-    dst[rows[k], j] = src[k, j]
-
-
-@wp.kernel(enable_backward=False)
-def scatter_mat33_kernel(src: wp.array2d[wp.mat33], rows: wp.array[int], dst: wp.array2d[wp.mat33]):
     k, j = wp.tid()
     dst[rows[k], j] = src[k, j]
 
@@ -526,16 +509,3 @@ def unpack_rgb_u8_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, ou
     out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
     out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
     out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
-
-
-@wp.kernel(enable_backward=False)
-def reach_eval_kernel(eef_pos: wp.array[wp.vec3], eef_rot: wp.array[wp.mat33], target_pos: wp.array[wp.vec3],
-                      target_rot: wp.array[wp.mat33], pos_tol: float, rot_tol: float,
-                      pos_err: wp.array[float], rot_err: wp.array[float], success: wp.array[int]):
-    """``reach``'s evaluation: tool frame within ``pos_tol`` and ``rot_tol`` of the world's target."""
-    w = wp.tid()
-    ep = wp.length(eef_pos[w] - target_pos[w])
-    er = wp.length(rotation_error(target_rot[w], eef_rot[w]))
-    pos_err[w] = ep
-    rot_err[w] = er
-    success[w] = wp.where(ep < pos_tol and er < rot_tol, 1, 0)

@@ -33,7 +33,7 @@ class PoseRenderer:
     def __init__(self, scene, num_envs: int, device: str | None = None):
         from simseam.engines.mujoco.engine import GROUP_ROBOT_VISUAL, GROUP_WORLD
 
-        if not getattr(scene, "_rgb", None):
+        if not scene.plan.cameras:
             raise ConfigError("PoseRenderer: the scene has no RGB cameras")
         mjm = scene.engine.model
         self.mjm = mjm
@@ -45,8 +45,7 @@ class PoseRenderer:
         self.state_size = mjm.nq + 7 * mjm.nmocap
         names, res = [], []
         self.cameras: dict[str, tuple[int, int]] = {}
-        for name, key in scene._rgb:
-            h, w = scene._sizes[name]
+        for name, key, (h, w) in scene.plan.cameras:
             names.append(f"cam:{name}")
             res.append((w, h))
             self.cameras[key] = (h, w)

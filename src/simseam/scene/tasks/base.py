@@ -1,9 +1,12 @@
 """Tasks: what the robot is asked to do in a scene (props, randomisation, state, success), by name.
 
 A task never touches control: it places the robot base, adds props through
-engine primitives, randomises them from the episode's generator, defines the
-observation's state vector and judges each step (``evaluate``: reward, success
-and named diagnostics such as a distance to the goal). Tasks that constrain
+engine primitives, draws each episode's randomisation from the episode's generator
+(``sample``), defines the observation's state vector and judges each step
+(``evaluate_batch``: reward, success and named diagnostics such as a distance to the
+goal). The draws and the judgement are written once, batched over N worlds
+(``simseam.scene.tasks.batch``): the CPU engine runs them for one world, MuJoCo Warp
+for all its worlds, with no engine-specific code in the task. Tasks that constrain
 nothing about the robot accept any manifest robot; others state what they need
 (``required_rgb``, a forced control mode, a gripper) and ``check_robot``
 rejects a robot that lacks it.
@@ -20,6 +23,7 @@ from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import axis_angle_of
 from simseam.robot.spec import RobotSpec
 from simseam import registry
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, SceneState, TaskState
 from simseam.seam import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -65,6 +69,7 @@ class Task:
         self.spec = spec
         self.reach = reach
         self.chain = chain  # base link -> tool frame, the one the scene's IK uses
+        self.params: dict[str, np.ndarray] = {}  # the episode's draws as one world's (reset)
 
     def check_robot(self) -> None:
         """Raise ``ConfigError`` listing what the robot lacks for this task."""
@@ -98,11 +103,27 @@ class Task:
             )
         )
 
-    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
-        """Place the props for a new episode (after the engine reset)."""
+    def sample(self, rng: np.random.Generator) -> Draw:
+        """The episode's random choices, from ``rng`` alone: where the props go and the other choices
+        (``Draw``). The one definition of the task's reset, for every engine (a batched engine draws each
+        world's from that world's own seed)."""
+        return Draw()
 
-    def privileged(self, scene: "ManifestScene") -> dict[str, np.ndarray]:
-        """Extra ground truth for ``privileged['objects']`` (base frame [x, y, z, qw, qx, qy, qz])."""
+    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
+        """Start an episode on one engine (after the engine reset): ``sample``'s props placed, its params
+        kept as one world's (``self.params``, read by ``evaluate``)."""
+        draw = self.sample(rng)
+        for name, (pos, quat) in draw.poses.items():
+            engine.set_object_pose(name, pos, quat)
+        self.params = {k: np.asarray(v)[None] for k, v in draw.params.items()}
+
+    def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
+        """Reward, success and diagnostics of N worlds after a control step (``simseam.scene.tasks.batch``)."""
+        raise NotImplementedError
+
+    def extra_poses(self, state: TaskState) -> dict[str, object]:
+        """Ground truth beyond the tracked props for ``privileged['objects']`` (a target, a goal): each of
+        ``privileged_extras`` as base-frame [x, y, z, qw, qx, qy, qz] float[N, 7] of ``state.xp``."""
         return {}
 
     def object_names(self) -> tuple[str, ...]:
@@ -113,7 +134,10 @@ class Task:
         """Each of ``object_names()`` as a base-frame pose [x, y, z, qw, qx, qy, qz] (float64[7]): the one
         source of ``privileged['objects']`` and of ``environment_state``."""
         eng = scene.engine
-        return {**{n: scene.to_base(*eng.object_pose(n)) for n in self.tracked_objects}, **self.privileged(scene)}
+        poses = {n: scene.to_base(*eng.object_pose(n)) for n in self.tracked_objects}
+        if self.privileged_extras:
+            poses.update({n: v[0] for n, v in self.extra_poses(SceneState(scene, self.params)).items()})
+        return poses
 
     def environment_state(self, objects: dict[str, np.ndarray]) -> np.ndarray:
         """The ``environment_state`` observation from ``object_poses``' result: the poses concatenated
@@ -141,8 +165,10 @@ class Task:
         out[:] = [*eef_pos, *axis_angle_of(eef_rot, rot_reference), *gripper_q.tolist()]
 
     def evaluate(self, scene: "ManifestScene") -> Evaluation:
-        """Reward, success and diagnostics after a control step."""
-        raise NotImplementedError
+        """``evaluate_batch`` for the one world of ``scene`` (the CPU engine), as Python values."""
+        ev = self.evaluate_batch(SceneState(scene, self.params))
+        return Evaluation(float(ev.reward.item()), bool(ev.success.item()),
+                          {k: v.item() for k, v in ev.diagnostics.items()})
 
 
 #: every task by name (simseam.registry: "module:Class", imported when asked for)
@@ -157,10 +183,6 @@ TASKS: dict[str, str | type[Task]] = {
 def register_task(cls: type[Task]) -> type[Task]:
     """Class decorator for a task defined outside this table: adds its row (under its ``name``)."""
     return registry.add(TASKS, cls.name, cls)
-
-
-def task_names() -> list[str]:
-    return sorted(TASKS)
 
 
 def get_task(name: str) -> type[Task]:

@@ -10,7 +10,7 @@ definition over a batched physics state, one row per world. The same code runs
 So task code is written against the NumPy API with the namespace it is handed (``state.xp``): arithmetic
 and comparisons, ``xp.where``, ``xp.sqrt``, ``xp.abs``, ``xp.arctan2``, ``xp.arccos``, ``xp.sin``,
 ``xp.cos``, ``xp.clip``, ``xp.minimum`` / ``xp.maximum``, ``xp.sum`` / ``xp.any`` / ``xp.all`` with
-``axis``, ``xp.linalg.norm(..., axis=-1)``, ``xp.einsum``, ``xp.matmul``, ``xp.stack`` /
+``axis`` (and ``norm`` below), ``xp.einsum``, ``xp.matmul``, ``xp.stack`` /
 ``xp.concatenate``, slicing. NumPy and CuPy both implement that subset; nothing else is assumed. A task
 never branches on the engine or on N, and never converts to Python scalars (that would force a device
 sync per world).
@@ -26,7 +26,8 @@ import numpy as np
 
 @dataclass(slots=True)
 class BatchEvaluation:
-    """A task's judgement of N worlds after a control step: ``reward`` float[N], ``success`` bool[N] and,
+    """A task's judgement of N worlds after a control step: ``reward`` float[N] (or bool[N] for a sparse
+    reward: 1.0 where True), ``success`` bool[N] and,
     for each name in ``Task.diagnostics``, a float or bool array [N] (SI units), all of ``state.xp``."""
 
     reward: Any
@@ -64,8 +65,9 @@ class TaskState(Protocol):
     def object_velocity(self, name: str) -> Any:
         """float[N, 6]: the prop's linear then angular velocity (world frame); zeros for a static prop."""
 
-    def contacts(self, a: str, b: str) -> Any:
-        """bool[N]: whether ``a`` and ``b`` (prop names, or ``robot``) touch."""
+    def contacts(self, a: str, b: str, where: Any = None) -> Any:
+        """bool[N]: whether ``a`` and ``b`` (prop names, or ``robot``) touch; with ``where`` (bool[N]) only
+        those worlds need an answer (the others give False), which lets an engine skip its collision pass."""
 
     def eef_position_world(self) -> Any:
         """float[N, 3]: the measured tool position."""
@@ -81,6 +83,12 @@ class TaskState(Protocol):
 
 
 # ------------------------------------------------------------------------------------------ batched math
+def norm(xp, v):
+    """float[...]: the Euclidean norm over the last axis (cheaper than ``xp.linalg.norm`` on NumPy's
+    small arrays, where the CPU engine's single world pays per call)."""
+    return xp.sqrt((v * v).sum(axis=-1))
+
+
 def quat_to_matrix(xp, q):
     """wxyz float[N, 4] -> float[N, 3, 3] (unit quaternions)."""
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -113,7 +121,7 @@ def matrix_to_quat(xp, m):
     second = ((m00 > m11) & (m00 > m22))[..., None]
     third = (m11 > m22)[..., None]
     q = xp.where(first, quats[0], xp.where(second, quats[1], xp.where(third, quats[2], quats[3])))
-    q = q / xp.linalg.norm(q, axis=-1, keepdims=True)
+    q = q / norm(xp, q)[..., None]
     return xp.where(q[..., :1] < 0.0, -q, q)
 
 
@@ -123,7 +131,7 @@ def rotation_angle(xp, target, current):
     m = xp.matmul(target, xp.swapaxes(current, -1, -2))
     v = xp.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], axis=-1)
     c = (m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2] - 1.0) * 0.5
-    return xp.arctan2(0.5 * xp.linalg.norm(v, axis=-1), c)
+    return xp.arctan2(0.5 * norm(xp, v), c)
 
 
 def wrap_angle(xp, a):
@@ -136,3 +144,50 @@ def yaw_quats(xp, yaw):
     h = 0.5 * yaw
     zero = xp.zeros_like(h)
     return xp.stack([xp.cos(h), zero, zero, xp.sin(h)], axis=-1)
+
+
+# ------------------------------------------------------------------------------------------ one world
+_NO = np.zeros(1, dtype=bool)
+_YES = np.ones(1, dtype=bool)
+
+
+class SceneState:
+    """``TaskState`` of one ``ManifestScene`` (any engine of primitives): N = 1, NumPy, read on demand
+    from the scene's engine, so a task pays only for what it reads."""
+
+    __slots__ = ("scene", "params")
+    xp = np
+    num_worlds = 1
+
+    def __init__(self, scene, params: dict[str, np.ndarray]):
+        self.scene = scene
+        self.params = params
+
+    def object_pos(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_pose(name)[0][None]
+
+    def object_quat(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_pose(name)[1][None]
+
+    def object_velocity(self, name: str) -> np.ndarray:
+        return self.scene.engine.object_velocity(name)[None]
+
+    def contacts(self, a: str, b: str, where=None) -> np.ndarray:
+        """bool[1]; ``where`` (bool[N]): only those worlds are asked (the rest answer False), so a task
+        that needs a contact only in some state spares the others the collision pass."""
+        if where is not None and not where[0]:
+            return _NO
+        return _YES if self.scene.engine.contacts_between(a, b) else _NO
+
+    def eef_position_world(self) -> np.ndarray:
+        return self.scene.eef_position_world()[None]
+
+    def eef_pose_base(self) -> tuple[np.ndarray, np.ndarray]:
+        pos, rot = self.scene.eef_pose_base()
+        return pos[None], rot[None]
+
+    def base_pose(self) -> np.ndarray:
+        return self.scene.base_pose()[None]
+
+    def to_base(self, pos, quat) -> np.ndarray:
+        return self.scene.to_base(np.asarray(pos)[0], np.asarray(quat)[0])[None]

@@ -11,13 +11,12 @@ by the robot. Reward is sparse: 1.0 on success.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task
+from simseam.scene.tasks.base import TABLE_TOP, Task
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm
 
 BOWL_BASE_R = 0.045
 BOWL_WALL_R = 0.052  # centre radius of the wall segments
@@ -70,25 +69,25 @@ class BowlPlate(Task):
             )
         )
 
-    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
+    def sample(self, rng: np.random.Generator) -> Draw:
         cx, half = self.workspace()
         base, _ = self.robot_base()
         side = rng.choice([-1.0, 1.0])
         bowl = np.array([cx + rng.uniform(-0.4, 0.4) * half, side * rng.uniform(0.09, 0.14) * self.reach / 0.85])
         plate = np.array([cx + rng.uniform(-0.4, 0.4) * half, -side * rng.uniform(0.09, 0.14) * self.reach / 0.85])
-        engine.set_object_pose("bowl", np.array([*(base[:2] + bowl), TABLE_TOP]), yaw_quat(rng.uniform(-np.pi, np.pi)))
-        engine.set_object_pose("plate", np.array([*(base[:2] + plate), TABLE_TOP]), yaw_quat(0.0))
+        bowl_quat = yaw_quat(rng.uniform(-np.pi, np.pi))
+        return Draw(poses={"bowl": (np.array([*(base[:2] + bowl), TABLE_TOP]), bowl_quat),
+                           "plate": (np.array([*(base[:2] + plate), TABLE_TOP]), yaw_quat(0.0))})
 
-    def evaluate(self, scene) -> Evaluation:
-        engine = scene.engine
-        bowl, _ = engine.object_pose("bowl")
-        plate, _ = engine.object_pose("plate")
-        offset = math.dist(bowl[:2].tolist(), plate[:2].tolist())  # plain floats: the same bits on any numpy
+    def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
+        xp = state.xp
+        bowl, plate = state.object_pos("bowl"), state.object_pos("plate")
+        offset = norm(xp, bowl[:, :2] - plate[:, :2])  # m, horizontal distance of the centres
         centred = offset < PLATE_R - 0.02
-        on_top = abs(bowl[2] - (plate[2] + 2 * PLATE_HALF_H)) < 0.015
-        still = np.linalg.norm(engine.object_velocity("bowl")[:3]) < 0.05
-        released = not engine.contacts_between("bowl", "robot")
-        success = bool(centred and on_top and still and released)
-        return Evaluation(float(success), success, {
-            "bowl_to_plate": offset,  # m, horizontal distance between the centres
-            "bowl_on_plate": bool(centred and on_top), "released": bool(released)})
+        on_top = xp.abs(bowl[:, 2] - (plate[:, 2] + 2 * PLATE_HALF_H)) < 0.015
+        still = norm(xp, state.object_velocity("bowl")[:, :3]) < 0.05
+        placed = centred & on_top & still
+        released = ~state.contacts("bowl", "robot")
+        success = placed & released
+        return BatchEvaluation(success, success, {
+            "bowl_to_plate": offset, "bowl_on_plate": centred & on_top, "released": released})

@@ -7,16 +7,16 @@ from the episode seed. Reward is sparse: 1.0 on success.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import TABLE_TOP, Evaluation, Task
+from simseam.scene.tasks.base import TABLE_TOP, Task
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm
 
 CUBE_HALF = 0.02
 LIFT_HEIGHT = 0.10
+REST_Z = TABLE_TOP + CUBE_HALF  # world z of the cube's centre at rest
 
 
 class LiftCube(Task):
@@ -38,23 +38,22 @@ class LiftCube(Task):
             )
         )
 
-    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
+    def sample(self, rng: np.random.Generator) -> Draw:
         cx, half = self.workspace()
         x = cx + rng.uniform(-half, half) * 0.6
         y = rng.uniform(-half, half)
         yaw = rng.uniform(-np.pi / 4, np.pi / 4)
         base, _ = self.robot_base()
-        self.rest_z = TABLE_TOP + CUBE_HALF
-        engine.set_object_pose("cube", np.array([base[0] + x, base[1] + y, self.rest_z]), yaw_quat(yaw))
+        return Draw(poses={"cube": (np.array([base[0] + x, base[1] + y, REST_Z]), yaw_quat(yaw))})
 
-    def evaluate(self, scene) -> Evaluation:
-        eng = scene.engine
-        pos = eng.object_pose("cube")[0].tolist()  # plain floats: the same numbers, fewer numpy calls
-        height = pos[2] - self.rest_z
+    def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
+        xp = state.xp
+        pos = state.object_pos("cube")
+        height = pos[:, 2] - REST_Z  # m above its resting height
         success = height > LIFT_HEIGHT
-        eef = scene.eef_position_world()
-        return Evaluation(float(success), success, {
-            "cube_height": height,  # m above its resting height
-            "eef_to_cube": math.dist(eef.tolist(), pos),  # m, tool frame to cube centre
-            "grasped": height > 0.005 and bool(eng.contacts_between("cube", "robot")),  # contacts: only when lifted
+        lifted = height > 0.005
+        return BatchEvaluation(success, success, {
+            "cube_height": height,
+            "eef_to_cube": norm(xp, state.eef_position_world() - pos),  # m, tool frame to cube
+            "grasped": state.contacts("cube", "robot", where=lifted),  # asked only where lifted (False elsewhere)
         })

@@ -17,7 +17,8 @@ import numpy as np
 
 from simseam.engines.base import Engine, ObjectModel, Shape
 from simseam.math3d import yaw_quat
-from simseam.scene.tasks.base import Evaluation, Task
+from simseam.scene.tasks.base import Task
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, norm, wrap_angle, yaw_quats
 from simseam.seam import ConfigError
 
 N_OBSTACLES = 6
@@ -51,36 +52,43 @@ class NavObstacles(Task):
                      Shape("cylinder", (0.22, 0.4), pos=(0, 0, 0.4), rgba=(0.3, 0.55, 0.75, 1)))
             engine.add_object(ObjectModel(f"obstacle{k}", [shape], pos=(PARKED_X - 1.5 * k, 0.0, 0.0), dynamic=True,
                                           mass=50.0))
-        self.goal = np.zeros(3)
 
-    def reset(self, engine: Engine, rng: np.random.Generator) -> None:
-        self.goal = np.array([rng.uniform(2.5, 3.5), rng.uniform(-1.2, 1.2), rng.uniform(-math.pi, math.pi)])
+    def sample(self, rng: np.random.Generator) -> Draw:
+        """The goal, then 4-6 obstacles placed clear of the start, the goal and each other (the rest parked);
+        params: ``goal`` [x, y, yaw], ``active`` (which obstacles take part), ``touched`` (False: a touch
+        during the episode is carried over by ``evaluate_batch``)."""
+        goal = np.array([rng.uniform(2.5, 3.5), rng.uniform(-1.2, 1.2), rng.uniform(-math.pi, math.pi)])
         n = int(rng.integers(4, N_OBSTACLES + 1))
         placed: list[np.ndarray] = []
+        poses = {}
         for k in range(N_OBSTACLES):
             pos = np.array([PARKED_X - 1.5 * k, 0.0, 0.0])
             if k < n:
                 for _ in range(100):
-                    p = np.array([rng.uniform(0.6, self.goal[0] - 0.2), rng.uniform(-1.8, 1.8)])
-                    if (np.linalg.norm(p) > CLEARANCE and np.linalg.norm(p - self.goal[:2]) > CLEARANCE
+                    p = np.array([rng.uniform(0.6, goal[0] - 0.2), rng.uniform(-1.8, 1.8)])
+                    if (np.linalg.norm(p) > CLEARANCE and np.linalg.norm(p - goal[:2]) > CLEARANCE
                             and all(np.linalg.norm(p - q) > 1.6 for q in placed)):
                         placed.append(p)
                         pos = np.array([p[0], p[1], 0.0])
                         break
-            engine.set_object_pose(f"obstacle{k}", pos, yaw_quat(rng.uniform(-math.pi, math.pi)))
-        self.obstacles = [f"obstacle{k}" for k in range(len(placed))]
-        self.touched = False
+            poses[f"obstacle{k}"] = (pos, yaw_quat(rng.uniform(-math.pi, math.pi)))
+        active = np.arange(N_OBSTACLES) < len(placed)
+        return Draw(poses=poses, params={"goal": goal, "active": active, "touched": np.array(False)})
 
-    def privileged(self, scene) -> dict[str, np.ndarray]:
-        gx, gy, gyaw = self.goal
-        return {"goal": scene.to_base(np.array([gx, gy, 0.0]), yaw_quat(gyaw))}
+    def extra_poses(self, state: TaskState) -> dict:
+        xp, goal = state.xp, state.params["goal"]
+        return {"goal": state.to_base(xp.stack([goal[:, 0], goal[:, 1], xp.zeros_like(goal[:, 0])], axis=-1),
+                                      yaw_quats(xp, goal[:, 2]))}
 
-    def evaluate(self, scene) -> Evaluation:
-        eng = scene.engine
-        self.touched = self.touched or any(eng.contacts_between("robot", o) for o in self.obstacles)
-        x, y, yaw = scene.base_pose()
-        dyaw = math.atan2(math.sin(self.goal[2] - yaw), math.cos(self.goal[2] - yaw))
-        dist = math.hypot(self.goal[0] - x, self.goal[1] - y)
-        success = bool(not self.touched and dist < GOAL_POS_TOL and abs(dyaw) < GOAL_YAW_TOL)
-        return Evaluation(float(success), success,
-                          {"distance_to_goal": dist, "yaw_error": abs(dyaw), "touched": bool(self.touched)})
+    def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
+        xp, p = state.xp, state.params
+        touched, active = p["touched"], p["active"]
+        for k in range(N_OBSTACLES):  # a touch cannot be undone: once touched, no more contact checks
+            touched = touched | state.contacts("robot", f"obstacle{k}", where=active[:, k] & ~touched)
+        p["touched"] = touched
+        base, goal = state.base_pose(), p["goal"]
+        dyaw = xp.abs(wrap_angle(xp, goal[:, 2] - base[:, 2]))
+        dist = norm(xp, goal[:, :2] - base[:, :2])
+        success = ~touched & (dist < GOAL_POS_TOL) & (dyaw < GOAL_YAW_TOL)
+        return BatchEvaluation(success, success,
+                               {"distance_to_goal": dist, "yaw_error": dyaw, "touched": touched})

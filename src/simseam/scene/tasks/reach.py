@@ -18,8 +18,8 @@ import math
 
 import numpy as np
 
-from simseam.math3d import matrix_to_quat, rotation_error
-from simseam.scene.tasks.base import Evaluation, Task
+from simseam.scene.tasks.base import Task
+from simseam.scene.tasks.batch import BatchEvaluation, Draw, TaskState, matrix_to_quat, norm, rotation_angle
 from simseam.seam import ConfigError
 
 POS_TOL = 0.02  # m
@@ -45,7 +45,7 @@ class Reach(Task):
         if self.chain is None:
             raise ConfigError(f"task {self.name!r} needs the robot's kinematic chain (a manifest scene)")
 
-    def reset(self, engine, rng: np.random.Generator) -> None:
+    def sample(self, rng: np.random.Generator) -> Draw:
         chain = self.chain
         home = np.array([j.home for j in self.spec.arm_joints], dtype=np.float64)
         home = np.clip(home, chain.lower, chain.upper)
@@ -63,14 +63,17 @@ class Reach(Task):
         if tip is None:
             raise ConfigError(f"task {self.name!r}: robot {self.spec.name!r} found no target pose "
                               f"{MIN_HEIGHT} m above the table within reach of its home posture")
-        self.target_pos, self.target_rot = tip[:3, 3].copy(), tip[:3, :3].copy()
+        return Draw(params={"target_pos": tip[:3, 3].copy(), "target_rot": tip[:3, :3].copy()})
 
-    def privileged(self, scene) -> dict[str, np.ndarray]:
-        return {"target": np.concatenate([self.target_pos, matrix_to_quat(self.target_rot)])}
+    def extra_poses(self, state: TaskState) -> dict:
+        p = state.params
+        return {"target": state.xp.concatenate([p["target_pos"], matrix_to_quat(state.xp, p["target_rot"])], axis=-1)}
 
-    def evaluate(self, scene) -> Evaluation:
-        pos, rot = scene.eef_pose_base()
-        e_pos = math.dist(np.asarray(pos).tolist(), np.asarray(self.target_pos).tolist())
-        e_rot = math.hypot(*rotation_error(self.target_rot, rot).tolist())
-        success = e_pos < POS_TOL and e_rot < ROT_TOL
-        return Evaluation(float(success), success, {"position_error": e_pos, "orientation_error": e_rot})
+    def evaluate_batch(self, state: TaskState) -> BatchEvaluation:
+        xp, p = state.xp, state.params
+        pos, rot = state.eef_pose_base()
+        e_pos = norm(xp, pos - p["target_pos"])
+        e_rot = rotation_angle(xp, p["target_rot"], rot)
+        success = (e_pos < POS_TOL) & (e_rot < ROT_TOL)
+        return BatchEvaluation(success, success,
+                               {"position_error": e_pos, "orientation_error": e_rot})

@@ -9,4 +9,12 @@ the physics and the kernels from ``simseam.engines.mujoco_warp``. Needs the ``wa
 from simseam.scene.warp.batched import BatchedScene, BatchStep, WarpOptions
 from simseam.scene.warp.rollout import WarpBatchRollout, WarpRollout, world_observations
 
-__all__ = ["BatchStep", "BatchedScene", "WarpBatchRollout", "WarpOptions", "WarpRollout", "world_observations"]
+
+def open_batch(robot, task: str, num_envs: int, options=None, device: str | None = None) -> BatchedScene:
+    """The engine table's factory for ``mujoco_warp`` (``engines.registry.open_batched``): ``num_envs``
+    worlds of ``task`` with ``robot`` on ``device`` (default: warp's preferred one)."""
+    return BatchedScene(robot, task, num_envs, options, WarpOptions(device=device))
+
+
+__all__ = ["BatchStep", "BatchedScene", "WarpBatchRollout", "WarpOptions", "WarpRollout", "open_batch",
+           "world_observations"]

@@ -16,13 +16,15 @@ built from the same robot, task and options, and provides
   world's row. A reset therefore starts from exactly the CPU engine's state.
 
 Everything per step runs batched on the device: action clipping, the Cartesian IK and the
-controllers (``kernels.make_arm_kernel``), the servo ramp, ``substeps`` MuJoCo Warp steps, the
-observation, success and diagnostics (``kernels.make_observe_kernel``) and the cameras (MuJoCo
-Warp's batched ray tracer). On a CUDA device one control step is one captured CUDA graph.
+controllers (``kernels.make_arm_kernel``), the servo ramp, ``substeps`` MuJoCo Warp steps, the robot's
+observation (``kernels.make_observe_kernel``) and the cameras (MuJoCo Warp's batched ray tracer). On a
+CUDA device one control step is one captured CUDA graph. The task is the scene's own task, written
+once (``simseam.scene.tasks.batch``): its draws for each world's seed place the props at reset, and its
+``evaluate_batch`` judges every world after each step, on views of the device state
+(``task_state.WarpTaskState``: NumPy on Warp's CPU device, CuPy on CUDA). Nothing here names a task.
 
-Supported: the ``lift_cube`` and ``reach`` tasks; fixed-base arms (CARTESIAN_DELTA with >= 6 arm
-joints, or JOINT_POSITION with any); RGB cameras. Other tasks, kinematic bases, lidars and depth
-sensors are refused with a ``ConfigError``.
+Supported: any task, on fixed-base arms (CARTESIAN_DELTA with >= 3 arm joints, or JOINT_POSITION with
+any) with RGB cameras. Kinematic bases, lidars and depth sensors are refused with a ``ConfigError``.
 """
 
 from __future__ import annotations
@@ -52,11 +54,10 @@ except ImportError as exc:  # pragma: no cover - exercised only without the pack
         f"(pip install 'simseam[warp]'): {exc}") from None
 
 from simseam.engines.mujoco_warp import kernels as K
+from simseam.scene.warp.task_state import WarpTaskState, array_module, array_stream
 
-SUPPORTED_TASKS = ("lift_cube", "reach")
 DEFAULT_NCONMAX = 96  # contacts per world (allocated for the whole batch)
 DEFAULT_NJMAX = 600  # constraint rows per world
-ROBOT, CUBE = 1, 2  # owner codes for the grasp test
 
 
 @dataclass(frozen=True)
@@ -84,14 +85,27 @@ class BatchStep:
     steps: np.ndarray  # int64[N]: control steps of each world's episode
 
 
+def _check_batched_task(task) -> None:
+    """A task written for one world only (its own ``reset`` / ``evaluate``, no ``sample`` /
+    ``evaluate_batch``) cannot run on N worlds: a ``ConfigError`` saying what to write."""
+    from simseam.scene.tasks.base import Task
+
+    cls = type(task)
+    missing = [name for name, one in (("evaluate_batch", "evaluate"), ("sample", "reset"))
+               if getattr(cls, name) is getattr(Task, name) and getattr(cls, one) is not getattr(Task, one)]
+    if cls.evaluate_batch is Task.evaluate_batch and "evaluate_batch" not in missing:
+        missing.append("evaluate_batch")
+    if missing:
+        raise ConfigError(f"engine 'mujoco_warp': task {task.name!r} is written for one world only; write its "
+                          f"{' and '.join(missing)} (docs/extending.md, a task on both engines)")
+
+
 class BatchedScene:
     """``num_envs`` worlds of ``task`` with ``robot`` (see the module docstring)."""
 
     def __init__(self, robot, task: str, num_envs: int, options=None, warp_options: WarpOptions | None = None):
         from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 
-        if task not in SUPPORTED_TASKS:
-            raise ConfigError(f"engine 'mujoco_warp' runs tasks {list(SUPPORTED_TASKS)}; got {task!r}")
         if int(num_envs) < 1:
             raise ConfigError(f"engine 'mujoco_warp': num_envs must be >= 1, got {num_envs}")
         self.num_envs = n = int(num_envs)
@@ -104,6 +118,7 @@ class BatchedScene:
                               "(only RGB cameras are supported)")
         # the reference scene on the CPU engine: semantics, model, and every reset state
         self.host = host = ManifestScene(robot, task, "mujoco", options)
+        _check_batched_task(host.task)
         spec = host.spec
         self._spec = dataclasses.replace(spec, engine="mujoco_warp")
         mode = spec.action.control_mode
@@ -113,7 +128,6 @@ class BatchedScene:
         if self._cartesian and n_arm < 3:
             raise ConfigError(f"engine 'mujoco_warp': Cartesian control needs >= 3 arm joints; robot "
                               f"{robot.name!r} has {n_arm} (use control_mode: joint_position)")
-        self.task_name = task
         mjm = host.engine.model
         self.mjm = mjm
         self.substeps = plan.substeps
@@ -129,11 +143,16 @@ class BatchedScene:
         self.device = wp.get_device(wopts.device) if wopts.device else wp.get_preferred_device()
         t0 = time.perf_counter()
         host.reset(0, STATE_ONLY)
+        self.xp = array_module(self.device)
         with wp.ScopedDevice(self.device):
             self.m = mjw.put_model(mjm)
             self.d = mjw.put_data(mjm, host.engine.data, nworld=n, nconmax=wopts.nconmax, njmax=wopts.njmax)
             self._make_buffers(host, mjm)
             self._make_cameras(host, mjm)
+            with array_stream(self.xp, self.device):
+                self.task_state = WarpTaskState(self)
+                self._make_params()
+        self._eval = None
         self.build_s = time.perf_counter() - t0
         self._graphs: dict = {}  # name -> captured CUDA graph
         self._ran: set = set()
@@ -145,8 +164,7 @@ class BatchedScene:
     # ------------------------------------------------------------------------------------ construction
     def _make_buffers(self, host, mjm) -> None:
         n = self.num_envs
-        chain, ca = host.chain, host.chain.arrays
-        arm = host.arm
+        ca = host.chain.arrays
         spec, plan, layout = host.spec, host.plan, host.engine.layout
         self._nej = len(plan.joints)
         self._adim = adim = spec.action.dim
@@ -163,6 +181,7 @@ class BatchedScene:
         self._lo_d, self._hi_d = wp.array(lo, dtype=float), wp.array(hi, dtype=float)
         if spec.action.norm_bounds:
             raise ConfigError("engine 'mujoco_warp': norm-bounded action slots (a kinematic base) are not supported")
+        self.eef_world = wp.zeros(n, dtype=wp.vec3)
         self.eef_pos = wp.zeros(n, dtype=wp.vec3)
         self.eef_rot = wp.zeros(n, dtype=wp.mat33)
         self.ref_pos = wp.zeros(n, dtype=wp.vec3)
@@ -175,32 +194,29 @@ class BatchedScene:
         self._axes = wp.array(ca.axes.astype(np.float32), dtype=wp.vec3)
         self._prism = wp.array(ca.prismatic.astype(np.int32), dtype=int)
         self._tail = wp.mat44(*ca.tail.astype(np.float32).reshape(-1).tolist())
-        self._lower = wp.array(chain.lower.astype(np.float32), dtype=float)
-        self._upper = wp.array(chain.upper.astype(np.float32), dtype=float)
-        self._max_step = wp.array(np.minimum(arm.max_step, 1e6).astype(np.float32), dtype=float)
+        self._lower = wp.array(ca.lower.astype(np.float32), dtype=float)
+        self._upper = wp.array(ca.upper.astype(np.float32), dtype=float)
+        self._max_step = wp.array(np.minimum(plan.arm_max_step, 1e6).astype(np.float32), dtype=float)
         self._q_home = wp.array(self._home[plan.arm_idx], dtype=float)
-        g = host.gripper
-        self._grip_open = wp.array((g.open if g else np.zeros(0)).astype(np.float32), dtype=float)
-        self._grip_closed = wp.array((g.closed if g else np.zeros(0)).astype(np.float32), dtype=float)
+        self._grip_open = wp.array(plan.grip_open.astype(np.float32), dtype=float)
+        self._grip_closed = wp.array(plan.grip_closed.astype(np.float32), dtype=float)
         names = [s.name for s in spec.action.slots]
         self._grip_slot = names.index("grip") if "grip" in names else -1
-        self._arm_kernel = K.make_arm_kernel(chain.n, self._cartesian, chain.n > 6, bool(ca.prismatic.any()))
-        if self._cartesian:
-            self._max_t, self._max_r = float(arm.max_translation), float(arm.max_rotation)
-        else:
-            self._max_t = self._max_r = 0.0
+        n_chain = len(ca.q_index)
+        self._arm_kernel = K.make_arm_kernel(n_chain, self._cartesian, n_chain > 6, bool(ca.prismatic.any()))
+        self._max_t, self._max_r = plan.max_translation, plan.max_rotation
         # observation constants
         from simseam.scene.controllers.arm import REANCHOR_POS, REANCHOR_ROT, ROT_WEIGHT
 
         self._reanchor = (REANCHOR_POS, REANCHOR_ROT, ROT_WEIGHT)
         robot = host.robot
-        self._tool_body = int(mjm.body(robot.tool_parent).id)
+        self._tool_body = int(mjm.body(plan.tool_link).id)
         base_pos, base_rot = host.base_frame()
         self._tool_pos = wp.vec3(*plan.tool_pos.astype(np.float32).tolist())
         self._tool_rot = wp.mat33(*plan.tool_rot.astype(np.float32).reshape(-1).tolist())
         self._base_pos = wp.vec3(*base_pos.astype(np.float32).tolist())
         self._base_rot = wp.mat33(*base_rot.astype(np.float32).reshape(-1).tolist())
-        self._rot_reference = wp.vec4(*host.rot_reference.astype(np.float32).tolist())
+        self._rot_reference = wp.vec4(*plan.rot_reference.astype(np.float32).tolist())
         manifest = robot.joint_names
         qadr = np.zeros(len(manifest), dtype=np.int32)
         vadr = np.zeros(len(manifest), dtype=np.int32)
@@ -208,34 +224,20 @@ class BatchedScene:
         vadr[plan.joint_index] = layout.joint_vadr
         self._jqadr, self._jvadr = wp.array(qadr, dtype=int), wp.array(vadr, dtype=int)
         self._gqadr = wp.array(layout.joint_qadr[plan.grip_idx].astype(np.int32), dtype=int)
-        from simseam.scene.tasks import reach as reach_task
-        from simseam.scene.tasks.base import TABLE_TOP
-        from simseam.scene.tasks.lift_cube import CUBE_HALF, LIFT_HEIGHT
-
-        lift = self.task_name == "lift_cube"
-        # lift_cube: the cube; reach: nothing to track (the observe kernel reads the tool body instead)
-        self._cube_body = int(layout.object_body["cube"]) if lift else self._tool_body
-        self._rest_z, self._lift = float(TABLE_TOP + CUBE_HALF), float(LIFT_HEIGHT) if lift else 1e9
-        self._reach_tol = (float(reach_task.POS_TOL), float(reach_task.ROT_TOL))
-        self.target_pos = wp.zeros(n, dtype=wp.vec3)  # reach: each world's target, base frame
-        self.target_rot = wp.zeros(n, dtype=wp.mat33)
-        self._target_np = np.zeros((n, 7))  # the same as [x y z qw qx qy qz] (privileged)
-        self.pos_err = wp.zeros(n, dtype=float)
-        self.rot_err = wp.zeros(n, dtype=float)
         ns = len(plan.state_names)
         self.state = wp.zeros((n, ns), dtype=float)
         self.joint_pos = wp.zeros((n, len(manifest)), dtype=float)
         self.joint_vel = wp.zeros((n, len(manifest)), dtype=float)
         self.eef_pose = wp.zeros((n, 7), dtype=float)
-        self.cube_pose = wp.zeros((n, 7), dtype=float)
-        self.cube_height = wp.zeros(n, dtype=float)
-        self.eef_to_cube = wp.zeros(n, dtype=float)
-        self.success = wp.zeros(n, dtype=int)
-        self.touching = wp.zeros(n, dtype=int)
         self._observe_kernel = K.make_observe_kernel(ns - 6)
-        owner = np.asarray(layout.geom_owner, dtype=np.int32)
-        self._geom_owner = wp.array(owner, dtype=int)
-        self._cube_code = int(layout.owner_code["cube"]) if lift else -1
+        self.geom_owner = wp.array(np.asarray(layout.geom_owner, dtype=np.int32), dtype=int)
+
+    def _make_params(self) -> None:
+        """Each world's row of the task's params (``Draw.params``), on the device; shapes from one draw."""
+        xp = self.xp
+        for key, value in self._draw(0).params.items():
+            v = np.asarray(value)  # its own dtype: a float64 target stays exact in privileged['objects']
+            self.task_state.params[key] = xp.zeros((self.num_envs, *v.shape), dtype=v.dtype)
 
     def _make_cameras(self, host, mjm) -> None:
         self.cameras: dict[str, tuple[int, int]] = {}  # feature key -> (H, W)
@@ -260,16 +262,9 @@ class BatchedScene:
         self._cam_adr = [(key, int(adr[i]), res[i][0]) for i, (_, key, _) in enumerate(cams)]
 
     # ---------------------------------------------------------------------------------------- resets
-    def _placement(self, seed: int):
-        """The task's randomisation for ``seed`` (its own draws, from the episode's generator)."""
-        placed = {}
-
-        class _Capture:  # receives the task's set_object_pose calls
-            def set_object_pose(self, name, pos, quat):
-                placed[name] = (np.asarray(pos, np.float64), np.asarray(quat, np.float64))
-
-        self.host.task.reset(_Capture(), np.random.default_rng(seed))
-        return placed
+    def _draw(self, seed: int):
+        """The task's draws for an episode of ``seed`` (``Task.sample`` on the episode's generator)."""
+        return self.host.task.sample(np.random.default_rng(int(seed)))
 
     def _make_template(self):
         """The settled reset state as a template: the settle (0.1 s of physics after placing the props)
@@ -278,10 +273,10 @@ class BatchedScene:
         CPU scene's real reset for two seeds; when it does not hold, resets settle on the CPU."""
         host = self.host
         layout, data = host.engine.layout, host.engine.data
-        names = list(self._placement(0))
+        names = list(self._draw(0).poses)
         adr = {n: (layout.object_qadr[n], layout.object_vadr[n]) for n in names}
         host.reset(0, STATE_ONLY)
-        placed0 = self._placement(0)
+        placed0 = self._draw(0).poses
         base = (data.qpos.copy(), data.qvel.copy(), data.ctrl.copy(), data.qacc_warmstart.copy())
         drop = {n: base[0][a:a + 3] - placed0[n][0] for n, (a, _) in adr.items()}
         template = (base, adr, drop)
@@ -294,30 +289,21 @@ class BatchedScene:
                 return None
         return template
 
-    def _template_state(self, seed: int, template=None):
+    def _template_state(self, seed: int, template=None, draw=None):
         (qpos, qvel, ctrl, warm), adr, drop = template or self._template
         q = qpos.copy()
-        for name, (pos, quat) in self._placement(seed).items():
+        for name, (pos, quat) in (draw or self._draw(seed)).poses.items():
             a = adr[name][0]
             q[a:a + 3] = pos + drop[name]
             q[a + 3:a + 7] = quat
         return q, qvel, ctrl, warm
 
-    def _set_targets(self, worlds, seeds, rows) -> None:
-        """reach: each world's target pose, drawn by the task itself from the episode's seed."""
-        from simseam.math3d import matrix_to_quat
-
-        task = self.host.task
-        k = len(worlds)
-        tp, tr = np.empty((k, 1, 3), np.float32), np.empty((k, 1, 3, 3), np.float32)
-        for r, seed in enumerate(seeds.tolist()):
-            task.reset(None, np.random.default_rng(int(seed)))
-            tp[r, 0], tr[r, 0] = task.target_pos, task.target_rot
-            self._target_np[worlds[r]] = np.concatenate([task.target_pos, matrix_to_quat(task.target_rot)])
-        wp.launch(K.scatter_vec3_kernel, dim=(k, 1), inputs=[wp.array(tp, dtype=wp.vec3),
-                                                            rows, self.target_pos.reshape((self.num_envs, 1))])
-        wp.launch(K.scatter_mat33_kernel, dim=(k, 1), inputs=[wp.array(tr, dtype=wp.mat33),
-                                                             rows, self.target_rot.reshape((self.num_envs, 1))])
+    def _set_params(self, worlds: np.ndarray, draws: list) -> None:
+        """The reset worlds' rows of the task's params, from their draws."""
+        xp, params = self.xp, self.task_state.params
+        rows = xp.asarray(worlds)
+        for key, arr in params.items():
+            arr[rows] = xp.asarray(np.stack([np.asarray(d.params[key]) for d in draws]), dtype=arr.dtype)
 
     # ---------------------------------------------------------------------------------------- spec
     @property
@@ -348,9 +334,10 @@ class BatchedScene:
         qvel = np.empty((k, mjm.nv), np.float32)
         ctrl = np.empty((k, mjm.nu), np.float32)
         warm = np.empty((k, mjm.nv), np.float32)
+        draws = [self._draw(seed) for seed in seeds.tolist()]
         for r, seed in enumerate(seeds.tolist()):
             if self._template is not None:  # the task's draws on the settled template (checked at build)
-                qpos[r], qvel[r], ctrl[r], warm[r] = self._template_state(int(seed))
+                qpos[r], qvel[r], ctrl[r], warm[r] = self._template_state(int(seed), draw=draws[r])
             else:  # the CPU scene's reset: randomisation + settle
                 host.reset(int(seed), STATE_ONLY)
                 qpos[r], qvel[r], ctrl[r], warm[r] = data.qpos, data.qvel, data.ctrl, data.qacc_warmstart
@@ -364,12 +351,41 @@ class BatchedScene:
             for dst in (self.target, self.q_sent):
                 wp.launch(K.scatter_rows_kernel, dim=home.shape, inputs=[wp.array(home, dtype=float), rows, dst])
             wp.launch(K.reset_ref_kernel, dim=k, inputs=[rows, self.ref_ok])
-            if self.task_name == "reach":
-                self._set_targets(worlds, seeds, rows)
+            with array_stream(self.xp, self.device):
+                self._set_params(worlds, draws)
             self._launch("sense", self._sense)  # sensing after a reset: one graph too
+            self.task_state.new_step()
         self.steps[worlds] = 0
         self.seeds[worlds] = seeds
         self._host_obs = None
+
+    def set_state(self, worlds, qpos, qvel) -> None:
+        """Put each of ``worlds`` in a given physics state (float[k, nq], float[k, nv]: e.g. the CPU engine's
+        ``data.qpos`` / ``qvel``), its task params kept; poses, contacts and the observation follow. For
+        comparing the engines on the same states (``evaluate``)."""
+        self._check_open()
+        worlds = np.asarray(worlds, dtype=np.int64).reshape(-1)
+        qpos, qvel = np.atleast_2d(qpos).astype(np.float32), np.atleast_2d(qvel).astype(np.float32)
+        if qpos.shape != (worlds.size, self.mjm.nq) or qvel.shape != (worlds.size, self.mjm.nv):
+            raise ConfigError(f"set_state: {worlds.size} worlds need qpos [{worlds.size}, {self.mjm.nq}] and qvel "
+                              f"[{worlds.size}, {self.mjm.nv}], got {qpos.shape} and {qvel.shape}")
+        with wp.ScopedDevice(self.device):
+            rows = wp.array(worlds.astype(np.int32), dtype=int)
+            for src, dst in ((qpos, self.d.qpos), (qvel, self.d.qvel)):
+                wp.launch(K.scatter_rows_kernel, dim=src.shape, inputs=[wp.array(src, dtype=float), rows, dst])
+            self._sense()
+            self.task_state.new_step()
+        self._host_obs = None
+
+    def evaluate(self) -> dict:
+        """The task's judgement of every world's current state, on the host: ``reward`` float[N], ``success``
+        bool[N], ``diagnostics`` (name -> [N]); what a step reports."""
+        with wp.ScopedDevice(self.device), array_stream(self.xp, self.device):
+            self._eval = self.host.task.evaluate_batch(self.task_state)
+        self._host_obs = None
+        h = self.host_arrays()
+        return {"reward": self._to_host(self._eval.reward).astype(np.float32), "success": h["success"],
+                "diagnostics": h["diagnostics"]}
 
     # ---------------------------------------------------------------------------------------- step
     def step(self, actions) -> BatchStep:
@@ -381,11 +397,15 @@ class BatchedScene:
         with wp.ScopedDevice(self.device):
             self._load_actions(actions)
             self._launch("step", self._physics)
-            success = self.success.numpy().astype(bool)
+            self.task_state.new_step()
+            with array_stream(self.xp, self.device):
+                self._eval = self.host.task.evaluate_batch(self.task_state)
+                success = self._to_host(self._eval.success).astype(bool)
+                reward = self._to_host(self._eval.reward).astype(np.float32)
         self.steps += 1
         self._host_obs = None
         truncated = (self.steps >= self.max_steps) & ~success
-        return BatchStep(success.astype(np.float32), success, truncated, success, self.steps.copy())
+        return BatchStep(reward, success, truncated, success, self.steps.copy())
 
     def _use_graph(self) -> bool:
         return bool(self.wopts.graph and self.device.is_cuda)
@@ -442,24 +462,14 @@ class BatchedScene:
         self._sense()
 
     def _sense(self) -> None:
-        """Poses of the current state (mj_step leaves them one substep behind), contacts, observation."""
+        """Poses of the current state (mj_step leaves them one substep behind), contacts, the robot's observation."""
         m, d, n = self.m, self.d, self.num_envs
         mjw.kinematics(m, d)
         mjw.collision(m, d)
         wp.launch(self._observe_kernel, dim=n, inputs=[
             d.qpos, d.qvel, d.xpos, d.xmat, self._tool_body, self._tool_pos, self._tool_rot, self._base_pos,
-            self._base_rot, self._rot_reference, self._jqadr, self._jvadr, self._gqadr, self._cube_body,
-            self._rest_z, self._lift,
-            self.eef_pos, self.eef_rot, self.state, self.joint_pos, self.joint_vel, self.eef_pose, self.cube_pose,
-            self.cube_height, self.eef_to_cube, self.success])
-        self.touching.zero_()
-        if self.task_name == "lift_cube":
-            wp.launch(K.grasp_kernel, dim=d.naconmax, inputs=[
-                d.nacon, d.contact.geom, d.contact.worldid, self._geom_owner, ROBOT, self._cube_code, self.touching])
-        else:
-            wp.launch(K.reach_eval_kernel, dim=n, inputs=[
-                self.eef_pos, self.eef_rot, self.target_pos, self.target_rot, *self._reach_tol,
-                self.pos_err, self.rot_err, self.success])
+            self._base_rot, self._rot_reference, self._jqadr, self._jvadr, self._gqadr,
+            self.eef_world, self.eef_pos, self.eef_rot, self.state, self.joint_pos, self.joint_vel, self.eef_pose])
 
     # ---------------------------------------------------------------------------------------- cameras
     def render(self) -> dict[str, "wp.array"]:
@@ -482,42 +492,54 @@ class BatchedScene:
                       inputs=[self.rc.rgb_data, adr, width, out])
 
     # ---------------------------------------------------------------------------------------- reading
-    def device_observation(self) -> dict:
-        """The batch's observation as device arrays (warp; ``wp.to_torch`` / DLPack share the memory):
-        ``state``, ``joint_positions``, ``joint_velocities``, ``privileged`` (``eef_pose``, and ``cube``
-        for lift_cube) and ``success``. No host copy."""
-        priv = {"eef_pose": self.eef_pose}
-        if self.task_name == "lift_cube":
-            priv["cube"] = self.cube_pose
-        return {"state": self.state, "joint_positions": self.joint_pos, "joint_velocities": self.joint_vel,
-                "privileged": priv, "success": self.success}
+    def _to_host(self, arr) -> np.ndarray:
+        return arr if self.xp is np else self.xp.asnumpy(arr)
 
-    def host_arrays(self) -> dict[str, np.ndarray]:
-        """One host copy of the batch's small observation arrays (numpy, one row per world)."""
+    def object_poses(self) -> dict:
+        """Every world's ``privileged['objects']`` (``Task.object_names()``: tracked props, then the task's
+        extras), base-frame [x y z qw qx qy qz] float[N, 7] as arrays of ``self.xp`` on the device."""
+        ts, task = self.task_state, self.host.task
+        with array_stream(self.xp, self.device):
+            poses = {n: ts.to_base(ts.object_pos(n), ts.object_quat(n)) for n in task.tracked_objects}
+            poses.update(task.extra_poses(ts))
+        return poses
+
+    def device_observation(self) -> dict:
+        """The batch's observation as device arrays, one per key for all worlds (DLPack shares the memory:
+        ``torch.from_dlpack``, ``jax.dlpack``): ``state``, ``joint_positions``, ``joint_velocities`` (warp),
+        ``privileged`` (``eef_pose`` (warp), ``objects``: ``object_poses()``) and ``success`` (the last
+        step's, of ``self.xp``). No host copy."""
+        success = None if self._eval is None else self._eval.success
+        return {"state": self.state, "joint_positions": self.joint_pos, "joint_velocities": self.joint_vel,
+                "privileged": {"eef_pose": self.eef_pose, "objects": self.object_poses()}, "success": success}
+
+    def host_arrays(self) -> dict:
+        """One host copy of the batch's small observation arrays (numpy, one row per world): ``state``,
+        ``joint_positions``, ``joint_velocities``, ``eef_pose``, ``objects`` (name -> [N, 7]) and, after a
+        step, ``success`` and ``diagnostics`` (name -> [N])."""
         if self._host_obs is None:
-            self._host_obs = {
-                "state": self.state.numpy(), "joint_positions": self.joint_pos.numpy(),
-                "joint_velocities": self.joint_vel.numpy(), "eef_pose": self.eef_pose.numpy().astype(np.float64),
-                "cube": self.cube_pose.numpy().astype(np.float64), "cube_height": self.cube_height.numpy(),
-                "eef_to_cube": self.eef_to_cube.numpy(), "touching": self.touching.numpy().astype(bool),
-                "success": self.success.numpy().astype(bool), "position_error": self.pos_err.numpy(),
-                "orientation_error": self.rot_err.numpy()}
+            h = {"state": self.state.numpy(), "joint_positions": self.joint_pos.numpy(),
+                 "joint_velocities": self.joint_vel.numpy(), "eef_pose": self.eef_pose.numpy().astype(np.float64),
+                 "objects": {k: self._to_host(v).astype(np.float64) for k, v in self.object_poses().items()}}
+            if self._eval is not None:
+                h["success"] = self._to_host(self._eval.success).astype(bool)
+                h["diagnostics"] = {k: self._to_host(v) for k, v in self._eval.diagnostics.items()}
+            self._host_obs = h
         return self._host_obs
 
     def privileged_objects(self, world: int) -> dict[str, np.ndarray]:
         """``privileged['objects']`` of one world (base frame [x y z qw qx qy qz])."""
-        if self.task_name == "reach":
-            return {"target": self._target_np[world].copy()}
-        return {"cube": self.host_arrays()["cube"][world].copy()}
+        return {k: v[world].copy() for k, v in self.host_arrays()["objects"].items()}
 
     def diagnostics(self, world: int) -> dict[str, float | bool]:
-        h = self.host_arrays()
-        if self.task_name == "reach":
-            return {"position_error": float(h["position_error"][world]),
-                    "orientation_error": float(h["orientation_error"][world])}
-        height = float(h["cube_height"][world])
-        return {"cube_height": height, "eef_to_cube": float(h["eef_to_cube"][world]),
-                "grasped": bool(h["touching"][world]) and height > 0.005}
+        """The task's diagnostics of one world after the last step (Python values)."""
+        diags = self.host_arrays().get("diagnostics", {})
+        return {k: v[world].item() for k, v in diags.items()}
+
+    def contacts(self, a: str, b: str) -> np.ndarray:
+        """bool[N]: whether ``a`` and ``b`` (props, or ``robot``) touch in each world now."""
+        with array_stream(self.xp, self.device):
+            return self._to_host(self.task_state.contacts(a, b)).astype(bool)
 
     def sim_time_ns(self, world: int) -> int:
         return int(round(float(self.steps[world]) * self.substeps * float(self.mjm.opt.timestep) * 1e9))

@@ -82,8 +82,12 @@ def _link_poses(batch, w: int) -> dict[str, np.ndarray]:
 class WarpRollout:
     """A ``SimRollout`` over one world of MuJoCo Warp: a ``WarpBatchRollout`` of one."""
 
-    def __init__(self, robot, task: str, options=None, warp_options=None):
-        self.worlds = WarpBatchRollout.build(robot, task, 1, options, warp_options)
+    def __init__(self, robot, task: str, options=None, warp_options=None, *, scene=None):
+        """One world of ``task`` with ``robot``; or ``scene``, an already built ``BatchedScene`` of one world."""
+        if scene is not None and scene.num_envs != 1:
+            raise SimulationError(f"WarpRollout is one world; the scene has {scene.num_envs}")
+        self.worlds = (WarpBatchRollout(scene) if scene is not None
+                       else WarpBatchRollout.build(robot, task, 1, options, warp_options))
         self.batch = self.worlds.batch  # the BatchedScene
         self._frame = None  # the first camera's frame of the last observation (render() re-uses it)
 

@@ -1,0 +1,172 @@
+"""Meta-World on MuJoCo Warp: fidelity against CPU MuJoCo of the same version (engine gap) and against the
+native env on its pinned MuJoCo (version gap), per task, paired on the same seeds.
+
+Per task and seed (MT1 variation ``seed % 50``, as ``simseam eval metaworld_*``):
+- native: Meta-World's scripted expert (``metaworld.policies``) in the native env, ``--steps`` steps;
+- Warp (all seeds as one batch of worlds) and CPU MuJoCo 4.0 (one world per seed): the same expert closed
+  loop; the expert runs in Meta-World's venv, asked once per step for every world's action through one
+  native worker (its policies are functions of the observation), so it is Meta-World's own code, unported;
+- state divergence under the same actions: the native episode's actions replayed open loop on Warp and on
+  CPU MuJoCo 4.0; per step, the largest gap of the 39-D observation: Warp vs CPU (engine) and CPU vs native
+  (version); median and worst over steps and seeds.
+
+Success on Warp and CPU needs the batched reward / success code (``backends/metaworld_gpu/rewards.py``,
+``evaluate(state) -> BatchEvaluation``); until it exists those success fields are null and the entry says
+so. McNemar's exact test per task on the paired successes (Warp vs CPU; CPU vs native), Holm's correction
+across tasks. Prints a table; writes ``benchmarks/results/metaworld_warp_fidelity.json`` (one entry per
+task under ``tasks``); an existing file is kept unless ``--overwrite``.
+
+    python benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,pick-place-v3 --seeds 0:5 --steps 150 --device cpu
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+OUT = Path(__file__).resolve().parent / "results" / "metaworld_warp_fidelity.json"
+
+
+def mcnemar_exact(a: list[bool], b: list[bool]) -> float:
+    """Two-sided exact McNemar p on paired outcomes."""
+    n01 = sum(1 for x, y in zip(a, b) if x and not y)
+    n10 = sum(1 for x, y in zip(a, b) if y and not x)
+    n = n01 + n10
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(n01, n10) + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
+
+
+def holm(pvalues: dict[str, float]) -> dict[str, float]:
+    """Holm's step-down adjusted p-values."""
+    order = sorted(pvalues, key=pvalues.get)
+    out, running, m = {}, 0.0, len(order)
+    for i, key in enumerate(order):
+        running = max(running, min(1.0, (m - i) * pvalues[key]))
+        out[key] = running
+    return out
+
+
+def _evaluator():
+    try:
+        from simseam.backends.metaworld_gpu import rewards
+    except ImportError:
+        return None
+    return getattr(rewards, "evaluate", None)
+
+
+def closed_loop(worker, task: str, engine: str, seeds: list[int], steps: int, device: str | None) -> list[Any]:
+    """The expert driving ``engine``; per seed: success at any step, or None without reward code."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    evaluate = _evaluator()
+    env = MetaWorldBatch(task, len(seeds), worker, engine=engine, device=device)
+    env.reset(list(range(len(seeds))), seeds)
+    success = np.zeros(len(seeds), dtype=bool)
+    for _ in range(steps):
+        actions = worker.call("expert", task=task, obs=np.asarray(_host(env.obs), dtype=np.float64))
+        env.step(actions)
+        if evaluate is not None:
+            success |= np.asarray(_host(evaluate(env.state()).success), dtype=bool)
+    env.close()
+    return success.tolist() if evaluate is not None else [None] * len(seeds)
+
+
+def open_loop(worker, task: str, engine: str, seeds: list[int], actions: np.ndarray, device: str | None) -> np.ndarray:
+    """float[S, T, 39]: the observations under the native episodes' actions."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    env = MetaWorldBatch(task, len(seeds), worker, engine=engine, device=device)
+    env.reset(list(range(len(seeds))), seeds)
+    out = []
+    for t in range(actions.shape[1]):
+        env.step(actions[:, t])
+        out.append(np.asarray(_host(env.obs), dtype=np.float64))
+    env.close()
+    return np.stack(out, axis=1)
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)
+
+
+def one_task(worker, task: str, seeds: list[int], steps: int, device: str | None) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    native = [worker.call("replay", task=task, variation="mt1", goal_seed=0, seed=s, actions=None, steps=steps)
+              for s in seeds]
+    native_success = [bool(np.any(r["success"])) for r in native]
+    actions = np.stack([r["action"] for r in native])
+    warp_obs = open_loop(worker, task, "mujoco_warp", seeds, actions, device)
+    cpu_obs = np.concatenate([open_loop(worker, task, "mujoco", [s], actions[i:i + 1], None)
+                              for i, s in enumerate(seeds)])
+    engine_gap = np.abs(warp_obs - cpu_obs).max(axis=2)
+    version_gap = np.abs(cpu_obs - np.stack([r["obs"] for r in native])).max(axis=2)
+    warp_success = closed_loop(worker, task, "mujoco_warp", seeds, steps, device)
+    cpu_success = [closed_loop(worker, task, "mujoco", [s], steps, None)[0] for s in seeds]
+    judged = all(x is not None for x in warp_success + cpu_success)
+    return {
+        "seeds": seeds, "steps": steps, "native_success": native_success,
+        "warp_success": warp_success, "cpu_success": cpu_success, "success_judged": judged,
+        "engine_gap": {"median": float(np.median(engine_gap)), "worst": float(engine_gap.max())},
+        "version_gap": {"median": float(np.median(version_gap)), "worst": float(version_gap.max())},
+        "p_engine": mcnemar_exact(warp_success, cpu_success) if judged else None,
+        "p_version": mcnemar_exact(cpu_success, native_success) if judged else None,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _seeds(text: str) -> list[int]:
+    lo, hi = (int(x) for x in text.split(":"))
+    return list(range(lo, hi))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", required=True, help="comma-separated Meta-World v3 tasks, or 'mt50'")
+    ap.add_argument("--seeds", default="0:50", help="lo:hi (MT1 variations seed %% 50)")
+    ap.add_argument("--steps", type=int, default=500)
+    ap.add_argument("--device", default=None, help="a Warp device (cuda:0, cpu); default Warp's preferred one")
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--overwrite", action="store_true")
+    args = ap.parse_args(argv)
+    if args.out.exists() and not args.overwrite:
+        print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
+    seeds = _seeds(args.seeds)
+    results: dict[str, Any] = {}
+    with NativeWorker() as worker:
+        for task in tasks:
+            results[task] = one_task(worker, task, seeds, args.steps, args.device)
+            r = results[task]
+            print(f"{task:28s} native {sum(r['native_success'])}/{len(seeds)}  "
+                  f"engine gap med {r['engine_gap']['median']:.1e} worst {r['engine_gap']['worst']:.1e}  "
+                  f"version gap med {r['version_gap']['median']:.1e} worst {r['version_gap']['worst']:.1e}  "
+                  f"({r['seconds']} s)", flush=True)
+    for key in ("p_engine", "p_version"):
+        ps = {t: r[key] for t, r in results.items() if r[key] is not None}
+        for t, p in holm(ps).items():
+            results[t][key + "_holm"] = p
+    doc = {"benchmark": "metaworld_warp_fidelity", "device": args.device, "seeds": args.seeds,
+           "steps": args.steps, "complete": all(r["success_judged"] for r in results.values()), "tasks": results}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".partial")
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

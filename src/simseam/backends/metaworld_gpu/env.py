@@ -1,0 +1,173 @@
+"""N worlds of one Meta-World v3 task, stepped with Meta-World's own control and observation, on MuJoCo
+Warp (``engine="mujoco_warp"``, any Warp device) or CPU MuJoCo (``engine="mujoco"``, N = 1, the
+engine-gap reference). No code here is specific to a task: a task is its model, its native resets and its
+row of ``tasks.OBJECTS``.
+
+One control step, as ``SawyerXYZEnv.step`` (after the seam's clip of the action to [-1, 1]):
+``mocap_pos += action[:3] * action_scale``, clipped to [mocap_low, mocap_high]; mocap orientation
+[1, 0, 1, 0] (written normalised: CPU MuJoCo normalises it, MuJoCo Warp reads it as given); fingers
+``ctrl = [grip, -grip]``; ``frame_skip`` physics steps, then ``mj_forward``; the 39-D observation (hand,
+normalised finger gap, object poses padded to 14, the previous frame, the goal or zeros when partially
+observable) clipped to the observation space. After a reset the observation is unclipped and its previous
+frame is the current one, as ``SawyerXYZEnv.reset``. Truncation at ``max_path_length`` (500). A world whose
+state is not finite is flagged in ``errors`` (its task and seed in ``error_message``); the others go on.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.metaworld_gpu.model import load_or_build
+from simseam.backends.metaworld_gpu.physics import CpuPhysics, WarpPhysics
+from simseam.backends.metaworld_gpu.resets import ResetCache
+from simseam.backends.metaworld_gpu.state import MetaWorldState, ModelNames
+from simseam.backends.metaworld_gpu.tasks import DIAL_JOINT, DIAL_RADIUS, OBJECTS, scipy_quat
+from simseam.seam.errors import ConfigError
+
+ENGINES = ("mujoco_warp", "mujoco")
+MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0]) / np.sqrt(2.0)
+GRIPPER_SPAN = 0.1  # Meta-World divides the fingers' distance by 0.1 m
+
+
+class MetaWorldBatch:
+    """``MetaWorldBatch(task, num_worlds, worker)``; ``reset(worlds, seeds)``, ``step(actions)``, ``obs``
+    (float[N, 39] of ``xp``), ``state()`` (``MetaWorldState`` for the reward code)."""
+
+    def __init__(self, task: str, num_worlds: int, worker: Any, *, engine: str = "mujoco_warp",
+                 device: str | None = None, variation: str = "mt1", goal_seed: int = 0):
+        if task not in OBJECTS:
+            raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
+        if engine not in ENGINES:
+            raise ConfigError(f"engine {engine!r}: one of {list(ENGINES)}")
+        info = worker.call("describe", task=task)
+        self.resets = ResetCache(worker, info, variation, goal_seed)
+        settled = self.resets.get([0])[0]
+        self.model = load_or_build(info, settled)
+        self.task, self.info, self.num_worlds = task, info, int(num_worlds)
+        self.names = ModelNames.from_model(self.model.model, task)
+        mjm = self.model.model
+        if engine == "mujoco":
+            self.physics = CpuPhysics(mjm, self.num_worlds)
+        else:
+            self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]))
+        self.xp = xp = self.physics.xp
+        n = self.num_worlds
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.seeds = np.full(n, -1, dtype=np.int64)
+        self.errors = np.zeros(n, dtype=bool)
+        self.params: dict[str, Any] = {}
+        self._prev = xp.zeros((n, 18))
+        self._goal = xp.zeros((n, 3))
+        self.obs = xp.zeros((n, 39))
+        self.action = xp.zeros((n, 4))
+        self._obs_low, self._obs_high = xp.asarray(info["obs_low"]), xp.asarray(info["obs_high"])
+        self._mocap_low, self._mocap_high = xp.asarray(info["mocap_low"]), xp.asarray(info["mocap_high"])
+        self.max_steps = int(info["max_path_length"])
+
+    # ------------------------------------------------------------------------------------------ reset
+    def reset(self, worlds, seeds) -> None:
+        """Put each seed's native reset state into its world (``worlds[i]`` <- ``seeds[i]``)."""
+        rows = np.asarray(worlds, dtype=np.int64)
+        seeds = np.asarray(seeds, dtype=np.int64)
+        states = self.resets.get(seeds.tolist())
+        self.physics.load(rows, states)
+        xp = self.xp
+        for state in states:
+            for key, value in state["attrs"].items():
+                if key not in self.params:
+                    self.params[key] = xp.zeros((self.num_worlds, *np.shape(value)))
+        idx = xp.asarray(rows)
+        for key, arr in self.params.items():
+            arr[idx] = xp.asarray(np.stack([np.asarray(s["attrs"].get(key, 0.0)) for s in states]))
+        goal = np.stack([np.asarray(s["attrs"]["_target_pos"]) for s in states])
+        if self.info["partially_observable"]:
+            goal = np.zeros_like(goal)
+        self._goal[idx] = xp.asarray(goal)
+        curr = self._current()
+        self._prev[idx] = curr[idx]
+        self.obs[idx] = xp.concatenate([curr, self._prev, self._goal], axis=1)[idx]
+        self.action[idx] = 0.0
+        self.steps[rows], self.seeds[rows], self.errors[rows] = 0, seeds, False
+
+    # ------------------------------------------------------------------------------------------- step
+    def step(self, actions) -> dict[str, Any]:
+        """One control step of every world; ``actions`` float[N, 4] (host or ``xp``). Returns ``obs``,
+        ``truncated`` bool[N] (host), ``errors`` bool[N] (host: a world newly non-finite)."""
+        xp = self.xp
+        a = xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 4)
+        a = xp.clip(a, -1.0, 1.0)  # the seam's clip to the action bounds
+        self.action = a
+        pos = self.physics.mocap_pos()
+        pos = pos + (a[:, :3] * float(self.info["action_scale"]))[:, None, :]
+        pos[:, 0] = xp.clip(pos[:, 0], self._mocap_low, self._mocap_high)
+        quat = xp.broadcast_to(xp.asarray(MOCAP_QUAT), pos.shape[:2] + (4,))
+        ctrl = xp.stack([a[:, 3], -a[:, 3]], axis=1)
+        self.physics.control(pos, quat, ctrl)
+        self.physics.advance(int(self.info["frame_skip"]))
+        curr = self._current()
+        obs = xp.concatenate([curr, self._prev, self._goal], axis=1)
+        self.obs = xp.clip(obs, self._obs_low, self._obs_high)
+        self._prev = curr
+        self.steps += 1
+        bad = ~np.asarray(_to_host(xp.all(xp.isfinite(self.physics.poses().qpos), axis=1)
+                                   & xp.all(xp.isfinite(self.physics.poses().qvel), axis=1)))
+        new = bad & ~self.errors
+        self.errors |= bad
+        return {"obs": self.obs, "truncated": self.steps >= self.max_steps, "errors": new}
+
+    def error_message(self, world: int) -> str:
+        return (f"Meta-World task {self.task!r}, seed {int(self.seeds[world])}: the simulation of world {world} "
+                f"became non-finite at step {int(self.steps[world])}")
+
+    # -------------------------------------------------------------------------------------- observation
+    def _current(self) -> Any:
+        """float[N, 18]: hand position, normalised finger gap, object poses padded to 14."""
+        xp, p, names = self.xp, self.physics.poses(), self.names
+        hand = p.xpos[:, names.index("body", "hand")]
+        gap = xp.linalg.norm(p.xpos[:, names.index("body", "rightclaw")] - p.xpos[:, names.index("body", "leftclaw")],
+                             axis=-1)
+        gap = xp.clip(gap / GRIPPER_SPAN, 0.0, 1.0)
+        slots = OBJECTS[self.task]
+        parts = []
+        for (pk, pn, off), (qk, qn) in zip(slots.pos, slots.quat):
+            parts.append(self._position(p, pk, pn, off))
+            parts.append(self._quaternion(p, qk, qn))
+        objs = xp.concatenate(parts, axis=1)
+        pad = xp.zeros((self.num_worlds, int(self.info["obs_obj_max_len"]) - objs.shape[1]))
+        return xp.concatenate([hand, gap[:, None], objs, pad], axis=1)
+
+    def _position(self, p, kind: str, name: str, offset) -> Any:
+        xp, names = self.xp, self.names
+        if kind == "dial":
+            angle = p.qpos[:, names.joint_qpos[DIAL_JOINT][0]]
+            ring = xp.stack([xp.sin(angle), -xp.cos(angle), xp.zeros_like(angle)], axis=1) * DIAL_RADIUS
+            return p.xpos[:, names.index("body", name)] + ring
+        table = {"body": (p.xpos, "body"), "site": (p.site_xpos, "site"), "geom": (p.geom_xpos, "geom")}[kind]
+        return table[0][:, names.index(table[1], name)] + xp.asarray(np.asarray(offset))
+
+    def _quaternion(self, p, kind: str, name: str) -> Any:
+        xp, names, n = self.xp, self.names, self.num_worlds
+        if kind == "body":
+            return p.xquat[:, names.index("body", name)]
+        if kind == "identity":
+            return xp.broadcast_to(xp.asarray(np.array([1.0, 0.0, 0.0, 0.0])), (n, 4))
+        if kind == "zeros":
+            return xp.zeros((n, 4))
+        mats = {"geom_mat": (p.geom_xmat, "geom"), "site_mat": (p.site_xmat, "site"), "body_mat": (p.xmat, "body")}
+        arr, table = mats[kind]
+        return scipy_quat(xp, arr[:, names.index(table, name)])
+
+    # ------------------------------------------------------------------------------------------- state
+    def state(self) -> MetaWorldState:
+        """The state the reward code reads, after the last step (or reset)."""
+        return MetaWorldState(xp=self.xp, names=self.names, obs=self.obs, action=self.action, params=self.params,
+                              poses=self.physics.poses(), contacts=self.physics.contacts())
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+def _to_host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)

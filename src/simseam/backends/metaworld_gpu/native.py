@@ -1,0 +1,196 @@
+"""The native side: a worker run by Meta-World's provisioned interpreter (``python -m
+simseam.backends.metaworld_gpu.native``), asked by ``worker.NativeWorker`` over its stdin / stdout.
+
+It answers with what only the native env knows, computed by Meta-World itself on its pinned MuJoCo:
+
+- ``describe``: the task's model file, the versions, the native model's arrays (compiled from the file
+  and after the env's ``__init__``), the env's control and observation constants;
+- ``resets``: each seed's reset, done by simseam's own ``MetaWorldRollout._native_reset`` (the exact path
+  ``simseam eval metaworld_*`` takes: MT1 variation ``seed % 50``, ``sampled``, ``lerobot``), as the
+  state it leaves (qpos, qvel, mocap, ctrl, act, warm start, observation), every model array it changed
+  and the env's numeric attributes;
+- ``replay``: an episode stepped natively under given actions (or the scripted expert's), per step;
+- ``expert``: the scripted expert's actions for a batch of observations (Meta-World's policies are
+  functions of the observation alone).
+
+Messages are pickled, length-prefixed; the protocol runs on a private copy of stdout (fd 1 goes to
+stderr, so nothing Meta-World prints can corrupt it). Imports numpy and simseam's numpy-only modules.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import struct
+import sys
+from typing import Any
+
+import numpy as np
+
+HEADER = struct.Struct("<Q")
+# a mesh's derived arrays (polygon normals...) are not reproducible between two compiles; no reset moves them
+DERIVED = ("mesh_",)
+SKIP_ATTRS = ("init_qpos", "init_qvel", "_prev_obs", "_last_stable_obs", "width", "height", "curr_path_length",
+              "num_resets", "_np_random_seed")
+
+
+def model_arrays(model: Any) -> dict[str, np.ndarray]:
+    """Every numeric array of an ``MjModel`` (copies)."""
+    out = {}
+    for key in dir(model):
+        if key.startswith("_"):
+            continue
+        try:
+            value = getattr(model, key)
+        except Exception:  # noqa: BLE001 - accessors that need arguments
+            continue
+        if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+            out[key] = value.copy()
+    return out
+
+
+def option_values(model: Any) -> dict[str, Any]:
+    opt = model.opt
+    keys = ("timestep", "integrator", "cone", "solver", "iterations", "ls_iterations", "tolerance",
+            "ls_tolerance", "noslip_iterations", "impratio", "gravity", "o_margin", "jacobian", "disableflags",
+            "enableflags", "density", "viscosity", "wind", "magnetic", "ccd_iterations")
+    return {k: np.array(getattr(opt, k)).tolist() for k in keys}
+
+
+def env_attrs(env: Any) -> dict[str, np.ndarray]:
+    """The env's numeric, non-callable instance attributes (what reward code may read of ``self``)."""
+    out = {}
+    for key, value in vars(env).items():
+        if key in SKIP_ATTRS or callable(value):
+            continue
+        if isinstance(value, (bool, np.bool_)):
+            out[key] = np.asarray(value, dtype=np.float64)
+        elif isinstance(value, (int, float, np.integer, np.floating)):
+            out[key] = np.asarray(value, dtype=np.float64)
+        elif isinstance(value, np.ndarray) and value.dtype.kind in "fiub" and value.size <= 64:
+            out[key] = value.astype(np.float64).copy()
+    return out
+
+
+def _rollout(task: str, variation: str, goal_seed: int):
+    from simseam.backends.metaworld import make_rollout, normalize_config
+
+    config = normalize_config({"task": task, "variation": variation, "goal_seed": goal_seed, "cameras": False})
+    return make_rollout(config)
+
+
+def describe(task: str) -> dict[str, Any]:
+    import importlib.metadata as md
+
+    import mujoco
+
+    rollout = _rollout(task, "mt1", 0)
+    env = rollout.env
+    fresh = mujoco.MjModel.from_xml_path(env.model_name)
+    space = env.sawyer_observation_space
+    return {
+        "task": task, "xml": env.model_name, "metaworld": md.version("metaworld"), "mujoco": mujoco.__version__,
+        "fresh": model_arrays(fresh), "init": model_arrays(env.model), "option": option_values(env.model),
+        "action_scale": float(env.action_scale), "mocap_low": np.asarray(env.mocap_low, float),
+        "mocap_high": np.asarray(env.mocap_high, float), "frame_skip": int(env.frame_skip),
+        "max_path_length": int(type(env).max_path_length), "obs_low": np.asarray(space.low, float),
+        "obs_high": np.asarray(space.high, float), "partially_observable": bool(env._partially_observable),
+        "obs_obj_max_len": int(env._obs_obj_max_len),
+    }
+
+
+def _reset_state(rollout: Any, seed: int, fresh: dict[str, np.ndarray]) -> dict[str, Any]:
+    rollout._native_reset(seed)
+    env = rollout.env
+    m, d = env.model, env.data
+    now = model_arrays(m)
+    changed = {k: v for k, v in now.items()
+               if k in fresh and not k.startswith(DERIVED) and (v.shape != fresh[k].shape or not np.array_equal(v, fresh[k]))}
+    return {
+        "seed": seed, "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "mocap_pos": d.mocap_pos.copy(),
+        "mocap_quat": d.mocap_quat.copy(), "ctrl": d.ctrl.copy(), "act": d.act.copy(),
+        "qacc_warmstart": d.qacc_warmstart.copy(), "obs": np.asarray(rollout._obs, dtype=np.float64).copy(),
+        "model": changed, "attrs": env_attrs(env), "ncon": int(d.ncon),
+        "contacts": sorted(tuple(sorted((int(c.geom1), int(c.geom2)))) for c in d.contact[: d.ncon]),
+    }
+
+
+def resets(task: str, variation: str, goal_seed: int, seeds: list[int]) -> list[dict[str, Any]]:
+    import mujoco
+
+    rollout = _rollout(task, variation, goal_seed)
+    fresh = model_arrays(mujoco.MjModel.from_xml_path(rollout.env.model_name))
+    return [_reset_state(rollout, int(s), fresh) for s in seeds]
+
+
+def replay(task: str, variation: str, goal_seed: int, seed: int, actions: np.ndarray | None,
+           steps: int) -> dict[str, Any]:
+    """One native episode from ``seed``'s reset: ``actions`` float[T, 4] (clipped to [-1, 1] as the seam
+    does), or None for the scripted expert's, ``steps`` of them. Per step: observation, reward, success,
+    qpos, qvel, the action taken and the ``info`` values."""
+    from metaworld.policies import ENV_POLICY_MAP
+
+    rollout = _rollout(task, variation, goal_seed)
+    rollout._native_reset(int(seed))
+    env, expert = rollout.env, ENV_POLICY_MAP[task]()
+    out: dict[str, list] = {k: [] for k in ("obs", "reward", "success", "qpos", "qvel", "action", "info")}
+    obs = np.asarray(rollout._obs, dtype=np.float64)
+    for t in range(steps):
+        a = expert.get_action(obs) if actions is None else actions[t]
+        a = np.clip(np.asarray(a, dtype=np.float64), -1.0, 1.0)
+        obs, reward, _term, _trunc, info = env.step(a)
+        for key, value in (("obs", obs), ("reward", reward), ("success", info["success"]),
+                           ("qpos", env.data.qpos.copy()), ("qvel", env.data.qvel.copy()), ("action", a),
+                           ("info", {k: float(v) for k, v in info.items()})):
+            out[key].append(value)
+    return {k: (v if k == "info" else np.asarray(v)) for k, v in out.items()}
+
+
+_EXPERTS: dict[str, Any] = {}
+
+
+def expert(task: str, obs: np.ndarray) -> np.ndarray:
+    """The scripted expert's actions float[N, 4] for observations float[N, 39]."""
+    if task not in _EXPERTS:
+        from metaworld.policies import ENV_POLICY_MAP
+
+        _EXPERTS[task] = ENV_POLICY_MAP[task]()
+    policy = _EXPERTS[task]
+    return np.stack([np.asarray(policy.get_action(o), dtype=np.float64) for o in np.asarray(obs, np.float64)])
+
+
+COMMANDS = {"describe": describe, "resets": resets, "replay": replay, "expert": expert}
+
+
+def _read(stream) -> Any:
+    head = stream.read(HEADER.size)
+    if len(head) < HEADER.size:
+        return None
+    return pickle.loads(stream.read(HEADER.unpack(head)[0]))
+
+
+def _write(stream, obj: Any) -> None:
+    blob = pickle.dumps(obj, protocol=4)
+    stream.write(HEADER.pack(len(blob)) + blob)
+    stream.flush()
+
+
+def serve() -> None:
+    """Answer requests ``(command, kwargs)`` until stdin closes: ``("ok", result)`` or ``("error", text)``."""
+    import warnings
+
+    warnings.filterwarnings("ignore")
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    inp = os.fdopen(0, "rb")
+    _write(out, ("ok", "ready"))
+    while (msg := _read(inp)) is not None:
+        command, kwargs = msg
+        try:
+            _write(out, ("ok", COMMANDS[command](**kwargs)))
+        except Exception as exc:  # noqa: BLE001 - reported to the client, which raises it
+            _write(out, ("error", f"{type(exc).__name__}: {exc}"))
+
+
+if __name__ == "__main__":
+    sys.exit(serve())

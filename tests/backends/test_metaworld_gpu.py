@@ -1,0 +1,133 @@
+"""Meta-World on MuJoCo Warp (backends/metaworld_gpu), on Warp's CPU device, against the native env in its
+provisioned venv: the compiled model and its checks, the versioned cache, native resets, the 39-D
+observation after reset and over a native replay (engine gap: Warp vs CPU MuJoCo of one version, asserted;
+version gap: vs native Meta-World on its pinned MuJoCo, printed), per-world model fields, a world gone
+non-finite."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from backend_util import backend_python
+
+from simseam.seam.errors import SimulationError
+
+pytestmark = pytest.mark.backends
+
+TASK = "pick-place-v3"
+SEEDS = [0, 1]  # two MT1 variations: different objects and goals
+STEPS = 20
+
+
+@pytest.fixture(scope="module")
+def worker():
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    with NativeWorker(backend_python("metaworld")) as w:
+        yield w
+
+
+@pytest.fixture(scope="module")
+def native(worker):
+    """Native resets and native expert replays of SEEDS (Meta-World on its pinned MuJoCo)."""
+    resets = worker.call("resets", task=TASK, variation="mt1", goal_seed=0, seeds=SEEDS)
+    replays = [worker.call("replay", task=TASK, variation="mt1", goal_seed=0, seed=s, actions=None, steps=STEPS)
+               for s in SEEDS]
+    return resets, replays
+
+
+def test_object_slots_cover_every_task():
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+    from simseam.backends.provision import catalog
+
+    assert set(OBJECTS) == set(catalog("metaworld")["suites"]["MT50"])
+
+
+def test_scipy_quat_matches_scipy():
+    from scipy.spatial.transform import Rotation
+
+    from simseam.backends.metaworld_gpu.tasks import scipy_quat
+
+    rots = Rotation.random(200, random_state=3)
+    mats = rots.as_matrix()
+    mats[:4] = np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0]), np.eye(3)
+    want = np.stack([Rotation.from_matrix(m).as_quat() for m in mats])
+    np.testing.assert_allclose(scipy_quat(np, mats), want, atol=1e-12)
+
+
+def test_model_checked_and_cached_by_versions(worker, native, tmp_path, monkeypatch):
+    from simseam.backends.metaworld_gpu import model as M
+
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))
+    info = worker.call("describe", task=TASK)
+    settled = native[0][0]
+    built = M.load_or_build(info, settled)
+    assert built.path.is_file() and built.path.parent == M.cache_dir(info)
+    report = built.report
+    assert report["sizes"]["nbody"] == info["init"]["body_mass"].shape[0]
+    assert report["widened"] == ["eq_data: native 11 slots into this MuJoCo's first 11 of 12"]
+    assert report["contacts"]["pairs"] == [list(p) for p in sorted(set(settled["contacts"]))]
+    assert report["worst"]["body_mass"] <= 1e-9 * info["init"]["body_mass"].max()
+    stamp = built.path.stat().st_mtime_ns
+    again = M.load_or_build(info, settled)  # cached: loaded, not rebuilt
+    assert again.path.stat().st_mtime_ns == stamp
+    np.testing.assert_array_equal(again.model.body_mass, built.model.body_mass)
+    other = dict(info, metaworld="3.0.1")  # another venv's version: its own model, never the cached one
+    assert M.load_or_build(other, settled).path.parent != built.path.parent
+    heavier = info["init"]["body_mass"] * 1.01  # a native model whose masses this compile does not reproduce
+    bad = dict(info, init=dict(info["init"], body_mass=heavier), fresh=dict(info["fresh"], body_mass=heavier),
+               metaworld="x")
+    with pytest.raises(SimulationError, match="body_mass"):
+        M.load_or_build(bad, settled)
+
+
+def _replay(worker, engine: str, seeds: list[int], actions: np.ndarray):
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    env = MetaWorldBatch(TASK, len(seeds), worker, engine=engine, device="cpu")
+    env.reset(list(range(len(seeds))), seeds)
+    obs = [np.array(env.obs)]
+    goal_site = np.array(env.state().site_pos("goal"))
+    for t in range(actions.shape[1]):
+        env.step(actions[:, t])
+        obs.append(np.array(env.obs))
+    touching = np.array(env.state().touching_object("objGeom"))
+    env.close()
+    return np.stack(obs, axis=1), goal_site, touching
+
+
+def test_warp_matches_cpu_mujoco_and_the_native_reset(worker, native):
+    resets, replays = native
+    actions = np.stack([r["action"] for r in replays])
+    warp, warp_goal, warp_touch = _replay(worker, "mujoco_warp", SEEDS, actions)
+    cpu = [_replay(worker, "mujoco", [s], actions[i:i + 1]) for i, s in enumerate(SEEDS)]
+    cpu_obs = np.concatenate([c[0] for c in cpu])
+    for i, state in enumerate(resets):
+        np.testing.assert_allclose(cpu_obs[i, 0], state["obs"], atol=1e-12)  # the native reset, exactly
+        np.testing.assert_allclose(warp[i, 0], state["obs"], atol=2e-6)  # ... in float32
+        # per-world model fields: each world's goal site where its own native reset put it
+        np.testing.assert_allclose(warp_goal[i], state["attrs"]["_target_pos"], atol=1e-6)
+        np.testing.assert_allclose(cpu[i][1][0], state["attrs"]["_target_pos"], atol=1e-12)
+    assert np.abs(warp_goal[0] - warp_goal[1]).max() > 1e-2
+    engine_gap = np.abs(warp - cpu_obs).max(axis=(0, 2))
+    version_gap = np.abs(cpu_obs[:, 1:] - np.stack([r["obs"] for r in replays])).max(axis=(0, 2))
+    print(f"engine gap per step (Warp f32 vs CPU MuJoCo 4.0): max {engine_gap.max():.2e}; "
+          f"version gap (CPU 4.0 vs native 3.3.0): max {version_gap.max():.2e}")
+    assert engine_gap.max() < 5e-4, engine_gap
+    np.testing.assert_array_equal(warp_touch, np.concatenate([c[2] for c in cpu]))
+
+
+def test_a_non_finite_world_ends_alone(worker):
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    env = MetaWorldBatch(TASK, 2, worker, engine="mujoco_warp", device="cpu")
+    env.reset([0, 1], SEEDS)
+    qvel = env.physics.d.qvel.numpy()
+    qvel[1, 0] = np.nan
+    env.physics.d.qvel.assign(qvel)
+    out = env.step(np.zeros((2, 4)))
+    assert out["errors"].tolist() == [False, True]
+    assert "seed 1" in env.error_message(1) and TASK in env.error_message(1)
+    assert np.isfinite(np.array(env.obs)[0]).all()
+    assert env.step(np.zeros((2, 4)))["errors"].tolist() == [False, False]  # reported once
+    env.close()
