@@ -1,8 +1,9 @@
 """Meta-World's 50 reward and success rules as batched task code (backends/metaworld_gpu/rewards.py), checked
 against Meta-World's own ``evaluate_state``: native states recorded in the metaworld venv (the scripted
 experts' rollouts, random actions, crafted states: object joints moved, objects set at / near / off their
-goals, grasped or not) are replayed through the batched rules, one world at a time (N = 1) and all rows of a
-task stacked as one batch (N = hundreds of worlds of different episodes), in float64 and float32.
+goals, grasped or not) are replayed, as ``MetaWorldState``s (the state every engine hands the rules), through
+the batched rules, one world at a time (N = 1) and all rows of a task stacked as one batch (N = hundreds of
+worlds of different episodes), in float64 and float32.
 
 Tolerances (rewards lie in [0, 10]; "measured" is over these recordings, 15,698 states):
 

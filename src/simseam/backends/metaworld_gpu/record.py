@@ -30,7 +30,7 @@ info dict (``info:<key>``), MuJoCo's arrays after that state's ``mj_forward``
 ``contact_row`` [C]) and the env's reset attributes as they stood when judged (``param:<name>``;
 ``None`` is NaN), ``touching_main`` (``env.touching_main_object``, NaN where the task has no main object
 geom); ``reset:<name>`` keeps each episode's attributes right after ``reset``. ``names``
-(JSON) maps body, site, geom and joint names to indices.
+(JSON) maps body, site, geom and joint names to indices and bodies to their geoms.
 """
 
 from __future__ import annotations
@@ -53,14 +53,16 @@ ROBOT_JOINTS = ("right_j0", "right_j1", "right_j2", "right_j3", "right_j4", "rig
 
 
 def model_names(model) -> dict:
-    """Body, site, geom and joint (qpos adr, qvel adr, type) indices by name."""
+    """Body, site, geom and joint (qpos adr, qvel adr, type) indices by name, and each body's geoms."""
     def table(count, kind):
         return {getattr(model, kind)(i).name: i for i in range(count) if getattr(model, kind)(i).name}
 
     joints = {model.joint(i).name: [int(model.jnt_qposadr[i]), int(model.jnt_dofadr[i]), int(model.jnt_type[i])]
               for i in range(model.njnt) if model.joint(i).name}
-    return {"body": table(model.nbody, "body"), "site": table(model.nsite, "site"),
-            "geom": table(model.ngeom, "geom"), "joint": joints}
+    bodies = table(model.nbody, "body")
+    body_geoms = {b: [g for g in range(model.ngeom) if int(model.geom_bodyid[g]) == i] for b, i in bodies.items()}
+    return {"body": bodies, "site": table(model.nsite, "site"), "geom": table(model.ngeom, "geom"),
+            "joint": joints, "body_geoms": body_geoms}
 
 
 def params_of(env, np) -> dict:
