@@ -164,3 +164,25 @@ def test_the_batch_checker_catches_arrays_that_differ_from_the_dicts():
     opts = SceneOptions(render_images=False, privileged=True)
     with pytest.raises(RolloutContractError, match=r"observation_arrays\['state'\]: rows \[1\] differ"):
         check_batch_rollout(_OffByOne(BatchedScene(load_robot("franka_panda"), "lift_cube", 2, opts)))
+
+
+def test_environment_state_and_link_poses_as_arrays_equal_the_dicts():
+    """The keys computed on the host (the task's environment_state, link poses on request) as arrays too;
+    then the whole batch contract, arrays included, with environment_state declared."""
+    from simseam.scene.warp import world_observations
+    from simseam.seam import ObsRequest
+
+    opts = SceneOptions(image_size=(24, 32), privileged=True, environment_state=True)
+    batch = WarpBatchRollout(BatchedScene(load_robot("franka_panda"), "lift_cube", 2, opts))
+    batch.reset([0, 1], [4, 5])
+    batch.step([0, 1], np.full((2, batch.spec.action.dim), 0.3, np.float32))
+    ask = ObsRequest(images=frozenset(), link_poses=True)
+    arrays = batch.observation_arrays(ask)
+    dicts = world_observations(batch.batch, [0, 1], [ask, ask])
+    assert arrays["environment_state"].shape == (2, batch.spec.observation.env_state_dim)
+    for e in (0, 1):
+        np.testing.assert_array_equal(arrays["environment_state"][e], dicts[e]["environment_state"])
+        assert set(arrays["link_poses"]) == set(dicts[e]["link_poses"]) and len(arrays["link_poses"]) > 3
+        for link, pose in dicts[e]["link_poses"].items():
+            np.testing.assert_array_equal(arrays["link_poses"][link][e], pose)
+    check_batch_rollout(batch)  # closes it

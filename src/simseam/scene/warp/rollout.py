@@ -91,9 +91,9 @@ def world_arrays(batch, request: ObsRequest | None = None) -> dict:
         if OBS_PRIVILEGED in fields or OBS_ENV_STATE in fields:
             objects = batch.object_poses()
             if OBS_ENV_STATE in fields:
-                host = {k: batch.host_arrays()["objects"][k] for k in objects}
+                on_host = batch.host_arrays()["objects"]  # the per-world dicts' values: the same rows
                 out[OBS_ENV_STATE] = xp.asarray(np.stack([batch.host.task.environment_state(
-                    {k: v[w] for k, v in host.items()}) for w in range(n)]))
+                    {k: on_host[k][w] for k in objects}) for w in range(n)]))
             if OBS_PRIVILEGED in fields:
                 out[OBS_PRIVILEGED] = {"eef_pose": array_view(xp, batch.eef_pose), "objects": objects}
         return _conform(xp, out, fields, n)
