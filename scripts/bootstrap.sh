@@ -4,8 +4,9 @@
 #   2. a virtualenv (Python >= 3.10) with simseam, the robot model packages and MuJoCo Warp (warp extra;
 #      its compiled kernels are cached by warp in ~/.cache/warp), cached outside the clone
 #      in ~/.cache/simseam/venvs/, keyed by the Python version and the pins (pyproject.toml, and
-#      scripts/learning-stack.txt with "learning"); <venv-dir> (default .venv) is a symlink to it, and
-#      a reused venv is pointed at this clone's sources (editable install) before use;
+#      scripts/learning-stack.txt with "learning"), shared by every clone and never re-pointed at one;
+#      <venv-dir> (default .venv) is this clone's own thin venv over it (scripts/clone_venv.py): its python,
+#      its bin/simseam and every process they start import this clone's src/ first, whatever other clones ran;
 #   3. Isaac Sim 6.0.1's wheel sources (~40 MiB from PyPI, once) in ~/.cache/simseam/isaacsim-wheels/,
 #      which the Isaac adapter's tests bind every SDK call against (never imported);
 #   4. the benchmark backends' own venvs (Meta-World, PushT, ALOHA, LIBERO, robosuite, ManiSkill3; backends/pins/),
@@ -94,16 +95,17 @@ print("; ".join(bad))' "$@")" || missing="(the import check itself failed)"
   fi
 }
 PYV="$("$PY" -c 'import sys; print("%d.%d" % sys.version_info[:2])')"
-if [ -d "$VENV_LINK" ] && [ ! -L "$VENV_LINK" ]; then
-  VENV="$VENV_LINK"  # a venv inside the clone (an older set-up) keeps serving
+LAYER_STAMP="$VENV_LINK/simseam-layer"  # scripts/clone_venv.py's
+if [ -d "$VENV_LINK" ] && [ ! -L "$VENV_LINK" ] && [ ! -f "$LAYER_STAMP" ]; then
+  VENV="$VENV_LINK"  # a full venv inside the clone (an older set-up) keeps serving: it is this clone's alone
 else
   VENV="$VENV_CACHE/py$PYV-$(echo "$WANT" | sha256sum | cut -c1-16)"
-  if [ -L "$VENV_LINK" ]; then  # the linked venv, when it was set up for this job or more
-    LINKED="$(readlink "$VENV_LINK")"
-    if _serves "$(cat "$LINKED/.simseam-installed" 2>/dev/null || true)"; then VENV="$LINKED"; fi
-  fi
+  LINKED=""  # the cached venv this clone used last: its layer's base, or an older set-up's link
+  if [ -f "$LAYER_STAMP" ]; then LINKED="$(sed -n 's/^base=//p' "$LAYER_STAMP")"
+  elif [ -L "$VENV_LINK" ]; then LINKED="$(readlink "$VENV_LINK")"; fi
+  # it keeps serving when it was set up for this job or more
+  if [ -n "$LINKED" ] && _serves "$(cat "$LINKED/.simseam-installed" 2>/dev/null || true)"; then VENV="$LINKED"; fi
   mkdir -p "$VENV_CACHE"
-  ln -sfn "$VENV" "$VENV_LINK"
 fi
 STAMP="$VENV/.simseam-installed"
 HAVE="$(cat "$STAMP" 2>/dev/null || true)"
@@ -139,24 +141,31 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   fi
   echo "$WANT" > "$STAMP"
 fi
-# a cached venv may have been made by another clone: its editable install must point at this one
-if ! "$VENV/bin/python" -c 'import sys, simseam; sys.exit(not simseam.__file__.startswith(sys.argv[1]))' \
-    "$SIMSEAM_ROOT/src/" 2>/dev/null; then
-  _pip install -q --no-deps -e "$SIMSEAM_ROOT"
+if [ "$VENV" = "$VENV_LINK" ]; then
+  # a full venv inside the clone is this clone's alone: its editable install points here
+  if ! "$VENV/bin/python" -c 'import sys, simseam; sys.exit(not simseam.__file__.startswith(sys.argv[1]))' \
+      "$SIMSEAM_ROOT/src/" 2>/dev/null; then
+    _pip install -q --no-deps -e "$SIMSEAM_ROOT"
+  fi
+else
+  # the cached venv is shared: its editable install (the clone that made it) is never re-pointed and never
+  # imported; this clone's layer puts its own src/ first (a no-op when the layer is current)
+  "$VENV/bin/python" "$SIMSEAM_ROOT/scripts/clone_venv.py" "$VENV_LINK" "$SIMSEAM_ROOT/src"
 fi
+HERE_PY="$VENV_LINK/bin/python"  # this clone's interpreter: runs this clone's simseam
 export MUJOCO_GL="${MUJOCO_GL:-egl}"
 if [ -z "$LEARNING" ]; then return 0 2>/dev/null || exit 0; fi  # the demo needs nothing below
 # Isaac Sim's real sources for the Isaac adapter's tests (idempotent: keyed by version, skipped when complete;
 # the tests fail with the command to run if this could not fetch them)
-"$VENV/bin/python" -m simseam.engines.isaac.sdk_sources --quiet \
+"$HERE_PY" -m simseam.engines.isaac.sdk_sources --quiet \
   || echo "[simseam] WARNING: could not fetch the Isaac Sim wheel sources; the Isaac adapter tests will fail" >&2
 # benchmark backends (tests/backends): idempotent, keyed by their pins; the tests fail with the command if absent.
 # All six at once: cold, 3.7 min instead of 5.6 one after the other (docs/performance.md, "CI time")
-"$VENV/bin/python" -m simseam.backends.provision --jobs 6 metaworld pusht aloha libero robosuite maniskill \
+"$HERE_PY" -m simseam.backends.provision --jobs 6 metaworld pusht aloha libero robosuite maniskill \
   || echo "[simseam] WARNING: could not provision the benchmark backends; tests/backends will fail" >&2
 # a software Vulkan driver (Mesa 25's lavapipe, unpacked under the cache) so that SAPIEN renders ManiSkill3's
 # cameras on a machine without a GPU (simseam/backends/software_vulkan.py; a GPU's own driver wins)
-"$VENV/bin/python" -m simseam.backends.software_vulkan \
+"$HERE_PY" -m simseam.backends.software_vulkan \
   || echo "[simseam] WARNING: no software Vulkan driver; ManiSkill3's camera tests will fail" >&2
 
 # headless Chromium for the results page's browser test (tests/cli/test_report_cli.py): Debian's own, without

@@ -89,22 +89,58 @@ def test_provision_jobs_attempts_every_backend_and_reports_each_failure(monkeypa
     assert provision.main(["--jobs", "2", "pusht", "metaworld"]) == 0
 
 
+def cached_venv() -> Path:
+    """The cached venv this checkout's .venv runs over (its layer's base; an older set-up linked it)."""
+    stamp = REPO / ".venv" / "simseam-layer"
+    if stamp.is_file():
+        return Path(next(line[5:] for line in stamp.read_text().splitlines() if line.startswith("base=")))
+    return (REPO / ".venv").resolve()
+
+
+def stand_in(real: Path, where: Path) -> Path:
+    """A venv that serves as ``real`` (its stamp; its packages through a .pth) and that bootstrap may
+    write to: the real cached venv is shared with other clones and never handed to bootstrap here."""
+    subprocess.run([str(real / "bin" / "python"), "-m", "venv", "--without-pip", str(where)], check=True,
+                   timeout=120)
+    site = next(where.glob("lib/python*/site-packages"))
+    (site / "00-real.pth").write_text(f"import site; site.addsitedir({str(next(real.glob('lib/python*/site-packages')))!r})\n")
+    (where / ".simseam-installed").write_text((real / ".simseam-installed").read_text())
+    return where
+
+
+def site_files(venv: Path) -> dict[str, str]:
+    site = next(venv.glob("lib/python*/site-packages"))
+    return {p.name: p.read_text() for p in site.iterdir() if p.suffix == ".pth"} | {"*": str(sorted(site.iterdir()))}
+
+
 def test_the_demo_sets_up_only_its_venv_and_a_test_venv_serves_it(tmp_path):
     """``source scripts/bootstrap.sh`` (the demo's job) reuses a venv set up for the tests (it holds more)
-    and sets up nothing the demo does not use: no Isaac sources, no benchmark backends, no ROS peers."""
-    real = (REPO / ".venv").resolve()
+    and sets up nothing the demo does not use: no Isaac sources, no benchmark backends, no ROS peers.
+    The cached venv is never re-pointed at this clone: the clone's venv is a layer over it that imports
+    this clone's src/ (scripts/clone_venv.py), replacing an older set-up's link."""
+    real = cached_venv()
     stamp = (real / ".simseam-installed").read_text().strip()
     pins = hashlib.sha256((REPO / "pyproject.toml").read_bytes()).hexdigest()
     assert stamp.startswith(pins), "the test venv's stamp starts with the pins' hash"
+    base = stand_in(real, tmp_path / "cached")
+    before = site_files(base)
     cache = tmp_path / "cache"
     (cache / "venvs").mkdir(parents=True)
     link = tmp_path / "venv-link"
-    link.symlink_to(real)
-    env = dict(os.environ, SIMSEAM_CACHE=str(cache))
-    out = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" && echo "ready $VENV"'],
-                         cwd=REPO, capture_output=True, text=True, env=env, timeout=300)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip().splitlines()[-1] == f"ready {real}" and "creating" not in out.stdout + out.stderr
+    link.symlink_to(base)  # the older set-up: .venv was a link to the cached venv
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["SIMSEAM_CACHE"] = str(cache)
+    for attempt in ("replaces the link", "finds its layer current"):
+        out = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" && echo "ready $VENV"'],
+                             cwd=REPO, capture_output=True, text=True, env=env, timeout=300)
+        assert out.returncode == 0, (attempt, out.stderr)
+        assert out.stdout.strip().splitlines()[-1] == f"ready {base}" and "creating" not in out.stdout + out.stderr
+        assert ("this clone's venv" in out.stdout) == (attempt == "replaces the link"), out.stdout
+        assert link.is_dir() and not link.is_symlink() and (link / "simseam-layer").is_file()
+        here = subprocess.run([str(link / "bin" / "python"), "-c", "import simseam; print(simseam.__file__)"],
+                              capture_output=True, text=True, env=env, timeout=60)
+        assert here.stdout.strip() == str(REPO / "src" / "simseam" / "__init__.py"), here
+        assert site_files(base) == before  # the cached venv was not touched
     assert sorted(p.name for p in cache.iterdir()) == ["venvs"] and not any((cache / "venvs").iterdir())
     bad = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" learnin'], cwd=REPO,
                          capture_output=True, text=True, env=env, timeout=60)

@@ -96,6 +96,30 @@ def test_run_parses_the_scene_file_once(tmp_path, monkeypatch, extra):
     assert json.loads((tmp_path / "run" / "summary.json").read_text())["n_episodes"] == 2
 
 
+def test_a_run_in_one_process_keeps_one_progress_bar_however_many_episodes(tmp_path, monkeypatch):
+    """``--num-envs 1`` resets one bar per episode (catches: a Rich task added per episode, whose renderings
+    Rich's columns keep per task id: 1.7 kB of resident memory an episode, benchmarks/bench_memory.py)."""
+    import rich.progress
+
+    import simseam.cli.main as cli_main
+
+    bars = []
+
+    class Counted(rich.progress.Progress):
+        def add_task(self, *args, **kw):
+            bars.append(args)
+            return super().add_task(*args, **kw)
+
+    monkeypatch.setattr(cli_main, "Progress", Counted)
+    scene = tmp_path / "short.yaml"
+    scene.write_text("robot: franka_panda\ntask: lift_cube\nmax_steps: 2\nenvironment_state: true\n")
+    r = runner.invoke(app, ["run", "--scene", str(scene), "--policy", "zero", "--episodes", "30", "--num-envs", "1",
+                            "--out", str(tmp_path / "run")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["n_episodes"] == 30
+    assert len(bars) == 1 and r.output.count("failure") == 30
+
+
 @pytest.mark.learning  # it expects the whole test set-up (Python 3.11's venv: the learning stack, the backends)
 def test_doctor_checks_what_this_machine_runs_by_running_it(tmp_path):
     """Rendering (a frame that is not blank), the learned-policy stack, MuJoCo Warp, each benchmark

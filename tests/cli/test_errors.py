@@ -43,6 +43,19 @@ def test_a_seed_beyond_32_bits_is_refused_before_the_run_starts(tmp_path):
         assert not (tmp_path / args[0]).exists()
 
 
+def test_the_last_episode_seed_is_checked_before_the_run_starts(tmp_path):
+    """``--seed 2147483647 --episodes 2`` would run seed 2147483648, which --seed alone refuses: the whole range
+    seed .. seed + episodes - 1 is checked first (catches: the second episode run beyond 32 bits)."""
+    top = str(2**31 - 1)
+    for args in (("run", "--scene", "scenes/franka_lift.yaml", "--episodes", "2"),
+                 ("collect", "--scene", "scenes/franka_lift.yaml", "--episodes", "2"),
+                 ("eval", "metaworld_mt10", "--policy", "zero", "--episodes", "2")):
+        _one_line_error(_simseam(*args, "--seed", top, "--out", tmp_path / args[0]),
+                        f"--seed {top} --episodes 2: the last episode would use seed 2147483648",
+                        "use --seed 2147483646 or less")
+        assert not (tmp_path / args[0]).exists()
+
+
 def test_error_text_is_printed_literally(tmp_path):
     scene = tmp_path / "s.yaml"
     scene.write_text("robot: franka_panda\ntask: lift_cube\nimage_size: [2, 256]\n")
@@ -133,3 +146,17 @@ def test_a_device_that_is_no_torch_device_is_named(tmp_path):
     with pytest.raises(ConfigError, match=r"--device 'gpu0': not a torch device \(cpu, cuda, cuda:N, mps\)"):
         pick_device("gpu0")
     assert pick_device("cpu") == "cpu"
+
+
+def test_an_empty_out_is_refused_before_anything_is_written(tmp_path):
+    """``--out ""`` would be the current directory: a run, a dataset or a checkpoint among whatever is there
+    (catches: a run's files written into the working directory)."""
+    for args in (("run", "--scene", "scenes/franka_lift.yaml", "--episodes", "1", "--out", ""),
+                 ("run", "--scene", "scenes/franka_lift.yaml", "--out", tmp_path / "r", "--record-dataset", ""),
+                 ("eval", "metaworld_mt10", "--policy", "zero", "--out", ""),
+                 ("collect", "--scene", "scenes/franka_lift.yaml", "--out", ""),
+                 ("merge", "--out", "", tmp_path), ("train", "--dataset", tmp_path, "--out", ""),
+                 ("report", tmp_path, "--out", "")):
+        flag = "--record-dataset" if "--record-dataset" in args else "--out"
+        _one_line_error(_simseam(*args, cwd=tmp_path), f"{flag} '': an empty path")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

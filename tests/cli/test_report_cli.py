@@ -44,14 +44,20 @@ def test_run_writes_its_page_and_says_where(runs):
 @pytest.mark.parametrize("args, message", [
     ((), "no run directory given"),
     (("{root}",), "{root}: not a simseam run directory (no run.json or episodes.jsonl)"),
-    (("{root}/scripted",), "{root}/scripted/report.html already exists; pass --overwrite"),
+    (("{root}/scripted",), "{root}/scripted/report.html already exists (an earlier results page); pass --overwrite"),
     (("{root}/scripted", "{root}/zero"), "2 runs on one page need --out FILE"),
+    (("{root}/scripted", "--out", "{root}/scripted/episodes.jsonl", "--overwrite"),
+     "--out {root}/scripted/episodes.jsonl: episodes.jsonl is a run's own file"),
+    (("{root}/scripted", "--out", "{root}/short.yaml", "--overwrite"),
+     "--out {root}/short.yaml: already exists and is not a simseam results page, so it is never replaced"),
+    (("{root}/scripted", "--out", ""), "--out '': an empty path"),
 ])
 def test_bad_input_is_one_line_and_exit_2(runs, args, message):
     root, _ = runs
     proc = _simseam("report", *(a.format(root=root) for a in args))
     assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0, proc.stderr
     assert f"error: ConfigError: {message.format(root=root)}" in proc.stderr and "Traceback" not in proc.stderr
+    assert (root / "short.yaml").read_text() == SCENE and "index" in (root / "scripted/episodes.jsonl").read_text()
 
 
 def test_the_page_in_headless_chromium_offline(runs):

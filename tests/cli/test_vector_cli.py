@@ -161,6 +161,7 @@ def test_shards_merge_into_the_whole_run(scene, tmp_path):
     assert r.returncode == 0, r.stderr
     summary = json.loads((merged / "summary.json").read_text())
     assert summary["complete"] is True and summary["missing"] == [] and summary["n_episodes"] == 5
+    assert [e["index"] for e in _log(merged)] == list(range(5))  # one line per index in the merged log
     assert _outcomes(merged) == _outcomes(whole)
     assert "shard" not in summary["config"]
     # one shard alone: incomplete, the missing episodes listed
@@ -179,6 +180,44 @@ def test_merge_refuses_runs_of_different_configs(scene, tmp_path):
     r = _simseam("merge", "--out", tmp_path / "m", a, b)
     assert r.returncode == 2 and "different config" in r.stderr and "policy: 'zero' -> 'random'" in r.stderr
     assert not (tmp_path / "m").exists()
+
+
+def _fake_run(path: Path, results: dict[int, bool], episodes: int = 4) -> Path:
+    """A run directory as ``simseam run --shard`` leaves it: its config and one log line per episode."""
+    from simseam.runner.episodes import EpisodeResult
+    from simseam.runner.run_dir import RunDir
+
+    run = RunDir(path, {"scene_file": "s.yaml", "policy": "zero", "episodes": episodes, "seed": 0})
+    for i, ok in results.items():
+        run.append(EpisodeResult(i, i, success=ok, steps=3, reward=float(ok), step_ms=[1.0] * 3).to_json())
+    run.summarize()
+    run.close()
+    return path
+
+
+def test_merge_writes_each_index_once_and_refuses_a_disagreement(tmp_path):
+    """The same directory given twice, and two directories holding one index: one line per index in the merged
+    episodes.jsonl (summary.json cannot show double counting, read_log keeps one entry per index); the same
+    index with different results exits 2 naming it, unless --prefer-first says which run wins."""
+    a = _fake_run(tmp_path / "a", {0: True, 1: False})
+    b = _fake_run(tmp_path / "b", {1: False, 2: True, 3: False})
+    r = _simseam("merge", "--out", tmp_path / "m", a, b, a, b)
+    assert r.returncode == 0, r.stderr
+    lines = (tmp_path / "m" / "episodes.jsonl").read_text().splitlines()
+    assert [json.loads(line)["index"] for line in lines] == [0, 1, 2, 3]
+    assert json.loads((tmp_path / "m" / "summary.json").read_text())["n_success"] == 2
+
+    c = _fake_run(tmp_path / "c", {1: True, 2: True})  # episode 1: a success here, a failure in a
+    r = _simseam("merge", "--out", tmp_path / "n", a, c)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"episode 1 is in {a} and {c} with different results" in r.stderr and "--prefer-first" in r.stderr
+    assert not (tmp_path / "n").exists()  # nothing written
+    for order, won in (((a, c), False), ((c, a), True)):
+        out = tmp_path / f"won_{won}"
+        r = _simseam("merge", "--out", out, *order, "--prefer-first")
+        assert r.returncode == 0, r.stderr
+        log = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+        assert [e["index"] for e in log] == [0, 1, 2] and log[1]["success"] is won  # the first run named wins
 
 
 def test_bad_vector_options_are_one_line_errors(scene, tmp_path):

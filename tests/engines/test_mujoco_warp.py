@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from simseam.scene.warp import BatchedScene, WarpBatchRollout, WarpRollout, world_observations
+from simseam.scene.warp import BatchedScene, WarpBatchRollout, WarpRollout, world_arrays, world_observations
 from simseam.policies.base import make_policy
 from simseam.robot.manifest import load_robot
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
@@ -164,11 +164,11 @@ def test_bad_actions_are_refused_and_device_observations_are_shared(batch3):
         b.step(np.zeros((2, b.action_dim), np.float32))
     np.testing.assert_array_equal(b.host_arrays()["state"], before)
     assert (b.steps == 0).all()
-    # device observations: warp arrays; DLPack hands out the same memory (no copy)
-    dev = b.device_observation()
-    assert isinstance(dev["state"], wp.array) and dev["state"].shape == (3, b.spec.state_dim)
+    # observation arrays: views of the scene's buffers; DLPack hands out the same memory (no copy)
+    dev = world_arrays(b)
+    assert dev["state"].shape == (3, b.spec.state_dim) and dev["state"].dtype == np.float32
     view = np.from_dlpack(dev["state"])
-    assert view.ctypes.data == dev["state"].ptr
+    assert view.ctypes.data == b.state.ptr
     np.testing.assert_array_equal(view, before)
     # device actions (any DLPack producer) are clipped to the slot bounds on the device, like host ones
     big = np.full((3, b.action_dim), 5.0, np.float32)
@@ -372,7 +372,7 @@ class _DevicePolicy:
             self.expert = self._make(spec.action, self.n)
         self.expert.reset([env])
 
-    def act_device(self, obs):
+    def act_arrays(self, obs):
         self.seen.append(type(obs["privileged"]["eef_pose"]))
         eef = np.from_dlpack(obs["privileged"]["eef_pose"])
         cube = np.from_dlpack(obs["privileged"]["objects"]["cube"])
@@ -389,7 +389,7 @@ def test_vector_runner_adapter_hands_device_arrays_to_a_device_policy(tmp_path):
     with WarpVectorEnv.from_config(cfg, tmp_path, privileged=True, render_images=False) as env:
         res = env.run(pol, range(4), seed=40)
     assert sorted((r.index, r.seed) for r in res) == [(i, 40 + i) for i in range(4)]
-    assert all(r.success for r in res) and set(pol.seen) == {wp.array}
+    assert all(r.success for r in res) and set(pol.seen) == {np.ndarray}
 
 
 @pytest.mark.parametrize("robot,mode", [("franka_panda", None), ("franka_panda", "joint_position"),

@@ -214,24 +214,31 @@ def test_libero_preset_sends_openpi_libero_keys(bare, panda_spec, make_scene):
     assert obs["observation/state"].shape == (8,) and obs["prompt"] == scene.spec.task.instruction
 
 
-def test_libero_preset_sends_camera1_as_the_image_and_camera2_as_the_wrist_image(bare, panda_spec, make_scene):
+@pytest.mark.parametrize("image_size", [(96, 160), (160, 96)])
+def test_libero_preset_sends_camera1_as_the_image_and_camera2_as_the_wrist_image(bare, panda_spec, make_scene,
+                                                                                  image_size):
     """openpi's LIBERO client sends the third-person view as observation/image and the wrist view as
     observation/wrist_image: checked on content, with two cameras that see different things (a swap that
-    keeps key names and shapes shows here), at the scene's own size (no resize) and resized."""
-    scene = make_scene(panda_spec, task="bowl_plate")
+    keeps key names and shapes shows here), at the scene's own size (no resize) and resized. The frames are
+    not square (wide and tall), and the expected images are openpi_client's own ``resize_with_pad`` (the
+    independent peer), so a resize that stretches, crops or swaps height and width shows here."""
+    from openpi_client import image_tools
+
+    scene = make_scene(panda_spec, task="bowl_plate", image_size=image_size)
     for resize in (0, 224):
         srv = bare(lambda obs: {"actions": np.zeros((5, 7))})
         obs = scene.reset(3)
         cams = obs["images"]
+        assert cams["camera1"].shape == (*image_size, 3)
         assert np.abs(cams["camera1"].astype(int) - cams["camera2"].astype(int)).mean() > 20  # tells them apart
         with RemotePolicy(srv.url, obs_format="libero", n_action_steps=5, resize=resize) as pol:
             pol.reset(scene.spec)
             pol.act(obs)
         sent = srv.received[0]
-        expect = {k: resize_with_pad(cams[c], resize) if resize else cams[c]
-                  for k, c in (("observation/image", "camera1"), ("observation/wrist_image", "camera2"))}
+        expect = {k: image_tools.convert_to_uint8(image_tools.resize_with_pad(cams[c], resize, resize)) if resize
+                  else cams[c] for k, c in (("observation/image", "camera1"), ("observation/wrist_image", "camera2"))}
         for key, image in expect.items():
-            assert np.array_equal(sent[key], image), key
+            assert sent[key].shape == image.shape and np.array_equal(sent[key], image), key
         assert np.array_equal(sent["observation/state"], obs["state"])
 
 

@@ -61,13 +61,16 @@ def test_png_frames_are_lossless_and_failures_are_dropped(panda_spec, make_scene
     policy = RecordingPolicy(make_policy("scripted"))
     res = collect_dataset(scene, policy, tmp_path / "fail", episodes=2, use_videos=False)
     assert res.episodes_run == 2 and res.episodes_written == 0
+    assert not (tmp_path / "fail").exists()  # no episode kept: nothing left behind (catches: meta/ and images/)
+    res = collect_dataset(scene, policy, tmp_path / "fail", episodes=1, use_videos=False)  # the retry runs
+    assert res.episodes_written == 0 and not (tmp_path / "fail").exists()
     res = collect_dataset(scene, policy, tmp_path / "kept", episodes=1, use_videos=False, keep_failures=True,
                           seed=7)
     assert res.episodes_written == 1 and res.frames_written == 12
     ds = _load(tmp_path / "kept")
     for i in (0, 11):
         got = (ds[i]["observation.images.camera2"].permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
-        np.testing.assert_array_equal(got, policy.log[24 + i][1]["camera2"])
+        np.testing.assert_array_equal(got, policy.log[36 + i][1]["camera2"])  # after 3 dropped episodes
 
 
 def test_existing_directory_is_refused_and_only_a_dataset_is_overwritten(panda_spec, make_scene, tmp_path):
@@ -82,9 +85,54 @@ def test_existing_directory_is_refused_and_only_a_dataset_is_overwritten(panda_s
         LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True)  # --overwrite replaces a dataset only
     assert (tmp_path / "ds" / "keep.txt").read_text() == "mine"
     (tmp_path / "empty").mkdir()
-    LeRobotRecorder(tmp_path / "empty", scene.spec).close()  # an empty directory is free to use
+    rec = LeRobotRecorder(tmp_path / "empty", scene.spec)  # an empty directory is free to use
+    rec.close()
+    assert rec.discarded and list((tmp_path / "empty").iterdir()) == []  # no episode: it stays empty
+    _record_one(scene, tmp_path / "empty")
     assert (tmp_path / "empty" / "meta" / "info.json").is_file()
-    LeRobotRecorder(tmp_path / "empty", scene.spec, overwrite=True).close()  # an earlier dataset is replaced
+    _record_one(scene, tmp_path / "empty", overwrite=True)  # an earlier dataset is replaced
+    assert _load(tmp_path / "empty").num_episodes == 1
+
+
+def _record_one(scene, root, steps: int = 3, close: bool = True, **kw):
+    """A dataset of one ``steps``-frame episode of zero actions at ``root`` (closed: finalized, unless not
+    ``close``: then as a recording killed after its first episode leaves it)."""
+    from simseam.runner.dataset_recorder import LeRobotRecorder
+
+    rec = LeRobotRecorder(root, scene.spec, use_videos=False, **kw)
+    obs = scene.reset(0)
+    for _ in range(steps):
+        action = np.zeros(scene.spec.action_dim, np.float32)
+        rec.add(obs, action)
+        obs = scene.step(action).observation
+    assert rec.end_episode(keep=True)
+    if close:
+        rec.close()
+    return rec
+
+
+def test_a_dataset_is_marked_unfinished_until_it_is_finalized(panda_spec, make_scene, tmp_path, monkeypatch):
+    """What a kill mid-recording leaves (an episode saved, nothing finalized) is refused by LeRobot's own loader
+    offline, before any Hub lookup, and by simseam's readers; close() clears the mark (catches: info.json
+    claiming the episode with no marker, LeRobotDataset falling through to the Hub)."""
+    from packaging.version import InvalidVersion
+
+    from simseam.runner.dataset_recorder import unfinished
+    from simseam.runner.training import check_dataset
+
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    scene = make_scene(panda_spec, image_size=(32, 32), max_steps=10)
+    root = tmp_path / "ds"
+    rec = _record_one(scene, root, close=False)
+    assert json.loads((root / "meta" / "info.json").read_text())["total_episodes"] == 1
+    with pytest.raises(InvalidVersion, match="unfinished: a simseam recording that never finalized"):
+        _load(root)
+    with pytest.raises(ConfigError, match="an unfinished dataset: the recording was killed"):
+        check_dataset(root)
+    assert "unfinished" in unfinished(root) and sorted(p.name for p in root.iterdir()) == ["data", "images", "meta"]
+    rec.close()
+    assert unfinished(root) is None and _load(root).num_episodes == 1
+    check_dataset(root)
 
 
 def test_overwrite_refuses_a_dataset_with_files_of_its_own(panda_spec, make_scene, tmp_path):
@@ -93,7 +141,7 @@ def test_overwrite_refuses_a_dataset_with_files_of_its_own(panda_spec, make_scen
     from simseam.runner.dataset_recorder import LeRobotRecorder
 
     scene = make_scene(panda_spec, image_size=(32, 32))
-    LeRobotRecorder(tmp_path / "ds", scene.spec).close()
+    _record_one(scene, tmp_path / "ds")
     (tmp_path / "ds" / "README.md").write_text("mine")
     with pytest.raises(ConfigError, match="holds README.md beside the dataset; .*nothing was deleted"):
         LeRobotRecorder(tmp_path / "ds", scene.spec, overwrite=True)

@@ -1,6 +1,7 @@
 """The results page's content (runner/report.py): per-task Wilson intervals, runs side by side, latency,
 the videos chosen, and the inputs it refuses. The page in a real browser: tests/cli/test_report_cli.py."""
 
+import json
 import re
 from html.parser import HTMLParser
 from pathlib import Path
@@ -73,6 +74,56 @@ def test_each_task_gets_the_wilson_interval_of_its_own_episodes(tmp_path):
     lo, hi = wilson_interval(4, 8)
     assert f"4/8 = 50% [{lo:.2f}, {hi:.2f}]" in text  # the pooled row, shown as such
     assert "all (pooled)" in text and "<td><b>mean of tasks</b></td><td class=num>50%</td>" in text
+
+
+def errored(i: int, task: str | None = None) -> dict:
+    """An episode cut short by a sidecar crash: not a success, with its error."""
+    e = EpisodeResult(i, 100 + i, success=False, steps=0, reward=0.0,
+                      error="SidecarError: the sidecar process exited (signal 9)").to_json()
+    return {**e, "task": task} if task else e
+
+
+def success_table(text: str) -> dict[str, list[str]]:
+    """The success table's rows: ``{row label: [cell text per run]}``."""
+    table = text[text.index("<h2>Success per task</h2>"):]
+    table = table[table.index("<table>"):table.index("</table>")]
+    rows = {}
+    for row in re.findall(r"<tr>(.*?)</tr>", table)[1:]:
+        cells = [re.sub(r"<[^>]+>", "", c) for c in re.findall(r"<td[^>]*>(.*?)</td>", row)]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def cell(t: dict) -> str:
+    lo, hi = t["success_rate_wilson95"]
+    return f"{t['n_success']}/{t['n_episodes']} = {t['success_rate']:.0%} [{lo:.2f}, {hi:.2f}]"
+
+
+def test_an_errored_episode_is_shown_as_the_summary_counts_it(tmp_path):
+    """Runs holding an errored episode (a failure, never a success): each task's and the pooled success cell,
+    bar and Wilson bounds on the page equal that run's summary.json (catches: errored episodes counted as
+    successes on the page)."""
+    eps = [episode(0, True, "task_a"), episode(1, True, "task_a"), errored(2, "task_a"), episode(3, False, "task_a"),
+           episode(4, False, "task_a"), episode(5, True, "task_b"), errored(6, "task_b"), episode(7, False, "task_b")]
+    ev = make_run(tmp_path / "ev", eps, preset="fake_suite", tasks=["task_a", "task_b"], episodes_per_task=4)
+    one = make_run(tmp_path / "one", [episode(0, True), errored(1), episode(2, False)], scene={"task": "lift_cube"})
+    text, el = page(tmp_path, [ev, one])
+    rows = success_table(text)
+    written = {r.name: json.loads((r / "summary.json").read_text()) for r in (ev, one)}
+    assert (written["ev"]["n_success"], written["ev"]["n_episodes"]) == (3, 8)  # counted by hand: errors fail
+    assert (written["one"]["n_success"], written["one"]["n_episodes"]) == (1, 3)
+    tasks = {("ev", t): row for t, row in written["ev"]["per_task"].items()}
+    tasks[("one", "lift_cube")] = written["one"]
+    bars, cis = el.with_class("bar"), el.with_class("ci")  # each bar followed by its interval
+    assert sorted((b["data-run"], b["data-task"]) for b in bars) == sorted(tasks) and len(cis) == 3
+    for bar, ci in zip(bars, cis):
+        run, task = bar["data-run"], bar["data-task"]
+        t = tasks[(run, task)]
+        assert float(bar["data-rate"]) == t["success_rate"]
+        assert [float(ci["data-lo"]), float(ci["data-hi"])] == t["success_rate_wilson95"]
+        assert rows[task][0 if run == "ev" else 1] == cell(t)
+    assert rows["all (pooled)"][0] == cell(written["ev"])  # overall, as summary.json counts it
+    assert rows["mean of tasks"][0] == f"{written['ev']['mean_task_success_rate']:.0%}"
 
 
 def test_runs_side_by_side_in_the_order_given(tmp_path):
@@ -152,15 +203,41 @@ def test_where_the_page_goes_and_nothing_is_replaced_silently(tmp_path):
     with pytest.raises(ConfigError, match="2 runs on one page need --out FILE"):
         write_report([a, b])
     assert write_report([a]) == a / "report.html"
-    (a / "report.html").write_text("mine")
-    with pytest.raises(ConfigError, match="report.html already exists; pass --overwrite"):
+    with pytest.raises(ConfigError, match="report.html already exists \\(an earlier results page\\); pass --overwrite"):
         write_report([a])
-    assert (a / "report.html").read_text() == "mine"
     assert "<svg" in write_report([a], overwrite=True).read_text()
     with pytest.raises(ConfigError, match="is not a directory"):
         write_report([a, b], tmp_path / "nowhere" / "page.html")
     assert write_report([a, b], tmp_path / "both.html").is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "b", "both.html"]  # no temp file left
+
+
+def test_overwrite_replaces_an_earlier_page_and_nothing_else(tmp_path):
+    """--out names a run's episode log, a README, a page the user edited into something else: never replaced,
+    --overwrite or not, and the error does not suggest --overwrite (catches: the log replaced by the page)."""
+    a = make_run(tmp_path / "a", [episode(0, True), episode(1, False)])
+    log = (a / "episodes.jsonl").read_bytes()
+    readme = tmp_path / "README.md"
+    readme.write_text("# mine\n")
+    (a / "report.html").write_text("<html>my own notes</html>")
+    for target in (a / "episodes.jsonl", a / "run.json", readme, a / "report.html"):
+        before = target.read_bytes()
+        for overwrite in (False, True):
+            with pytest.raises(ConfigError) as info:
+                write_report([a], target, overwrite=overwrite)
+            assert str(target) in str(info.value) and "--overwrite to" not in str(info.value)
+            assert target.read_bytes() == before
+    assert (a / "episodes.jsonl").read_bytes() == log
+    with pytest.raises(ConfigError, match="summary.json is a run's own file"):  # not there yet, still a run file
+        write_report([a], tmp_path / "summary.json")
+    page = write_report([a], tmp_path / "page.html")
+    first = page.read_text()
+    assert write_report([a], page, overwrite=True) == page and page.read_text().startswith(first[:60])
+    link = tmp_path / "link.html"
+    link.symlink_to(readme)
+    with pytest.raises(ConfigError, match="not a simseam results page"):
+        write_report([a], link, overwrite=True)
+    assert readme.read_text() == "# mine\n"
 
 
 def test_a_run_replaced_with_overwrite_takes_its_old_page_with_it(tmp_path):

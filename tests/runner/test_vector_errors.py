@@ -95,3 +95,35 @@ def test_run_local_records_a_workers_sidecar_error_under_the_episode(recipe):
     with VectorEnv(recipe, 2) as vec:
         results = vec.run_local("zero", {}, range(4), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
     _check(results, errors)
+
+
+@dataclasses.dataclass(frozen=True)
+class _RolloutForFails(_CrashingRecipe):
+    """A recipe whose ``rollout_for`` raises a sidecar error for one episode index (as a benchmark's does when
+    the next task's sidecar cannot start): the error escapes the worker's episode loop."""
+
+    fail_index: int = 3
+
+    def rollout_for(self, rollout, index, seed):
+        from simseam.seam import SidecarError
+
+        if index == self.fail_index:
+            raise SidecarError("the sidecar process exited (signal 9)")
+        return rollout, seed
+
+
+def test_run_local_records_an_error_escaping_the_episode_loop_under_the_episode(tmp_path):
+    """An error that escapes a worker's episode loop (here the recipe's ``rollout_for``) reaches the parent as
+    ``episode_error``; it is recorded with the episode's own index and seed, each index once (catches: the
+    worker slot's index and seed, or the episode counted twice)."""
+    path = tmp_path / "scene.yaml"
+    path.write_text(SCENE)
+    errors = []
+    with VectorEnv(_RolloutForFails(str(path), crash_seed=-1, fail_index=3), 2) as vec:
+        results = vec.run_local("zero", {}, range(5), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
+    assert sorted(r.index for r in results) == [0, 1, 2, 3, 4]  # each episode once
+    assert {r.index: r.seed for r in results} == {i: SEED + i for i in range(5)}
+    (err,) = [r for r in results if r.error]
+    assert (err.index, err.seed, err.success, err.steps, err.error) == (3, SEED + 3, False, 0, CRASHED)
+    assert [(r.index, r.seed, what) for r, what in errors] == [(3, SEED + 3, "restarting the sidecar")]
+    assert all(r.steps == 6 and not r.error for r in results if r.index != 3)

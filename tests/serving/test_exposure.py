@@ -3,6 +3,8 @@ token; messages are bounded (the server serves on after an oversize one); an idl
 the one client slot. Localhost, free ports; generous deadlines only catch hangs."""
 
 import http.client
+import re
+import socket
 import threading
 
 import numpy as np
@@ -27,10 +29,29 @@ def works(url, lift, **kw):
 
 
 # ------------------------------------------------------------------- binding
-@pytest.mark.parametrize("host", ["0.0.0.0", "::", "192.0.2.7", "example.org"])
+@pytest.mark.parametrize("host", ["0.0.0.0", "::", "192.0.2.7", "this machine's name"])
 def test_non_loopback_host_needs_the_explicit_opt_in(host):
+    host = socket.gethostname() if host == "this machine's name" else host  # a name that resolves offline
     with pytest.raises(ConfigError, match="allow_remote=True"):
         PolicyServer(make_policy("zero"), host=host, port=0)
+
+
+@pytest.mark.parametrize("host, message", [
+    ("999.1.1.1", "--host 999.1.1.1: not an IP address (an IPv4 address is four numbers 0-255"),
+    ("1.2.3", "--host 1.2.3: not an IP address"),
+    ("no-such-host.invalid", "--host no-such-host.invalid: not an IP address, and the name does not resolve"),
+])
+def test_a_host_that_is_no_address_is_named_as_such_first(host, message):
+    """Checked before the loopback rule, with or without --allow-remote (catches: '999.1.1.1' called 'not a
+    loopback address', then a name-resolution failure once allowed)."""
+    for allow in (False, True):
+        with pytest.raises(ConfigError, match=re.escape(message)):
+            PolicyServer(make_policy("zero"), host=host, port=0, allow_remote=allow)
+    for extra in ((), ("--allow-remote",)):
+        out = run_cli("--policy", "zero", "--host", host, "--port", "0", *extra)
+        err = "".join(out.stderr).strip()
+        assert out.proc.returncode == 2 and len(err.splitlines()) == 1 and message in err, out.output()
+        assert "loopback" not in err and "".join(out.stdout) == ""
 
 
 def test_cli_refuses_a_non_loopback_host_without_allow_remote_exit_2():

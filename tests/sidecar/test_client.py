@@ -16,8 +16,9 @@ import pytest
 import zmq
 from sidecar_util import SERVER_MODULE, actions, assert_same, children, cmdline, environ, kept, running, scene_options
 
+import simseam
 from simseam.seam import ConfigError, InvalidActionError, SidecarError, SimRollout, SimseamError, SimulationError
-from simseam.sidecar.client import SidecarRollout
+from simseam.sidecar.client import SidecarRollout, identity_of
 from simseam.sidecar.errors import (
     RemoteConfigError,
     RemoteError,
@@ -217,8 +218,11 @@ def test_ipc_socket_lives_in_a_private_directory(make_sidecar):
     st = d.stat()
     assert stat.S_IMODE(st.st_mode) == 0o700 and st.st_uid == os.getuid()
     assert stat.S_ISSOCK(sock_path.stat().st_mode)
-    # the boot file (it holds the token) is gone; beside the ZeroMQ socket, the local fast path's (owner-only)
-    assert sorted(p.name for p in d.iterdir()) == ["local.sock", "scene.sock"]
+    # the boot file (it holds the token) is gone; beside the ZeroMQ socket, the local fast path's (owner-only),
+    # and src/ (a link to this process's simseam package: what the sidecar imports)
+    assert sorted(p.name for p in d.iterdir()) == ["local.sock", "scene.sock", "src"]
+    assert [p.name for p in (d / "src").iterdir()] == ["simseam"]
+    assert (d / "src" / "simseam").resolve() == Path(simseam.__file__).resolve().parent == Path(rollout.server_simseam)
     assert stat.S_IMODE((d / "local.sock").stat().st_mode) == 0o600 and rollout.fast
     rollout.close()
     assert not d.exists()
@@ -235,6 +239,8 @@ def test_sidecar_environment_is_sanitized_and_it_runs_in_its_own_session(make_si
     rollout = make_sidecar(options=scene_options(render_images=False), env={"SIMSEAM_TEST_EXTRA": "given"})
     pid = rollout.pid
     env = environ(pid)
+    assert env["PYTHONPATH"] == str(Path(rollout.endpoint[len("ipc://"):]).parent / "src")  # this simseam only
+    leaks.pop("PYTHONPATH")
     assert not set(leaks) & set(env), {k: env[k] for k in set(leaks) & set(env)}
     assert env["SIMSEAM_TEST_INHERITED"] == "kept" and env["SIMSEAM_TEST_EXTRA"] == "given"
     assert env.get("MUJOCO_GL")  # headless rendering is configured
@@ -270,8 +276,9 @@ def test_identity_mismatch_is_never_driven(make_sidecar, panda_json, make_scene,
     monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
     from simseam.sidecar.client import registry_dir
 
-    (registry_dir() / f"{other_identity}.json").write_text(json.dumps(
-        {"endpoint": a.endpoint, "token": a._token, "pid": a.pid, "identity": other_identity}))
+    other_entry = identity_of(SceneTarget(panda_json, "lift_cube", "mujoco", other_opts))
+    (registry_dir() / f"{other_entry}.json").write_text(json.dumps(
+        {"endpoint": a.endpoint, "token": a._token, "pid": a.pid, "identity": other_entry}))
     c = make_sidecar(options=other_opts, keep_alive=True)
     assert c.pid != a.pid and c._proc is not None  # it booted a sidecar of its own
     assert c.spec.control_hz == 10.0

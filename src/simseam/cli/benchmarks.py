@@ -9,7 +9,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
-    check_lockstep, check_seed, close_policy, console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted, SpecProbe
+    check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy, console, episodes_guard, err_console, \
+    fail, never_started, out_path, policy_kwargs, print_notes, redacted, SpecProbe, CI_WIDTH_HELP
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -94,7 +95,8 @@ def eval_command(
     preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
-    out: Path = typer.Option(None, "--out", help="Run directory (default: a new runs/<timestamp>)."),
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="Run directory (default: a new runs/<timestamp>)."),
     episodes: int = typer.Option(None, "--episodes", min=1, help="Episodes per task (default: the protocol's; "
                                  "fewer is recorded as a non-standard run)."),
     tasks: str = typer.Option(None, "--tasks", help="Comma-separated subset of the preset's tasks."),
@@ -122,6 +124,7 @@ def eval_command(
     ray_address: str = typer.Option(None, "--ray", help="Run the episodes on a Ray cluster: auto, ray://HOST:PORT or "
                                     "HOST:PORT, or local; each Ray worker owns a sidecar of the backend and its own "
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
+    ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.policies.base import make_policy
@@ -151,14 +154,18 @@ def eval_command(
                               "for every task)")
         task_list = resolve_tasks(p, only)
         n = episodes or p.episodes
+        check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
-        config = eval_config(p, redacted(policy), task_list, n, seed, video)
+        config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width)}
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         if engine is not None:
             config["engine"] = engine
         planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
+        from simseam.runner.provenance import for_benchmark
+
+        config["provenance"] = for_benchmark(p.backend, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
@@ -201,6 +208,7 @@ def eval_command(
                   + (f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else ""))
     if resume:
         console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
+        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
     if num_envs > 1:
         _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
                      seed=seed, video=video, indices=planned, lockstep=rule)
@@ -316,6 +324,7 @@ def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:
     if summary is None:
         never_started(out, interrupted)
     print_task_table(summary, f"{p.name} ({policy})")
+    console.print(ci_width_line(summary), markup=False, highlight=False)
     console.print(f"summary: {escape(str(out / 'summary.json'))}")
     if summary["complete"]:
         report_after_run(out)
@@ -325,11 +334,12 @@ def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:
 
 def print_task_table(summary: dict, title: str) -> None:
     """An eval summary's per-task success, the pooled rate and the mean of the tasks' rates."""
-    table = Table("task", "success", "rate", "Wilson 95%", title=escape(title))
+    table = Table("task", "success", "rate", "Wilson 95%", f"episodes for +-{summary['ci_width']:.0%}",
+                  title=escape(title))
     for task, t in (summary.get("per_task") or {}).items():
         lo, hi = t["success_rate_wilson95"]
         table.add_row(escape(task), f"{t['n_success']}/{t['n_episodes']}", f"{t['success_rate']:.1%}",
-                      f"[{lo:.2f}, {hi:.2f}]")
+                      f"[{lo:.2f}, {hi:.2f}]", str(t["episodes_for_ci_width"]))
     lo, hi = summary["success_rate_wilson95"]
     table.add_row("[bold]all (pooled)[/]", f"{summary['n_success']}/{summary['n_episodes']}",
                   f"{summary['success_rate']:.1%}", f"[{lo:.2f}, {hi:.2f}]")

@@ -29,9 +29,57 @@ def fail(exc: SimseamError) -> None:
 MAX_SEED = 2**31 - 1
 
 
-def check_seed(seed: int) -> None:
+CI_WIDTH_HELP = ("The half-width W of the Wilson 95 % interval the summary sizes the run for: it prints how many "
+                 "episodes per task a +-W interval needs at the observed rate (default 0.05: +-5 points).")
+
+
+def checked_ci_width(width: float) -> float:
+    """``--ci-width``, or a ``ConfigError`` naming it (outside 0..0.5)."""
+    from simseam.runner.summary import needed_episodes
+
+    needed_episodes(0.5, width)
+    return width
+
+
+def ci_width_line(summary: dict) -> str:
+    """How many episodes a +-W interval needs at each task's observed rate, against what the run has."""
+    w = summary["ci_width"]
+    rows = summary.get("per_task") or {"this run": summary}
+    parts = [f"{task} {t['episodes_for_ci_width']} (has {t['n_episodes']})" for task, t in rows.items()]
+    return f"episodes per task for a +-{w:.0%} Wilson 95% interval at the observed rate: " + ", ".join(parts)
+
+
+def print_notes(notes: list[str], what: str) -> None:
+    """Name each provenance difference that does not change the episode (``--resume``, ``merge``, ``compare``)."""
+    for note in notes:
+        err_console.print(f"note: {what}: {note}", style="yellow", markup=False, highlight=False)
+
+
+def check_seed(seed: int, episodes: int = 1) -> None:
+    """Exit with a one-line error unless every episode seed, ``seed`` .. ``seed + episodes - 1``, is one the
+    backends take (0 .. ``MAX_SEED``)."""
     if not 0 <= seed <= MAX_SEED:
         fail(ConfigError(f"--seed {seed}: seeds are integers from 0 to {MAX_SEED} (episode i uses seed + i)"))
+    last = seed + episodes - 1
+    if last > MAX_SEED:
+        fail(ConfigError(f"--seed {seed} --episodes {episodes}: the last episode would use seed {last}, beyond "
+                         f"{MAX_SEED}; use --seed {MAX_SEED - episodes + 1} or less (episode i uses seed + i)"))
+
+
+def out_path(flag: str = "--out"):
+    """The parser of an output option (``--out``, ``--record-dataset``): a path, never the empty string, which
+    would otherwise be the current directory (a run, a dataset or a page written among whatever is there)."""
+    from pathlib import Path
+
+    def parse(value) -> Path:
+        if isinstance(value, Path):
+            return value
+        if not str(value).strip():
+            fail(ConfigError(f"{flag} {str(value)!r}: an empty path; name the directory or file to write "
+                             f"({flag} . for the current directory)"))
+        return Path(value)
+
+    return parse
 
 
 POLICY_GROUPS_HELP = ("Step the --num-envs workers in lockstep from this process, the policy acting for one of K "

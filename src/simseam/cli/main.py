@@ -1,4 +1,4 @@
-"""``simseam`` command line: run | eval | summarize | report | collect | train | serve-policy | deploy | robots |
+"""``simseam`` command line: run | eval | summarize | report | compare | collect | train | serve-policy | deploy | robots |
 backends | benchmarks | sidecar | isaac | doctor."""
 
 from __future__ import annotations
@@ -13,10 +13,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
-from simseam.cli.common import (ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress,
-                                check_lockstep, check_seed, close_policy,
-                                console, episodes_guard, err_console, fail, never_started, policy_kwargs, redacted,
-                                sigterm_as_interrupt, SpecProbe)
+from simseam.cli.compare import compare
+from simseam.cli.common import (CI_WIDTH_HELP, ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP,
+                                EvalProgress, check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy,
+                                console, episodes_guard, err_console, fail, never_started, out_path, policy_kwargs,
+                                print_notes,
+                                redacted, sigterm_as_interrupt, SpecProbe)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -36,6 +38,21 @@ app.add_typer(backends_app, name="backends")
 app.add_typer(benchmarks_app, name="benchmarks")
 app.command("eval")(eval_command)
 app.command("report")(report)
+app.command("compare")(compare)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from simseam import origin
+
+        console.print(origin.one_line(), soft_wrap=True, highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                       help="Print simseam's version, the source it runs and its git revision.")) -> None:
+    """Run robot policies in simulation."""
 def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
               keep_failures: bool = True, on_result=None) -> list:
     """``runner.session.run_episodes`` with a progress bar and one line per episode."""
@@ -43,14 +60,16 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as progress:
-        current = {}
+        # one bar, reset for each episode: a task per episode would grow Rich's per-task caches (its columns
+        # keep a rendering per task id, never dropped: 1.7 kB of resident memory an episode, bench_memory.py)
+        bar = progress.add_task("", total=rollout.spec.task.max_steps, visible=False)
 
         def start(i):
-            current["task"] = progress.add_task(f"episode {i}", total=rollout.spec.task.max_steps)
-            return lambda n: progress.update(current["task"], completed=n)
+            progress.reset(bar, total=rollout.spec.task.max_steps, description=f"episode {i}", visible=True)
+            return lambda n: progress.update(bar, completed=n)
 
         def done(res, written):
-            progress.remove_task(current.pop("task"))
+            progress.update(bar, visible=False)
             if on_result is not None:
                 on_result(res)
             step_ms = res.to_json()["step_latency_ms"]["mean"]  # None when the episode took no step
@@ -66,7 +85,7 @@ def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recor
                               highlight=False)
 
         def save(i):  # the bar stays, its clock running, while the episode's videos are encoded
-            progress.update(current["task"], description=f"episode {i}: writing it to the dataset (encoding)")
+            progress.update(bar, description=f"episode {i}: writing it to the dataset (encoding)")
 
         return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
                             keep_failures=keep_failures, on_start=start, on_done=done, on_error=error,
@@ -100,13 +119,15 @@ def run(
                                "lerobot:<dir or hub id>, remote:ws://host:port."),
     episodes: int = typer.Option(10, "--episodes", min=1, help="Number of episodes."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
-    out: Path = typer.Option(None, "--out", help="Output directory (run.json, episodes.jsonl, summary.json, "
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="Output directory (run.json, episodes.jsonl, summary.json, "
                              "videos). Default: a new runs/<timestamp>, with runs/latest pointing at it."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the run already in --out (and the dataset in --record-dataset)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run in --out (same config): skip the "
                                 "episodes it already recorded."),
     video: bool = typer.Option(False, "--video/--no-video", help="Write one MP4 per episode (first RGB camera)."),
-    record_dataset: Path = typer.Option(None, "--record-dataset", help="Also record the episodes as a new "
+    record_dataset: Path = typer.Option(None, "--record-dataset", parser=out_path("--record-dataset"),
+                                        metavar="PATH", help="Also record the episodes as a new "
                                         "LeRobot dataset in this directory."),
     keep_failures: bool = typer.Option(True, "--keep-failures/--successes-only",
                                        help="With --record-dataset: record failed episodes too."),
@@ -131,12 +152,13 @@ def run(
                                  "workers (each its own EGL context), batched (this process, one MuJoCo Warp batch "
                                  "for all workers; in-process MuJoCo scenes, RGB cameras), auto (batched when a "
                                  "CUDA device is present and the scene is supported). docs/evaluation.md"),
+    ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.scene_config import load_scene_config
 
-    check_seed(seed)
+    check_seed(seed, episodes)
 
     default_out = out is None
     if default_out and resume:
@@ -169,17 +191,22 @@ def run(
             raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
-                  "record_dataset": str(record_dataset) if record_dataset else None}
+                  "record_dataset": str(record_dataset) if record_dataset else None,
+                  "ci_width": checked_ci_width(ci_width)}
         if shard_ik is not None:
             config["shard"] = list(shard_ik)
         if renderer != "workers":
             config["renderer"] = renderer
+        from simseam.runner.provenance import for_scene
+
+        config["provenance"] = for_scene(cfg, base_dir, scene, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
     if resume:
         console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
+        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
     if ray_address is not None:
         _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
                  num_workers=num_envs, planned=len(planned))
@@ -233,7 +260,9 @@ def run(
                       f"{episodes} episode(s) -> {escape(str(out))}")
         _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
                   keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
-    if recorder is not None:
+    if recorder is not None and recorder.discarded:
+        console.print(f"dataset: no episode recorded, so no dataset was left in {escape(str(record_dataset))}")
+    elif recorder is not None:
         console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
                       f"in {escape(str(record_dataset))}")
 
@@ -380,6 +409,7 @@ def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
         f"success {summary['n_success']}/{summary['n_episodes']} = {summary['success_rate']:.0%} "
         f"(Wilson 95% \\[{lo:.2f}, {hi:.2f}])  summary: {escape(str(out / 'summary.json'))}"
     )
+    console.print(ci_width_line(summary), markup=False, highlight=False)
     if summary["complete"]:
         report_after_run(out)
 
@@ -405,7 +435,8 @@ def summarize(run: Path = typer.Argument(..., help="A run directory (holds episo
 
 @app.command()
 def merge(
-    out: Path = typer.Option(..., "--out", help="New run directory for the merged run."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="New run directory for the merged run."),
     runs: list[Path] = typer.Argument(..., help="Run directories to merge (e.g. the K shards of --shard i/K)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a run already in --out."),
     prefer_first: bool = typer.Option(False, "--prefer-first", help="An episode recorded with different results "
@@ -418,6 +449,7 @@ def merge(
         summary = merge_runs(out, runs, overwrite=overwrite, prefer_first=prefer_first)
     except SimseamError as exc:
         fail(exc)
+    print_notes(summary.get("provenance_notes") or [], "the merged runs differ (the episodes are the same)")
     if summary.get("per_task"):  # shards of simseam eval: the eval summary's per-task table
         from simseam.cli.benchmarks import print_task_table
 
@@ -439,7 +471,8 @@ def collect(
     scene: Path = typer.Option(..., "--scene", help="Scene YAML."),
     policy: str = typer.Option("scripted", "--policy", help="Policy spec (default: the scripted expert)."),
     episodes: int = typer.Option(50, "--episodes", min=1, help="Episodes to run."),
-    out: Path = typer.Option(..., "--out", help="New LeRobot dataset directory."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="New LeRobot dataset directory."),
     seed: int = typer.Option(0, "--seed", help="Episode i uses seed + i (a non-negative integer)."),
     keep_failures: bool = typer.Option(False, "--keep-failures/--successes-only",
                                        help="Also record episodes that did not succeed."),
@@ -457,7 +490,7 @@ def collect(
     Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
     from simseam.runner.dataset_recorder import LeRobotRecorder, check_dataset_out
 
-    check_seed(seed)
+    check_seed(seed, episodes)
 
     try:
         check_dataset_out(out, overwrite)
@@ -470,7 +503,9 @@ def collect(
             rollout = ActionNoise(rollout, action_noise)
     except SimseamError as exc:
         fail(exc)
-    results: list = []
+    from collections import Counter
+
+    counts = Counter()  # episodes run and succeeded (counts only: a long collection keeps its memory flat)
     interrupted = False
     rec = None
     try:
@@ -480,7 +515,7 @@ def collect(
                           f"{escape(rollout.spec.describe())} into {escape(str(out))}"
                           + (f" (action noise {action_noise:g})" if action_noise > 0 else ""))
             _episodes(rollout, pol, range(episodes), seed=seed, video_dir=None, recorder=rec,
-                      keep_failures=keep_failures, on_result=results.append)
+                      keep_failures=keep_failures, on_result=lambda r: counts.update(run=1, ok=int(r.success)))
     except KeyboardInterrupt:
         interrupted = True
     except SimseamError as exc:
@@ -490,16 +525,28 @@ def collect(
             rec.close()
         rollout.close()
         close_policy(pol)
-    n_ok = sum(r.success for r in results)
+    _collect_end(rec, out, counts, episodes, interrupted)
+
+
+def _collect_end(rec, out: Path, counts, episodes: int, interrupted: bool) -> None:
+    """What ``collect`` says when it ends: the dataset, or that nothing was kept (and nothing left in ``out``,
+    so the same command can run again); exit 130 when interrupted, 1 when no episode was recorded."""
+    n_run, n_ok = counts["run"], counts["ok"]
     written = rec.episodes_written if rec is not None else 0
-    console.print(f"dataset {escape(str(out))}: {written} episode(s), "
-                  f"{rec.frames_written if rec is not None else 0} frames ({n_ok}/{len(results)} episodes succeeded)")
+    if written:
+        console.print(f"dataset {escape(str(out))}: {written} episode(s), {rec.frames_written} frames "
+                      f"({n_ok}/{n_run} episodes succeeded)")
+    elif rec is not None:
+        console.print(f"dataset {escape(str(out))}: no episode recorded, so no dataset was left there "
+                      f"({n_ok}/{n_run} episodes succeeded)")
     if interrupted:
-        err_console.print(f"interrupted after {len(results)} of {episodes} episodes; the dataset keeps the "
-                          f"{written} recorded", markup=False, highlight=False)
+        err_console.print(f"interrupted after {n_run} of {episodes} episodes; " + (
+            f"the dataset keeps the {written} recorded" if written else "nothing was recorded"),
+            markup=False, highlight=False)
         raise typer.Exit(code=130)
     if written == 0:
-        err_console.print("no episode was recorded (all failed; --keep-failures records them anyway)",
+        err_console.print(f"no episode was recorded (all {n_run} failed; --keep-failures records them "
+                          f"anyway); nothing was left in {out}, so the same command can run again",
                           style="red", markup=False, highlight=False)
         raise typer.Exit(code=1)
 
@@ -507,7 +554,8 @@ def collect(
 @app.command()
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="LeRobot dataset directory (from `simseam collect`)."),
-    out: Path = typer.Option(..., "--out", help="Checkpoint directory (then: --policy lerobot:<out>)."),
+    out: Path = typer.Option(..., "--out", parser=out_path(), metavar="PATH",
+                             help="Checkpoint directory (then: --policy lerobot:<out>)."),
     steps: int = typer.Option(20000, "--steps", min=1, help="Optimizer steps."),
     time_budget_s: float = typer.Option(None, "--time-budget-s", help="Stop after this many seconds."),
     batch_size: int = typer.Option(8, "--batch-size", min=1),

@@ -8,14 +8,15 @@ from pathlib import Path
 import typer
 from rich.markup import escape
 
-from simseam.cli.common import console, err_console, fail
+from simseam.cli.common import console, err_console, fail, out_path
 from simseam.seam import SimseamError
 
 
 def report(
     runs: list[Path] = typer.Argument(None, metavar="RUN_DIR...", help="Run directories (simseam run / eval), "
                                       "shown side by side in this order."),
-    out: Path = typer.Option(None, "--out", help="The HTML file to write (default, for one run: "
+    out: Path = typer.Option(None, "--out", parser=out_path(), metavar="PATH",
+                             help="The HTML file to write (default, for one run: "
                              "RUN_DIR/report.html; several runs need it)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace the page already there."),
     videos: int = typer.Option(6, "--videos", min=0, help="Episode videos embedded per run (failures first)."),

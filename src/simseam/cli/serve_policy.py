@@ -56,7 +56,12 @@ def serve_policy(
     from simseam.policies.contract import SkillContract
     from simseam.serving import PolicyServer
 
-    if not wire.is_loopback(host) and not allow_remote:  # before loading anything
+    try:  # before loading anything: an address that is none, then the loopback rule
+        wire.check_bind_host(host)
+    except SimseamError as exc:
+        err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(code=2) from None
+    if not wire.is_loopback(host) and not allow_remote:
         err_console.print(f"[bold red]error:[/] refusing to serve on {escape(host)}: not a loopback address; the "
                           "server has no TLS and runs any client's observations through the policy: add "
                           "--allow-remote to serve other machines (clients then need the token)", highlight=False)

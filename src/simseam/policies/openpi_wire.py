@@ -118,6 +118,31 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def check_bind_host(host: str) -> None:
+    """``ConfigError`` unless ``host`` can be bound: an IP address, ``localhost``, empty or ``0.0.0.0`` / ``::``
+    (every interface), or a name that resolves. Checked before the loopback rule, so a mistyped address is
+    named as one (not as 'not a loopback address')."""
+    import socket
+
+    from simseam.seam import ConfigError
+
+    name = host.strip().strip("[]")
+    if name == "" or name.lower() == "localhost":
+        return
+    try:
+        ipaddress.ip_address(name)
+        return
+    except ValueError:
+        pass
+    if all(c.isdigit() or c == "." for c in name):  # a dotted number that is no IPv4 address: no DNS lookup
+        raise ConfigError(f"--host {host}: not an IP address (an IPv4 address is four numbers 0-255, e.g. 127.0.0.1)")
+    try:
+        socket.getaddrinfo(name, None, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError) as exc:
+        reason = exc.strerror if isinstance(exc, socket.gaierror) else str(exc)
+        raise ConfigError(f"--host {host}: not an IP address, and the name does not resolve ({reason})") from None
+
+
 def require_websockets() -> None:
     """Raise ``BackendUnavailableError`` with the install line when ``websockets`` is missing."""
     try:

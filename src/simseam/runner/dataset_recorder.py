@@ -15,6 +15,14 @@ Features come from the rollout's ``RolloutSpec``:
 Frame ``t`` pairs the observation the policy saw with the action it took. Episodes
 are buffered and written (or dropped) when they end; ``finalize()`` must run for
 the parquet footers to be written (``close()`` does it, also on errors).
+
+Until ``close()`` has finalized it, a dataset is marked unfinished: its ``meta/info.json`` holds
+``codebase_version: UNFINISHED``, which LeRobot's own loader refuses (``LeRobotDataset`` and
+``LeRobotDatasetMetadata`` parse it as a version before anything else, so a killed recording is
+never read, nor fetched from the Hub in its place) and ``unfinished(root)`` names for simseam's
+readers. ``close()`` writes LeRobot's version back once the files are complete. A recording that
+kept no episode leaves nothing behind: ``close()`` removes what it wrote (an empty directory that
+was there before stays, empty).
 """
 
 from __future__ import annotations
@@ -79,6 +87,20 @@ def dataset_features(spec: RolloutSpec, *, use_videos: bool = True) -> dict[str,
 
 #: what a LeRobot dataset's root holds: ``--overwrite`` replaces a root holding nothing else
 DATASET_ENTRIES = ("meta", "data", "videos", "images")
+#: ``meta/info.json``'s ``codebase_version`` while a recording is under way (not a version: LeRobot refuses it)
+UNFINISHED = "unfinished: a simseam recording that never finalized (killed); record it again with --overwrite"
+
+
+def unfinished(root: Path) -> str | None:
+    """Why the dataset at ``root`` cannot be read (a recording killed before it finalized), or None."""
+    try:
+        info = json.loads((Path(root) / "meta" / "info.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if isinstance(info, dict) and info.get("codebase_version") == UNFINISHED:
+        return (f"{root}: an unfinished dataset: the recording was killed before it finalized it (its info.json "
+                "is marked unfinished; LeRobot refuses it too); record it again with --overwrite")
+    return None
 
 
 def check_dataset_out(root: Path, overwrite: bool, flag: str = "--out") -> None:
@@ -89,7 +111,9 @@ def check_dataset_out(root: Path, overwrite: bool, flag: str = "--out") -> None:
     check_writable(root)
     held = sorted(p.name for p in root.iterdir()) if root.is_dir() else []
     if held and not overwrite:
-        raise ConfigError(f"{flag} {root}: the directory already exists; pick another or pass --overwrite")
+        what = "an unfinished dataset (a recording killed before it finalized)" if unfinished(root) else None
+        raise ConfigError(f"{flag} {root}: the directory already exists" + (f" and holds {what}; --overwrite "
+                          "replaces it" if what else "; pick another or pass --overwrite"))
     if held and not (root / "meta" / "info.json").is_file():
         raise ConfigError(f"{flag} {root} holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''}, not a "
                           "LeRobot dataset; --overwrite replaces only a dataset (nothing was deleted)")
@@ -118,6 +142,7 @@ class LeRobotRecorder:
             raise ConfigError(f"LeRobot datasets need an integer fps; the scene runs at {fps:g} Hz "
                               "(set control_hz to a whole number)")
         check_dataset_out(self.root, overwrite)
+        self._root_was_there = self.root.is_dir() and not any(self.root.iterdir())  # an empty directory, kept
         if self.root.exists():
             shutil.rmtree(self.root)
         self.spec = spec
@@ -127,7 +152,10 @@ class LeRobotRecorder:
             repo_id=repo_id or f"simseam/{spec.robot.name}_{spec.task.name}", fps=int(round(fps)),
             features=self.features, root=self.root, robot_type=spec.robot.name, use_videos=use_videos,
             image_writer_threads=4 if self._image_keys else 0)
+        self._version = self.dataset.meta.info["codebase_version"]
+        self._write_version(UNFINISHED)  # until close() has finalized the files
         SkillContract.for_spec(f"{spec.robot.name}/{spec.task.name}", spec).save(self.root / "meta")
+        self.discarded = False  # close() removed a dataset that kept no episode
         self.episodes_written = 0
         self.frames_written = 0
         self._frames = 0
@@ -179,7 +207,8 @@ class LeRobotRecorder:
         return keep
 
     def close(self) -> None:
-        """Drop an unfinished episode and finalize the files (idempotent)."""
+        """Drop an unfinished episode and finalize the files, then clear the unfinished mark; a dataset that
+        kept no episode is removed instead (``discarded``). Idempotent."""
         if self._closed:
             return
         self._closed = True
@@ -189,7 +218,28 @@ class LeRobotRecorder:
         self.dataset.finalize()
         if getattr(self.dataset, "image_writer", None) is not None:
             self.dataset.stop_image_writer()
+        if not self.episodes_written:
+            self._discard()
+            return
         self._write_image_stats()
+        self._write_version(self._version)
+
+    def _write_version(self, version: str) -> None:
+        """``meta/info.json`` with ``codebase_version`` set (LeRobot rewrites the file from ``meta.info`` after
+        each episode, so the mark is set there too), replaced atomically."""
+        from simseam.runner.run_dir import write_json_atomic
+
+        self.dataset.meta.info["codebase_version"] = version
+        write_json_atomic(self.root / "meta" / "info.json", self.dataset.meta.info)
+
+    def _discard(self) -> None:
+        """Remove a dataset that holds no episode (an empty directory that was there before stays)."""
+        self.discarded = True
+        if self._root_was_there:
+            for entry in self.root.iterdir():
+                shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
+        else:
+            shutil.rmtree(self.root, ignore_errors=True)
 
     def _write_image_stats(self) -> None:
         """The cameras' per-channel mean and std in ``meta/stats.json``, from every pixel of the kept frames.

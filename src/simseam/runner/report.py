@@ -1,7 +1,8 @@
 """The results page of one or more run directories (``simseam report``): one self-contained HTML file.
 
 It shows, for each run side by side: success per task with its Wilson 95 % interval (a chart and a table),
-the step and policy latency of its episodes, a few episode videos, and the run's config. Everything is
+when the runs share episodes their paired comparison (``runner.compare``: each run against the first), the
+step and policy latency of its episodes, a few episode videos, and the run's config. Everything is
 inline: the CSS, the charts (SVG drawn here), the videos (the run's own H.264 MP4 files as ``data:`` URIs,
 a few per run, see ``choose_videos``). The page loads nothing from anywhere, so it opens offline, attached
 to a mail, or from an archive.
@@ -18,8 +19,8 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from simseam.runner.report_html import render
-from simseam.runner.run_dir import CONFIG_FILE, LOG_FILE, REPORT_FILE, SUMMARY_FILE, summary_of
+from simseam.runner.report_html import PAGE_HEAD, render
+from simseam.runner.run_dir import CONFIG_FILE, LOG_FILE, REPORT_FILE, RUN_FILES, SUMMARY_FILE, summary_of
 from simseam.seam import ConfigError
 
 #: videos embedded per run by default; each is the run's MP4 file, base64-encoded (a third larger)
@@ -161,7 +162,7 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
     runs = load_runs(paths, videos=videos, incomplete=incomplete)
     target = report_path(paths, out)
     check_target(target, overwrite)
-    page = render(runs)
+    page = render(runs, paired_comparison(runs))
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
     try:
         with os.fdopen(fd, "w") as f:
@@ -174,11 +175,49 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
     return target
 
 
+def paired_comparison(runs: list[Run]) -> list[dict] | None:
+    """Each later run against the first (``runner.compare``), when they share episodes; None otherwise. A
+    pair that ``simseam compare`` would refuse (the episodes differ) is named, not compared."""
+    from simseam.runner.compare import compare_pair, pairs_any
+
+    if len(runs) < 2 or not pairs_any([r.summary for r in runs]):
+        return None
+    out = []
+    for r in runs[1:]:
+        try:
+            out.append(compare_pair(runs[0].summary, r.summary, (runs[0].label, r.label)))
+        except ConfigError as exc:
+            out.append({"first": runs[0].label, "second": r.label, "refused": str(exc)})
+    return out
+
+
 def check_target(target: Path, overwrite: bool) -> None:
+    """``ConfigError`` unless the page may go to ``target``: a new file, or (with ``overwrite``) an earlier
+    page. Nothing else is ever replaced, ``overwrite`` or not: a run's episode log, its config, any file."""
     if target.is_dir():
         raise ConfigError(f"--out {target}: is a directory (name the HTML file to write)")
     if not target.parent.is_dir():
         raise ConfigError(f"--out {target}: {target.parent} is not a directory")
-    if target.exists() and not overwrite:
-        raise ConfigError(f"{target} already exists; pass --overwrite to replace it, or --out FILE to write "
-                          "the page elsewhere")
+    if target.name in RUN_FILES:
+        raise ConfigError(f"--out {target}: {target.name} is a run's own file; the page goes to a file of its own "
+                          "(e.g. report.html)")
+    if not target.exists() and not target.is_symlink():
+        return
+    if not is_page(target):
+        raise ConfigError(f"--out {target}: already exists and is not a simseam results page, so it is never "
+                          "replaced (not even with --overwrite); choose another --out FILE")
+    if not overwrite:
+        raise ConfigError(f"{target} already exists (an earlier results page); pass --overwrite to replace it, "
+                          "or --out FILE to write the page elsewhere")
+
+
+def is_page(path: Path) -> bool:
+    """Whether ``path`` is a page ``simseam report`` wrote (a regular file opening with the page's head)."""
+    if path.is_symlink() or not path.is_file():
+        return False
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(PAGE_HEAD) + 16)
+    except OSError:
+        return False
+    return head.startswith(PAGE_HEAD.encode())

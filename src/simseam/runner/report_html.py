@@ -30,17 +30,21 @@ pre { background: #f6f6f6; padding: .8em; overflow: auto; max-height: 30em; }
 """
 
 
+#: how every page opens (``report.is_page``: the one kind of file ``--out --overwrite`` may replace)
+PAGE_HEAD = '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>simseam results: '
+
+
 def esc(value) -> str:
     return html.escape(str(value), quote=True)
 
 
-def render(runs: list) -> str:
-    """The page of ``runs`` (``report.Run``s, in the order given: their columns and colours)."""
-    body = "\n".join([header(runs), success_section(runs), latency_section(runs), videos_section(runs),
-                      config_section(runs)])
-    title = "simseam results: " + ", ".join(r.label for r in runs)
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
-            f"<style>{CSS}</style></head>\n<body>\n{body}\n</body></html>\n")
+def render(runs: list, comparisons: list[dict] | None = None) -> str:
+    """The page of ``runs`` (``report.Run``s, in the order given: their columns and colours), with the
+    paired ``comparisons`` of the later runs against the first (``runner.compare``) when they pair."""
+    body = "\n".join([header(runs), success_section(runs), comparison_section(runs, comparisons),
+                      latency_section(runs), videos_section(runs), config_section(runs)])
+    title = ", ".join(r.label for r in runs)
+    return f"{PAGE_HEAD}{esc(title)}</title><style>{CSS}</style></head>\n<body>\n{body}\n</body></html>\n"
 
 
 def swatch(run) -> str:
@@ -228,3 +232,79 @@ def config_section(runs: list) -> str:
         parts.append(f"<details><summary>{swatch(r)} {esc(r.label)}: <code>run.json</code> ({esc(versions)})"
                      f"</summary><pre>{esc(json.dumps(r.summary['config'], indent=2))}</pre></details>")
     return "<h2>Config of each run</h2>" + "".join(parts)
+
+
+def comparison_section(runs: list, comparisons: list[dict] | None) -> str:
+    """Paired comparison: per task and over all pairs, both rates, B - A with its 95 % interval (a chart and a
+    table), McNemar's exact p and its Holm correction; the episodes one run holds alone; config warnings."""
+    if not comparisons:
+        return ""
+    colour = {r.label: r.colour for r in runs}
+    parts = ["<h2>Paired comparison</h2><p class=note>Each run (B) against the first (A), over the episodes both "
+             "played (same task and seed, and a benchmark's init state). Rates with their Wilson 95 % interval; "
+             "B - A with its 95 % interval for paired proportions (Newcombe); McNemar's exact p, Holm-corrected "
+             "across tasks. Bars: B - A; lines: its interval.</p>"]
+    for c in comparisons:
+        if "refused" in c:
+            parts.append(f"<p class=note>{esc(c['second'])} is not compared with {esc(c['first'])}: "
+                         f"{esc(c['refused'].split(': ', 1)[-1])}</p>")
+            continue
+        parts.append(f'<h3 class="pair" data-first="{esc(c["first"])}" data-second="{esc(c["second"])}">'
+                     f'<span class="swatch" style="background:{colour.get(c["second"], "#888")}"></span> '
+                     f'{esc(c["second"])} against {esc(c["first"])}</h3>')
+        parts.append(difference_chart(c, colour.get(c["second"], "#888")))
+        rows = [(t, s, True) for t, s in c["per_task"].items()]
+        if len(rows) > 1:
+            rows.append(("all (paired)", c["overall"], False))
+        body = "".join(pair_row(t, s, holm) for t, s, holm in rows)
+        parts.append("<table class=paired><tr><th>task</th><th>pairs</th><th>A</th><th>B</th><th>B - A [95 %]</th>"
+                     f"<th>only A won / only B won</th><th>McNemar p</th><th>Holm p</th></tr>{body}</table>")
+        for key, who in (("only_in_first", c["first"]), ("only_in_second", c["second"])):
+            if c[key]:
+                listed = ", ".join(f"{e['task']} seed {e['seed']}" for e in c[key][:20])
+                parts.append(f"<p class=note>{len(c[key])} episode(s) only in {esc(who)}, not compared: "
+                             f"{esc(listed)}{' ...' if len(c[key]) > 20 else ''}</p>")
+        for note in c["notes"]:
+            cls = "warn" if "changes the episode" in note else "note"
+            parts.append(f"<p class={cls}>{esc(note)}</p>")
+    return "".join(parts)
+
+
+def pair_row(task: str, s: dict, holm: bool) -> str:
+    def rate(side: dict) -> str:
+        lo, hi = side["success_rate_wilson95"]
+        return f"{side['n_success']}/{s['n_pairs']} = {side['success_rate']:.0%} [{lo:.2f}, {hi:.2f}]"
+
+    lo, hi = s["difference_ci95"]
+    name = esc(task) if holm else f"<b>{esc(task)}</b>"  # the pooled row: one test, nothing to correct
+    return (f'<tr data-task="{esc(task)}" data-diff="{s["difference"]}" data-lo="{lo}" data-hi="{hi}" '
+            f'data-p="{s["mcnemar_p"]}"><td>{name}</td><td class=num>{s["n_pairs"]}</td>'
+            f"<td class=num>{rate(s['first'])}</td><td class=num>{rate(s['second'])}</td>"
+            f"<td class=num>{s['difference']:+.0%} [{lo:+.2f}, {hi:+.2f}]</td>"
+            f"<td class=num>{s['only_first_succeeded']} / {s['only_second_succeeded']}</td>"
+            f"<td class=num>{s['mcnemar_p']:.3g}</td><td class=num>"
+            f"{format(s['mcnemar_p_holm'], '.3g') if holm else ''}</td></tr>")
+
+
+def difference_chart(c: dict, colour: str) -> str:
+    """B - A per task (and over all pairs) on a -100 %..+100 % axis, with its 95 % interval."""
+    rows = list(c["per_task"].items()) + ([("all (paired)", c["overall"])] if len(c["per_task"]) > 1 else [])
+    height = len(rows) * (BAR_H + 8) + 30
+    parts = [x_axis(-1, 1, height - 24, lambda v: f"{v:+.0%}", [-1, -0.5, 0, 0.5, 1])]
+
+    def x(v: float) -> float:
+        return LABEL_W + (v + 1) / 2 * PLOT_W
+
+    for i, (task, s) in enumerate(rows):
+        y, d = i * (BAR_H + 8) + 4, s["difference"]
+        lo, hi = s["difference_ci95"]
+        mid = y + BAR_H / 2
+        parts.append(f'<g><title>{esc(task)}: B - A = {d:+.1%}, 95 % [{lo:+.2f}, {hi:+.2f}], McNemar p '
+                     f'{s["mcnemar_p"]:.3g}</title><text x="{LABEL_W - 8}" y="{y + BAR_H - 4}" text-anchor="end">'
+                     f'{esc(task[:34])}</text><rect class="diff" x="{min(x(0), x(d)):.1f}" y="{y}" '
+                     f'width="{abs(x(d) - x(0)):.1f}" height="{BAR_H}" fill="{colour}" data-task="{esc(task)}" '
+                     f'data-diff="{d}"/><path class="ci" d="M{x(lo):.1f},{mid}H{x(hi):.1f}M{x(lo):.1f},{y + 3}V'
+                     f'{y + BAR_H - 3}M{x(hi):.1f},{y + 3}V{y + BAR_H - 3}" stroke="#222" stroke-width="1.5" '
+                     f'data-lo="{lo}" data-hi="{hi}"/><text x="{LABEL_W + PLOT_W + 8}" y="{y + BAR_H - 4}">'
+                     f'{d:+.0%} [{lo:+.2f}, {hi:+.2f}]</text></g>')
+    return svg(height, parts, "difference-chart", f"{c['second']} minus {c['first']}: paired difference per task")

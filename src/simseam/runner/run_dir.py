@@ -79,8 +79,22 @@ def point_latest(run: Path) -> None:
 
 
 #: what a run's config records but does not decide: the path the scene file was named by (its parsed
-#: contents, ``scene``, are compared instead: the same file reached through another path is the same run)
-NOT_COMPARED = ("scene_file",)
+#: contents, ``scene``, are compared instead: the same file reached through another path is the same run),
+#: what can move its number (``provenance``), compared by ``runner.provenance.differences``, and the interval
+#: width its summary sizes the episodes for (``ci_width``: a resumed run may ask for another)
+NOT_COMPARED = ("scene_file", "provenance", "ci_width")
+
+
+def provenance_check(old: dict, new: dict, what: str) -> list[str]:
+    """The provenance differences of two configs as lines; a ``ConfigError`` (``what``: the refusal's
+    beginning) naming those that change the episode, together with the rest."""
+    from simseam.runner.provenance import describe, differences
+
+    diff = differences(old.get("provenance"), new.get("provenance"))
+    if any(d[3] for d in diff):
+        raise ConfigError(f"{what} something that changes the episode:\n"
+                          + "\n".join(f"  - {describe(d)}" for d in diff))
+    return [describe(d) for d in diff]
 
 
 def config_differences(old: dict, new: dict, prefix: str = "") -> list[str]:
@@ -124,12 +138,14 @@ class RunDir:
         self.config = json.loads(json.dumps(config))  # plain JSON, as it will be read back
         self.held = [f for f in RUN_FILES if (self.path / f).exists()]
         self.resumed: list[dict] = []
+        self.notes: list[str] = []  # --resume: what differs from the run there without changing the episode
         if self.held and resume:
             old = self._read_config()
             diff = config_differences(old, self.config)
             if diff:
                 raise ConfigError(f"--resume {self.path}: the run there has a different config:\n"
                                   + "\n".join(f"  - {d}" for d in diff))
+            self.notes = provenance_check(old, self.config, f"--resume {self.path}: the run there differs in")
             self.resumed = read_log(self.path)
         elif self.held and not overwrite:
             raise ConfigError(f"--out {self.path} already holds a run ({', '.join(self.held)}); pass --overwrite to "

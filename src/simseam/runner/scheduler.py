@@ -24,9 +24,14 @@ membership, so the per-episode results equal plain lockstep's for a policy whose
 environment does not depend on the others in its batch (a batched network's float sums may differ
 in the last bits, as between any two batch sizes). M = N is plain lockstep.
 
-A policy with ``act_device(observation)`` on a batch with ``device_observation()`` /
-``step_device(actions)`` (MuJoCo Warp) reads the batch's device arrays and answers device actions
-for every environment: no host copy of observations or actions (one group only).
+The array path: a policy with ``act_arrays(observations)`` on a batch that offers arrays
+(``seam.batch.ArrayBatch``: MuJoCo Warp) gets each step's ``observation_arrays(request)`` (one array per
+key for all environments, in the device's memory; ``request`` is the policy's ``observe_next(env)`` of the
+first busy environment when it has one, else everything) and answers ``float32[num_envs, action_dim]``
+actions as any DLPack array, which the batch steps with ``step_arrays``: no host copy of observations or
+actions, one policy call per step for every environment (rows of idle environments are ignored). One
+group only. The per-episode results equal the per-environment dict path's for a policy that computes the
+same actions from the same values (the arrays' rows are the dicts' values, exactly).
 
 Failures (``BatchRollout.failures``): an environment whose process died loses its episode through no
 fault of the episode, which goes back to the front of the queue (at most ``max_attempts`` times, then
@@ -53,7 +58,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.seam import INFO_DIAGNOSTICS, ConfigError, SimulationError
+from simseam.seam import INFO_DIAGNOSTICS, ConfigError, ObsRequest, SimulationError, offers_arrays
+
+_NO_IMAGES = ObsRequest.state_only()  # the array path's resets: their dicts go unread
 
 
 class EpisodeQueue:
@@ -250,9 +257,9 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
         raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
     check_groups(groups, n)
     check_ready(ready, n, groups)
-    device = callable(getattr(policy, "act_device", None)) and callable(getattr(batch, "device_observation", None))
+    device = callable(getattr(policy, "act_arrays", None)) and offers_arrays(batch)
     if device and (groups > 1 or ready):
-        raise ConfigError("a device policy (act_device) steps every world at once: it takes policy groups 1 "
+        raise ConfigError("an array policy (act_arrays) steps every environment at once: it takes policy groups 1 "
                           "and no --policy-ready")
     episodes = _Episodes(indices, n, seed, max_attempts)
     videos = _Videos(batch, video_dir)
@@ -291,7 +298,7 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
                 if on_start:
                     on_start(env, episodes.playing[env].index)
             got = batch.reset(started, [episodes.playing[e].seed for e in started],
-                              None if device else [policy.observe_next(e) for e in started])
+                              _NO_IMAGES if device else [policy.observe_next(e) for e in started])
             fails = batch.failures()
             for env, o in zip(started, got):
                 if env in fails:
@@ -353,7 +360,7 @@ def _run_ready(send: Callable, turn: Callable, ready: int, n: int) -> None:
 @dataclass
 class _Flight:
     """A group's step in flight: its environments, the policy's time for them and the send's, and (the
-    device path, stepped at the receive) the device actions."""
+    array path, stepped at the receive) the policy's actions for every environment."""
 
     envs: list[int]
     policy_ms: float
@@ -363,10 +370,11 @@ class _Flight:
 
 
 def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
-    """The policy acts for ``envs`` and their step starts (``step_send``; the device path keeps the actions)."""
+    """The policy acts for ``envs`` and their step starts (``step_send``; the array path keeps the actions)."""
     t0 = time.perf_counter()
     if device:
-        actions = policy.act_device(batch.device_observation())
+        request = policy.observe_next(envs[0]) if callable(getattr(policy, "observe_next", None)) else None
+        actions = policy.act_arrays(batch.observation_arrays(request))
         return _Flight(envs, (time.perf_counter() - t0) * 1e3, device_actions=actions)
     actions = np.asarray(policy.act_batch(envs, [obs[e] for e in envs]), dtype=np.float32)
     if actions.shape != (len(envs), batch.spec.action_dim):
@@ -383,7 +391,7 @@ def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Vi
     spec = batch.spec
     t0 = time.perf_counter()
     if device:
-        r = batch.step_device(flight.device_actions, flight.envs)
+        r = batch.step_arrays(flight.envs, flight.device_actions)
     elif at_least is None:
         r = batch.step_receive(flight.envs)
     else:

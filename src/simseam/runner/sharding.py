@@ -9,6 +9,9 @@ directories into one:
 - each episode index is counted once: an index in several directories (a shard re-run, or the
   same directory given twice) keeps one entry, and two entries that disagree on the result are a
   ``ConfigError`` unless ``prefer_first``;
+- their ``provenance`` (``runner.provenance``) must agree on what changes the episode (the engine's
+  or the benchmark's packages, the scene, robot and checkpoint files' contents); the rest that differs
+  (simseam's revision, the GPU, the renderer) is named in ``provenance_notes``;
 - the merged ``summary.json`` is ``complete`` when every planned index is there; the missing ones
   are listed.
 
@@ -74,7 +77,8 @@ def planned_indices(config: dict) -> list[int] | None:
 def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, prefer_first: bool = False) -> dict:
     """Merge run directories into ``out`` (see the module docstring); returns the merged summary."""
     from simseam.runner.run_dir import (CONFIG_FILE, LOG_FILE, RUN_FILES, SPEC_FILE, check_writable,
-                                        config_differences, read_log, rebuild_summary, write_json_atomic)
+                                        config_differences, provenance_check, read_log, rebuild_summary,
+                                        write_json_atomic)
 
     if not dirs:
         raise ConfigError("simseam merge: name at least one run directory to merge")
@@ -96,6 +100,8 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
         if diff:
             raise ConfigError(f"simseam merge: {d} ran a different config than {dirs[0]}:\n"
                               + "\n".join(f"  - {x}" for x in diff))
+    notes = [f"{d}: {note}" for d, c in zip(dirs[1:], configs[1:])  # what moved without changing the episode
+             for note in provenance_check(configs[0], c, f"simseam merge: {d} differs from {dirs[0]} in")]
     multi_task = isinstance(base.get("tasks"), list)  # simseam eval: each run's spec is its first task's
 
     def comparable(spec: dict) -> dict:
@@ -148,5 +154,6 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
             by_task.setdefault(str(tasks[i // per_task]), []).append(i % per_task)
         summary["missing_by_task"] = by_task
     summary["merged_from"] = [str(d) for d in dirs]
+    summary["provenance_notes"] = notes
     write_json_atomic(out / "summary.json", summary)
     return summary

@@ -252,8 +252,12 @@ def _parquet_complete(path: Path) -> bool:
 
 def check_dataset(root: Path) -> None:
     """``ConfigError`` unless ``root`` is a LeRobot dataset holding episodes."""
+    from simseam.runner.dataset_recorder import unfinished
+
     if not (root / "meta" / "info.json").is_file():
         raise ConfigError(f"{root}: not a LeRobot dataset (no meta/info.json); record one with `simseam collect`")
+    if unfinished(root):
+        raise ConfigError(unfinished(root))
     if not (root / "meta" / "tasks.parquet").is_file():
         raise ConfigError(f"{root}: the dataset holds no episodes (was every collected episode a failure? "
                           "`simseam collect --keep-failures` keeps them)")

@@ -2,8 +2,8 @@
 
 ``WarpVectorEnv`` is the episode scheduler's ``BatchVectorEnv`` over one ``BatchedScene``'s worlds
 (``WarpBatchRollout``; environment ``j`` is world ``j``), with the same per-environment semantics as the
-worker processes. A policy with ``act_device(state)`` gets the batch's device arrays instead
-(``BatchedScene.device_observation()``, no host copy). ``make_vector_env`` picks it for scenes whose
+worker processes. A policy with ``act_arrays(observations)`` gets the batch's observations as device
+arrays instead (``WarpBatchRollout.observation_arrays()``, no host copy; runner.scheduler). ``make_vector_env`` picks it for scenes whose
 engine is ``mujoco_warp``, a sidecar batch (``SidecarBatchRollout``) for a benchmark whose backend
 simulates the environments together (ManiSkill3 on ``physx_cuda``), a benchmark's port to a batched engine
 (``engine: mujoco_warp`` with ``benchmark: {name: metaworld}``: ``MetaWorldBatchRollout``), and the worker

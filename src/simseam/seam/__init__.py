@@ -12,7 +12,9 @@ any interpreter that hosts an engine can import it.
 - ``errors``: the error hierarchy
 - ``batch``: the ``BatchRollout`` protocol (N environments reset and stepped by index),
   ``BatchStepResult``, ``SyncBatchRollout`` (a batch of separate rollouts) and ``SyncStepPair`` (the
-  step send / receive pair of a batch that steps synchronously)
+  step send / receive pair of a batch that steps synchronously); ``ArrayBatch`` (a batch that also
+  hands out observations as one DLPack array per key for all environments), ``array_fields``,
+  ``host_array``, ``stack_observations``
 - ``checker``: ``check_rollout``, the conformance check every backend passes, and
   ``check_batch_rollout`` for batches
 
@@ -38,7 +40,18 @@ The observation contract, key by key (shapes in ``rollout.spec.observation``):
   beside ``state`` (LeRobot's ``observation.environment_state``).
 """
 
-from simseam.seam.batch import BatchRollout, BatchStepResult, EnvFailure, SyncBatchRollout, SyncStepPair
+from simseam.seam.batch import (
+    ArrayBatch,
+    BatchRollout,
+    BatchStepResult,
+    EnvFailure,
+    SyncBatchRollout,
+    SyncStepPair,
+    array_fields,
+    host_array,
+    offers_arrays,
+    stack_observations,
+)
 from simseam.seam.checker import RolloutContractError, check_batch_rollout, check_rollout, observation_problems
 from simseam.seam.errors import (
     BackendUnavailableError,
@@ -74,7 +87,7 @@ from simseam.seam.spec import (
 )
 
 __all__ = [
-    "ActionSlot", "ActionSpec", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "EnvFailure", "CAP_LINK_POSES", "CAP_PRIVILEGED",
+    "ActionSlot", "ActionSpec", "ArrayBatch", "array_fields", "host_array", "offers_arrays", "stack_observations", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "EnvFailure", "CAP_LINK_POSES", "CAP_PRIVILEGED",
     "CAP_RESTART", "ConfigError", "ControlMode", "FULL", "FieldSpec", "GripperFacts", "InvalidActionError",
     "JointFacts", "LinkFacts", "NormBound", "ObsRequest", "Observation", "ObservationSpec", "OPTIONAL_OBS_KEYS",
     "REQUIRED_OBS_KEYS", "RobotFacts", "RolloutContractError", "RolloutSpec", "STATE_ONLY", "SensorFacts",

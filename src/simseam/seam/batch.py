@@ -38,6 +38,34 @@ Contract (checked by ``simseam.seam.check_batch_rollout``):
   cannot fail one at a time returns ``{}``.
 - ``close()`` releases everything; calling it twice is harmless; a closed batch refuses to reset.
 - Bad environment indices (repeated, out of range) raise ``ConfigError``.
+
+Observations as arrays (optional: ``ArrayBatch``; ``offers_arrays(batch)`` says whether a batch has it).
+A batch that simulates its environments together (N worlds on a GPU) may hand out its observations as
+one array per key for all its environments instead of N dicts:
+
+- ``observation_arrays(observe=None)``: the current observation of every environment (after its last
+  ``reset`` or step), as the per-environment dict's structure with one array per leaf, leading axis the
+  environment index: ``{"state": float32[N, state_dim], "joint_positions": float32[N, n_joints], ...,
+  "images": {key: uint8[N, H, W, 3]}, "privileged": {"eef_pose": float64[N, 7], "objects": {name:
+  float64[N, 7]}}}``. Each leaf has the dtype the ``RolloutSpec`` gives its key and shape
+  ``(N, *spec shape)`` (``array_fields(spec)``); an ``int`` key (``sim_time_ns``) is ``int64[N]``; ``str``
+  keys (``task``: ``spec.task.instruction``) and variable-size keys (``depth_points``) are left out.
+  ``observe`` (one ``ObsRequest`` for all) picks the on-request keys and the images as for the dicts.
+  Row ``e`` equals environment ``e``'s dict observation of the same step and request, exactly.
+  Every leaf exposes ``__dlpack__`` / ``__dlpack_device__`` (``torch.from_dlpack``,
+  ``jax.dlpack.from_dlpack``, ``np.from_dlpack`` on the host): device memory for a GPU engine, host
+  memory for the others. Leaves may be views of the simulator's own buffers: they hold until the next
+  ``reset`` / step of the batch (copy what you keep). Rows of environments never reset are unspecified.
+- ``step_arrays(envs, actions)``: one control step with ``actions`` ``float32[num_envs, action_dim]``
+  from any DLPack producer (a torch tensor on the batch's device: no host copy), row ``e`` for
+  environment ``e``; clipped to the slot bounds like ``step``'s. Rows of environments outside ``envs``
+  are the batch's to use or ignore: those environments' episodes do not advance (reset them before
+  stepping them again). Returns ``envs``' ``BatchStepResult`` with empty observation dicts (read them
+  with ``observation_arrays``).
+
+A batched policy declares that it reads arrays by having ``act_arrays(observations) -> actions``
+(``float32[num_envs, action_dim]``, any DLPack producer); ``runner.scheduler`` drives such a policy on
+such a batch through these two calls and nothing else.
 """
 
 from __future__ import annotations
@@ -120,6 +148,83 @@ class BatchRollout(Protocol):
     def failures(self) -> dict[int, EnvFailure]: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class ArrayBatch(Protocol):
+    """A ``BatchRollout`` that also hands out its observations as arrays (see the module docstring)."""
+
+    def observation_arrays(self, observe: ObsRequest | None = None) -> dict[str, Any]: ...
+
+    def step_arrays(self, envs: Sequence[int], actions: Any) -> BatchStepResult: ...
+
+
+def offers_arrays(batch: Any) -> bool:
+    """Whether ``batch`` hands out observations as arrays (``observation_arrays`` and ``step_arrays``)."""
+    return callable(getattr(batch, "observation_arrays", None)) and callable(getattr(batch, "step_arrays", None))
+
+
+def array_fields(spec: RolloutSpec, observe: ObsRequest | None = None) -> dict[str, Any]:
+    """What ``observation_arrays(observe)`` holds for a rollout of ``spec``: the same nesting, each leaf
+    ``(dtype, shape of one environment)`` (numpy dtype, tuple): the spec's array keys, ``int`` keys as
+    int64 scalars; ``str`` keys and variable-size keys left out; on-request keys and images as
+    ``observe`` asks (None: everything declared, no on-request key)."""
+    from simseam.seam.keys import OBS_DEPTH_POINTS, OBS_IMAGES, OBS_LINK_POSES
+
+    request = observe or ObsRequest()
+    out: dict[str, Any] = {}
+    for key, f in spec.observation.fields.items():
+        if key == OBS_LINK_POSES and not (f.presence != "on_request" or request.link_poses):
+            continue
+        if key == OBS_DEPTH_POINTS:
+            continue
+        leaf = _array_leaf(f)
+        if key == OBS_IMAGES and isinstance(leaf, dict):
+            leaf = {k: v for k, v in leaf.items() if request.wants_image(k)}
+        if leaf is not None:
+            out[key] = leaf
+    return out
+
+
+def _array_leaf(f) -> Any:
+    if f.dtype == "dict":
+        entries = {k: _array_leaf(v) for k, v in (f.entries or {}).items()}
+        return {k: v for k, v in entries.items() if v is not None}
+    if f.dtype == "str" or any(s < 0 for s in f.shape):
+        return None
+    if f.dtype == "int":
+        return (np.dtype(np.int64), ())
+    return (np.dtype(f.dtype), tuple(f.shape))
+
+
+def host_array(leaf: Any) -> np.ndarray:
+    """A host NumPy array of one ``observation_arrays`` leaf: the same memory for a leaf in host memory
+    (``np.from_dlpack``), a copy for one in device memory (CuPy's ``get``, Warp's / torch's ``numpy``)."""
+    kind = leaf.__dlpack_device__()[0]
+    if int(kind) in (1, 3):  # kDLCPU, kDLCUDAHost
+        return np.from_dlpack(leaf)
+    for name in ("get", "numpy"):  # CuPy, then Warp
+        fn = getattr(leaf, name, None)
+        if callable(fn):
+            return np.asarray(fn())
+    if callable(getattr(leaf, "cpu", None)):  # torch
+        return leaf.cpu().numpy()
+    raise SimulationError(f"cannot copy a {type(leaf).__name__} on DLPack device {kind} to the host")
+
+
+def stack_observations(observations: Sequence[Observation], fields: dict[str, Any]) -> dict[str, Any]:
+    """N per-environment dict observations as ``observation_arrays`` would give them (host NumPy): each
+    leaf of ``fields`` (``array_fields``) stacked in the environments' order, cast to its dtype."""
+    out: dict[str, Any] = {}
+    for key, leaf in fields.items():
+        parts = [o[key] for o in observations]
+        if isinstance(leaf, dict):
+            out[key] = stack_observations(parts, leaf)
+        else:
+            dtype, shape = leaf
+            out[key] = np.stack([np.asarray(p, dtype=dtype).reshape(shape) for p in parts]) if parts \
+                else np.zeros((0, *shape), dtype)
+    return out
 
 
 def env_indices(envs: Sequence[int], num_envs: int, where: str) -> np.ndarray:

@@ -36,6 +36,7 @@ from simseam.seam.keys import (
     OBS_LINK_POSES,
     OBS_STATE,
 )
+from simseam.seam.batch import array_fields, host_array, offers_arrays
 from simseam.seam.request import ObsRequest
 from simseam.seam.spec import CAP_LINK_POSES, FieldSpec, RolloutSpec
 
@@ -231,7 +232,9 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
     raises ``ConfigError``; that resetting one environment leaves another's episode as it was; that a bad
     action (shape, NaN) raises ``InvalidActionError`` and changes nothing; that actions act as their
     clipped value; bad indices raise ``ConfigError``; ``info`` carries success, steps and diagnostics;
-    ``render``; ``failures()`` empty; ``close``.
+    ``render``; ``failures()`` empty; ``close``. A batch that offers observations as arrays
+    (``ArrayBatch``): every leaf DLPack-capable with the spec's dtype and shape, its rows equal to the
+    dict observations after a reset and a step, and ``step_arrays`` stepping as ``step`` does.
     """
     problems: list[str] = []
     try:
@@ -245,6 +248,8 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
             raise RolloutContractError(f"check_batch_rollout needs num_envs >= 2, got {n!r}")
         _batch_episodes(batch, spec, n, seed, steps, problems)
         _batch_refusals(batch, spec, n, seed, problems)
+        if offers_arrays(batch):
+            _array_problems(batch, spec, n, seed, problems)
         for env in (0, n - 1):
             frame = batch.render(env)
             if spec.observation.images or spec.robot.sensors_of("rgb"):
@@ -267,6 +272,59 @@ def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> Rollout
         raise RolloutContractError(f"batch broke the BatchRollout contract ({len(problems)} problem(s)):\n"
                                    + "\n".join(f"  - {p}" for p in problems))
     return spec
+
+
+def _array_problems(batch: Any, spec: RolloutSpec, n: int, seed: int, problems: list[str]) -> None:
+    """``observation_arrays`` against the dict observations of the same reset and step, and ``step_arrays``
+    against ``step`` with the same actions (seam/batch.py, "Observations as arrays")."""
+    envs, seeds = list(range(n)), [seed + e for e in range(n)]
+    a = np.stack([_sample_action(spec, np.random.default_rng(seed + e)) for e in envs])
+    for request in (None, ObsRequest.state_only()):
+        obs = batch.reset(envs, seeds, request)
+        problems += _arrays_vs_dicts(batch.observation_arrays(request), obs, spec, request, f"reset ({request})")
+        r = batch.step(envs, a, request)
+        problems += _arrays_vs_dicts(batch.observation_arrays(request), r.observations, spec, request,
+                                     f"step ({request})")
+    batch.reset(envs, seeds, ObsRequest.state_only())
+    got = batch.step_arrays(envs, a.copy())
+    where = "step_arrays"
+    if np.asarray(got.envs).tolist() != envs:
+        problems.append(f"{where}: the result covers envs {np.asarray(got.envs).tolist()}, expected {envs}")
+    elif not (np.array_equal(got.reward, r.reward) and np.array_equal(got.terminated, r.terminated)
+              and np.array_equal(got.truncated, r.truncated)):
+        problems.append(f"{where}: reward / terminated / truncated differ from step()'s with the same actions")
+    problems += _arrays_vs_dicts(batch.observation_arrays(ObsRequest.state_only()), r.observations, spec,
+                                 ObsRequest.state_only(), f"{where} then observation_arrays")
+
+
+def _arrays_vs_dicts(arrays: Any, observations: list, spec: RolloutSpec, request: ObsRequest | None,
+                     where: str) -> list[str]:
+    """Every way ``arrays`` (``observation_arrays``) differs from the dict ``observations`` of all envs."""
+    return _leaf_problems(arrays, observations, array_fields(spec, request), f"{where}: observation_arrays")
+
+
+def _leaf_problems(arrays: Any, observations: list, fields: dict, where: str) -> list[str]:
+    if not isinstance(arrays, dict) or set(arrays) != set(fields):
+        got = sorted(arrays) if isinstance(arrays, dict) else type(arrays).__name__
+        return [f"{where}: keys {got}, expected {sorted(fields)}"]
+    out: list[str] = []
+    for key, leaf in fields.items():
+        at, value = f"{where}[{key!r}]", arrays[key]
+        if isinstance(leaf, dict):
+            out += _leaf_problems(value, [o[key] for o in observations], leaf, at)
+            continue
+        if not (callable(getattr(value, "__dlpack__", None)) and callable(getattr(value, "__dlpack_device__", None))):
+            out.append(f"{at}: a {type(value).__name__} has no __dlpack__ / __dlpack_device__")
+            continue
+        host = host_array(value)
+        dtype, shape = leaf
+        if host.dtype != dtype or host.shape != (len(observations), *shape):
+            out.append(f"{at}: {host.dtype}{list(host.shape)}, expected {dtype}{[len(observations), *shape]}")
+            continue
+        rows = [e for e, o in enumerate(observations) if not np.array_equal(host[e], np.asarray(o[key], dtype))]
+        if rows:
+            out.append(f"{at}: rows {rows} differ from those environments' dict observations")
+    return out
 
 
 def _step_problems(r: Any, envs: list[int], spec: RolloutSpec, step: int, requests: list) -> list[str]:

@@ -108,6 +108,7 @@ class PolicyServer:
                  max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
                  idle_timeout: float | None = DEFAULT_IDLE_TIMEOUT_S, close_timeout: float = 2.0,
                  batch: Any = None, max_batch_size: int | None = None, max_wait_ms: float = 2.0):
+        wire.check_bind_host(host)
         if not wire.is_loopback(host) and not allow_remote:
             raise ConfigError(f"refusing to serve on {host!r}: not a loopback address, and the policy server runs "
                               "any client's observations through the policy over plain websockets; to serve other "

@@ -3,13 +3,18 @@
 The client spawns ``python -m simseam.sidecar.server`` with the configured
 interpreter (its own virtualenv, its own CUDA stack), in a new process session,
 with a sanitized environment (PYTHONPATH, PYTHONHOME, VIRTUAL_ENV and friends
-removed), and talks to it over ZeroMQ with ``simseam.sidecar.wire``.
+removed), and talks to it over ZeroMQ with ``simseam.sidecar.wire``. Whatever the
+interpreter, the sidecar runs this process's own simseam: its PYTHONPATH is one private
+directory holding a link to this process's ``simseam`` package and nothing else, so a
+clone never drives another clone's server code (``hello`` reports the directory the
+sidecar imported simseam from; ``server_simseam``).
 
 Access: by default a private ``ipc://`` socket inside a fresh 0700 directory;
 with ``transport="tcp"`` a socket bound to 127.0.0.1 on a random port. Either
 way every request carries a random per-launch token, and ``hello`` checks the
-sidecar serves exactly this target (its identity: a hash of the ``SceneTarget`` or
-``BackendTarget``, ``sidecar.target``) before anything else is sent.
+sidecar serves exactly this target from this simseam source (its identity: a hash of
+the ``SceneTarget`` or ``BackendTarget``, ``sidecar.target``, and ``origin.source_dir()``)
+before anything else is sent.
 
 Failure handling: while waiting for a reply the client polls in 50 ms slices
 and checks the process, so a sidecar that dies (crash, kill -9, import error)
@@ -31,13 +36,15 @@ Reuse: one sidecar serves any number of episodes (reset does not rebuild the
 scene). With ``keep_alive=True`` the sidecar outlives this client and registers
 itself (endpoint, token, pid, identity) in a private per-user directory; a later
 client with the same identity adopts it instead of booting a new one, and never
-drives a sidecar whose identity differs.
+drives a sidecar whose identity differs: another clone's kept-alive sidecar of the
+same target is never adopted (nor one whose ``hello`` names another simseam source).
 """
 
 from __future__ import annotations
 
 import atexit
 import collections
+import hashlib
 import json
 import os
 import queue
@@ -56,6 +63,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import zmq
 
+from simseam import origin
 from simseam.seam import (
     CAP_RESTART,
     FULL,
@@ -97,6 +105,12 @@ def registry_dir() -> Path:
     path.mkdir(parents=True, exist_ok=True, mode=0o700)
     os.chmod(path, 0o700)
     return path
+
+
+def identity_of(target: Target) -> str:
+    """A sidecar's identity: its target and the simseam source serving it (this process's). Another
+    clone's kept-alive sidecar of the same target registers under another name and is never adopted."""
+    return hashlib.sha256(f"{target.identity()}:{origin.source_dir()}".encode()).hexdigest()[:32]
 
 
 def sanitized_env(extra: dict[str, str] | None = None) -> dict[str, str]:
@@ -257,7 +271,7 @@ class SidecarRollout:
         self._exclusive = exclusive
         self._progress = progress or (lambda stage: None)
         self._extra_env = env
-        self.identity = target.identity()
+        self.identity = identity_of(target)
         self._ctx = zmq.Context.instance()
         self._sock: zmq.Socket | None = None
         self._proc: _Process | None = None
@@ -295,11 +309,13 @@ class SidecarRollout:
         if self._num_envs is not None:
             boot["num_envs"] = self._num_envs
         env = dict(self._extra_env or {})
-        if isinstance(self.target, BackendTarget):  # a backend's venv gets this process's simseam package
-            src = Path(self._dir) / "src"
-            src.mkdir()
-            os.symlink(Path(__file__).resolve().parents[1], src / "simseam")
-            env["PYTHONPATH"] = str(src)
+        # every sidecar runs this process's simseam package (a backend's venv holds none; the default
+        # interpreter's venv may be shared by clones and an Isaac venv installed from another checkout)
+        src = Path(self._dir) / "src"
+        src.mkdir()
+        os.symlink(origin.source_dir(), src / "simseam")
+        env["PYTHONPATH"] = str(src)
+        if isinstance(self.target, BackendTarget):
             env.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         boot_path = Path(self._dir) / "boot.json"
         fd = os.open(boot_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -373,6 +389,11 @@ class SidecarRollout:
             raise SidecarAccessError(
                 f"the sidecar at {self.endpoint} serves scene {info.get('identity')!r}, not {self.identity!r}; "
                 "it was not driven")
+        if info.get("simseam") != str(origin.source_dir()):  # e.g. another clone's kept-alive sidecar
+            self._sock.close(0)
+            self._sock = None
+            raise SidecarAccessError(f"the sidecar at {self.endpoint} runs simseam from {info.get('simseam')}, "
+                                     f"not from {origin.source_dir()}; it was not driven")
         try:
             spec = RolloutSpec.from_json(info.get("spec"), where=f"the sidecar at {self.endpoint}: hello's spec")
         except ConfigError as exc:
@@ -384,6 +405,7 @@ class SidecarRollout:
         self._spec = spec.replace(backend="sidecar", capabilities=caps)
         self.server_pid = int(info["pid"])
         self.server_python = info.get("python")
+        self.server_simseam = info["simseam"]
         offer = info.get("local")
         if self._want_local and isinstance(offer, dict) and isinstance(offer.get("path"), str):
             self._attach(offer["path"])

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 import zmq
 
+from simseam import origin
 from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
 from simseam.sidecar import local
 from simseam.sidecar.compact import COMPACT_VERSION, MAGIC, ReplyTemplates, decode_step
@@ -234,6 +235,7 @@ class Server:
             "identity": self.identity,
             "pid": os.getpid(),
             "python": sys.version.split()[0],
+            "simseam": str(origin.source_dir()),  # the client checks it runs its own simseam
             "spec": self.scene.spec.to_json(),
         }
         if self.num_envs is not None:

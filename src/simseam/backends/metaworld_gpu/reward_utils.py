@@ -49,11 +49,15 @@ def tolerance(xp, x, lower, upper, margin, kind: str = "long_tail") -> Any:
     ``margin``; with ``margin == 0``, 0 outside. ``lower`` / ``upper`` / ``margin`` are numbers or
     float[N] (a margin may differ per world)."""
     inside = (lower <= x) & (x <= upper)
+    if isinstance(margin, (int, float)):  # one margin for every world: a constant of the rule, not a branch
+        if margin == 0:
+            return inside.astype(x.dtype)
+        d = xp.where(x < lower, lower - x, x - upper) / margin
+        return xp.where(inside, 1, sigmoid(xp, d, kind)).astype(x.dtype)
     zero = margin == 0
-    safe = xp.where(zero, 1, margin)
-    d = xp.where(x < lower, lower - x, x - upper) / safe
+    d = xp.where(x < lower, lower - x, x - upper) / xp.where(zero, 1, margin)
     value = xp.where(inside, 1, sigmoid(xp, d, kind))
-    return xp.where(zero, xp.where(inside, 1, 0), value).astype(x.dtype)
+    return xp.where(zero, inside, value).astype(x.dtype)
 
 
 def hamacher(xp, a, b) -> Any:

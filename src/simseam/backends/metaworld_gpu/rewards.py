@@ -50,6 +50,8 @@ DIAGNOSTICS = ("success", "near_object", "grasp_success", "grasp_reward", "in_pl
                "unscaled_reward")
 #: Meta-World's default ``TARGET_RADIUS`` (``SawyerXYZEnv``), which several tasks read through ``self``
 BASE_TARGET_RADIUS = 0.05
+#: the main object geoms whose contact with both finger pads ``grasp_success`` reads
+OBJ_GEOM, MUG_GEOM = "objGeom", "mug"
 
 
 def _judged(xp, reward, success, *, near_object, grasp_success, grasp_reward, in_place_reward,
@@ -125,7 +127,7 @@ def pick_place(state) -> BatchEvaluation:
     lifted = (tcp_to_obj < 0.02) & (opened > 0) & (obj[:, 2] - 0.01 > init[:, 2])
     reward = xp.where(lifted, reward + (1.0 + 5.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -147,7 +149,7 @@ def pick_place_wall(state) -> BatchEvaluation:
     over = xp.where(obj[:, 1] > 0.75, both + 1.0 + 4.0 + 3.0 * part2, both + 1.0 + 4.0 * part1)
     reward = xp.where(lifted, over, both)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=part2, obj_to_target=to_target)
 
@@ -172,7 +174,7 @@ def shelf_place(state) -> BatchEvaluation:
     lifted = (tcp_to_obj < 0.025) & (opened > 0) & (z - 0.01 > init[:, 2])
     reward = xp.where(lifted, reward + (1.0 + 5.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (z - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (z - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -251,7 +253,7 @@ def hand_insert(state) -> BatchEvaluation:
     tcp_to_obj = norm(xp, obj - state.tcp_center)
     reward = xp.where((tcp_to_obj < 0.02) & (opened > 0), reward + (1.0 + 7.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.05, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -308,7 +310,7 @@ def push(state) -> BatchEvaluation:
     reward = 2 * grasped
     reward = xp.where((tcp_to_obj < 0.02) & (opened > 0), reward + (1.0 + reward + 5.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.05, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -325,7 +327,7 @@ def push_back(state) -> BatchEvaluation:
     pushing = (tcp_to_obj < 0.01) & (0 < opened) & (opened < 0.55) & (to_target_init - to_target > 0.01)
     reward = xp.where(pushing, reward + (1.0 + 5.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -345,7 +347,7 @@ def push_wall(state) -> BatchEvaluation:
     over = xp.where(obj[:, 1] > 0.75, 2 * grasped + 1.0 + 4.0 + 3.0 * part2, 2.0 * grasped + 1.0 + 4.0 * part1)
     reward = xp.where((tcp_to_obj < 0.02) & (opened > 0), over, 2 * grasped)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, to_target <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=part2, obj_to_target=to_target)
 
@@ -365,7 +367,7 @@ def soccer(state) -> BatchEvaluation:
     reward = 3 * grasped + 6.5 * in_place
     reward = xp.where(to_target < 0.07, 10.0, reward)
     dist = norm(xp, obj - target)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (obj[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, dist <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=dist)
 
@@ -381,7 +383,7 @@ def sweep(state, into: bool = False) -> BatchEvaluation:
     grasped = caging_gripping(xp, state, obj, 0.02, 0.005 if into else 0.01, 0.01 if into else 0.005)
     reward = 2 * grasped + 6 * hamacher(xp, grasped, in_place)
     reward = xp.where(to_target < 0.05, 10.0, reward)
-    grasp = state.touching_object("objGeom") & (opened > 0)
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0)
     return _judged(xp, reward, to_target <= 0.05, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=to_target)
 
@@ -470,7 +472,7 @@ def coffee_mug(state) -> BatchEvaluation:
     reward = xp.where((tcp_to_obj < 0.04) & (opened > 0), reward + (1.0 + 5.0 * in_place), reward)
     reward = xp.where(to_target < 0.05, 10.0, reward)
     dist = norm(xp, obj - target)
-    grasp = state.touching_object("mug") & (opened > 0)
+    grasp = state.touching_object(MUG_GEOM) & (opened > 0)
     return _judged(xp, reward, dist <= 0.07, near_object=tcp_to_obj <= 0.03, grasp_success=grasp,
                    grasp_reward=grasped, in_place_reward=in_place, obj_to_target=dist)
 
@@ -486,7 +488,8 @@ def door_open(state) -> BatchEvaluation:
     above = xp.where(hand[:, 2] >= floor, 1, tolerance(xp, floor - hand[:, 2], 0.0, 0.01, floor / 2.0))
     handle = norm(xp, hand - door - vec(xp, obj, [0.05, 0.03, -0.01]))
     ready = hamacher(xp, above, tolerance(xp, handle, 0, 0.12 / 2.0, 0.5))
-    opened = 0.2 * (theta < -pi / 90.0).astype(obj.dtype) + 0.8 * tolerance(xp, pi / 2.0 + pi / 6 - (-theta), 0, 0.5, pi / 3.0)
+    swung = (theta < -pi / 90.0).astype(obj.dtype)
+    opened = 0.2 * swung + 0.8 * tolerance(xp, pi / 2.0 + pi / 6 - (-theta), 0, 0.5, pi / 3.0)
     reward = 2.0 * hamacher(xp, ready, grab) + 8.0 * opened
     success = xp.abs(obj[:, 0] - _p(state, "_target_pos")[:, 0]) <= 0.08
     reward = xp.where(success, 10.0, reward)
@@ -757,7 +760,7 @@ def stick_push(state) -> BatchEvaluation:
     pushed = xp.where(to_target <= 0.12, 10.0, 2.0 + 5.0 * stick_in_place + 3.0 * container_in_place)
     reward = xp.where(holding, pushed, grasped)
     grasped = xp.where(holding, 1.0, grasped)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (stick_obs[:, 2] - 0.01 > stick_init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (stick_obs[:, 2] - 0.01 > stick_init[:, 2])
     return _judged(xp, reward, grasp & (to_target <= 0.12), near_object=tcp_to_stick <= 0.03,
                    grasp_success=grasp, grasp_reward=grasped, in_place_reward=stick_in_place,
                    obj_to_target=to_target)
@@ -786,7 +789,7 @@ def stick_pull(state) -> BatchEvaluation:
     hooked = 1.0 + both + 5.0 + 2.0 * stick_in_place_2 + 1.0 * container_in_place
     hooked = xp.where(handle_to_target <= 0.12, 10.0, hooked)
     reward = xp.where(holding, xp.where(inserted, hooked, 1.0 + both + 5.0 * stick_in_place), both)
-    grasp = state.touching_object("objGeom") & (opened > 0) & (stick[:, 2] - 0.02 > init[:, 2])
+    grasp = state.touching_object(OBJ_GEOM) & (opened > 0) & (stick[:, 2] - 0.02 > init[:, 2])
     return _judged(xp, reward, (handle_to_target <= 0.12) & inserted, near_object=tcp_to_stick <= 0.03,
                    grasp_success=grasp, grasp_reward=grasped, in_place_reward=stick_in_place,
                    obj_to_target=handle_to_target)
@@ -847,6 +850,13 @@ TASKS: dict[str, tuple[Callable[[Any], BatchEvaluation], tuple[str, ...]]] = {
     "sweep-v3": (sweep, _PLACE),
     "window-close-v3": (lambda s: window(s, opening=False), ("_target_pos", "window_handle_pos_init", "init_tcp")),
     "window-open-v3": (lambda s: window(s, opening=True), (*_PLACE, "window_handle_pos_init")),
+}
+#: env name -> the geom both pads must touch for its ``grasp_success`` (Meta-World's ``touching_main_object``)
+GRASPED_GEOM: dict[str, str] = {
+    **{name: OBJ_GEOM for name in ("hand-insert-v3", "pick-place-v3", "pick-place-wall-v3", "push-back-v3",
+                                   "push-v3", "push-wall-v3", "shelf-place-v3", "soccer-v3", "stick-pull-v3",
+                                   "stick-push-v3", "sweep-into-v3", "sweep-v3")},
+    "coffee-pull-v3": MUG_GEOM, "coffee-push-v3": MUG_GEOM,
 }
 #: env name -> its batched rule: ``TASK_REWARDS[name](state) -> BatchEvaluation``
 TASK_REWARDS: dict[str, Callable[[Any], BatchEvaluation]] = {k: fn for k, (fn, _) in TASKS.items()}

@@ -171,6 +171,11 @@ class ModelLayout:
     owner_code: dict
 
 
+#: the primitive shapes an object or a robot shape may be, as MuJoCo geom types
+_GEOM_KINDS = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+               "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
+
+
 class MujocoEngine:
     """MuJoCo implementation of ``simseam.engines.base.Engine``."""
 
@@ -256,8 +261,18 @@ class MujocoEngine:
         self.reset()
 
     def _build_spec(self) -> "mujoco.MjSpec":
-        robot = self._robot
-        spec = _urdf_spec(robot.urdf_path)
+        """The model: the robot's URDF with its options, bodies, shapes and actuators, then the world, the
+        objects and the cameras (each part below, in that order)."""
+        spec = _urdf_spec(self._robot.urdf_path)
+        self._spec_options(spec)
+        self._spec_robot_bodies(spec)
+        self._spec_actuators(spec)
+        self._spec_world(spec)
+        self._spec_objects(spec)
+        self._spec_cameras(spec)
+        return spec
+
+    def _spec_options(self, spec) -> None:
         spec.option.timestep = self.options.timestep
         spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
         spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
@@ -269,6 +284,10 @@ class MujocoEngine:
         spec.visual.headlight.ambient = [0.35, 0.35, 0.35]
         spec.visual.headlight.diffuse = [0.5, 0.5, 0.5]
 
+    def _spec_robot_bodies(self, spec) -> None:
+        """The robot's root (fixed as a mocap body, or free), its geoms' groups and colour, the manifest's
+        extra shapes, gravity compensation, inertia from geometry, collision primitives."""
+        robot = self._robot
         root = spec.worldbody.first_body()
         self._root_name = root.name
         root.pos = list(robot.base_pos)
@@ -286,19 +305,7 @@ class MujocoEngine:
             g.group = GROUP_ROBOT_VISUAL if (is_visual or not visual) else GROUP_ROBOT_COLLISION
             if is_visual and robot.color is not None:
                 g.rgba = list(robot.color)
-        kinds = {"box": mujoco.mjtGeom.mjGEOM_BOX, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
-                 "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
-        for link, shapes in robot.link_shapes.items():
-            body = spec.body(link)
-            if body is None:
-                raise ConfigError(f"robot shapes: link {link!r} is not in the robot model")
-            for k, shape in enumerate(shapes):
-                if shape.kind not in kinds:
-                    raise ConfigError(f"robot shapes on {link!r}: unknown shape kind {shape.kind!r}")
-                body.add_geom(name=f"{link}:shape{k}", type=kinds[shape.kind],
-                              size=list(shape.size) + [0] * (3 - len(shape.size)), pos=list(shape.pos),
-                              quat=list(shape.quat), rgba=list(shape.rgba), group=GROUP_ROBOT_VISUAL,
-                              density=0.0 if not robot.inertia_from_geometry else 1000.0)
+        self._spec_link_shapes(spec)
         for b in robot_bodies:
             # A free root is not compensated: the robot must still rest on what carries it.
             compensated = robot.gravity_compensation and (robot.fixed_base or b.name != root.name)
@@ -313,6 +320,24 @@ class MujocoEngine:
         if robot.collision_primitives:
             _add_collision_primitives(robot, [g for g in geoms if not (g.contype == 0 and g.conaffinity == 0)])
 
+    def _spec_link_shapes(self, spec) -> None:
+        """The manifest's extra visual shapes on robot links."""
+        robot = self._robot
+        for link, shapes in robot.link_shapes.items():
+            body = spec.body(link)
+            if body is None:
+                raise ConfigError(f"robot shapes: link {link!r} is not in the robot model")
+            for k, shape in enumerate(shapes):
+                if shape.kind not in _GEOM_KINDS:
+                    raise ConfigError(f"robot shapes on {link!r}: unknown shape kind {shape.kind!r}")
+                body.add_geom(name=f"{link}:shape{k}", type=_GEOM_KINDS[shape.kind],
+                              size=list(shape.size) + [0] * (3 - len(shape.size)), pos=list(shape.pos),
+                              quat=list(shape.quat), rgba=list(shape.rgba), group=GROUP_ROBOT_VISUAL,
+                              density=0.0 if not robot.inertia_from_geometry else 1000.0)
+
+    def _spec_actuators(self, spec) -> None:
+        """A position actuator per robot joint (the manifest's gains, the URDF's effort limit), armature."""
+        robot = self._robot
         urdf = read_urdf(robot.urdf_path)
         for i, jn in enumerate(robot.joints):
             joint = spec.joint(jn)
@@ -330,6 +355,8 @@ class MujocoEngine:
                 act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
                 act.forcerange = [-uj.effort, uj.effort]
 
+    def _spec_world(self, spec) -> None:
+        """The ground (a checker plane, when added) and the key light."""
         if self._ground:
             tex = spec.add_texture(
                 name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D, builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
@@ -343,22 +370,26 @@ class MujocoEngine:
         spec.worldbody.add_light(name="key", pos=[0.5, -0.5, 2.5], dir=[-0.2, 0.2, -1], castshadow=True,
                                  diffuse=[0.6, 0.6, 0.6])
 
+    def _spec_objects(self, spec) -> None:
+        """Each object as a body of primitive geoms (free when dynamic, its mass shared by volume)."""
         for obj in self._objects:
             body = spec.worldbody.add_body(name=f"obj:{obj.name}", pos=list(obj.pos), quat=list(obj.quat))
             if obj.dynamic:
                 body.add_freejoint(name=f"obj:{obj.name}")
             vols = [_volume(s) for s in obj.shapes]
             for k, (shape, vol) in enumerate(zip(obj.shapes, vols)):
-                if shape.kind not in kinds:
+                if shape.kind not in _GEOM_KINDS:
                     raise ConfigError(f"object {obj.name!r}: unknown shape kind {shape.kind!r}")
                 g = body.add_geom(
-                    name=f"obj:{obj.name}:{k}", type=kinds[shape.kind], size=list(shape.size) + [0] * (3 - len(shape.size)),
+                    name=f"obj:{obj.name}:{k}", type=_GEOM_KINDS[shape.kind],
+                    size=list(shape.size) + [0] * (3 - len(shape.size)),
                     pos=list(shape.pos), quat=list(shape.quat), rgba=list(shape.rgba), group=GROUP_WORLD,
                     friction=[obj.friction, 0.005, 0.0001], condim=4 if obj.dynamic else 3,
                 )
                 if obj.dynamic:
                     g.mass = obj.mass * vol / sum(vols)
 
+    def _spec_cameras(self, spec) -> None:
         for cam in self._cameras.values():
             parent = spec.worldbody if cam.parent == "world" else spec.body(cam.parent)
             if parent is None:
@@ -366,7 +397,6 @@ class MujocoEngine:
             parent.add_camera(
                 name=f"cam:{cam.name}", pos=list(cam.pos), quat=list(_mount_to_mjcam(cam.quat)), fovy=cam.fovy_deg
             )
-        return spec
 
     def _index(self) -> None:
         m = self.model

@@ -140,13 +140,10 @@ def solve66(a: wp.spatial_matrix, b: wp.spatial_vector) -> wp.spatial_vector:
 
 
 # ------------------------------------------------------------------------------------------ arm + grip
-def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bool):
-    """The controller kernel for an arm of ``n`` joints (``cartesian``: CARTESIAN_DELTA, else
-    JOINT_POSITION). ``null_space``: the arm is redundant (n > 6), pull towards home."""
+def _dls_step_func(n: int, null_space: bool):
+    """``SerialChain._normal_solve`` for an arm of ``n`` joints (a Warp function)."""
     vecn = wp.types.vector(length=n, dtype=float)
     jac_t = wp.types.matrix(shape=(6, n), dtype=float)
-
-    mat_n3 = wp.types.matrix(shape=(n, 3), dtype=float)
 
     @wp.func
     def dls_step(jw: jac_t, e: wp.spatial_vector, zn: vecn, damping: float):
@@ -181,6 +178,13 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
                 dq[i] = dq[i] + zn[i] - s
         return dq
 
+    return dls_step
+
+
+def _priority_step_func(n: int):
+    """``SerialChain._priority_step`` for an arm of ``n`` (< 6) joints (a Warp function)."""
+    jac_t = wp.types.matrix(shape=(6, n), dtype=float)
+    vecn = wp.types.vector(length=n, dtype=float)
     f64 = wp.float64
     jp_t = wp.types.matrix(shape=(3, n), dtype=f64)
     matnn = wp.types.matrix(shape=(n, n), dtype=f64)
@@ -231,12 +235,158 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
             dq[i] = float(dq64[i])
         return dq
 
+    return priority_step
+
+
+def _ik_step_func(n: int, null_space: bool):
+    """One damped least-squares step of ``n`` joints: the full 6-D solve from 6 joints on, the
+    task-priority step below (``SerialChain``'s choice)."""
+    vecn = wp.types.vector(length=n, dtype=float)
+    jac_t = wp.types.matrix(shape=(6, n), dtype=float)
+    dls_step = _dls_step_func(n, null_space)
+    priority_step = _priority_step_func(n)
+
     @wp.func
     def step_fn(jw: jac_t, e: wp.spatial_vector, zn: vecn, damping: float):
         if wp.static(n >= 6):
             return dls_step(jw, e, zn, damping)
         else:
             return priority_step(jw, e, damping)
+
+    return step_fn
+
+
+def _chain_func(n: int):
+    """``SerialChain.forward`` at ``q``: the tool pose and the geometric Jacobian (angular rows weighted)."""
+    vecn = wp.types.vector(length=n, dtype=float)
+    jac_t = wp.types.matrix(shape=(6, n), dtype=float)
+    mat_n3 = wp.types.matrix(shape=(n, 3), dtype=float)
+
+    @wp.func
+    def chain_forward(q: vecn, chain_q: wp.array[int], fixed: wp.array[wp.mat44], axes: wp.array[wp.vec3],
+                      prismatic: wp.array[int], tail: wp.mat44, rot_weight: float):
+        cum = wp.identity(n=4, dtype=float)
+        origins = mat_n3()
+        zs = mat_n3()
+        for k in range(n):
+            qk = q[chain_q[k]]
+            motion = wp.identity(n=4, dtype=float)
+            ax = axes[k]
+            if prismatic[k] == 0:
+                rk = axis_rotation(ax, qk)
+                for a in range(3):
+                    for b in range(3):
+                        motion[a, b] = rk[a, b]
+            else:
+                for a in range(3):
+                    motion[a, 3] = ax[a] * qk
+            cum = cum * fixed[k] * motion
+            rot_k = wp.mat33(cum[0, 0], cum[0, 1], cum[0, 2], cum[1, 0], cum[1, 1], cum[1, 2],
+                             cum[2, 0], cum[2, 1], cum[2, 2])
+            z = rot_k * ax
+            for a in range(3):
+                origins[k, a] = cum[a, 3]
+                zs[k, a] = z[a]
+        tip = cum * tail
+        t_pos = wp.vec3(tip[0, 3], tip[1, 3], tip[2, 3])
+        t_rot = wp.mat33(tip[0, 0], tip[0, 1], tip[0, 2], tip[1, 0], tip[1, 1], tip[1, 2],
+                         tip[2, 0], tip[2, 1], tip[2, 2])
+        jw = jac_t()
+        for k in range(n):
+            z = wp.vec3(zs[k, 0], zs[k, 1], zs[k, 2])
+            lin = z
+            ang = wp.vec3(0.0)
+            if prismatic[k] == 0:
+                lin = wp.cross(z, t_pos - wp.vec3(origins[k, 0], origins[k, 1], origins[k, 2]))
+                ang = z
+            col = chain_q[k]
+            for a in range(3):
+                jw[a, col] = lin[a]
+                jw[3 + a, col] = ang[a] * rot_weight
+        return t_pos, t_rot, jw
+
+    return chain_forward
+
+
+def _cartesian_func(n: int, null_space: bool):
+    """``CartesianDeltaArm.targets`` for one world: the new end-effector target from the action (re-anchored
+    on the measured pose at an episode's first step, or when the arm does not track its command), then
+    ``SerialChain.solve``'s one IK step from the last joint targets ``q_prev``; a joint the step would push
+    past a limit goes to it and the others solve for what is left (``_step_blocked``). Returns the joint
+    targets; updates the reference."""
+    vecn = wp.types.vector(length=n, dtype=float)
+    chain_forward = _chain_func(n)
+    step_fn = _ik_step_func(n, null_space)
+
+    @wp.func
+    def cartesian_targets(w: int, q_prev: vecn, action: wp.array2d[float], eef_pos: wp.array[wp.vec3],
+                          eef_rot: wp.array[wp.mat33], ref_pos: wp.array[wp.vec3], ref_rot: wp.array[wp.mat33],
+                          ref_ok: wp.array[int], chain_q: wp.array[int], fixed: wp.array[wp.mat44],
+                          axes: wp.array[wp.vec3], prismatic: wp.array[int], tail: wp.mat44, lower: wp.array[float],
+                          upper: wp.array[float], q_home: wp.array[float], max_t: float, max_r: float,
+                          rot_weight: float, damping: float, rest_gain: float, reanchor_pos: float,
+                          reanchor_rot: float):
+        t_pos, t_rot, jw = chain_forward(q_prev, chain_q, fixed, axes, prismatic, tail, rot_weight)
+        rp = ref_pos[w]
+        rr = ref_rot[w]
+        if ref_ok[w] == 0 or wp.length(t_pos - eef_pos[w]) > reanchor_pos or \
+                wp.length(rotation_error(t_rot, eef_rot[w])) > reanchor_rot:
+            rp = eef_pos[w]
+            rr = eef_rot[w]
+        tgt_pos = rp + wp.vec3(action[w, 0], action[w, 1], action[w, 2]) * max_t
+        tgt_rot = axis_angle_to_mat(wp.vec3(action[w, 3], action[w, 4], action[w, 5]) * max_r) * rr
+        ref_pos[w] = tgt_pos
+        ref_rot[w] = tgt_rot
+        ref_ok[w] = 1
+        q = vecn()
+        for i in range(n):
+            q[i] = wp.clamp(q_prev[i], lower[i], upper[i])
+        e_pos = tgt_pos - t_pos
+        e_rot = rotation_error(tgt_rot, t_rot)
+        if wp.length(e_pos) < 2e-4 and wp.length(e_rot) < 2e-3:
+            return q
+        e = wp.spatial_vector(e_pos[0], e_pos[1], e_pos[2], e_rot[0] * rot_weight, e_rot[1] * rot_weight,
+                              e_rot[2] * rot_weight)
+        zn = vecn()
+        if wp.static(null_space):
+            for i in range(n):
+                zn[i] = rest_gain * (q_home[i] - q[i])
+        dq = step_fn(jw, e, zn, damping)
+        blocked = vecn()
+        any_blocked = int(0)
+        for i in range(n):
+            v = q[i] + dq[i]
+            if (v < lower[i] and dq[i] < 0.0) or (v > upper[i] and dq[i] > 0.0):
+                blocked[i] = 1.0
+                any_blocked = 1
+        if any_blocked == 1:  # blocked joints go to their limit; the rest solve for what is left
+            dqb = vecn()
+            for i in range(n):
+                if blocked[i] > 0.0:
+                    dqb[i] = wp.clamp(q[i] + dq[i], lower[i], upper[i]) - q[i]
+                    for r in range(6):
+                        e[r] = e[r] - jw[r, i] * dqb[i]
+                        jw[r, i] = 0.0
+                    zn[i] = 0.0
+            dq = step_fn(jw, e, zn, damping)
+            for i in range(n):
+                if blocked[i] > 0.0:
+                    dq[i] = dqb[i]
+        q_new = vecn()
+        for i in range(n):
+            q_new[i] = wp.clamp(q[i] + dq[i], lower[i], upper[i])
+        return q_new
+
+    return cartesian_targets
+
+
+def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bool):
+    """The controller kernel for an arm of ``n`` joints (``cartesian``: CARTESIAN_DELTA, else
+    JOINT_POSITION): ``CartesianDeltaArm.targets`` (``_cartesian_func``) or the joint targets themselves,
+    the joint speed limit, then the gripper mapping. ``null_space``: the arm is redundant (n > 6), pull
+    towards home. ``any_prismatic`` is part of the kernel's identity (the chain reads ``prismatic``)."""
+    vecn = wp.types.vector(length=n, dtype=float)
+    cartesian_targets = _cartesian_func(n, null_space) if cartesian else None
 
     @wp.kernel(module="unique", enable_backward=False)
     def arm_kernel(
@@ -275,98 +425,10 @@ def make_arm_kernel(n: int, cartesian: bool, null_space: bool, any_prismatic: bo
             q_prev[i] = target[w, arm_idx[i]]
         q_new = vecn()
         if wp.static(cartesian):
-            # forward kinematics + geometric Jacobian at q_prev (SerialChain.forward)
-            cum = wp.identity(n=4, dtype=float)
-            origins = mat_n3()
-            zs = mat_n3()
-            for k in range(n):
-                qk = q_prev[chain_q[k]]
-                motion = wp.identity(n=4, dtype=float)
-                ax = axes[k]
-                if prismatic[k] == 0:
-                    rk = axis_rotation(ax, qk)
-                    for a in range(3):
-                        for b in range(3):
-                            motion[a, b] = rk[a, b]
-                else:
-                    for a in range(3):
-                        motion[a, 3] = ax[a] * qk
-                cum = cum * fixed[k] * motion
-                rot_k = wp.mat33(cum[0, 0], cum[0, 1], cum[0, 2], cum[1, 0], cum[1, 1], cum[1, 2],
-                                 cum[2, 0], cum[2, 1], cum[2, 2])
-                z = rot_k * ax
-                for a in range(3):
-                    origins[k, a] = cum[a, 3]
-                    zs[k, a] = z[a]
-            tip = cum * tail
-            t_pos = wp.vec3(tip[0, 3], tip[1, 3], tip[2, 3])
-            t_rot = wp.mat33(tip[0, 0], tip[0, 1], tip[0, 2], tip[1, 0], tip[1, 1], tip[1, 2],
-                             tip[2, 0], tip[2, 1], tip[2, 2])
-            jw = jac_t()
-            for k in range(n):
-                z = wp.vec3(zs[k, 0], zs[k, 1], zs[k, 2])
-                lin = z
-                ang = wp.vec3(0.0)
-                if prismatic[k] == 0:
-                    lin = wp.cross(z, t_pos - wp.vec3(origins[k, 0], origins[k, 1], origins[k, 2]))
-                    ang = z
-                col = chain_q[k]
-                for a in range(3):
-                    jw[a, col] = lin[a]
-                    jw[3 + a, col] = ang[a] * rot_weight
-            # re-anchor on the measured pose at the first step, or when the arm does not track its command
-            pos = eef_pos[w]
-            rot = eef_rot[w]
-            rp = ref_pos[w]
-            rr = ref_rot[w]
-            if ref_ok[w] == 0 or wp.length(t_pos - pos) > reanchor_pos or \
-                    wp.length(rotation_error(t_rot, rot)) > reanchor_rot:
-                rp = pos
-                rr = rot
-            tgt_pos = rp + wp.vec3(action[w, 0], action[w, 1], action[w, 2]) * max_t
-            tgt_rot = axis_angle_to_mat(wp.vec3(action[w, 3], action[w, 4], action[w, 5]) * max_r) * rr
-            ref_pos[w] = tgt_pos
-            ref_rot[w] = tgt_rot
-            ref_ok[w] = 1
-            # one damped least squares step (SerialChain.solve, max_iters=1)
-            q = vecn()
-            for i in range(n):
-                q[i] = wp.clamp(q_prev[i], lower[i], upper[i])
-            e_pos = tgt_pos - t_pos
-            e_rot = rotation_error(tgt_rot, t_rot)
-            if wp.length(e_pos) < 2e-4 and wp.length(e_rot) < 2e-3:
-                q_new = q
-            else:
-                e = wp.spatial_vector(e_pos[0], e_pos[1], e_pos[2], e_rot[0] * rot_weight,
-                                      e_rot[1] * rot_weight, e_rot[2] * rot_weight)
-                zn = vecn()
-                if wp.static(null_space):
-                    for i in range(n):
-                        zn[i] = rest_gain * (q_home[i] - q[i])
-                dq = step_fn(jw, e, zn, damping)
-                blocked = vecn()
-                any_blocked = int(0)
-                for i in range(n):
-                    v = q[i] + dq[i]
-                    if (v < lower[i] and dq[i] < 0.0) or (v > upper[i] and dq[i] > 0.0):
-                        blocked[i] = 1.0
-                        any_blocked = 1
-                if any_blocked == 1:
-                    # blocked joints go to their limit; the rest solve for what is left
-                    dqb = vecn()
-                    for i in range(n):
-                        if blocked[i] > 0.0:
-                            dqb[i] = wp.clamp(q[i] + dq[i], lower[i], upper[i]) - q[i]
-                            for r in range(6):
-                                e[r] = e[r] - jw[r, i] * dqb[i]
-                                jw[r, i] = 0.0
-                            zn[i] = 0.0
-                    dq = step_fn(jw, e, zn, damping)
-                    for i in range(n):
-                        if blocked[i] > 0.0:
-                            dq[i] = dqb[i]
-                for i in range(n):
-                    q_new[i] = wp.clamp(q[i] + dq[i], lower[i], upper[i])
+            q_new = wp.static(cartesian_targets)(
+                w, q_prev, action, eef_pos, eef_rot, ref_pos, ref_rot, ref_ok, chain_q, fixed, axes, prismatic,
+                tail, lower, upper, q_home, max_t, max_r, rot_weight, damping, rest_gain, reanchor_pos,
+                reanchor_rot)
         else:
             for i in range(n):
                 q_new[i] = action[w, i]

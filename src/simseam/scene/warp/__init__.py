@@ -1,13 +1,14 @@
 """A manifest scene batched on MuJoCo Warp: N worlds in one process on a GPU (or warp's CPU device).
 
-``BatchedScene`` (batched reset / step / render, device observations) and ``WarpRollout`` (one
-world behind the ``SimRollout`` seam), ``WarpBatchRollout`` (the worlds behind the ``BatchRollout`` seam). The scene's semantics come from the CPU ``ManifestScene``;
+``BatchedScene`` (batched reset / step / render) and ``WarpRollout`` (one
+world behind the ``SimRollout`` seam), ``WarpBatchRollout`` (the worlds behind the ``BatchRollout`` seam,
+observations as device arrays through ``world_arrays``). The scene's semantics come from the CPU ``ManifestScene``;
 the physics and the kernels from ``simseam.engines.mujoco_warp``. Needs the ``warp`` extra:
 ``mujoco-warp`` and ``warp-lang``.
 """
 
 from simseam.scene.warp.batched import BatchedScene, BatchStep, WarpOptions
-from simseam.scene.warp.rollout import WarpBatchRollout, WarpRollout, world_observations
+from simseam.scene.warp.rollout import WarpBatchRollout, WarpRollout, world_arrays, world_observations
 
 
 def open_batch(robot, task: str, num_envs: int, options=None, device: str | None = None) -> BatchedScene:
@@ -17,4 +18,4 @@ def open_batch(robot, task: str, num_envs: int, options=None, device: str | None
 
 
 __all__ = ["BatchStep", "BatchedScene", "WarpBatchRollout", "WarpOptions", "WarpRollout", "open_batch",
-           "world_observations"]
+           "world_arrays", "world_observations"]

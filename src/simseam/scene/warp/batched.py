@@ -390,7 +390,8 @@ class BatchedScene:
     # ---------------------------------------------------------------------------------------- step
     def step(self, actions) -> BatchStep:
         """One control step of every world. ``actions``: float32[N, action_dim] (numpy on the host,
-        or a device array: torch tensor / warp array / anything with ``__dlpack__``). Host actions
+        or a float32 device array on the scene's device: torch tensor / warp array / anything with
+        ``__dlpack__``). Host actions
         are validated (shape, finite: ``InvalidActionError`` and nothing changes); all are clipped
         to the slot bounds on the device."""
         self._check_open()
@@ -438,9 +439,15 @@ class BatchedScene:
                 raise InvalidActionError(f"actions of worlds {bad[:8]} are not finite (NaN or inf)")
             self.action.assign(np.clip(a, self._slot_lo, self._slot_hi))
             return
-        src = actions if isinstance(actions, wp.array) else wp.from_dlpack(actions)
-        if tuple(src.shape) != (n, adim):
-            raise InvalidActionError(f"actions must have shape ({n}, {adim}), got {tuple(src.shape)}")
+        try:
+            src = actions if isinstance(actions, wp.array) else wp.from_dlpack(actions)
+        except (TypeError, AttributeError, RuntimeError) as exc:
+            raise InvalidActionError(f"actions: a {type(actions).__name__} is not a DLPack array ({exc})") from None
+        if tuple(src.shape) != (n, adim) or src.dtype != wp.float32:
+            raise InvalidActionError(f"actions must be float32 of shape ({n}, {adim}), got "
+                                     f"{wp.types.type_repr(src.dtype)} of shape {tuple(src.shape)}")
+        if src.device != self.device:
+            raise InvalidActionError(f"actions are on {src.device}, the worlds on {self.device}")
         wp.copy(self.action, src)
         wp.launch(K.clip_actions_kernel, dim=(n, adim), inputs=[self.action, self._lo_d, self._hi_d])
 
@@ -503,15 +510,6 @@ class BatchedScene:
             poses = {n: ts.to_base(ts.object_pos(n), ts.object_quat(n)) for n in task.tracked_objects}
             poses.update(task.extra_poses(ts))
         return poses
-
-    def device_observation(self) -> dict:
-        """The batch's observation as device arrays, one per key for all worlds (DLPack shares the memory:
-        ``torch.from_dlpack``, ``jax.dlpack``): ``state``, ``joint_positions``, ``joint_velocities`` (warp),
-        ``privileged`` (``eef_pose`` (warp), ``objects``: ``object_poses()``) and ``success`` (the last
-        step's, of ``self.xp``). No host copy."""
-        success = None if self._eval is None else self._eval.success
-        return {"state": self.state, "joint_positions": self.joint_pos, "joint_velocities": self.joint_vel,
-                "privileged": {"eef_pose": self.eef_pose, "objects": self.object_poses()}, "success": success}
 
     def host_arrays(self) -> dict:
         """One host copy of the batch's small observation arrays (numpy, one row per world): ``state``,

@@ -1,8 +1,11 @@
 """Per-world observations of a ``BatchedScene``; ``WarpRollout``: one world as a ``SimRollout``;
-``WarpBatchRollout``: the worlds as the seam's ``BatchRollout``.
+``WarpBatchRollout``: the worlds as the seam's ``BatchRollout`` (and ``ArrayBatch``).
 
 ``world_observations`` turns the batch's arrays (one host copy per step) into the seam's per-world
 observation dicts, honouring each world's ``ObsRequest`` exactly as ``ManifestScene`` does.
+``world_arrays`` hands out the same observations as one array per key for all worlds, in the device's
+memory (the seam's ``observation_arrays``): views of the scene's own buffers where the dtype is the
+spec's (``state``, joints, images), a device-side cast for the float64 privileged poses.
 ``WarpRollout`` is a batch of one behind the ``SimRollout`` seam (``check_rollout`` passes on it);
 ``simseam run`` uses it when a scene names ``engine: mujoco_warp`` without a batch.
 """
@@ -31,7 +34,8 @@ from simseam.seam import (
     SimulationError,
     StepResult,
 )
-from simseam.seam.batch import Requests, SyncStepPair, batch_actions, env_indices, per_env_requests
+from simseam.seam.batch import Requests, SyncStepPair, array_fields, batch_actions, env_indices, per_env_requests
+from simseam.scene.warp.task_state import array_stream, array_view
 
 _FULL = ObsRequest()
 
@@ -64,6 +68,50 @@ def world_observations(batch, worlds, requests) -> list[Observation]:
             if batch.options.privileged:
                 obs[OBS_PRIVILEGED] = {"eef_pose": h["eef_pose"][w].copy(), "objects": objects}
         out.append(obs)
+    return out
+
+
+def world_arrays(batch, request: ObsRequest | None = None) -> dict:
+    """Every world's observation under ``request`` as one array per key (``BatchRollout`` module docstring,
+    "Observations as arrays"): arrays of the scene's namespace (NumPy on Warp's CPU device, CuPy on CUDA),
+    each with the spec's dtype and a leading world axis. Renders the cameras when an image is asked for."""
+    request = request or _FULL
+    fields = array_fields(batch.spec, request)
+    xp, n = batch.xp, batch.num_envs
+    out: dict = {OBS_STATE: array_view(xp, batch.state), OBS_JOINT_POSITIONS: array_view(xp, batch.joint_pos),
+                 OBS_JOINT_VELOCITIES: array_view(xp, batch.joint_vel)}
+    wanted = fields.get(OBS_IMAGES, {})
+    images = batch.render() if batch.rc is not None and wanted else {}
+    out[OBS_IMAGES] = {k: array_view(xp, v) for k, v in images.items() if k in wanted}
+    with array_stream(xp, batch.device):
+        out[OBS_SIM_TIME_NS] = xp.asarray([batch.sim_time_ns(w) for w in range(n)], dtype=xp.int64)
+        if OBS_LINK_POSES in fields:
+            poses = [_link_poses(batch, w) for w in range(n)]
+            out[OBS_LINK_POSES] = {k: xp.asarray(np.stack([p[k] for p in poses])) for k in poses[0]}
+        if OBS_PRIVILEGED in fields or OBS_ENV_STATE in fields:
+            objects = batch.object_poses()
+            if OBS_ENV_STATE in fields:
+                on_host = batch.host_arrays()["objects"]  # the per-world dicts' values: the same rows
+                out[OBS_ENV_STATE] = xp.asarray(np.stack([batch.host.task.environment_state(
+                    {k: on_host[k][w] for k in objects}) for w in range(n)]))
+            if OBS_PRIVILEGED in fields:
+                out[OBS_PRIVILEGED] = {"eef_pose": array_view(xp, batch.eef_pose), "objects": objects}
+        return _conform(xp, out, fields, n)
+
+
+def _conform(xp, values: dict, fields: dict, n: int, where: str = "observation") -> dict:
+    """``values`` restricted to ``fields``, each leaf cast to its dtype on the device (no copy when it has it)."""
+    out = {}
+    for key, leaf in fields.items():
+        v = values[key]
+        if isinstance(leaf, dict):
+            out[key] = _conform(xp, v, leaf, n, f"{where}[{key!r}]")
+            continue
+        dtype, shape = leaf
+        arr = xp.asarray(v, dtype=dtype)
+        if arr.shape != (n, *shape):
+            raise SimulationError(f"{where}[{key!r}]: shape {arr.shape}, expected {(n, *shape)}")
+        out[key] = arr
     return out
 
 
@@ -180,15 +228,16 @@ class WarpBatchRollout(SyncStepPair):
         r = self.batch.step(full)
         return self._result(idx, r, world_observations(self.batch, idx.tolist(), requests))
 
-    def device_observation(self) -> dict:
-        """Every world's observation as device arrays (``BatchedScene.device_observation``)."""
+    def observation_arrays(self, observe: ObsRequest | None = None) -> dict:
+        """Every world's observation as one device array per key (``world_arrays``; DLPack: no copy)."""
         self._check_open()
-        return self.batch.device_observation()
+        return world_arrays(self.batch, observe)
 
-    def step_device(self, actions, envs) -> BatchStepResult:
-        """One control step of every world with device actions ``[num_envs, dim]`` (a policy's
-        ``act_device``: no host copy); the result covers ``envs``, without observations (read them
-        with ``device_observation``)."""
+    def step_arrays(self, envs, actions) -> BatchStepResult:
+        """One control step of every world with actions ``float32[num_envs, dim]`` (any DLPack producer on
+        the scene's device: a policy's ``act_arrays``, no host copy); the result covers ``envs``, with empty
+        observations (read them with ``observation_arrays``). Every world's physics advances; the
+        episodes of worlds outside ``envs`` do not."""
         self._check_open()
         idx = self._stepped(envs)
         r = self.batch.step(actions)
@@ -230,4 +279,4 @@ class WarpBatchRollout(SyncStepPair):
             raise SimulationError("the batch is closed")
 
 
-__all__ = ["WarpBatchRollout", "WarpRollout", "world_observations"]
+__all__ = ["WarpBatchRollout", "WarpRollout", "world_arrays", "world_observations"]
