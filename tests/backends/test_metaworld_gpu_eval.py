@@ -43,6 +43,19 @@ def test_eval_cli_on_warp_cpu_device(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["per_task"][TASK]["n_success"] == 3
 
+    # the CPU path (the preset's sidecar, native Meta-World) on the same episodes: simseam compare pairs them
+    cpu = tmp_path / "cpu"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", TASK, "--episodes",
+                                   "3", "--num-envs", "1", "--out", str(cpu)])
+    assert res.exit_code == 0, res.output
+    cpu_lines = _lines(cpu)
+    assert all(set(r) == CPU_LINE_KEYS for r in cpu_lines)
+    assert [(r["seed"], r["success"]) for r in cpu_lines] == [(r["seed"], r["success"]) for r in lines]
+    res = CliRunner().invoke(app, ["compare", str(cpu), str(out), "--force", "--json"])
+    assert res.exit_code == 0, res.output
+    paired = json.loads(res.output[res.output.index("{"):])["comparisons"][0]["per_task"][TASK]
+    assert paired["n_pairs"] == 3 and paired["only_first_succeeded"] == paired["only_second_succeeded"] == 0
+
 
 def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
     """Episodes 0..3 on 1 world and on 3 (the shorter episodes end first, the next start in their worlds):
