@@ -146,3 +146,24 @@ def test_model_checks_of_a_few_more_tasks(worker, task):
     assert report["worst"]["body_mass"] <= 1e-6
     touching = report["contacts"]["touching_here_only"]
     assert touching == ([[3, 37]] if task == "plate-slide-v3" else [])
+
+
+def test_reset_poses_the_static_geoms_it_moves(worker):
+    """drawer-close's reset moves the drawer case, a body welded to the world, whose geoms MuJoCo Warp poses
+    only once (put_data): after the reset every geom of every world is where CPU MuJoCo 4.0 puts it (without
+    the host pose of the static geoms the case's wall stood 3.2 cm off, inside the drawer)."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    task, seeds = "drawer-close-v3", [1, 2]
+    warp = MetaWorldBatch(task, 2, worker, device="cpu")
+    warp.reset([0, 1], seeds)
+    assert warp.physics.static_geoms.size > 0
+    for w, seed in enumerate(seeds):
+        cpu = MetaWorldBatch(task, 1, worker, engine="mujoco")
+        cpu.reset([0], [seed])
+        np.testing.assert_allclose(np.asarray(warp.physics.poses().geom_xpos)[w], cpu.physics.poses().geom_xpos[0],
+                                   atol=1e-6)
+        np.testing.assert_allclose(np.asarray(warp.physics.poses().geom_xmat)[w], cpu.physics.poses().geom_xmat[0],
+                                   atol=1e-6)
+        cpu.close()
+    warp.close()

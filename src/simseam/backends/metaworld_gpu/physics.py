@@ -11,11 +11,15 @@ the compiled values then changed as the reset changed them); ``control(mocap_pos
 
 On a CUDA device ``WarpPhysics`` replays the control step's physics (``advance``) and the reset's forward
 as captured CUDA graphs (``graph=False``: launched one by one, as the CPU device always does); a reset
-scatters its rows into the device arrays in place (the graphs keep pointing at them).
+scatters its rows into the device arrays in place (the graphs keep pointing at them). MuJoCo Warp poses
+the geoms of world-welded bodies once (``put_data``) and never again, so a reset that moves such a body
+(drawer-close's drawer case, ...) writes those geoms' world poses itself, from CPU MuJoCo's kinematics of
+the reset's model fields (``static_geom_poses``).
 """
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -116,6 +120,12 @@ class WarpPhysics:
         self.graph = bool(graph) and self.device.is_cuda
         self._graphs: dict[str, Any] = {}
         self._ran: set[str] = set()
+        # MuJoCo Warp poses a world-welded geom once, in put_data, and never again; a reset that moves a
+        # static body (the drawer case, a door frame) must pose its geoms itself (static_geom_poses)
+        body = np.asarray(mjm.geom_bodyid)
+        self.static_geoms = np.flatnonzero((np.asarray(mjm.body_weldid)[body] == 0)
+                                           & (np.asarray(mjm.body_mocapid)[np.asarray(mjm.body_rootid)[body]] == -1))
+        self._host_model, self._host_data = copy.copy(mjm), host
 
     def view(self, a: Any) -> Any:
         """A warp array as an ``xp`` array sharing its memory (NumPy on the CPU, CuPy on CUDA)."""
@@ -140,9 +150,31 @@ class WarpPhysics:
                 continue
             view = self.view(dst)
             view[idx] = xp.asarray(np.stack([np.asarray(s[key]).reshape(view.shape[1:]) for s in states]))
+        if self.static_geoms.size:
+            pos, mat = zip(*(self.static_geom_poses(s) for s in states))
+            cols = xp.asarray(self.static_geoms)[None, :]
+            self.view(self.d.geom_xpos)[idx[:, None], cols] = xp.asarray(np.stack(pos))
+            self.view(self.d.geom_xmat)[idx[:, None], cols] = xp.asarray(np.stack(mat)).reshape(len(states), -1, 3, 3)
         self._xp_done()
         with self._wp.ScopedDevice(self.device):
             self._launch("forward", lambda: self._mjw.forward(self.m, self.d))
+
+    def static_geom_poses(self, state: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+        """The world poses (xpos [G, 3], xmat [G, 9]) of the world-welded geoms in ``state``'s model, by
+        CPU MuJoCo's kinematics on a host copy of the model with the reset's fields applied."""
+        mujoco, m, d = self._host_mujoco(), self._host_model, self._host_data
+        for key in self.batched:
+            value = state["model"].get(key)
+            getattr(m, key)[...] = self._pristine[key] if value is None else _widen(np.asarray(value), self._pristine[key])
+        d.qpos[:] = state["qpos"]
+        mujoco.mj_kinematics(m, d)
+        return d.geom_xpos[self.static_geoms].copy(), d.geom_xmat[self.static_geoms].copy()
+
+    @staticmethod
+    def _host_mujoco():
+        import mujoco
+
+        return mujoco
 
     def _launch(self, name: str, fn) -> None:
         """Run ``fn`` (device launches only). With ``graph`` its first call runs directly (kernels compile
