@@ -20,10 +20,19 @@ from typing import Any
 
 import numpy as np
 
+from simseam.scene.tasks.batch import quat_to_matrix
+
 from simseam.backends.metaworld_gpu.state import Contacts, Poses
 
 STATE_FIELDS = ("qpos", "qvel", "mocap_pos", "mocap_quat", "ctrl", "act", "qacc_warmstart")
 ALWAYS_BATCHED = ("body_pos", "body_quat", "site_pos", "site_quat", "geom_pos", "geom_quat")
+
+
+def _static_geoms(mjm: Any) -> np.ndarray:
+    """The geoms MuJoCo Warp treats as static (on a body welded to the world, not under a mocap body)."""
+    body = mjm.geom_bodyid
+    static = (mjm.body_weldid[body] == 0) & (mjm.body_mocapid[mjm.body_rootid[body]] == -1)
+    return np.flatnonzero(static).astype(np.int64)
 
 
 def _widen(native: np.ndarray, pristine: np.ndarray) -> np.ndarray:
@@ -112,6 +121,7 @@ class WarpPhysics:
             self.m = mjw.put_model(mjm, batch_sizes={k: num_worlds for k in self.batched})
             self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else _cupy()
+        self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
         self.graph = bool(graph) and self.device.is_cuda
         self._graphs: dict[str, Any] = {}
@@ -143,6 +153,28 @@ class WarpPhysics:
         self._xp_done()
         with self._wp.ScopedDevice(self.device):
             self._launch("forward", lambda: self._mjw.forward(self.m, self.d))
+        self._place_static_geoms(idx)
+
+    def _place_static_geoms(self, idx) -> None:
+        """MuJoCo Warp computes the world pose of a geom on a body welded to the world (a static geom) once,
+        in ``put_data``, from one state, and never again; a reset that moves such a body (drawer-close's
+        drawer case, per world) would leave its geoms where the first state had them: collisions against a
+        case that is not there. Their poses are recomputed here for the reset worlds, from their bodies'
+        poses (which the kinematics does update) and the world's own ``geom_pos`` / ``geom_quat``, as MuJoCo
+        computes every geom's."""
+        if not self._static.size:
+            return
+        xp, v, g = self.xp, self.view, self._static
+        self._wp.synchronize_device(self.device)
+        body = xp.asarray(self.mjm.geom_bodyid[g])
+        xpos, xquat = v(self.d.xpos)[idx][:, body], v(self.d.xquat)[idx][:, body]
+        gpos, gquat = v(self.m.geom_pos)[idx][:, g], v(self.m.geom_quat)[idx][:, g]
+        rot = quat_to_matrix(xp, xquat)
+        rows, cols = idx[:, None], xp.asarray(g)[None, :]
+        v(self.d.geom_xpos)[rows, cols] = xpos + xp.einsum("nkij,nkj->nki", rot, gpos)
+        v(self.d.geom_xmat)[rows, cols] = xp.matmul(rot, quat_to_matrix(xp, gquat)).reshape(
+            v(self.d.geom_xmat)[rows, cols].shape)
+        self._xp_done()
 
     def _launch(self, name: str, fn) -> None:
         """Run ``fn`` (device launches only). With ``graph`` its first call runs directly (kernels compile
