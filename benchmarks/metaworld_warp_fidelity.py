@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -34,25 +33,11 @@ import numpy as np
 OUT = Path(__file__).resolve().parent / "results" / "metaworld_warp_fidelity.json"
 
 
-def mcnemar_exact(a: list[bool], b: list[bool]) -> float:
-    """Two-sided exact McNemar p on paired outcomes."""
-    n01 = sum(1 for x, y in zip(a, b) if x and not y)
-    n10 = sum(1 for x, y in zip(a, b) if y and not x)
-    n = n01 + n10
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, k) for k in range(min(n01, n10) + 1)) / 2.0**n
-    return min(1.0, 2.0 * tail)
+def mcnemar(a: list[bool], b: list[bool]) -> float:
+    """Two-sided exact McNemar p on paired outcomes (``runner.compare``'s test, as ``simseam compare``)."""
+    from simseam.runner.compare import mcnemar_exact
 
-
-def holm(pvalues: dict[str, float]) -> dict[str, float]:
-    """Holm's step-down adjusted p-values."""
-    order = sorted(pvalues, key=pvalues.get)
-    out, running, m = {}, 0.0, len(order)
-    for i, key in enumerate(order):
-        running = max(running, min(1.0, (m - i) * pvalues[key]))
-        out[key] = running
-    return out
+    return mcnemar_exact(sum(1 for x, y in zip(a, b) if x and not y), sum(1 for x, y in zip(a, b) if y and not x))
 
 
 def closed_loop(worker, task: str, engine: str, seeds: list[int], steps: int, device: str | None) -> list[bool]:
@@ -106,10 +91,27 @@ def one_task(worker, task: str, seeds: list[int], steps: int, device: str | None
         "warp_success": warp_success, "cpu_success": cpu_success, "success_judged": judged,
         "engine_gap": {"median": float(np.median(engine_gap)), "worst": float(engine_gap.max())},
         "version_gap": {"median": float(np.median(version_gap)), "worst": float(version_gap.max())},
-        "p_engine": mcnemar_exact(warp_success, cpu_success) if judged else None,
-        "p_version": mcnemar_exact(cpu_success, native_success) if judged else None,
+        "p_engine": mcnemar(warp_success, cpu_success) if judged else None,
+        "p_version": mcnemar(cpu_success, native_success) if judged else None,
         "seconds": round(time.perf_counter() - t0, 1),
     }
+
+
+def write(args, results: dict[str, Any], final: bool = True) -> None:
+    """The JSON (atomically): Holm's correction across the tasks done so far; ``complete`` once every task
+    asked for ran with success judged."""
+    from simseam.runner.compare import holm
+
+    for key in ("p_engine", "p_version"):
+        tasks = [t for t, r in results.items() if r[key] is not None]
+        for t, p in zip(tasks, holm([results[t][key] for t in tasks])):
+            results[t][key + "_holm"] = p
+    doc = {"benchmark": "metaworld_warp_fidelity", "device": args.device, "seeds": args.seeds, "steps": args.steps,
+           "complete": final and all(r["success_judged"] for r in results.values()), "tasks": results}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = args.out.with_suffix(".partial")
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(args.out)
 
 
 def _seeds(text: str) -> list[int]:
@@ -144,16 +146,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"engine gap med {r['engine_gap']['median']:.1e} worst {r['engine_gap']['worst']:.1e}  "
                   f"version gap med {r['version_gap']['median']:.1e} worst {r['version_gap']['worst']:.1e}  "
                   f"({r['seconds']} s)", flush=True)
-    for key in ("p_engine", "p_version"):
-        ps = {t: r[key] for t, r in results.items() if r[key] is not None}
-        for t, p in holm(ps).items():
-            results[t][key + "_holm"] = p
-    doc = {"benchmark": "metaworld_warp_fidelity", "device": args.device, "seeds": args.seeds,
-           "steps": args.steps, "complete": all(r["success_judged"] for r in results.values()), "tasks": results}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".partial")
-    tmp.write_text(json.dumps(doc, indent=1))
-    tmp.replace(args.out)
+            write(args, results, final=False)  # every finished task is on disk
+    write(args, results)
     print(f"wrote {args.out}")
     return 0
 

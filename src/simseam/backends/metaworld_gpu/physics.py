@@ -11,23 +11,28 @@ the compiled values then changed as the reset changed them); ``control(mocap_pos
 
 On a CUDA device ``WarpPhysics`` replays the control step's physics (``advance``) and the reset's forward
 as captured CUDA graphs (``graph=False``: launched one by one, as the CPU device always does); a reset
-scatters its rows into the device arrays in place (the graphs keep pointing at them). MuJoCo Warp poses
-the geoms of world-welded bodies once (``put_data``) and never again, so a reset that moves such a body
-(drawer-close's drawer case, ...) writes those geoms' world poses itself, from CPU MuJoCo's kinematics of
-the reset's model fields (``static_geom_poses``).
+scatters its rows into the device arrays in place (the graphs keep pointing at them).
 """
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import numpy as np
+
+from simseam.scene.tasks.batch import quat_to_matrix
 
 from simseam.backends.metaworld_gpu.state import Contacts, Poses
 
 STATE_FIELDS = ("qpos", "qvel", "mocap_pos", "mocap_quat", "ctrl", "act", "qacc_warmstart")
 ALWAYS_BATCHED = ("body_pos", "body_quat", "site_pos", "site_quat", "geom_pos", "geom_quat")
+
+
+def _static_geoms(mjm: Any) -> np.ndarray:
+    """The geoms MuJoCo Warp treats as static (on a body welded to the world, not under a mocap body)."""
+    body = mjm.geom_bodyid
+    static = (mjm.body_weldid[body] == 0) & (mjm.body_mocapid[mjm.body_rootid[body]] == -1)
+    return np.flatnonzero(static).astype(np.int64)
 
 
 def _widen(native: np.ndarray, pristine: np.ndarray) -> np.ndarray:
@@ -116,16 +121,11 @@ class WarpPhysics:
             self.m = mjw.put_model(mjm, batch_sizes={k: num_worlds for k in self.batched})
             self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else _cupy()
+        self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
         self.graph = bool(graph) and self.device.is_cuda
         self._graphs: dict[str, Any] = {}
         self._ran: set[str] = set()
-        # MuJoCo Warp poses a world-welded geom once, in put_data, and never again; a reset that moves a
-        # static body (the drawer case, a door frame) must pose its geoms itself (static_geom_poses)
-        body = np.asarray(mjm.geom_bodyid)
-        self.static_geoms = np.flatnonzero((np.asarray(mjm.body_weldid)[body] == 0)
-                                           & (np.asarray(mjm.body_mocapid)[np.asarray(mjm.body_rootid)[body]] == -1))
-        self._host_model, self._host_data = copy.copy(mjm), host
 
     def view(self, a: Any) -> Any:
         """A warp array as an ``xp`` array sharing its memory (NumPy on the CPU, CuPy on CUDA)."""
@@ -150,31 +150,31 @@ class WarpPhysics:
                 continue
             view = self.view(dst)
             view[idx] = xp.asarray(np.stack([np.asarray(s[key]).reshape(view.shape[1:]) for s in states]))
-        if self.static_geoms.size:
-            pos, mat = zip(*(self.static_geom_poses(s) for s in states))
-            cols = xp.asarray(self.static_geoms)[None, :]
-            self.view(self.d.geom_xpos)[idx[:, None], cols] = xp.asarray(np.stack(pos))
-            self.view(self.d.geom_xmat)[idx[:, None], cols] = xp.asarray(np.stack(mat)).reshape(len(states), -1, 3, 3)
         self._xp_done()
         with self._wp.ScopedDevice(self.device):
             self._launch("forward", lambda: self._mjw.forward(self.m, self.d))
+        self._place_static_geoms(idx)
 
-    def static_geom_poses(self, state: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
-        """The world poses (xpos [G, 3], xmat [G, 9]) of the world-welded geoms in ``state``'s model, by
-        CPU MuJoCo's kinematics on a host copy of the model with the reset's fields applied."""
-        mujoco, m, d = self._host_mujoco(), self._host_model, self._host_data
-        for key in self.batched:
-            value = state["model"].get(key)
-            getattr(m, key)[...] = self._pristine[key] if value is None else _widen(np.asarray(value), self._pristine[key])
-        d.qpos[:] = state["qpos"]
-        mujoco.mj_kinematics(m, d)
-        return d.geom_xpos[self.static_geoms].copy(), d.geom_xmat[self.static_geoms].copy()
-
-    @staticmethod
-    def _host_mujoco():
-        import mujoco
-
-        return mujoco
+    def _place_static_geoms(self, idx) -> None:
+        """MuJoCo Warp computes the world pose of a geom on a body welded to the world (a static geom) once,
+        in ``put_data``, from one state, and never again; a reset that moves such a body (drawer-close's
+        drawer case, per world) would leave its geoms where the first state had them: collisions against a
+        case that is not there. Their poses are recomputed here for the reset worlds, from their bodies'
+        poses (which the kinematics does update) and the world's own ``geom_pos`` / ``geom_quat``, as MuJoCo
+        computes every geom's."""
+        if not self._static.size:
+            return
+        xp, v, g = self.xp, self.view, self._static
+        self._wp.synchronize_device(self.device)
+        body = xp.asarray(self.mjm.geom_bodyid[g])
+        xpos, xquat = v(self.d.xpos)[idx][:, body], v(self.d.xquat)[idx][:, body]
+        gpos, gquat = v(self.m.geom_pos)[idx][:, g], v(self.m.geom_quat)[idx][:, g]
+        rot = quat_to_matrix(xp, xquat)
+        rows, cols = idx[:, None], xp.asarray(g)[None, :]
+        v(self.d.geom_xpos)[rows, cols] = xpos + xp.einsum("nkij,nkj->nki", rot, gpos)
+        v(self.d.geom_xmat)[rows, cols] = xp.matmul(rot, quat_to_matrix(xp, gquat)).reshape(
+            v(self.d.geom_xmat)[rows, cols].shape)
+        self._xp_done()
 
     def _launch(self, name: str, fn) -> None:
         """Run ``fn`` (device launches only). With ``graph`` its first call runs directly (kernels compile
