@@ -35,11 +35,14 @@ own limit for the suite, ``TASK_SUITE_MAX_STEPS``), ``task`` (the instruction th
 
 import json
 import os
+import site
 import sys
 import tempfile
 from pathlib import Path
 
-sys.path.append(sys.argv[1])
+# the main venv's site-packages, after this venv's own; addsitedir also reads its .pth files: a clone's thin venv
+# (scripts/clone_venv.py) holds only a .pth that adds the shared cached venv, where torch and LeRobot are
+site.addsitedir(sys.argv[1])
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
