@@ -145,3 +145,33 @@ def test_the_demo_sets_up_only_its_venv_and_a_test_venv_serves_it(tmp_path):
     bad = subprocess.run(["bash", "-c", f'source scripts/bootstrap.sh python3 "{link}" learnin'], cwd=REPO,
                          capture_output=True, text=True, env=env, timeout=60)
     assert bad.returncode == 2 and "unknown job 'learnin' (dev, learning)" in bad.stderr
+
+
+def _test_groups():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("test_groups", REPO / "scripts" / "test_groups.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_first_pass_sessions_take_every_test_file_once():
+    """scripts/test's first pass (scripts/test_groups.py) runs the suite as several pytest sessions: every test
+    file lies in exactly one of them, whatever the extra arguments; given test paths, it is one session."""
+    groups = _test_groups()
+    files = sorted(p.relative_to(REPO) for p in (REPO / "tests").rglob("test_*.py"))
+    assert len(files) > 80
+    for extra in ([], ["-x", "-k", "lift"]):
+        sessions = groups.plan(extra)
+        assert len(sessions) == len(groups.GROUPS) + 1 and all(s[len(s) - len(extra):] == extra for s in sessions)
+        for f in files:
+            owners = []
+            for s in sessions:
+                roots = [Path(a) for a in s[:len(s) - len(extra)] if not a.startswith("-")]
+                ignored = [Path(a.removeprefix("--ignore=")) for a in s if a.startswith("--ignore=")]
+                if any(f.is_relative_to(r) for r in roots) and not any(f.is_relative_to(i) for i in ignored):
+                    owners.append(s)
+            assert len(owners) == 1, (f, owners)
+    assert groups.plan(["tests/seam", "-x"]) == [["tests/seam", "-x"]]
+    assert groups.plan(["tests/seam/test_batch.py::test_x"]) == [["tests/seam/test_batch.py::test_x"]]
