@@ -64,9 +64,16 @@ def test_empty_or_missing_dataset_is_a_clear_error(tmp_path, panda_spec, make_sc
 
     with pytest.raises(ConfigError, match="not a LeRobot dataset"):
         train_act(tmp_path / "nothing", tmp_path / "out")
+    # a recording that kept no episode leaves nothing behind (issue 39), so training names no dataset
     LeRobotRecorder(tmp_path / "empty", make_scene(panda_spec, image_size=(32, 32)).spec).close()
-    with pytest.raises(ConfigError, match="holds no episodes"):
+    assert not (tmp_path / "empty").exists()
+    with pytest.raises(ConfigError, match="not a LeRobot dataset"):
         train_act(tmp_path / "empty", tmp_path / "out")
+    # a finished dataset that claims no episode (made elsewhere): its own one-line error
+    (tmp_path / "none" / "meta").mkdir(parents=True)
+    (tmp_path / "none" / "meta" / "info.json").write_text('{"codebase_version": "v3.0", "total_episodes": 0}')
+    with pytest.raises(ConfigError, match="holds no episodes"):
+        train_act(tmp_path / "none", tmp_path / "out")
     assert not (tmp_path / "out").exists()
 
 
