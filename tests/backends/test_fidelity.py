@@ -35,11 +35,20 @@ def seam_episode(rollout, seed: int, actions: np.ndarray, camera: str) -> dict:
     return {k: np.asarray(v) for k, v in out.items()}
 
 
+def _frames_that_differ(seam: dict, native: dict) -> str:
+    """Which frames differ and how (for a failure's message: a mismatch under load must be explainable)."""
+    diff = np.abs(seam["image"].astype(np.int16) - native["image"].astype(np.int16))
+    rows = [f"frame {k}: {np.mean(d > 0):.0%} of values differ, mean {d.mean():.1f}, max {d.max()}"
+            for k, d in enumerate(diff) if d.any()]
+    same = [k for k, d in enumerate(diff) if not d.any()]
+    return "; ".join(rows) + f"; identical frames: {same}"
+
+
 def assert_same(native: dict, seam: dict) -> None:
     assert seam["state"].dtype == np.float32
     np.testing.assert_array_equal(seam["state"], native["state"].astype(np.float32))
     assert seam["image"].shape == native["image"].shape
-    np.testing.assert_array_equal(seam["image"], native["image"])
+    np.testing.assert_array_equal(seam["image"], native["image"], err_msg=_frames_that_differ(seam, native))
     np.testing.assert_array_equal(seam["reward"], native["reward"].astype(np.float64))
     np.testing.assert_array_equal(seam["success"], native["success"])
 
