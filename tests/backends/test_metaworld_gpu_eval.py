@@ -144,7 +144,7 @@ def test_graph_option_leaves_the_cpu_device_path_unchanged():
             batch.reset([0, 1], [2, 9])
             for a in actions:
                 batch.step(a)
-            assert batch.physics._graphs == {}
+            assert batch.physics.graphs.captured == ()
             obs[graph] = np.array(batch.obs)
             batch.close()
     np.testing.assert_array_equal(obs[True], obs[False])

@@ -148,6 +148,24 @@ def catalog() -> dict[str, Any]:
             "tasks": {t: instruction(t) for t in tasks}}
 
 
+def sawyer_joints(m) -> tuple:
+    """The Sawyer's 7 arm and 2 finger joints with their limits (``JointFacts``), from a compiled Meta-World
+    model (the native one here, MuJoCo Warp's port's compiled copy there)."""
+    return tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
+                            float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
+                 for j in ROBOT_JOINTS)
+
+
+def extra_fields(expert: bool, environment_state: bool) -> dict:
+    """The observation keys a Meta-World rollout declares beyond the common ones: the expert's action
+    (privileged) and the task's object state."""
+    extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if expert else {}
+    if environment_state:
+        extra[OBS_ENV_STATE] = FieldSpec("float32", (len(ENV_STATE_SLOTS),), names=ENV_STATE_NAMES,
+                                         presence="declared")
+    return extra
+
+
 class MetaWorldRollout(BenchmarkRollout):
     def __init__(self, config: dict[str, Any]):
         import metaworld
@@ -183,13 +201,8 @@ class MetaWorldRollout(BenchmarkRollout):
                                xyz=tuple(float(x) for x in self.env.data.cam_xpos[cam]),
                                rpy=mount_rpy(xmat), feature_key="camera1",
                                width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),) if config["cameras"] else ()
-        joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
-                                  float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
-                       for j in ROBOT_JOINTS)
-        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if self._expert else {}
-        if config["environment_state"]:
-            extra[OBS_ENV_STATE] = FieldSpec("float32", (len(ENV_STATE_SLOTS),), names=ENV_STATE_NAMES,
-                                             presence="declared")
+        joints = sawyer_joints(m)
+        extra = extra_fields(self._expert, config["environment_state"])
         step = float(self.env.action_scale)
         spec = RolloutSpec(
             robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=sensors),

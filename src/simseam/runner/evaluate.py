@@ -208,6 +208,18 @@ def _eval_entry(entry: dict, tasks: Sequence[str], episodes: int, seed: int) -> 
     return {**entry, "task": tasks[ti], "episode": e}
 
 
+def _recorder(run_dir, tasks: Sequence[str], episodes: int, seed: int, on_done) -> Callable[[Any], None]:
+    """What a batched eval does with each finished episode (an ``EpisodeResult``): its log line with its
+    ``task`` and ``episode`` appended to the run, then ``on_done(result, task)``."""
+    def record(res) -> None:
+        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
+        run_dir.append(entry)
+        if on_done:
+            on_done(res, entry["task"])
+
+    return record
+
+
 def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
                     policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
                     seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
@@ -239,11 +251,7 @@ def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_env
         return
     spec_once = _spec_writer(run_dir)
 
-    def record(res):
-        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
-        run_dir.append(entry)
-        if on_done:
-            on_done(res, entry["task"])
+    record = _recorder(run_dir, tasks, episodes, seed, on_done)
 
     def write_spec(vec):
         if check is not None:
@@ -341,11 +349,7 @@ def run_eval_batched(p: Preset, tasks: list[str], episodes: int, run_dir, num_en
     todo = _todo(tasks, episodes, run_dir, indices)
     spec_once = _spec_writer(run_dir)
 
-    def record(res):
-        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
-        run_dir.append(entry)
-        if on_done:
-            on_done(res, entry["task"])
+    record = _recorder(run_dir, tasks, episodes, seed, on_done)
 
     with NativeWorker() as worker:
         for ti, task in enumerate(tasks):

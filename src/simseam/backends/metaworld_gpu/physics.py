@@ -124,8 +124,9 @@ class WarpPhysics:
         self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
         self.graph = bool(graph) and self.device.is_cuda
-        self._graphs: dict[str, Any] = {}
-        self._ran: set[str] = set()
+        from simseam.engines.mujoco_warp.graphs import CudaGraphs
+
+        self.graphs = CudaGraphs(self.device, self.graph)
 
     def view(self, a: Any) -> Any:
         """A warp array as an ``xp`` array sharing its memory (NumPy on the CPU, CuPy on CUDA)."""
@@ -177,22 +178,9 @@ class WarpPhysics:
         self._xp_done()
 
     def _launch(self, name: str, fn) -> None:
-        """Run ``fn`` (device launches only). With ``graph`` its first call runs directly (kernels compile
-        and load outside any capture), the second is captured as a CUDA graph, later ones replay it. The
-        resets write the same arrays in place, so a captured graph stays valid."""
-        if not self.graph:
-            fn()
-            return
-        graph = self._graphs.get(name)
-        if graph is None:
-            if name not in self._ran:
-                self._ran.add(name)
-                fn()
-                return
-            with self._wp.ScopedCapture(device=self.device) as cap:
-                fn()
-            self._graphs[name] = graph = cap.graph
-        self._wp.capture_launch(graph)
+        """Run ``fn`` (device launches only): with ``graph``, on CUDA, as one captured graph (``CudaGraphs``;
+        the resets write the same arrays in place, so a captured graph stays valid)."""
+        self.graphs.launch(name, fn)
 
     def _xp_done(self) -> None:
         """Wait for what CuPy wrote into the device arrays before Warp reads them (CuPy's stream)."""
@@ -236,7 +224,7 @@ class WarpPhysics:
 
     def close(self) -> None:
         self.m = self.d = None
-        self._graphs.clear()
+        self.graphs.clear()
 
 
 def _cupy():

@@ -25,12 +25,13 @@ from simseam.backends.base import observation_spec
 from simseam.backends.metaworld import (
     AGENT_POS,
     DIAGNOSTICS,
-    ENV_STATE_NAMES,
     ENV_STATE_SLOTS,
     ROBOT_JOINTS,
     STATE_NAMES,
+    extra_fields,
     instruction,
     normalize_config,
+    sawyer_joints,
 )
 from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 from simseam.seam import (
@@ -48,8 +49,6 @@ from simseam.seam import (
     ActionSpec,
     ConfigError,
     ControlMode,
-    FieldSpec,
-    JointFacts,
     RobotFacts,
     RolloutSpec,
     SimulationError,
@@ -108,13 +107,8 @@ class MetaWorldBatchRollout(SyncStepPair):
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model
-        joints = tuple(JointFacts(j, "arm" if j.startswith("right_j") else "gripper",
-                                  float(m.jnt_range[m.joint(j).id][0]), float(m.jnt_range[m.joint(j).id][1]))
-                       for j in ROBOT_JOINTS)
-        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (4,), presence="declared")} if self.privileged else {}
-        if c["environment_state"]:
-            extra[OBS_ENV_STATE] = FieldSpec("float32", (len(ENV_STATE_SLOTS),), names=ENV_STATE_NAMES,
-                                             presence="declared")
+        joints = sawyer_joints(m)
+        extra = extra_fields(self.privileged, c["environment_state"])
         step = float(info["action_scale"])
         slots = tuple(ActionSlot(k, "arm", -1.0, 1.0, f"{step} m") for k in ("dx", "dy", "dz"))
         return RolloutSpec(

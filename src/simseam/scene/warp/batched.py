@@ -54,6 +54,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the pack
         f"(pip install 'simseam[warp]'): {exc}") from None
 
 from simseam.engines.mujoco_warp import kernels as K
+from simseam.engines.mujoco_warp.graphs import CudaGraphs
 from simseam.scene.warp.task_state import WarpTaskState, array_module, array_stream
 
 DEFAULT_NCONMAX = 96  # contacts per world (allocated for the whole batch)
@@ -154,8 +155,7 @@ class BatchedScene:
                 self._make_params()
         self._eval = None
         self.build_s = time.perf_counter() - t0
-        self._graphs: dict = {}  # name -> captured CUDA graph
-        self._ran: set = set()
+        self._graphs = CudaGraphs(self.device, wopts.graph)  # the step, the reset's sensing, the cameras
         self.steps = np.zeros(n, dtype=np.int64)
         self.seeds = np.full(n, -1, dtype=np.int64)
         self._host_obs: dict | None = None
@@ -408,25 +408,9 @@ class BatchedScene:
         truncated = (self.steps >= self.max_steps) & ~success
         return BatchStep(reward, success, truncated, success, self.steps.copy())
 
-    def _use_graph(self) -> bool:
-        return bool(self.wopts.graph and self.device.is_cuda)
-
     def _launch(self, name: str, fn) -> None:
-        """Run ``fn`` (device launches only). On CUDA its first call runs directly (kernels compile
-        and load outside any capture), later calls replay one CUDA graph captured on the second."""
-        if not self._use_graph():
-            fn()
-            return
-        graph = self._graphs.get(name)
-        if graph is None:
-            if name not in self._ran:
-                self._ran.add(name)
-                fn()
-                return
-            with wp.ScopedCapture() as cap:
-                fn()
-            self._graphs[name] = graph = cap.graph
-        wp.capture_launch(graph)
+        """Run ``fn`` (device launches only): on CUDA as one captured graph (``CudaGraphs``)."""
+        self._graphs.launch(name, fn)
 
     def _load_actions(self, actions) -> None:
         n, adim = self.num_envs, self._adim
