@@ -148,3 +148,19 @@ def test_graph_option_leaves_the_cpu_device_path_unchanged():
             obs[graph] = np.array(batch.obs)
             batch.close()
     np.testing.assert_array_equal(obs[True], obs[False])
+
+
+def test_the_worlds_keep_the_batched_seam_contract():
+    """MetaWorldBatchRollout, a BatchRollout like any other: ``check_batch_rollout`` (spec round trip,
+    observations against the spec, same seed same episode stepped together or apart, per-world resets,
+    bad actions refused and changing nothing, clipping, info keys, close) on 2 worlds of Warp's CPU device,
+    privileged (the expert's action declared) and with the task's object state."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+    from simseam.seam import check_batch_rollout
+
+    with NativeWorker() as worker:
+        batch = MetaWorldBatchRollout({"task": TASK, "cameras": False, "environment_state": True}, 2, worker,
+                                      privileged=True, device="cpu")
+        spec = check_batch_rollout(batch)  # closes it
+    assert "mujoco_warp" in spec.engine and spec.action.dim == 4 and "expert_action" in spec.observation.fields

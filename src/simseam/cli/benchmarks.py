@@ -260,22 +260,19 @@ def _eval_batched(p, policy: str, kwargs: dict, task_list: list[str], n: int, ru
     """``simseam eval --engine mujoco_warp``: each task's episodes as the worlds of one batch
     (``run_eval_batched``; ``--num-envs`` worlds, default the task's episodes), the policy stepped for all of
     them at once (its own batch, or one instance per world). Progress and summary as the vector path."""
-    from simseam.policies.base import make_policy
-    from simseam.policies.batch import PerEnvPolicies, shared_batch
+    from simseam.policies.batch import make_policy_batch
     from simseam.runner.evaluate import run_eval_batched
 
     todo = len([i for i in indices if i not in run_dir.done])
     worlds = max(1, num_envs or n)
     batch = None
     try:
-        pol = make_policy(policy, **kwargs)
-        if pol.uses_images:
+        batch = make_policy_batch(policy, worlds, **kwargs)
+        if batch.uses_images:
             raise ConfigError(f"--engine {engine}: the port is state-only; policy {policy!r} reads images")
-        batch = shared_batch(pol, worlds, lambda: make_policy(policy, **kwargs))
-        if batch is None:
-            made = [pol]
-            batch = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **kwargs), worlds)
     except SimseamError as exc:
+        if batch is not None:
+            batch.close()
         run_dir.close()
         fail(exc)
     console.print(f"eval [bold]{escape(p.name)}[/] on [bold]{escape(engine)}[/]: {len(task_list)} task(s) x {n} "
@@ -287,9 +284,9 @@ def _eval_batched(p, policy: str, kwargs: dict, task_list: list[str], n: int, ru
                           highlight=False)
 
         run_eval_batched(p, task_list, n, run_dir, worlds, policy_batch=batch, engine=engine, device=sim_device,
-                         privileged=pol.requires_privileged, seed=seed, on_start=start,
+                         privileged=batch.requires_privileged, seed=seed, on_start=start,
                          on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
-                         on_error=progress.episode_error, indices=indices, check=pol.reset)
+                         on_error=progress.episode_error, indices=indices, check=lambda spec: batch.reset(0, spec))
 
 
 def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,
