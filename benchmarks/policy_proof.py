@@ -117,7 +117,7 @@ def prove(task: str, recipe: Recipe, seeds: range, work: Path, train_s: float | 
            "demos": {"seeds": f"0:{recipe.demos}", "episodes_kept": info["total_episodes"],
                      "frames": info["total_frames"], "seconds": round(collect_s, 1)},
            "training": {"steps": training["steps"], "recipe_steps": recipe.steps,
-                        "seconds": round(training["seconds"], 1), "wall_seconds": round(train_wall, 1),
+                        "seconds": round(training["seconds"], 3), "wall_seconds": round(train_wall, 1),
                         "n_params": training["n_params"],
                         "final_loss": training["losses"][-1][1] if training["losses"] else None,
                         "device": training["device"]}}
