@@ -41,30 +41,48 @@ def mcnemar(a: list[bool], b: list[bool]) -> float:
 
 
 def closed_loop(worker, task: str, engine: str, seeds: list[int], steps: int, device: str | None) -> list[bool]:
-    """The expert driving ``engine``; per seed: success at any step (Meta-World's batched rule)."""
-    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
-
-    env = MetaWorldBatch(task, len(seeds), worker, engine=engine, device=device)
-    env.reset(list(range(len(seeds))), seeds)
+    """The expert driving ``engine`` (Warp: all seeds as one batch of worlds; CPU MuJoCo: one world per
+    seed, stepped in lockstep), its actions asked once per step for every world; per seed: success at any
+    step (Meta-World's batched rule)."""
+    envs = _batches(worker, task, engine, seeds, device)
     success = np.zeros(len(seeds), dtype=bool)
     for _ in range(steps):
-        actions = worker.call("expert", task=task, obs=np.asarray(_host(env.obs), dtype=np.float64))
-        success |= env.step(np.asarray(actions, dtype=np.float32))["success"]
-    env.close()
+        obs = np.concatenate([np.asarray(_host(env.obs), dtype=np.float64) for env in envs])
+        actions = np.asarray(worker.call("expert", task=task, obs=obs), dtype=np.float32)
+        success |= np.concatenate([env.step(actions[i:i + env.num_worlds])["success"]
+                                   for i, env in zip(_offsets(envs), envs)])
+    for env in envs:
+        env.close()
     return success.tolist()
 
 
-def open_loop(worker, task: str, engine: str, seeds: list[int], actions: np.ndarray, device: str | None) -> np.ndarray:
-    """float[S, T, 39]: the observations under the native episodes' actions."""
+def _batches(worker, task: str, engine: str, seeds: list[int], device: str | None) -> list[Any]:
+    """Warp: one batch of len(seeds) worlds; CPU MuJoCo: one single-world batch per seed; each reset."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
-    env = MetaWorldBatch(task, len(seeds), worker, engine=engine, device=device)
-    env.reset(list(range(len(seeds))), seeds)
+    groups = [seeds] if engine == "mujoco_warp" else [[s] for s in seeds]
+    envs = []
+    for group in groups:
+        env = MetaWorldBatch(task, len(group), worker, engine=engine, device=device)
+        env.reset(list(range(len(group))), group)
+        envs.append(env)
+    return envs
+
+
+def _offsets(envs: list[Any]) -> list[int]:
+    return list(np.cumsum([0] + [env.num_worlds for env in envs[:-1]]))
+
+
+def open_loop(worker, task: str, engine: str, seeds: list[int], actions: np.ndarray, device: str | None) -> np.ndarray:
+    """float[S, T, 39]: the observations under the native episodes' actions (float[S, T, 4])."""
+    envs = _batches(worker, task, engine, seeds, device)
     out = []
     for t in range(actions.shape[1]):
-        env.step(actions[:, t])
-        out.append(np.asarray(_host(env.obs), dtype=np.float64))
-    env.close()
+        for i, env in zip(_offsets(envs), envs):
+            env.step(actions[i:i + env.num_worlds, t])
+        out.append(np.concatenate([np.asarray(_host(env.obs), dtype=np.float64) for env in envs]))
+    for env in envs:
+        env.close()
     return np.stack(out, axis=1)
 
 
@@ -79,12 +97,11 @@ def one_task(worker, task: str, seeds: list[int], steps: int, device: str | None
     native_success = [bool(np.any(r["success"])) for r in native]
     actions = np.stack([r["action"] for r in native])
     warp_obs = open_loop(worker, task, "mujoco_warp", seeds, actions, device)
-    cpu_obs = np.concatenate([open_loop(worker, task, "mujoco", [s], actions[i:i + 1], None)
-                              for i, s in enumerate(seeds)])
+    cpu_obs = open_loop(worker, task, "mujoco", seeds, actions, None)
     engine_gap = np.abs(warp_obs - cpu_obs).max(axis=2)
     version_gap = np.abs(cpu_obs - np.stack([r["obs"] for r in native])).max(axis=2)
     warp_success = closed_loop(worker, task, "mujoco_warp", seeds, steps, device)
-    cpu_success = [closed_loop(worker, task, "mujoco", [s], steps, None)[0] for s in seeds]
+    cpu_success = closed_loop(worker, task, "mujoco", seeds, steps, None)
     judged = all(x is not None for x in warp_success + cpu_success)
     return {
         "seeds": seeds, "steps": steps, "native_success": native_success,
@@ -114,6 +131,27 @@ def write(args, results: dict[str, Any], final: bool = True) -> None:
     tmp.replace(args.out)
 
 
+def run_jobs(args, tasks: list[str]) -> dict[str, Any]:
+    """``--jobs J``: J copies of this script, job j taking tasks j, j + J, ...; each writes its own part
+    (every finished task on disk); their tasks merged in the order asked."""
+    import subprocess
+
+    parts = args.out.with_suffix(".parts")
+    parts.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for j in range(min(args.jobs, len(tasks))):
+        argv = [sys.executable, __file__, "--tasks", ",".join(tasks[j::args.jobs]), "--seeds", args.seeds,
+                "--steps", str(args.steps), "--out", str(parts / f"part{j}.json"), "--overwrite"]
+        procs.append(subprocess.Popen(argv + (["--device", args.device] if args.device else [])))
+    failed = [p.args[3] for p in procs if p.wait() != 0]
+    merged: dict[str, Any] = {}
+    for part in sorted(parts.glob("part*.json")):
+        merged.update(json.loads(part.read_text())["tasks"])
+    if failed:
+        print(f"jobs failed for tasks {failed}; their finished tasks are kept", file=sys.stderr)
+    return {t: merged[t] for t in tasks if t in merged}
+
+
 def _seeds(text: str) -> list[int]:
     lo, hi = (int(x) for x in text.split(":"))
     return list(range(lo, hi))
@@ -127,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default=None, help="a Warp device (cuda:0, cpu); default Warp's preferred one")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="processes, each taking every J-th task with its own native worker (merged at the end)")
     args = ap.parse_args(argv)
     if args.out.exists() and not args.overwrite:
         print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
@@ -137,6 +177,11 @@ def main(argv: list[str] | None = None) -> int:
     tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
     seeds = _seeds(args.seeds)
     results: dict[str, Any] = {}
+    if args.jobs > 1:
+        results = run_jobs(args, tasks)
+        write(args, results, final=len(results) == len(tasks))
+        print(f"wrote {args.out}")
+        return 0 if len(results) == len(tasks) else 1
     with NativeWorker() as worker:
         for task in tasks:
             results[task] = one_task(worker, task, seeds, args.steps, args.device)

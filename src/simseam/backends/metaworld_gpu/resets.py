@@ -47,4 +47,5 @@ class ResetCache:
                 tmp = self._path(key).with_suffix(".partial")
                 tmp.write_bytes(pickle.dumps(state, protocol=4))
                 os.replace(tmp, self._path(key))
-        return [pickle.loads(self._path(k).read_bytes()) for k in keys]
+        loaded = {k: pickle.loads(self._path(k).read_bytes()) for k in dict.fromkeys(keys)}
+        return [loaded[k] for k in keys]  # worlds that share a variation share its (read-only) state

@@ -29,6 +29,7 @@ class NativeWorker:
 
             python = require("metaworld")
         self.python = str(python)
+        self._described: dict[str, Any] = {}
         self._tmp = tempfile.TemporaryDirectory(prefix="simseam-mwgpu-")
         os.symlink(Path(__file__).resolve().parents[2], Path(self._tmp.name) / "simseam")
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV", "PYTHONPATH")}
@@ -40,7 +41,16 @@ class NativeWorker:
             raise BackendUnavailableError(f"metaworld native worker ({self.python}) failed to start: {what}")
 
     def call(self, command: str, **kwargs: Any) -> Any:
-        """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it."""
+        """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it.
+        ``describe`` is asked once per task (its answer is the same for the worker's life; callers only read it)."""
+        if command == "describe":
+            key = kwargs["task"]
+            if key not in self._described:
+                self._described[key] = self._call(command, **kwargs)
+            return self._described[key]
+        return self._call(command, **kwargs)
+
+    def _call(self, command: str, **kwargs: Any) -> Any:
         if self._proc is None:
             raise SimulationError("metaworld native worker: called after close()")
         blob = pickle.dumps((command, kwargs), protocol=4)

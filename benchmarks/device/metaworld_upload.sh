@@ -1,0 +1,83 @@
+#!/usr/bin/env bash
+# Meta-World on MuJoCo Warp on the lent GPU machine (no registry there, 64 MiB per call).
+#
+# Two interpreters' worth of packages travel: MuJoCo Warp's side (warp-lang, mujoco-warp and the CPU
+# MuJoCo of this checkout's venv, into /tmp/site) and Meta-World's native side (metaworld, gymnasium and
+# Meta-World's pinned MuJoCo, into /tmp/mwsite). numpy, scipy, imageio, cloudpickle, absl-py and etils
+# are the machine's own.
+#
+#   here:   bash benchmarks/device/metaworld_upload.sh prepare [DIR]   (default DIR: .cache/mwcarry)
+#           -> DIR/c1 .. DIR/c4, each < 62 MB: the warp-lang wheel (149 MB) in three chunks + SHA256,
+#              and the other cp312 wheels (simseam's src/ and the benchmarks travel with the checkout)
+#   there:  call k (k = 1..4, while the machine stays warm), carrying DIR/ck:
+#             bash benchmarks/device/metaworld_upload.sh receive DIR/ck      (copies to /tmp/mw)
+#           the last call then:
+#             bash benchmarks/device/metaworld_upload.sh install
+#             source /tmp/mw/env.sh   (PYTHONPATH: the wheels and the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH)
+#             python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 ...
+#             python3 benchmarks/metaworld_warp_fidelity.py --device cuda:0 --jobs 15 ...
+# ``install`` makes Meta-World's interpreter the way ``simseam backends provision metaworld`` would leave
+# it (a venv directory with its provisioning record, under $SIMSEAM_CACHE): here its ``bin/python`` is
+# the machine's python3 with /tmp/mwsite first on its path, since nothing can be pip-installed from an
+# index there.
+set -euo pipefail
+cmd="${1:-}"
+case "$cmd" in
+  prepare)
+    ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
+    DIR="${2:-$ROOT/.cache/mwcarry}"
+    PY="${PYTHON:-$ROOT/.venv/bin/python}"
+    MJ="$("$PY" -c 'import mujoco; print(mujoco.__version__)')"
+    WARP="$("$PY" -c 'from importlib.metadata import version as v; print(v("warp-lang"), v("mujoco-warp"))')"
+    MWPINS="$ROOT/src/simseam/backends/pins/metaworld.txt"
+    pin() { grep -i "^$1==" "$MWPINS"; }
+    rm -rf "$DIR"; mkdir -p "$DIR/c1" "$DIR/c2" "$DIR/c3" "$DIR/c4" "$DIR/main" "$DIR/mw"
+    dl() { "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+      --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \
+      --platform manylinux2014_x86_64 -d "$@"; }
+    set -- $WARP
+    dl "$DIR/main" "warp-lang==$1" "mujoco-warp==$2" "mujoco==$MJ" "mujoco-core==$MJ"
+    dl "$DIR/mw" "$(pin metaworld)" "$(pin mujoco)" "$(pin gymnasium)" "$(pin Farama-Notifications)" \
+      "$(pin glfw)" "$(pin PyOpenGL)"
+    W="$(ls "$DIR"/main/warp_lang-*.whl)"
+    split -n 3 -d "$W" "$DIR/warp.part"
+    sha256sum "$W" | awk '{print $1}' > "$DIR/c1/warp.sha256"
+    basename "$W" > "$DIR/c1/warp.name"
+    rm "$W"
+    mv "$DIR/warp.part00" "$DIR/c1/"; mv "$DIR/warp.part01" "$DIR/c2/"; mv "$DIR/warp.part02" "$DIR/c3/"
+    mkdir -p "$DIR/c1/main" "$DIR/c2/main" "$DIR/c3/mw" "$DIR/c4/mw"
+    mv "$DIR"/main/mujoco_core-*.whl "$DIR/c1/main/"
+    mv "$DIR"/main/*.whl "$DIR/c2/main/"
+    mv "$DIR"/mw/metaworld-*.whl "$DIR/c4/mw/"
+    mv "$DIR"/mw/*.whl "$DIR/c3/mw/"
+    rmdir "$DIR/main" "$DIR/mw"
+    du -sh "$DIR"/c*
+    ;;
+  receive)
+    mkdir -p /tmp/mw; cp -r "$2"/. /tmp/mw/; ls /tmp/mw
+    ;;
+  install)
+    REPO="$PWD"   # the sent checkout (its src/ is what runs)
+    cd /tmp/mw
+    cat warp.part00 warp.part01 warp.part02 > "main/$(cat warp.name)"
+    echo "$(cat warp.sha256)  main/$(cat warp.name)" | sha256sum -c -
+    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site main/*.whl
+    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/mwsite mw/*.whl
+    cat > /tmp/mw/env.sh <<EOF
+export PYTHONPATH=/tmp/site:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=/tmp/mwcache/warp MUJOCO_GL=egl
+EOF
+    source /tmp/mw/env.sh
+    venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"
+    mkdir -p "$venv/bin"
+    printf '#!/bin/sh\nexport PYTHONPATH="/tmp/mwsite${PYTHONPATH:+:$PYTHONPATH}"\nexec %s "$@"\n' "$(command -v python3)" \
+      > "$venv/bin/python"
+    chmod +x "$venv/bin/python"
+    python3 -c 'import json, sys; json.dump({"name": "metaworld", "python": "python3 + /tmp/mwsite (device)"}, open(sys.argv[1], "w"))' \
+      "$venv/simseam-backend.json"
+    python3 -c "import warp, mujoco, mujoco_warp; print('warp', warp.config.version, 'mujoco', mujoco.__version__, 'mujoco_warp', mujoco_warp.__version__)"
+    "$venv/bin/python" -c "import metaworld, mujoco; print('metaworld side: mujoco', mujoco.__version__)"
+    ;;
+  *)
+    echo "usage: $0 prepare [DIR] | receive DIR | install" >&2; exit 2
+    ;;
+esac

@@ -1,0 +1,289 @@
+"""Meta-World v3 on MuJoCo Warp: throughput against the CPU backend, in one call, with the same policy.
+
+Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--overwrite``):
+
+- ``cpu``: the CPU backend's own per-env code (``simseam.backends.metaworld.make_rollout``: what each
+  sidecar env of ``simseam eval metaworld_*`` runs, here without the sidecar's transport, so an upper
+  bound on the CPU backend's rate) in ``--cpu-procs`` processes of Meta-World's provisioned interpreter,
+  each stepping its share of the tasks (every task in turn, ``--cpu-chunk`` steps at a time, resetting at
+  ``max_path_length``) for ``--cpu-seconds`` after all are ready; env-steps/s summed over the processes.
+- ``warp``: per ``--worlds`` N and task, ``MetaWorldBatch(task, N)`` on ``--device``; worlds reset to
+  seeds ``i % 50``; one untimed step (captures the CUDA graphs); then ``--steps`` timed control steps,
+  each with Meta-World's observation, reward and success for every world copied to the host. Per task
+  env-steps/s; over the tasks, all their steps over all their timed seconds.
+- ``mt50``: the whole evaluation a user waits for: every task, ``--episodes`` episodes (seeds 0..E-1, one
+  world each) of ``max_path_length`` steps, building, resetting and stepping timed together (wall), the
+  tasks split over ``--mt50-procs`` processes sharing the device.
+
+The policy is uniform random actions in [-1, 1] (seeded), drawn where each env lives (the device for
+Warp, NumPy for the CPU), so its cost is nil on both sides: the figures are the simulators' and
+Meta-World's observation and reward code's. A section is skipped by giving it 0 (``--worlds ""``,
+``--cpu-procs 0``, ``--episodes 0``).
+
+    python benchmarks/metaworld_warp_throughput.py --device cuda:0 --worlds 1024,4096,8192 --cpu-procs 16
+    python benchmarks/metaworld_warp_throughput.py --device cpu --tasks reach-v3 --worlds 8 --steps 5 \\
+        --cpu-procs 2 --cpu-seconds 5 --episodes 2 --out /tmp/t.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+OUT = Path(__file__).resolve().parent / "results" / "metaworld_warp_throughput.json"
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+# ------------------------------------------------------------------------------------------------ cpu
+def cpu_worker(tasks: list[str], chunk: int, seconds: float, seed: int) -> None:
+    """Run in Meta-World's interpreter: make every task's env, print ``ready``, wait for a line on stdin,
+    then step for ``seconds``; print one JSON line of counts."""
+    from simseam.backends.metaworld import make_rollout, normalize_config
+
+    rollouts = {t: make_rollout(normalize_config({"task": t, "cameras": False})) for t in tasks}
+    for i, r in enumerate(rollouts.values()):
+        r.reset(seed=seed + i)
+    rng = np.random.default_rng(seed)
+    steps = {t: 0 for t in tasks}
+    print("ready", flush=True)
+    sys.stdin.readline()
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for task, rollout in rollouts.items():
+            for _ in range(chunk):
+                result = rollout.step(rng.uniform(-1.0, 1.0, 4).astype(np.float32))
+                steps[task] += 1
+                if result.truncated or result.terminated:
+                    rollout.reset(seed=seed + steps[task])
+    print(json.dumps({"steps": steps, "seconds": time.perf_counter() - t0}), flush=True)
+
+
+def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float) -> dict[str, Any]:
+    from simseam.backends.provision import require
+
+    python = str(require("metaworld"))
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV")}
+    env["PYTHONPATH"] = str(SRC)
+    workers = []
+    for j in range(procs):
+        share = tasks[j::procs] or [tasks[j % len(tasks)]]
+        argv = [python, __file__, "--cpu-worker", ",".join(share), "--cpu-chunk", str(chunk),
+                "--cpu-seconds", str(seconds), "--seed", str(1000 * j)]
+        workers.append(subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env))
+    t_setup = time.perf_counter()
+    for w in workers:
+        if w.stdout.readline().strip() != "ready":
+            raise RuntimeError(f"cpu worker {w.args[3]} failed to start (rc {w.wait()})")
+    setup = time.perf_counter() - t_setup
+    for w in workers:
+        w.stdin.write("go\n")
+        w.stdin.flush()
+    counts = [json.loads(w.stdout.readline()) for w in workers]
+    for w in workers:
+        w.wait()
+    per_task: dict[str, int] = {}
+    for c in counts:
+        for task, n in c["steps"].items():
+            per_task[task] = per_task.get(task, 0) + n
+    rate = sum(sum(c["steps"].values()) / c["seconds"] for c in counts)
+    return {"procs": procs, "seconds": seconds, "setup_seconds": round(setup, 1), "env_steps_per_s": rate,
+            "steps_per_task": per_task, "per_proc_env_steps_per_s": [sum(c["steps"].values()) / c["seconds"]
+                                                                    for c in counts]}
+
+
+# ----------------------------------------------------------------------------------------------- warp
+def _sync(env) -> None:
+    if env.physics.device.is_cuda:
+        env.xp.cuda.get_current_stream().synchronize()
+
+
+def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, seed: int) -> dict[str, Any]:
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    t0 = time.perf_counter()
+    env = MetaWorldBatch(task, worlds, worker, device=device)
+    env.reset(np.arange(worlds), np.arange(worlds) % 50)
+    xp = env.xp
+    rng = xp.random.RandomState(seed)  # NumPy and CuPy alike
+    env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))  # graph capture, first launches
+    _sync(env)
+    setup = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    for _ in range(steps):
+        env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))
+    _sync(env)
+    seconds = time.perf_counter() - t1
+    env.close()
+    return {"worlds": worlds, "steps": steps, "seconds": seconds, "setup_seconds": setup,
+            "env_steps_per_s": worlds * steps / seconds}
+
+
+def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | None) -> dict[str, Any]:
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    out: dict[str, Any] = {}
+    with NativeWorker() as worker:
+        for n in sizes:
+            rows = {}
+            for i, task in enumerate(tasks):
+                rows[task] = warp_task(worker, task, n, steps, device, seed=i)
+                print(f"  warp {n:6d} worlds  {task:28s} {rows[task]['env_steps_per_s']:12,.0f} env-steps/s "
+                      f"(setup {rows[task]['setup_seconds']:.1f} s)", flush=True)
+            total = sum(r["worlds"] * r["steps"] for r in rows.values())
+            secs = sum(r["seconds"] for r in rows.values())
+            rates = [r["env_steps_per_s"] for r in rows.values()]
+            out[str(n)] = {"tasks": rows, "env_steps_per_s": total / secs, "slowest_task_env_steps_per_s": min(rates),
+                           "fastest_task_env_steps_per_s": max(rates)}
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- mt50
+def mt50_worker(tasks: list[str], episodes: int, device: str | None) -> dict[str, Any]:
+    """Every task's ``episodes`` episodes to their end, as one batch per task; per task the wall seconds."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+    out = {}
+    with NativeWorker() as worker:
+        for i, task in enumerate(tasks):
+            t0 = time.perf_counter()
+            env = MetaWorldBatch(task, episodes, worker, device=device)
+            env.reset(np.arange(episodes), np.arange(episodes))
+            xp = env.xp
+            rng = xp.random.RandomState(i)
+            success = np.zeros(episodes, dtype=bool)
+            for _ in range(env.max_steps):
+                success |= env.step(rng.uniform(-1.0, 1.0, (episodes, 4)).astype(xp.float32))["success"]
+            env.close()
+            out[task] = {"seconds": time.perf_counter() - t0, "episodes": episodes, "steps": env.max_steps,
+                         "successes": int(success.sum())}
+    return out
+
+
+def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    if procs <= 1:
+        per_task = mt50_worker(tasks, episodes, device)
+    else:
+        env = dict(os.environ)
+        workers = [subprocess.Popen([sys.executable, __file__, "--mt50-worker", ",".join(tasks[j::procs]),
+                                     "--episodes", str(episodes), *(["--device", device] if device else [])],
+                                    stdout=subprocess.PIPE, text=True, env=env) for j in range(min(procs, len(tasks)))]
+        per_task = {}
+        for w in workers:
+            lines = w.stdout.read().strip().splitlines()
+            if w.wait() != 0 or not lines:
+                raise RuntimeError(f"mt50 worker for {w.args[3]} failed (rc {w.returncode})")
+            per_task.update(json.loads(lines[-1]))
+    wall = time.perf_counter() - t0
+    n = sum(r["episodes"] for r in per_task.values())
+    return {"episodes_per_task": episodes, "tasks": len(per_task), "episodes": n, "procs": procs,
+            "wall_seconds": wall, "env_steps_per_s": sum(r["episodes"] * r["steps"] for r in per_task.values()) / wall,
+            "per_task": per_task}
+
+
+# ----------------------------------------------------------------------------------------------- main
+def machine(device: str | None) -> dict[str, Any]:
+    facts: dict[str, Any] = {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                             "python": platform.python_version()}
+    try:
+        import mujoco
+        import warp as wp
+
+        wp.config.quiet = True
+        wp.init()
+        dev = wp.get_device(device) if device else wp.get_preferred_device()
+        facts.update(mujoco=mujoco.__version__, warp=wp.config.version, device=str(dev), device_name=dev.name)
+        from importlib.metadata import version
+
+        facts["mujoco_warp"] = version("mujoco-warp")
+    except Exception as exc:  # noqa: BLE001 - facts are best effort
+        facts["error"] = repr(exc)
+    try:
+        facts["cpu_model"] = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
+                                  if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return facts
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", default="mt50", help="comma-separated Meta-World v3 tasks, or 'mt50'")
+    ap.add_argument("--worlds", default="1024,4096,8192", help="comma-separated world counts ('' to skip)")
+    ap.add_argument("--steps", type=int, default=20, help="timed control steps per task and world count")
+    ap.add_argument("--device", default=None, help="a Warp device (cuda:0, cpu); default Warp's preferred one")
+    ap.add_argument("--cpu-procs", type=int, default=16)
+    ap.add_argument("--cpu-seconds", type=float, default=30.0)
+    ap.add_argument("--cpu-chunk", type=int, default=50)
+    ap.add_argument("--episodes", type=int, default=50, help="per task, for the whole-MT50 wall time (0 skips)")
+    ap.add_argument("--mt50-procs", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--cpu-worker", help=argparse.SUPPRESS)
+    ap.add_argument("--mt50-worker", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.cpu_worker:
+        cpu_worker(args.cpu_worker.split(","), args.cpu_chunk, args.cpu_seconds, args.seed)
+        return 0
+    if args.mt50_worker:
+        print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device)))
+        return 0
+    if args.out.exists() and not args.overwrite:
+        print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+
+    tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
+    sizes = [int(x) for x in args.worlds.split(",") if x]
+    doc: dict[str, Any] = {"benchmark": "metaworld_warp_throughput", "policy": "uniform random actions",
+                           "tasks": tasks, "machine": machine(args.device), "argv": sys.argv[1:]}
+
+    def save() -> None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.out.with_suffix(".partial")
+        tmp.write_text(json.dumps(doc, indent=1))
+        tmp.replace(args.out)
+
+    if args.cpu_procs:
+        doc["cpu"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds)
+        print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
+        save()
+    for n in sizes:  # each world count on disk as soon as it is measured
+        doc.setdefault("warp", {}).update(warp_section(tasks, [n], args.steps, args.device))
+        save()
+    if args.episodes:
+        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device)
+        save()
+    print_table(doc)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def print_table(doc: dict[str, Any]) -> None:
+    cpu = doc.get("cpu", {}).get("env_steps_per_s")
+    print(f"\n{'path':34s} {'env-steps/s':>14s} {'slowest task':>14s} {'vs CPU':>8s}")
+    if cpu:
+        print(f"{'CPU backend, ' + str(doc['cpu']['procs']) + ' processes':34s} {cpu:14,.0f} {'':>14s} {'1.0x':>8s}")
+    for n, row in doc.get("warp", {}).items():
+        ratio = f"{row['env_steps_per_s'] / cpu:.1f}x" if cpu else "-"
+        print(f"{'MuJoCo Warp, ' + n + ' worlds':34s} {row['env_steps_per_s']:14,.0f} "
+              f"{row['slowest_task_env_steps_per_s']:14,.0f} {ratio:>8s}")
+    if "mt50" in doc:
+        m = doc["mt50"]
+        print(f"\nwhole run: {m['tasks']} tasks x {m['episodes_per_task']} episodes ({m['episodes']}) "
+              f"in {m['wall_seconds']:.1f} s wall ({m['procs']} process(es); builds and resets included)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
