@@ -9,6 +9,7 @@ Writes, per step t (t = 0 is the reset): the native observation vector / agent p
 image the native env gives a policy, and for t >= 1 the reward and success flag.
 """
 
+import gc
 import json
 import sys
 
@@ -224,6 +225,12 @@ def _maniskill_expert(cfg, seed):
 
 if __name__ == "__main__":
     backend, cfg, seed, actions_path, out_path = sys.argv[1:6]
+    # robosuite's own loop (robosuite 1.5 and LIBERO's 1.4): a hard reset drops the MjSim that rendered so
+    # far; if the cyclic garbage collector frees its render context after that, with the new context
+    # current, every later frame is garbage (frame 0 intact, states untouched). When the collector runs
+    # depends on allocations, e.g. on a fresh venv compiling its .pyc files; with it off, the native frames
+    # do not depend on it (simseam's backends free the old context themselves: robosuite_cameras).
+    gc.disable()
     result = globals()[backend](json.loads(cfg), int(seed), np.load(actions_path))
     assert "simseam" not in sys.modules
     np.savez(out_path, **{k: np.asarray(v) for k, v in result.items()})
