@@ -71,3 +71,41 @@ def test_a_benchmark_scene_declares_no_camera_when_nothing_reads_images(tmp_path
             assert list(r.spec.cameras) == cameras
         finally:
             r.close()
+
+
+NATIVE_ML1 = """
+import json, sys
+import metaworld
+task, seeds = sys.argv[1], json.loads(sys.argv[2])
+ml1 = metaworld.ML1(task, seed=0)
+env = ml1.test_classes[task]()
+out = []
+for s in seeds:
+    env.set_task(ml1.test_tasks[s % 50])
+    env.seed(s)
+    obs, _ = env.reset()
+    out.append(obs.tolist())
+print(json.dumps(out))
+"""
+
+
+def test_ml1_is_metaworlds_own_held_out_test_goals(open_backend):
+    """``variation: ml1`` (the ``metaworld_ml1`` preset): the reset Meta-World's ML1 test set gives, written by
+    Meta-World itself in its venv (ML1's own env class, not simseam's); held out from MT1's 50, goal hidden."""
+    import json
+    import subprocess
+
+    seeds = [3, 53, 11]
+    out = subprocess.run([str(backend_python("metaworld")), "-c", NATIVE_ML1, "pick-place-v3", json.dumps(seeds)],
+                         capture_output=True, text=True, check=True, env={"MUJOCO_GL": "egl", "PATH": "/usr/bin:/bin"})
+    native = np.asarray(json.loads(out.stdout.strip().splitlines()[-1]), dtype=np.float32)
+    ml1 = open_backend("metaworld", {"task": "pick-place-v3", "cameras": False, "variation": "ml1"})
+    mt1 = open_backend("metaworld", {"task": "pick-place-v3", "cameras": False})
+    ours = np.stack([_start(ml1, s) for s in seeds])
+    np.testing.assert_array_equal(ours, native)
+    np.testing.assert_array_equal(ours[0], ours[1])  # seed s and s + 50: one test variation
+    assert np.abs(ours[0][TASK_SLOTS[:-3]] - ours[2][TASK_SLOTS[:-3]]).max() > 1e-3
+    assert not ours[:, -3:].any(), "ML1 hides the goal"
+    mt1_starts = np.stack([_start(mt1, s)[4:18] for s in range(50)])
+    nearest = np.abs(ours[:, None, 4:18] - mt1_starts[None]).max(axis=2).min(axis=1)
+    assert nearest.min() > 1e-3, "an ML1 test start is one of MT1's 50"

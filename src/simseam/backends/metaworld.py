@@ -4,7 +4,9 @@ Native environment: ``metaworld.MT1(task, seed=goal_seed)`` gives the task's 50 
 goal/object variations (``train_tasks``); episode ``seed`` uses variation ``seed % 50``
 and ``env.seed(seed)``, so 50 consecutive seeds cover every variation once (the MT1
 evaluation protocol, made deterministic). Seeds ``s`` and ``s + 50`` are therefore the same
-episode. ``variation: sampled`` instead draws each episode's object and goal positions from
+episode. ``variation: ml1`` takes ``metaworld.ML1(task, seed=goal_seed).test_tasks`` instead: ML1's
+50 held-out goal variations (its meta-test set), ``seed % 50`` likewise; as in ML1, the goal is not in
+the observation (its last 3 values are zeros). ``variation: sampled`` instead draws each episode's object and goal positions from
 the task's own reset distribution (the one MT1 draws its 50 from) with the episode seed
 (Meta-World's ``seeded_rand_vec`` path after ``env.seed(seed)``): every seed its own episode,
 none of them one of MT1's 50, so demonstrations recorded that way leave the MT1 variations
@@ -83,7 +85,7 @@ NAME = "metaworld"
 HAS_EXPERT = True  # metaworld.policies: one scripted expert per task
 CAMERAS = ("corner", "corner2", "corner3", "topview", "behindGripper", "gripperPOV")
 CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
-VARIATIONS = ("mt1", "sampled", "lerobot")
+VARIATIONS = ("mt1", "ml1", "sampled", "lerobot")
 STATES = ("full", "agent_pos")
 DEFAULTS = {"camera": "corner2", "image_size": [224, 224], "max_steps": 500, "goal_seed": 0, "expert": False,
             "cameras": True, "variation": "mt1", "environment_state": True, "camera_pos": None,
@@ -119,7 +121,8 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
             raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
     if out["variation"] not in VARIATIONS:
         raise ConfigError(f"{where}.variation: {out['variation']!r}; one of {list(VARIATIONS)} (mt1: MT1's 50 fixed "
-                          "variations, seed % 50; sampled: a fresh draw from the task's reset distribution per seed; "
+                          "variations, seed % 50; ml1: ML1's 50 held-out test variations, seed % 50, goal unobserved; "
+                          "sampled: a fresh draw from the task's reset distribution per seed; "
                           "lerobot: LeRobot's env, a draw from NumPy's global generator after np.random.seed(seed))")
     if out["state"] not in STATES:
         raise ConfigError(f"{where}.state: {out['state']!r}; one of {list(STATES)} (full: the 39-D observation; "
@@ -236,10 +239,20 @@ class MetaWorldRollout(BenchmarkRollout):
             self.env.set_task(self._bench.train_tasks[0])  # the task's observability and settings ...
             self.env._freeze_rand_vec = False  # ... then its reset draws from env.np_random (seeded below)
             self.env.seeded_rand_vec = True
+        elif self.config["variation"] == "ml1":
+            self.env.set_task(self._ml1_test()[seed % N_GOALS])  # ML1's held-out goals (its meta-test set)
         else:
             self.env.set_task(self._bench.train_tasks[seed % N_GOALS])
         self.env.seed(seed)
         self._obs, _ = self.env.reset()
+
+    def _ml1_test(self) -> list:
+        """``metaworld.ML1(task, seed=goal_seed).test_tasks``, made once (50 resets' worth of work)."""
+        if getattr(self, "_ml1", None) is None:
+            import metaworld
+
+            self._ml1 = metaworld.ML1(self.config["task"], seed=self.config["goal_seed"]).test_tasks
+        return self._ml1
 
     def _native_step(self, action: np.ndarray):
         self._obs, reward, _term, _trunc, info = self.env.step(action)

@@ -74,6 +74,10 @@ PRESETS: dict[str, Preset] = {p.name: p for p in (
                     "info['success'] (the episode ends at success); mean of per-task success"),
     Preset("metaworld_mt50", "metaworld", None, 50, {"max_steps": 500}, suite="MT50",
            protocol="MT50: 50 tasks x 50 episodes, as metaworld_mt10"),
+    Preset("metaworld_ml1", "metaworld", None, 50, {"max_steps": 500, "variation": "ml1"}, suite="MT50",
+           protocol="ML1 per task: each of the 50 tasks x 50 episodes on ML1's held-out test goals "
+                    "(metaworld.ML1(task).test_tasks, variation seed % 50), goal not observed, 500 steps, success = "
+                    "info['success'] (the episode ends at success); mean of per-task success"),
     Preset("metaworld_lerobot", "metaworld", None, 50, METAWORLD_LEROBOT, suite="MT50",
            protocol="LeRobot's own Meta-World env (lerobot-eval --env.type=metaworld, obs_type pixels_agent_pos): "
                     "a 480x480 corner2 image from LeRobot's camera position, turned 180 degrees as LeRobot does, "

@@ -3,7 +3,7 @@
 A reset state is what ``MetaWorldRollout._native_reset(seed)`` leaves: qpos, qvel, mocap pose, ctrl, act,
 the solver's warm start, the observation, every model array the reset changed (against the freshly
 compiled model) and the env's numeric attributes. Cached per (versions, task, variation, goal seed, key):
-``key`` is ``seed % 50`` for ``mt1`` (MT1's 50 fixed variations: seeds s and s + 50 are one episode) and
+``key`` is ``seed % 50`` for ``mt1`` and ``ml1`` (50 fixed variations: seeds s and s + 50 are one episode) and
 the seed itself for ``sampled`` and ``lerobot``. Episode i gets its own seed's state whatever the batch.
 """
 
@@ -20,7 +20,7 @@ N_VARIATIONS = 50
 
 
 def state_key(variation: str, seed: int) -> int:
-    return int(seed) % N_VARIATIONS if variation == "mt1" else int(seed)
+    return int(seed) % N_VARIATIONS if variation in ("mt1", "ml1") else int(seed)
 
 
 class ResetCache:
@@ -39,7 +39,7 @@ class ResetCache:
         keys = [state_key(self.variation, s) for s in seeds]
         missing = sorted({k for k in keys if not self._path(k).is_file()})
         if missing:
-            # mt1: the key is a seed of that variation; sampled / lerobot: the seed itself
+            # mt1 / ml1: the key is a seed of that variation; sampled / lerobot: the seed itself
             fresh = self.worker.call("resets", task=self.task, variation=self.variation, goal_seed=self.goal_seed,
                                      seeds=missing)
             self.folder.mkdir(parents=True, exist_ok=True)
