@@ -342,131 +342,160 @@ def build_scene(target: Target, num_envs: int | None = None):
     return ManifestScene(RobotSpec.from_json(target.spec), target.task, target.engine, SceneOptions(**opts))
 
 
-def serve(boot: dict) -> int:
-    keep_alive = bool(boot.get("keep_alive"))
-    parent = os.getppid()
-    if not keep_alive:
-        _die_with_parent()
-    signal.signal(signal.SIGTERM, _exit_on_sigterm)
-    lock = None
+class LocalClients:
+    """The same-machine clients of one sidecar (the fast path beside zmq): connections that have not
+    attached yet, and the one attached client, whose requests are served while the next comes within
+    its spin. One local client at a time: the newest attached one."""
+
+    def __init__(self, listener: socket.socket, poller: Any, server: Server):
+        self.listener, self.poller, self.server = listener, poller, server
+        self.conn: socket.socket | None = None
+        self.pending: list[socket.socket] = []
+        self.conn_poll = None  # a select.poll on conn alone: the busy-poll between its requests
+        poller.register(listener, zmq.POLLIN)
+
+    @staticmethod
+    def _in(sock: socket.socket, events: dict) -> bool:
+        return sock in events or sock.fileno() in events
+
+    def handle(self, events: dict) -> bool:
+        """Accept a new connection and serve every ready one; True when a request stopped the server."""
+        if self._in(self.listener, events):
+            new, _ = self.listener.accept()
+            new.settimeout(10.0)  # a message that starts must finish: a stalled peer is dropped
+            self.pending.append(new)
+            self.poller.register(new, zmq.POLLIN)
+        ready = [c for c in (self.conn, *self.pending) if c is not None and self._in(c, events)]
+        return any(self._serve(c) for c in ready)
+
+    def _serve(self, c: socket.socket) -> bool:
+        while True:
+            keep, spin, stop = self._one(c)
+            if stop:
+                return True
+            if not keep:
+                self._drop(c)
+                return False
+            if not (spin and local.spin_until_readable(self.conn_poll, self.server.spin_s)):
+                return False
+            self.server.spun += 1
+
+    def _one(self, c: socket.socket) -> tuple[bool, bool, bool]:
+        """One message of ``c``: (keep the connection, spin for the next, stop the server)."""
+        try:
+            msg = local.recv_message(c)
+            if msg is None:
+                return False, False, False
+            if c is self.conn:
+                reply, stop = self.server.handle(msg[0], self.server.ring, attached=True)
+                local.send_message(c, reply)
+                return True, True, stop
+            reply, fds = self.server.attach(msg[0])  # a new connection's first message: attach, or it goes
+            local.send_message(c, reply, fds)
+            if _is_ok(reply):
+                self._attach(c)
+                return True, False, False
+            return False, False, False
+        except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
+            _say(f"simseam sidecar: local connection dropped: {exc}")
+            return False, False, False
+
+    def _attach(self, c: socket.socket) -> None:
+        self.pending.remove(c)
+        if self.conn is not None:
+            self.poller.unregister(self.conn)
+            self.conn.close()
+        self.conn = c
+        self.conn_poll = select.poll()
+        self.conn_poll.register(c, select.POLLIN)
+
+    def _drop(self, c: socket.socket) -> None:
+        self.poller.unregister(c)
+        c.close()
+        if c is self.conn:
+            self.conn = None
+            self.server.detach()
+        else:
+            self.pending.remove(c)
+
+    def close(self) -> None:
+        for c in (self.conn, *self.pending):
+            if c is not None:
+                c.close()
+        self.listener.close()
+        if self.server.local_path:
+            try:
+                os.unlink(self.server.local_path)
+            except OSError:
+                pass
+
+
+def _boot(boot: dict):
+    """The scene the boot message names, and the engine lock when it needs one; an int exit code when it
+    cannot be built (reported to the client as a typed error first)."""
     try:
         target = target_from_json(boot.get("target"))
     except ConfigError as exc:
         _emit("error", kind=type(exc).__name__, message=str(exc), traceback="")
         _say(f"simseam sidecar: cannot build the scene: {exc}")
         return EXIT_BOOT_ERROR
-    if boot.get("exclusive") or target.engine in EXCLUSIVE_ENGINES:
-        lock = _take_engine_lock(target.engine)
+    lock = _take_engine_lock(target.engine) if boot.get("exclusive") or target.engine in EXCLUSIVE_ENGINES else None
     _emit("boot", stage=f"building {target.describe()}")
     os.environ["SIMSEAM_SIDECAR"] = "1"  # sidecar-only engines (isaac) are made only in this process
     try:
-        scene = build_scene(target, boot.get("num_envs"))
+        return build_scene(target, boot.get("num_envs")), lock
     except Exception as exc:  # reported to the client as a typed error, then exit
         _emit("error", kind=type(exc).__name__, message=str(exc), traceback=traceback.format_exc())
         _say(f"simseam sidecar: cannot build the scene: {type(exc).__name__}: {exc}")
+        if lock is not None:
+            os.close(lock)
         return EXIT_BOOT_ERROR
+
+
+def _register(boot: dict, endpoint: str) -> Path | None:
+    """The registry file a client finds this sidecar by (``registry_dir``), owner-only."""
+    if not boot.get("registry_dir"):
+        return None
+    registry = Path(boot["registry_dir"]) / f"{boot['identity']}.json"
+    fd = os.open(registry, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        json.dump({"endpoint": endpoint, "token": boot["token"], "pid": os.getpid(), "identity": boot["identity"]}, f)
+    return registry
+
+
+def serve(boot: dict) -> int:
+    keep_alive = bool(boot.get("keep_alive"))
+    parent = None if keep_alive else os.getppid()  # before the (slow) build: a parent gone meanwhile is seen
+    if not keep_alive:
+        _die_with_parent()
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    booted = _boot(boot)
+    if isinstance(booted, int):
+        return booted
+    scene, lock = booted
     ctx = zmq.Context()
     sock = ctx.socket(zmq.REP)
     sock.setsockopt(zmq.LINGER, 0)
-    registry = None
-    server: Server | None = None
-    listener: socket.socket | None = None
-    conn: socket.socket | None = None  # the attached local client
-    pending: list[socket.socket] = []  # local connections that have not attached yet
-    conn_poll = None  # a select.poll on conn alone: the busy-poll between its requests
-    parent_checked = time.monotonic()  # when the loop last checked that its parent is alive
+    registry = server = clients = None
     try:
         sock.bind(boot["endpoint"])
         endpoint = sock.getsockopt_string(zmq.LAST_ENDPOINT)
-        if boot.get("registry_dir"):
-            registry = Path(boot["registry_dir"]) / f"{boot['identity']}.json"
-            fd = os.open(registry, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-            with os.fdopen(fd, "w") as f:
-                json.dump({"endpoint": endpoint, "token": boot["token"], "pid": os.getpid(),
-                           "identity": boot["identity"]}, f)
+        registry = _register(boot, endpoint)
         server = Server(scene, boot["token"], boot["identity"], test_hooks=os.environ.get(TEST_HOOKS_ENV) == "1")
         poller = zmq.Poller()
         poller.register(sock, zmq.POLLIN)
         if endpoint.startswith("ipc://") and hasattr(os, "memfd_create"):  # same machine: offer the fast path
             listener = local_listener(os.path.join(os.path.dirname(endpoint[len("ipc://"):]), "local.sock"))
             server.local_path = listener.getsockname()
-            poller.register(listener, zmq.POLLIN)
+            clients = LocalClients(listener, poller, server)
         _emit("ready", endpoint=endpoint, pid=os.getpid(), identity=boot["identity"])
-        while True:
-            events = dict(poller.poll(500))
-            now = time.monotonic()
-            if not events or now - parent_checked >= 0.5:  # also while events keep coming
-                parent_checked = now
-                if not keep_alive and os.getppid() != parent:
-                    _say("simseam sidecar: parent process is gone, exiting")
-                    return 0
-            if not events:
-                continue
-            if sock in events:
-                frames = sock.recv_multipart(copy=False)
-                reply, stop = server.handle(frames)
-                sock.send_multipart(reply, copy=False)
-                if stop:
-                    return 0
-            if listener is not None and (listener in events or listener.fileno() in events):
-                new, _ = listener.accept()
-                new.settimeout(10.0)  # a message that starts must finish: a stalled peer is dropped
-                pending.append(new)
-                poller.register(new, zmq.POLLIN)
-            for c in [c for c in (conn, *pending) if c is not None and (c in events or c.fileno() in events)]:
-                while True:  # the attached client's requests, as long as the next comes within its spin
-                    keep = spin = True
-                    try:
-                        msg = local.recv_message(c)
-                        if msg is None:
-                            keep = False
-                        elif c is conn:
-                            reply, stop = server.handle(msg[0], server.ring, attached=True)
-                            local.send_message(c, reply)
-                            if stop:
-                                return 0
-                        else:  # the first message of a new connection: attach, or the connection goes
-                            spin = False
-                            reply, fds = server.attach(msg[0])
-                            local.send_message(c, reply, fds)
-                            keep = _is_ok(reply)
-                            if keep:  # one local client at a time: the newest attached one
-                                pending.remove(c)
-                                if conn is not None:
-                                    poller.unregister(conn)
-                                    conn.close()
-                                conn = c
-                                conn_poll = select.poll()
-                                conn_poll.register(conn, select.POLLIN)
-                    except (WireError, OSError) as exc:  # garbage framing, a stalled or vanished peer
-                        _say(f"simseam sidecar: local connection dropped: {exc}")
-                        keep = False
-                    if not keep:
-                        poller.unregister(c)
-                        c.close()
-                        if c is conn:
-                            conn = None
-                            server.detach()
-                        else:
-                            pending.remove(c)
-                        break
-                    if not (spin and local.spin_until_readable(conn_poll, server.spin_s)):
-                        break
-                    server.spun += 1
+        return _loop(sock, poller, server, clients, parent)
     finally:  # a second SIGTERM must not cut this short: a context left unterminated hangs the exit
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         sock.close(0)
         ctx.destroy(0)
-        for c in (conn, *pending):
-            if c is not None:
-                c.close()
-        if listener is not None:
-            listener.close()
-            if server is not None and server.local_path:
-                try:
-                    os.unlink(server.local_path)
-                except OSError:
-                    pass
+        if clients is not None:
+            clients.close()
         if server is not None:
             server.detach()
         if registry is not None:
@@ -474,6 +503,28 @@ def serve(boot: dict) -> int:
         scene.close()
         if lock is not None:
             os.close(lock)
+
+
+def _loop(sock: Any, poller: Any, server: Server, clients: LocalClients | None, parent: int | None) -> int:
+    """Serve zmq and local requests until one stops the server or the ``parent`` process (when given) goes."""
+    parent_checked = time.monotonic()  # when the loop last checked that its parent is alive
+    while True:
+        events = dict(poller.poll(500))
+        now = time.monotonic()
+        if not events or now - parent_checked >= 0.5:  # also while events keep coming
+            parent_checked = now
+            if parent is not None and os.getppid() != parent:
+                _say("simseam sidecar: parent process is gone, exiting")
+                return 0
+        if not events:
+            continue
+        if sock in events:
+            reply, stop = server.handle(sock.recv_multipart(copy=False))
+            sock.send_multipart(reply, copy=False)
+            if stop:
+                return 0
+        if clients is not None and clients.handle(events):
+            return 0
 
 
 def main(argv: list[str] | None = None) -> int:
