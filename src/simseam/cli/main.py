@@ -170,25 +170,9 @@ def run(
         shard_ik = parse_shard(shard) if shard is not None else None
         planned = check_shard_holds_episodes(shard_indices(episodes, shard_ik), shard_ik, episodes)
         check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
-        if record_dataset is not None and (num_envs or 1) > 1:
-            raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
-        if record_dataset is not None:
-            from simseam.runner.dataset_recorder import check_dataset_out
-
-            check_dataset_out(record_dataset, overwrite, "--record-dataset")
-        if ray_address is not None and (record_dataset is not None or video):
-            raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
-                              "to its own disk)")
+        _check_run_outputs(record_dataset, overwrite, video, num_envs, ray_address)
         cfg, base_dir = load_scene_config(scene)  # the one parse of the scene file
-        from simseam.runner.central_render import RENDERERS, unsupported
-
-        if renderer not in RENDERERS:
-            raise ConfigError(f"--renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
-        if renderer == "batched" and (record_dataset is not None or ray_address is not None):
-            raise ConfigError("--renderer batched serves the --num-envs workers; --record-dataset and --ray render "
-                              "in their own processes (use --renderer workers)")
-        if renderer == "batched" and unsupported(cfg.model_dump(mode="json")):
-            raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
+        _check_renderer(renderer, scene, cfg, record_dataset is not None or ray_address is not None)
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None,
@@ -231,9 +215,45 @@ def run(
                     num_envs=num_envs, video=video, planned=len(planned), renderer=renderer,
                     lockstep=Lockstep(policy_groups, policy_ready, envs_per_worker))
         return
+    _run_sequential((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
+                    planned=len(planned), episodes=episodes, video=video, record_dataset=record_dataset, videos=videos,
+                    keep_failures=keep_failures, overwrite=overwrite)
+
+
+def _check_run_outputs(record_dataset: Path | None, overwrite: bool, video: bool, num_envs: int | None,
+                       ray_address: str | None) -> None:
+    """``simseam run``'s output options against each other (a ``ConfigError`` naming the clash)."""
+    if record_dataset is not None and (num_envs or 1) > 1:
+        raise ConfigError("--record-dataset records one episode at a time: it needs --num-envs 1")
+    if record_dataset is not None:
+        from simseam.runner.dataset_recorder import check_dataset_out
+
+        check_dataset_out(record_dataset, overwrite, "--record-dataset")
+    if ray_address is not None and (record_dataset is not None or video):
+        raise ConfigError("--ray cannot be combined with --video or --record-dataset (each node would write "
+                          "to its own disk)")
+
+
+def _check_renderer(renderer: str, scene: Path, cfg, elsewhere: bool) -> None:
+    """``--renderer`` for this scene (``elsewhere``: --record-dataset or --ray, which render in their own
+    processes)."""
+    from simseam.runner.central_render import RENDERERS, unsupported
+
+    if renderer not in RENDERERS:
+        raise ConfigError(f"--renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+    if renderer == "batched" and elsewhere:
+        raise ConfigError("--renderer batched serves the --num-envs workers; --record-dataset and --ray render "
+                          "in their own processes (use --renderer workers)")
+    if renderer == "batched" and unsupported(cfg.model_dump(mode="json")):
+        raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
+
+
+def _run_sequential(scene_file: tuple, policy: str, seed: int, kwargs: dict, run_dir, out: Path, todo: list[int], *,
+                    planned: int, episodes: int, video: bool, record_dataset: Path | None, videos: bool,
+                    keep_failures: bool, overwrite: bool) -> None:
+    """``simseam run`` in this process, one environment, episode after episode (the dataset recorder's path)."""
     try:
-        cfg, pol, rollout = _open_run((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps),
-                                      need_images=record_dataset is not None or video)
+        _, pol, rollout = _open_run(scene_file, policy, seed, kwargs, need_images=record_dataset is not None or video)
     except SimseamError as exc:
         run_dir.close()
         fail(exc)
@@ -245,7 +265,7 @@ def run(
         rollout.close()
         close_policy(pol)
 
-    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, len(planned))  # noqa: E731
+    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
     with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
         if record_dataset is not None:  # before the run starts: a recorder that cannot start replaces nothing
             from simseam.runner.dataset_recorder import LeRobotRecorder
