@@ -14,6 +14,7 @@
 #           the last call then:
 #             bash benchmarks/device/metaworld_upload.sh install
 #             source /tmp/mw/env.sh   (PYTHONPATH: the wheels and the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH)
+#             (MUJOCO_GL=disable: that machine has PyOpenGL but no EGL library, and nothing here renders)
 #             python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 ...
 #             python3 benchmarks/metaworld_warp_fidelity.py --device cuda:0 --jobs 15 ...
 # ``install`` makes Meta-World's interpreter the way ``simseam backends provision metaworld`` would leave
@@ -64,7 +65,7 @@ case "$cmd" in
     python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site main/*.whl
     python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/mwsite mw/*.whl
     cat > /tmp/mw/env.sh <<EOF
-export PYTHONPATH=/tmp/site:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=/tmp/mwcache/warp MUJOCO_GL=egl
+export PYTHONPATH=/tmp/site:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=/tmp/mwcache/warp MUJOCO_GL=disable
 EOF
     source /tmp/mw/env.sh
     venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The Meta-World-on-Warp measurements on the lent GPU machine, after metaworld_upload.sh's install (one call):
+#   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first)
+#   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes)
+# Logs and JSON go to $OUT (the device tool brings them back).
+set -uo pipefail
+source /tmp/mw/env.sh
+export PYTHONUNBUFFERED=1
+OUT="${OUT:-/tmp/out}"; mkdir -p "$OUT"
+nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,temperature.gpu --format=csv | tee "$OUT/gpu.txt"
+quiet() { grep -v '^Module ' ; }
+case "${1:-}" in
+  throughput)
+    timeout 200 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,drawer-close-v3 --seeds 0:4 \
+      --steps 60 --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -4
+    timeout "${TP_LIMIT:-330}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 \
+      --tasks "${TP_TASKS:-reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,peg-insert-side-v3,window-open-v3,window-close-v3}" \
+      --worlds 1024,4096,8192 --steps 10 --cpu-procs 16 --cpu-seconds 15 --episodes 0 \
+      --out "$OUT/throughput_mt10.json" --overwrite 2>&1 | quiet > "$OUT/throughput.log"; tail -12 "$OUT/throughput.log"
+    timeout "${MT50_LIMIT:-200}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
+      --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs 8 \
+      --out "$OUT/throughput_mt50x50.json" --overwrite 2>&1 | quiet > "$OUT/mt50.log"; tail -5 "$OUT/mt50.log"
+    ;;
+  fidelity)
+    timeout "${FID_LIMIT:-540}" python3 benchmarks/metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --steps 500 \
+      --device cuda:0 --jobs 15 --out "$OUT/metaworld_warp_fidelity.json" --overwrite 2>&1 | quiet > "$OUT/fidelity.log"
+    tail -8 "$OUT/fidelity.log"
+    ;;
+  *) echo "usage: $0 throughput | fidelity" >&2; exit 2 ;;
+esac
