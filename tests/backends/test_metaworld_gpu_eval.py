@@ -102,7 +102,7 @@ def test_engine_on_a_preset_with_no_port_is_one_line():
     res = CliRunner().invoke(app, ["eval", "pusht", "--policy", "zero", "--engine", "mujoco_warp"])
     assert res.exit_code != 0
     assert "preset 'pusht' has no mujoco_warp port" in res.output
-    assert "metaworld_mt10, metaworld_mt50, metaworld_lerobot" in res.output
+    assert "metaworld_mt10, metaworld_mt50, metaworld_ml1, metaworld_lerobot" in res.output
 
 
 def test_benchmark_scene_file_on_mujoco_warp(tmp_path):
