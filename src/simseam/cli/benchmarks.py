@@ -127,8 +127,7 @@ def eval_command(
     ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.policies.base import make_policy
-    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, preset, resolve_tasks, run_eval
+    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, preset, resolve_tasks
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
 
@@ -138,21 +137,11 @@ def eval_command(
     try:
         shard_ik = parse_shard(shard) if shard is not None else None
         check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
-        if ray_address is not None and video:
-            raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
         p = preset(preset_name)
         check_engine(p, engine)
-        if engine is not None and (ray_address is not None or video or policy_groups != 1 or policy_ready
-                                   or envs_per_worker != 1):
-            raise ConfigError(f"--engine {engine}: its worlds step together in this process; drop --ray, --video, "
-                              "--policy-groups, --policy-ready and --envs-per-worker")
-        if sim_device is not None and engine is None:
-            raise ConfigError("--sim-device belongs to --engine mujoco_warp")
-        only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks is not None else None
-        if only == []:
-            raise ConfigError(f"--tasks {tasks!r} names no task (comma-separated names or indices; leave it out "
-                              "for every task)")
-        task_list = resolve_tasks(p, only)
+        _check_executor(engine, sim_device, ray_address, video, lockstep_given=(policy_groups != 1 or policy_ready
+                                                                                or envs_per_worker != 1))
+        task_list = resolve_tasks(p, _task_subset(tasks))
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
@@ -187,18 +176,8 @@ def eval_command(
 
     rule = Lockstep(policy_groups, policy_ready, envs_per_worker).fit(num_envs)
     kwargs = policy_kwargs(device, n_action_steps)
-    batch = None
     try:
-        pol = make_policy(policy, **kwargs)
-        if num_envs > 1:
-            from simseam.policies.batch import shared_batch
-
-            batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
-            if batch is None and rule.acts_here:  # the policy acts here, one instance per environment
-                from simseam.policies.batch import PerEnvPolicies
-
-                made = [pol]
-                batch = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **kwargs), num_envs)
+        pol, batch = _eval_policies(policy, kwargs, num_envs, rule)
     except SimseamError as exc:
         run_dir.close()
         fail(exc)
@@ -213,6 +192,52 @@ def eval_command(
         _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
                      seed=seed, video=video, indices=planned, lockstep=rule)
         return
+    _eval_sequential(p, pol, policy, task_list, n, run_dir, out, seed=seed, video=video, indices=planned)
+
+
+def _check_executor(engine: str | None, sim_device: str | None, ray_address: str | None, video: bool,
+                    lockstep_given: bool) -> None:
+    """The executor options of ``simseam eval`` against each other (a ``ConfigError`` naming the clash)."""
+    if ray_address is not None and video:
+        raise ConfigError("--ray cannot be combined with --video (each node would write to its own disk)")
+    if engine is not None and (ray_address is not None or video or lockstep_given):
+        raise ConfigError(f"--engine {engine}: its worlds step together in this process; drop --ray, --video, "
+                          "--policy-groups, --policy-ready and --envs-per-worker")
+    if sim_device is not None and engine is None:
+        raise ConfigError("--sim-device belongs to --engine mujoco_warp")
+
+
+def _task_subset(tasks: str | None) -> list[str] | None:
+    only = [t.strip() for t in tasks.split(",") if t.strip()] if tasks is not None else None
+    if only == []:
+        raise ConfigError(f"--tasks {tasks!r} names no task (comma-separated names or indices; leave it out "
+                          "for every task)")
+    return only
+
+
+def _eval_policies(policy: str, kwargs: dict, num_envs: int, rule):
+    """The policy, and for N > 1 environments the batch that acts for them here (one shared model, or one
+    instance per environment when the ``rule`` acts here), or None (the policy runs in each worker)."""
+    from simseam.policies.base import make_policy
+
+    pol = make_policy(policy, **kwargs)
+    if num_envs <= 1:
+        return pol, None
+    from simseam.policies.batch import shared_batch
+
+    batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
+    if batch is None and rule.acts_here:  # the policy acts here, one instance per environment
+        from simseam.policies.batch import PerEnvPolicies
+
+        made = [pol]
+        batch = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **kwargs), num_envs)
+    return pol, batch
+
+
+def _eval_sequential(p, pol, policy: str, task_list: list[str], n: int, run_dir, out: Path, *, seed: int,
+                     video: bool, indices: list[int]) -> None:
+    """``simseam eval`` on one environment here, episode after episode, then the summary."""
+    from simseam.runner.evaluate import run_eval
 
     def done(res, task):
         mark = "[green]success[/]" if res.success else "[red]fail[/]"
@@ -225,7 +250,7 @@ def eval_command(
     with episodes_guard(run_dir, lambda: close_policy(pol), finish=_summary(p, policy, run_dir)):
         run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
                  progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
-                 on_done=done, on_error=error, indices=planned)
+                 on_done=done, on_error=error, indices=indices)
 
 
 def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
