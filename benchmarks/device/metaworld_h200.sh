@@ -11,13 +11,17 @@ nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm,temperature.g
 quiet() { grep -v '^Module ' ; }
 case "${1:-}" in
   throughput)
-    timeout 200 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,drawer-close-v3 --seeds 0:4 \
+    [ -n "${SMOKE_AFTER:-}" ] || timeout 200 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,drawer-close-v3 --seeds 0:4 \
       --steps 60 --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -4
     timeout "${TP_LIMIT:-330}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 \
       --tasks "${TP_TASKS:-reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,peg-insert-side-v3,window-open-v3,window-close-v3}" \
-      --worlds 1024,4096,8192 --steps 10 --cpu-procs 16 --cpu-seconds 15 --episodes 0 \
-      --out "$OUT/throughput_mt10.json" --overwrite 2>&1 | quiet > "$OUT/throughput.log"; tail -12 "$OUT/throughput.log"
-    timeout "${MT50_LIMIT:-200}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
+      --worlds "${TP_WORLDS:-1024,4096,8192}" --steps 10 --cpu-procs 16 --cpu-seconds "${TP_CPU_S:-15}" --episodes 0 \
+      --out "$OUT/throughput.json" --overwrite 2>&1 | quiet > "$OUT/throughput.log"; tail -12 "$OUT/throughput.log"
+    if [ -n "${SMOKE_AFTER:-}" ]; then  # after the throughput, whose first steps compiled the kernels
+      timeout 120 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3 --seeds 0:2 --steps 30 \
+        --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -3
+    fi
+    [ "${MT50_LIMIT:-200}" = 0 ] || timeout "${MT50_LIMIT:-200}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
       --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs 8 \
       --out "$OUT/throughput_mt50x50.json" --overwrite 2>&1 | quiet > "$OUT/mt50.log"; tail -5 "$OUT/mt50.log"
     ;;
