@@ -42,8 +42,9 @@ GROUPS: tuple[tuple[str, ...], ...] = (
     ("tests/runner",),
     ("tests/ros2",),
     ("tests/backends/test_maniskill.py", "tests/backends/test_maniskill_batch.py"),
+    # Meta-World on Warp's CPU device: its batched rules, the port, its eval, the fidelity harness on a subset
     ("tests/backends/test_metaworld_rewards.py", "tests/backends/test_metaworld_gpu.py",
-     "tests/backends/test_metaworld_gpu_eval.py"),  # Meta-World's rules as batched task code, on Warp's CPU device
+     "tests/backends/test_metaworld_gpu_eval.py", "tests/backends/test_metaworld_warp_fidelity.py"),
     ("tests/backends",),  # the other backends' files (the ones above are excluded from it)
     ("tests/policies",),
 )

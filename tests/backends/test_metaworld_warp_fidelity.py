@@ -1,0 +1,48 @@
+"""The Meta-World-on-Warp fidelity harness (benchmarks/metaworld_warp_fidelity.py) on a subset, on Warp's CPU
+device, as CI can afford it: 5 tasks x 2 MT1 variations x 150 steps, against the native env in its venv.
+
+Per task: the native expert's episode replayed open loop on Warp and on CPU MuJoCo of Warp's version (the
+engine gap, asserted), and the expert closed loop on all three (success paired per seed). The bounds are the
+CPU device's float32 against float64 with no contact-rich task among the five (the full table, with the
+contact-rich ones, is docs/benchmarks.md's); the version gap (MuJoCo 3.3 vs 4.0) is reported, not bounded."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+from backend_util import backend_python
+
+pytestmark = pytest.mark.backends
+
+SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "metaworld_warp_fidelity.py"
+TASKS = ("reach-v3", "drawer-close-v3", "drawer-open-v3", "window-open-v3", "button-press-topdown-v3")
+
+
+def _harness():
+    spec = importlib.util.spec_from_file_location("metaworld_warp_fidelity", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_harness_on_five_tasks_keeps_the_engine_gap_small_and_the_successes_paired(tmp_path):
+    backend_python("metaworld")  # provisioned, or this test says how
+    out = tmp_path / "fidelity.json"
+    rc = _harness().main(["--tasks", ",".join(TASKS), "--seeds", "0:2", "--steps", "150", "--device", "cpu",
+                          "--jobs", "2", "--out", str(out)])
+    assert rc == 0
+    doc = json.loads(out.read_text())
+    assert doc["complete"] and list(doc["tasks"]) == list(TASKS)  # one entry per task, in the order asked
+    for task, r in doc["tasks"].items():
+        assert r["seeds"] == [0, 1] and r["steps"] == 150
+        assert r["engine_gap"]["median"] < 1e-3 and r["engine_gap"]["worst"] < 5e-2, (task, r["engine_gap"])
+        assert r["warp_success"] == r["cpu_success"], (task, r)  # no discordant pair on these
+        assert sum(r["native_success"]) >= 1, f"{task}: the native expert never succeeded: a vacuous pairing"
+        assert 0.0 <= r["p_engine_holm"] <= 1.0 and r["version_gap"]["worst"] >= 0.0
+    # an existing file is kept
+    assert _harness().main(["--tasks", "reach-v3", "--out", str(out)]) == 2
