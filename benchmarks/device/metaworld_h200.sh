@@ -18,7 +18,7 @@ case "${1:-}" in
       --worlds "${TP_WORLDS:-1024,4096,8192}" --steps 10 --cpu-procs 16 --cpu-seconds "${TP_CPU_S:-15}" --episodes 0 \
       --out "$OUT/throughput.json" --overwrite 2>&1 | quiet > "$OUT/throughput.log"; tail -12 "$OUT/throughput.log"
     if [ -n "${SMOKE_AFTER:-}" ]; then  # after the throughput, whose first steps compiled the kernels
-      timeout 120 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3 --seeds 0:2 --steps 30 \
+      timeout "${SMOKE_LIMIT:-120}" python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3 --seeds 0:2 --steps 30 \
         --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -3
     fi
     [ "${MT50_LIMIT:-200}" = 0 ] || timeout "${MT50_LIMIT:-200}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
