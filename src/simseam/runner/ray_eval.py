@@ -30,7 +30,7 @@ from typing import Any, Callable, Sequence
 
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import EpisodeQueue, WorkerFailure
-from simseam.seam import ConfigError, RolloutSpec, SimseamError, SimulationError
+from simseam.seam import ConfigError, RolloutSpec, SimulationError
 
 
 def _import_ray():
@@ -85,120 +85,148 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
     ``on_spec(spec_json)`` is called once the first actor is ready, after ``check(spec)`` (the caller's
     policy meets the rollouts' spec there: a policy that does not fit fails before anything is written)."""
     ray = _import_ray()
-    from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
+    _connect(ray, address)
+    cpus = int(ray.cluster_resources().get("CPU", 1))
+    pool = _ActorPool(ray, ray.remote(num_cpus=1, max_restarts=0)(EpisodeWorker), (recipe, policy, policy_kwargs),
+                      EpisodeQueue(indices, seed, max_attempts), seed, keep=keep, on_spec=on_spec, check=check,
+                      on_done=on_done, on_worker_failure=on_worker_failure)
+    try:
+        return pool.run(max(1, min(num_workers or cpus, len(indices))))
+    finally:
+        pool.close()
+        ray.shutdown()
 
-    lost_errors: tuple = (RayActorError,)
-    for name in ("NodeDiedError", "WorkerCrashedError", "ActorUnavailableError", "OwnerDiedError",
-                 "ObjectLostError"):
-        if hasattr(ray.exceptions, name):
-            lost_errors += (getattr(ray.exceptions, name),)
+
+def _connect(ray, address: str) -> None:
     env = {"env_vars": {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}}
     try:
         ray.init(address=None if address == "local" else address, ignore_reinit_error=True, log_to_driver=False,
                  logging_level="warning", runtime_env=env, configure_logging=True)
     except (ConnectionError, ValueError, RuntimeError) as exc:
         raise ConfigError(f"--ray {address}: cannot connect to a Ray cluster: {exc}") from None
-    cpus = int(ray.cluster_resources().get("CPU", 1))
-    n = max(1, min(num_workers or cpus, len(indices)))
-    Actor = ray.remote(num_cpus=1, max_restarts=0)(EpisodeWorker)
 
-    def cause(exc: BaseException) -> BaseException:
-        inner = getattr(exc, "cause", None)
-        return inner if isinstance(inner, BaseException) else SimulationError(str(exc).splitlines()[0])
 
-    starting: dict[Any, Any] = {}  # ready-ref -> actor (building its rollout)
-    idle: list = []
-    busy: dict[Any, tuple] = {}  # result-ref -> (actor, index)
-    todo = EpisodeQueue(indices, seed, max_attempts)
-    results: list[dict] = []
-    spec_seen = False
-    actor_ids: dict[Any, int] = {}
-    nodes: dict[Any, str] = {}  # actor -> the Ray node id it runs on
-    next_id = [0]
+def _lost_errors(ray) -> tuple:
+    """The exceptions that mean a Ray actor (or its node) is gone, whichever this Ray version has."""
+    from ray.exceptions import RayActorError
 
-    def finished(entry: dict) -> None:
-        if keep:
-            results.append(entry)
-        if on_done:
-            on_done(entry)
+    lost: tuple = (RayActorError,)
+    for name in ("NodeDiedError", "WorkerCrashedError", "ActorUnavailableError", "OwnerDiedError",
+                 "ObjectLostError"):
+        if hasattr(ray.exceptions, name):
+            lost += (getattr(ray.exceptions, name),)
+    return lost
 
-    def new_actor():
-        a = Actor.remote(recipe, policy, policy_kwargs)
-        actor_ids[a] = next_id[0]
-        next_id[0] += 1
-        starting[a.ready.remote()] = a
 
-    def failed(actor, index, exc) -> None:
+def _cause(exc: BaseException) -> BaseException:
+    """The exception an episode worker raised, out of Ray's wrapper."""
+    inner = getattr(exc, "cause", None)
+    return inner if isinstance(inner, BaseException) else SimulationError(str(exc).splitlines()[0])
+
+
+class _ActorPool:
+    """Ray actors running the episodes of one queue: actors starting (building their rollout), idle, busy;
+    a lost actor's episode goes back to the queue (``EpisodeQueue.lost``) and a new actor replaces it."""
+
+    def __init__(self, ray, actor_class, make_args: tuple, todo: EpisodeQueue, seed: int, *, keep: bool,
+                 on_spec, check, on_done, on_worker_failure):
+        self.ray, self.actor_class, self.make_args, self.todo, self.seed = ray, actor_class, make_args, todo, seed
+        self.keep, self.on_spec, self.check, self.on_done = keep, on_spec, check, on_done
+        self.on_worker_failure = on_worker_failure
+        self.lost = _lost_errors(ray)
+        self.starting: dict[Any, Any] = {}  # ready-ref -> actor (building its rollout)
+        self.idle: list = []
+        self.busy: dict[Any, tuple] = {}  # result-ref -> (actor, index)
+        self.results: list[dict] = []
+        self.spec_seen = False
+        self.actor_ids: dict[Any, int] = {}
+        self.nodes: dict[Any, str] = {}  # actor -> the Ray node id it runs on
+
+    def run(self, n: int) -> list[dict]:
+        for _ in range(n):
+            self._new_actor()
+        while self.todo or self.busy:
+            while self.idle and self.todo:
+                actor, i = self.idle.pop(), self.todo.next()
+                self.busy[actor.run.remote(i, self.seed)] = (actor, i)
+            waiting = list(self.busy) + list(self.starting)
+            if not waiting:
+                raise SimulationError("no Ray worker is left to run the remaining episodes")
+            ready, _ = self.ray.wait(waiting, num_returns=1, timeout=None)
+            ref = ready[0]
+            if ref in self.starting:
+                self._started(ref)
+            else:
+                self._returned(ref)
+        return self.results
+
+    def _get(self, ref, actor, index):
+        """``ray.get(ref)``, or None when the actor was lost (handled); an episode's own error re-raised."""
+        from ray.exceptions import RayTaskError
+
         try:
-            ray.kill(actor)
+            return self.ray.get(ref)
+        except self.lost as exc:
+            self._failed(actor, index, exc)
+            return None
+        except RayTaskError as exc:
+            raise _cause(exc) from None
+
+    def _started(self, ref) -> None:
+        actor = self.starting.pop(ref)
+        info = self._get(ref, actor, None)
+        if info is None:
+            return
+        self.nodes[actor] = info["node"]
+        if not self.spec_seen:
+            self.spec_seen = True
+            if self.check is not None:
+                self.check(RolloutSpec.from_json(info["spec"]))
+            if self.on_spec:
+                self.on_spec(info["spec"])
+        self.idle.append(actor)
+
+    def _returned(self, ref) -> None:
+        actor, i = self.busy.pop(ref)
+        entry = self._get(ref, actor, i)
+        if entry is None:
+            return
+        entry["worker"] = {"ray_node": self.nodes.get(actor), "actor": self.actor_ids.get(actor)}
+        self._finished(entry)
+        self.idle.append(actor)
+
+    def _finished(self, entry: dict) -> None:
+        if self.keep:
+            self.results.append(entry)
+        if self.on_done:
+            self.on_done(entry)
+
+    def _new_actor(self) -> None:
+        a = self.actor_class.remote(*self.make_args)
+        self.actor_ids[a] = len(self.actor_ids)
+        self.starting[a.ready.remote()] = a
+
+    def _failed(self, actor, index, exc) -> None:
+        try:
+            self.ray.kill(actor)
         except Exception:  # noqa: BLE001  (already gone)
             pass
         what, res = "no episode in flight", None
         if index is not None:
-            what, res = todo.lost(index, lambda n: f"Ray worker lost {n} times ({type(exc).__name__})")
+            what, res = self.todo.lost(index, lambda n: f"Ray worker lost {n} times ({type(exc).__name__})")
         if res is not None:
-            entry = res.to_json()
-            finished(entry)
-        if on_worker_failure:
-            node = nodes.get(actor)
-            on_worker_failure(WorkerFailure(env=-1, index=index, exitcode=None,
-                                            what_next=f"{what} ({type(exc).__name__}; it ran on Ray node "
-                                                      f"{node[:12] if node else 'unknown'})"))
-        if todo:
-            new_actor()
+            self._finished(res.to_json())
+        if self.on_worker_failure:
+            node = self.nodes.get(actor)
+            self.on_worker_failure(WorkerFailure(env=-1, index=index, exitcode=None,
+                                                 what_next=f"{what} ({type(exc).__name__}; it ran on Ray node "
+                                                           f"{node[:12] if node else 'unknown'})"))
+        if self.todo:
+            self._new_actor()
 
-    try:
-        for _ in range(n):
-            new_actor()
-        while todo or busy:
-            while idle and todo:
-                actor = idle.pop()
-                i = todo.next()
-                busy[actor.run.remote(i, seed)] = (actor, i)
-            waiting = list(busy) + list(starting)
-            if not waiting:
-                raise SimulationError("no Ray worker is left to run the remaining episodes")
+    def close(self) -> None:
+        for actor in [*self.idle, *(a for a, _ in self.busy.values()), *self.starting.values()]:
             try:
-                ready, _ = ray.wait(waiting, num_returns=1, timeout=None)
-            except GetTimeoutError:  # pragma: no cover - timeout=None
-                continue
-            ref = ready[0]
-            if ref in starting:
-                actor = starting.pop(ref)
-                try:
-                    info = ray.get(ref)
-                except lost_errors as exc:
-                    failed(actor, None, exc)
-                    continue
-                except RayTaskError as exc:
-                    raise cause(exc) from None
-                nodes[actor] = info["node"]
-                if not spec_seen:
-                    spec_seen = True
-                    if check is not None:
-                        check(RolloutSpec.from_json(info["spec"]))
-                    if on_spec:
-                        on_spec(info["spec"])
-                idle.append(actor)
-                continue
-            actor, i = busy.pop(ref)
-            try:
-                entry = ray.get(ref)
-            except lost_errors as exc:
-                failed(actor, i, exc)
-                continue
-            except RayTaskError as exc:
-                raise cause(exc) from None
-            entry["worker"] = {"ray_node": nodes.get(actor), "actor": actor_ids.get(actor)}
-            finished(entry)
-            idle.append(actor)
-        return results
-    except SimseamError:
-        raise
-    finally:
-        for actor in [*idle, *(a for a, _ in busy.values()), *starting.values()]:
-            try:
-                ray.kill(actor)
+                self.ray.kill(actor)
             except Exception:  # noqa: BLE001
                 pass
-        ray.shutdown()
