@@ -194,10 +194,33 @@ def load_manifest(path: str | Path) -> RobotSpec:
     except BackendUnavailableError as exc:
         raise BackendUnavailableError(f"{path}: field 'urdf': {exc}") from None
     urdf = read_urdf(urdf_path)
+    problems: list[str] = []
+    _check_links(m, list(urdf.links), problems)
+    joints = _joints(m, urdf, problems)
+    _check_gripper(m, joints, problems)
+    if problems:
+        raise ConfigError(f"{path}: manifest does not match its URDF {urdf_path}\n  " + "\n  ".join(problems))
+    return RobotSpec(
+        name=m.name,
+        urdf=urdf_ref,
+        base_link=m.base_link,
+        ee_link=m.tcp.name if m.tcp is not None else m.ee_link,
+        tcp=None if m.tcp is None else ToolFrameSpec(m.tcp.name, m.tcp.parent, list(m.tcp.xyz), list(m.tcp.rpy)),
+        joints=joints,
+        gripper=None if m.gripper is None else GripperFacts(tuple(j.name for j in m.joints if j.role == "gripper"),
+                                                            tuple(m.gripper.open), tuple(m.gripper.closed)),
+        sensors=[_sensor(s) for s in m.sensors],
+        kinematic_base=None if m.kinematic_base is None else _kinematic_base(m.kinematic_base),
+        action=ActionDefaults(**m.action.model_dump()),
+        description=m.description,
+        source=str(path),
+        inertia=m.inertia,
+        collision=m.collision,
+    )
 
-    problems = []
-    links = list(urdf.links)
-    movable = urdf.movable_joint_names
+
+def _check_links(m, links: list[str], problems: list[str]) -> None:
+    """The links the manifest names (base, end effector, tool parent, sensor parents) are the URDF's."""
     for field_name, link in (("base_link", m.base_link), ("ee_link", m.ee_link),
                              ("tcp.parent", m.tcp.parent if m.tcp else None)):
         if link is not None and link not in links:
@@ -205,6 +228,16 @@ def load_manifest(path: str | Path) -> RobotSpec:
     if m.tcp is not None and m.tcp.name in links:
         problems.append(f"field 'tcp.name': {m.tcp.name!r} is already a link of the URDF; name the tool frame "
                         f"differently, or use ee_link: {m.tcp.name} instead of tcp")
+    for i, s in enumerate(m.sensors):
+        if s.parent not in links:
+            problems.append(
+                f"field 'sensors.{i}.parent' ({s.name}): link {s.parent!r} is not in the URDF; its links are: {_listing(links)}"
+            )
+
+
+def _joints(m, urdf, problems: list[str]) -> list[JointSpec]:
+    """The manifest's joints with the URDF's limits, narrowed by the manifest's; each mismatch a problem."""
+    movable = urdf.movable_joint_names
     joints: list[JointSpec] = []
     for i, j in enumerate(m.joints):
         sim_name = j.sim_name or j.name
@@ -228,66 +261,33 @@ def load_manifest(path: str | Path) -> RobotSpec:
             problems.append(f"field 'joints.{i}.home' ({j.name}): {j.home:g} is outside the joint limits "
                             f"[{lower:g}, {upper:g}]")
         joints.append(JointSpec(j.name, j.role, lower, upper, velocity, sim_name, home=j.home, kp=j.kp, kd=j.kd))
-    for i, s in enumerate(m.sensors):
-        if s.parent not in links:
-            problems.append(
-                f"field 'sensors.{i}.parent' ({s.name}): link {s.parent!r} is not in the URDF; its links are: {_listing(links)}"
-            )
-    if m.gripper is not None:
-        by_name = {j.name: j for j in joints}
-        grip_joints = [j.name for j in m.joints if j.role == "gripper"]
-        for key in ("open", "closed"):
-            for k, (name, value) in enumerate(zip(grip_joints, getattr(m.gripper, key))):
-                j = by_name.get(name)
-                if j is not None and not _within(value, j.lower, j.upper):
-                    problems.append(f"field 'gripper.{key}.{k}' ({name}): {value:g} is outside the finger joint's "
-                                    f"limits [{j.lower:g}, {j.upper:g}]")
-    if problems:
-        raise ConfigError(f"{path}: manifest does not match its URDF {urdf_path}\n  " + "\n  ".join(problems))
+    return joints
 
-    gripper = None
-    if m.gripper is not None:
-        gripper = GripperFacts(tuple(j.name for j in m.joints if j.role == "gripper"), tuple(m.gripper.open),
-                               tuple(m.gripper.closed))
-    kb = None
-    if m.kinematic_base is not None:
-        k = m.kinematic_base
-        kb = KinematicBaseSpec(tuple(k.joints), k.max_linear, k.max_angular, k.height,
-                               tuple(sh.model_dump(mode="json") for sh in k.shapes))
-    sensors = [
-        SensorFacts(
-            name=s.name,
-            kind=s.kind,
-            parent=s.parent,
-            xyz=tuple(s.xyz),
-            rpy=tuple(s.rpy),
-            feature_key=s.feature_key or s.name,
-            width=s.width,
-            height=s.height,
-            fovy_deg=s.fovy_deg,
-            range_min=s.range_min,
-            range_max=s.range_max,
-            beams=s.beams,
-            fov_deg=s.fov_deg,
-        )
-        for s in m.sensors
-    ]
-    return RobotSpec(
-        name=m.name,
-        urdf=urdf_ref,
-        base_link=m.base_link,
-        ee_link=m.tcp.name if m.tcp is not None else m.ee_link,
-        tcp=None if m.tcp is None else ToolFrameSpec(m.tcp.name, m.tcp.parent, list(m.tcp.xyz), list(m.tcp.rpy)),
-        joints=joints,
-        gripper=gripper,
-        sensors=sensors,
-        kinematic_base=kb,
-        action=ActionDefaults(**m.action.model_dump()),
-        description=m.description,
-        source=str(path),
-        inertia=m.inertia,
-        collision=m.collision,
-    )
+
+def _check_gripper(m, joints: list[JointSpec], problems: list[str]) -> None:
+    """The gripper's open and closed positions lie within its finger joints' limits."""
+    if m.gripper is None:
+        return
+    by_name = {j.name: j for j in joints}
+    grip_joints = [j.name for j in m.joints if j.role == "gripper"]
+    for key in ("open", "closed"):
+        for k, (name, value) in enumerate(zip(grip_joints, getattr(m.gripper, key))):
+            j = by_name.get(name)
+            if j is not None and not _within(value, j.lower, j.upper):
+                problems.append(f"field 'gripper.{key}.{k}' ({name}): {value:g} is outside the finger joint's "
+                                f"limits [{j.lower:g}, {j.upper:g}]")
+
+
+def _kinematic_base(k) -> KinematicBaseSpec:
+    return KinematicBaseSpec(tuple(k.joints), k.max_linear, k.max_angular, k.height,
+                             tuple(sh.model_dump(mode="json") for sh in k.shapes))
+
+
+def _sensor(s) -> SensorFacts:
+    return SensorFacts(name=s.name, kind=s.kind, parent=s.parent, xyz=tuple(s.xyz), rpy=tuple(s.rpy),
+                       feature_key=s.feature_key or s.name, width=s.width, height=s.height, fovy_deg=s.fovy_deg,
+                       range_min=s.range_min, range_max=s.range_max, beams=s.beams, fov_deg=s.fov_deg)
+
 
 
 def builtin_manifests() -> dict[str, Path]:
