@@ -76,16 +76,46 @@ def planned_indices(config: dict) -> list[int] | None:
 
 def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, prefer_first: bool = False) -> dict:
     """Merge run directories into ``out`` (see the module docstring); returns the merged summary."""
-    from simseam.runner.run_dir import (CONFIG_FILE, LOG_FILE, RUN_FILES, SPEC_FILE, check_writable,
-                                        config_differences, provenance_check, read_log, rebuild_summary,
+    from simseam.runner.run_dir import (CONFIG_FILE, RUN_FILES, SPEC_FILE, check_writable, rebuild_summary,
                                         write_json_atomic)
 
     if not dirs:
         raise ConfigError("simseam merge: name at least one run directory to merge")
     out = Path(out)
+    configs, specs = _read_runs(dirs)
+    base, notes = _common_config(dirs, configs)
+    multi_task = isinstance(base.get("tasks"), list)  # simseam eval: each run's spec is its first task's
+    _check_specs(dirs, specs, multi_task)
+    merged, source = _merged_episodes(dirs, prefer_first)
+    check_writable(out)
+    held = [f for f in RUN_FILES if (out / f).exists()]
+    if held and not overwrite:
+        raise ConfigError(f"simseam merge: {out} already holds a run ({', '.join(held)}); pass --overwrite or "
+                          "choose another output directory")
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / CONFIG_FILE, base)
+    known = [s for s in specs if s is not None]
+    spec = known[0] if known else None
+    if multi_task and merged:  # the spec of the run holding the first episode: the first task's, as one run's
+        first = specs[[Path(d) for d in dirs].index(source[min(merged)])]
+        spec = first if first is not None else spec
+    if spec is not None:
+        write_json_atomic(out / SPEC_FILE, spec)
+    _write_log(out, merged)
+    summary = rebuild_summary(out, spec)
+    _missing(summary, base, merged)
+    summary["merged_from"] = [str(d) for d in dirs]
+    summary["provenance_notes"] = notes
+    write_json_atomic(out / "summary.json", summary)
+    return summary
+
+
+def _read_runs(dirs: Sequence[Path]) -> tuple[list[dict], list[dict | None]]:
+    """Each run's ``run.json`` (required) and ``spec.json`` (None when absent)."""
+    from simseam.runner.run_dir import CONFIG_FILE, SPEC_FILE
+
     configs, specs = [], []
-    for d in dirs:
-        d = Path(d)
+    for d in map(Path, dirs):
         try:
             configs.append(json.loads((d / CONFIG_FILE).read_text()))
         except (OSError, ValueError) as exc:
@@ -94,16 +124,26 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
             specs.append(json.loads((d / SPEC_FILE).read_text()))
         except (OSError, ValueError):
             specs.append(None)
+    return configs, specs
+
+
+def _common_config(dirs: Sequence[Path], configs: list[dict]) -> tuple[dict, list[str]]:
+    """The runs' one config (shards aside), or a ``ConfigError`` naming what differs; with the notes of what
+    moved without changing the episode."""
+    from simseam.runner.run_dir import config_differences, provenance_check
+
     base = {k: v for k, v in configs[0].items() if k != "shard"}
     for d, c in zip(dirs[1:], configs[1:]):
         diff = config_differences(base, {k: v for k, v in c.items() if k != "shard"})
         if diff:
             raise ConfigError(f"simseam merge: {d} ran a different config than {dirs[0]}:\n"
                               + "\n".join(f"  - {x}" for x in diff))
-    notes = [f"{d}: {note}" for d, c in zip(dirs[1:], configs[1:])  # what moved without changing the episode
+    notes = [f"{d}: {note}" for d, c in zip(dirs[1:], configs[1:])
              for note in provenance_check(configs[0], c, f"simseam merge: {d} differs from {dirs[0]} in")]
-    multi_task = isinstance(base.get("tasks"), list)  # simseam eval: each run's spec is its first task's
+    return base, notes
 
+
+def _check_specs(dirs: Sequence[Path], specs: list[dict | None], multi_task: bool) -> None:
     def comparable(spec: dict) -> dict:
         return {k: v for k, v in spec.items() if k != "task"} if multi_task else spec
 
@@ -112,6 +152,13 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
         if s is not None and comparable(s) != comparable(known[0]):
             raise ConfigError(f"simseam merge: {d}: its spec.json differs from {dirs[specs.index(known[0])]}'s "
                               "(a different simulator or robot behind the same scene file)")
+
+
+def _merged_episodes(dirs: Sequence[Path], prefer_first: bool) -> tuple[dict[int, dict], dict[int, Path]]:
+    """One entry per episode index over the runs, with the run each came from; the same index with other
+    results is a ``ConfigError`` unless ``prefer_first``."""
+    from simseam.runner.run_dir import read_log
+
     merged: dict[int, dict] = {}
     source: dict[int, Path] = {}
     for d in dirs:
@@ -125,26 +172,22 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
                                       f"({a} vs {b}); pass --prefer-first to keep the first")
                 continue
             merged[i], source[i] = e, Path(d)
-    check_writable(out)
-    held = [f for f in RUN_FILES if (out / f).exists()]
-    if held and not overwrite:
-        raise ConfigError(f"simseam merge: {out} already holds a run ({', '.join(held)}); pass --overwrite or "
-                          "choose another output directory")
-    out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / CONFIG_FILE, base)
-    spec = known[0] if known else None
-    if multi_task and merged:  # the spec of the run holding the first episode: the first task's, as one run's
-        first = specs[[Path(d) for d in dirs].index(source[min(merged)])]
-        spec = first if first is not None else spec
-    if spec is not None:
-        write_json_atomic(out / SPEC_FILE, spec)
+    return merged, source
+
+
+def _write_log(out: Path, merged: dict[int, dict]) -> None:
+    from simseam.runner.run_dir import LOG_FILE
+
     tmp = out / (LOG_FILE + ".merging")
     with open(tmp, "w") as f:
         for i in sorted(merged):
             f.write(json.dumps(merged[i]) + "\n")
         f.flush()
     tmp.replace(out / LOG_FILE)
-    summary = rebuild_summary(out, spec)
+
+
+def _missing(summary: dict, base: dict, merged: dict[int, dict]) -> None:
+    """The planned episodes no run holds (``missing``; per task for shards of ``simseam eval``)."""
     planned = planned_indices(base) or []
     summary["missing"] = [i for i in planned if i not in merged]
     tasks, per_task = base.get("tasks"), base.get("episodes_per_task")
@@ -153,7 +196,3 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
         for i in summary["missing"]:
             by_task.setdefault(str(tasks[i // per_task]), []).append(i % per_task)
         summary["missing_by_task"] = by_task
-    summary["merged_from"] = [str(d) for d in dirs]
-    summary["provenance_notes"] = notes
-    write_json_atomic(out / "summary.json", summary)
-    return summary
