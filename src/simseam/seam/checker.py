@@ -138,75 +138,13 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
     """
     problems: list[str] = []
     try:
-        spec = rollout.spec
-        if not isinstance(spec, RolloutSpec):
-            raise RolloutContractError(f"rollout.spec is a {type(spec).__name__}, not a RolloutSpec")
-        again = RolloutSpec.from_json(json.loads(json.dumps(spec.to_json())))
-        if again != spec:
-            problems.append("spec: RolloutSpec.from_json(to_json()) differs from the spec")
-        if rollout.action_dim != spec.action.dim:
-            problems.append(f"action_dim {rollout.action_dim} but spec.action has {spec.action.dim} slots")
+        spec = _checked_spec(rollout, problems)
         rng = np.random.default_rng(seed)
         actions = [_sample_action(spec, rng) for _ in range(steps)]
-        key = spec.task.success_key
-
-        def episode(request: ObsRequest | None = None, first: np.ndarray | None = None):
-            obs = rollout.reset(seed, request)
-            where = "reset" if request is None else f"reset({request})"
-            problems.extend(f"{where}: {p}" for p in observation_problems(obs, spec, request))
-            trace = [_copied(obs)]  # kept across steps: copies (a sidecar's images are views into reused slots)
-            for i, a in enumerate(actions):
-                r = rollout.step(first if (first is not None and i == 0) else a, request)
-                problems.extend(f"step {i}: {p}" for p in observation_problems(r.observation, spec, request))
-                if not isinstance(r.info.get(key), bool):
-                    problems.append(f"step {i}: info[{key!r}] is {r.info.get(key)!r}, expected a bool")
-                if r.info.get(INFO_STEPS) != i + 1:
-                    problems.append(f"step {i}: info['steps'] is {r.info.get(INFO_STEPS)!r}, expected {i + 1}")
-                diag = r.info.get(INFO_DIAGNOSTICS)
-                if not isinstance(diag, dict) or set(diag) != set(spec.task.diagnostics):
-                    problems.append(f"step {i}: info['diagnostics'] is {diag!r}, the spec declares "
-                                    f"{list(spec.task.diagnostics)}")
-                trace.append(_copied((r.observation, r.reward, r.terminated, r.truncated, r.info)))
-            return trace
-
-        first = episode()
-        # bad actions change nothing
-        rollout.reset(seed)
-        for bad, what in ((np.zeros(spec.action.dim + 1, np.float32), "a too-long action"),
-                          (np.full(spec.action.dim, np.nan, np.float32), "a NaN action")):
-            try:
-                rollout.step(bad)
-                problems.append(f"{what} was accepted; expected InvalidActionError")
-            except InvalidActionError:
-                pass
-        r = rollout.step(actions[0])
-        if not _same(r.observation, first[1][0]):
-            problems.append("a rejected action changed the episode (the next step differs from a clean run)")
-        if not _same(episode(), first):
-            problems.append("the same seed did not give the same episode")
-        # out-of-bounds actions act as their clipped value
-        big = actions[0] + np.where(np.arange(spec.action.dim) % 2 == 0, 100.0, -100.0).astype(np.float32)
-        clipped = spec.action.clip(big).astype(np.float32)
-        rollout.reset(seed)
-        big_obs = _copied(rollout.step(big).observation)
-        rollout.reset(seed)
-        r_clip = rollout.step(clipped)
-        if not _same(big_obs, r_clip.observation):
-            problems.append("an action outside the bounds did not act as spec.action.clip() of it")
-        # observation requests
-        episode(ObsRequest.state_only())
-        cams = sorted(spec.observation.images)
-        if cams:
-            episode(ObsRequest(images=frozenset(cams[:1])))
-        if spec.can(CAP_LINK_POSES):
-            episode(ObsRequest(link_poses=True))
-        frame = rollout.render()
-        if cams or spec.robot.sensors_of("rgb"):
-            if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8 and frame.ndim == 3
-                    and frame.shape[2] == 3):
-                problems.append(f"render(): expected uint8[H, W, 3], got {type(frame).__name__}")
-        elif frame is not None:
-            problems.append("render() returned a frame though the robot has no RGB camera")
+        first = _episode(rollout, spec, seed, actions, problems)
+        _check_bad_actions(rollout, spec, seed, actions, first, problems)
+        _check_clipping(rollout, spec, seed, actions[0], problems)
+        _check_requests_and_render(rollout, spec, seed, actions, problems)
     finally:
         rollout.close()
     rollout.close()  # idempotent
@@ -219,6 +157,88 @@ def check_rollout(rollout: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec
         raise RolloutContractError(f"rollout broke the seam contract ({len(problems)} problem(s)):\n"
                                    + "\n".join(f"  - {p}" for p in problems))
     return spec
+
+
+def _checked_spec(rollout: Any, problems: list[str]) -> RolloutSpec:
+    spec = rollout.spec
+    if not isinstance(spec, RolloutSpec):
+        raise RolloutContractError(f"rollout.spec is a {type(spec).__name__}, not a RolloutSpec")
+    if RolloutSpec.from_json(json.loads(json.dumps(spec.to_json()))) != spec:
+        problems.append("spec: RolloutSpec.from_json(to_json()) differs from the spec")
+    if rollout.action_dim != spec.action.dim:
+        problems.append(f"action_dim {rollout.action_dim} but spec.action has {spec.action.dim} slots")
+    return spec
+
+
+def _episode(rollout: Any, spec: RolloutSpec, seed: int, actions: list, problems: list[str],
+             request: ObsRequest | None = None) -> list:
+    """One short episode under ``request``, its observations and step results checked; its trace (copies:
+    a sidecar's images are views into reused slots)."""
+    key = spec.task.success_key
+    obs = rollout.reset(seed, request)
+    where = "reset" if request is None else f"reset({request})"
+    problems.extend(f"{where}: {p}" for p in observation_problems(obs, spec, request))
+    trace = [_copied(obs)]
+    for i, a in enumerate(actions):
+        r = rollout.step(a, request)
+        problems.extend(f"step {i}: {p}" for p in observation_problems(r.observation, spec, request))
+        if not isinstance(r.info.get(key), bool):
+            problems.append(f"step {i}: info[{key!r}] is {r.info.get(key)!r}, expected a bool")
+        if r.info.get(INFO_STEPS) != i + 1:
+            problems.append(f"step {i}: info['steps'] is {r.info.get(INFO_STEPS)!r}, expected {i + 1}")
+        diag = r.info.get(INFO_DIAGNOSTICS)
+        if not isinstance(diag, dict) or set(diag) != set(spec.task.diagnostics):
+            problems.append(f"step {i}: info['diagnostics'] is {diag!r}, the spec declares "
+                            f"{list(spec.task.diagnostics)}")
+        trace.append(_copied((r.observation, r.reward, r.terminated, r.truncated, r.info)))
+    return trace
+
+
+def _check_bad_actions(rollout: Any, spec: RolloutSpec, seed: int, actions: list, first: list,
+                       problems: list[str]) -> None:
+    """A too-long or NaN action is refused and changes nothing; the same seed gives the same episode."""
+    rollout.reset(seed)
+    for bad, what in ((np.zeros(spec.action.dim + 1, np.float32), "a too-long action"),
+                      (np.full(spec.action.dim, np.nan, np.float32), "a NaN action")):
+        try:
+            rollout.step(bad)
+            problems.append(f"{what} was accepted; expected InvalidActionError")
+        except InvalidActionError:
+            pass
+    r = rollout.step(actions[0])
+    if not _same(r.observation, first[1][0]):
+        problems.append("a rejected action changed the episode (the next step differs from a clean run)")
+    if not _same(_episode(rollout, spec, seed, actions, problems), first):
+        problems.append("the same seed did not give the same episode")
+
+
+def _check_clipping(rollout: Any, spec: RolloutSpec, seed: int, action: np.ndarray, problems: list[str]) -> None:
+    """An action outside the bounds acts as its clipped value."""
+    big = action + np.where(np.arange(spec.action.dim) % 2 == 0, 100.0, -100.0).astype(np.float32)
+    clipped = spec.action.clip(big).astype(np.float32)
+    rollout.reset(seed)
+    big_obs = _copied(rollout.step(big).observation)
+    rollout.reset(seed)
+    if not _same(big_obs, rollout.step(clipped).observation):
+        problems.append("an action outside the bounds did not act as spec.action.clip() of it")
+
+
+def _check_requests_and_render(rollout: Any, spec: RolloutSpec, seed: int, actions: list,
+                               problems: list[str]) -> None:
+    """Episodes under each kind of observation request, then ``render()``'s frame."""
+    _episode(rollout, spec, seed, actions, problems, ObsRequest.state_only())
+    cams = sorted(spec.observation.images)
+    if cams:
+        _episode(rollout, spec, seed, actions, problems, ObsRequest(images=frozenset(cams[:1])))
+    if spec.can(CAP_LINK_POSES):
+        _episode(rollout, spec, seed, actions, problems, ObsRequest(link_poses=True))
+    frame = rollout.render()
+    if cams or spec.robot.sensors_of("rgb"):
+        if not (isinstance(frame, np.ndarray) and frame.dtype == np.uint8 and frame.ndim == 3
+                and frame.shape[2] == 3):
+            problems.append(f"render(): expected uint8[H, W, 3], got {type(frame).__name__}")
+    elif frame is not None:
+        problems.append("render() returned a frame though the robot has no RGB camera")
 
 
 def check_batch_rollout(batch: Any, *, seed: int = 7, steps: int = 3) -> RolloutSpec:
