@@ -102,11 +102,6 @@ def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float) -> dic
 
 
 # ----------------------------------------------------------------------------------------------- warp
-def _sync(env) -> None:
-    if env.physics.device.is_cuda:
-        env.xp.cuda.get_current_stream().synchronize()
-
-
 def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, seed: int) -> dict[str, Any]:
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
@@ -117,13 +112,13 @@ def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, se
     rng = xp.random.RandomState(seed)  # NumPy and CuPy alike
     for _ in range(2):  # the first launches run directly, the second are captured as a CUDA graph: untimed
         env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))
-    _sync(env)
+    env.physics.synchronize()
     graphs = list(env.physics.graphs.captured)
     setup = time.perf_counter() - t0
     t1 = time.perf_counter()
     for _ in range(steps):
         env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))
-    _sync(env)
+    env.physics.synchronize()
     seconds = time.perf_counter() - t1
     env.close()
     return {"worlds": worlds, "steps": steps, "seconds": seconds, "setup_seconds": setup,

@@ -186,6 +186,7 @@ class MetaWorldRollout(BenchmarkRollout):
                                                    width=w, height=h)
         self.env.max_path_length = 10**9  # the seam truncates at max_steps; stepping on continues the physics
         self._expert = None
+        self._ml1: list | None = None  # ML1's test tasks, made on the first ml1 reset
         if config["expert"]:
             from metaworld.policies import ENV_POLICY_MAP
 
@@ -248,7 +249,7 @@ class MetaWorldRollout(BenchmarkRollout):
 
     def _ml1_test(self) -> list:
         """``metaworld.ML1(task, seed=goal_seed).test_tasks``, made once (50 resets' worth of work)."""
-        if getattr(self, "_ml1", None) is None:
+        if self._ml1 is None:
             import metaworld
 
             self._ml1 = metaworld.ML1(self.config["task"], seed=self.config["goal_seed"]).test_tasks

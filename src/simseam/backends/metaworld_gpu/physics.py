@@ -96,6 +96,9 @@ class CpuPhysics:
         force = np.where(adr >= 0, d.efc_force[np.clip(adr, 0, None)] if d.nefc else 0.0, 0.0)
         return Contacts(np.asarray(d.contact.geom[:n], dtype=np.int64).reshape(n, 2), np.zeros(n, np.int64), force)
 
+    def synchronize(self) -> None:
+        """Nothing to wait for: the CPU engine's calls return when done."""
+
     def close(self) -> None:
         pass
 
@@ -151,7 +154,7 @@ class WarpPhysics:
                 continue
             view = self.view(dst)
             view[idx] = xp.asarray(np.stack([np.asarray(s[key]).reshape(view.shape[1:]) for s in states]))
-        self._xp_done()
+        self.synchronize()
         with self._wp.ScopedDevice(self.device):
             self._launch("forward", lambda: self._mjw.forward(self.m, self.d))
         self._place_static_geoms(idx)
@@ -175,15 +178,16 @@ class WarpPhysics:
         v(self.d.geom_xpos)[rows, cols] = xpos + xp.einsum("nkij,nkj->nki", rot, gpos)
         v(self.d.geom_xmat)[rows, cols] = xp.matmul(rot, quat_to_matrix(xp, gquat)).reshape(
             v(self.d.geom_xmat)[rows, cols].shape)
-        self._xp_done()
+        self.synchronize()
 
     def _launch(self, name: str, fn) -> None:
         """Run ``fn`` (device launches only): with ``graph``, on CUDA, as one captured graph (``CudaGraphs``;
         the resets write the same arrays in place, so a captured graph stays valid)."""
         self.graphs.launch(name, fn)
 
-    def _xp_done(self) -> None:
-        """Wait for what CuPy wrote into the device arrays before Warp reads them (CuPy's stream)."""
+    def synchronize(self) -> None:
+        """Wait for what CuPy wrote into the device arrays (CuPy's stream): before Warp reads them, and before a
+        timer stops."""
         if self.device.is_cuda:
             self.xp.cuda.get_current_stream().synchronize()
 
@@ -193,7 +197,7 @@ class WarpPhysics:
         self.view(self.d.ctrl)[...] = ctrl
 
     def advance(self, substeps: int) -> None:
-        self._xp_done()
+        self.synchronize()
         with self._wp.ScopedDevice(self.device):
             self._launch(f"advance{substeps}", lambda: self._advance(substeps))
             self._wp.synchronize_device(self.device)
