@@ -138,18 +138,50 @@ def run_jobs(args, tasks: list[str]) -> dict[str, Any]:
 
     parts = args.out.with_suffix(".parts")
     parts.mkdir(parents=True, exist_ok=True)
+    if not args.resume:  # --overwrite: an earlier run's parts are not this run's
+        for stale in parts.glob("part*.json"):
+            stale.unlink()
+    done = _finished(args)
+    todo = [t for t in tasks if t not in done]
+    first = len(list(parts.glob("part*.json")))  # a resumed run's parts come after the kept ones
     procs = []
-    for j in range(min(args.jobs, len(tasks))):
-        argv = [sys.executable, __file__, "--tasks", ",".join(tasks[j::args.jobs]), "--seeds", args.seeds,
-                "--steps", str(args.steps), "--out", str(parts / f"part{j}.json"), "--overwrite"]
+    for j in range(min(args.jobs, len(todo))):
+        argv = [sys.executable, __file__, "--tasks", ",".join(todo[j::args.jobs]), "--seeds", args.seeds,
+                "--steps", str(args.steps), "--out", str(parts / f"part{first + j}.json"), "--overwrite"]
         procs.append(subprocess.Popen(argv + (["--device", args.device] if args.device else [])))
     failed = [p.args[3] for p in procs if p.wait() != 0]
-    merged: dict[str, Any] = {}
-    for part in sorted(parts.glob("part*.json")):
-        merged.update(json.loads(part.read_text())["tasks"])
+    merged = {**done, **_parts(parts)}
     if failed:
         print(f"jobs failed for tasks {failed}; their finished tasks are kept", file=sys.stderr)
     return {t: merged[t] for t in tasks if t in merged}
+
+
+def _parts(parts: Path) -> dict[str, Any]:
+    merged: dict[str, Any] = {}
+    for part in sorted(parts.glob("part*.json")):
+        merged.update(json.loads(part.read_text())["tasks"])
+    return merged
+
+
+def _finished(args) -> dict[str, Any]:
+    """``--resume``: the tasks already on disk (the output and, with ``--jobs``, its parts) for the same
+    seeds, steps and device; they are kept and not run again."""
+    if not args.resume:
+        return {}
+    found = {}
+    if args.out.exists():
+        doc = json.loads(args.out.read_text())
+        if (doc["seeds"], doc["steps"], doc["device"]) != (args.seeds, args.steps, args.device):
+            raise SystemExit(f"{args.out}: made with seeds {doc['seeds']}, steps {doc['steps']}, device "
+                             f"{doc['device']}; --resume needs the same")
+        found.update(doc["tasks"])
+    parts = args.out.with_suffix(".parts")
+    if parts.is_dir():
+        for part in sorted(parts.glob("part*.json")):
+            doc = json.loads(part.read_text())
+            if (doc["seeds"], doc["steps"], doc["device"]) == (args.seeds, args.steps, args.device):
+                found.update(doc["tasks"])
+    return found
 
 
 def _seeds(text: str) -> list[int]:
@@ -165,25 +197,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default=None, help="a Warp device (cuda:0, cpu); default Warp's preferred one")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the tasks already in --out (and its .parts/) for the same seeds, steps and device; run the rest")
     ap.add_argument("--jobs", type=int, default=1,
                     help="processes, each taking every J-th task with its own native worker (merged at the end)")
     args = ap.parse_args(argv)
-    if args.out.exists() and not args.overwrite:
-        print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
+    if args.out.exists() and not (args.overwrite or args.resume):
+        print(f"{args.out} exists; pass --overwrite to replace it or --resume to finish it", file=sys.stderr)
         return 2
     from simseam.backends.metaworld_gpu.tasks import OBJECTS
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
     seeds = _seeds(args.seeds)
-    results: dict[str, Any] = {}
+    results: dict[str, Any] = _finished(args) if args.jobs <= 1 else {}
     if args.jobs > 1:
         results = run_jobs(args, tasks)
         write(args, results, final=len(results) == len(tasks))
         print(f"wrote {args.out}")
         return 0 if len(results) == len(tasks) else 1
     with NativeWorker() as worker:
-        for task in tasks:
+        for task in [t for t in tasks if t not in results]:
             results[task] = one_task(worker, task, seeds, args.steps, args.device)
             r = results[task]
             print(f"{task:28s} success native {sum(r['native_success'])} cpu {sum(r['cpu_success'])} "

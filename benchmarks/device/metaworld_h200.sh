@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The Meta-World-on-Warp measurements on the lent GPU machine, after metaworld_upload.sh's install (one call):
 #   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first)
-#   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes)
+#   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes; a CUDA smoke
+#     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off)
 # Logs and JSON go to $OUT (the device tool brings them back).
 set -uo pipefail
 source /tmp/mw/env.sh
@@ -25,10 +26,20 @@ case "${1:-}" in
       --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs 8 \
       --out "$OUT/throughput_mt50x50.json" --overwrite 2>&1 | quiet > "$OUT/mt50.log"; tail -5 "$OUT/mt50.log"
     ;;
-  fidelity)
-    timeout "${FID_LIMIT:-540}" python3 benchmarks/metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --steps 500 \
-      --device cuda:0 --jobs 15 --out "$OUT/metaworld_warp_fidelity.json" --overwrite 2>&1 | quiet > "$OUT/fidelity.log"
-    tail -8 "$OUT/fidelity.log"
+  fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
+    mkdir -p /tmp/mwfid; FID=/tmp/mwfid/metaworld_warp_fidelity.json
+    if [ -z "${FID_RESUME:-}" ]; then  # a CUDA smoke first (it compiles the kernels once for the 15 jobs); if it
+      # hangs, a watchdog sends SIGABRT and faulthandler prints where every process of it waits
+      ( sleep "${SMOKE_LIMIT:-150}"; pkill -ABRT -f 'metaworld_gpu.native|metaworld_warp_fidelity' ) & wd=$!
+      PYTHONFAULTHANDLER=1 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,drawer-close-v3 --seeds 0:4 \
+        --steps 60 --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -40
+      kill "$wd" 2>/dev/null
+      [ -s "$OUT/smoke_fidelity.json" ] || { echo "smoke failed: no fidelity run"; exit 1; }
+    fi
+    timeout "${FID_LIMIT:-400}" python3 benchmarks/metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --steps 500 \
+      --device cuda:0 --jobs "${FID_JOBS:-15}" --out "$FID" --resume 2>&1 | quiet >> /tmp/mwfid/fidelity.log
+    cp -r /tmp/mwfid/. "$OUT/"; tail -8 /tmp/mwfid/fidelity.log
+    ls /tmp/mwfid/metaworld_warp_fidelity.parts | wc -l
     ;;
   *) echo "usage: $0 throughput | fidelity" >&2; exit 2 ;;
 esac
