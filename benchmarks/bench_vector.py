@@ -72,6 +72,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
+from cpu_facts import CpuWindow, topology  # noqa: E402
 from simseam.policies.batch import PolicyBatch  # noqa: E402
 from simseam.runner.vector import VectorEnv  # noqa: E402
 
@@ -440,11 +441,12 @@ def _bare_run(procs, ready, go, out) -> tuple[float, int]:
 
 
 def machine_facts() -> dict:
-    """Where a benchmark ran: cores, platform, Python, the GL backend, the load, the GPU (if any)."""
+    """Where a benchmark ran: the CPU topology (``cpu_facts.topology``: model, usable CPUs, physical cores,
+    SMT siblings, hypervisor, governor), the GL backend, the load, the GPU (if any)."""
     import subprocess
 
-    machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), "platform": platform.platform(),
-               "python": platform.python_version(), "mujoco_gl": os.environ.get("MUJOCO_GL"), "load": os.getloadavg()}
+    machine = {"cpus": os.cpu_count(), "affinity": len(os.sched_getaffinity(0)), **topology(),
+               "mujoco_gl": os.environ.get("MUJOCO_GL"), "load": os.getloadavg()}
     try:
         gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
                              text=True, timeout=10)
@@ -496,14 +498,19 @@ def main() -> None:
                 for (c, mode, renderer) in points:
                     if c != case:
                         continue
-                    if mode == "bare":
-                        r = run_bare(case, n, args.steps, episodes)
-                    elif mode == "local":
-                        r = run_local(case, n, args.steps, episodes)
-                    else:
-                        r = run_vector(case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
+                    with CpuWindow() as window:
+                        if mode == "bare":
+                            r = run_bare(case, n, args.steps, episodes)
+                        elif mode == "local":
+                            r = run_local(case, n, args.steps, episodes)
+                        else:
+                            r = run_vector(case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
+                    r["cpu"] = window.facts()
                     measured.setdefault((case, mode, renderer, n), []).append(r)
-                    print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s",
+                    c = r["cpu"]
+                    print(f"  {case} {mode} {renderer} N={n}: {r['env_steps'] / r['wall_s']:.0f} env-steps/s  "
+                          f"(cpus busy {c['busy_share']:.2f}, stolen {c['steal_share']:.3f}, others "
+                          f"{c['others_cpu_share']:.2f}, {c['mhz_end']} MHz, parent on {c['parent_cpus']})",
                           file=sys.stderr, flush=True)
             if args.profile and n == max(args.n):
                 for (c, mode, renderer) in points:

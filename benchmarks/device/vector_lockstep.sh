@@ -48,6 +48,8 @@ case "$cmd" in
     . "$ROOT/benchmarks/device/sides.sh"; archive_sides "$ROOT" "$BEFORE" "$AFTER" "$DIR" bench_vector.py
     (cd "$ROOT" && git show "$AFTER:benchmarks/bench_idle_step.py" > "$DIR/bench_idle_step.py" 2>/dev/null) \
       || rm -f "$DIR/bench_idle_step.py"  # (grid's last part; older revisions have none)
+    (cd "$ROOT" && git show "$AFTER:benchmarks/cpu_facts.py" > "$DIR/cpu_facts.py" 2>/dev/null) \
+      || rm -f "$DIR/cpu_facts.py"  # (bench_vector's machine facts; older revisions have none)
     "$PY" - "$DIR" <<'PY'
 import json, shutil, sys
 from pathlib import Path
