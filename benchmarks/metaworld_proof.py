@@ -97,18 +97,12 @@ def _eval(policy: str, task: str, seed: int, episodes: int, out: Path, device: s
             "failed_seeds": sorted(e["seed"] for e in eps if not e["success"]), "seconds": round(seconds, 1)}
 
 
-def prove(task: str, recipe: Recipe, eval_seed: int, episodes: int, work: Path, train_s: float,
-          device: str) -> dict:
-    """Collect, train and evaluate one task (and the expert on the same seeds); returns its row of the report."""
-    if eval_seed < recipe.demos:
-        raise SystemExit(f"--eval-seed {eval_seed} overlaps the demonstration seeds 0:{recipe.demos}")
-    scene = work / f"{task}.yaml"
-    scene.write_text(scene_yaml(task))
-    data, ckpt = work / f"{task}_data", work / f"{task}_act"
-    log = work / f"{task}.log"
+def collect_and_train(task: str, recipe: Recipe, scene: Path, data: Path, ckpt: Path, train_s: float, device: str,
+                      log: Path) -> tuple[float, float]:
+    """Phases 1 and 2 for one task: the expert's demonstrations into ``data``, ACT trained into ``ckpt``;
+    their wall seconds."""
     collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(recipe.demos),
                          "--seed", "0", "--no-cameras", "--out", str(data), "--overwrite", log=log)
-    info = json.loads((data / "meta" / "info.json").read_text())
     train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                           "--workers", "0", "--device", device, "--no-vae",
                           "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
@@ -118,6 +112,20 @@ def prove(task: str, recipe: Recipe, eval_seed: int, episodes: int, work: Path, 
                           *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
                           "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
                           "--encoder-layers", str(recipe.encoder_layers), log=log)
+    return collect_s, train_wall
+
+
+def prove(task: str, recipe: Recipe, eval_seed: int, episodes: int, work: Path, train_s: float,
+          device: str) -> dict:
+    """Collect, train and evaluate one task (and the expert on the same seeds); returns its row of the report."""
+    if eval_seed < recipe.demos:
+        raise SystemExit(f"--eval-seed {eval_seed} overlaps the demonstration seeds 0:{recipe.demos}")
+    scene = work / f"{task}.yaml"
+    scene.write_text(scene_yaml(task))
+    data, ckpt = work / f"{task}_data", work / f"{task}_act"
+    log = work / f"{task}.log"
+    collect_s, train_wall = collect_and_train(task, recipe, scene, data, ckpt, train_s, device, log)
+    info = json.loads((data / "meta" / "info.json").read_text())
     training = json.loads((ckpt / "training.json").read_text())
     policy = _eval(f"lerobot:{ckpt}", task, eval_seed, episodes, work / f"{task}_eval", device, log)
     expert = _eval("scripted", task, eval_seed, episodes, work / f"{task}_expert", device, log)
