@@ -10,11 +10,12 @@ Per task:
    train``); a checkpoint already in ``--work`` from that recipe (``<task>_act/training.json``) is reused;
 2. ``simseam eval metaworld_mt10 --tasks <task> --policy lerobot:<ckpt> --seed S --episodes E`` on the CPU
    backend and with ``--engine mujoco_warp --sim-device D`` (MT1 variations ``seed % 50``, 500 steps);
-3. paired by seed (``simseam compare``'s statistics): success on both, the same success, the same step
-   count, exact McNemar, the Newcombe interval of the difference.
-
-The CPU backend is native Meta-World on MuJoCo 3.3, the port MuJoCo 4.0: these pairs hold the version gap and
-the engine gap together. Writes JSON after every task (one entry per task under ``tasks``); an existing file
+3. the port on CPU MuJoCo of the port's version (``MetaWorldBatchRollout(engine="mujoco")``, one world, the
+   same policy code, episode for episode as ``simseam eval`` runs them: 500 steps or success);
+4. paired by seed (``simseam compare``'s statistics): success on both, the same success, the same step
+   count, exact McNemar, the Newcombe interval of the difference; for three pairs: ``overall`` (the CPU
+   backend vs Warp), ``version`` (the CPU backend, native Meta-World on its pinned MuJoCo 3.3, vs the port on
+   CPU MuJoCo 4.0) and ``engine`` (the port on CPU MuJoCo 4.0 vs the port on Warp: the same MuJoCo version). Writes JSON after every task (one entry per task under ``tasks``); an existing file
 is kept unless ``--overwrite``.
 """
 
@@ -56,11 +57,34 @@ def evaluate(task: str, ckpt: Path, seed: int, episodes: int, out: Path, engine_
     return json.loads((out / "summary.json").read_text())
 
 
-def paired(cpu: dict, warp: dict) -> dict[str, Any]:
-    from simseam.runner.compare import mcnemar_exact, paired_difference_ci
+def port_cpu_episodes(task: str, ckpt: Path, seed: int, episodes: int) -> list[dict]:
+    """The port on CPU MuJoCo (its version), one world, the policy as ``simseam eval`` builds it; per episode
+    its seed, success (at any step) and steps (to success, else ``max_path_length``)."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.policies.batch import make_policy_batch
 
-    a = {e["seed"]: e for e in cpu["episodes"]}
-    b = {e["seed"]: e for e in warp["episodes"]}
+    out = []
+    config = {"task": task, "variation": "mt1", "max_steps": 500}
+    with MetaWorldBatchRollout.open(config, 1, engine="mujoco") as batch:
+        policy = make_policy_batch(f"lerobot:{ckpt}", 1, device="cpu")
+        for s in range(seed, seed + episodes):
+            policy.reset(0, batch.spec)
+            obs, done, steps = batch.reset([0], [s]), False, 0
+            while not done:
+                r = batch.step([0], policy.act_batch([0], obs))
+                obs, steps = r.observations, steps + 1
+                done = bool(r.success[0] or r.truncated[0])
+            out.append({"seed": s, "success": bool(r.success[0]), "steps": steps})
+        policy.close()
+    return out
+
+
+def paired(first: list[dict], second: list[dict], names: tuple[str, str]) -> dict[str, Any]:
+    """Two runs' episodes (seed, success, steps) paired by seed."""
+    from simseam.runner.compare import mcnemar_exact, paired_difference_ci
+    from simseam.runner.summary import wilson_interval as wilson
+
+    a, b = {e["seed"]: e for e in first}, {e["seed"]: e for e in second}
     seeds = sorted(a)
     if seeds != sorted(b):
         raise SystemExit(f"the two runs hold different seeds: {seeds} vs {sorted(b)}")
@@ -68,11 +92,11 @@ def paired(cpu: dict, warp: dict) -> dict[str, Any]:
     only_a = sum(x and not y for x, y in zip(sa, sb))
     only_b = sum(y and not x for x, y in zip(sa, sb))
     both = sum(x and y for x, y in zip(sa, sb))
-    return {"seeds": seeds, "cpu_success": sa, "warp_success": sb,
-            "cpu_steps": [a[s]["steps"] for s in seeds], "warp_steps": [b[s]["steps"] for s in seeds],
-            "cpu_rate_wilson95": cpu["per_task"][cpu["episodes"][0]["task"]]["success_rate_wilson95"],
-            "warp_rate_wilson95": warp["per_task"][warp["episodes"][0]["task"]]["success_rate_wilson95"],
-            "same_success": sum(x == y for x, y in zip(sa, sb)),
+    x, y = names
+    return {x + "_success": sa, y + "_success": sb,
+            x + "_steps": [a[s]["steps"] for s in seeds], y + "_steps": [b[s]["steps"] for s in seeds],
+            x + "_rate_wilson95": wilson(sum(sa), len(seeds)), y + "_rate_wilson95": wilson(sum(sb), len(seeds)),
+            "same_success": sum(p == q for p, q in zip(sa, sb)),
             "same_steps": sum(a[s]["steps"] == b[s]["steps"] for s in seeds),
             "mcnemar_p": mcnemar_exact(only_a, only_b),
             "difference_ci95": paired_difference_ci(both, only_a, only_b, len(seeds) - both - only_a - only_b)}
@@ -105,10 +129,17 @@ def main() -> int:
         cpu = evaluate(task, ckpt, args.seed, args.episodes, args.work / f"{task}_eval", [], log)
         warp = evaluate(task, ckpt, args.seed, args.episodes, args.work / f"{task}_eval_warp",
                         ["--engine", "mujoco_warp", "--sim-device", args.sim_device], log)
-        doc["tasks"][task] = row = {**facts, **paired(cpu, warp)}
-        print(f"{task:24s} cpu {sum(row['cpu_success'])}/{args.episodes}  warp {sum(row['warp_success'])}/"
-              f"{args.episodes}  same success {row['same_success']}  same steps {row['same_steps']}  "
-              f"McNemar p {row['mcnemar_p']:.3g}", flush=True)
+        port = port_cpu_episodes(task, ckpt, args.seed, args.episodes)
+        cpu, warp = cpu["episodes"], warp["episodes"]
+        doc["tasks"][task] = row = {**facts, "seeds": sorted(e["seed"] for e in cpu),
+                                    "overall": paired(cpu, warp, ("cpu_backend", "warp")),
+                                    "version": paired(cpu, port, ("cpu_backend", "port_cpu")),
+                                    "engine": paired(port, warp, ("port_cpu", "warp"))}
+        o, v, e = row["overall"], row["version"], row["engine"]
+        print(f"{task:24s} cpu backend {sum(o['cpu_backend_success'])}  port on CPU MuJoCo {sum(v['port_cpu_success'])}"
+              f"  warp {sum(o['warp_success'])} /{args.episodes}   same success: version {v['same_success']} "
+              f"engine {e['same_success']}   same steps: version {v['same_steps']} engine {e['same_steps']}  "
+              f"McNemar p: version {v['mcnemar_p']:.3g} engine {e['mcnemar_p']:.3g}", flush=True)
         tmp = args.json.with_suffix(".partial")
         tmp.write_text(json.dumps(doc, indent=1))
         tmp.replace(args.json)
