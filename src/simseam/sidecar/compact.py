@@ -28,6 +28,13 @@ each keeps its template). Replies the client drops (their request timed out) sti
 and where, never anything else; sizes come from the template the client validated when it was
 announced, never from the frame.
 
+The templates themselves are not tied to a frame: ``signature(body)`` (the sending side: the structure,
+the scalars, the arrays) and ``learn(body)`` (the receiving side: a ``Skeleton`` that unpacks the scalars
+and rebuilds a body around them and the arrays) are what the vector runner's workers use too
+(``simseam.runner.vector``), with their replies in a shared-memory block instead of a frame. There a
+tuple and a numpy scalar come back as they went (the signature marks them: ``(``, ``n``); here, as
+msgpack gives them.
+
 Imports: the standard library, numpy and ``simseam.sidecar.wire`` (numpy + msgpack) only.
 """
 
@@ -99,7 +106,7 @@ def decode_step(frames: list) -> tuple[np.ndarray, bool]:
 
 # ------------------------------------------------------------------------ sidecar side
 class _NoTemplate(Exception):
-    """The body holds something no template describes (it travels as plain msgpack)."""
+    """The body holds something no template describes (it travels the general way)."""
 
 
 _DTYPE_STRS: dict = {}  # dtype -> its wire string, or None when it cannot travel as it is (dtype.str is slow)
@@ -162,28 +169,31 @@ def _walk(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
     elif t is list or t is tuple:
         if depth >= MAX_DEPTH:
             raise _NoTemplate
-        sig("[")
+        sig("[" if t is list else "(")
         sig(len(v))
         for x in v:
             _walk(x, sig, scal, arrs, depth + 1)
     elif isinstance(v, np.generic):
-        item = v.item()  # what msgpack sends
+        item = v.item()  # what msgpack sends; a receiver that learnt a numpy scalar makes one again
         if type(item) not in (float, bool, int, str, bytes):
             raise _NoTemplate
+        sig("n")
+        sig(v.dtype.str)
         _walk(item, sig, scal, arrs, depth)
     else:
         raise _NoTemplate
 
 
 def signature(body: Any) -> tuple[tuple, list, list] | None:
-    """``(signature, scalars, arrays)`` of a reply body, the leaves in body order; None when it
-    cannot be templated (a key that is not a str, a type msgpack would not send as it is, an
-    array that ``wire.encode`` must convert first): such a body travels as plain msgpack.
+    """``(signature, scalars, arrays)`` of a reply body, the leaves in body order; None when it cannot
+    be templated (a key that is not a str, a type neither msgpack nor a ``Skeleton`` takes as it is, an
+    array whose dtype must be converted first).
 
     The signature is a flat tuple that reads one way only (a prefix code), so two bodies of equal
-    signatures have one structure: a value is ``{`` + a dict's number of keys + (key, value) each,
-    ``[`` + a list's length + each value, a scalar code (``d``, ``q``, ``?``), ``c`` + a constant
-    (str, bytes, None), or an array's dtype string (never one of those markers) + its shape."""
+    signatures have one structure: a value is ``{`` + a dict's number of keys + (key, value) each, ``[``
+    (a list) or ``(`` (a tuple) + its length + each value, a scalar code (``d``, ``q``, ``?``), ``c`` + a
+    constant (str, bytes, None), ``n`` + a numpy scalar's dtype + its value's, or an array's dtype string
+    (never one of those markers) + its shape."""
     sig: list = []
     scal: list = []
     arrs: list = []
@@ -202,7 +212,7 @@ def ring_plan(ring: Any, nbytes: list[int]) -> list[int | None]:
     for n in nbytes:
         if ring is not None and n >= ring.threshold and pos + n <= ring.slot_bytes:
             out.append(pos)
-            pos = (pos + n + ALIGN - 1) // ALIGN * ALIGN
+            pos = (pos + n + ALIGN - 1) // ALIGN * ALIGN  # (SlotRing.put's alignment)
         else:
             out.append(None)
     return out
@@ -285,7 +295,7 @@ class ReplyTemplates:
 
 
 # ------------------------------------------------------------------------- client side
-_VALUE, _CONST, _DICT, _LIST = range(4)
+_VALUE, _CONST, _DICT, _LIST, _TUPLE, _CAST = range(6)
 
 
 def _build_dict(node: tuple, vals: list) -> dict:
@@ -298,7 +308,7 @@ def _build_dict(node: tuple, vals: list) -> dict:
         elif kind == _DICT:
             out[k] = _build_dict(x, vals)
         else:
-            out[k] = _build_list(x, vals)
+            out[k] = _build_other(kind, x, vals)
     return out
 
 
@@ -312,111 +322,144 @@ def _build_list(node: tuple, vals: list) -> list:
         elif kind == _DICT:
             out.append(_build_dict(x, vals))
         else:
-            out.append(_build_list(x, vals))
+            out.append(_build_other(kind, x, vals))
     return out
 
 
-class _RecvTemplate:
-    """Client side: how to read a compact frame of one template, and rebuild its body."""
+def _build_other(kind: int, x: Any, vals: list) -> Any:
+    if kind == _LIST:
+        return _build_list(x, vals)
+    if kind == _TUPLE:
+        return tuple(_build_list(x, vals))
+    index, numpy_type = x  # _CAST: a numpy scalar
+    return numpy_type(vals[index])
 
-    __slots__ = ("tid", "scalars", "inline", "ring", "ring_end", "slot", "nbytes", "root")
+
+class Skeleton:
+    """The receiving side of a template, learnt from one body of its signature (``learn``): ``scalars``
+    (a ``struct.Struct`` of the body's scalars in body order: ``<d`` float, ``<q`` int, ``?`` bool),
+    ``arrays`` (``(dtype, shape)`` of its arrays in body order) and ``build(values)``: a fresh body of
+    that structure from the scalars followed by the arrays (fresh dicts, lists and tuples each time:
+    callers may change them)."""
+
+    __slots__ = ("scalars", "arrays", "root")
+
+    def __init__(self, scalars: struct.Struct, arrays: list, root: tuple):
+        self.scalars, self.arrays, self.root = scalars, arrays, root
+
+    def build(self, vals: list) -> Any:
+        kind, x = self.root
+        if kind == _DICT:
+            return _build_dict(x, vals)
+        if kind == _VALUE:
+            return vals[x]
+        if kind == _CONST:
+            return x
+        return _build_other(kind, x, vals)
+
+
+def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray]]:
+    """The ``Skeleton`` of ``body``'s template, and the body's arrays in body order (for the caller to
+    tell where each one travels). ``WireError`` naming ``where`` on a value no template describes."""
+    codes: list[str] = []
+    arrays: list[np.ndarray] = []
+
+    def leaf(v: Any) -> tuple:  # (kind, x); a value's x: ("s" | "a", its index among scalars | arrays)
+        t = type(v)
+        if t is dict:
+            return _DICT, tuple((k, *leaf(x)) for k, x in v.items())
+        if t is list or t is tuple:
+            return _LIST if t is list else _TUPLE, tuple(leaf(x) for x in v)
+        if t in _CODE:
+            codes.append(_CODE[t])
+            return _VALUE, ("s", len(codes) - 1)
+        if t is np.ndarray:
+            arrays.append(v)
+            return _VALUE, ("a", len(arrays) - 1)
+        if t is str or t is bytes or v is None:
+            return _CONST, v
+        if isinstance(v, np.generic):
+            item = v.item()
+            if type(item) in _CODE:
+                return _CAST, (leaf(item)[1], t)
+            if type(item) in (str, bytes):
+                return _CONST, v
+        raise WireError(f"{where}: a value of type {t.__name__} cannot be templated")
+
+    root = leaf(body)
+    n_s = len(codes)
+
+    def index(node: tuple) -> tuple:  # ("s" | "a", k) -> the index in [*scalars, *arrays]
+        kind, x = node
+        if kind == _VALUE:
+            return kind, x[1] + (0 if x[0] == "s" else n_s)
+        if kind == _CAST:
+            return kind, (index((_VALUE, x[0]))[1], x[1])
+        if kind == _DICT:
+            return kind, tuple((k, *index((kk, xx))) for k, kk, xx in x)
+        if kind in (_LIST, _TUPLE):
+            return kind, tuple(index(e) for e in x)
+        return node
+
+    skeleton = Skeleton(struct.Struct("<" + "".join(codes)), [(a.dtype, a.shape) for a in arrays], index(root))
+    return skeleton, arrays
+
+
+class _RecvTemplate:
+    """Client side: how to read a compact frame of one template (its ``Skeleton``: the scalars, then
+    each array inline in the frame or in the ring slot), and rebuild its body."""
+
+    __slots__ = ("tid", "skeleton", "scalars", "arrays", "ring", "ring_end", "nbytes")
 
     def __init__(self, tid: int, body: Any, arrays: list, shm: list, shm_specs: list):
         self.tid = tid
         where = f"template {tid}"
-        inline_at = {id(a): i for i, a in enumerate(arrays)}
+        self.skeleton, in_body = learn(body, where)
+        self.scalars = self.skeleton.scalars
         shm_at = {id(a): i for i, a in enumerate(shm)}
-        codes: list[str] = []
-        inline: list = []  # (dtype, shape, count, nbytes) in body order
-        ring: list = []  # (dtype, shape, count, offset in the slot)
+        inline_at = {id(a) for a in arrays}
         slots_used = set()
-
-        def leaf(v: Any) -> tuple:
-            t = type(v)
-            if t is dict:
-                return _DICT, tuple((k, *leaf(x)) for k, x in v.items())
-            if t is list:
-                return _LIST, tuple(leaf(x) for x in v)
-            if t in _CODE:
-                codes.append(_CODE[t])
-                return _VALUE, ("s", len(codes) - 1)
-            if t is np.ndarray:
-                i = inline_at.get(id(v))
-                if i is not None:
-                    inline.append((v.dtype, v.shape, v.size, v.nbytes))
-                    return _VALUE, ("i", len(inline) - 1)
-                j = shm_at.get(id(v))
-                if j is None:  # pragma: no cover - decode's arrays are its frames' or its slots'
-                    raise WireError(f"{where}: an array that is neither inline nor in the ring")
+        pos = REPLY_HEAD.size + self.scalars.size
+        self.arrays = []  # per array, in body order: (dtype, shape, count, offset, reshape, in the ring)
+        self.ring_end = 0
+        for v in in_body:
+            j = shm_at.get(id(v))
+            if j is not None:
                 _dt, _shape, slot, off = shm_specs[j]
                 slots_used.add(slot)
-                ring.append((v.dtype, v.shape, v.size, off, v.nbytes))
-                return _VALUE, ("r", len(ring) - 1)
-            if t is str or t is bytes or v is None:
-                return _CONST, v
-            raise WireError(f"{where}: a value of type {t.__name__} cannot be templated")
-
-        root = leaf(body)
+                self.ring_end = max(self.ring_end, off + v.nbytes)
+            elif id(v) in inline_at:
+                off = pos = _align8(pos)
+                pos += v.nbytes
+            else:  # pragma: no cover - decode's arrays are its frames' or its slots'
+                raise WireError(f"{where}: an array that is neither inline nor in the ring")
+            self.arrays.append((v.dtype, v.shape, v.size, off, len(v.shape) != 1, j is not None))
         if len(slots_used) > 1:
             raise WireError(f"{where}: its ring arrays lie in {len(slots_used)} slots (one reply, one slot)")
-        self.slot = next(iter(slots_used)) if slots_used else None
-        self.scalars = struct.Struct("<" + "".join(codes))
-        n_s, n_i = len(codes), len(inline)
-        pos = REPLY_HEAD.size + self.scalars.size
-        self.inline = []
-        for dtype, shape, count, nbytes in inline:
-            pos = _align8(pos)
-            self.inline.append((dtype, shape, count, pos, len(shape) != 1))
-            pos += nbytes
+        self.ring = bool(slots_used)
         self.nbytes = pos
-        self.ring = [(dtype, shape, count, off, len(shape) != 1) for dtype, shape, count, off, _n in ring]
-        self.ring_end = max((off + n for _d, _s, _c, off, n in ring), default=0)
-
-        def index(node: tuple) -> tuple:  # ("s"|"i"|"r", k) -> the index in [*scalars, *inline, *ring]
-            kind, x = node
-            if kind == _VALUE:
-                space, k = x
-                return kind, k + (0 if space == "s" else n_s if space == "i" else n_s + n_i)
-            if kind == _DICT:
-                return kind, tuple((k, *index((kk, xx))) for k, kk, xx in x)
-            if kind == _LIST:
-                return kind, tuple(index(e) for e in x)
-            return node
-
-        self.root = index(root)
 
     def read(self, frame: Any, slot: int, slots: list | None) -> Any:
         where = f"compact reply (template {self.tid})"
         if len(frame) != self.nbytes:
             raise WireError(f"{where}: {len(frame)} bytes, the template needs {self.nbytes}")
-        vals = list(self.scalars.unpack_from(frame, REPLY_HEAD.size))
-        for dtype, shape, count, off, reshape in self.inline:
-            a = np.frombuffer(frame, dtype, count, off)
-            if reshape:
-                a = a.reshape(shape)
-            a.flags.writeable = False
-            vals.append(a)
+        mem = None
         if self.ring:
             if slots is None or slot >= len(slots):
                 raise WireError(f"{where}: slot {slot} is out of range (the ring has {len(slots or ())} slots)")
             mem = slots[slot]
             if self.ring_end > mem.nbytes:
                 raise WireError(f"{where}: its ring arrays end at byte {self.ring_end}, slot {slot} has {mem.nbytes}")
-            for dtype, shape, count, off, reshape in self.ring:
-                a = np.frombuffer(mem, dtype, count, off)
-                if reshape:
-                    a = a.reshape(shape)
-                a.flags.writeable = False
-                vals.append(a)
         elif slot:
             raise WireError(f"{where}: names ring slot {slot} but the template has no ring arrays")
-        kind, x = self.root
-        if kind == _DICT:
-            return _build_dict(x, vals)
-        if kind == _LIST:
-            return _build_list(x, vals)
-        return vals[x] if kind == _VALUE else x
-
+        vals = list(self.scalars.unpack_from(frame, REPLY_HEAD.size))
+        for dtype, shape, count, off, reshape, in_ring in self.arrays:
+            a = np.frombuffer(mem if in_ring else frame, dtype, count, off)
+            if reshape:
+                a = a.reshape(shape)
+            a.flags.writeable = False
+            vals.append(a)
+        return self.skeleton.build(vals)
 
 class ReplyDecoder:
     """Client side, one per local connection that negotiated compact messages: ``decode(frames)``
