@@ -65,8 +65,9 @@ MAX_SPIN_US = 20_000
 SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 
 
-def _align(n: int) -> int:
-    return (n + ALIGN - 1) // ALIGN * ALIGN
+def align(n: int, to: int = ALIGN) -> int:
+    """``n`` rounded up to a multiple of ``to`` (by default the ring's alignment, 64 bytes)."""
+    return (n + to - 1) // to * to
 
 
 def slot_bytes_for(spec_json: dict, threshold: int = DEFAULT_THRESHOLD) -> int:
@@ -90,7 +91,7 @@ def slot_bytes_for(spec_json: dict, threshold: int = DEFAULT_THRESHOLD) -> int:
             return
         n = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         if n >= threshold:
-            total += _align(n)
+            total += align(n)
 
     fields = (spec_json or {}).get("observation") or {}  # ObservationSpec.to_json(): key -> field
     for field in (fields.values() if isinstance(fields, dict) else ()):
@@ -321,7 +322,7 @@ class SlotRing:
         start = self._slot * self.slot_bytes + off
         dst = self._buf[start:start + n].view(arr.dtype).reshape(arr.shape)
         np.copyto(dst, arr, casting="no")
-        self._pos = _align(off + n)
+        self._pos = align(off + n)
         return self._slot, off
 
     def layout(self) -> dict:
