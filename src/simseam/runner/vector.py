@@ -15,9 +15,11 @@ and send back only their results. Episode ``i`` always uses seed ``seed + i``, s
 results do not depend on ``num_envs`` for a deterministic policy. A worker builds its rollout from a
 recipe (``runner.recipe``: a scene's or a benchmark preset's) and, in ``run_local``, asks it for each
 episode's rollout and seed base (``simseam eval``: a worker rebuilds its sidecar when the next
-episode's task differs). Images cross from a worker through a shared memory block
+episode's task differs). The transport is the sidecar's own (``simseam.sidecar.local``,
+``simseam.sidecar.compact``): images cross from a worker through a shared-memory ring of one slot
 (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross through a
-second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no pickling).
+second block laid out from the reply's template (``_StepBlock`` / ``_MainBlock``: one byte in the pipe,
+no pickling).
 ``renderer="batched"``: the workers send their MuJoCo render state instead of images and this
 process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only. A
 worker dies with this process (Linux).
