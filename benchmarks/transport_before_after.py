@@ -7,7 +7,9 @@ vector runner's shared-memory transport made the sidecar's; "no slowdown").
 Each revision's committed ``src/`` (``git archive``) goes to ``--work``; then, in the order given, each side
 runs ``bench_vector.py`` (``--cases state overhead --modes vector bare``: lockstep over N worker
 processes against N bare processes; ``overhead`` answers without physics, so its time per env-step is
-the runner's own: pipes, the step block) and ``bench_sidecar.py`` (``--parts step,messages --ways
+the runner's own: pipes, the step block), then the step block alone (``--step-block-codec``: a
+lift_cube state-only reply written and read back in one process, microseconds each, the least noisy
+figure on a shared machine) and ``bench_sidecar.py`` (``--parts step,messages --ways
 inproc,local,compact``: a sidecar step's added latency on the local path, msgpack through the ring and
 compact templates; and each step message's encode / decode / framing in one process), both this checkout's scripts with
 ``PYTHONPATH`` at that side's sources (the workers and the sidecars import them too). Prints one table
@@ -51,8 +53,51 @@ def run_side(side: str, src: Path, i: int, work: Path, args) -> dict:
     subprocess.run([sys.executable, str(HERE / "bench_sidecar.py"), "--steps", str(args.steps), "--rounds",
                     str(args.rounds), "--cases", "state,rgb2x256", "--parts", "step,messages", "--ways",
                     "inproc,local,compact", "--json", str(sc)], env=env, check=True, stdout=subprocess.DEVNULL)
+    codec = subprocess.run([sys.executable, __file__, "--step-block-codec"], env=env, check=True, capture_output=True,
+                           text=True).stdout
     return {"side": side, "run": i, "load_before": load, "load_after": os.getloadavg(),
-            "wall_s": time.monotonic() - t0, "vector": json.loads(vec.read_text()), "sidecar": json.loads(sc.read_text())}
+            "wall_s": time.monotonic() - t0, "vector": json.loads(vec.read_text()), "sidecar": json.loads(sc.read_text()),
+            "step_block": json.loads(codec.strip().splitlines()[-1])}
+
+
+def step_block_codec(iterations: int = 2000, repeats: int = 7) -> dict:
+    """In this process (the sources on ``sys.path``): one lift_cube state-only step reply (with a render
+    state) written into a vector worker's step block and read back as the parent does, over and over;
+    the best and the median of ``repeats`` rounds, microseconds per reply, for the write and the read."""
+    import multiprocessing as mp
+    from multiprocessing import reduction
+
+    import mmap
+    import numpy as np
+
+    from simseam.robot.manifest import load_robot
+    from simseam.runner import vector
+    from simseam.scene.manifest_scene import ManifestScene, SceneOptions
+    from simseam.seam import STATE_ONLY
+
+    scene = ManifestScene(load_robot("franka_panda"), "lift_cube", "mujoco", SceneOptions())
+    scene.reset(seed=0, observe=STATE_ONLY)
+    result = scene.step(np.zeros(scene.spec.action_dim, np.float32), STATE_ONLY)
+    pose = np.zeros(64, np.float32)
+    parent, child = mp.Pipe()
+    tx = vector._StepBlock(child, os.getpid(), scene.spec.action_dim)
+    assert tx.write(result.observation, result, pose) and tx.announced
+    _kind, size, layout = parent.recv()
+    fd = reduction.recv_handle(parent)
+    rx = vector._MainBlock(mmap.mmap(fd, size), layout)
+    os.close(fd)
+    assert rx.read()[1].keys() == result.observation.keys()
+    out = {}
+    for name, call in (("write", lambda: tx.write(result.observation, result, pose)), ("read", rx.read)):
+        rounds = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            for _ in range(iterations):
+                call()
+            rounds.append((time.perf_counter() - t0) / iterations * 1e6)
+        out[name] = {"best_us": min(rounds), "median_us": statistics.median(rounds), "rounds_us": rounds}
+    scene.close()
+    return out
 
 
 def metrics(run: dict) -> dict[str, float]:
@@ -68,6 +113,9 @@ def metrics(run: dict) -> dict[str, float]:
     for name, r in run["sidecar"]["results"].get("step", {}).items():
         if "added_p50_ms" in r:
             out[f"sidecar {name} added p50 ms"] = r["added_p50_ms"]
+    for part, r in run.get("step_block", {}).items():
+        out[f"vector step block {part} best us"] = r["best_us"]
+        out[f"vector step block {part} median us"] = r["median_us"]
     for case, kinds in run["sidecar"]["results"].get("messages", {}).items():
         for kind, r in kinds.items():
             for part in ("server_encode_reply", "client_decode_reply", "total_ms"):
@@ -102,7 +150,11 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--work", type=Path, default=Path("/tmp/simseam-transport-before-after"))
     ap.add_argument("--out", type=Path, default=HERE / "results" / "transport_before_after_cpu.json")
+    ap.add_argument("--step-block-codec", action="store_true", help=argparse.SUPPRESS)  # (one side's, as JSON)
     args = ap.parse_args()
+    if args.step_block_codec:
+        print(json.dumps(step_block_codec()))
+        return
     if args.out.exists():
         ap.error(f"--out {args.out} exists: give another path (results are never overwritten)")
     revs = {side: archive(rev, args.work / side) for side, rev in (("before", args.before), ("after", args.after))}

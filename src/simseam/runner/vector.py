@@ -304,9 +304,8 @@ class _MainBlock:
         self._arrays = [array_at(mm, dt, shape, off) for (dt, shape), off in zip(skeleton.arrays, layout["arrays"])]
 
     def read(self):
-        vals = list(self._unpack(self.mm, self._at))
-        vals += [a.copy() for a in self._arrays]
-        obs, reward, terminated, truncated, info, pose = self._build(vals)
+        obs, reward, terminated, truncated, info, pose = self._build(self._unpack(self.mm, self._at),
+                                                                     [a.copy() for a in self._arrays])
         return ("obs", obs, (reward, terminated, truncated, info), None, pose)
 
     def close(self) -> None:

@@ -123,31 +123,56 @@ def _dtype_str(dt: np.dtype) -> str | None:
 
 def _walk(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
     """Append ``v``'s signature entries, scalars and arrays (``sig``, ``scal``, ``arrs``: the lists'
-    ``append`` methods)."""
+    ``append`` methods). A container's common leaves are taken in its own loop, without a call each."""
     t = type(v)
     if t is dict:
         if depth >= MAX_DEPTH:
             raise _NoTemplate
         sig("{")
         sig(len(v))
-        for k, x in v.items():
+        for k in v:
             if type(k) is not str:
                 raise _NoTemplate
             sig(k)
-            tx = type(x)
-            if tx is float:  # the common leaves without a call each
-                sig("d")
-                scal(x)
-            elif tx is np.ndarray:
-                dt = _DTYPE_STRS.get(x.dtype) or _dtype_str(x.dtype)
-                if dt is None:  # e.g. big-endian: wire.encode converts it
-                    raise _NoTemplate
-                sig(dt)
-                sig(x.shape)
-                arrs(x)
-            else:
-                _walk(x, sig, scal, arrs, depth + 1)
-    elif t is float:
+        items = v.values()
+    elif t is list or t is tuple:
+        if depth >= MAX_DEPTH:
+            raise _NoTemplate
+        sig("[" if t is list else "(")
+        sig(len(v))
+        items = v
+    else:
+        _leaf(v, sig, scal, arrs, depth)
+        return
+    for x in items:
+        tx = type(x)
+        if tx is float:
+            sig("d")
+            scal(x)
+        elif tx is np.ndarray:
+            dt = _DTYPE_STRS.get(x.dtype) or _dtype_str(x.dtype)
+            if dt is None:  # e.g. big-endian: wire.encode converts it
+                raise _NoTemplate
+            sig(dt)
+            sig(x.shape)
+            arrs(x)
+        elif tx is bool:
+            sig("?")
+            scal(x)
+        elif tx is int:
+            sig("q")
+            scal(x)
+        elif tx is str or x is None:
+            sig("c")
+            sig(x)
+        else:
+            _walk(x, sig, scal, arrs, depth + 1)
+
+
+def _leaf(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
+    """``_walk`` of a value that is not a dict, a list or a tuple."""
+    t = type(v)
+    if t is float:
         sig("d")
         scal(v)
     elif t is bool:
@@ -166,20 +191,13 @@ def _walk(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
     elif t is str or t is bytes or v is None:
         sig("c")
         sig(v)
-    elif t is list or t is tuple:
-        if depth >= MAX_DEPTH:
-            raise _NoTemplate
-        sig("[" if t is list else "(")
-        sig(len(v))
-        for x in v:
-            _walk(x, sig, scal, arrs, depth + 1)
     elif isinstance(v, np.generic):
         item = v.item()  # what msgpack sends; a receiver that learnt a numpy scalar makes one again
         if type(item) not in (float, bool, int, str, bytes):
             raise _NoTemplate
         sig("n")
         sig(v.dtype.str)
-        _walk(item, sig, scal, arrs, depth)
+        _leaf(item, sig, scal, arrs, depth)
     else:
         raise _NoTemplate
 
@@ -190,7 +208,7 @@ def signature(body: Any) -> tuple[tuple, list, list] | None:
     array whose dtype must be converted first).
 
     The signature is a flat tuple that reads one way only (a prefix code), so two bodies of equal
-    signatures have one structure: a value is ``{`` + a dict's number of keys + (key, value) each, ``[``
+    signatures have one structure: a value is ``{`` + a dict's number of keys + its keys + its values, ``[``
     (a list) or ``(`` (a tuple) + its length + each value, a scalar code (``d``, ``q``, ``?``), ``c`` + a
     constant (str, bytes, None), ``n`` + a numpy scalar's dtype + its value's, or an array's dtype string
     (never one of those markers) + its shape."""
@@ -298,64 +316,52 @@ class ReplyTemplates:
 _VALUE, _CONST, _DICT, _LIST, _TUPLE, _CAST = range(6)
 
 
-def _build_dict(node: tuple, vals: list) -> dict:
-    out = {}
-    for k, kind, x in node:
+def _builder(root: tuple, n_scalars: int) -> Any:
+    """A function ``build(s, a)`` that returns a fresh body of ``root``'s structure from the scalars ``s``
+    and the arrays ``a``: one Python expression of literals (a dict, list or tuple display per container),
+    compiled once per template, so a reply costs no walk of the structure. Keys, constants and numpy
+    scalar types enter it as default arguments (``_0``, ``_1``, ...): nothing of the body's text becomes
+    source code."""
+    env: dict[str, Any] = {}
+
+    def name(obj: Any) -> str:
+        n = f"_{len(env)}"
+        env[n] = obj
+        return n
+
+    def expr(kind: int, x: Any) -> str:
         if kind == _VALUE:
-            out[k] = vals[x]
-        elif kind == _CONST:
-            out[k] = x
-        elif kind == _DICT:
-            out[k] = _build_dict(x, vals)
-        else:
-            out[k] = _build_other(kind, x, vals)
-    return out
+            return f"s[{x}]" if x < n_scalars else f"a[{x - n_scalars}]"
+        if kind == _CONST:
+            return name(x)
+        if kind == _DICT:
+            return "{" + "".join(f"{name(k)}: {expr(kk, xx)}, " for k, kk, xx in x) + "}"
+        if kind == _LIST:
+            return "[" + "".join(expr(*e) + ", " for e in x) + "]"
+        if kind == _TUPLE:
+            return "(" + "".join(expr(*e) + ", " for e in x) + ")"
+        index, numpy_type = x  # _CAST: a numpy scalar
+        return f"{name(numpy_type)}({expr(_VALUE, index)})"
 
-
-def _build_list(node: tuple, vals: list) -> list:
-    out = []
-    for kind, x in node:
-        if kind == _VALUE:
-            out.append(vals[x])
-        elif kind == _CONST:
-            out.append(x)
-        elif kind == _DICT:
-            out.append(_build_dict(x, vals))
-        else:
-            out.append(_build_other(kind, x, vals))
-    return out
-
-
-def _build_other(kind: int, x: Any, vals: list) -> Any:
-    if kind == _LIST:
-        return _build_list(x, vals)
-    if kind == _TUPLE:
-        return tuple(_build_list(x, vals))
-    index, numpy_type = x  # _CAST: a numpy scalar
-    return numpy_type(vals[index])
+    body = expr(*root)
+    code = f"def build(s, a{''.join(f', {n}={n}' for n in env)}):\n    return {body}\n"
+    scope: dict[str, Any] = {}
+    exec(compile(code, "<simseam template>", "exec"), {"__builtins__": {}, **env}, scope)  # noqa: S102
+    return scope["build"]
 
 
 class Skeleton:
     """The receiving side of a template, learnt from one body of its signature (``learn``): ``scalars``
     (a ``struct.Struct`` of the body's scalars in body order: ``<d`` float, ``<q`` int, ``?`` bool),
-    ``arrays`` (``(dtype, shape)`` of its arrays in body order) and ``build(values)``: a fresh body of
-    that structure from the scalars followed by the arrays (fresh dicts, lists and tuples each time:
-    callers may change them)."""
+    ``arrays`` (``(dtype, shape)`` of its arrays in body order) and ``build(scalars, arrays)``: a fresh
+    body of that structure around them (fresh dicts, lists and tuples each time: callers may change
+    them)."""
 
-    __slots__ = ("scalars", "arrays", "root")
+    __slots__ = ("scalars", "arrays", "build")
 
-    def __init__(self, scalars: struct.Struct, arrays: list, root: tuple):
-        self.scalars, self.arrays, self.root = scalars, arrays, root
-
-    def build(self, vals: list) -> Any:
-        kind, x = self.root
-        if kind == _DICT:
-            return _build_dict(x, vals)
-        if kind == _VALUE:
-            return vals[x]
-        if kind == _CONST:
-            return x
-        return _build_other(kind, x, vals)
+    def __init__(self, codes: list[str], arrays: list, root: tuple):
+        self.scalars, self.arrays = struct.Struct("<" + "".join(codes)), arrays
+        self.build = _builder(root, len(codes))
 
 
 def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray]]:
@@ -401,7 +407,7 @@ def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray
             return kind, tuple(index(e) for e in x)
         return node
 
-    skeleton = Skeleton(struct.Struct("<" + "".join(codes)), [(a.dtype, a.shape) for a in arrays], index(root))
+    skeleton = Skeleton(codes, [(a.dtype, a.shape) for a in arrays], index(root))
     return skeleton, arrays
 
 
@@ -452,14 +458,14 @@ class _RecvTemplate:
                 raise WireError(f"{where}: its ring arrays end at byte {self.ring_end}, slot {slot} has {mem.nbytes}")
         elif slot:
             raise WireError(f"{where}: names ring slot {slot} but the template has no ring arrays")
-        vals = list(self.scalars.unpack_from(frame, REPLY_HEAD.size))
+        arrays = []
         for dtype, shape, count, off, reshape, in_ring in self.arrays:
             a = np.frombuffer(mem if in_ring else frame, dtype, count, off)
             if reshape:
                 a = a.reshape(shape)
             a.flags.writeable = False
-            vals.append(a)
-        return self.skeleton.build(vals)
+            arrays.append(a)
+        return self.skeleton.build(self.scalars.unpack_from(frame, REPLY_HEAD.size), arrays)
 
 class ReplyDecoder:
     """Client side, one per local connection that negotiated compact messages: ``decode(frames)``
