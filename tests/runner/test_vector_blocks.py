@@ -176,3 +176,19 @@ def test_images_cross_through_one_slot_that_grows():
             tx.ring.close()
         parent.close()
         child.close()
+
+
+def test_a_template_too_large_to_compile_is_rebuilt_by_walking_it_exactly_alike():
+    from simseam.sidecar import compact
+
+    p = Pair()
+    try:
+        rng = np.random.default_rng(5)
+        obs = state_obs(rng)
+        info = state_info(rng, many={f"k{i}": (float(i), np.int16(i), [i % 2 == 0, None]) for i in range(200)})
+        got = p.send(obs, info=info)
+        assert p.rx._build.__name__ != "build"  # the tree walk, not the compiled expression
+        exact(pickled(obs, info=info), got)
+        assert compact.learn({"x": 1.0})[0].build.__name__ == "build"
+    finally:
+        p.close()

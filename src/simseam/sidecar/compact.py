@@ -316,6 +316,37 @@ class ReplyTemplates:
 _VALUE, _CONST, _DICT, _LIST, _TUPLE, _CAST = range(6)
 
 
+MAX_COMPILED_NODES = 512  # a larger template is rebuilt by walking its tree (compiling it would cost more)
+
+
+def _build_dict(node: tuple, vals: list) -> dict:
+    out = {}
+    for k, kind, x in node:
+        out[k] = vals[x] if kind == _VALUE else x if kind == _CONST else _build(kind, x, vals)
+    return out
+
+
+def _build(kind: int, x: Any, vals: list) -> Any:
+    """The value of one node of a template's tree, from ``vals`` (its scalars, then its arrays)."""
+    if kind == _VALUE:
+        return vals[x]
+    if kind == _CONST:
+        return x
+    if kind == _DICT:
+        return _build_dict(x, vals)
+    if kind == _LIST:
+        return [_build(k, y, vals) for k, y in x]
+    if kind == _TUPLE:
+        return tuple(_build(k, y, vals) for k, y in x)
+    index, numpy_type = x  # _CAST: a numpy scalar
+    return numpy_type(vals[index])
+
+
+def _tree_builder(root: tuple) -> Any:
+    """``build(s, a)`` for a template too large to compile (``_builder``): a walk of its tree."""
+    return lambda s, a: _build(*root, [*s, *a])
+
+
 def _builder(root: tuple, n_scalars: int) -> Any:
     """A function ``build(s, a)`` that returns a fresh body of ``root``'s structure from the scalars ``s``
     and the arrays ``a``: one Python expression of literals (a dict, list or tuple display per container),
@@ -325,6 +356,8 @@ def _builder(root: tuple, n_scalars: int) -> Any:
     env: dict[str, Any] = {}
 
     def name(obj: Any) -> str:
+        if type(obj) is str or obj is None:  # (repr of a str is a literal that makes an equal str)
+            return repr(obj)
         n = f"_{len(env)}"
         env[n] = obj
         return n
@@ -359,9 +392,9 @@ class Skeleton:
 
     __slots__ = ("scalars", "arrays", "build")
 
-    def __init__(self, codes: list[str], arrays: list, root: tuple):
+    def __init__(self, codes: list[str], arrays: list, root: tuple, nodes: int):
         self.scalars, self.arrays = struct.Struct("<" + "".join(codes)), arrays
-        self.build = _builder(root, len(codes))
+        self.build = _builder(root, len(codes)) if nodes <= MAX_COMPILED_NODES else _tree_builder(root)
 
 
 def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray]]:
@@ -370,7 +403,11 @@ def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray
     codes: list[str] = []
     arrays: list[np.ndarray] = []
 
+    nodes = 0
+
     def leaf(v: Any) -> tuple:  # (kind, x); a value's x: ("s" | "a", its index among scalars | arrays)
+        nonlocal nodes
+        nodes += 1
         t = type(v)
         if t is dict:
             return _DICT, tuple((k, *leaf(x)) for k, x in v.items())
@@ -407,7 +444,7 @@ def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray
             return kind, tuple(index(e) for e in x)
         return node
 
-    skeleton = Skeleton(codes, [(a.dtype, a.shape) for a in arrays], index(root))
+    skeleton = Skeleton(codes, [(a.dtype, a.shape) for a in arrays], index(root), nodes)
     return skeleton, arrays
 
 
