@@ -15,9 +15,11 @@ and send back only their results. Episode ``i`` always uses seed ``seed + i``, s
 results do not depend on ``num_envs`` for a deterministic policy. A worker builds its rollout from a
 recipe (``runner.recipe``: a scene's or a benchmark preset's) and, in ``run_local``, asks it for each
 episode's rollout and seed base (``simseam eval``: a worker rebuilds its sidecar when the next
-episode's task differs). Images cross from a worker through a shared memory block
+episode's task differs). The transport is the sidecar's own (``simseam.sidecar.local``,
+``simseam.sidecar.compact``): images cross from a worker through a shared-memory ring of one slot
 (``_SharedImages``), not through the pipe; a state-only step's reply and its action cross through a
-second one with a fixed layout (``_StepBlock`` / ``_MainBlock``: one byte in the pipe, no pickling).
+second block laid out from the reply's template (``_StepBlock`` / ``_MainBlock``: one byte in the pipe,
+no pickling).
 ``renderer="batched"``: the workers send their MuJoCo render state instead of images and this
 process draws every worker's cameras in one batch (``runner.central_render``), in ``run`` only. A
 worker dies with this process (Linux).
@@ -59,11 +61,14 @@ import numpy as np
 from simseam.runner.episodes import EpisodeResult, partial_video_path
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import EpisodeQueue, WorkerFailure, lost_error, run_batch
-from simseam.seam import (INFO_DIAGNOSTICS, OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
+from simseam.seam import (OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
                           SimseamError, SimulationError)
 from simseam.runner.central_render import worker_request
 from simseam.seam.batch import BatchStepResult, batch_actions, env_indices, per_env_requests
-from simseam.sidecar.local import SPIN_ENV, spin_until_readable
+from simseam.sidecar.compact import learn, signature
+from simseam.sidecar.local import (HAVE_MEMFD, SPIN_ENV, SlotRing, align, array_at, create_block, map_block, release,
+                                   spin_until_readable)
+from simseam.sidecar.wire import ALIGN
 
 #: how long a worker may take to build its rollout (a cold sidecar venv boots slowly)
 BOOT_TIMEOUT_S = 600.0
@@ -122,49 +127,49 @@ PENDING = object()  #: a reply not in yet (``_replies`` with ``need``)
 
 # ---------------------------------------------------------------------------------------------- worker
 class _SharedImages:
-    """Worker side of the image transport: an observation's images are written into one shared memory
-    block (an anonymous ``memfd``, handed to the parent once over the pipe), and only their layout
-    ``[(key, offset, shape, dtype)]`` travels in the message. Grown (a new block handed over) when an
-    observation needs more room. Without ``memfd_create`` (not Linux) images travel in the message."""
+    """Worker side of the image transport: an observation's images are copied into a shared-memory ring of
+    one slot (``simseam.sidecar.local.SlotRing``, the sidecar's; its descriptor handed to the parent once
+    over the pipe), and only their layout ``[(key, offset, shape, dtype)]`` travels in the message. Made
+    anew, larger, when an observation needs more room. Without ``memfd_create`` (not Linux) images travel
+    in the message."""
 
     def __init__(self, conn, parent_pid: int):
         self.conn, self.parent_pid = conn, parent_pid
-        self.mm: mmap.mmap | None = None
-        self.size = 0
-        self.enabled = hasattr(os, "memfd_create")
+        self.ring: SlotRing | None = None
+        self.enabled = HAVE_MEMFD
 
     def detach(self, obs):
         imgs = obs.get(OBS_IMAGES) if self.enabled else None
         if not imgs:
             return obs, None
-        arrays = {k: np.ascontiguousarray(a) for k, a in imgs.items()}
-        need = sum(a.nbytes for a in arrays.values())
-        if need > self.size:
-            fd = os.memfd_create("simseam-env-images")
+        need = max(sum(align(a.nbytes) for a in imgs.values()), ALIGN)
+        if self.ring is None or need > self.ring.slot_bytes:
+            ring = SlotRing(1, need, threshold=0, name="simseam-env-images")
             try:
-                os.ftruncate(fd, need)
-                mm = mmap.mmap(fd, need)
                 self.conn.send(("shm", need))
-                reduction.send_handle(self.conn, fd, self.parent_pid)
-            finally:
-                os.close(fd)
-            if self.mm is not None:
-                self.mm.close()
-            self.mm, self.size = mm, need
-        layout, offset = [], 0
-        for key, a in arrays.items():
-            self.mm[offset:offset + a.nbytes] = a.data.cast("B")
+                reduction.send_handle(self.conn, ring.fd, self.parent_pid)
+            except BaseException:
+                ring.close()
+                raise
+            if self.ring is not None:
+                self.ring.close()
+            self.ring = ring
+        self.ring.begin()
+        layout = []
+        for key, a in imgs.items():
+            _slot, offset = self.ring.put(a)
             layout.append((key, offset, a.shape, a.dtype.str))
-            offset += a.nbytes
         return {**obs, OBS_IMAGES: {}}, layout
 
 
-# The step fast path. A state-only step's reply (the observation's arrays and scalars, reward, flags, info
-# scalars and diagnostics, the render state) is written into a second shared block with a fixed layout,
-# and only one byte travels in the pipe; the action goes the other way through the same block. The layout
-# is sent (pickled, with the block's file descriptor) whenever the shape of a reply changes; a reply
-# that does not fit one (images, nested dicts such as privileged or link poses, numpy scalars) travels
-# pickled as before. Nothing is pickled on the hot path of a state-only lockstep run.
+# The step fast path. A state-only step's reply (observation, reward, flags, info, the render state: the
+# list ``_reply_body``) is written into a second shared block laid out from its template (the sidecar's
+# compact templates: ``signature`` on the worker's side, ``learn`` on the parent's), and only one byte
+# travels in the pipe; the action goes the other way through the same block. A new block, its layout and
+# one whole reply for the parent to learn the template from are sent (pickled, with the block's file
+# descriptor) whenever the reply's signature changes; a reply no template describes (images, which cross
+# through _SharedImages, an int beyond 64 bits, an object) travels pickled as before. Nothing is pickled
+# on the hot path of a state-only lockstep run.
 _FAST_REPLY = b"F"
 _FAST_STEP = b"S"
 _FAST_REQUESTS = (None, STATE_ONLY)  # the request byte after b"S" indexes this
@@ -212,184 +217,105 @@ def _read_message(fd: int) -> bytes:
     return bytes(body)
 
 
-def _signature(obs, info, pose) -> tuple | None:
-    """The shape of a step reply for the fast path, or None when it has no fixed layout."""
-    arrays, consts, ints, floats, order = [], [], [], [], []
-    for k, v in obs.items():
-        t = type(v)
-        order.append(k)
-        if t is np.ndarray:
-            arrays.append((k, v.shape, v.dtype.str))
-        elif t is bool or t is int:
-            ints.append(("obs", k, t is bool))
-        elif t is float:
-            floats.append(("obs", k))
-        elif t is str or (t is dict and not v):
-            consts.append((k, v if t is str else None))
-        else:
-            return None
-    diag = []
-    for k, v in info.items():
-        t = type(v)
-        if t is dict and k == INFO_DIAGNOSTICS:
-            for dk, dv in v.items():
-                dt = type(dv)
-                if dt is bool or dt is int:
-                    ints.append(("diag", dk, dt is bool))
-                elif dt is float:
-                    floats.append(("diag", dk))
-                else:
-                    return None
-                diag.append(dk)
-        elif t is bool or t is int:
-            ints.append(("info", k, t is bool))
-        elif t is float:
-            floats.append(("info", k))
-        else:
-            return None
-    return (tuple(order), tuple(arrays), tuple(consts), tuple(ints), tuple(floats), tuple(diag),
-            tuple(info), 0 if pose is None else pose.size)
+def _reply_body(obs, result, pose) -> list:
+    """A step's reply as one templated body (``_StepBlock`` / ``_MainBlock``)."""
+    return [obs, result.reward, result.terminated, result.truncated, result.info, pose]
 
 
-def _block_views(mm: mmap.mmap, layout: dict) -> dict:
-    view = lambda off, n, dt, shape=None: np.frombuffer(mm, dtype=dt, count=n, offset=off).reshape(shape or (n,))  # noqa: E731
-    a_off, a_dim = layout["action"]
-    i_off, ints = layout["ints"]
-    f_off, floats = layout["floats"]
-    p_off, p_n = layout["pose"]
-    return {"action": view(a_off, a_dim, np.float32),
-            "arrays": [(k, view(off, int(np.prod(shape, dtype=np.int64)), np.dtype(dt), shape))
-                       for k, off, shape, dt in layout["arrays"]],
-            "ints": view(i_off, 2 + len(ints), np.int64), "floats": view(f_off, 1 + len(floats), np.float64),
-            "pose": view(p_off, p_n, np.float32) if p_n else None}
+def _block_layout(action_dim: int, skeleton) -> tuple[dict, int]:
+    """Where a template's parts lie in a step block, each 8-byte aligned: the action (float32), the
+    scalars (``skeleton.scalars``), each array in body order; and the block's size."""
+    off = align(4 * action_dim, 8)
+    layout = {"action": (0, action_dim), "scalars": off, "arrays": []}
+    off = align(off + skeleton.scalars.size, 8)
+    for dtype, shape in skeleton.arrays:
+        layout["arrays"].append(off)
+        off = align(off + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize, 8)
+    return layout, max(off, 8)
 
 
 class _StepBlock:
-    """Worker side of the step fast path (see ``_signature``)."""
+    """Worker side of the step fast path (see ``_reply_body``)."""
 
     def __init__(self, conn, parent_pid: int, action_dim: int):
         self.conn, self.parent_pid, self.action_dim = conn, parent_pid, action_dim
-        self.enabled = hasattr(os, "memfd_create")
+        self.enabled = HAVE_MEMFD
         self.sig = None
         self.mm: mmap.mmap | None = None
-        self.v: dict = {}
         self.announced = False  # the last write announced a new block over the pipe
 
     def action(self) -> np.ndarray:
-        return self.v["action"].copy()
+        return self._action.copy()
 
-    def _new_layout(self, sig) -> None:
-        order, arrays, consts, ints, floats, diag, info_keys, pose_n = sig
-        off = 0
-
-        def take(nbytes: int) -> int:
-            nonlocal off
-            at, off = off, off + (nbytes + 7) // 8 * 8
-            return at
-
-        layout = {"action": (take(4 * self.action_dim), self.action_dim),
-                  "arrays": [(k, take(int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize), shape, dt)
-                             for k, shape, dt in arrays],
-                  "consts": consts, "order": order, "diag": diag, "info": info_keys}
-        layout["ints"] = (take(8 * (2 + len(ints))), ints)
-        layout["floats"] = (take(8 * (1 + len(floats))), floats)
-        layout["pose"] = (take(4 * pose_n), pose_n)
-        size = max(off, 8)
-        fd = os.memfd_create("simseam-env-step")
+    def _new_layout(self, sig: tuple, scal: list, body: list) -> bool:
+        """A block for replies of signature ``sig``, handed to the parent; False (nothing sent) when
+        ``scal`` does not fit its codes (an int beyond 64 bits)."""
+        skeleton, _ = learn(body, "vector step reply")
         try:
-            os.ftruncate(fd, size)
-            mm = mmap.mmap(fd, size)
-            self.conn.send(("block", size, layout))
+            skeleton.scalars.pack(*scal)
+        except struct.error:
+            return False
+        layout, size = _block_layout(self.action_dim, skeleton)
+        fd, mm = create_block("simseam-env-step", size, sealed=True)
+        try:
+            self.conn.send(("block", size, {**layout, "body": body}))
             reduction.send_handle(self.conn, fd, self.parent_pid)
         finally:
             os.close(fd)
         old = self.mm
-        self.v = _block_views(mm, layout)
+        self._action = array_at(mm, np.float32, (self.action_dim,), 0)
+        self._arrays = [array_at(mm, dt, shape, off) for (dt, shape), off in zip(skeleton.arrays, layout["arrays"])]
+        self._pack, self._at = skeleton.scalars.pack_into, layout["scalars"]
         self.mm, self.sig = mm, sig
-        self._ints = [(w, k) for w, k, _ in ints]
-        self._floats = floats
         if old is not None:
-            try:
-                old.close()
-            except BufferError:  # views of the old block still alive somewhere: the GC frees it
-                pass
+            release(old)  # (views of the old block still alive somewhere: the GC frees it)
+        return True
 
     def write(self, obs, result, pose) -> bool:
-        """Write a step's reply into the block (True), or False when it has no fixed layout."""
+        """Write a step's reply into the block (True), or False when no template describes it."""
         if not self.enabled:
             return False
-        sig = _signature(obs, result.info, pose)
-        if sig is None:
+        body = _reply_body(obs, result, pose)
+        walked = signature(body)
+        if walked is None:
             return False
+        sig, scal, arrs = walked
         self.announced = sig != self.sig
-        if self.announced:
-            self._new_layout(sig)
-        v = self.v
-        for k, arr in v["arrays"]:
-            arr[...] = obs[k]
-        info, diag = result.info, result.info.get(INFO_DIAGNOSTICS)
-        src = {"obs": obs, "info": info, "diag": diag}
-        ints = v["ints"]
-        ints[0], ints[1] = result.terminated, result.truncated
-        for j, (w, k) in enumerate(self._ints):
-            ints[2 + j] = src[w][k]
-        fl = v["floats"]
-        fl[0] = result.reward
-        for j, (w, k) in enumerate(self._floats):
-            fl[1 + j] = src[w][k]
-        if pose is not None:
-            v["pose"][...] = pose
+        if self.announced and not self._new_layout(sig, scal, body):
+            return False
+        try:
+            self._pack(self.mm, self._at, *scal)
+        except struct.error:  # an int beyond 64 bits: pickled, this once
+            return False
+        for dst, a in zip(self._arrays, arrs):
+            dst[...] = a
         return True
 
 
 class _MainBlock:
-    """This process's side of a worker's step block: the reply rebuilt without unpickling."""
+    """This process's side of a worker's step block: the reply rebuilt from its template, without
+    unpickling (fresh dicts and copies of the arrays: the block is written again at the next step)."""
 
     def __init__(self, mm: mmap.mmap, layout: dict):
-        self.mm, self.layout = mm, layout
-        v = self.v = _block_views(mm, layout)
-        self.action = v["action"]
-        self._arrays, self._iv, self._fv, self._pose = v["arrays"], v["ints"], v["floats"], v["pose"]
-        self._obs = dict.fromkeys(layout["order"])  # templates: the key order of the worker's dicts
-        self._consts = [(k, c) for k, c in layout["consts"]]
-        self._diag = dict.fromkeys(layout["diag"])
-        self._info = dict.fromkeys(layout["info"])
-        self._has_diag = INFO_DIAGNOSTICS in self._info
-        where = {"obs": 0, "info": 1, "diag": 2}
-        self._ints = [(where[w], k, is_bool) for w, k, is_bool in layout["ints"][1]]
-        self._floats = [(where[w], k) for w, k in layout["floats"][1]]
+        self.mm = mm
+        skeleton, _ = learn(layout["body"], "vector step reply")
+        self._build, self._unpack, self._at = skeleton.build, skeleton.scalars.unpack_from, layout["scalars"]
+        self.action = array_at(mm, np.float32, (layout["action"][1],), layout["action"][0])
+        self._arrays = [array_at(mm, dt, shape, off) for (dt, shape), off in zip(skeleton.arrays, layout["arrays"])]
 
     def read(self):
-        obs, info, diag = self._obs.copy(), self._info.copy(), self._diag.copy()
-        for k, c in self._consts:
-            obs[k] = {} if c is None else c
-        for k, arr in self._arrays:
-            obs[k] = arr.copy()
-        if self._has_diag:
-            info[INFO_DIAGNOSTICS] = diag
-        dst = (obs, info, diag)
-        ints = self._iv.tolist()
-        for (w, k, is_bool), x in zip(self._ints, ints[2:]):
-            dst[w][k] = bool(x) if is_bool else x
-        fl = self._fv.tolist()
-        for (w, k), x in zip(self._floats, fl[1:]):
-            dst[w][k] = x
-        pose = None if self._pose is None else self._pose.copy()
-        return ("obs", obs, (fl[0], bool(ints[0]), bool(ints[1]), info), None, pose)
+        obs, reward, terminated, truncated, info, pose = self._build(self._unpack(self.mm, self._at),
+                                                                     [a.copy() for a in self._arrays])
+        return ("obs", obs, (reward, terminated, truncated, info), None, pose)
 
     def close(self) -> None:
-        self.v = self.action = self._arrays = self._iv = self._fv = self._pose = None
-        try:
-            self.mm.close()
-        except BufferError:  # a view still alive: the GC frees the mapping
-            pass
+        self.action = self._arrays = None
+        release(self.mm)
 
 
 def _attach_images(mm: mmap.mmap, obs, layout):
     """Parent side: the observation with its images copied out of the shared block (the policy may keep them)."""
-    images = {key: np.frombuffer(mm, dtype=np.dtype(dt), count=int(np.prod(shape)), offset=off).reshape(shape).copy()
-              for key, off, shape, dt in layout}
-    return {**obs, OBS_IMAGES: images}
+    return {**obs, OBS_IMAGES: {key: array_at(mm, np.dtype(dt), shape, off).copy() for key, off, shape, dt in layout}}
 
 
 def _die_with_parent(parent_pid: int) -> None:
@@ -781,10 +707,7 @@ class VectorEnv:
                     if msg[0] not in ("shm", "block"):
                         break
                     fd = reduction.recv_handle(s.conn)  # a (new) shared block: its file descriptor follows
-                    try:
-                        mm = mmap.mmap(fd, msg[1])
-                    finally:
-                        os.close(fd)
+                    mm = map_block(fd, msg[1], writable=msg[0] == "block", sealed=True, where=f"vector worker {s.env}")
                     if msg[0] == "shm":
                         if s.mm is not None:
                             s.mm.close()

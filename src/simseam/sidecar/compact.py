@@ -28,6 +28,13 @@ each keeps its template). Replies the client drops (their request timed out) sti
 and where, never anything else; sizes come from the template the client validated when it was
 announced, never from the frame.
 
+The templates themselves are not tied to a frame: ``signature(body)`` (the sending side: the structure,
+the scalars, the arrays) and ``learn(body)`` (the receiving side: a ``Skeleton`` that unpacks the scalars
+and rebuilds a body around them and the arrays) are what the vector runner's workers use too
+(``simseam.runner.vector``), with their replies in a shared-memory block instead of a frame. There a
+tuple and a numpy scalar come back as they went (the signature marks them: ``(``, ``n``); here, as
+msgpack gives them.
+
 Imports: the standard library, numpy and ``simseam.sidecar.wire`` (numpy + msgpack) only.
 """
 
@@ -99,7 +106,7 @@ def decode_step(frames: list) -> tuple[np.ndarray, bool]:
 
 # ------------------------------------------------------------------------ sidecar side
 class _NoTemplate(Exception):
-    """The body holds something no template describes (it travels as plain msgpack)."""
+    """The body holds something no template describes (it travels the general way)."""
 
 
 _DTYPE_STRS: dict = {}  # dtype -> its wire string, or None when it cannot travel as it is (dtype.str is slow)
@@ -116,31 +123,56 @@ def _dtype_str(dt: np.dtype) -> str | None:
 
 def _walk(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
     """Append ``v``'s signature entries, scalars and arrays (``sig``, ``scal``, ``arrs``: the lists'
-    ``append`` methods)."""
+    ``append`` methods). A container's common leaves are taken in its own loop, without a call each."""
     t = type(v)
     if t is dict:
         if depth >= MAX_DEPTH:
             raise _NoTemplate
         sig("{")
         sig(len(v))
-        for k, x in v.items():
+        for k in v:
             if type(k) is not str:
                 raise _NoTemplate
             sig(k)
-            tx = type(x)
-            if tx is float:  # the common leaves without a call each
-                sig("d")
-                scal(x)
-            elif tx is np.ndarray:
-                dt = _DTYPE_STRS.get(x.dtype) or _dtype_str(x.dtype)
-                if dt is None:  # e.g. big-endian: wire.encode converts it
-                    raise _NoTemplate
-                sig(dt)
-                sig(x.shape)
-                arrs(x)
-            else:
-                _walk(x, sig, scal, arrs, depth + 1)
-    elif t is float:
+        items = v.values()
+    elif t is list or t is tuple:
+        if depth >= MAX_DEPTH:
+            raise _NoTemplate
+        sig("[" if t is list else "(")
+        sig(len(v))
+        items = v
+    else:
+        _leaf(v, sig, scal, arrs, depth)
+        return
+    for x in items:
+        tx = type(x)
+        if tx is float:
+            sig("d")
+            scal(x)
+        elif tx is np.ndarray:
+            dt = _DTYPE_STRS.get(x.dtype) or _dtype_str(x.dtype)
+            if dt is None:  # e.g. big-endian: wire.encode converts it
+                raise _NoTemplate
+            sig(dt)
+            sig(x.shape)
+            arrs(x)
+        elif tx is bool:
+            sig("?")
+            scal(x)
+        elif tx is int:
+            sig("q")
+            scal(x)
+        elif tx is str or x is None:
+            sig("c")
+            sig(x)
+        else:
+            _walk(x, sig, scal, arrs, depth + 1)
+
+
+def _leaf(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
+    """``_walk`` of a value that is not a dict, a list or a tuple."""
+    t = type(v)
+    if t is float:
         sig("d")
         scal(v)
     elif t is bool:
@@ -159,31 +191,27 @@ def _walk(v: Any, sig: Any, scal: Any, arrs: Any, depth: int) -> None:
     elif t is str or t is bytes or v is None:
         sig("c")
         sig(v)
-    elif t is list or t is tuple:
-        if depth >= MAX_DEPTH:
-            raise _NoTemplate
-        sig("[")
-        sig(len(v))
-        for x in v:
-            _walk(x, sig, scal, arrs, depth + 1)
     elif isinstance(v, np.generic):
-        item = v.item()  # what msgpack sends
+        item = v.item()  # what msgpack sends; a receiver that learnt a numpy scalar makes one again
         if type(item) not in (float, bool, int, str, bytes):
             raise _NoTemplate
-        _walk(item, sig, scal, arrs, depth)
+        sig("n")
+        sig(v.dtype.str)
+        _leaf(item, sig, scal, arrs, depth)
     else:
         raise _NoTemplate
 
 
 def signature(body: Any) -> tuple[tuple, list, list] | None:
-    """``(signature, scalars, arrays)`` of a reply body, the leaves in body order; None when it
-    cannot be templated (a key that is not a str, a type msgpack would not send as it is, an
-    array that ``wire.encode`` must convert first): such a body travels as plain msgpack.
+    """``(signature, scalars, arrays)`` of a reply body, the leaves in body order; None when it cannot
+    be templated (a key that is not a str, a type neither msgpack nor a ``Skeleton`` takes as it is, an
+    array whose dtype must be converted first).
 
     The signature is a flat tuple that reads one way only (a prefix code), so two bodies of equal
-    signatures have one structure: a value is ``{`` + a dict's number of keys + (key, value) each,
-    ``[`` + a list's length + each value, a scalar code (``d``, ``q``, ``?``), ``c`` + a constant
-    (str, bytes, None), or an array's dtype string (never one of those markers) + its shape."""
+    signatures have one structure: a value is ``{`` + a dict's number of keys + its keys + its values, ``[``
+    (a list) or ``(`` (a tuple) + its length + each value, a scalar code (``d``, ``q``, ``?``), ``c`` + a
+    constant (str, bytes, None), ``n`` + a numpy scalar's dtype + its value's, or an array's dtype string
+    (never one of those markers) + its shape."""
     sig: list = []
     scal: list = []
     arrs: list = []
@@ -202,7 +230,7 @@ def ring_plan(ring: Any, nbytes: list[int]) -> list[int | None]:
     for n in nbytes:
         if ring is not None and n >= ring.threshold and pos + n <= ring.slot_bytes:
             out.append(pos)
-            pos = (pos + n + ALIGN - 1) // ALIGN * ALIGN
+            pos = (pos + n + ALIGN - 1) // ALIGN * ALIGN  # (SlotRing.put's alignment)
         else:
             out.append(None)
     return out
@@ -285,138 +313,196 @@ class ReplyTemplates:
 
 
 # ------------------------------------------------------------------------- client side
-_VALUE, _CONST, _DICT, _LIST = range(4)
+_VALUE, _CONST, _DICT, _LIST, _TUPLE, _CAST = range(6)
+
+
+MAX_COMPILED_NODES = 512  # a larger template is rebuilt by walking its tree (compiling it would cost more)
 
 
 def _build_dict(node: tuple, vals: list) -> dict:
     out = {}
     for k, kind, x in node:
-        if kind == _VALUE:
-            out[k] = vals[x]
-        elif kind == _CONST:
-            out[k] = x
-        elif kind == _DICT:
-            out[k] = _build_dict(x, vals)
-        else:
-            out[k] = _build_list(x, vals)
+        out[k] = vals[x] if kind == _VALUE else x if kind == _CONST else _build(kind, x, vals)
     return out
 
 
-def _build_list(node: tuple, vals: list) -> list:
-    out = []
-    for kind, x in node:
+def _build(kind: int, x: Any, vals: list) -> Any:
+    """The value of one node of a template's tree, from ``vals`` (its scalars, then its arrays)."""
+    if kind == _VALUE:
+        return vals[x]
+    if kind == _CONST:
+        return x
+    if kind == _DICT:
+        return _build_dict(x, vals)
+    if kind == _LIST:
+        return [_build(k, y, vals) for k, y in x]
+    if kind == _TUPLE:
+        return tuple(_build(k, y, vals) for k, y in x)
+    index, numpy_type = x  # _CAST: a numpy scalar
+    return numpy_type(vals[index])
+
+
+def _tree_builder(root: tuple) -> Any:
+    """``build(s, a)`` for a template too large to compile (``_builder``): a walk of its tree."""
+    return lambda s, a: _build(*root, [*s, *a])
+
+
+def _builder(root: tuple, n_scalars: int) -> Any:
+    """A function ``build(s, a)`` that returns a fresh body of ``root``'s structure from the scalars ``s``
+    and the arrays ``a``: one Python expression of literals (a dict, list or tuple display per container),
+    compiled once per template, so a reply costs no walk of the structure. Keys, constants and numpy
+    scalar types enter it as default arguments (``_0``, ``_1``, ...): nothing of the body's text becomes
+    source code."""
+    env: dict[str, Any] = {}
+
+    def name(obj: Any) -> str:
+        if type(obj) is str or obj is None:  # (repr of a str is a literal that makes an equal str)
+            return repr(obj)
+        n = f"_{len(env)}"
+        env[n] = obj
+        return n
+
+    def expr(kind: int, x: Any) -> str:
         if kind == _VALUE:
-            out.append(vals[x])
-        elif kind == _CONST:
-            out.append(x)
-        elif kind == _DICT:
-            out.append(_build_dict(x, vals))
-        else:
-            out.append(_build_list(x, vals))
-    return out
+            return f"s[{x}]" if x < n_scalars else f"a[{x - n_scalars}]"
+        if kind == _CONST:
+            return name(x)
+        if kind == _DICT:
+            return "{" + "".join(f"{name(k)}: {expr(kk, xx)}, " for k, kk, xx in x) + "}"
+        if kind == _LIST:
+            return "[" + "".join(expr(*e) + ", " for e in x) + "]"
+        if kind == _TUPLE:
+            return "(" + "".join(expr(*e) + ", " for e in x) + ")"
+        index, numpy_type = x  # _CAST: a numpy scalar
+        return f"{name(numpy_type)}({expr(_VALUE, index)})"
+
+    body = expr(*root)
+    code = f"def build(s, a{''.join(f', {n}={n}' for n in env)}):\n    return {body}\n"
+    scope: dict[str, Any] = {}
+    exec(compile(code, "<simseam template>", "exec"), {"__builtins__": {}, **env}, scope)  # noqa: S102
+    return scope["build"]
+
+
+class Skeleton:
+    """The receiving side of a template, learnt from one body of its signature (``learn``): ``scalars``
+    (a ``struct.Struct`` of the body's scalars in body order: ``<d`` float, ``<q`` int, ``?`` bool),
+    ``arrays`` (``(dtype, shape)`` of its arrays in body order) and ``build(scalars, arrays)``: a fresh
+    body of that structure around them (fresh dicts, lists and tuples each time: callers may change
+    them)."""
+
+    __slots__ = ("scalars", "arrays", "build")
+
+    def __init__(self, codes: list[str], arrays: list, root: tuple, nodes: int):
+        self.scalars, self.arrays = struct.Struct("<" + "".join(codes)), arrays
+        self.build = _builder(root, len(codes)) if nodes <= MAX_COMPILED_NODES else _tree_builder(root)
+
+
+def learn(body: Any, where: str = "template") -> tuple[Skeleton, list[np.ndarray]]:
+    """The ``Skeleton`` of ``body``'s template, and the body's arrays in body order (for the caller to
+    tell where each one travels). ``WireError`` naming ``where`` on a value no template describes."""
+    codes: list[str] = []
+    arrays: list[np.ndarray] = []
+
+    nodes = 0
+
+    def leaf(v: Any) -> tuple:  # (kind, x); a value's x: ("s" | "a", its index among scalars | arrays)
+        nonlocal nodes
+        nodes += 1
+        t = type(v)
+        if t is dict:
+            return _DICT, tuple((k, *leaf(x)) for k, x in v.items())
+        if t is list or t is tuple:
+            return _LIST if t is list else _TUPLE, tuple(leaf(x) for x in v)
+        if t in _CODE:
+            codes.append(_CODE[t])
+            return _VALUE, ("s", len(codes) - 1)
+        if t is np.ndarray:
+            arrays.append(v)
+            return _VALUE, ("a", len(arrays) - 1)
+        if t is str or t is bytes or v is None:
+            return _CONST, v
+        if isinstance(v, np.generic):
+            item = v.item()
+            if type(item) in _CODE:
+                return _CAST, (leaf(item)[1], t)
+            if type(item) in (str, bytes):
+                return _CONST, v
+        raise WireError(f"{where}: a value of type {t.__name__} cannot be templated")
+
+    root = leaf(body)
+    n_s = len(codes)
+
+    def index(node: tuple) -> tuple:  # ("s" | "a", k) -> the index in [*scalars, *arrays]
+        kind, x = node
+        if kind == _VALUE:
+            return kind, x[1] + (0 if x[0] == "s" else n_s)
+        if kind == _CAST:
+            return kind, (index((_VALUE, x[0]))[1], x[1])
+        if kind == _DICT:
+            return kind, tuple((k, *index((kk, xx))) for k, kk, xx in x)
+        if kind in (_LIST, _TUPLE):
+            return kind, tuple(index(e) for e in x)
+        return node
+
+    skeleton = Skeleton(codes, [(a.dtype, a.shape) for a in arrays], index(root), nodes)
+    return skeleton, arrays
 
 
 class _RecvTemplate:
-    """Client side: how to read a compact frame of one template, and rebuild its body."""
+    """Client side: how to read a compact frame of one template (its ``Skeleton``: the scalars, then
+    each array inline in the frame or in the ring slot), and rebuild its body."""
 
-    __slots__ = ("tid", "scalars", "inline", "ring", "ring_end", "slot", "nbytes", "root")
+    __slots__ = ("tid", "skeleton", "scalars", "arrays", "ring", "ring_end", "nbytes")
 
     def __init__(self, tid: int, body: Any, arrays: list, shm: list, shm_specs: list):
         self.tid = tid
         where = f"template {tid}"
-        inline_at = {id(a): i for i, a in enumerate(arrays)}
+        self.skeleton, in_body = learn(body, where)
+        self.scalars = self.skeleton.scalars
         shm_at = {id(a): i for i, a in enumerate(shm)}
-        codes: list[str] = []
-        inline: list = []  # (dtype, shape, count, nbytes) in body order
-        ring: list = []  # (dtype, shape, count, offset in the slot)
+        inline_at = {id(a) for a in arrays}
         slots_used = set()
-
-        def leaf(v: Any) -> tuple:
-            t = type(v)
-            if t is dict:
-                return _DICT, tuple((k, *leaf(x)) for k, x in v.items())
-            if t is list:
-                return _LIST, tuple(leaf(x) for x in v)
-            if t in _CODE:
-                codes.append(_CODE[t])
-                return _VALUE, ("s", len(codes) - 1)
-            if t is np.ndarray:
-                i = inline_at.get(id(v))
-                if i is not None:
-                    inline.append((v.dtype, v.shape, v.size, v.nbytes))
-                    return _VALUE, ("i", len(inline) - 1)
-                j = shm_at.get(id(v))
-                if j is None:  # pragma: no cover - decode's arrays are its frames' or its slots'
-                    raise WireError(f"{where}: an array that is neither inline nor in the ring")
+        pos = REPLY_HEAD.size + self.scalars.size
+        self.arrays = []  # per array, in body order: (dtype, shape, count, offset, reshape, in the ring)
+        self.ring_end = 0
+        for v in in_body:
+            j = shm_at.get(id(v))
+            if j is not None:
                 _dt, _shape, slot, off = shm_specs[j]
                 slots_used.add(slot)
-                ring.append((v.dtype, v.shape, v.size, off, v.nbytes))
-                return _VALUE, ("r", len(ring) - 1)
-            if t is str or t is bytes or v is None:
-                return _CONST, v
-            raise WireError(f"{where}: a value of type {t.__name__} cannot be templated")
-
-        root = leaf(body)
+                self.ring_end = max(self.ring_end, off + v.nbytes)
+            elif id(v) in inline_at:
+                off = pos = _align8(pos)
+                pos += v.nbytes
+            else:  # pragma: no cover - decode's arrays are its frames' or its slots'
+                raise WireError(f"{where}: an array that is neither inline nor in the ring")
+            self.arrays.append((v.dtype, v.shape, v.size, off, len(v.shape) != 1, j is not None))
         if len(slots_used) > 1:
             raise WireError(f"{where}: its ring arrays lie in {len(slots_used)} slots (one reply, one slot)")
-        self.slot = next(iter(slots_used)) if slots_used else None
-        self.scalars = struct.Struct("<" + "".join(codes))
-        n_s, n_i = len(codes), len(inline)
-        pos = REPLY_HEAD.size + self.scalars.size
-        self.inline = []
-        for dtype, shape, count, nbytes in inline:
-            pos = _align8(pos)
-            self.inline.append((dtype, shape, count, pos, len(shape) != 1))
-            pos += nbytes
+        self.ring = bool(slots_used)
         self.nbytes = pos
-        self.ring = [(dtype, shape, count, off, len(shape) != 1) for dtype, shape, count, off, _n in ring]
-        self.ring_end = max((off + n for _d, _s, _c, off, n in ring), default=0)
-
-        def index(node: tuple) -> tuple:  # ("s"|"i"|"r", k) -> the index in [*scalars, *inline, *ring]
-            kind, x = node
-            if kind == _VALUE:
-                space, k = x
-                return kind, k + (0 if space == "s" else n_s if space == "i" else n_s + n_i)
-            if kind == _DICT:
-                return kind, tuple((k, *index((kk, xx))) for k, kk, xx in x)
-            if kind == _LIST:
-                return kind, tuple(index(e) for e in x)
-            return node
-
-        self.root = index(root)
 
     def read(self, frame: Any, slot: int, slots: list | None) -> Any:
         where = f"compact reply (template {self.tid})"
         if len(frame) != self.nbytes:
             raise WireError(f"{where}: {len(frame)} bytes, the template needs {self.nbytes}")
-        vals = list(self.scalars.unpack_from(frame, REPLY_HEAD.size))
-        for dtype, shape, count, off, reshape in self.inline:
-            a = np.frombuffer(frame, dtype, count, off)
-            if reshape:
-                a = a.reshape(shape)
-            a.flags.writeable = False
-            vals.append(a)
+        mem = None
         if self.ring:
             if slots is None or slot >= len(slots):
                 raise WireError(f"{where}: slot {slot} is out of range (the ring has {len(slots or ())} slots)")
             mem = slots[slot]
             if self.ring_end > mem.nbytes:
                 raise WireError(f"{where}: its ring arrays end at byte {self.ring_end}, slot {slot} has {mem.nbytes}")
-            for dtype, shape, count, off, reshape in self.ring:
-                a = np.frombuffer(mem, dtype, count, off)
-                if reshape:
-                    a = a.reshape(shape)
-                a.flags.writeable = False
-                vals.append(a)
         elif slot:
             raise WireError(f"{where}: names ring slot {slot} but the template has no ring arrays")
-        kind, x = self.root
-        if kind == _DICT:
-            return _build_dict(x, vals)
-        if kind == _LIST:
-            return _build_list(x, vals)
-        return vals[x] if kind == _VALUE else x
-
+        arrays = []
+        for dtype, shape, count, off, reshape, in_ring in self.arrays:
+            a = np.frombuffer(mem if in_ring else frame, dtype, count, off)
+            if reshape:
+                a = a.reshape(shape)
+            a.flags.writeable = False
+            arrays.append(a)
+        return self.skeleton.build(self.scalars.unpack_from(frame, REPLY_HEAD.size), arrays)
 
 class ReplyDecoder:
     """Client side, one per local connection that negotiated compact messages: ``decode(frames)``

@@ -29,6 +29,11 @@ only with at least ``SPIN_MIN_CPUS`` usable cores (``default_spin_us``; the envi
 variable ``SIMSEAM_SIDECAR_SPIN_US`` overrides it, ``0`` turns it off); the vector runner
 turns it off when its workers and their sidecars outnumber the cores.
 
+Shared memory (``create_block`` / ``map_block`` / ``array_at``, ``SlotRing``) is this module's for
+both of simseam's same-machine transports: this one, and the vector runner's worker processes
+(``simseam.runner.vector``: their images through a one-slot ``SlotRing``, their state-only step replies
+through a block laid out from a ``simseam.sidecar.compact`` template).
+
 Imports: the standard library and numpy only.
 """
 
@@ -60,8 +65,9 @@ MAX_SPIN_US = 20_000
 SEALS = fcntl.F_SEAL_SHRINK | fcntl.F_SEAL_GROW | fcntl.F_SEAL_SEAL
 
 
-def _align(n: int) -> int:
-    return (n + ALIGN - 1) // ALIGN * ALIGN
+def align(n: int, to: int = ALIGN) -> int:
+    """``n`` rounded up to a multiple of ``to`` (by default the ring's alignment, 64 bytes)."""
+    return (n + to - 1) // to * to
 
 
 def slot_bytes_for(spec_json: dict, threshold: int = DEFAULT_THRESHOLD) -> int:
@@ -85,7 +91,7 @@ def slot_bytes_for(spec_json: dict, threshold: int = DEFAULT_THRESHOLD) -> int:
             return
         n = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         if n >= threshold:
-            total += _align(n)
+            total += align(n)
 
     fields = (spec_json or {}).get("observation") or {}  # ObservationSpec.to_json(): key -> field
     for field in (fields.values() if isinstance(fields, dict) else ()):
@@ -228,20 +234,72 @@ def recv_message(sock: socket.socket, want_fds: int = 0) -> tuple[list[memoryvie
         raise
 
 
+# ---------------------------------------------------------------------------- shared memory
+HAVE_MEMFD = hasattr(os, "memfd_create")  # Linux
+
+
+def create_block(name: str, size: int, sealed: bool = False) -> tuple[int, mmap.mmap]:
+    """A new block of ``size`` bytes, mapped read-write: ``(fd, mapping)``; the caller hands ``fd`` to
+    the peer and closes it. ``sealed``: its size can never change (a peer that checks the seals never
+    faults on it)."""
+    fd = os.memfd_create(name, os.MFD_CLOEXEC | (os.MFD_ALLOW_SEALING if sealed else 0))
+    try:
+        os.ftruncate(fd, size)
+        if sealed:
+            fcntl.fcntl(fd, fcntl.F_ADD_SEALS, SEALS)
+        return fd, mmap.mmap(fd, size)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def map_block(fd: int, size: int, *, writable: bool = True, sealed: bool = False,
+              where: str = "shared memory", needs: str = "the mapping needs") -> mmap.mmap:
+    """The peer's block ``fd`` mapped (``size`` bytes; read-only unless ``writable``); ``fd`` is closed
+    either way. ``WireError`` naming ``where`` when the block is smaller than ``size`` (``needs``: who
+    says it must have that much), or, with ``sealed``, when it could still be resized under the mapping."""
+    try:
+        if sealed:
+            try:
+                seals = fcntl.fcntl(fd, fcntl.F_GET_SEALS)
+            except OSError:
+                seals = 0
+            if seals & SEALS != SEALS:  # a segment that could shrink under our mapping would fault us
+                raise WireError(f"{where}: the shared-memory segment is not sealed against resizing")
+        have = os.fstat(fd).st_size
+        if have < size:
+            raise WireError(f"{where}: shared-memory segment has {have} bytes, {needs} {size} (truncated)")
+        return mmap.mmap(fd, size, prot=mmap.PROT_READ | (mmap.PROT_WRITE if writable else 0))
+    finally:
+        os.close(fd)
+
+
+def release(mapping: Any) -> None:
+    """Close a mapping; one that a view still holds goes with the last view (the GC frees it)."""
+    try:
+        mapping.close()
+    except BufferError:
+        pass
+
+
+def array_at(buf: Any, dtype: Any, shape: tuple, offset: int) -> np.ndarray:
+    """The array of ``dtype`` and ``shape`` at ``offset`` in ``buf`` (a mapping or a memoryview), no copy."""
+    count = 1
+    for d in shape:
+        count *= d
+    a = np.frombuffer(buf, dtype=dtype, count=count, offset=offset)
+    return a if len(shape) == 1 else a.reshape(shape)
+
+
 # ------------------------------------------------------------------------------- ring
 class SlotRing:
-    """Server side: ``slots`` slots of ``slot_bytes`` in one memfd; arrays go into the next slot."""
+    """The writing side: ``slots`` slots of ``slot_bytes`` in one sealed block; arrays go into the next
+    slot (``begin``, then ``put`` each)."""
 
-    def __init__(self, slots: int, slot_bytes: int, threshold: int = DEFAULT_THRESHOLD):
+    def __init__(self, slots: int, slot_bytes: int, threshold: int = DEFAULT_THRESHOLD,
+                 name: str = "simseam-sidecar-ring"):
         self.slots, self.slot_bytes, self.threshold = slots, slot_bytes, threshold
-        self.fd = os.memfd_create("simseam-sidecar-ring", os.MFD_CLOEXEC | os.MFD_ALLOW_SEALING)
-        try:
-            os.ftruncate(self.fd, slots * slot_bytes)
-            fcntl.fcntl(self.fd, fcntl.F_ADD_SEALS, SEALS)  # its size is fixed: the client never faults
-            self._map = mmap.mmap(self.fd, slots * slot_bytes)
-        except BaseException:
-            os.close(self.fd)
-            raise
+        self.fd, self._map = create_block(name, slots * slot_bytes, sealed=True)
         self._buf = np.frombuffer(self._map, dtype=np.uint8)
         self._next = 0
         self._slot = 0
@@ -264,7 +322,7 @@ class SlotRing:
         start = self._slot * self.slot_bytes + off
         dst = self._buf[start:start + n].view(arr.dtype).reshape(arr.shape)
         np.copyto(dst, arr, casting="no")
-        self._pos = _align(off + n)
+        self._pos = align(off + n)
         return self._slot, off
 
     def layout(self) -> dict:
@@ -275,10 +333,7 @@ class SlotRing:
             os.close(self.fd)
             self.fd = -1
         self._buf = None
-        try:
-            self._map.close()
-        except BufferError:  # a view still exists; the mapping goes with it
-            pass
+        release(self._map)
 
 
 def map_slots(fd: int, layout: Any) -> list[memoryview]:
@@ -291,19 +346,11 @@ def map_slots(fd: int, layout: Any) -> list[memoryview]:
         slots, slot_bytes = layout["slots"], layout["slot_bytes"]
         if not 2 <= slots <= 64 or not 0 < slot_bytes <= MAX_SLOT_BYTES or slot_bytes % ALIGN:
             raise WireError(f"attach: ring layout {slots} slots x {slot_bytes} bytes is out of range")
-        try:
-            seals = fcntl.fcntl(fd, fcntl.F_GET_SEALS)
-        except OSError:
-            seals = 0
-        if seals & SEALS != SEALS:  # a segment that could shrink under our mapping would fault the client
-            raise WireError("attach: the shared-memory segment is not sealed against resizing")
-        size = os.fstat(fd).st_size
-        if size < slots * slot_bytes:
-            raise WireError(f"attach: shared-memory segment has {size} bytes, the layout "
-                            f"({slots} x {slot_bytes}) needs {slots * slot_bytes} (truncated)")
-        m = mmap.mmap(fd, slots * slot_bytes, prot=mmap.PROT_READ)
-    finally:
+    except BaseException:
         os.close(fd)
+        raise
+    m = map_block(fd, slots * slot_bytes, writable=False, sealed=True, where="attach",
+                  needs=f"the layout ({slots} x {slot_bytes}) needs")
     view = memoryview(m)
     return [view[i * slot_bytes:(i + 1) * slot_bytes] for i in range(slots)]
 
