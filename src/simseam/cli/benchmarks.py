@@ -209,7 +209,7 @@ def _eval_job(job, executor, p, engine: str | None) -> None:
     if job.run_dir.resume:
         console.print(f"resuming: {len(job.run_dir.done)} episode(s) already recorded")
         print_notes(job.run_dir.notes, "differs from the run there (the episodes are the same)")
-    report = JobReport(status=_Starting)
+    report = JobReport(status=lambda task: _Starting(p.backend, task))
     with episodes_guard(job.run_dir, finish=_summary(p, job.policy, job.run_dir)), contextlib.ExitStack() as stack:
         if executor.kind == "inline":
             report.on_done, report.on_error = _task_episode_line, _episode_error
@@ -241,11 +241,11 @@ def _episode_error(res, what_next: str) -> None:
 class _Starting:
     """A benchmark's sidecar starting for one task: a line, and a line per stage of its boot."""
 
-    def __init__(self, what: str):
-        self.what = what
+    def __init__(self, backend: str, task: str):
+        self.backend, self.what = backend, task
 
     def __enter__(self) -> "_Starting":
-        console.print(f"[dim]starting {escape(self.what)}[/]", highlight=False)
+        console.print(f"[dim]{escape(self.backend)}: starting {escape(self.what)}[/]", highlight=False)
         return self
 
     def __exit__(self, *exc) -> None:

@@ -65,6 +65,7 @@ class SceneRecipe:
         return entry
 
     def describe(self) -> str:
+        """What ``build`` builds, in words."""
         return "the scene"
 
     #: the words that say how the parts of a run take turns (``parts``): a scene has one
@@ -182,7 +183,8 @@ class BenchmarkRecipe:
         return {**entry, "task": self.tasks[ti], "episode": e}
 
     def describe(self) -> str:
-        return f"{self.backend}: {self.tasks[self.first_task]}"
+        """What ``build`` builds, in words: the task of its sidecar."""
+        return self.tasks[self.first_task]
 
     parts_in_turn = ", one task at a time"
 
