@@ -11,7 +11,7 @@ lift_cube, MuJoCo, ``max_steps: 2``, ``--policy zero``, console output to /dev/n
 episodes take minutes and what is measured is the per-episode bookkeeping of the run, not the physics:
 
 - ``sequential``: ``--num-envs 1`` (one process, ``runner.session.run_episodes`` with its progress bar);
-- ``workers``: ``--num-envs 2`` (the policy inside each of two worker processes, ``VectorEnv.run_local``);
+- ``workers``: ``--num-envs 2`` (the policy inside each of two worker processes, ``runner.whole_episodes.run_local``);
 - ``lockstep``: ``--num-envs 2 --policy-ready 1`` (the policy in the main process, the ready rule);
 - ``groups``: ``--num-envs 2 --policy-groups 2`` (pipelined lockstep);
 - ``envs_per_worker``: ``--num-envs 4 --envs-per-worker 2 --policy-ready 2`` (two environments per worker).

@@ -34,7 +34,7 @@ while the policy's action for another is on its way); ``_gG`` pipelined lockstep
 ``_spin`` the busy-poll forced on (``DEFAULT_VECTOR_SPIN_US``, or US microseconds). G and M are capped
 at the environments. E.g. ``vector_g4_spin``, ``vector_x2_ready8`` (32 environments on 16 workers at
 N = 16, the policy acting once 8 steps are in). ``local`` is
-``VectorEnv.run_local`` (the built-in ``zero``
+``runner.whole_episodes.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
 vector API must not fall behind). Timing starts once every worker has built its rollout (and the
@@ -74,6 +74,7 @@ import numpy as np  # noqa: E402
 
 from cpu_facts import CpuWindow, topology  # noqa: E402
 from simseam.policies.batch import PolicyBatch  # noqa: E402
+from simseam.runner import whole_episodes  # noqa: E402
 from simseam.runner.vector import VectorEnv  # noqa: E402
 
 # case -> (image size or None, behind a sidecar)
@@ -389,11 +390,11 @@ def profile_vector(case: str, n: int, steps: int, episodes: int, top: int = 15, 
 
 
 def run_local(case: str, n: int, steps: int, episodes: int) -> dict:
-    """The policy inside each worker (``VectorEnv.run_local``): the built-in ``zero`` policy, state only."""
+    """The policy inside each worker (``runner.whole_episodes.run_local``): the built-in ``zero`` policy, state only."""
     with VectorEnv(recipe_for(case, steps), n) as vec:
         vec._wait_booted(vec.slots)
         t0 = time.perf_counter()
-        results = vec.run_local("zero", {}, range(episodes))
+        results = whole_episodes.run_local(vec, "zero", {}, range(episodes))
         wall = time.perf_counter() - t0
     return {"wall_s": wall, "env_steps": sum(r.steps for r in results), "episodes": len(results)}
 

@@ -190,10 +190,11 @@ def test_libero_eval_drives_a_remote_policy_as_openpis_libero_client(tmp_path, r
     assert not np.array_equal(received[0]["observation/wrist_image"], received[2]["observation/wrist_image"])
 
 
-def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_starts(tmp_path):
+def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_starts(tmp_path, monkeypatch):
     """The policy meets the benchmark's spec (its reset) before spec.json, run.json or a log line is written."""
     from simseam.policies.base import BasePolicy
-    from simseam.runner.evaluate import preset, run_eval, run_eval_vector
+    from simseam.runner.evaluate import eval_recipe, preset
+    from simseam.runner.job import Executor, Job, execute
     from simseam.runner.run_dir import RunDir
     from simseam.seam import ConfigError
 
@@ -203,14 +204,14 @@ def test_an_eval_policy_that_does_not_fit_the_benchmark_fails_before_the_run_sta
         def reset(self, spec):
             raise ConfigError(f"this policy wants 9-D actions, the benchmark takes {spec.action.dim}")
 
+    monkeypatch.setattr("simseam.policies.base.make_policy", lambda name, **kwargs: Misfit())  # in this process
     run_dir = RunDir(tmp_path / "run", {"preset": "pusht"})
     with pytest.raises(ConfigError, match="this policy wants 9-D actions"):
-        run_eval(preset("pusht"), Misfit(), "misfit", ["pusht"], 2, run_dir)
+        execute(Job(eval_recipe(preset("pusht"), ["pusht"], 2), "misfit", {}, [0, 1], 0, run_dir), Executor("inline"))
     run_dir.close()
     assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())
     run_dir = RunDir(tmp_path / "run", {"preset": "pusht"})  # --num-envs 2: the check meets the workers' spec
     with pytest.raises(ConfigError, match="this policy wants 9-D actions"):
-        run_eval_vector(preset("pusht"), ["pusht"], 2, run_dir, 2, policy="zero", policy_kwargs={},
-                        check=Misfit().reset)
+        execute(Job(eval_recipe(preset("pusht"), ["pusht"], 2), "zero", {}, [0, 1], 0, run_dir), Executor("vector", 2))
     run_dir.close()
     assert not (tmp_path / "run").exists() or not any((tmp_path / "run").iterdir())

@@ -94,18 +94,19 @@ def test_lockstep_rules_step_the_workers_from_here_with_the_same_results(referen
 
 def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path):
     """The vector tests' technique: freeze a busy worker; if it has sent nothing, it is mid-episode: kill it."""
-    from simseam.runner.evaluate import preset, run_eval_vector
+    from simseam.runner.evaluate import eval_recipe, preset
+    from simseam.runner.job import Executor, Job, JobReport, execute
     from simseam.runner.run_dir import RunDir, rebuild_summary
 
     want, _ = reference
     p = preset("metaworld_mt10")
     out = tmp_path / "run"
     run_dir = RunDir(out, {"test": "worker kill"})
-    vecs, killed, failures, done = [], [], [], []
+    killed, failures, done = [], [], []
 
-    def on_done(res, task):
-        done.append((res.index, task))
-        vec = vecs[0]
+    def on_done(entry, written):
+        done.append((entry["index"], entry["task"]))
+        vec = report.envs
         busy = [s for s in vec.slots if s.index is not None]
         if not killed and busy:
             pid = busy[0].proc.pid
@@ -117,8 +118,9 @@ def test_a_worker_killed_mid_episode_reruns_it_counted_once(reference, tmp_path)
                 os.kill(pid, signal.SIGKILL)
 
     try:
-        run_eval_vector(p, list(TASKS), EPISODES, run_dir, 2, policy="scripted", policy_kwargs={}, privileged=True,
-                        on_start=vecs.append, on_done=on_done, on_worker_failure=failures.append)
+        report = JobReport(on_done=on_done, on_worker_failure=failures.append)
+        execute(Job(eval_recipe(p, list(TASKS), EPISODES), "scripted", {}, list(range(len(TASKS) * EPISODES)), 0,
+                    run_dir), Executor("vector", 2), report)  # the scripted experts: privileged, in each worker
     finally:
         run_dir.close()
     assert killed, "no worker was caught mid-episode"

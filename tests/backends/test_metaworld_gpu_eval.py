@@ -60,9 +60,8 @@ def test_eval_cli_on_warp_cpu_device(tmp_path):
 def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
     """Episodes 0..3 on 1 world and on 3 (the shorter episodes end first, the next start in their worlds):
     the same seed, steps, success and reward per episode."""
-    from simseam.policies.base import make_policy
-    from simseam.policies.batch import PerEnvPolicies
-    from simseam.runner.evaluate import preset, run_eval_batched
+    from simseam.runner.evaluate import eval_recipe, preset
+    from simseam.runner.job import Executor, Job, execute
     from simseam.runner.run_dir import RunDir
 
     runs = {}
@@ -70,8 +69,8 @@ def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
         out = tmp_path / f"w{worlds}"
         p = preset("metaworld_mt10")
         run_dir = RunDir(out, {"worlds": worlds})
-        batch = PerEnvPolicies(lambda: make_policy("scripted"), worlds)
-        run_eval_batched(p, [TASK], 4, run_dir, worlds, policy_batch=batch, device="cpu", privileged=True, seed=10)
+        execute(Job(eval_recipe(p, [TASK], 4, "mujoco_warp", "cpu"), "scripted", {}, [0, 1, 2, 3], 10, run_dir),
+                Executor("vector", worlds))  # one scripted expert per world (PerEnvPolicies), privileged
         run_dir.close()
         runs[worlds] = _lines(out)
     one, three = runs[1], runs[3]

@@ -184,12 +184,13 @@ def test_ray_eval_equals_the_sequential_eval(cluster, tmp_path):
 
 
 @pytest.mark.backends
-def test_a_ray_policy_that_does_not_fit_is_found_before_anything_is_written(cluster, tmp_path):
+def test_a_ray_policy_that_does_not_fit_is_found_before_anything_is_written(cluster, tmp_path, monkeypatch):
     """run --ray and eval --ray: the parent's policy meets the first actor's spec before spec.json, run.json or a
     log line is written, so --overwrite keeps the old run byte for byte (catches: the mismatch found by an
     actor in its first episode, after the old run was removed)."""
     from simseam.policies.base import BasePolicy
-    from simseam.runner.evaluate import preset, run_eval_ray
+    from simseam.runner.evaluate import eval_recipe, preset
+    from simseam.runner.job import Executor, Job, execute
     from simseam.runner.run_dir import RunDir
     from simseam.seam import ConfigError
 
@@ -213,9 +214,10 @@ def test_a_ray_policy_that_does_not_fit_is_found_before_anything_is_written(clus
             raise ConfigError(f"this policy wants 9-D actions, the benchmark takes {spec.action.dim}")
 
     run_dir = RunDir(tmp_path / "eval", {"preset": "pusht"})
+    monkeypatch.setattr("simseam.policies.base.make_policy", lambda name, **kwargs: Misfit())  # here, not on Ray
     with pytest.raises(ConfigError, match="this policy wants 9-D actions, the benchmark takes 2"):
-        run_eval_ray(preset("pusht"), ["pusht"], 2, run_dir, address, policy="zero", policy_kwargs={},
-                     num_workers=1, check=Misfit().reset)
+        execute(Job(eval_recipe(preset("pusht"), ["pusht"], 2), "zero", {}, [0, 1], 0, run_dir),
+                Executor("ray", 1, address=address))
     run_dir.close()
     assert not (tmp_path / "eval").exists() or not any((tmp_path / "eval").iterdir())
 

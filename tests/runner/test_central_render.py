@@ -26,6 +26,7 @@ from simseam.runner.central_render import CentralRenderer, choose_renderer, cuda
 from simseam.runner.scene_config import SceneConfig
 from simseam.runner.recipe import SceneRecipe
 from simseam.runner.vector import VectorEnv
+from simseam.runner.whole_episodes import run_local
 from simseam.scene.manifest_scene import ManifestScene, SceneOptions
 from simseam.seam import STATE_ONLY, ConfigError, ObsRequest
 
@@ -194,7 +195,7 @@ def test_what_the_central_renderer_cannot_serve_is_a_clear_error(tmp_path):
 def test_run_local_is_refused_with_the_central_renderer():
     with VectorEnv(_recipe(privileged=False), 1, renderer="batched") as vec:
         with pytest.raises(ConfigError, match="run_local"):
-            vec.run_local("zero", {}, [0])
+            run_local(vec, "zero", {}, [0])
 
 
 def test_a_worker_killed_mid_episode_with_the_central_renderer(tmp_path):

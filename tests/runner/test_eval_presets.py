@@ -1,5 +1,5 @@
 """Evaluation presets' per-task fields (``Preset.per_task``): every path that opens a task's rollout
-(sequential ``run_eval``, worker processes and Ray through ``BenchmarkRecipe``) gives the task its own fields
+(a job run inline, on worker processes and on Ray, all through ``BenchmarkRecipe``) gives the task its own fields
 over the preset's, and run.json records them. No backend is started: ``open_benchmark`` is replaced."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import pytest
 
 from simseam.runner import evaluate
 from simseam.runner.evaluate import eval_config, preset
+from simseam.runner.job import Executor, Job, execute
 from simseam.runner.recipe import BenchmarkRecipe
 
 
@@ -56,7 +57,7 @@ def test_eval_recipe_opens_each_task_with_its_own_fields(monkeypatch, first_task
     assert all(priv for _, _, priv in opened)
 
 
-def test_run_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
+def test_an_inline_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
     opened = []
 
     class Stop(Exception):
@@ -66,17 +67,10 @@ def test_run_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
         opened.append(config)
         raise Stop
 
-    class Policy:
-        uses_images = False
-        requires_privileged = False
-
-    class RunDir:
-        done = set()
-        path = tmp_path
-
     monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
+    job = Job(evaluate.eval_recipe(preset("maniskill_tabletop_mp"), ["StackCube-v1"], 2), "zero", {}, [0, 1])
     with pytest.raises(Stop):
-        evaluate.run_eval(preset("maniskill_tabletop_mp"), Policy(), "p", ["StackCube-v1"], 2, RunDir())
+        execute(job, Executor("inline"))
     assert opened == [{"control_mode": "pd_joint_pos", "environment_state": True, "max_steps": 200,
                        "task": "StackCube-v1"}]
 

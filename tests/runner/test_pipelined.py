@@ -15,6 +15,7 @@ from simseam.runner.scene_config import load_scene_config
 from simseam.runner.recipe import SceneRecipe
 from simseam.runner.scheduler import BatchVectorEnv, run_batch
 from simseam.runner.vector import VectorEnv
+from simseam.runner.whole_episodes import run_local
 from simseam.seam import STATE_ONLY, ConfigError, SyncBatchRollout
 
 from test_vector import _outcome, _recipe, _scene, _sequential
@@ -223,4 +224,4 @@ def test_envs_per_worker_out_of_range_and_with_policies_inside_the_workers_are_r
             VectorEnv(recipe, 2, envs_per_worker=k)
     with VectorEnv(recipe, 2, envs_per_worker=2) as vec:
         with pytest.raises(ConfigError, match="run_local"):
-            vec.run_local("zero", {}, range(2))
+            run_local(vec, "zero", {}, range(2))

@@ -13,6 +13,7 @@ from simseam.runner.scene_config import build_rollout, load_scene_config
 from simseam.runner.session import run_episodes
 from simseam.runner.recipe import SceneRecipe
 from simseam.runner.vector import VectorEnv, default_num_envs
+from simseam.runner.whole_episodes import run_local
 from simseam.seam import ConfigError
 
 SCENE = """robot: franka_panda
@@ -194,7 +195,7 @@ def test_policies_inside_the_workers_equal_one_process_and_survive_a_kill(tmp_pa
 
         vec._send = send_then_kill
         on_done = done.append
-        results = vec.run_local("scripted", {}, range(6), seed=1, on_done=on_done,
+        results = run_local(vec, "scripted", {}, range(6), seed=1, on_done=on_done,
                                 on_worker_failure=failures.append)
     assert killed and [f.index for f in failures] == killed
     assert sorted(r.index for r in done) == list(range(6))

@@ -9,6 +9,7 @@ import pytest
 from simseam.policies.batch import make_policy_batch
 from simseam.runner.scene_config import load_scene_config
 from simseam.runner.vector import VectorEnv
+from simseam.runner.whole_episodes import run_local
 
 SCENE = "robot: franka_panda\ntask: lift_cube\nmax_steps: 6\n"
 SEED, CRASH = 10, 13  # episode 3 crashes: 3 is the slot index of neither of the 2 workers
@@ -93,7 +94,7 @@ def test_run_local_records_a_workers_sidecar_error_under_the_episode(recipe):
     """Catches: a worker's sidecar error recorded under the worker slot's index and seed (run_local path)."""
     errors = []
     with VectorEnv(recipe, 2) as vec:
-        results = vec.run_local("zero", {}, range(4), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
+        results = run_local(vec, "zero", {}, range(4), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
     _check(results, errors)
 
 
@@ -120,7 +121,7 @@ def test_run_local_records_an_error_escaping_the_episode_loop_under_the_episode(
     path.write_text(SCENE)
     errors = []
     with VectorEnv(_RolloutForFails(str(path), crash_seed=-1, fail_index=3), 2) as vec:
-        results = vec.run_local("zero", {}, range(5), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
+        results = run_local(vec, "zero", {}, range(5), seed=SEED, on_error=lambda r, what: errors.append((r, what)))
     assert sorted(r.index for r in results) == [0, 1, 2, 3, 4]  # each episode once
     assert {r.index: r.seed for r in results} == {i: SEED + i for i in range(5)}
     (err,) = [r for r in results if r.error]

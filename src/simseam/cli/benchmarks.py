@@ -9,8 +9,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
-    check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy, console, episodes_guard, err_console, \
-    fail, never_started, out_path, policy_kwargs, print_notes, redacted, SpecProbe, CI_WIDTH_HELP
+    check_lockstep, check_seed, checked_ci_width, ci_width_line, console, episodes_guard, err_console, \
+    fail, never_started, out_path, policy_kwargs, print_notes, redacted, CI_WIDTH_HELP
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -127,7 +127,9 @@ def eval_command(
     ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, preset, resolve_tasks
+    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, eval_recipe, preset, resolve_tasks
+    from simseam.runner.job import Job
+    from simseam.runner.provenance import for_benchmark
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
 
@@ -146,53 +148,111 @@ def eval_command(
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
-        config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width)}
-        if shard_ik is not None:
-            config["shard"] = list(shard_ik)
-        if engine is not None:
-            config["engine"] = engine
+        config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
+                  **({"shard": list(shard_ik)} if shard_ik is not None else {}),
+                  **({"engine": engine} if engine is not None else {})}
         planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
-        from simseam.runner.provenance import for_benchmark
-
         config["provenance"] = for_benchmark(p.backend, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
+    executor = _eval_executor(len(todo), n, num_envs, engine, ray_address,
+                              (policy_groups, policy_ready, envs_per_worker))
+    job = Job(eval_recipe(p, task_list, n, engine, sim_device), policy, policy_kwargs(device, n_action_steps), todo,
+              seed, run_dir, video)
+    console.print(_eval_start(p, job, executor, engine, n, config, (
+        f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else "")))
+    _eval_job(job, executor, p, engine)
+
+
+def _eval_start(p, job, executor, engine: str | None, n: int, config: dict, shard: str) -> str:
+    """The first line of ``simseam eval``: what runs, where, into which directory (``shard``: which share)."""
+    tasks, policy, out = job.recipe.tasks, escape(job.policy), escape(str(job.run_dir.path))
     if engine is not None:
-        _eval_batched(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, num_envs,
-                      engine=engine, sim_device=sim_device, seed=seed, indices=planned)
-        return
+        return (f"eval [bold]{escape(p.name)}[/] on [bold]{escape(engine)}[/]: {len(tasks)} task(s) x {n} "
+                f"episode(s), policy [bold]{policy}[/], {executor.num_envs} world(s) per task -> {out}")
+    if executor.kind == "ray":
+        return (f"eval [bold]{escape(p.name)}[/]: {len(job.indices)} episode(s) of {len(tasks)} task(s), policy "
+                f"[bold]{policy}[/] on Ray ({escape(executor.address)}) -> {out}")
+    return (f"eval [bold]{escape(p.name)}[/]: {len(tasks)} task(s) x {n} episode(s), policy [bold]{policy}[/] -> "
+            f"{out}" + ("" if config["standard"] else "  [yellow](non-standard: subset)[/]") + shard)
+
+
+def _eval_executor(todo: int, episodes: int, num_envs: int | None, engine: str | None, ray_address: str | None,
+                   lockstep: tuple):
+    """Where ``simseam eval`` runs: a batched engine (``--num-envs`` worlds per task, default the task's
+    episodes), Ray, ``--num-envs`` environments (default: sized to the cores and the episodes), or this
+    process."""
+    from simseam.runner.job import Executor
+    from simseam.runner.scheduler import Lockstep
+
+    if engine is not None:
+        return Executor("vector", max(1, num_envs or episodes))
     if ray_address is not None:
-        _eval_ray(p, policy, policy_kwargs(device, n_action_steps), task_list, n, run_dir, out, ray_address,
-                  num_workers=num_envs, seed=seed, indices=planned)
-        return
+        return Executor("ray", num_envs, address=ray_address)
+    rule = Lockstep(*lockstep)
     if num_envs is None:
         from simseam.runner.vector import default_num_envs
 
-        num_envs = default_num_envs(len(todo), envs_per_worker=envs_per_worker)
-    num_envs = max(1, min(num_envs, len(todo) or 1))
-    from simseam.runner.scheduler import Lockstep
+        num_envs = default_num_envs(todo, envs_per_worker=rule.envs_per_worker)
+    num_envs = max(1, min(num_envs, todo or 1))
+    return Executor("vector" if num_envs > 1 else "inline", num_envs, rule)
 
-    rule = Lockstep(policy_groups, policy_ready, envs_per_worker).fit(num_envs)
-    kwargs = policy_kwargs(device, n_action_steps)
-    try:
-        pol, batch = _eval_policies(policy, kwargs, num_envs, rule)
-    except SimseamError as exc:
-        run_dir.close()
-        fail(exc)
-    console.print(f"eval [bold]{escape(p.name)}[/]: {len(task_list)} task(s) x {n} episode(s), policy "
-                  f"[bold]{escape(policy)}[/] -> {escape(str(out))}" + ("" if config["standard"] else
-                                                                      "  [yellow](non-standard: subset)[/]")
-                  + (f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else ""))
-    if resume:
-        console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
-        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
-    if num_envs > 1:
-        _eval_vector(p, policy, kwargs, pol, batch, task_list, n, run_dir, out, num_envs,
-                     seed=seed, video=video, indices=planned, lockstep=rule)
-        return
-    _eval_sequential(p, pol, policy, task_list, n, run_dir, out, seed=seed, video=video, indices=planned)
+
+def _eval_job(job, executor, p, engine: str | None) -> None:
+    """``simseam eval``'s job on its executor: progress, one line per episode, Ctrl-C, errors, the summary."""
+    import contextlib
+
+    from simseam.runner.job import JobReport, execute
+
+    if job.run_dir.resume:
+        console.print(f"resuming: {len(job.run_dir.done)} episode(s) already recorded")
+        print_notes(job.run_dir.notes, "differs from the run there (the episodes are the same)")
+    report = JobReport(status=lambda task: _Starting(p.backend, task))
+    with episodes_guard(job.run_dir, finish=_summary(p, job.policy, job.run_dir)), contextlib.ExitStack() as stack:
+        if executor.kind == "inline":
+            report.on_done, report.on_error = _task_episode_line, _episode_error
+        else:
+            progress = stack.enter_context(EvalProgress(console, total=len(job.indices)))
+            report.on_done = lambda entry, written: progress.done(entry)
+            report.on_error, report.on_worker_failure = progress.episode_error, progress.worker_failure
+
+        def opened(spec, n, where):
+            if engine is not None:
+                console.print(f"[dim]{escape(spec.task.name)}: {n} world(s) on {escape(engine)}[/]", highlight=False)
+            elif executor.kind == "vector":
+                console.print(f"[dim]{escape(p.backend)}: {n} environments ({where})[/]", highlight=False)
+
+        report.on_envs = opened
+        execute(job, executor, report)
+
+
+def _task_episode_line(entry: dict, written) -> None:
+    mark = "[green]success[/]" if entry["success"] else "[red]fail[/]"
+    console.print(f"  {escape(entry['task'])} episode {entry['episode']}: {mark} in {entry['steps']} steps"
+                  + (f"  [red]{escape(entry['error'])}[/]" if entry.get("error") else ""), highlight=False)
+
+
+def _episode_error(res, what_next: str) -> None:
+    err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
+
+
+class _Starting:
+    """A benchmark's sidecar starting for one task: a line, and a line per stage of its boot."""
+
+    def __init__(self, backend: str, task: str):
+        self.backend, self.what = backend, task
+
+    def __enter__(self) -> "_Starting":
+        console.print(f"[dim]{escape(self.backend)}: starting {escape(self.what)}[/]", highlight=False)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+    def update(self, stage: str) -> None:
+        console.print(f"[dim]{escape(self.what)}: {escape(stage)}[/]", highlight=False)
 
 
 def _check_executor(engine: str | None, sim_device: str | None, ray_address: str | None, video: bool,
@@ -213,126 +273,6 @@ def _task_subset(tasks: str | None) -> list[str] | None:
         raise ConfigError(f"--tasks {tasks!r} names no task (comma-separated names or indices; leave it out "
                           "for every task)")
     return only
-
-
-def _eval_policies(policy: str, kwargs: dict, num_envs: int, rule):
-    """The policy, and for N > 1 environments the batch that acts for them here (one shared model, or one
-    instance per environment when the ``rule`` acts here), or None (the policy runs in each worker)."""
-    from simseam.policies.base import make_policy
-
-    pol = make_policy(policy, **kwargs)
-    if num_envs <= 1:
-        return pol, None
-    from simseam.policies.batch import shared_batch
-
-    batch = shared_batch(pol, num_envs, lambda: make_policy(policy, **kwargs))
-    if batch is None and rule.acts_here:  # the policy acts here, one instance per environment
-        from simseam.policies.batch import PerEnvPolicies
-
-        made = [pol]
-        batch = PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **kwargs), num_envs)
-    return pol, batch
-
-
-def _eval_sequential(p, pol, policy: str, task_list: list[str], n: int, run_dir, out: Path, *, seed: int,
-                     video: bool, indices: list[int]) -> None:
-    """``simseam eval`` on one environment here, episode after episode, then the summary."""
-    from simseam.runner.evaluate import run_eval
-
-    def done(res, task):
-        mark = "[green]success[/]" if res.success else "[red]fail[/]"
-        console.print(f"  {escape(task)} episode {res.index % n}: {mark} in {res.steps} steps"
-                      + (f"  [red]{escape(res.error)}[/]" if res.error else ""), highlight=False)
-
-    def error(res, what_next):
-        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False)
-
-    with episodes_guard(run_dir, lambda: close_policy(pol), finish=_summary(p, policy, run_dir)):
-        run_eval(p, pol, policy, task_list, n, run_dir, seed=seed, video_dir=out if video else None,
-                 progress=lambda s: console.print(f"[dim]{escape(s)}[/]", highlight=False),
-                 on_done=done, on_error=error, indices=indices)
-
-
-def _eval_vector(p, policy: str, kwargs: dict, pol, batch, task_list: list[str], n: int, run_dir, out: Path,
-                 num_envs: int, *, seed: int, video: bool, indices: list[int], lockstep) -> None:
-    """``simseam eval --num-envs N`` (N > 1): the episodes on N environments in worker processes
-    (``run_eval_vector``; a policy ``batch`` stepped by the ``lockstep`` rule), then the summary. Progress
-    as ``simseam run --num-envs``."""
-    from simseam.runner.evaluate import run_eval_vector
-
-    privileged = pol.requires_privileged
-    where = "one batched policy, one task at a time" if batch is not None else "a policy in each worker"
-    if batch is not None:
-        where += lockstep.describe()
-    todo = len([i for i in indices if i not in run_dir.done])
-    # nothing shared (batch None): each worker runs its own instance; this one meets the specs first
-    cleanup = batch.close if batch is not None else lambda: close_policy(pol)
-    with episodes_guard(run_dir, cleanup, finish=_summary(p, policy, run_dir)), \
-            EvalProgress(console, total=todo) as progress:
-        def start(vec):
-            console.print(f"[dim]{escape(p.backend)}: {vec.num_envs} environments ({where})[/]", highlight=False)
-
-        run_eval_vector(p, task_list, n, run_dir, num_envs, policy=policy, policy_kwargs=kwargs,
-                        policy_batch=batch, privileged=privileged, uses_images=pol.uses_images, seed=seed,
-                        video_dir=out if video else None, on_start=start,
-                        on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
-                        on_error=progress.episode_error, on_worker_failure=progress.worker_failure,
-                        indices=indices, check=pol.reset, lockstep=lockstep)
-
-
-def _eval_batched(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path,
-                  num_envs: int | None, *, engine: str, sim_device: str | None, seed: int, indices: list[int]) -> None:
-    """``simseam eval --engine mujoco_warp``: each task's episodes as the worlds of one batch
-    (``run_eval_batched``; ``--num-envs`` worlds, default the task's episodes), the policy stepped for all of
-    them at once (its own batch, or one instance per world). Progress and summary as the vector path."""
-    from simseam.policies.batch import make_policy_batch
-    from simseam.runner.evaluate import run_eval_batched
-
-    todo = len([i for i in indices if i not in run_dir.done])
-    worlds = max(1, num_envs or n)
-    batch = None
-    try:
-        batch = make_policy_batch(policy, worlds, **kwargs)
-        if batch.uses_images:
-            raise ConfigError(f"--engine {engine}: the port is state-only; policy {policy!r} reads images")
-    except SimseamError as exc:
-        if batch is not None:
-            batch.close()
-        run_dir.close()
-        fail(exc)
-    console.print(f"eval [bold]{escape(p.name)}[/] on [bold]{escape(engine)}[/]: {len(task_list)} task(s) x {n} "
-                  f"episode(s), policy [bold]{escape(policy)}[/], {worlds} world(s) per task -> {escape(str(out))}")
-    with episodes_guard(run_dir, batch.close, finish=_summary(p, policy, run_dir)), \
-            EvalProgress(console, total=todo) as progress:
-        def start(vec):
-            console.print(f"[dim]{escape(vec.spec.task.name)}: {vec.num_envs} world(s) on {escape(engine)}[/]",
-                          highlight=False)
-
-        run_eval_batched(p, task_list, n, run_dir, worlds, policy_batch=batch, engine=engine, device=sim_device,
-                         privileged=batch.requires_privileged, seed=seed, on_start=start,
-                         on_done=lambda res, task: progress.done({**res.to_json(), "task": task}),
-                         on_error=progress.episode_error, indices=indices, check=lambda spec: batch.reset(0, spec))
-
-
-def _eval_ray(p, policy: str, kwargs: dict, task_list: list[str], n: int, run_dir, out: Path, address: str, *,
-              num_workers: int | None, seed: int, indices: list[int]) -> None:
-    """``simseam eval --ray ADDRESS``: the episodes on Ray actors (``run_eval_ray``), each owning a sidecar
-    of the backend and its own policy; results streamed into the episode log. Progress as ``run --ray``."""
-    from simseam.runner.evaluate import run_eval_ray
-
-    todo = [i for i in indices if i not in run_dir.done]
-    probe = None
-    with episodes_guard(run_dir, lambda: probe and probe.close(), finish=_summary(p, policy, run_dir)):
-        probe = SpecProbe(policy, kwargs)  # meets the first actor's spec before anything is written
-        console.print(f"eval [bold]{escape(p.name)}[/]: {len(todo)} episode(s) of {len(task_list)} task(s), policy "
-                      f"[bold]{escape(policy)}[/] on Ray ({escape(address)}) -> {escape(str(out))}")
-        if run_dir.done:
-            console.print(f"resuming: {len(run_dir.done)} episode(s) already recorded")
-        with EvalProgress(console, total=len(todo)) as progress:
-            run_eval_ray(p, task_list, n, run_dir, address, policy=policy, policy_kwargs=kwargs,
-                         privileged=probe.requires_privileged, uses_images=probe.uses_images, seed=seed,
-                         num_workers=num_workers, indices=indices, check=probe.check,
-                         on_done=progress.done, on_worker_failure=progress.worker_failure)
 
 
 def _summary(p, policy: str, run_dir):

@@ -150,30 +150,6 @@ def close_policy(pol) -> None:
         close()
 
 
-class SpecProbe:
-    """A policy instance made only to meet a run's spec, for executors whose policies live elsewhere (Ray
-    actors): ``check(spec)`` resets it on the first rollout's spec, then closes it at once (a ``remote:``
-    probe would otherwise hold one of the server's client slots for the whole run); ``close()`` if the
-    check never came."""
-
-    def __init__(self, policy: str, kwargs: dict):
-        from simseam.policies.base import make_policy
-
-        self.policy = make_policy(policy, **kwargs)
-        self.requires_privileged, self.uses_images = self.policy.requires_privileged, self.policy.uses_images
-
-    def check(self, spec) -> None:
-        try:
-            self.policy.reset(spec)
-        finally:
-            self.close()
-
-    def close(self) -> None:
-        if self.policy is not None:
-            close_policy(self.policy)
-            self.policy = None
-
-
 class EvalProgress:
     """One progress bar over all workers: episodes done, success so far, episodes per hour; one line per
     finished episode, and per-worker failures with the episode they hit."""

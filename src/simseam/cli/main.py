@@ -15,10 +15,10 @@ from rich.table import Table
 from simseam.cli.benchmarks import backends_app, benchmarks_app, eval_command
 from simseam.cli.compare import compare
 from simseam.cli.common import (CI_WIDTH_HELP, ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP,
-                                EvalProgress, check_lockstep, check_seed, checked_ci_width, ci_width_line, close_policy,
+                                EvalProgress, check_lockstep, check_seed, checked_ci_width, ci_width_line,
                                 console, episodes_guard, err_console, fail, never_started, out_path, policy_kwargs,
                                 print_notes,
-                                redacted, sigterm_as_interrupt, SpecProbe)
+                                redacted, sigterm_as_interrupt)
 from simseam.cli.deploy import deploy
 from simseam.cli.isaac import doctor, isaac_app
 from simseam.cli.report import report, report_after_run
@@ -53,63 +53,63 @@ def _print_version(value: bool) -> None:
 def _root(version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
                                        help="Print simseam's version, the source it runs and its git revision.")) -> None:
     """Run robot policies in simulation."""
-def _episodes(rollout, pol, indices, *, seed: int, video_dir: Path | None, recorder=None,
-              keep_failures: bool = True, on_result=None) -> list:
-    """``runner.session.run_episodes`` with a progress bar and one line per episode."""
-    from simseam.runner.session import run_episodes
+def _bar_report(report, stack):
+    """A one-process run's progress (``report``, a ``JobReport``): one line per finished episode and, once the
+    rollout is built (the ``opened(spec, n, where)`` returned), one bar reset for each episode (``stack``
+    closes it)."""
+    progress = bar = None
+    steps = [1]
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as progress:
-        # one bar, reset for each episode: a task per episode would grow Rich's per-task caches (its columns
-        # keep a rendering per task id, never dropped: 1.7 kB of resident memory an episode, bench_memory.py)
-        bar = progress.add_task("", total=rollout.spec.task.max_steps, visible=False)
+    def opened(spec, n, where):  # the bar starts once the scene is built (its status spinner has ended)
+        nonlocal progress, bar
+        steps[0] = spec.task.max_steps
+        if progress is None:
+            progress = stack.enter_context(Progress(TextColumn("{task.description}"), BarColumn(),
+                                                    MofNCompleteColumn(), TimeElapsedColumn(), console=console,
+                                                    transient=True))
+            # one bar, reset for each episode: a task per episode would grow Rich's per-task caches (its
+            # columns keep a rendering per task id, never dropped: 1.7 kB of resident memory an episode)
+            bar = progress.add_task("", total=steps[0], visible=False)
 
-        def start(i):
-            progress.reset(bar, total=rollout.spec.task.max_steps, description=f"episode {i}", visible=True)
-            return lambda n: progress.update(bar, completed=n)
+    def start(i):
+        progress.reset(bar, total=steps[0], description=f"episode {i}", visible=True)
+        return lambda n: progress.update(bar, completed=n)
 
-        def done(res, written):
-            progress.update(bar, visible=False)
-            if on_result is not None:
-                on_result(res)
-            step_ms = res.to_json()["step_latency_ms"]["mean"]  # None when the episode took no step
-            mark = "[green]success[/]" if res.success else "[red]failure[/]"
-            console.print(
-                f"episode {res.index:3d}  seed {res.seed:5d}  {mark}  steps {res.steps:4d}  "
-                f"reward {res.reward:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
-                + (f"  video {escape(res.video)}" if res.video else "")
-                + ("" if written is None else ("  [dim]recorded[/]" if written else "  [dim]not recorded[/]")))
+    def done(e, written):
+        progress.update(bar, visible=False)
+        step_ms = e["step_latency_ms"]["mean"]  # None when the episode took no step
+        mark = "[green]success[/]" if e["success"] else "[red]failure[/]"
+        console.print(
+            f"episode {e['index']:3d}  seed {e['seed']:5d}  {mark}  steps {e['steps']:4d}  "
+            f"reward {e['reward']:6.2f}  step " + (f"{step_ms:.2f} ms" if step_ms is not None else "-")
+            + (f"  video {escape(e['video'])}" if e.get("video") else "")
+            + ("" if written is None else ("  [dim]recorded[/]" if written else "  [dim]not recorded[/]")))
 
-        def error(res, what_next):
-            err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
-                              highlight=False)
+    def error(res, what_next):
+        err_console.print(f"episode {res.index}: {res.error}; {what_next}", style="red", markup=False,
+                          highlight=False)
 
-        def save(i):  # the bar stays, its clock running, while the episode's videos are encoded
-            progress.update(bar, description=f"episode {i}: writing it to the dataset (encoding)")
+    def save(i):  # the bar stays, its clock running, while the episode's videos are encoded
+        progress.update(bar, description=f"episode {i}: writing it to the dataset (encoding)")
 
-        return run_episodes(rollout, pol, indices, seed=seed, video_dir=video_dir, recorder=recorder,
-                            keep_failures=keep_failures, on_start=start, on_done=done, on_error=error,
-                            on_save=save, keep=on_result is None)
+    report.on_episode, report.on_done, report.on_error, report.on_save = start, done, error, save
+    return opened
 
 
-def _open_run(scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, *, need_images: bool = False):
-    """The policy and the rollout of a loaded scene file (``(cfg, base_dir)``, parsed once per command)."""
-    from simseam.policies.base import make_policy
-    from simseam.runner.scene_config import build_rollout
+def _building(what: str):
+    """The spinner while a scene is built (a sidecar's boot stages shown in it)."""
+    class Status:
+        def __enter__(self):
+            self.status = console.status(f"building {what}").__enter__()
+            return self
 
-    cfg, base_dir = scene_file
-    pol = make_policy(policy, **policy_kwargs)
-    with console.status("building the scene") as status:
-        rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged,
-                                render_images=pol.uses_images or need_images, seed=seed,
-                                progress=lambda stage: status.update(f"sidecar: {stage}"))
-    try:  # the policy's contract against the scene, before anything is written (run dir, dataset)
-        pol.reset(rollout.spec)
-    except BaseException:
-        rollout.close()
-        close_policy(pol)
-        raise
-    return cfg, pol, rollout
+        def __exit__(self, *exc):
+            self.status.__exit__(*exc)
+
+        def update(self, stage: str) -> None:
+            self.status.update(f"sidecar: {stage}")
+
+    return Status()
 
 
 @app.command()
@@ -155,18 +155,18 @@ def run(
     ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
 ) -> None:
     """Run a policy for N episodes; every finished episode is on disk as soon as it ends."""
+    from simseam.runner.job import Dataset, Job
+    from simseam.runner.provenance import for_scene
+    from simseam.runner.recipe import SceneRecipe
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.scene_config import load_scene_config
+    from simseam.runner.sharding import check_shard_holds_episodes, parse_shard, shard_indices
 
     check_seed(seed, episodes)
-
-    default_out = out is None
-    if default_out and resume:
+    if out is None and resume:
         fail(ConfigError("--resume needs --out (the run directory to continue)"))
-    out = default_run_dir() if default_out else out
+    default_out, out = out is None, default_run_dir() if out is None else out
     try:
-        from simseam.runner.sharding import check_shard_holds_episodes, parse_shard, shard_indices
-
         shard_ik = parse_shard(shard) if shard is not None else None
         planned = check_shard_holds_episodes(shard_indices(episodes, shard_ik), shard_ik, episodes)
         check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
@@ -176,48 +176,28 @@ def run(
         config = {"scene_file": str(scene), "scene": cfg.model_dump(mode="json"), "policy": redacted(policy),
                   "episodes": episodes, "seed": seed, "video": video,
                   "record_dataset": str(record_dataset) if record_dataset else None,
-                  "ci_width": checked_ci_width(ci_width)}
-        if shard_ik is not None:
-            config["shard"] = list(shard_ik)
-        if renderer != "workers":
-            config["renderer"] = renderer
-        from simseam.runner.provenance import for_scene
-
+                  "ci_width": checked_ci_width(ci_width), **_run_options(shard_ik, renderer)}
         config["provenance"] = for_scene(cfg, base_dir, scene, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = [i for i in planned if i not in run_dir.done]
-    if resume:
-        console.print(f"resuming {out}: {len(run_dir.done)} episode(s) already recorded, {len(todo)} to run")
-        print_notes(run_dir.notes, "differs from the run there (the episodes are the same)")
-    if ray_address is not None:
-        _run_ray(ray_address, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                 num_workers=num_envs, planned=len(planned))
-        return
-    from simseam.runner.warp_vector import benchmark_on_batched_engine
-
     try:
-        ported = benchmark_on_batched_engine(cfg)  # a benchmark's port to a batched engine: N worlds here
+        executor = _run_executor(scene, cfg, len(todo), num_envs, ray_address, renderer, record_dataset,
+                                 (policy_groups, policy_ready, envs_per_worker))
     except ConfigError as exc:
         run_dir.close()
         fail(exc)
-    if num_envs is None and ported:
-        num_envs = cfg.engine.num_envs or 1
-    if num_envs is None:
-        from simseam.runner.vector import default_num_envs
+    dataset = None if record_dataset is None else Dataset(record_dataset, videos, overwrite, keep_failures)
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), render_images=video or bool(dataset), seed=seed)
+    job = Job(recipe, policy, policy_kwargs(device, n_action_steps), todo, seed, run_dir, video, dataset)
+    _run_job(job, executor, planned=len(planned))
 
-        num_envs = 1 if record_dataset is not None else default_num_envs(len(todo), envs_per_worker=envs_per_worker)
-    if num_envs > 1 or renderer == "batched" or ported:
-        from simseam.runner.scheduler import Lockstep
 
-        _run_vector(scene, (cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                    num_envs=num_envs, video=video, planned=len(planned), renderer=renderer,
-                    lockstep=Lockstep(policy_groups, policy_ready, envs_per_worker))
-        return
-    _run_sequential((cfg, base_dir), policy, seed, policy_kwargs(device, n_action_steps), run_dir, out, todo,
-                    planned=len(planned), episodes=episodes, video=video, record_dataset=record_dataset, videos=videos,
-                    keep_failures=keep_failures, overwrite=overwrite)
+def _run_options(shard: tuple[int, int] | None, renderer: str) -> dict:
+    """What run.json records of the options that only some runs give (so older runs still resume)."""
+    return {**({"shard": list(shard)} if shard is not None else {}),
+            **({"renderer": renderer} if renderer != "workers" else {})}
 
 
 def _check_run_outputs(record_dataset: Path | None, overwrite: bool, video: bool, num_envs: int | None,
@@ -248,171 +228,75 @@ def _check_renderer(renderer: str, scene: Path, cfg, elsewhere: bool) -> None:
         raise ConfigError(f"{scene}: --renderer batched: {unsupported(cfg.model_dump(mode='json'))}")
 
 
-def _run_sequential(scene_file: tuple, policy: str, seed: int, kwargs: dict, run_dir, out: Path, todo: list[int], *,
-                    planned: int, episodes: int, video: bool, record_dataset: Path | None, videos: bool,
-                    keep_failures: bool, overwrite: bool) -> None:
-    """``simseam run`` in this process, one environment, episode after episode (the dataset recorder's path)."""
-    try:
-        _, pol, rollout = _open_run(scene_file, policy, seed, kwargs, need_images=record_dataset is not None or video)
-    except SimseamError as exc:
-        run_dir.close()
-        fail(exc)
-    recorder = spec_json = None
 
-    def cleanup():
-        if recorder is not None:
-            recorder.close()
-        rollout.close()
-        close_policy(pol)
+def _run_executor(scene: Path, cfg, todo: int, num_envs: int | None, ray_address: str | None, renderer: str,
+                  record_dataset: Path | None, lockstep: tuple):
+    """Where ``simseam run`` runs: Ray; ``num_envs`` environments (default: the scene's batch for a
+    benchmark's port to a batched engine, else sized to the cores and the episodes, 1 with a dataset); or
+    this process."""
+    from simseam.runner.job import Executor
+    from simseam.runner.scheduler import Lockstep
+    from simseam.runner.warp_vector import benchmark_on_batched_engine
 
-    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
-    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
-        if record_dataset is not None:  # before the run starts: a recorder that cannot start replaces nothing
-            from simseam.runner.dataset_recorder import LeRobotRecorder
+    lockstep = Lockstep(*lockstep)  # --policy-groups, --policy-ready, --envs-per-worker
 
-            recorder = LeRobotRecorder(record_dataset, rollout.spec, use_videos=videos, overwrite=overwrite)
-        spec_json = rollout.spec.to_json()
-        run_dir.write_spec(spec_json)
-        if video and not rollout.spec.robot.sensors_of("rgb"):
-            err_console.print(f"note: --video: robot {rollout.spec.robot.name!r} has no RGB camera, so no video "
-                              "is written", style="yellow", markup=False, highlight=False)
-        console.print(f"{escape(rollout.spec.describe())}, policy [bold]{escape(policy)}[/], "
-                      f"{episodes} episode(s) -> {escape(str(out))}")
-        _episodes(rollout, pol, todo, seed=seed, video_dir=out if video else None, recorder=recorder,
-                  keep_failures=keep_failures, on_result=lambda res: run_dir.append(res.to_json()))
-    if recorder is not None and recorder.discarded:
-        console.print(f"dataset: no episode recorded, so no dataset was left in {escape(str(record_dataset))}")
-    elif recorder is not None:
-        console.print(f"dataset: {recorder.episodes_written} episode(s), {recorder.frames_written} frames "
-                      f"in {escape(str(record_dataset))}")
+    if ray_address is not None:
+        return Executor("ray", num_envs, address=ray_address)
+    ported = benchmark_on_batched_engine(cfg)  # a benchmark's port to a batched engine: N worlds here
+    if num_envs is None and ported:
+        num_envs = cfg.engine.num_envs or 1
+    if num_envs is None:
+        from simseam.runner.vector import default_num_envs
 
-
-def _run_vector(scene: Path, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
-                todo: list[int], *, num_envs: int, video: bool, planned: int, lockstep,
-                renderer: str = "workers") -> None:
-    """``simseam run --num-envs N`` (N > 1): the episodes on N environments in worker processes
-    (docs/evaluation.md), the policy in this process (stepped by the ``lockstep`` rule, capped at N) or
-    inside each worker."""
-    from simseam.policies.base import make_policy
-    from simseam.runner.recipe import SceneRecipe
-    from simseam.runner.vector import VectorEnv
-
-    num_envs = max(1, min(num_envs, len(todo)))
-    rule = lockstep.fit(num_envs)
-    vec = pol = probe = None
-    cfg, base_dir = scene_file
+        num_envs = 1 if record_dataset is not None else default_num_envs(todo, envs_per_worker=lockstep.envs_per_worker)
+    if not (num_envs > 1 or renderer == "batched" or ported):
+        return Executor("inline")
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running
-        run_dir.close()
-        fail(ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
-                          f"{num_envs} environment workers would each need their own; pass --num-envs 1 or "
-                          "drop keep_alive"))
-    spec_json = None
-
-    def cleanup():
-        if vec is not None:
-            vec.close()
-        if pol is not None:
-            pol.close()
-        elif probe is not None:
-            close_policy(probe)
-
-    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
-    with episodes_guard(run_dir, cleanup, spec=lambda: spec_json, finish=finish):
-        from simseam.runner.central_render import choose_renderer
-        from simseam.runner.warp_vector import batched_in_one_process, make_vector_env
-
-        with console.status(f"loading the policy for {num_envs} environments"):
-            probe = make_policy(policy, **policy_kwargs)
-        uses_images, privileged = probe.uses_images, probe.requires_privileged
-        one_batch = batched_in_one_process(cfg, uses_images or video)  # N envs stepped from here: one policy batch
-        renderer = choose_renderer(renderer, cfg.model_dump(mode="json"), uses_images or video)
-        recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=privileged,
-                               render_images=uses_images or video, seed=seed)
-
-        if one_batch and rule.envs_per_worker > 1:
-            raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {scene} steps its {num_envs} environments "
-                              "in one batch in this process, not in worker processes")
-        with console.status(f"starting {num_envs} environments"):
-            vec = make_vector_env(cfg, base_dir, num_envs,
-                                  lambda: VectorEnv(recipe, num_envs, renderer=renderer,
-                                                    envs_per_worker=rule.envs_per_worker),
-                                  privileged=privileged, render_images=uses_images or video, seed=seed)
-        probe.reset(vec.spec)  # the policy's contract against the scene, before the run starts
-        pol = _vector_policy(probe, policy, policy_kwargs, num_envs,
-                             acts_here=one_batch or renderer == "batched" or rule.acts_here)
-        probe = None  # the batch owns it now, or it was closed
-        spec_json = vec.spec.to_json()
-        run_dir.write_spec(spec_json)
-        where = "one batched policy" if pol is not None else "a policy in each worker"
-        if renderer == "batched":
-            where += ", cameras drawn here in one batch"
-        if pol is not None:
-            where += rule.describe()
-        console.print(f"{escape(vec.spec.describe())}, policy [bold]{escape(policy)}[/], {len(todo)} episode(s) "
-                      f"on {num_envs} environments ({where}) -> {escape(str(out))}")
-        with EvalProgress(console, total=len(todo)) as progress:
-            def done(res):
-                entry = res.to_json()
-                run_dir.append(entry)
-                progress.done(entry)
-
-            common = dict(seed=seed, video_dir=out if video else None, on_done=done, keep=False,
-                          on_error=progress.episode_error, on_worker_failure=progress.worker_failure)
-            if pol is not None:  # N worlds on the device, a shared model, or groups: stepped together, batched
-                vec.run(pol, todo, groups=rule.groups, ready=rule.ready, **common)
-            else:
-                vec.run_local(policy, policy_kwargs, todo, **common)
+        raise ConfigError(f"{scene}: engine.keep_alive keeps one sidecar for the next run to adopt, and "
+                          f"{max(1, min(num_envs, todo))} environment workers would each need their own; pass "
+                          "--num-envs 1 or drop keep_alive")
+    return Executor("vector", num_envs, lockstep, renderer)
 
 
-def _vector_policy(probe, policy: str, policy_kwargs: dict, num_envs: int, *, acts_here: bool):
-    """The policy batch that acts in this process for ``num_envs`` workers, or None when each worker runs
-    its own instance (whole episodes at a time). A policy that shares a model or a server batches; any other
-    acts here only when the workers must be stepped from here (``acts_here``: N worlds in this process, the
-    cameras drawn here, or a lockstep rule), one instance per environment (``probe`` is the first)."""
-    from simseam.policies.base import make_policy
-    from simseam.policies.batch import PerEnvPolicies, shared_batch
+def _run_job(job, executor, *, planned: int) -> None:
+    """``simseam run``'s job on its executor: progress, one line per episode, Ctrl-C, errors, the summary."""
+    import contextlib
 
-    batch = shared_batch(probe, num_envs, lambda: make_policy(policy, **policy_kwargs))
-    if batch is not None:
-        return batch
-    if acts_here:
-        made = [probe]
-        return PerEnvPolicies(lambda: made.pop() if made else make_policy(policy, **policy_kwargs), num_envs)
-    close_policy(probe)
-    return None
+    from simseam.runner.job import JobReport, execute
 
+    out, policy, todo = job.run_dir.path, job.policy, len(job.indices)
+    if job.run_dir.resume:
+        console.print(f"resuming {out}: {len(job.run_dir.done)} episode(s) already recorded, {todo} to run")
+        print_notes(job.run_dir.notes, "differs from the run there (the episodes are the same)")
+    report = JobReport(status=_building)
+    finish = lambda interrupted: _finish_run(job.run_dir, report.spec_json, interrupted, planned)  # noqa: E731
+    with episodes_guard(job.run_dir, spec=lambda: report.spec_json, finish=finish), contextlib.ExitStack() as stack:
+        if executor.kind == "inline":
+            bar = _bar_report(report, stack)
+        else:
+            progress = stack.enter_context(EvalProgress(console, total=todo))
+            report.on_done = lambda entry, written: progress.done(entry)
+            report.on_error, report.on_worker_failure = progress.episode_error, progress.worker_failure
 
-def _run_ray(address: str, scene_file: tuple, policy: str, seed: int, policy_kwargs: dict, run_dir, out: Path,
-             todo: list[int], *, num_workers: int | None, planned: int) -> None:
-    """``simseam run --ray ADDRESS``: the episodes on Ray actors, results streamed into the episode log."""
-    from simseam.runner.ray_eval import run_on_ray
-    from simseam.runner.recipe import SceneRecipe
+        def opened(spec, n, where):
+            if executor.kind == "inline":
+                bar(spec, n, where)
+            if job.video and spec is not None and not spec.robot.sensors_of("rgb"):
+                err_console.print(f"note: --video: robot {spec.robot.name!r} has no RGB camera, so no video "
+                                  "is written", style="yellow", markup=False, highlight=False)
+            what = f"{escape(spec.describe())}, " if spec is not None else ""
+            on = "" if executor.kind == "inline" else (f" on {escape(where)}" if spec is None else
+                                                       f" on {n} environments ({escape(where)})")
+            console.print(f"{what}policy [bold]{escape(policy)}[/], {todo} episode(s){on} -> {escape(str(out))}")
 
-    cfg, base_dir = scene_file
-    spec_json = None
-    progress = EvalProgress(console, total=len(todo))
-
-    def on_spec(spec):
-        nonlocal spec_json
-        spec_json = spec
-        run_dir.write_spec(spec)
-
-    def done(entry):
-        run_dir.append(entry)
-        progress.done(entry)
-
-    finish = lambda interrupted: _finish_run(run_dir, spec_json, interrupted, planned)  # noqa: E731
-    probe = None
-    with episodes_guard(run_dir, lambda: probe and probe.close(), spec=lambda: spec_json, finish=finish):
-        probe = SpecProbe(policy, policy_kwargs)  # meets the first actor's spec before anything is written
-        recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), privileged=probe.requires_privileged,
-                               render_images=probe.uses_images, seed=seed)
-        console.print(f"policy [bold]{escape(policy)}[/], {len(todo)} episode(s) on Ray ({escape(address)}) -> "
-                      f"{escape(str(out))}")
-        with progress:
-            run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-                       on_spec=on_spec, check=probe.check, on_done=done, on_worker_failure=progress.worker_failure,
-                       keep=False)
+        report.on_envs = opened
+        execute(job, executor, report)
+    dataset = report.dataset
+    if dataset is not None and dataset.discarded:
+        console.print(f"dataset: no episode recorded, so no dataset was left in {escape(str(job.dataset.path))}")
+    elif dataset is not None:
+        console.print(f"dataset: {dataset.episodes_written} episode(s), {dataset.frames_written} frames "
+                      f"in {escape(str(job.dataset.path))}")
 
 
 def _finish_run(run_dir, spec_json, interrupted: bool, planned: int) -> None:
@@ -508,44 +392,48 @@ def collect(
 ) -> None:
     """Collect demonstrations as a LeRobot dataset (images, state, action, task, fps = control rate).
     Ctrl-C or SIGTERM keeps every episode recorded so far (the dataset is finalized) and exits 130."""
-    from simseam.runner.dataset_recorder import LeRobotRecorder, check_dataset_out
-
-    check_seed(seed, episodes)
-
-    try:
-        check_dataset_out(out, overwrite)
-        from simseam.runner.scene_config import load_scene_config
-
-        _, pol, rollout = _open_run(load_scene_config(scene), policy, seed, {}, need_images=cameras)
-        if action_noise > 0:
-            from simseam.runner.action_noise import ActionNoise
-
-            rollout = ActionNoise(rollout, action_noise)
-    except SimseamError as exc:
-        fail(exc)
+    import contextlib
     from collections import Counter
 
-    counts = Counter()  # episodes run and succeeded (counts only: a long collection keeps its memory flat)
-    interrupted = False
-    rec = None
+    from simseam.runner.dataset_recorder import check_dataset_out
+    from simseam.runner.job import Dataset, Executor, Job, JobReport, execute
+    from simseam.runner.recipe import SceneRecipe
+    from simseam.runner.scene_config import load_scene_config
+
+    check_seed(seed, episodes)
     try:
-        with sigterm_as_interrupt():
-            rec = LeRobotRecorder(out, rollout.spec, use_videos=videos, overwrite=overwrite)
-            console.print(f"collecting {episodes} episode(s) of [bold]{escape(policy)}[/] on "
-                          f"{escape(rollout.spec.describe())} into {escape(str(out))}"
-                          + (f" (action noise {action_noise:g})" if action_noise > 0 else ""))
-            _episodes(rollout, pol, range(episodes), seed=seed, video_dir=None, recorder=rec,
-                      keep_failures=keep_failures, on_result=lambda r: counts.update(run=1, ok=int(r.success)))
-    except KeyboardInterrupt:
-        interrupted = True
+        check_dataset_out(out, overwrite)
+        cfg, base_dir = load_scene_config(scene)
     except SimseamError as exc:
         fail(exc)
-    finally:
-        if rec is not None:
-            rec.close()
-        rollout.close()
-        close_policy(pol)
-    _collect_end(rec, out, counts, episodes, interrupted)
+    job = Job(SceneRecipe(cfg.model_dump(mode="json"), str(base_dir), render_images=cameras, seed=seed), policy, {},
+              list(range(episodes)), seed, dataset=Dataset(out, videos, overwrite, keep_failures),
+              action_noise=action_noise)
+    counts = Counter()  # episodes run and succeeded (counts only: a long collection keeps its memory flat)
+    report = JobReport(status=_building)
+    interrupted = False
+    try:
+        with sigterm_as_interrupt(), contextlib.ExitStack() as stack:
+            bar = _bar_report(report, stack)
+            shown = report.on_done
+
+            def opened(spec, n, where):
+                bar(spec, n, where)
+                console.print(f"collecting {episodes} episode(s) of [bold]{escape(policy)}[/] on "
+                              f"{escape(spec.describe())} into {escape(str(out))}"
+                              + (f" (action noise {action_noise:g})" if action_noise > 0 else ""))
+
+            def done(entry, written):
+                counts.update(run=1, ok=int(entry["success"]))
+                shown(entry, written)
+
+            report.on_envs, report.on_done = opened, done
+            execute(job, Executor("inline"), report)
+    except KeyboardInterrupt:
+        interrupted = True
+    except SimseamError as exc:  # the dataset keeps every episode recorded before (finalized)
+        fail(exc)
+    _collect_end(report.dataset, out, counts, episodes, interrupted)
 
 
 def _collect_end(rec, out: Path, counts, episodes: int, interrupted: bool) -> None:

@@ -15,7 +15,8 @@ float32[B, action_dim]`` for any subset of its environments, in the order given.
   a chunk before reading any reply, so a batching server (``serve-policy
   --max-batch-size``) answers them with one forward pass.
 
-``make_policy_batch(spec, n)`` picks the right one for a policy spec.
+``batch_for(policy, spec, n, kwargs)`` is the one choice among them (``make_policy_batch(spec, n)`` for a
+policy spec).
 """
 
 from __future__ import annotations
@@ -97,12 +98,21 @@ def shared_batch(first: Policy, n: int, factory: Callable[[], Policy]) -> Policy
     return None
 
 
-def make_policy_batch(name: str, n: int, **kwargs: Any) -> PolicyBatch:
-    """The batch for a policy spec: ``shared_batch`` when the policy shares something across
-    environments (``lerobot:`` one model, ``remote:`` one server), else one instance per env."""
-    first = make_policy(name, **kwargs)
+def batch_for(first: Policy, name: str, n: int, kwargs: dict, *, acts_here: bool = True) -> PolicyBatch | None:
+    """The one choice of how a policy acts for ``n`` environments, given its first instance ``first`` (of
+    the spec ``name`` with ``kwargs``): ``shared_batch`` when it shares something across environments
+    (``lerobot:`` one model, ``remote:`` one server); else, when it must act in this process
+    (``acts_here``: the environments are stepped from here), one instance per environment, ``first``
+    the first; else None: each environment's worker runs its own instance (``first`` stays the caller's)."""
     batch = shared_batch(first, n, lambda: make_policy(name, **kwargs))
     if batch is not None:
         return batch
-    made = [first]
-    return PerEnvPolicies(lambda: made.pop() if made else make_policy(name, **kwargs), n)
+    if acts_here:
+        made = [first]
+        return PerEnvPolicies(lambda: made.pop() if made else make_policy(name, **kwargs), n)
+    return None
+
+
+def make_policy_batch(name: str, n: int, **kwargs: Any) -> PolicyBatch:
+    """The batch for a policy spec that acts in this process for ``n`` environments (``batch_for``)."""
+    return batch_for(make_policy(name, **kwargs), name, n, kwargs)

@@ -13,17 +13,17 @@ next to the pooled rate.
 Episode ``e`` of task ``ti`` has the global index ``ti * episodes + e``. ``--shard i/K`` runs the
 indices with ``index % K == i`` (``eval_indices``), so every shard gets a share of every task (when
 ``K`` does not exceed the episodes per task); ``simseam merge`` rebuilds the eval summary from the
-shards. ``run_eval_ray`` runs them on a Ray cluster (``runner.ray_eval``).
+shards. ``eval_recipe`` is what a run's ``Job`` runs (``runner.job``: inline, worker processes, a batched
+engine's port, Ray).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 from simseam import registry
-from simseam.runner.recipe import BenchmarkRecipe
+from simseam.runner.recipe import BenchmarkRecipe, cameras_for
 from simseam.runner.warp_vector import BENCHMARK_PORTS
 from simseam.seam import ConfigError
 from simseam.seam.errors import did_you_mean
@@ -61,11 +61,7 @@ class Preset:
         """The backend's config for a policy (and ``task``: its ``per_task`` fields, e.g. its step limit,
         over the preset's): a backend whose cameras are off unless asked for (its ``CAMERA_OPTION``,
         ManiSkill's ``cameras``) turns them on for a policy that reads images."""
-        from simseam.backends import backend_module
-
-        option = getattr(backend_module(self.backend), "CAMERA_OPTION", None)
-        return {**self.config, **(self.per_task.get(task, {}) if task else {}),
-                **({option: True} if option and uses_images else {})}
+        return {**self.config, **(self.per_task.get(task, {}) if task else {}), **cameras_for(self.backend, uses_images)}
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (
@@ -147,175 +143,12 @@ def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | N
     return shard_indices(len(tasks) * episodes, shard)
 
 
-def _spec_writer(run_dir) -> Callable[[dict], None]:
-    """Writes an eval run's ``spec.json`` once: the spec of the task the run started with. A resumed run
-    keeps the one it has (the task it resumes with may be another), so a run's, a shard's and a merge's
-    ``spec.json`` do not depend on where it was interrupted."""
-    from simseam.runner.run_dir import SPEC_FILE
-
-    written = [(Path(run_dir.path) / SPEC_FILE).exists()]
-
-    def write(spec_json: dict) -> None:
-        if not written[0]:
-            run_dir.write_spec(spec_json)
-            written[0] = True
-
-    return write
-
-
-def _todo(tasks: Sequence[str], episodes: int, run_dir, indices: Sequence[int] | None) -> list[int]:
-    done = run_dir.done
-    planned = range(len(tasks) * episodes) if indices is None else sorted(indices)
-    return [i for i in planned if i not in done]
-
-
-def run_eval(p: Preset, policy, policy_name: str, tasks: list[str], episodes: int, run_dir, *, seed: int = 0,
-             video_dir: Path | None = None, progress: Callable[[str], None] = lambda s: None,
-             on_start=None, on_done=None, on_error=None, indices: Sequence[int] | None = None) -> None:
-    """Run the preset's episodes not yet in ``run_dir`` (a ``RunDir``; of ``indices`` only, when given:
-    a shard's); every finished one is appended to its log (with ``task`` and ``episode``) before the
-    next starts."""
-    from simseam.sidecar.benchmark import open_benchmark
-    from simseam.runner.session import run_episodes
-
-    todo = _todo(tasks, episodes, run_dir, indices)
-    write_spec = _spec_writer(run_dir)
-    for ti, task in enumerate(tasks):
-        indices = [i for i in todo if i // episodes == ti]
-        if not indices:
-            continue
-        cfg = {**p.backend_config(policy.uses_images, task), "task": task}
-        progress(f"{p.backend}: starting {task}")
-        rollout = open_benchmark(p.backend, cfg, privileged=policy.requires_privileged,
-                                 progress=lambda s: progress(f"{task}: {s}"))
-        try:
-            policy.reset(rollout.spec)  # a policy that does not fit the benchmark fails before the run starts
-            write_spec(rollout.spec.to_json())
-
-            def record(res, written, task=task, ti=ti):
-                run_dir.append({**res.to_json(), "task": task, "episode": res.index - ti * episodes})
-                if on_done:
-                    on_done(res, task)
-
-            # episode index i = ti * episodes + e runs with seed + e
-            run_episodes(rollout, policy, indices, seed=seed - ti * episodes, video_dir=video_dir,
-                         on_start=on_start, on_done=record, on_error=on_error, keep=False)
-        finally:
-            rollout.close()
-
-
-def _eval_entry(entry: dict, tasks: Sequence[str], episodes: int, seed: int) -> dict:
-    """An episode's log line with its ``task`` and ``episode`` (index within the task)."""
-    ti, e = divmod(int(entry["index"]), episodes)
-    if entry.get("error") and entry.get("steps") == 0:  # recorded by a parent (its worker was lost too often):
-        entry = {**entry, "seed": seed + e}             # the task's seed, not seed + the global index
-    return {**entry, "task": tasks[ti], "episode": e}
-
-
-def _recorder(run_dir, tasks: Sequence[str], episodes: int, seed: int, on_done) -> Callable[[Any], None]:
-    """What a batched eval does with each finished episode (an ``EpisodeResult``): its log line with its
-    ``task`` and ``episode`` appended to the run, then ``on_done(result, task)``."""
-    def record(res) -> None:
-        entry = _eval_entry(res.to_json(), tasks, episodes, seed)
-        run_dir.append(entry)
-        if on_done:
-            on_done(res, entry["task"])
-
-    return record
-
-
-def run_eval_vector(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy: str,
-                    policy_kwargs: dict, policy_batch=None, privileged: bool = False, uses_images: bool = False,
-                    seed: int = 0, video_dir: Path | None = None, on_start: Callable[[Any], None] | None = None,
-                    on_done=None, on_error=None, on_worker_failure=None, indices: Sequence[int] | None = None,
-                    check: Callable[[Any], None] | None = None, lockstep=None) -> None:
-    """``run_eval`` on ``num_envs`` worker processes (``runner.vector``), each owning one sidecar of the
-    backend. The episodes not yet in ``run_dir`` are queued in task-major order (all of task 0, then
-    task 1, ...), so a worker changes task (closes its sidecar and starts one for the next task) at
-    most once per task boundary.
-
-    - ``policy_batch`` None (scripted, zero, random: nothing shared): one policy instance inside each
-      worker, whole episodes at a time (``VectorEnv.run_local``), all tasks on one set of workers;
-    - a ``PolicyBatch`` (``lerobot:``, ``remote:``, or one instance per environment): stepped together in
-      this process by the ``lockstep`` rule (``runner.scheduler.Lockstep``: policy groups, the ready rule,
-      environments per worker; each capped at the environments), one vector env per task (each task's
-      spec, its instruction included, reaches the policy at every reset).
-
-    Every finished episode is appended to the log with ``task`` and ``episode`` (index within its
-    task) as it ends, whatever the order; ``on_start(vec)`` gets each ``VectorEnv`` once its first worker
-    is ready. ``indices``: run only these (a shard's), as ``run_eval``. ``check(spec)`` (the policy's
-    reset, say) meets each vector env's spec before anything is written: a policy that does not fit the
-    benchmark fails before the run starts.
-    """
-    from simseam.runner.scheduler import Lockstep
-    from simseam.runner.vector import VectorEnv
-
-    todo = _todo(tasks, episodes, run_dir, indices)
-    if not todo:
-        return
-    spec_once = _spec_writer(run_dir)
-
-    record = _recorder(run_dir, tasks, episodes, seed, on_done)
-
-    def write_spec(vec):
-        if check is not None:
-            check(vec.spec)
-        spec_once(vec.spec.to_json())
-
-    common = dict(video_dir=video_dir, on_done=record, on_error=on_error, on_worker_failure=on_worker_failure,
-                  keep=False)
-    if policy_batch is None:
-        n = max(1, min(num_envs, len(todo)))
-        recipe = BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                            first_task=todo[0] // episodes, per_task=p.per_task)
-        with VectorEnv(recipe, n) as vec:
-            write_spec(vec)
-            if on_start:
-                on_start(vec)
-            vec.run_local(policy, policy_kwargs, todo, seed=seed, **common)
-        return
-    for ti in range(len(tasks)):
-        indices = [i for i in todo if i // episodes == ti]
-        if not indices:
-            continue
-        n = max(1, min(num_envs, len(indices)))
-        rule = (lockstep or Lockstep()).fit(n)
-        with VectorEnv(BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                                  first_task=ti, per_task=p.per_task), n, envs_per_worker=rule.envs_per_worker) as vec:
-            write_spec(vec)
-            if on_start:
-                on_start(vec)
-            vec.run(policy_batch, indices, seed=seed - ti * episodes, groups=rule.groups, ready=rule.ready, **common)
-
-
-def run_eval_ray(p: Preset, tasks: list[str], episodes: int, run_dir, address: str, *, policy: str,
-                 policy_kwargs: dict, privileged: bool = False, uses_images: bool = False, seed: int = 0,
-                 num_workers: int | None = None,
-                 indices: Sequence[int] | None = None, on_done: Callable[[dict], None] | None = None,
-                 on_worker_failure=None, check: Callable[[Any], None] | None = None) -> None:
-    """``run_eval`` on the Ray cluster at ``address`` (``runner.ray_eval.run_on_ray``): each actor holds
-    its own policy instance (``policy`` is a spec) and one sidecar of the backend (an ``BenchmarkRecipe``,
-    replaced when the next episode's task differs). Each finished episode is appended to the log with
-    ``task`` and ``episode`` as it arrives (``on_done(entry)`` after); a lost actor's episode re-runs
-    elsewhere. ``indices``: run only these (a shard's). ``check(spec)``: as ``run_eval_vector``'s, on the
-    first actor's spec, before anything is written."""
-    from simseam.runner.ray_eval import run_on_ray
-
-    todo = _todo(tasks, episodes, run_dir, indices)
-    if not todo:
-        return
-    recipe = BenchmarkRecipe(p.backend, p.backend_config(uses_images), tuple(tasks), episodes, privileged,
-                        first_task=todo[0] // episodes, per_task=p.per_task)
-
-    def record(entry):
-        entry = _eval_entry(entry, tasks, episodes, seed)
-        run_dir.append(entry)
-        if on_done:
-            on_done(entry)
-
-    run_on_ray(address, recipe, policy, policy_kwargs, todo, seed=seed, num_workers=num_workers,
-               on_spec=_spec_writer(run_dir), check=check, on_done=record, on_worker_failure=on_worker_failure,
-               keep=False)
+def eval_recipe(p: Preset, tasks: Sequence[str], episodes: int, engine: str | None = None,
+                device: str | None = None) -> BenchmarkRecipe:
+    """The recipe of a run of the preset's ``tasks``, ``episodes`` each: the backend's sidecars, or with
+    ``engine`` its port to that batched engine (on ``device``)."""
+    return BenchmarkRecipe(p.backend, dict(p.config), tuple(tasks), episodes, per_task=p.per_task, engine=engine,
+                           device=device)
 
 
 #: eval engines beside the preset's own backend: engine -> the backends with a port to it
@@ -334,39 +167,3 @@ def check_engine(p: Preset, engine: str | None) -> None:
         ported = [q.name for q in PRESETS.values() if q.backend in ENGINE_PORTS[engine]]
         raise ConfigError(f"--engine {engine}: preset {p.name!r} has no {engine} port; presets with one: "
                           f"{', '.join(ported)}")
-
-
-def run_eval_batched(p: Preset, tasks: list[str], episodes: int, run_dir, num_envs: int, *, policy_batch,
-                     engine: str = "mujoco_warp", device: str | None = None, privileged: bool = False,
-                     seed: int = 0, on_start=None, on_done=None, on_error=None,
-                     indices: Sequence[int] | None = None, check: Callable[[Any], None] | None = None) -> None:
-    """``run_eval`` on ``engine``'s batch (Meta-World on MuJoCo Warp: ``MetaWorldBatchRollout``), one batch of
-    ``min(num_envs, episodes left)`` worlds per task, the tasks one after another (each task is its own
-    model), all driven by ``policy_batch`` in this process. Episode ``e`` of a task gets seed ``seed + e``
-    whichever world runs it and whenever the others end; every finished episode is appended to the log as
-    ``run_eval`` writes it (``task``, ``episode``); a world that goes non-finite ends its episode as an error
-    (``on_error``) and the others carry on."""
-    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
-    from simseam.backends.metaworld_gpu.worker import NativeWorker
-    from simseam.runner.scheduler import BatchVectorEnv
-
-    todo = _todo(tasks, episodes, run_dir, indices)
-    spec_once = _spec_writer(run_dir)
-
-    record = _recorder(run_dir, tasks, episodes, seed, on_done)
-
-    with NativeWorker() as worker:
-        for ti, task in enumerate(tasks):
-            mine = [i for i in todo if i // episodes == ti]
-            if not mine:
-                continue
-            cfg = {**p.backend_config(False, task), "task": task, "cameras": False}
-            batch = MetaWorldBatchRollout(cfg, max(1, min(num_envs, len(mine))), worker, privileged=privileged,
-                                          device=device)
-            with BatchVectorEnv(batch) as vec:
-                if check is not None:
-                    check(vec.spec)
-                spec_once(vec.spec.to_json())
-                if on_start:
-                    on_start(vec)
-                vec.run(policy_batch, mine, seed=seed - ti * episodes, on_done=record, on_error=on_error, keep=False)

@@ -30,6 +30,7 @@ from typing import Any, Callable, Sequence
 
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import EpisodeQueue, WorkerFailure
+from simseam.runner.whole_episodes import Lost, Returned, play
 from simseam.seam import ConfigError, RolloutSpec, SimulationError
 
 
@@ -88,10 +89,11 @@ def run_on_ray(address: str, recipe: SceneRecipe | BenchmarkRecipe, policy: str,
     _connect(ray, address)
     cpus = int(ray.cluster_resources().get("CPU", 1))
     pool = _ActorPool(ray, ray.remote(num_cpus=1, max_restarts=0)(EpisodeWorker), (recipe, policy, policy_kwargs),
-                      EpisodeQueue(indices, seed, max_attempts), seed, keep=keep, on_spec=on_spec, check=check,
-                      on_done=on_done, on_worker_failure=on_worker_failure)
+                      seed, on_spec=on_spec, check=check)
     try:
-        return pool.run(max(1, min(num_workers or cpus, len(indices))))
+        pool.start(max(1, min(num_workers or cpus, len(indices))))
+        return play(pool, EpisodeQueue(indices, seed, max_attempts), on_done=on_done,
+                    on_worker_failure=on_worker_failure, keep=keep)
     finally:
         pool.close()
         ray.shutdown()
@@ -125,58 +127,61 @@ def _cause(exc: BaseException) -> BaseException:
 
 
 class _ActorPool:
-    """Ray actors running the episodes of one queue: actors starting (building their rollout), idle, busy;
-    a lost actor's episode goes back to the queue (``EpisodeQueue.lost``) and a new actor replaces it."""
+    """Ray actors as a pool of whole-episode workers (``runner.whole_episodes``): actors starting (building
+    their rollout), idle, busy; a lost actor is replaced by a new one."""
 
-    def __init__(self, ray, actor_class, make_args: tuple, todo: EpisodeQueue, seed: int, *, keep: bool,
-                 on_spec, check, on_done, on_worker_failure):
-        self.ray, self.actor_class, self.make_args, self.todo, self.seed = ray, actor_class, make_args, todo, seed
-        self.keep, self.on_spec, self.check, self.on_done = keep, on_spec, check, on_done
-        self.on_worker_failure = on_worker_failure
+    def __init__(self, ray, actor_class, make_args: tuple, seed: int, *, on_spec, check):
+        self.ray, self.actor_class, self.make_args, self.seed = ray, actor_class, make_args, seed
+        self.on_spec, self.check = on_spec, check
         self.lost = _lost_errors(ray)
         self.starting: dict[Any, Any] = {}  # ready-ref -> actor (building its rollout)
-        self.idle: list = []
-        self.busy: dict[Any, tuple] = {}  # result-ref -> (actor, index)
-        self.results: list[dict] = []
+        self.idle_actors: list = []
+        self.running: dict[Any, tuple] = {}  # result-ref -> (actor, index)
         self.spec_seen = False
         self.actor_ids: dict[Any, int] = {}
         self.nodes: dict[Any, str] = {}  # actor -> the Ray node id it runs on
 
-    def run(self, n: int) -> list[dict]:
+    def start(self, n: int) -> None:
         for _ in range(n):
             self._new_actor()
-        while self.todo or self.busy:
-            while self.idle and self.todo:
-                actor, i = self.idle.pop(), self.todo.next()
-                self.busy[actor.run.remote(i, self.seed)] = (actor, i)
-            waiting = list(self.busy) + list(self.starting)
-            if not waiting:
-                raise SimulationError("no Ray worker is left to run the remaining episodes")
-            ready, _ = self.ray.wait(waiting, num_returns=1, timeout=None)
-            ref = ready[0]
-            if ref in self.starting:
-                self._started(ref)
-            else:
-                self._returned(ref)
-        return self.results
+
+    def idle(self) -> list:
+        return self.idle_actors[::-1]  # the last to come back goes first
+
+    def send(self, actor, index: int) -> None:
+        self.idle_actors.remove(actor)
+        self.running[actor.run.remote(index, self.seed)] = (actor, index)
+
+    def busy(self) -> bool:
+        return bool(self.running)
+
+    def as_result(self, res) -> dict:
+        return res.to_json()
+
+    def wait(self) -> list:
+        waiting = list(self.running) + list(self.starting)
+        if not waiting:
+            raise SimulationError("no Ray worker is left to run the remaining episodes")
+        ready, _ = self.ray.wait(waiting, num_returns=1, timeout=None)
+        ref = ready[0]
+        return self._started(ref) if ref in self.starting else self._returned(ref)
 
     def _get(self, ref, actor, index):
-        """``ray.get(ref)``, or None when the actor was lost (handled); an episode's own error re-raised."""
+        """``ray.get(ref)``, or a ``Lost`` event when the actor was lost; an episode's own error re-raised."""
         from ray.exceptions import RayTaskError
 
         try:
             return self.ray.get(ref)
         except self.lost as exc:
-            self._failed(actor, index, exc)
-            return None
+            return self._failed(actor, index, exc)
         except RayTaskError as exc:
             raise _cause(exc) from None
 
-    def _started(self, ref) -> None:
+    def _started(self, ref) -> list:
         actor = self.starting.pop(ref)
         info = self._get(ref, actor, None)
-        if info is None:
-            return
+        if isinstance(info, Lost):
+            return [info]
         self.nodes[actor] = info["node"]
         if not self.spec_seen:
             self.spec_seen = True
@@ -184,48 +189,38 @@ class _ActorPool:
                 self.check(RolloutSpec.from_json(info["spec"]))
             if self.on_spec:
                 self.on_spec(info["spec"])
-        self.idle.append(actor)
+        self.idle_actors.append(actor)
+        return []
 
-    def _returned(self, ref) -> None:
-        actor, i = self.busy.pop(ref)
+    def _returned(self, ref) -> list:
+        actor, i = self.running.pop(ref)
         entry = self._get(ref, actor, i)
-        if entry is None:
-            return
+        if isinstance(entry, Lost):
+            return [entry]
         entry["worker"] = {"ray_node": self.nodes.get(actor), "actor": self.actor_ids.get(actor)}
-        self._finished(entry)
-        self.idle.append(actor)
-
-    def _finished(self, entry: dict) -> None:
-        if self.keep:
-            self.results.append(entry)
-        if self.on_done:
-            self.on_done(entry)
+        self.idle_actors.append(actor)
+        return [Returned(actor, i, entry)]
 
     def _new_actor(self) -> None:
         a = self.actor_class.remote(*self.make_args)
         self.actor_ids[a] = len(self.actor_ids)
         self.starting[a.ready.remote()] = a
 
-    def _failed(self, actor, index, exc) -> None:
+    def _failed(self, actor, index, exc) -> Lost:
+        """The actor is gone: killed for good, a new one started in its place."""
         try:
             self.ray.kill(actor)
         except Exception:  # noqa: BLE001  (already gone)
             pass
-        what, res = "no episode in flight", None
-        if index is not None:
-            what, res = self.todo.lost(index, lambda n: f"Ray worker lost {n} times ({type(exc).__name__})")
-        if res is not None:
-            self._finished(res.to_json())
-        if self.on_worker_failure:
-            node = self.nodes.get(actor)
-            self.on_worker_failure(WorkerFailure(env=-1, index=index, exitcode=None,
-                                                 what_next=f"{what} ({type(exc).__name__}; it ran on Ray node "
-                                                           f"{node[:12] if node else 'unknown'})"))
-        if self.todo:
-            self._new_actor()
+        node, kind = self.nodes.get(actor), type(exc).__name__
+        self._new_actor()
+        return Lost(actor, index, lambda n: f"Ray worker lost {n} times ({kind})",
+                    lambda what: WorkerFailure(env=-1, index=index, exitcode=None,
+                                               what_next=f"{what} ({kind}; it ran on Ray node "
+                                                         f"{node[:12] if node else 'unknown'})"))
 
     def close(self) -> None:
-        for actor in [*self.idle, *(a for a, _ in self.busy.values()), *self.starting.values()]:
+        for actor in [*self.idle_actors, *(a for a, _ in self.running.values()), *self.starting.values()]:
             try:
                 self.ray.kill(actor)
             except Exception:  # noqa: BLE001

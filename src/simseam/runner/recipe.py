@@ -7,16 +7,24 @@ command line pass around.
 - ``BenchmarkRecipe``: an evaluation preset's backend, config and tasks: the backend's sidecar for the
   task of each episode index (``simseam eval``).
 
-Both answer ``build()`` (the first rollout) and ``rollout_for(rollout, index, seed) -> (rollout,
+Both answer ``build(progress)`` (the first rollout) and ``rollout_for(rollout, index, seed) -> (rollout,
 seed_base)``: the rollout episode ``index`` runs on and the base its seed counts from (episode ``i``
 runs with ``seed_base + i``). A scene's is always the same rollout; a benchmark's changes task at task
-boundaries (``i = task_index * episodes + e`` runs with ``seed + e``).
+boundaries (``i = task_index * episodes + e`` runs with ``seed + e``). This module is the one home of
+that mapping: ``parts(indices, seed)`` splits a run's episodes by the rollout they run on (one part for a
+scene, one per task for a benchmark: what executors that step a batch of one rollout run one after
+another), ``log_entry`` gives an episode's line in the run's log (a benchmark's names its ``task`` and
+``episode`` within it) and ``for_policy`` adds what a policy needs (privileged state, cameras).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Sequence
+
+from simseam.seam import ConfigError
 
 
 @dataclass(frozen=True)
@@ -32,15 +40,77 @@ class SceneRecipe:
     #: central renderer (``VectorEnv(renderer="batched")``)
     pose_states: bool = False
 
-    def build(self):
+    def build(self, progress: Callable[[str], None] | None = None):
+        """The scene's rollout (``progress(stage)``: a sidecar's boot stages)."""
         from simseam.runner.scene_config import SceneConfig, build_rollout
 
         cfg = SceneConfig.model_validate(self.scene)
         return build_rollout(cfg, Path(self.base_dir), privileged=self.privileged,
-                             render_images=self.render_images, seed=self.seed)
+                             render_images=self.render_images, seed=self.seed, progress=progress)
 
     def rollout_for(self, rollout, index: int, seed: int):
         return rollout, seed
+
+    def for_policy(self, privileged: bool, uses_images: bool) -> "SceneRecipe":
+        """This recipe for a policy: its privileged state, its cameras rendered (besides what the run
+        itself renders: videos, a dataset's frames)."""
+        return dataclasses.replace(self, privileged=privileged, render_images=self.render_images or uses_images)
+
+    def parts(self, indices: Sequence[int], seed: int) -> list[tuple["SceneRecipe", list[int], int]]:
+        """``(recipe, indices, seed_base)`` per rollout the episodes run on: a scene's one."""
+        return [(self, list(indices), seed)] if indices else []
+
+    def log_entry(self, entry: dict, seed: int) -> dict:
+        """An episode's line in the run's log (``EpisodeResult.to_json()``): as it is."""
+        return entry
+
+    def describe(self) -> str:
+        """What ``build`` builds, in words."""
+        return "the scene"
+
+    #: the words that say how the parts of a run take turns (``parts``): a scene has one
+    parts_in_turn = ""
+
+    def _config(self):
+        from simseam.runner.scene_config import SceneConfig
+
+        return SceneConfig.model_validate(self.scene)
+
+    def steps_here(self) -> bool:
+        """Whether ``open_envs`` gives the environments as one batch stepped from this process (MuJoCo
+        Warp's worlds, a backend's own batch, a benchmark's port to a batched engine)."""
+        from simseam.runner.warp_vector import batched_in_one_process
+
+        return batched_in_one_process(self._config(), self.render_images)
+
+    def renderer_for(self, asked: str) -> str:
+        """Who draws the worker processes' cameras (``--renderer``: workers, batched or auto)."""
+        from simseam.runner.central_render import choose_renderer
+
+        return choose_renderer(asked, self.scene, self.render_images)
+
+    def open_envs(self, n: int, *, renderer: str = "workers", envs_per_worker: int = 1, shared=None):
+        """``n`` environments of the scene: one batch in this process when ``steps_here()``, else worker
+        processes (``runner.vector.VectorEnv``, ``envs_per_worker`` to a process)."""
+        from simseam.runner.vector import VectorEnv
+        from simseam.runner.warp_vector import make_vector_env
+
+        return make_vector_env(self._config(), Path(self.base_dir), n,
+                               lambda: VectorEnv(self, n, renderer=renderer, envs_per_worker=envs_per_worker),
+                               privileged=self.privileged, render_images=self.render_images, seed=self.seed)
+
+    def shared(self):
+        """What the environments of every part share (none for a scene), closed with the run."""
+        return None
+
+
+def cameras_for(backend: str, uses_images: bool) -> dict:
+    """The config a backend whose cameras are off unless asked for (its ``CAMERA_OPTION``, ManiSkill's
+    ``cameras``) needs for a policy that reads images ({} otherwise)."""
+    from simseam.backends import backend_module
+
+    option = getattr(backend_module(backend), "CAMERA_OPTION", None)
+    return {option: True} if option and uses_images else {}
 
 
 @dataclass
@@ -55,23 +125,94 @@ class BenchmarkRecipe:
     privileged: bool = False
     first_task: int = 0
     per_task: dict = field(default_factory=dict)
+    #: a batched engine with a port of the benchmark (``mujoco_warp`` for Meta-World: each task's episodes
+    #: as the worlds of one batch in this process, state-only), and its device; None: the backend's sidecars
+    engine: str | None = None
+    device: str | None = None
 
-    def _open(self, ti: int):
+    def task_config(self, ti: int) -> dict:
+        """The backend's config of task ``ti``: its own fields over the preset's, and its name."""
+        task = self.tasks[ti]
+        return {**self.config, **self.per_task.get(task, {}), "task": task}
+
+    def _open(self, ti: int, progress: Callable[[str], None] | None = None):
         from simseam.sidecar.benchmark import open_benchmark
 
-        task = self.tasks[ti]
-        rollout = open_benchmark(self.backend, {**self.config, **self.per_task.get(task, {}), "task": task},
-                                 privileged=self.privileged)
+        rollout = open_benchmark(self.backend, self.task_config(ti), privileged=self.privileged, progress=progress)
         self._task = ti
         return rollout
 
-    def build(self):
-        return self._open(self.first_task)
+    def build(self, progress: Callable[[str], None] | None = None):
+        """The sidecar of ``tasks[first_task]`` (``progress(stage)``: its boot stages)."""
+        return self._open(self.first_task, progress)
+
+    def task_of(self, index: int) -> tuple[int, int]:
+        """Episode ``index``'s task (its index in ``tasks``) and its episode within that task."""
+        return divmod(int(index), self.episodes)
 
     def rollout_for(self, rollout, index: int, seed: int):
-        ti = index // self.episodes
+        ti, _ = self.task_of(index)
         if ti != getattr(self, "_task", None):
             self._task = None
             rollout.close()
             rollout = self._open(ti)
         return rollout, seed - ti * self.episodes
+
+    def for_policy(self, privileged: bool, uses_images: bool) -> "BenchmarkRecipe":
+        """This recipe for a policy: its privileged state; a backend whose cameras are off unless asked for
+        (its ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images."""
+        if self.engine is not None and uses_images:
+            raise ConfigError(f"--engine {self.engine}: the port is state-only; the policy reads images")
+        return dataclasses.replace(self, config={**self.config, **cameras_for(self.backend, uses_images)},
+                                   privileged=privileged)
+
+    def parts(self, indices: Sequence[int], seed: int) -> list[tuple["BenchmarkRecipe", list[int], int]]:
+        """``(recipe, indices, seed_base)`` per task the episodes belong to, task-major: episode ``e`` of
+        task ``ti`` (index ``ti * episodes + e``) runs with ``seed + e``."""
+        by_task: dict[int, list[int]] = {}
+        for i in sorted(indices):
+            by_task.setdefault(self.task_of(i)[0], []).append(i)
+        return [(dataclasses.replace(self, first_task=ti), mine, seed - ti * self.episodes)
+                for ti, mine in by_task.items()]
+
+    def log_entry(self, entry: dict, seed: int) -> dict:
+        """An episode's line in the run's log with its ``task`` and ``episode`` (its index within the task)."""
+        ti, e = self.task_of(entry["index"])
+        if entry.get("error") and entry.get("steps") == 0:  # recorded by a parent (its worker was lost too often):
+            entry = {**entry, "seed": seed + e}             # the task's seed, not seed + the global index
+        return {**entry, "task": self.tasks[ti], "episode": e}
+
+    def describe(self) -> str:
+        """What ``build`` builds, in words: the task of its sidecar."""
+        return self.tasks[self.first_task]
+
+    parts_in_turn = ", one task at a time"
+
+    def steps_here(self) -> bool:
+        return self.engine is not None
+
+    def renderer_for(self, asked: str) -> str:
+        return "workers"
+
+    def shared(self):
+        """What every task's batch on the engine shares: Meta-World's native worker (its resets); None for
+        the backend's sidecars."""
+        if self.engine is None:
+            return None
+        from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+        return NativeWorker()
+
+    def open_envs(self, n: int, *, renderer: str = "workers", envs_per_worker: int = 1, shared=None):
+        """``n`` environments of ``tasks[first_task]``: a batch of ``n`` worlds on the engine (``shared``:
+        from ``shared()``), else worker processes each owning a sidecar of the backend."""
+        if self.engine is None:
+            from simseam.runner.vector import VectorEnv
+
+            return VectorEnv(self, n, envs_per_worker=envs_per_worker)
+        from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+        from simseam.runner.scheduler import BatchVectorEnv
+
+        config = {**self.task_config(self.first_task), "cameras": False}
+        return BatchVectorEnv(MetaWorldBatchRollout(config, n, shared, privileged=self.privileged,
+                                                    device=self.device))

@@ -9,7 +9,7 @@ trip to this process, otherwise idle time of every worker, is hidden; with the r
 groups). The workers together are a ``BatchRollout`` (seam/batch.py): ``reset`` and ``step`` send each named worker its
 command and wait for every reply (``step_send`` / ``step_receive``: the step in two halves, so the
 policy acts for one group of workers while another steps); ``run(policy, indices)`` is the episode scheduler
-(``runner.scheduler``) over this batch, the same loop as every other batch's. ``run_local`` puts
+(``runner.scheduler``) over this batch, the same loop as every other batch's. ``runner.whole_episodes.run_local`` puts
 the policy inside each worker instead (policies that share no model): workers play whole episodes
 and send back only their results. Episode ``i`` always uses seed ``seed + i``, so the per-episode
 results do not depend on ``num_envs`` for a deterministic policy. A worker builds its rollout from a
@@ -60,8 +60,9 @@ import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
-from simseam.runner.scheduler import EpisodeQueue, WorkerFailure, lost_error, run_batch
-from simseam.seam import (OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec, SidecarError,
+from simseam.runner.scheduler import WorkerFailure, lost_error, run_batch
+from simseam.seam import (OBS_IMAGES, EnvFailure, CAP_RESTART, STATE_ONLY, ConfigError, RolloutSpec,
+                          SidecarError,
                           SimseamError, SimulationError)
 from simseam.runner.central_render import worker_request
 from simseam.seam.batch import BatchStepResult, batch_actions, env_indices, per_env_requests
@@ -1113,75 +1114,57 @@ class VectorEnv:
                          groups=groups, ready=ready, on_start=on_start, on_step=on_step, on_done=on_done, on_error=on_error,
                          on_worker_failure=on_worker_failure, keep=keep)
 
-    def run_local(self, policy: str, policy_kwargs: dict | None, indices: Sequence[int], *, seed: int = 0,
-                  video_dir: Path | None = None, max_attempts: int = 3,
-                  on_done: Callable[[EpisodeResult], None] | None = None,
-                  on_error: Callable[[EpisodeResult, str], None] | None = None,
-                  on_worker_failure: Callable[[WorkerFailure], None] | None = None,
-                  keep: bool = True) -> list[EpisodeResult]:
-        """Like ``run``, with the policy inside each worker: every worker builds its own instance of the
-        policy spec (``make_policy(policy, **policy_kwargs)``) and plays whole episodes, sending back only
-        results, as N independent processes would (the fastest way for policies that share no model:
-        no round trip to this process per step). Same seeds, same failure handling as ``run``."""
-        if self.central is not None:
-            raise ConfigError("renderer 'batched' draws the frames in this process, so it steps the workers "
-                              "together (run); run_local keeps the policy and its cameras inside each worker")
-        if self.envs_per_worker > 1:
-            raise ConfigError(f"{self.envs_per_worker} environments per worker hide the round trip of a policy "
-                              "acting in this process (run); run_local plays whole episodes in each worker, "
-                              "where one environment per worker is fastest")
-        spec_key = (policy, tuple(sorted((policy_kwargs or {}).items())))
-        todo = EpisodeQueue(indices, seed, max_attempts)
-        results: list[EpisodeResult] = []
+    # -- whole episodes: the policy inside each worker (runner.whole_episodes.run_local plays them)
+    def idle_envs(self) -> list[int]:
+        """The environments whose worker waits for its next whole episode."""
+        return [s.env for s in self.slots if s.state == IDLE]
 
-        def done(res: EpisodeResult) -> None:
-            if keep:
-                results.append(res)
-            if on_done:
-                on_done(res)
+    def playing(self) -> bool:
+        """Whether a worker plays a whole episode."""
+        return any(s.state == BUSY for s in self.slots)
 
-        while todo or any(s.state == BUSY for s in self.slots):
-            for s in self.slots:
-                if s.state == IDLE and todo:
-                    s.index, s.state = todo.next(), BUSY
-                    self._send(s, ("episode", s.index, seed, spec_key, str(video_dir) if video_dir else None))
-            watch = [s for s in self.slots if s.state in (BUSY, BOOTING)]
-            if not any(s.state == BUSY for s in watch) and not todo:
-                break
-            ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)]))
-            for s in watch:
-                if s.conn not in ready and s.proc.sentinel not in ready:
-                    continue
-                msg = self._recv(s, readable=s.conn in ready)
-                if msg is not None and msg[0] == "nothing":
-                    continue
-                if s.state == BOOTING:
-                    if msg is None:
-                        raise SimulationError(f"vector worker {s.env} died while building its rollout "
-                                              f"(exit code {s.proc.exitcode})")
-                    self._on_boot(s, msg)
-                    continue
-                if msg is None:  # the worker died mid-episode: the episode goes back to the queue
-                    i = s.index
-                    exitcode = self._replace(s)
-                    what, res = todo.lost(i, lambda n: lost_error(WORKER_DIED, n, exitcode))
-                    if on_worker_failure:
-                        on_worker_failure(WorkerFailure(env=s.env, index=i, exitcode=exitcode, what_next=what))
-                    if res is not None:
-                        done(res)
-                    continue
-                if msg[0] == "fatal":
-                    raise msg[1]
-                if msg[0] == "episode_error":  # a sidecar error escaped the worker's episode loop
-                    res = todo.new_result(s.index)
-                    res.error, what_next = msg[1], msg[2]
-                else:
-                    _, res, what_next = msg
-                s.index, s.state = None, IDLE
-                if what_next is not None and on_error:
-                    on_error(res, what_next)
-                done(res)
-        return results
+    def send_episode(self, env: int, index: int, seed: int, policy_key: tuple, video_dir: str | None) -> None:
+        """Environment ``env``'s worker plays episode ``index`` (seed ``seed + index``, or its recipe's
+        ``rollout_for`` base) with its own instance of the policy spec ``policy_key`` (spec, kwargs items)."""
+        s = self.slots[env]
+        s.index, s.state = index, BUSY
+        self._send(s, ("episode", index, seed, policy_key, video_dir))
+
+    def episode_events(self) -> list:
+        """Wait until a worker that boots or plays reports: the episodes returned (``Returned``) and the
+        workers lost with theirs (``Lost``; a fresh worker takes its place); a worker's own error raised."""
+        from simseam.runner.whole_episodes import Lost, Returned
+
+        watch = [s for s in self.slots if s.state in (BUSY, BOOTING)]
+        ready = set(wait_any([c for s in watch for c in (s.conn, s.proc.sentinel)]))
+        events: list = []
+        for s in watch:
+            if s.conn not in ready and s.proc.sentinel not in ready:
+                continue
+            msg = self._recv(s, readable=s.conn in ready)
+            if msg is not None and msg[0] == "nothing":
+                continue
+            if s.state == BOOTING:
+                if msg is None:
+                    raise SimulationError(f"vector worker {s.env} died while building its rollout "
+                                          f"(exit code {s.proc.exitcode})")
+                self._on_boot(s, msg)
+                continue
+            if msg is None:  # the worker died mid-episode: a fresh one takes its place
+                i, env = s.index, s.env
+                exitcode = self._replace(s)
+                events.append(Lost(env, i, lambda n, code=exitcode: lost_error(WORKER_DIED, n, code),
+                                   lambda what, env=env, i=i, code=exitcode: WorkerFailure(
+                                       env=env, index=i, exitcode=code, what_next=what)))
+                continue
+            if msg[0] == "fatal":
+                raise msg[1]
+            index, s.index, s.state = s.index, None, IDLE
+            if msg[0] == "episode_error":  # a sidecar error escaped the worker's episode loop
+                events.append(Returned(s.env, index, None, msg[2], error=msg[1]))
+            else:
+                events.append(Returned(s.env, index, msg[1], msg[2]))
+        return events
 
     def _step(self, s: _Slot, action: np.ndarray, request) -> None:
         """A step command: through the step block (one byte in the pipe) when the worker has one and the

@@ -1,0 +1,95 @@
+"""One job, every executor (runner/job.py): the same job run inline, on worker processes playing whole
+episodes, and on worker processes stepped from here (plain lockstep, policy groups, the ready rule) writes
+the same spec and the same per-episode log lines (timings aside) for the same seeds; a benchmark's episode
+indices map to their task and seed in one place (``BenchmarkRecipe``)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from simseam.runner.job import Executor, Job, JobReport, execute
+from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
+from simseam.runner.run_dir import RunDir
+from simseam.runner.scene_config import load_scene_config
+from simseam.runner.scheduler import Lockstep
+
+TIMING = ("step_latency_ms", "policy_latency_ms", "worker")
+SEED = 7
+
+
+@pytest.fixture
+def scene(tmp_path):
+    path = tmp_path / "lift.yaml"
+    path.write_text("robot: franka_panda\ntask: lift_cube\nmax_steps: 40\nenvironment_state: true\n")
+    return path
+
+
+def _job(scene, run_dir, indices=(0, 1, 2, 3)) -> Job:
+    cfg, base = load_scene_config(scene)
+    recipe = SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False, seed=SEED)
+    return Job(recipe, "scripted", {}, list(indices), SEED, run_dir)
+
+
+def _run(scene, out, executor: Executor, report: JobReport | None = None, **run_dir) -> tuple[list[dict], dict]:
+    """The run's log lines (timings dropped, by index) and its spec."""
+    rd = RunDir(out, {"test": "executors"}, **run_dir)
+    try:
+        execute(_job(scene, rd), executor, report)
+    finally:
+        rd.close()
+    lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    episodes = sorted(({k: v for k, v in e.items() if k not in TIMING} for e in lines), key=lambda e: e["index"])
+    return episodes, json.loads((out / "spec.json").read_text())
+
+
+def test_every_executor_writes_the_same_episodes(scene, tmp_path):
+    inline, spec = _run(scene, tmp_path / "inline", Executor("inline"))
+    assert [(e["index"], e["seed"]) for e in inline] == [(i, SEED + i) for i in range(4)]
+    assert any(e["success"] for e in inline) and all(e["steps"] > 0 for e in inline)
+    executors = {"whole episodes": Executor("vector", 2),
+                 "lockstep": Executor("vector", 2, Lockstep(groups=1, ready=2)),
+                 "policy groups": Executor("vector", 2, Lockstep(groups=2)),
+                 "ready rule, 2 per worker": Executor("vector", 3, Lockstep(ready=1, envs_per_worker=2))}
+    for name, executor in executors.items():
+        episodes, other_spec = _run(scene, tmp_path / name.replace(" ", "_"), executor)
+        assert episodes == inline, name
+        assert other_spec == spec, name
+
+
+def test_the_report_names_where_the_policy_acts(scene, tmp_path):
+    seen = []
+    report = JobReport(on_envs=lambda spec, n, where: seen.append((spec.task.name, n, where)))
+    _run(scene, tmp_path / "whole", Executor("vector", 2), report)
+    _run(scene, tmp_path / "groups", Executor("vector", 2, Lockstep(groups=2)), report)
+    assert seen == [("lift_cube", 2, "a policy in each worker"),
+                    ("lift_cube", 2, "one batched policy, 2 policy groups")]
+
+
+def test_an_overwritten_run_gets_the_new_runs_spec_and_a_resumed_one_keeps_its_own(scene, tmp_path):
+    out = tmp_path / "run"
+    _run(scene, out, Executor("inline"))
+    (out / "spec.json").write_text('{"marker": "the earlier run"}')
+    rd = RunDir(out, {"test": "executors"}, resume=True)
+    try:
+        execute(_job(scene, rd, indices=[4]), Executor("inline"))
+    finally:
+        rd.close()
+    assert json.loads((out / "spec.json").read_text()) == {"marker": "the earlier run"}
+    _, spec = _run(scene, out, Executor("inline"), overwrite=True)
+    assert spec["task"]["name"] == "lift_cube"
+
+
+def test_a_benchmarks_episode_indices_map_to_their_task_and_seed():
+    recipe = BenchmarkRecipe("metaworld", {"max_steps": 9}, ("a", "b", "c"), 4, per_task={"c": {"max_steps": 5}})
+    parts = recipe.parts([9, 1, 2, 8, 11], seed=100)
+    assert [(r.first_task, indices, base) for r, indices, base in parts] == [(0, [1, 2], 100), (2, [8, 9, 11], 92)]
+    assert parts[1][0].task_config(2) == {"max_steps": 5, "task": "c"}
+    assert recipe.task_of(9) == (2, 1)
+    assert recipe.log_entry({"index": 9, "seed": 101, "steps": 5}, 100) == {"index": 9, "seed": 101, "steps": 5,
+                                                                            "task": "c", "episode": 1}
+    # an episode recorded by the parent after its worker was lost too often: the task's seed, not the global one
+    assert recipe.log_entry({"index": 9, "seed": 109, "steps": 0, "error": "lost"}, 100)["seed"] == 101
+    scene = SceneRecipe({}, ".")
+    assert scene.parts([3, 1], 5) == [(scene, [3, 1], 5)] and scene.log_entry({"index": 3}, 5) == {"index": 3}
