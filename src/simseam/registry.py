@@ -1,8 +1,8 @@
 """The one registry mechanism: a static table per kind (tasks, policies, policy schemes, scripted experts,
-engines, backends, benchmark ports, eval presets), name -> ``"module:attribute"``, imported only when that name is asked
-for. A table entry may also be the object itself (a contributor's addition at run time, e.g. a test's),
-or a row describing it (``EngineInfo``, ``BackendInfo``) whose ``"module:attribute"`` fields ``resolve``
-imports; ``add`` writes an entry. Standard library and the seam's errors only."""
+engines, backends, benchmark ports, eval presets), name -> ``"module:attribute"``, imported only when that
+name is asked for. A table entry may also be the object itself (a contributor's addition at run time, e.g.
+a test's), or a row describing it (``EngineInfo``, ``BackendInfo``) whose ``"module:attribute"`` fields
+``resolve`` imports; ``add`` writes an entry. Standard library and the seam's errors only."""
 
 from __future__ import annotations
 
