@@ -131,3 +131,17 @@ def test_the_gpu_scene_reads_only_the_named_public_views_of_its_host_scene():
         for first, second in re.findall(r"\bhost\.(\w+)(?:\.(\w+))?", p.read_text()):
             reads.add(f"{first}.{second}" if first in ("engine", "chain") else first)
     assert reads and reads <= HOST_READS, sorted(reads - HOST_READS)
+
+
+# what MuJoCo Warp's engine package may read of a CPU scene it renders (``PoseRenderer``, ``pose_state``)
+SCENE_READS = {"plan.cameras", "engine.model", "engine.render_state"}
+
+
+def test_the_warp_engine_reads_only_the_named_public_views_of_a_cpu_scene():
+    """engines/mujoco_warp renders posed CPU scenes from their compiled plan's cameras, the MjModel and the
+    engine's render state: nothing else of the scene (and, with the test above, no private attribute)."""
+    reads = set()
+    for p in sorted((SRC / "engines" / "mujoco_warp").glob("*.py")):
+        reads |= {f"{a}.{b}" if b else a
+                  for a, b in re.findall(r"(?<![.\w])scene\.(\w+)(?:\.(\w+))?", p.read_text())}
+    assert reads and reads <= SCENE_READS, sorted(reads - SCENE_READS)

@@ -1,7 +1,8 @@
-"""The one registry mechanism: a static table per kind (tasks, policies, policy schemes, engines,
-backends, eval presets), name -> ``"module:attribute"``, imported only when that name is asked for.
-A table entry may also be the object itself (a contributor's addition at run time, e.g. a test's);
-``add`` writes one. Standard library and the seam's errors only."""
+"""The one registry mechanism: a static table per kind (tasks, policies, policy schemes, scripted experts,
+engines, backends, benchmark ports, eval presets), name -> ``"module:attribute"``, imported only when that
+name is asked for. A table entry may also be the object itself (a contributor's addition at run time, e.g.
+a test's), or a row describing it (``EngineInfo``, ``BackendInfo``) whose ``"module:attribute"`` fields
+``resolve`` imports; ``add`` writes an entry. Standard library and the seam's errors only."""
 
 from __future__ import annotations
 
@@ -20,9 +21,15 @@ def load(table: dict[str, Any], name: str, kind: str) -> Any:
         raise ConfigError(f"unknown {kind} {name!r}{did_you_mean(name, table)}; known: "
                           f"{', '.join(sorted(table))}") from None
     if isinstance(entry, str):
-        module, _, attr = entry.partition(":")
-        entry = table[name] = getattr(importlib.import_module(module), attr)
+        entry = table[name] = resolve(entry)
     return entry
+
+
+def resolve(ref: str) -> Any:
+    """The object ``"module:attribute"`` names, its module imported now (``"module"`` alone: the module)."""
+    module, _, attr = ref.partition(":")
+    obj = importlib.import_module(module)
+    return getattr(obj, attr) if attr else obj
 
 
 def add(table: dict[str, Any], name: str, obj: Any) -> Any:

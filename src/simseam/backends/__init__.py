@@ -13,17 +13,17 @@ provisioning code run on the client side too).
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import Any
 
-from simseam.seam.errors import ConfigError, did_you_mean
+from simseam import registry
+from simseam.seam.errors import ConfigError
 
 
 @dataclass(frozen=True)
 class BackendInfo:
     name: str
-    module: str  # simseam.backends.<name>: the rollout and its config check
+    module: str  # simseam.backends.<name>: the rollout and its config check (registry.resolve imports it)
     dist: str  # the benchmark's PyPI distribution (pinned in pins/<name>.txt)
     imports: tuple[str, ...]  # what the provisioned venv must import
     description: str
@@ -55,18 +55,16 @@ NOT_AVAILABLE = {
 
 
 def backend_info(name: str) -> BackendInfo:
-    try:
-        return BACKENDS[name]
-    except KeyError:
-        extra = f" ({NOT_AVAILABLE[name]})" if name in NOT_AVAILABLE else ""
-        raise ConfigError(f"unknown benchmark backend {name!r}{extra or did_you_mean(name, BACKENDS)}; available: "
-                          f"{', '.join(sorted(BACKENDS))}") \
-            from None
+    """``BACKENDS``'s row (through ``registry.load``); a benchmark in ``NOT_AVAILABLE`` says why it is not one."""
+    if name in NOT_AVAILABLE and name not in BACKENDS:
+        raise ConfigError(f"unknown benchmark backend {name!r} ({NOT_AVAILABLE[name]}); known: "
+                          f"{', '.join(sorted(BACKENDS))}")
+    return registry.load(BACKENDS, name, "benchmark backend")
 
 
 def backend_module(name: str):
     """The backend's module (imports numpy and simseam.seam only; the benchmark is imported lazily)."""
-    return importlib.import_module(backend_info(name).module)
+    return registry.resolve(backend_info(name).module)
 
 
 def normalize_config(name: str, config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:

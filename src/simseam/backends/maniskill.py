@@ -242,11 +242,8 @@ class ManiSkillRollout(BenchmarkRollout):
             require_gpu_physics()
         self.can_render = allow_physics_only()
         import gymnasium as gym
-        import mani_skill
         import mani_skill.envs  # noqa: F401  (registers the tasks)
-        import sapien
         import torch
-        from mani_skill.utils.registration import REGISTERED_ENVS
 
         torch.set_num_threads(1)  # one env, one core: ManiSkill's tensors are tiny
         self._torch = torch
@@ -271,9 +268,7 @@ class ManiSkillRollout(BenchmarkRollout):
             from mani_skill.examples.motionplanning.panda import solutions
 
             self._solve = getattr(solutions, EXPERT_TASKS[task])
-        robot = self._u.agent.robot
-        joints = [j.name for j in robot.get_active_joints()]
-        limits = robot.get_qlimits()[0].cpu().numpy().astype(np.float64)
+        joints = [j.name for j in self._u.agent.robot.get_active_joints()]
         self._obs, self._info = self._flat(*self.env.reset(seed=0))  # the first observation (no plan yet)
         self._t = 0
         names = state_names(self._u.get_obs(unflattened=True))
@@ -283,33 +278,19 @@ class ManiSkillRollout(BenchmarkRollout):
         info = self._info
         self._diagnostics = tuple(k for k, v in info.items()
                                   if k not in SKIP_INFO and hasattr(v, "shape") and tuple(v.shape) == (1,))
-        low, high = (np.asarray(x, dtype=np.float64) for x in (self.env.action_space.low, self.env.action_space.high))
-        self._joint_mode = config["control_mode"] == "pd_joint_pos"
-        if self._joint_mode:
-            arm = tuple(ActionSlot(j, "arm", float(lo), float(hi), "rad") for j, lo, hi in
-                        zip(joints[:7], low[:7], high[:7]))
-            action = ActionSpec(ControlMode.JOINT_POSITION, arm + (ActionSlot("grip", "grip", -1.0, 1.0,
-                                                                                "-1 open, +1 closed"),))
-        else:
-            arm_cfg = self._u.agent.controller.configs["arm"]
-            rot = "rad (about base-aligned axes at the TCP)"
-            action = ActionSpec(ControlMode.CARTESIAN_DELTA,
-                                tuple(ActionSlot(n, "arm", -1.0, 1.0, f"{arm_cfg.pos_upper} m" if i < 3 else
-                                                 f"{arm_cfg.rot_upper} {rot}")
-                                      for i, n in enumerate(("dx", "dy", "dz", "dax", "day", "daz")))
-                                + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
-                                max_translation=float(arm_cfg.pos_upper), max_rotation=float(arm_cfg.rot_upper))
+        super().__init__(self._describe(names, joints))
+
+    def _describe(self, names: list[str], joints: list[str]) -> RolloutSpec:
+        """The spec of the env just reset: its state ``names``, its active ``joints`` (7 arm, then the gripper's)."""
+        import mani_skill
+        import sapien
+        from mani_skill.utils.registration import REGISTERED_ENVS
+
+        config, task, robot = self.config, self.config["task"], self._u.agent.robot
+        limits = robot.get_qlimits()[0].cpu().numpy().astype(np.float64)
+        action = self._action_spec(joints)
         grip_cfg = self._u.agent.controller.configs["gripper"]
-        cameras = {"camera1": (h, w)} if config["cameras"] else {}
-        sensors = ()
-        if config["cameras"]:
-            cam = self._u._sensor_configs["base_camera"]
-            pose = np.asarray(cam.pose.raw_pose[0], dtype=np.float64)  # [x y z qw qx qy qz]; SAPIEN looks along +x
-            sensors = (SensorFacts(name="base_camera", kind="rgb", parent="world",
-                                   xyz=tuple(float(x) for x in pose[:3]),
-                                   rpy=tuple(float(a) for a in matrix_to_rpy(quat_to_matrix(pose[3:]))),
-                                   feature_key="camera1", width=w, height=h,
-                                   fovy_deg=float(np.degrees(float(np.asarray(cam.fov).reshape(-1)[0])))),)
+        cameras = {"camera1": tuple(config["image_size"])} if config["cameras"] else {}
         extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (action.dim,), presence="declared")} \
             if config["expert"] else {}
         self._env_slots = None
@@ -318,14 +299,14 @@ class ManiSkillRollout(BenchmarkRollout):
             extra[OBS_ENV_STATE] = FieldSpec("float32", (len(self._env_slots),), "declared",
                                              "ManiSkill's task state (world frame)",
                                              tuple(names[i] for i in self._env_slots))
-        spec = RolloutSpec(
+        return RolloutSpec(
             robot=RobotFacts(name=self._u.agent.uid, base_link=robot.get_links()[0].name,
                              tool_link=self._u.agent.tcp.name,
                              joints=tuple(JointFacts(j, "arm" if i < 7 else "gripper", float(limits[i, 0]),
                                                      float(limits[i, 1])) for i, j in enumerate(joints)),
                              gripper=GripperFacts(tuple(joints[7:]), (float(grip_cfg.upper),) * 2,
                                                   (float(grip_cfg.lower),) * 2),
-                             sensors=sensors),
+                             sensors=self._camera_sensors()),
             task=TaskSpec(name=task, instruction=instruction(task),
                           max_steps=config["max_steps"] or int(REGISTERED_ENVS[task].max_episode_steps),
                           diagnostics=self._diagnostics),
@@ -336,7 +317,38 @@ class ManiSkillRollout(BenchmarkRollout):
             backend="inprocess",
             capabilities=("privileged",) if config["expert"] else (),
         )
-        super().__init__(spec)
+
+    def _action_spec(self, joints: list[str]) -> ActionSpec:
+        """pd_joint_pos: the 7 arm joints' targets within the env's action bounds; otherwise ManiSkill's
+        normalized end-effector deltas (scaled by its arm controller's bounds); then the grip."""
+        low, high = (np.asarray(x, dtype=np.float64) for x in (self.env.action_space.low, self.env.action_space.high))
+        self._joint_mode = self.config["control_mode"] == "pd_joint_pos"
+        if self._joint_mode:
+            arm = tuple(ActionSlot(j, "arm", float(lo), float(hi), "rad") for j, lo, hi in
+                        zip(joints[:7], low[:7], high[:7]))
+            return ActionSpec(ControlMode.JOINT_POSITION, arm + (ActionSlot("grip", "grip", -1.0, 1.0,
+                                                                              "-1 open, +1 closed"),))
+        arm_cfg = self._u.agent.controller.configs["arm"]
+        rot = "rad (about base-aligned axes at the TCP)"
+        return ActionSpec(ControlMode.CARTESIAN_DELTA,
+                          tuple(ActionSlot(n, "arm", -1.0, 1.0, f"{arm_cfg.pos_upper} m" if i < 3 else
+                                           f"{arm_cfg.rot_upper} {rot}")
+                                for i, n in enumerate(("dx", "dy", "dz", "dax", "day", "daz")))
+                          + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
+                          max_translation=float(arm_cfg.pos_upper), max_rotation=float(arm_cfg.rot_upper))
+
+    def _camera_sensors(self) -> tuple[SensorFacts, ...]:
+        """The base camera's mount and intrinsics when cameras are on (SAPIEN looks along +x)."""
+        if not self.config["cameras"]:
+            return ()
+        h, w = self.config["image_size"]
+        cam = self._u._sensor_configs["base_camera"]
+        pose = np.asarray(cam.pose.raw_pose[0], dtype=np.float64)  # [x y z qw qx qy qz]; SAPIEN looks along +x
+        return (SensorFacts(name="base_camera", kind="rgb", parent="world",
+                            xyz=tuple(float(x) for x in pose[:3]),
+                            rpy=tuple(float(a) for a in matrix_to_rpy(quat_to_matrix(pose[3:]))),
+                            feature_key="camera1", width=w, height=h,
+                            fovy_deg=float(np.degrees(float(np.asarray(cam.fov).reshape(-1)[0])))),)
 
     # ---------------------------------------------------------------- native
     def _native_reset(self, seed: int) -> None:

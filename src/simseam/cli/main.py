@@ -509,9 +509,23 @@ def train(
 ) -> None:
     """Train a LeRobot ACT or Diffusion Policy on a dataset; the result loads with --policy lerobot:<out>.
     Ctrl-C or SIGTERM saves a checkpoint of the steps done (continue with --resume) and exits 130."""
-    from simseam.runner.training import TrainConfig, default_loader_workers, train_act
-
     check_seed(seed)
+    cfg = _train_config(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, policy_type=policy_type, lr=lr,
+                        lr_schedule=lr_schedule, chunk_size=chunk_size, n_action_steps=n_action_steps,
+                        warmup_steps=warmup_steps, horizon=horizon, n_obs_steps=n_obs_steps, down_dims=down_dims,
+                        inference_steps=inference_steps, temporal_ensemble=temporal_ensemble, dim_model=dim_model,
+                        ff_dim=ff_dim, encoder_layers=encoder_layers, vae=vae, device=device, workers=workers,
+                        cache=cache, amp=amp, seed=seed, checkpoint_every=checkpoint_every)
+    _train_and_report(dataset, out, cfg, overwrite, resume)
+
+
+def _train_config(*, steps: int, time_budget_s: float | None, batch_size: int, policy_type: str, lr: float | None,
+                  lr_schedule: str, chunk_size: int, n_action_steps: int | None, warmup_steps: int, horizon: int,
+                  n_obs_steps: int, down_dims: str, inference_steps: int, temporal_ensemble: float | None,
+                  dim_model: int, ff_dim: int, encoder_layers: int, vae: bool, device: str | None,
+                  workers: int | None, cache: bool, amp: bool, seed: int, checkpoint_every: int | None):
+    """``simseam train``'s options as a ``TrainConfig`` (a bad combination exits 2 with its reason)."""
+    from simseam.runner.training import TrainConfig, default_loader_workers
 
     if policy_type == "act" and n_action_steps is None:
         n_action_steps = 10
@@ -521,15 +535,22 @@ def train(
         dims = tuple(int(d) for d in down_dims.split(","))
     except ValueError:
         fail(ConfigError(f"--down-dims {down_dims!r}: expected comma-separated integers, e.g. 256,512,1024"))
-    cfg = TrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
-                         lr_schedule=lr_schedule, policy_type=policy_type, warmup_steps=warmup_steps,
-                         horizon=horizon, n_obs_steps=n_obs_steps, down_dims=dims, inference_steps=inference_steps,
-                         chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
-                         temporal_ensemble_coeff=temporal_ensemble,
-                         dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
-                         device=device, num_workers=default_loader_workers() if workers is None else workers,
-                         cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
-                         checkpoint_every=checkpoint_every)
+    return TrainConfig(steps=steps, time_budget_s=time_budget_s, batch_size=batch_size, lr=lr, lr_backbone=lr,
+                       lr_schedule=lr_schedule, policy_type=policy_type, warmup_steps=warmup_steps,
+                       horizon=horizon, n_obs_steps=n_obs_steps, down_dims=dims, inference_steps=inference_steps,
+                       chunk_size=chunk_size, n_action_steps=n_action_steps, dim_model=dim_model,
+                       temporal_ensemble_coeff=temporal_ensemble,
+                       dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
+                       device=device, num_workers=default_loader_workers() if workers is None else workers,
+                       cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
+                       checkpoint_every=checkpoint_every)
+
+
+def _train_and_report(dataset: Path, out: Path, cfg, overwrite: bool, resume: bool) -> None:
+    """Train, printing the loss as it goes and the checkpoint at the end; Ctrl-C or SIGTERM: the checkpoint
+    saved, exit 130."""
+    from simseam.runner.training import train_act
+
     try:
         with sigterm_as_interrupt():
             res = train_act(dataset, out, cfg, overwrite=overwrite, resume=resume,
@@ -545,7 +566,7 @@ def train(
         raise typer.Exit(code=130)
     if res.resumed_from:
         console.print(f"resumed from step {res.resumed_from}")
-    kind = "ACT" if policy_type == "act" else "Diffusion Policy"
+    kind = "ACT" if cfg.policy_type == "act" else "Diffusion Policy"
     console.print(f"trained {kind} ({res.n_params / 1e6:.1f} M params) for {res.steps} steps in {res.seconds:.0f} s "
                   f"on {res.device}; checkpoint: {out}  (run it: --policy lerobot:{out})")
 

@@ -51,37 +51,14 @@ def serve_policy(
     or SIGTERM, then exits 0.
     Binds loopback only unless --allow-remote; off loopback every client needs the token.
     """
-    from simseam.policies import openpi_wire as wire
     from simseam.policies.batch import make_policy_batch
-    from simseam.policies.contract import SkillContract
     from simseam.serving import PolicyServer
 
-    try:  # before loading anything: an address that is none, then the loopback rule
-        wire.check_bind_host(host)
-    except SimseamError as exc:
-        err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {escape(str(exc))}", highlight=False)
-        raise typer.Exit(code=2) from None
-    if not wire.is_loopback(host) and not allow_remote:
-        err_console.print(f"[bold red]error:[/] refusing to serve on {escape(host)}: not a loopback address; the "
-                          "server has no TLS and runs any client's observations through the policy: add "
-                          "--allow-remote to serve other machines (clients then need the token)", highlight=False)
-        raise typer.Exit(code=2)
+    _check_host(host, allow_remote)
     try:
         batch = make_policy_batch(policy, max_clients)
         pol = batch.policy if hasattr(batch, "policy") else batch.policies[0]  # metadata, contract
-        contract = None
-        if scene is not None:
-            from simseam.runner.scene_config import build_rollout, load_scene_config
-
-            cfg, base_dir = load_scene_config(scene)
-            rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged, render_images=pol.uses_images)
-            try:
-                batch.reset(0, rollout.spec)  # the policy's own fit checks, now rather than per client
-                contract = SkillContract.for_spec(policy, rollout.spec)
-            finally:
-                rollout.close()
-            if not pol.uses_images:  # a state-only policy must not demand cameras from its clients
-                contract = dataclasses.replace(contract, images={})
+        contract = _scene_contract(policy, batch, pol, scene) if scene is not None else None
         server = PolicyServer(pol, host=host, port=port, contract=contract, name=policy, allow_remote=allow_remote,
                               token=token or None, idle_timeout=idle_timeout_s or None,
                               max_message_bytes=int(max_message_mb * 2**20), batch=batch,
@@ -92,11 +69,44 @@ def serve_policy(
     except OSError as exc:  # the port is taken, the address is not ours
         err_console.print(f"[bold red]error:[/] cannot listen on {host}:{port}: {escape(str(exc))}", highlight=False)
         raise typer.Exit(code=2) from None
+    _serve_until_stopped(server, lambda: _announce(server, policy, host, token))
 
-    def _interrupt(signum, frame):
-        raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+def _check_host(host: str, allow_remote: bool) -> None:
+    """Before loading anything: an address that is none, then the loopback rule (exit 2 with the reason)."""
+    from simseam.policies import openpi_wire as wire
+
+    try:
+        wire.check_bind_host(host)
+    except SimseamError as exc:
+        err_console.print(f"[bold red]error:[/] {type(exc).__name__}: {escape(str(exc))}", highlight=False)
+        raise typer.Exit(code=2) from None
+    if not wire.is_loopback(host) and not allow_remote:
+        err_console.print(f"[bold red]error:[/] refusing to serve on {escape(host)}: not a loopback address; the "
+                          "server has no TLS and runs any client's observations through the policy: add "
+                          "--allow-remote to serve other machines (clients then need the token)", highlight=False)
+        raise typer.Exit(code=2)
+
+
+def _scene_contract(policy: str, batch, pol, scene: Path):
+    """The skill contract clients get for ``scene``, once the policy's own fit checks passed on it."""
+    from simseam.policies.contract import SkillContract
+    from simseam.runner.scene_config import build_rollout, load_scene_config
+
+    cfg, base_dir = load_scene_config(scene)
+    rollout = build_rollout(cfg, base_dir, privileged=pol.requires_privileged, render_images=pol.uses_images)
+    try:
+        batch.reset(0, rollout.spec)  # the policy's own fit checks, now rather than per client
+        contract = SkillContract.for_spec(policy, rollout.spec)
+    finally:
+        rollout.close()
+    if not pol.uses_images:  # a state-only policy must not demand cameras from its clients
+        contract = dataclasses.replace(contract, images={})
+    return contract
+
+
+def _announce(server, policy: str, host: str, token: str | None) -> None:
+    """Where clients find the server, and the token when it was generated."""
     console.print(f"serving {policy} on {server.url}  (clients: --policy remote:{server.client_url}; Ctrl-C to stop)",
                   markup=False, highlight=False)
     if server.token and not token:
@@ -105,6 +115,17 @@ def serve_policy(
     if host in ("0.0.0.0", "::", ""):
         console.print("(listening on every interface: clients use this machine's address in place of "
                       f"{host or '0.0.0.0'})", markup=False, highlight=False)
+
+
+def _serve_until_stopped(server, announce) -> None:
+    """``announce()`` once SIGTERM stops the server cleanly, then serve until Ctrl-C or SIGTERM and stop
+    (without waiting for a policy call still running)."""
+
+    def _interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    announce()
     try:
         server.serve_forever()
     except KeyboardInterrupt:

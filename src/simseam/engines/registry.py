@@ -38,8 +38,6 @@ ENGINES: dict[str, EngineInfo] = {
                               "MuJoCo Warp: N worlds of a scene in one process on a GPU"),
 }
 ENGINE_NAMES = tuple(ENGINES)
-#: name -> what makes it (registry.load imports it when asked for)
-_FACTORIES: dict[str, object] = {name: info.factory for name, info in ENGINES.items()}
 
 
 def engine_info(name: str) -> EngineInfo:
@@ -60,7 +58,7 @@ def make_engine(name: str, options: EngineOptions | None = None) -> Engine:
         raise BackendUnavailableError(
             f"engine {name!r} runs only in a sidecar process with its own interpreter, never in the client "
             f"process (engine: {{name: {name}, process: sidecar, python: ...}}). " + _hint(info))
-    return registry.load(_FACTORIES, name, "engine")(options)
+    return registry.resolve(info.factory)(options)
 
 
 def open_batched(name: str, robot, task: str, num_envs: int, options=None, device: str | None = None):
@@ -69,8 +67,8 @@ def open_batched(name: str, robot, task: str, num_envs: int, options=None, devic
     if not info.batched:
         raise ConfigError(f"a batched scene needs a batched engine "
                           f"({', '.join(n for n, i in ENGINES.items() if i.batched)}), got {name!r}")
-    return registry.load(_FACTORIES, name, "engine")(robot, task, num_envs, options, device)
+    return registry.resolve(info.factory)(robot, task, num_envs, options, device)
 
 
 def _hint(info: EngineInfo) -> str:
-    return registry.load({info.name: info.hint}, info.name, "engine hint")() if info.hint else ""
+    return registry.resolve(info.hint)() if info.hint else ""

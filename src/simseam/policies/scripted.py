@@ -9,8 +9,12 @@ IK and the gripper convention are right.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
+from simseam import registry
 from simseam.math3d import quat_to_matrix, rotation_error
 from simseam.policies.base import BasePolicy
 from simseam.policies.navigation import NavExpert
@@ -198,12 +202,26 @@ class ReachExpert:
         return layout.pack(arm=arm, grip=self.grip)
 
 
-def _cartesian(cls):
-    return lambda spec, down: cls(spec.action, down)
+def lift_expert(spec: RolloutSpec, down_rot: np.ndarray) -> LiftExpert:
+    return LiftExpert(spec.action, down_rot)
 
 
-_EXPERTS = {"lift_cube": _cartesian(LiftExpert), "bowl_plate": BowlPlateExpert,
-            "nav_obstacles": _cartesian(NavExpert), "reach": lambda spec, down: ReachExpert(spec)}
+def nav_expert(spec: RolloutSpec, down_rot: np.ndarray) -> NavExpert:
+    return NavExpert(spec.action, down_rot)
+
+
+def reach_expert(spec: RolloutSpec, down_rot: np.ndarray) -> ReachExpert:
+    return ReachExpert(spec)
+
+
+#: the scripted expert of each task (simseam.registry: "module:factory", imported when asked for), where
+#: ``factory(spec, down_rot)`` gives an expert whose ``act(privileged, observation)`` returns the action
+EXPERTS: dict[str, str | Callable[[RolloutSpec, np.ndarray], Any]] = {
+    "lift_cube": "simseam.policies.scripted:lift_expert",
+    "bowl_plate": "simseam.policies.scripted:BowlPlateExpert",
+    "nav_obstacles": "simseam.policies.scripted:nav_expert",
+    "reach": "simseam.policies.scripted:reach_expert",
+}
 _ANY_MODE = {"reach"}  # experts that drive joint_position too
 
 
@@ -219,8 +237,7 @@ class ScriptedPolicy(BasePolicy):
         self._benchmark_expert = spec.observation.has(OBS_EXPERT_ACTION)
         if self._benchmark_expert:
             return
-        if spec.task.name not in _EXPERTS:
-            raise ConfigError(f"no scripted expert for task {spec.task.name!r}; experts exist for {sorted(_EXPERTS)}")
+        self._make_expert = registry.load(EXPERTS, spec.task.name, "scripted expert for task")
         if spec.control_mode != ControlMode.CARTESIAN_DELTA and spec.task.name not in _ANY_MODE:
             raise ConfigError(f"the scripted expert for {spec.task.name!r} drives cartesian_delta; "
                               "set control_mode: cartesian_delta")
@@ -234,5 +251,5 @@ class ScriptedPolicy(BasePolicy):
             raise ConfigError("the scripted expert needs privileged observations (build the scene with privileged=True)")
         if self._expert is None:
             down = quat_to_matrix(priv["eef_pose"][3:])
-            self._expert = _EXPERTS[self.spec.task.name](self.spec, down)
+            self._expert = self._make_expert(self.spec, down)
         return self._expert.act(priv, observation)

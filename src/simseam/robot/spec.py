@@ -22,9 +22,6 @@ from typing import Any
 
 from simseam.seam.spec import BaseFacts, GripperFacts, JointFacts, SensorFacts
 
-ROLES = ("arm", "gripper", "base")
-SENSOR_KINDS = ("rgb", "depth", "lidar_2d")
-
 
 @dataclass(frozen=True)
 class JointSpec(JointFacts):

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from simseam.runner.provenance import describe, differences
-from simseam.runner.run_dir import config_differences, summary_of
+from simseam.runner.run_dir import config_differences
 from simseam.runner.summary import needed_episodes, wilson_interval  # noqa: F401 - needed_episodes: --ci-width
 from simseam.seam import ConfigError
 

@@ -210,9 +210,9 @@ class BenchmarkRecipe:
             from simseam.runner.vector import VectorEnv
 
             return VectorEnv(self, n, envs_per_worker=envs_per_worker)
-        from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
         from simseam.runner.scheduler import BatchVectorEnv
+        from simseam.runner.warp_vector import benchmark_port
 
+        port = benchmark_port(self.engine, self.backend)
         config = {**self.task_config(self.first_task), "cameras": False}
-        return BatchVectorEnv(MetaWorldBatchRollout(config, n, shared, privileged=self.privileged,
-                                                    device=self.device))
+        return BatchVectorEnv(port(config, n, shared, privileged=self.privileged, device=self.device))

@@ -252,7 +252,7 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
     cost the episode; ``on_worker_failure``: an environment's process died. Results in the order the
     episodes finished (none with ``keep=False``: a long run that takes each result through ``on_done``
     keeps its memory flat)."""
-    spec, n = batch.spec, batch.num_envs
+    n = batch.num_envs
     if getattr(policy, "n", n) < n:
         raise SimulationError(f"the policy batch holds {policy.n} environment(s), the batch {n}")
     check_groups(groups, n)
@@ -261,85 +261,114 @@ def run_batch(batch, policy, indices: Sequence[int], *, seed: int = 0, video_dir
     if device and (groups > 1 or ready):
         raise ConfigError("an array policy (act_arrays) steps every environment at once: it takes policy groups 1 "
                           "and no --policy-ready")
-    episodes = _Episodes(indices, n, seed, max_attempts)
-    videos = _Videos(batch, video_dir)
-    obs: list = [None] * n
-    results: list[EpisodeResult] = []
+    run = _BatchRun(batch, policy, _Episodes(indices, n, seed, max_attempts), _Videos(batch, video_dir), device,
+                    _Callbacks(on_start, on_step, on_done, on_error, on_worker_failure), keep)
+    try:
+        run.start(range(n))
+        if ready:
+            _run_ready(run.send, run.turn, ready, n)
+        else:
+            _run_groups(run, groups, n)
+    finally:
+        run.videos.close()
+    return run.results
 
-    def finish(env: int, res: EpisodeResult) -> None:
-        episodes.playing[env], obs[env] = None, None
-        if keep:
-            results.append(res)
-        if on_done:
-            on_done(res)
 
-    def failed(env: int, f) -> None:
+@dataclass(frozen=True)
+class _Callbacks:
+    """``run_batch``'s callbacks (each may be None)."""
+
+    on_start: Callable[[int, int], None] | None
+    on_step: Callable[[int, int, int], None] | None
+    on_done: Callable[[EpisodeResult], None] | None
+    on_error: Callable[[EpisodeResult, str], None] | None
+    on_worker_failure: Callable[[WorkerFailure], None] | None
+
+
+class _BatchRun:
+    """One ``run_batch``: the episodes each environment plays, their last observations, the results kept."""
+
+    def __init__(self, batch, policy, episodes: _Episodes, videos: _Videos, device: bool, calls: _Callbacks,
+                 keep: bool):
+        self.batch, self.policy, self.spec = batch, policy, batch.spec
+        self.episodes, self.videos, self.device, self.calls, self.keep = episodes, videos, device, calls, keep
+        self.obs: list = [None] * batch.num_envs
+        self.results: list[EpisodeResult] = []
+
+    def finish(self, env: int, res: EpisodeResult) -> None:
+        self.episodes.playing[env], self.obs[env] = None, None
+        if self.keep:
+            self.results.append(res)
+        if self.calls.on_done:
+            self.calls.on_done(res)
+
+    def failed(self, env: int, f) -> None:
         """``env``'s episode ended by a failure of the environment (``EnvFailure``)."""
+        episodes, calls = self.episodes, self.calls
         index = episodes.playing[env].index
-        episodes.playing[env], obs[env] = None, None
-        videos.drop(env)
+        episodes.playing[env], self.obs[env] = None, None
+        self.videos.drop(env)
         if f.lost:
             what, res = episodes.lost(index, lambda times: lost_error(f.message, times, f.exitcode))
-            if on_worker_failure:
-                on_worker_failure(WorkerFailure(env=env, index=index, exitcode=f.exitcode, what_next=what))
+            if calls.on_worker_failure:
+                calls.on_worker_failure(WorkerFailure(env=env, index=index, exitcode=f.exitcode, what_next=what))
         else:
             res = episodes.new_result(index)
             res.error = f.message
-            if on_error:
-                on_error(res, f.what_next)
+            if calls.on_error:
+                calls.on_error(res, f.what_next)
         if res is not None:
-            finish(env, res)
+            self.finish(env, res)
 
-    def start(envs: Sequence[int]) -> None:
+    def start(self, envs: Sequence[int]) -> None:
+        """Start the next episodes on ``envs`` (again on those whose reset failed, while the queue lasts)."""
+        episodes, policy = self.episodes, self.policy
         while started := episodes.take(envs):
             for env in started:
-                policy.reset(env, spec)
-                videos.start(env, episodes.playing[env].index)
-                if on_start:
-                    on_start(env, episodes.playing[env].index)
-            got = batch.reset(started, [episodes.playing[e].seed for e in started],
-                              _NO_IMAGES if device else [policy.observe_next(e) for e in started])
-            fails = batch.failures()
+                policy.reset(env, self.spec)
+                self.videos.start(env, episodes.playing[env].index)
+                if self.calls.on_start:
+                    self.calls.on_start(env, episodes.playing[env].index)
+            got = self.batch.reset(started, [episodes.playing[e].seed for e in started],
+                                   _NO_IMAGES if self.device else [policy.observe_next(e) for e in started])
+            fails = self.batch.failures()
             for env, o in zip(started, got):
                 if env in fails:
-                    failed(env, fails[env])
+                    self.failed(env, fails[env])
                 else:
-                    obs[env] = o
-                    videos.frame(env)
+                    self.obs[env] = o
+                    self.videos.frame(env)
             envs = [e for e in started if e in fails]  # start them again with the next episodes
 
-    def send(members: list[int]) -> _Flight | None:
+    def send(self, members: list[int]) -> _Flight | None:
         """The policy acts for the busy environments of ``members`` and their step starts (None: none busy)."""
-        busy = [e for e in members if episodes.playing[e] is not None]
-        return _send(batch, policy, busy, obs, device) if busy else None
+        busy = [e for e in members if self.episodes.playing[e] is not None]
+        return _send(self.batch, self.policy, busy, self.obs, self.device) if busy else None
 
-    def turn(flight: _Flight, at_least: int | None = None) -> list[int]:
+    def turn(self, flight: _Flight, at_least: int | None = None) -> list[int]:
         """Receive ``flight``'s step (``at_least``: as soon as that many are in), finish the episodes that
         ended, start the next ones; the environments received."""
-        got, ended = _receive(batch, flight, obs, episodes, videos, device, failed, on_step, at_least)
+        got, ended = _receive(self.batch, flight, self.obs, self.episodes, self.videos, self.device, self.failed,
+                              self.calls.on_step, at_least)
         for env, res in ended:
-            res.video = videos.finish(env)
-            finish(env, res)
-        free = [env for env in got if episodes.playing[env] is None]  # ended, or failed in the step
+            res.video = self.videos.finish(env)
+            self.finish(env, res)
+        free = [env for env in got if self.episodes.playing[env] is None]  # ended, or failed in the step
         if free:
-            start(free)
+            self.start(free)
         return got
 
-    try:
-        start(range(n))
-        if ready:
-            _run_ready(send, turn, ready, n)
-            return results
-        members = [list(range(g, n, groups)) for g in range(groups)]
-        flights = [send(m) for m in members]
-        while any(flights):
-            for g, flight in enumerate(flights):
-                if flight is not None:
-                    turn(flight)
-                    flights[g] = send(members[g])
-    finally:
-        videos.close()
-    return results
+
+def _run_groups(run: _BatchRun, groups: int, n: int) -> None:
+    """Lockstep in ``groups`` turns (1: every environment steps together): group ``g`` is every
+    ``groups``-th environment from ``g``; while one group's step is received, the others' are in flight."""
+    members = [list(range(g, n, groups)) for g in range(groups)]
+    flights = [run.send(m) for m in members]
+    while any(flights):
+        for g, flight in enumerate(flights):
+            if flight is not None:
+                run.turn(flight)
+                flights[g] = run.send(members[g])
 
 
 def _run_ready(send: Callable, turn: Callable, ready: int, n: int) -> None:

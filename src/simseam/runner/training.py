@@ -561,84 +561,127 @@ def train_act(dataset_root: str | Path, out_dir: str | Path, cfg: TrainConfig | 
     resume_from, replace = _prepare_out(out, root, overwrite, resume)
     _import_lerobot_training()
     import torch
-    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-    from lerobot.policies.factory import make_pre_post_processors
 
-    from simseam.policies.lerobot_policy import pick_device
-
-    device = pick_device(cfg.device)
-    torch.manual_seed(cfg.seed)
-    meta = LeRobotDatasetMetadata("simseam/local", root=root)
-    inputs, outputs = _policy_features(meta, root, cfg.policy_type)
-    pcfg, policy, param_groups, adam = _build_policy(cfg, inputs, outputs, device)
-    state = None
-    if resume_from is not None:
-        from safetensors.torch import load_file
-
-        policy.load_state_dict(load_file(str(resume_from / "model.safetensors")))
-        state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
-    policy.to(device)
-    policy.train()
-    preprocessor, postprocessor = make_pre_post_processors(pcfg, dataset_stats=image_stats(meta, root))
-    batches = _batch_source(cfg, pcfg, meta, root, device)
-    optimizer = torch.optim.AdamW(param_groups, lr=cfg.lr, weight_decay=cfg.weight_decay, **adam)
-    base_lrs = [g["lr"] for g in optimizer.param_groups]
-    result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
-                         frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
-    if state is not None:
-        optimizer.load_state_dict(state["optimizer"])
-        result.steps = result.resumed_from = int(state["step"])
-        result.losses = [tuple(x) for x in state["losses"]]
-    amp = cfg.use_amp and device.startswith("cuda")
+    run = _Training.build(cfg, root, out_dir, resume_from)
     if replace:  # the dataset loaded and the model was built: now the earlier training run goes
         import shutil
 
         shutil.rmtree(out)
-    if device.startswith("cuda"):
+    if run.device.startswith("cuda"):
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
     t0 = time.perf_counter()
-    running = 0.0
-    done = result.steps >= cfg.steps
-    since_log = 0
-    try:
-        while not done:
-            batch = preprocessor(next(batches))
-            with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
-                loss, _ = policy.forward(batch)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
-            for group, base in zip(optimizer.param_groups, base_lrs):
-                group["lr"] = base * lr_factor(cfg, result.steps)
-            optimizer.step()
-            result.steps += 1
-            since_log += 1
-            running += loss.detach()
-            over_time = cfg.time_budget_s is not None and time.perf_counter() - t_start >= cfg.time_budget_s
-            done = result.steps >= cfg.steps or over_time
-            if result.steps % cfg.log_every == 0 or done:
-                mean = float(running) / since_log
-                result.losses.append((result.steps, mean))
-                if on_log:
-                    on_log(result.steps, mean)
-                running, since_log = 0.0, 0
-            if cfg.checkpoint_every and result.steps % cfg.checkpoint_every == 0 and not done:
-                _save_checkpoint(out, result.steps, policy, preprocessor, postprocessor, optimizer, result.losses)
-    except KeyboardInterrupt:
-        result.interrupted = True
-        if result.steps > result.resumed_from:
-            _save_checkpoint(out, result.steps, policy, preprocessor, postprocessor, optimizer, result.losses)
-        raise
-    if device.startswith("cuda"):
+    run.train(cfg, out, t_start, on_log)
+    if run.device.startswith("cuda"):
         torch.cuda.synchronize()
+    result = run.result
     result.seconds = time.perf_counter() - t0
     result.prepare_seconds = t0 - t_start
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    policy.save_pretrained(out)
-    preprocessor.save_pretrained(out)
-    postprocessor.save_pretrained(out)
-    _skill_from_dataset(meta, root, name=f"{cfg.policy_type} trained on {root.name}").save(out)
-    (out / "training.json").write_text(json.dumps({"config": asdict(cfg), **asdict(result)}, indent=2) + "\n")
+    run.save(cfg, Path(out_dir), root)
     return result
+
+
+@dataclass
+class _Training:
+    """One training run's policy, its processors, batches and optimizer, and its ``TrainResult`` so far."""
+
+    device: str
+    meta: object
+    policy: object
+    preprocessor: object
+    postprocessor: object
+    batches: object
+    optimizer: object
+    base_lrs: list[float]  # each parameter group's learning rate before a resumed optimizer state is loaded
+    result: TrainResult
+
+    @classmethod
+    def build(cls, cfg: TrainConfig, root: Path, out_dir: str | Path, resume_from: Path | None) -> "_Training":
+        """The policy of ``cfg`` for the dataset at ``root`` (its weights, optimizer state and losses from
+        ``resume_from``'s checkpoint when resuming), on the device ``cfg`` picks."""
+        import torch
+        from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+        from lerobot.policies.factory import make_pre_post_processors
+
+        from simseam.policies.lerobot_policy import pick_device
+
+        device = pick_device(cfg.device)
+        torch.manual_seed(cfg.seed)
+        meta = LeRobotDatasetMetadata("simseam/local", root=root)
+        inputs, outputs = _policy_features(meta, root, cfg.policy_type)
+        pcfg, policy, param_groups, adam = _build_policy(cfg, inputs, outputs, device)
+        state = None
+        if resume_from is not None:
+            from safetensors.torch import load_file
+
+            policy.load_state_dict(load_file(str(resume_from / "model.safetensors")))
+            state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
+        policy.to(device)
+        policy.train()
+        preprocessor, postprocessor = make_pre_post_processors(pcfg, dataset_stats=image_stats(meta, root))
+        batches = _batch_source(cfg, pcfg, meta, root, device)
+        optimizer = torch.optim.AdamW(param_groups, lr=cfg.lr, weight_decay=cfg.weight_decay, **adam)
+        base_lrs = [g["lr"] for g in optimizer.param_groups]
+        result = TrainResult(out_dir=str(out_dir), steps=0, seconds=0.0, device=device, episodes=meta.total_episodes,
+                             frames=meta.total_frames, n_params=sum(p.numel() for p in policy.parameters()))
+        if state is not None:
+            optimizer.load_state_dict(state["optimizer"])
+            result.steps = result.resumed_from = int(state["step"])
+            result.losses = [tuple(x) for x in state["losses"]]
+        return cls(device, meta, policy, preprocessor, postprocessor, batches, optimizer, base_lrs, result)
+
+    def train(self, cfg: TrainConfig, out: Path, t_start: float, on_log: Callable[[int, float], None] | None) -> None:
+        """Step until ``cfg.steps`` (or ``cfg.time_budget_s`` since ``t_start``): the mean loss every
+        ``cfg.log_every`` steps, a checkpoint every ``cfg.checkpoint_every``; on KeyboardInterrupt a
+        checkpoint of the steps done, then it propagates."""
+        import torch
+
+        policy, optimizer, result, base_lrs = self.policy, self.optimizer, self.result, self.base_lrs
+        amp = cfg.use_amp and self.device.startswith("cuda")
+        running = 0.0
+        done = result.steps >= cfg.steps
+        since_log = 0
+        try:
+            while not done:
+                batch = self.preprocessor(next(self.batches))
+                with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
+                    loss, _ = policy.forward(batch)
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(policy.parameters(), cfg.grad_clip_norm)
+                for group, base in zip(optimizer.param_groups, base_lrs):
+                    group["lr"] = base * lr_factor(cfg, result.steps)
+                optimizer.step()
+                result.steps += 1
+                since_log += 1
+                running += loss.detach()
+                over_time = cfg.time_budget_s is not None and time.perf_counter() - t_start >= cfg.time_budget_s
+                done = result.steps >= cfg.steps or over_time
+                if result.steps % cfg.log_every == 0 or done:
+                    mean = float(running) / since_log
+                    result.losses.append((result.steps, mean))
+                    if on_log:
+                        on_log(result.steps, mean)
+                    running, since_log = 0.0, 0
+                if cfg.checkpoint_every and result.steps % cfg.checkpoint_every == 0 and not done:
+                    self.checkpoint(out)
+        except KeyboardInterrupt:
+            result.interrupted = True
+            if result.steps > result.resumed_from:
+                self.checkpoint(out)
+            raise
+
+    def checkpoint(self, out: Path) -> Path:
+        return _save_checkpoint(out, self.result.steps, self.policy, self.preprocessor, self.postprocessor,
+                                self.optimizer, self.result.losses)
+
+    def save(self, cfg: TrainConfig, out: Path, root: Path) -> None:
+        """The trained policy as a ``lerobot:`` checkpoint in ``out``: weights, processors, the skill contract
+        of the dataset, ``training.json``."""
+        out.mkdir(parents=True, exist_ok=True)
+        self.policy.save_pretrained(out)
+        self.preprocessor.save_pretrained(out)
+        self.postprocessor.save_pretrained(out)
+        _skill_from_dataset(self.meta, root, name=f"{cfg.policy_type} trained on {root.name}").save(out)
+        (out / "training.json").write_text(json.dumps({"config": asdict(cfg), **asdict(self.result)}, indent=2)
+                                           + "\n")

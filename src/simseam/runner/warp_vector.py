@@ -13,8 +13,9 @@ processes otherwise.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
+from simseam import registry
 from simseam.runner.scheduler import BatchVectorEnv
 from simseam.seam import ConfigError
 
@@ -52,8 +53,17 @@ class WarpVectorEnv(BatchVectorEnv):
         return super().run(policy, indices, **kwargs)
 
 
-#: batched engines that run a benchmark of their own: engine -> the benchmarks (backends) with a port to it
-BENCHMARK_PORTS: dict[str, tuple[str, ...]] = {"mujoco_warp": ("metaworld",)}
+#: batched engines that run a benchmark of their own: engine -> {benchmark (backend): its port, the
+#: ``BatchRollout`` class (simseam.registry: "module:attribute", imported when asked for)}
+BENCHMARK_PORTS: dict[str, dict[str, Any]] = {
+    "mujoco_warp": {"metaworld": "simseam.backends.metaworld_gpu.rollout:MetaWorldBatchRollout"},
+}
+
+
+def benchmark_port(engine: str, benchmark: str):
+    """The ``BatchRollout`` class of ``benchmark``'s port to the batched ``engine`` (a ``ConfigError`` naming
+    the ports there are otherwise)."""
+    return registry.load(BENCHMARK_PORTS.get(engine, {}), benchmark, f"benchmark port to {engine}")
 
 
 def benchmark_on_batched_engine(cfg) -> bool:
@@ -71,12 +81,11 @@ def benchmark_on_batched_engine(cfg) -> bool:
 def open_benchmark_batch(cfg, num_envs: int | None, *, privileged: bool = False, render_images: bool = True):
     """The ``BatchRollout`` of a benchmark scene on its batched engine (Meta-World on MuJoCo Warp):
     ``num_envs`` worlds (default the scene's ``engine.num_envs``, else 1) on ``engine.device``."""
-    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
     from simseam.runner.scene_config import benchmark_config
 
     config = {**benchmark_config(cfg, render_images), "name": cfg.benchmark.name}
     n = num_envs or cfg.engine.num_envs or 1
-    return MetaWorldBatchRollout.open({k: v for k, v in config.items() if k != "name"}, n, privileged=privileged,
+    return benchmark_port(cfg.engine.name, cfg.benchmark.name).open({k: v for k, v in config.items() if k != "name"}, n, privileged=privileged,
                                       device=cfg.engine.device)
 
 

@@ -2,7 +2,7 @@
 
 One definition of each task's ``evaluate_state`` (``rewards.py``) runs on every engine: the MuJoCo Warp
 batch (N worlds, arrays of CuPy on a CUDA device or NumPy on Warp's CPU device), CPU MuJoCo (N = 1) and
-states recorded from the native env (N = 1, NumPy). Task code is written against the NumPy API subset of
+states recorded from the native env (NumPy; the tests' replays build them). Task code is written against the NumPy API subset of
 ``simseam.scene.tasks.batch`` with the namespace it is handed (``state.xp``), one row per world, and never
 branches on the engine or on N.
 
@@ -36,7 +36,7 @@ force; ``touching`` reduces them per world with ``xp.bincount`` (no per-world co
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -104,32 +104,6 @@ class Contacts:
     geom: Any
     world: Any
     force: Any
-
-
-class MetaWorldStateProtocol(Protocol):
-    """The interface reward code may use (``MetaWorldState`` implements it)."""
-
-    xp: Any
-    num_worlds: int
-    task: str
-    obs: Any
-    action: Any
-    tcp_center: Any
-    left_pad: Any
-    right_pad: Any
-    params: dict[str, Any]
-
-    def site_pos(self, name: str) -> Any: ...
-    def site_xmat(self, name: str) -> Any: ...
-    def body_pos(self, name: str) -> Any: ...
-    def body_quat(self, name: str) -> Any: ...
-    def body_xmat(self, name: str) -> Any: ...
-    def geom_pos(self, name: str) -> Any: ...
-    def geom_xmat(self, name: str) -> Any: ...
-    def qpos(self, joint: str) -> Any: ...
-    def qvel(self, joint: str) -> Any: ...
-    def touching(self, a: str, b: str) -> Any: ...
-    def touching_object(self, obj: str) -> Any: ...
 
 
 @dataclass
@@ -247,24 +221,3 @@ class MetaWorldState:
         if name not in self._geom_sets:
             self._geom_sets[name] = self.xp.asarray(np.asarray(self.names.geoms_of(name), dtype=np.int64))
         return self._geom_sets[name]
-
-
-def from_mjdata(names: ModelNames, data: Any, obs: Any, action: Any, params: dict[str, Any]) -> MetaWorldState:
-    """An N = 1 NumPy state of one ``MjData`` after ``mj_forward`` (any MuJoCo version: the native env's
-    3.3.0 or the CPU engine's 4.0): ``obs`` float[39], ``action`` float[4], ``params`` as the env's
-    attributes (unstacked); each gets its leading world axis here."""
-    ncon = int(data.ncon)
-    geom = np.asarray(data.contact.geom[:ncon], dtype=np.int64).reshape(ncon, 2)
-    adr = np.asarray(data.contact.efc_address[:ncon], dtype=np.int64)
-    efc = np.asarray(data.efc_force)
-    force = np.where(adr >= 0, efc[np.clip(adr, 0, max(efc.size - 1, 0))] if efc.size else 0.0, 0.0)
-    poses = Poses(qpos=np.array(data.qpos)[None], qvel=np.array(data.qvel)[None],
-                  xpos=np.array(data.xpos)[None], xquat=np.array(data.xquat)[None],
-                  xmat=np.array(data.xmat).reshape(1, -1, 3, 3),
-                  site_xpos=np.array(data.site_xpos)[None], site_xmat=np.array(data.site_xmat).reshape(1, -1, 3, 3),
-                  geom_xpos=np.array(data.geom_xpos)[None], geom_xmat=np.array(data.geom_xmat).reshape(1, -1, 3, 3))
-    return MetaWorldState(
-        xp=np, names=names, obs=np.asarray(obs, dtype=np.float64).reshape(1, -1),
-        action=np.asarray(action, dtype=np.float64).reshape(1, -1),
-        params={k: np.asarray(v, dtype=np.float64)[None] for k, v in params.items()}, poses=poses,
-        contacts=Contacts(geom=geom, world=np.zeros(ncon, dtype=np.int64), force=force.astype(np.float64)))

@@ -20,6 +20,5 @@ this package is importable on a machine without Isaac Sim):
 - ``engine``: ``IsaacEngine``, the ``Engine`` protocol on top of ``compat``.
 """
 
-ENGINE_NAME = "isaac"
 #: set by the sidecar server before it builds the scene; engine ``isaac`` is only made where it is "1"
 SIDECAR_ENV = "SIMSEAM_SIDECAR"

@@ -21,8 +21,6 @@ wp.config.quiet = True
 if hasattr(wp, "LOG_WARNING"):
     wp.config.log_level = wp.LOG_WARNING
 
-EPS_SMALL = 1e-12
-
 
 # ------------------------------------------------------------------------------------------ rotations
 @wp.func

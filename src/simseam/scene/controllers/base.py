@@ -10,8 +10,6 @@ from __future__ import annotations
 from simseam.robot.spec import KinematicBaseSpec
 from simseam.seam import ActionSlot, NormBound
 
-BASE_NAMES = ("vx", "vy", "wz")
-
 
 class TwistBase:
     group = "base"
