@@ -18,7 +18,8 @@ After each step every world is judged by Meta-World's batched reward and success
 Cameras (``cameras``: ``(camera name, feature key, (H, W))`` each; MuJoCo Warp only): ``render()`` draws
 every world's images at once with MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``),
 set up as MuJoCo's OpenGL renderer draws Meta-World (textures, the model's skybox behind the scene, the
-shadows of its shadow-casting light, geom groups 0-2); only when asked, never by ``step``. ``camera_pos``
+shadows of its shadow-casting light, geom groups 0-2, no per-pixel specular highlights: ``RENDER_OPTIONS``);
+only when asked, never by ``step``. ``camera_pos``
 moves the first camera, ``image_flip`` turns every image by 180 degrees: the CPU backend's options.
 """
 
@@ -39,8 +40,11 @@ ENGINES = ("mujoco_warp", "mujoco")
 MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0]) / np.sqrt(2.0)
 GRIPPER_SPAN = 0.1  # Meta-World divides the fingers' distance by 0.1 m
 # MuJoCo's OpenGL renderer's defaults for a Meta-World model, in MuJoCo Warp's ray tracer: textures, the skybox
-# (Meta-World's model has one: OpenGL draws it behind the scene), the shadow of the light that casts one
-RENDER_OPTIONS = {"use_textures": True, "render_skybox": True, "use_shadows": True}
+# (Meta-World's model has one: OpenGL draws it behind the scene), the shadow of the light that casts one; no
+# specular highlights: OpenGL's fixed-function lighting is computed per vertex, so a large face (the table top
+# under gripperPOV) shows none, where the ray tracer's per-pixel highlight brightened it (chosen on pick-place
+# seeds 0-1: gripperPOV's mean |difference| 34 -> 13 of 255, corner's 5.3 -> 5.8)
+RENDER_OPTIONS = {"use_textures": True, "render_skybox": True, "use_shadows": True, "enable_specular": False}
 
 
 class MetaWorldBatch:
