@@ -4,8 +4,8 @@ provisioned venv): the keys, sizes, dtype and orientation of the CPU backend, SS
 nothing rendered unless asked, a bad camera name named with its task.
 
 Measured here (pick-place-v3, seeds 0-1, steps 0 and 5 of the expert, 64x64, llvmpipe's OpenGL;
-benchmarks/metaworld_warp_cameras.py computes the same): SSIM corner 0.81-0.82 (PSNR 25 dB), gripperPOV 0.61-0.63
-(PSNR 22 dB); against the reference turned upside down or mirrored, at least 0.2 lower."""
+benchmarks/metaworld_warp_cameras.py computes the same): SSIM corner 0.815-0.822 (PSNR 25 dB), gripperPOV
+0.643-0.658 (PSNR 23 dB); against the reference turned upside down or mirrored, at least 0.2 lower."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ TASK = "pick-place-v3"
 SEEDS = [0, 1]
 SIZE = 64
 CAMERAS = ["corner", "gripperPOV"]
-SSIM_FLOOR = {"camera1": 0.72, "camera2": 0.52}  # measured 0.81 and 0.61 at the least (see above)
+SSIM_FLOOR = {"camera1": 0.72, "camera2": 0.55}  # measured 0.815 and 0.643 at the least (see above)
 SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "metaworld_warp_cameras.py"
 
 
@@ -116,3 +116,23 @@ def test_a_bad_camera_name_is_one_line_naming_it_and_the_task():
         MetaWorldBatchRollout(_config(camera=["corner", "gripperPVO"]), 2, worker=None, device="cpu")
     text = str(err.value)
     assert "'gripperPVO'" in text and TASK in text and "gripperPOV" in text and "\n" not in text
+
+
+def test_the_sites_opengl_draws_are_drawn_as_geoms_of_a_render_model(worker):
+    """MuJoCo Warp's ray tracer draws geoms only; OpenGL also draws the visible sites (the goal marker)."""
+    import mujoco
+
+    from simseam.backends.metaworld_gpu.model import load_or_build
+    from simseam.engines.mujoco_warp.cameras import drawn_sites, with_site_geoms
+
+    info = worker.call("describe", task=TASK)
+    model = load_or_build(info, None).model
+    render, sites = with_site_geoms(mujoco.MjSpec.from_file(info["xml"]), model)
+    names = [model.site(int(s)).name for s in sites]
+    assert "goal" in names and list(sites) == list(drawn_sites(model))
+    n = model.ngeom
+    assert render.ngeom == n + len(sites)
+    np.testing.assert_array_equal(render.geom_size[:n], model.geom_size)
+    goal = n + names.index("goal")
+    np.testing.assert_allclose(render.geom_rgba[goal], model.site_rgba[model.site("goal").id])
+    assert render.geom_contype[goal] == render.geom_conaffinity[goal] == 0

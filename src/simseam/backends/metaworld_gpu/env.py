@@ -93,14 +93,18 @@ class MetaWorldBatch:
     def _make_cameras(self, task: str, cameras) -> Any:
         if not cameras:
             return None
-        from simseam.engines.mujoco_warp.cameras import WarpCameras
+        import mujoco
+
+        from simseam.engines.mujoco_warp.cameras import WarpCameras, with_site_geoms
 
         mjm = self.model.model
         known = [mjm.camera(i).name for i in range(mjm.ncam)]
         for name, _, _ in cameras:
             if name not in known:
                 raise ConfigError(f"Meta-World task {task!r}: no camera {name!r} in its model; it has {known}")
-        return WarpCameras(mjm, self.num_worlds, list(cameras), device=self.physics.device, **RENDER_OPTIONS)
+        render = with_site_geoms(mujoco.MjSpec.from_file(self.info["xml"]), mjm)  # OpenGL draws the goal marker
+        return WarpCameras(mjm, self.num_worlds, list(cameras), device=self.physics.device, render_model=render,
+                           **RENDER_OPTIONS)
 
     # ---------------------------------------------------------------------------------------------- cameras
     def render(self) -> dict[str, Any]:
