@@ -136,3 +136,14 @@ def test_the_sites_opengl_draws_are_drawn_as_geoms_of_a_render_model(worker):
     goal = n + names.index("goal")
     np.testing.assert_allclose(render.geom_rgba[goal], model.site_rgba[model.site("goal").id])
     assert render.geom_contype[goal] == render.geom_conaffinity[goal] == 0
+
+
+def test_the_worlds_keep_the_batched_seam_contract_with_cameras(worker):
+    """``check_batch_rollout`` with both cameras on (observations against the spec for every request, the same
+    seed the same episode and images, per-world resets, ``render``) on 2 worlds of Warp's CPU device."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.seam import check_batch_rollout
+
+    batch = MetaWorldBatchRollout(_config(image_size=[32, 32]), 2, worker, device="cpu")
+    spec = check_batch_rollout(batch)  # closes it
+    assert spec.observation.images == {"camera1": (32, 32), "camera2": (32, 32)}
