@@ -18,9 +18,9 @@ After each step every world is judged by Meta-World's batched reward and success
 Cameras (``cameras``: ``(camera name, feature key, (H, W))`` each; MuJoCo Warp only): ``render()`` draws
 every world's images at once with MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``),
 set up as MuJoCo's OpenGL renderer draws Meta-World (textures, the model's skybox behind the scene, the
-shadows of its shadow-casting light, geom groups 0-2, no per-pixel specular highlights: ``RENDER_OPTIONS``);
-only when asked, never by ``step``. ``camera_pos``
-moves the first camera, ``image_flip`` turns every image by 180 degrees: the CPU backend's options.
+shadows of its shadow-casting light, geom groups 0-2, the sites OpenGL draws such as the goal marker, no
+per-pixel specular highlights: ``RENDER_OPTIONS``); only when asked, never by ``step``. ``camera_pos`` moves
+the first camera, ``image_flip`` turns every image by 180 degrees: the CPU backend's options.
 """
 
 from __future__ import annotations

@@ -27,12 +27,12 @@ import numpy as np
 from simseam.backends.base import observation_spec
 from simseam.backends.metaworld import (
     AGENT_POS,
-    camera_names,
-    camera_sensors,
     DIAGNOSTICS,
     ENV_STATE_SLOTS,
     ROBOT_JOINTS,
     STATE_NAMES,
+    camera_names,
+    camera_sensors,
     extra_fields,
     instruction,
     normalize_config,
