@@ -72,54 +72,34 @@ def _timed(fn, reps: int, device) -> float:
 
 
 def _context(b, variant: dict):
-    """A render context for ``b``'s cameras with ``variant``'s options (the scene's own: ``visual``)."""
-    import mujoco_warp as mjw
-
+    """The cameras of ``b`` (a ``WarpCameras``) with ``variant``'s render options (the scene's own: ``visual``)."""
     from simseam.engines.mujoco.engine import GROUP_ROBOT_COLLISION, GROUP_ROBOT_VISUAL, GROUP_WORLD
+    from simseam.engines.mujoco_warp.cameras import WarpCameras
 
     opts = {"use_textures": True, **variant}
     robot_group = GROUP_ROBOT_COLLISION if opts.pop("geometry", "visual") == "collision" else GROUP_ROBOT_VISUAL
-    res = [(w, h) for (h, w) in b.cameras.values()]
-    names = [f"cam:{name}" for name, _, _ in b.host.plan.cameras]
-    return mjw.create_render_context(b.mjm, nworld=b.num_envs, cam_res=res, render_rgb=True, render_depth=False,
-                                     cam_active=names,
-                                     enabled_geom_groups=[GROUP_WORLD, robot_group],
-                                     background_color=(0.0, 0.0, 0.0, 1.0), **opts)
+    cams = [(f"cam:{name}", key, hw) for name, key, hw in b.host.plan.cameras]
+    return WarpCameras(b.mjm, b.num_envs, cams, device=b.device, groups=(GROUP_WORLD, robot_group),
+                       background_color=(0.0, 0.0, 0.0, 1.0), **opts)
 
 
-def _cast(b, rc) -> None:
-    """Camera and light poses, the scene BVH's refit and the ray casting, with ``rc`` (launched directly:
+def _cast(b, cams) -> None:
+    """Camera and light poses, the scene BVH's refit and the ray casting, with ``cams`` (launched directly:
     the scene's own render replays the CUDA graph it captured with its own context)."""
-    import mujoco_warp as mjw
-
-    mjw.camlight(b.m, b.d)
-    mjw.refit_bvh(b.m, b.d, rc)
-    mjw.render(b.m, b.d, rc)
+    cams.cast(b.m, b.d)
 
 
-def _images(b, rc):
-    """Host uint8 images [N, H, W, 3] per camera key, rendered with ``rc`` on ``b``'s current state."""
+def _images(b, cams):
+    """Host uint8 images [N, H, W, 3] per camera key, rendered with ``cams`` on ``b``'s current state."""
     import numpy as np
-    import warp as wp
 
-    from simseam.engines.mujoco_warp import kernels as K
-
-    _cast(b, rc)
-    adr = rc.rgb_adr.numpy()
-    out = {}
-    for i, key in enumerate(b.cameras):
-        h, w = b.cameras[key]
-        img = wp.zeros((b.num_envs, h, w, 3), dtype=wp.uint8, device=b.device)
-        wp.launch(K.unpack_rgb_u8_kernel, dim=(b.num_envs, h * w), inputs=[rc.rgb_data, int(adr[i]), w, img],
-                  device=b.device)
-        out[key] = img.numpy().astype(np.int16)
-    return out
+    return {key: img.numpy().astype(np.int16) for key, img in cams.render(b.m, b.d).items()}
 
 
 def split(b, acts, reps: int) -> dict:
     import mujoco_warp as mjw
 
-    rc, m, d = b.rc, b.m, b.d
+    rc, m, d = b.camera_renderer.rc, b.m, b.d
     parts = {
         "step": _timed(lambda: b.step(acts), reps, b.device),
         "camlight": _timed(lambda: mjw.camlight(m, d), reps, b.device),
@@ -138,12 +118,12 @@ def variants(b, acts, reps: int) -> list[dict]:
     import numpy as np
 
     step_s = _timed(lambda: b.step(acts), reps, b.device)
-    ref = _images(b, b.rc)
+    ref = _images(b, b.camera_renderer)
     rows = []
     for name, opts in VARIANTS.items():
-        rc = b.rc if name == "visual" else _context(b, opts)
-        diff = np.concatenate([np.abs(v - ref[k]).ravel() for k, v in _images(b, rc).items()])
-        cast_s = _timed(lambda: _cast(b, rc), reps, b.device)
+        cams = b.camera_renderer if name == "visual" else _context(b, opts)
+        diff = np.concatenate([np.abs(v - ref[k]).ravel() for k, v in _images(b, cams).items()])
+        cast_s = _timed(lambda: _cast(b, cams), reps, b.device)
         rows.append({"variant": name, "options": opts, "render_ms": round(cast_s * 1e3, 3),
                      "step_ms": round((step_s + cast_s) * 1e3, 3),
                      "env_steps_per_s": round(b.num_envs / (step_s + cast_s), 1),

@@ -15,6 +15,13 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
 - ``mt50``: the whole evaluation a user waits for: every task, ``--episodes`` episodes (seeds 0..E-1, one
   world each) of ``max_path_length`` steps, building, resetting and stepping timed together (wall), the
   tasks split over ``--mt50-procs`` processes sharing the device.
+- with ``--cameras corner,gripperPOV --image 128``, the same with those cameras rendered every step, beside
+  the state-only sections (``--no-state`` leaves those out): ``cpu_cameras``, the CPU backend's per-env code
+  with ``camera: [corner, gripperPOV]`` at ``--image``² (each step observes both images: Meta-World's
+  ``env.render()``, MuJoCo's OpenGL renderer, ``MUJOCO_GL`` default ``egl``) in ``--cpu-procs`` processes;
+  ``warp_cameras``, per ``--camera-worlds`` N, ``MetaWorldBatch`` with both cameras, each timed step
+  followed by ``render()`` of every world (MuJoCo Warp's ray tracer; the images stay on the device, where a
+  GPU policy reads them).
 
 The policy is uniform random actions in [-1, 1] (seeded), drawn where each env lives (the device for
 Warp, NumPy for the CPU), so its cost is nil on both sides: the figures are the simulators' and
@@ -24,6 +31,8 @@ Meta-World's observation and reward code's. A section is skipped by giving it 0 
     python benchmarks/metaworld_warp_throughput.py --device cuda:0 --worlds 1024,4096,8192 --cpu-procs 16
     python benchmarks/metaworld_warp_throughput.py --device cpu --tasks reach-v3 --worlds 8 --steps 5 \\
         --cpu-procs 2 --cpu-seconds 5 --episodes 2 --out /tmp/t.json
+    python benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks reach-v3,push-v3,pick-place-v3 --no-state \\
+        --cameras corner,gripperPOV --image 128 --camera-worlds 1024,4096 --cpu-procs 16
 """
 
 from __future__ import annotations
@@ -45,12 +54,20 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 # ------------------------------------------------------------------------------------------------ cpu
-def cpu_worker(tasks: list[str], chunk: int, seconds: float, seed: int) -> None:
+def camera_config(cameras: list[str], image: int) -> dict[str, Any]:
+    """The backend config of ``cameras`` at ``image``² (state-only when none)."""
+    if not cameras:
+        return {"cameras": False}
+    return {"cameras": True, "camera": list(cameras), "image_size": [image, image]}
+
+
+def cpu_worker(tasks: list[str], chunk: int, seconds: float, seed: int, cameras: list[str] = (),
+               image: int = 128) -> None:
     """Run in Meta-World's interpreter: make every task's env, print ``ready``, wait for a line on stdin,
-    then step for ``seconds``; print one JSON line of counts."""
+    then step for ``seconds`` (each step observing ``cameras``' images, if any); print one JSON line of counts."""
     from simseam.backends.metaworld import make_rollout, normalize_config
 
-    rollouts = {t: make_rollout(normalize_config({"task": t, "cameras": False})) for t in tasks}
+    rollouts = {t: make_rollout(normalize_config({"task": t, **camera_config(cameras, image)})) for t in tasks}
     for i, r in enumerate(rollouts.values()):
         r.reset(seed=seed + i)
     rng = np.random.default_rng(seed)
@@ -68,7 +85,8 @@ def cpu_worker(tasks: list[str], chunk: int, seconds: float, seed: int) -> None:
     print(json.dumps({"steps": steps, "seconds": time.perf_counter() - t0}), flush=True)
 
 
-def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float) -> dict[str, Any]:
+def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float, cameras: list[str] = (),
+                image: int = 128) -> dict[str, Any]:
     from simseam.backends.provision import require
 
     python = str(require("metaworld"))
@@ -78,7 +96,8 @@ def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float) -> dic
     for j in range(procs):
         share = tasks[j::procs] or [tasks[j % len(tasks)]]
         argv = [python, __file__, "--cpu-worker", ",".join(share), "--cpu-chunk", str(chunk),
-                "--cpu-seconds", str(seconds), "--seed", str(1000 * j)]
+                "--cpu-seconds", str(seconds), "--seed", str(1000 * j), "--cameras", ",".join(cameras),
+                "--image", str(image)]
         workers.append(subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env))
     t_setup = time.perf_counter()
     for w in workers:
@@ -96,28 +115,36 @@ def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float) -> dic
         for task, n in c["steps"].items():
             per_task[task] = per_task.get(task, 0) + n
     rate = sum(sum(c["steps"].values()) / c["seconds"] for c in counts)
-    return {"procs": procs, "seconds": seconds, "setup_seconds": round(setup, 1), "env_steps_per_s": rate,
+    return {"procs": procs, "seconds": seconds, "cameras": list(cameras), "image": image if cameras else None, "setup_seconds": round(setup, 1), "env_steps_per_s": rate,
             "steps_per_task": per_task, "per_proc_env_steps_per_s": [sum(c["steps"].values()) / c["seconds"]
                                                                     for c in counts]}
 
 
 # ----------------------------------------------------------------------------------------------- warp
-def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, seed: int) -> dict[str, Any]:
+def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, seed: int,
+              cameras: list[str] = (), image: int = 128) -> dict[str, Any]:
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
     t0 = time.perf_counter()
-    env = MetaWorldBatch(task, worlds, worker, device=device)
+    plan = [(name, f"camera{i + 1}", (image, image)) for i, name in enumerate(cameras)]
+    env = MetaWorldBatch(task, worlds, worker, device=device, cameras=plan)
     env.reset(np.arange(worlds), np.arange(worlds) % 50)
     xp = env.xp
     rng = xp.random.RandomState(seed)  # NumPy and CuPy alike
-    for _ in range(2):  # the first launches run directly, the second are captured as a CUDA graph: untimed
+
+    def one_step() -> None:
         env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))
+        if plan:
+            env.render()  # every world's images, on the device
+
+    for _ in range(2):  # the first launches run directly, the second are captured as a CUDA graph: untimed
+        one_step()
     env.physics.synchronize()
     graphs = list(env.physics.graphs.captured)
     setup = time.perf_counter() - t0
     t1 = time.perf_counter()
     for _ in range(steps):
-        env.step(rng.uniform(-1.0, 1.0, (worlds, 4)).astype(xp.float32))
+        one_step()
     env.physics.synchronize()
     seconds = time.perf_counter() - t1
     env.close()
@@ -125,17 +152,19 @@ def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, se
             "env_steps_per_s": worlds * steps / seconds, "cuda_graphs": graphs}
 
 
-def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | None) -> dict[str, Any]:
+def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | None, cameras: list[str] = (),
+                 image: int = 128) -> dict[str, Any]:
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     out: dict[str, Any] = {}
+    what = f"{len(cameras)} x {image}^2 cameras" if cameras else "state-only"
     with NativeWorker() as worker:
         for n in sizes:
             rows = {}
             for i, task in enumerate(tasks):
-                rows[task] = warp_task(worker, task, n, steps, device, seed=i)
+                rows[task] = warp_task(worker, task, n, steps, device, seed=i, cameras=cameras, image=image)
                 print(f"  warp {n:6d} worlds  {task:28s} {rows[task]['env_steps_per_s']:12,.0f} env-steps/s "
-                      f"(setup {rows[task]['setup_seconds']:.1f} s)", flush=True)
+                      f"({what}; setup {rows[task]['setup_seconds']:.1f} s)", flush=True)
             total = sum(r["worlds"] * r["steps"] for r in rows.values())
             secs = sum(r["seconds"] for r in rows.values())
             rates = [r["env_steps_per_s"] for r in rows.values()]
@@ -228,11 +257,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--cameras", default="", help="e.g. corner,gripperPOV: add the camera sections")
+    ap.add_argument("--image", type=int, default=128, help="the cameras' image size (square)")
+    ap.add_argument("--camera-worlds", default="1024,4096", help="world counts of the Warp camera section")
+    ap.add_argument("--no-state", action="store_true", help="only the camera sections")
     ap.add_argument("--cpu-worker", help=argparse.SUPPRESS)
     ap.add_argument("--mt50-worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cpu_worker:
-        cpu_worker(args.cpu_worker.split(","), args.cpu_chunk, args.cpu_seconds, args.seed)
+        cpu_worker(args.cpu_worker.split(","), args.cpu_chunk, args.cpu_seconds, args.seed, _names(args.cameras),
+                   args.image)
         return 0
     if args.mt50_worker:
         print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device)))
@@ -243,7 +277,9 @@ def main(argv: list[str] | None = None) -> int:
     from simseam.backends.metaworld_gpu.tasks import OBJECTS
 
     tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
-    sizes = [int(x) for x in args.worlds.split(",") if x]
+    sizes = [] if args.no_state else [int(x) for x in args.worlds.split(",") if x]
+    cameras = _names(args.cameras)
+    camera_sizes = [int(x) for x in args.camera_worlds.split(",") if x] if cameras else []
     doc: dict[str, Any] = {"benchmark": "metaworld_warp_throughput", "policy": "uniform random actions",
                            "tasks": tasks, "machine": machine(args.device), "argv": sys.argv[1:]}
 
@@ -253,14 +289,23 @@ def main(argv: list[str] | None = None) -> int:
         tmp.write_text(json.dumps(doc, indent=1))
         tmp.replace(args.out)
 
-    if args.cpu_procs:
+    if args.cpu_procs and not args.no_state:
         doc["cpu"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds)
         print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
     for n in sizes:  # each world count on disk as soon as it is measured
         doc.setdefault("warp", {}).update(warp_section(tasks, [n], args.steps, args.device))
         save()
-    if args.episodes:
+    if cameras and args.cpu_procs:
+        doc["cpu_cameras"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds, cameras, args.image)
+        print(f"cpu backend with {','.join(cameras)} at {args.image}^2, {args.cpu_procs} processes: "
+              f"{doc['cpu_cameras']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
+        save()
+    for n in camera_sizes:
+        doc.setdefault("warp_cameras", {}).update(warp_section(tasks, [n], args.steps, args.device, cameras,
+                                                               args.image))
+        save()
+    if args.episodes and not args.no_state:
         doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device)
         save()
     print_table(doc)
@@ -269,18 +314,24 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def print_table(doc: dict[str, Any]) -> None:
-    cpu = doc.get("cpu", {}).get("env_steps_per_s")
-    print(f"\n{'path':34s} {'env-steps/s':>14s} {'slowest task':>14s} {'vs CPU':>8s}")
-    if cpu:
-        print(f"{'CPU backend, ' + str(doc['cpu']['procs']) + ' processes':34s} {cpu:14,.0f} {'':>14s} {'1.0x':>8s}")
-    for n, row in doc.get("warp", {}).items():
-        ratio = f"{row['env_steps_per_s'] / cpu:.1f}x" if cpu else "-"
-        print(f"{'MuJoCo Warp, ' + n + ' worlds':34s} {row['env_steps_per_s']:14,.0f} "
-              f"{row['slowest_task_env_steps_per_s']:14,.0f} {ratio:>8s}")
+    print(f"\n{'path':44s} {'env-steps/s':>14s} {'slowest task':>14s} {'vs CPU':>8s}")
+    for cpu_key, warp_key, what in (("cpu", "warp", ""), ("cpu_cameras", "warp_cameras", ", cameras")):
+        cpu = doc.get(cpu_key, {}).get("env_steps_per_s")
+        if cpu:
+            name = f"CPU backend, {doc[cpu_key]['procs']} processes{what}"
+            print(f"{name:44s} {cpu:14,.0f} {'':>14s} {'1.0x':>8s}")
+        for n, row in doc.get(warp_key, {}).items():
+            ratio = f"{row['env_steps_per_s'] / cpu:.1f}x" if cpu else "-"
+            print(f"{'MuJoCo Warp, ' + n + ' worlds' + what:44s} {row['env_steps_per_s']:14,.0f} "
+                  f"{row['slowest_task_env_steps_per_s']:14,.0f} {ratio:>8s}")
     if "mt50" in doc:
         m = doc["mt50"]
         print(f"\nwhole run: {m['tasks']} tasks x {m['episodes_per_task']} episodes ({m['episodes']}) "
               f"in {m['wall_seconds']:.1f} s wall ({m['procs']} process(es); builds and resets included)")
+
+
+def _names(text: str | None) -> list[str]:
+    return [x for x in (text or "").split(",") if x]
 
 
 if __name__ == "__main__":

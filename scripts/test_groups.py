@@ -44,7 +44,8 @@ GROUPS: tuple[tuple[str, ...], ...] = (
     ("tests/backends/test_maniskill.py", "tests/backends/test_maniskill_batch.py"),
     # Meta-World on Warp's CPU device: its batched rules, the port, its eval, the fidelity harness on a subset
     ("tests/backends/test_metaworld_rewards.py", "tests/backends/test_metaworld_gpu.py",
-     "tests/backends/test_metaworld_gpu_eval.py", "tests/backends/test_metaworld_warp_fidelity.py"),
+     "tests/backends/test_metaworld_gpu_eval.py", "tests/backends/test_metaworld_warp_fidelity.py",
+     "tests/backends/test_metaworld_gpu_cameras.py"),
     ("tests/backends",),  # the other backends' files (the ones above are excluded from it)
     ("tests/policies",),
 )

@@ -24,10 +24,12 @@ Mapping to the seam:
 - action: Meta-World's own ``[dx, dy, dz, grip]`` in [-1, 1] (CARTESIAN_DELTA, 1 cm per unit
   per step of the mocap target; grip -1 open, +1 closed), clipped to the bounds;
 - ``images``: ``{"camera1": <camera>}`` (default ``corner2``) at ``image_size`` (default 224x224),
-  exactly what ``env.render()`` returns for that camera; ``cameras: false`` declares none (a
+  exactly what ``env.render()`` returns for that camera; ``camera: [corner, gripperPOV]`` (a list)
+  gives ``camera1``, ``camera2``, ... in that order, each what ``env.render()`` returns with the env's
+  renderer pointed at it; ``cameras: false`` declares none (a
   state-only rollout: ``simseam collect --no-cameras`` and a state policy's ``run`` set it).
-  ``camera_pos: [x, y, z]`` moves the camera (LeRobot's env puts ``corner2`` at
-  ``[0.75, 0.075, 0.7]``); ``image_flip: true`` turns the image by 180 degrees (LeRobot flips
+  ``camera_pos: [x, y, z]`` moves the (first) camera (LeRobot's env puts ``corner2`` at
+  ``[0.75, 0.075, 0.7]``); ``image_flip: true`` turns every image by 180 degrees (LeRobot flips
   ``corner2``'s both axes: Meta-World renders it upside down);
 - ``state``: the 39-D Meta-World observation (hand xyz, gripper opening, two object poses, the
   previous frame of those, the goal), cast to float32 (native: float64); ``state: agent_pos``
@@ -111,8 +113,7 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
         raise ConfigError(f"{where}.task: a Meta-World v3 task name such as 'reach-v3' is required, got {task!r} "
                           "(`simseam benchmarks list metaworld` lists them)")
     out = {**DEFAULTS, **{k: v for k, v in config.items() if k != "name"}}
-    if out["camera"] not in CAMERAS:
-        raise ConfigError(f"{where}.camera: {out['camera']!r} is not a Meta-World camera; one of {list(CAMERAS)}")
+    camera_names(out, where)
     out["image_size"] = check_image_size(out["image_size"], where)
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
     out["goal_seed"] = check_int(out["goal_seed"], f"{where}.goal_seed", low=0)
@@ -134,6 +135,40 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
             raise ConfigError(f"{where}.camera_pos: expected [x, y, z] in metres, got {pos!r}")
         out["camera_pos"] = [float(x) for x in pos]
     return out
+
+
+def camera_names(config: dict[str, Any], where: str = "benchmark") -> tuple[str, ...]:
+    """The cameras of ``config['camera']`` (one name, or a list of distinct names), in the order of their
+    feature keys ``camera1``, ``camera2``, ...; an unknown name is a one-line error naming it and the task."""
+    cams = config["camera"]
+    names = (cams,) if isinstance(cams, str) else tuple(cams) if isinstance(cams, (list, tuple)) else ()
+    if not names or len(set(names)) != len(names) or not all(isinstance(c, str) for c in names):
+        raise ConfigError(f"{where}.camera: a Meta-World camera name or a list of distinct ones, got {cams!r}")
+    for name in names:
+        if name not in CAMERAS:
+            raise ConfigError(f"{where}.camera: {name!r} is not a Meta-World camera (task {config.get('task')!r}); "
+                              f"one of {list(CAMERAS)}{did_you_mean(name, CAMERAS)}")
+    return names
+
+
+def camera_sensors(m, d, config: dict[str, Any]) -> tuple:
+    """The ``SensorFacts`` of ``config``'s cameras (``camera1``, ...) in the state of ``d`` (a reset): a camera
+    on the world at its world pose, one on a moving body (``gripperPOV`` on the hand) at its pose in that
+    body's frame; turned half a turn about the view axis when ``image_flip``."""
+    h, w = config["image_size"]
+    out = []
+    for i, name in enumerate(camera_names(config)):
+        cam = m.camera(name).id
+        body = int(m.cam_bodyid[cam])
+        rot = d.xmat[body].reshape(3, 3)
+        xmat = rot.T @ d.cam_xmat[cam].reshape(3, 3)
+        if config["image_flip"]:
+            xmat[:, :2] *= -1  # the image turned by 180 degrees: the camera rolled half a turn about its view axis
+        xyz = rot.T @ (d.cam_xpos[cam] - d.xpos[body])
+        out.append(SensorFacts(name=name, kind="rgb", parent="world" if body == 0 else m.body(body).name,
+                               xyz=tuple(float(x) for x in xyz), rpy=mount_rpy(xmat), feature_key=f"camera{i + 1}",
+                               width=w, height=h, fovy_deg=float(m.cam_fovy[cam])))
+    return tuple(out)
 
 
 def instruction(task: str) -> str:
@@ -182,8 +217,8 @@ class MetaWorldRollout(BenchmarkRollout):
                               f"{did_you_mean(name, metaworld.MT1.ENV_NAMES)}; known: {', '.join(metaworld.MT1.ENV_NAMES)}")
         self._bench = metaworld.MT1(name, seed=config["goal_seed"])
         h, w = config["image_size"]
-        self.env = self._bench.train_classes[name](render_mode="rgb_array", camera_name=config["camera"],
-                                                   width=w, height=h)
+        cams = camera_names(config)
+        self.env = self._bench.train_classes[name](render_mode="rgb_array", camera_name=cams[0], width=w, height=h)
         self.env.max_path_length = 10**9  # the seam truncates at max_steps; stepping on continues the physics
         self._expert = None
         self._ml1: list | None = None  # ML1's test tasks, made on the first ml1 reset
@@ -193,18 +228,12 @@ class MetaWorldRollout(BenchmarkRollout):
             self._expert = ENV_POLICY_MAP[name]()
         m = self.env.model
         if config["camera_pos"] is not None:
-            m.cam_pos[m.camera(config["camera"]).id] = config["camera_pos"]
+            m.cam_pos[m.camera(cams[0]).id] = config["camera_pos"]
+        self._camera_ids = {f"camera{i + 1}": m.camera(c).id for i, c in enumerate(cams)}
         self._qadr = np.array([m.jnt_qposadr[m.joint(j).id] for j in ROBOT_JOINTS])
         self._vadr = np.array([m.jnt_dofadr[m.joint(j).id] for j in ROBOT_JOINTS])
         self._native_reset(0)  # camera poses and the first observation
-        cam = m.camera(config["camera"]).id
-        xmat = self.env.data.cam_xmat[cam].reshape(3, 3).copy()
-        if config["image_flip"]:
-            xmat[:, :2] *= -1  # the image turned by 180 degrees: the camera rolled half a turn about its view axis
-        sensors = (SensorFacts(name=config["camera"], kind="rgb", parent="world",
-                               xyz=tuple(float(x) for x in self.env.data.cam_xpos[cam]),
-                               rpy=mount_rpy(xmat), feature_key="camera1",
-                               width=w, height=h, fovy_deg=float(m.cam_fovy[cam])),) if config["cameras"] else ()
+        sensors = camera_sensors(m, self.env.data, config) if config["cameras"] else ()
         joints = sawyer_joints(m)
         extra = extra_fields(self._expert, config["environment_state"])
         step = float(self.env.action_scale)
@@ -212,7 +241,7 @@ class MetaWorldRollout(BenchmarkRollout):
             robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=sensors),
             task=TaskSpec(name=name, instruction=instruction(name), max_steps=config["max_steps"],
                           diagnostics=DIAGNOSTICS),
-            observation=observation_spec({"camera1": (h, w)} if config["cameras"] else {},
+            observation=observation_spec({k: (h, w) for k in self._camera_ids} if config["cameras"] else {},
                                          STATE_NAMES[:AGENT_POS] if config["state"] == "agent_pos" else STATE_NAMES,
                                          ROBOT_JOINTS, extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
@@ -275,6 +304,7 @@ class MetaWorldRollout(BenchmarkRollout):
         return obs
 
     def _render_camera(self, key: str) -> np.ndarray:
+        self.env.mujoco_renderer.camera_id = self._camera_ids[key]  # what env.render() draws, for this camera
         img = self.env.render()
         return np.ascontiguousarray(img[::-1, ::-1] if self.config["image_flip"] else img)
 

@@ -14,11 +14,18 @@ state is not finite is flagged in ``errors`` (its task and seed in ``error_messa
 After each step every world is judged by Meta-World's batched reward and success rules (``judge``:
 ``rewards.evaluate`` over ``state()``); a rule's reset attribute that the native reset leaves unset
 (bin-picking's ``_target_to_obj_init``) is NaN until the rule's first judgement writes it.
+
+Cameras (``cameras``: ``(camera name, feature key, (H, W))`` each; MuJoCo Warp only): ``render()`` draws
+every world's images at once with MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``),
+set up as MuJoCo's OpenGL renderer draws Meta-World (textures, the model's skybox behind the scene, the
+shadows of its shadow-casting light, geom groups 0-2, the sites OpenGL draws such as the goal marker, no
+per-pixel specular highlights: ``RENDER_OPTIONS``); only when asked, never by ``step``. ``camera_pos`` moves
+the first camera, ``image_flip`` turns every image by 180 degrees: the CPU backend's options.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -32,6 +39,12 @@ from simseam.seam.errors import ConfigError
 ENGINES = ("mujoco_warp", "mujoco")
 MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0]) / np.sqrt(2.0)
 GRIPPER_SPAN = 0.1  # Meta-World divides the fingers' distance by 0.1 m
+# MuJoCo's OpenGL renderer's defaults for a Meta-World model, in MuJoCo Warp's ray tracer: textures, the skybox
+# (Meta-World's model has one: OpenGL draws it behind the scene), the shadow of the light that casts one; no
+# specular highlights: OpenGL's fixed-function lighting is computed per vertex, so a large face (the table top
+# under gripperPOV) shows none, where the ray tracer's per-pixel highlight brightened it (chosen on pick-place
+# seeds 0-1: gripperPOV's mean |difference| 34 -> 13 of 255, corner's 5.3 -> 5.8)
+RENDER_OPTIONS = {"use_textures": True, "render_skybox": True, "use_shadows": True, "enable_specular": False}
 
 
 class MetaWorldBatch:
@@ -39,7 +52,9 @@ class MetaWorldBatch:
     (float[N, 39] of ``xp``), ``state()`` (``MetaWorldState`` for the reward code)."""
 
     def __init__(self, task: str, num_worlds: int, worker: Any, *, engine: str = "mujoco_warp",
-                 device: str | None = None, variation: str = "mt1", goal_seed: int = 0, graph: bool = True):
+                 device: str | None = None, variation: str = "mt1", goal_seed: int = 0, graph: bool = True,
+                 cameras: Sequence[tuple[str, str, tuple[int, int]]] = (), camera_pos: Sequence[float] | None = None,
+                 image_flip: bool = False):
         if task not in OBJECTS:
             raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
         if engine not in ENGINES:
@@ -51,10 +66,16 @@ class MetaWorldBatch:
         self.task, self.info, self.num_worlds = task, info, int(num_worlds)
         self.names = ModelNames.from_model(self.model.model, task)
         mjm = self.model.model
+        if cameras and engine != "mujoco_warp":
+            raise ConfigError(f"Meta-World task {task!r}: cameras are rendered on the mujoco_warp engine only")
+        if camera_pos is not None and cameras:
+            mjm.cam_pos[mjm.camera(cameras[0][0]).id] = camera_pos  # this batch's own copy of the model
         if engine == "mujoco":
             self.physics = CpuPhysics(mjm, self.num_worlds)
         else:
             self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]), graph=graph)
+        self.cameras = self._make_cameras(task, cameras)
+        self.image_flip = bool(image_flip)
         self.xp = xp = self.physics.xp
         n = self.num_worlds
         self.steps = np.zeros(n, dtype=np.int64)
@@ -68,6 +89,31 @@ class MetaWorldBatch:
         self._obs_low, self._obs_high = xp.asarray(info["obs_low"]), xp.asarray(info["obs_high"])
         self._mocap_low, self._mocap_high = xp.asarray(info["mocap_low"]), xp.asarray(info["mocap_high"])
         self.max_steps = int(info["max_path_length"])
+
+    def _make_cameras(self, task: str, cameras) -> Any:
+        if not cameras:
+            return None
+        import mujoco
+
+        from simseam.engines.mujoco_warp.cameras import WarpCameras, with_site_geoms
+
+        mjm = self.model.model
+        known = [mjm.camera(i).name for i in range(mjm.ncam)]
+        for name, _, _ in cameras:
+            if name not in known:
+                raise ConfigError(f"Meta-World task {task!r}: no camera {name!r} in its model; it has {known}")
+        render = with_site_geoms(mujoco.MjSpec.from_file(self.info["xml"]), mjm)  # OpenGL draws the goal marker
+        return WarpCameras(mjm, self.num_worlds, list(cameras), device=self.physics.device, render_model=render,
+                           **RENDER_OPTIONS)
+
+    # ---------------------------------------------------------------------------------------------- cameras
+    def render(self) -> dict[str, Any]:
+        """Every world's images of the current state: feature key -> uint8[N, H, W, 3] of ``xp`` (on the device;
+        row 0 the top of the image, turned by 180 degrees when ``image_flip``), valid until the next render."""
+        if self.cameras is None:
+            return {}
+        images = self.physics.render(self.cameras)
+        return {k: v[:, ::-1, ::-1] if self.image_flip else v for k, v in images.items()}
 
     # ------------------------------------------------------------------------------------------ reset
     def reset(self, worlds, seeds) -> None:

@@ -11,7 +11,10 @@ It answers with what only the native env knows, computed by Meta-World itself on
   and the env's numeric attributes;
 - ``replay``: an episode stepped natively under given actions (or the scripted expert's), per step;
 - ``expert``: the scripted expert's actions for a batch of observations (Meta-World's policies are
-  functions of the observation alone).
+  functions of the observation alone);
+- ``render``: the CPU backend's images (``MetaWorldRollout``'s cameras: ``env.render()`` on MuJoCo's OpenGL
+  renderer) of given states after a seed's reset, the reference the MuJoCo Warp port's images are measured
+  against.
 
 Messages are pickled, length-prefixed; the protocol runs on a private copy of stdout (fd 1 goes to
 stderr, so nothing Meta-World prints can corrupt it). Imports numpy and simseam's numpy-only modules.
@@ -147,6 +150,33 @@ def replay(task: str, variation: str, goal_seed: int, seed: int, actions: np.nda
 
 
 _EXPERTS: dict[str, Any] = {}
+_RENDERERS: dict[str, Any] = {}
+
+
+def render(config: dict[str, Any], seed: int, states: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
+    """The CPU backend's images of each of ``states`` (``qpos``, ``qvel``, ``mocap_pos``, ``mocap_quat``), set
+    after ``seed``'s reset (which places what the reset moves: goal sites, bodies), with the rollout of the
+    backend ``config`` (its ``camera`` list, ``image_size``, ``image_flip``, ``camera_pos``): per state, feature
+    key -> uint8[H, W, 3] exactly as ``MetaWorldRollout`` observes them."""
+    import mujoco
+
+    from simseam.backends.metaworld import make_rollout, normalize_config
+
+    cfg = normalize_config({**config, "cameras": True})
+    key = repr(sorted(cfg.items()))
+    if key not in _RENDERERS:
+        while _RENDERERS:  # one renderer (an OpenGL context) at a time
+            _RENDERERS.popitem()[1].close()
+        _RENDERERS[key] = make_rollout(cfg)
+    rollout = _RENDERERS[key]
+    rollout._native_reset(int(seed))
+    env, out = rollout.env, []
+    for state in states:
+        for field in ("qpos", "qvel", "mocap_pos", "mocap_quat"):
+            getattr(env.data, field)[...] = state[field]
+        mujoco.mj_forward(env.model, env.data)
+        out.append({k: rollout._render_camera(k) for k in rollout.spec.observation.images})
+    return out
 
 
 def expert(task: str, obs: np.ndarray) -> np.ndarray:
@@ -159,7 +189,7 @@ def expert(task: str, obs: np.ndarray) -> np.ndarray:
     return np.stack([np.asarray(policy.get_action(o), dtype=np.float64) for o in np.asarray(obs, np.float64)])
 
 
-COMMANDS = {"describe": describe, "resets": resets, "replay": replay, "expert": expert}
+COMMANDS = {"describe": describe, "resets": resets, "replay": replay, "expert": expert, "render": render}
 
 
 def _read(stream) -> Any:

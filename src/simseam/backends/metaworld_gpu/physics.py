@@ -210,6 +210,15 @@ class WarpPhysics:
     def mocap_pos(self) -> Any:
         return self.view(self.d.mocap_pos).copy()
 
+    def render(self, cameras: Any) -> dict[str, Any]:
+        """Every world's images from ``cameras`` (a ``WarpCameras`` of this batch), as ``xp`` views of its device
+        arrays (valid until the next render): on CUDA one captured graph per batch, as the step."""
+        self.synchronize()
+        with self._wp.ScopedDevice(self.device):
+            self._launch("render", lambda: cameras.render(self.m, self.d))
+            self._wp.synchronize_device(self.device)
+        return {key: self.view(img) for key, img in cameras.images.items()}
+
     def poses(self) -> Poses:
         d, v, n = self.d, self.view, self.num_worlds
         return Poses(qpos=v(d.qpos), qvel=v(d.qvel), xpos=v(d.xpos), xquat=v(d.xquat),

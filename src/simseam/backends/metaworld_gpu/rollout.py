@@ -4,7 +4,10 @@ truncation of the CPU backend's ``MetaWorldRollout`` (``backends/metaworld.py``)
 ``episodes.jsonl`` reads the same on either engine.
 
 - config: the CPU backend's (``normalize_config``): ``variation``, ``goal_seed``, ``max_steps``, ``state``,
-  ``environment_state``; no cameras (the port is state-only: a config asking for images is refused);
+  ``environment_state``, and its cameras: ``camera`` (a name or a list: ``camera1``, ``camera2``, ...),
+  ``image_size``, ``camera_pos``, ``image_flip``, ``cameras: false`` for none; the images keys, sizes and
+  orientation are the CPU backend's, drawn by MuJoCo Warp's ray tracer for all the worlds at once, only
+  when an observation request asks for one of them (``observe``: one request, or one per environment);
 - reset: each environment's seed picks its native reset (MT1 variation ``seed % 50``, ``sampled``,
   ``lerobot``), whatever the other environments hold or which of them end first;
 - step: every world's physics advances (an environment left out holds a zero action until its reset);
@@ -28,6 +31,8 @@ from simseam.backends.metaworld import (
     ENV_STATE_SLOTS,
     ROBOT_JOINTS,
     STATE_NAMES,
+    camera_names,
+    camera_sensors,
     extra_fields,
     instruction,
     normalize_config,
@@ -49,23 +54,35 @@ from simseam.seam import (
     ActionSpec,
     ConfigError,
     ControlMode,
+    ObsRequest,
     RobotFacts,
     RolloutSpec,
     SimulationError,
     TaskSpec,
 )
-from simseam.seam.batch import BatchStepResult, EnvFailure, SyncStepPair, batch_actions, env_indices
+from simseam.seam.batch import (
+    BatchStepResult,
+    EnvFailure,
+    SyncStepPair,
+    batch_actions,
+    env_indices,
+    per_env_requests,
+)
 
 ENGINE = "mujoco_warp"
 
 
 def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
-    """The CPU backend's config, checked, for the state-only GPU port (cameras refused)."""
-    out = normalize_config({**config, "cameras": config.get("cameras", False)})
-    if out["cameras"]:
-        raise ConfigError(f"Meta-World on {ENGINE} is state-only: no cameras yet (task {out['task']!r}); use a "
-                          "state policy or the CPU backend")
-    return out
+    """The CPU backend's config, checked (``cameras`` off unless asked: the port renders only what is asked)."""
+    return normalize_config({**config, "cameras": config.get("cameras", False)})
+
+
+def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
+    """``(camera, feature key, (H, W))`` of each camera ``config`` declares (none when ``cameras`` is off)."""
+    if not config["cameras"]:
+        return []
+    size = tuple(config["image_size"])
+    return [(name, f"camera{i + 1}", size) for i, name in enumerate(camera_names(config))]
 
 
 class MetaWorldBatchRollout(SyncStepPair):
@@ -77,7 +94,8 @@ class MetaWorldBatchRollout(SyncStepPair):
         self.worker, self.privileged = worker, bool(privileged)
         c = self.config
         self.world = MetaWorldBatch(c["task"], num_envs, worker, engine=engine, device=device,
-                                    variation=c["variation"], goal_seed=c["goal_seed"])
+                                    variation=c["variation"], goal_seed=c["goal_seed"], cameras=camera_plan(c),
+                                    camera_pos=c["camera_pos"], image_flip=c["image_flip"])
         names = self.world.names
         self._qadr = np.array([names.joint_qpos[j][0] for j in ROBOT_JOINTS])
         self._vadr = np.array([names.joint_qvel[j][0] for j in ROBOT_JOINTS])
@@ -111,11 +129,13 @@ class MetaWorldBatchRollout(SyncStepPair):
         extra = extra_fields(self.privileged, c["environment_state"])
         step = float(info["action_scale"])
         slots = tuple(ActionSlot(k, "arm", -1.0, 1.0, f"{step} m") for k in ("dx", "dy", "dz"))
+        cams = {key: size for _, key, size in camera_plan(c)}
         return RolloutSpec(
-            robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints, sensors=()),
+            robot=RobotFacts(name="sawyer", base_link="world", tool_link="hand", joints=joints,
+                             sensors=self._sensors() if cams else ()),
             task=TaskSpec(name=c["task"], instruction=instruction(c["task"]), max_steps=c["max_steps"],
                           diagnostics=DIAGNOSTICS),
-            observation=observation_spec({}, STATE_NAMES[:AGENT_POS] if c["state"] == "agent_pos" else STATE_NAMES,
+            observation=observation_spec(cams, STATE_NAMES[:AGENT_POS] if c["state"] == "agent_pos" else STATE_NAMES,
                                          ROBOT_JOINTS, extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               (*slots, ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed")),
@@ -125,6 +145,19 @@ class MetaWorldBatchRollout(SyncStepPair):
             backend="inprocess",
             capabilities=("privileged",) if self.privileged else (),
         )
+
+    def _sensors(self) -> tuple:
+        """The cameras' ``SensorFacts`` as the CPU backend declares them, from seed 0's reset state."""
+        import mujoco
+
+        m = self.world.model.model
+        d = mujoco.MjData(m)
+        state = self.world.resets.get([0])[0]
+        for key in ("qpos", "mocap_pos", "mocap_quat"):
+            getattr(d, key)[...] = state[key]
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_camlight(m, d)
+        return camera_sensors(m, d, self.config)
 
     def _spec_dt_ns(self) -> int:
         return int(round(float(self.world.model.model.opt.timestep) * int(self.world.info["frame_skip"]) * 1e9))
@@ -147,11 +180,12 @@ class MetaWorldBatchRollout(SyncStepPair):
         if idx.size:
             self.world.reset(idx, seeds)
         self._started[idx], self._success[idx] = True, False
-        return self._observations(idx)
+        return self._observations(idx, per_env_requests(observe, idx.size, "reset"))
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
         self._check_open()
         idx = env_indices(envs, self.num_envs, "step")
+        requests = per_env_requests(observe, idx.size, "step")
         if not self._started[idx].all():
             raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
         a = batch_actions(self._spec, actions, idx.size)
@@ -168,11 +202,24 @@ class MetaWorldBatchRollout(SyncStepPair):
         infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]),
                   INFO_DIAGNOSTICS: {k: float(v[i]) for k, v in diag.items()}} for i in range(idx.size)]
         truncated = ~success & (steps >= self._spec.task.max_steps)
-        return BatchStepResult(idx, self._observations(idx), r["reward"][idx].astype(np.float64), success.copy(),
-                               truncated, infos)
+        return BatchStepResult(idx, self._observations(idx, requests), r["reward"][idx].astype(np.float64),
+                               success.copy(), truncated, infos)
 
-    def _observations(self, idx: np.ndarray) -> list[dict[str, Any]]:
-        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays)."""
+    def _images(self, idx: np.ndarray, requests: list) -> list[dict[str, np.ndarray]]:
+        """Each of ``idx``'s requested images: one render of every world when any is asked (none otherwise),
+        then one host copy of the asked keys' rows."""
+        keys = list(self._spec.observation.images)
+        wanted = [[k for k in keys if (r or ObsRequest()).wants_image(k)] for r in requests]
+        asked = [k for k in keys if any(k in w for w in wanted)]
+        if not asked:
+            return [{} for _ in wanted]
+        images = self.world.render()
+        rows = {k: _host(images[k][self.world.xp.asarray(idx)]) for k in asked}
+        return [{k: np.ascontiguousarray(rows[k][i]) for k in w} for i, w in enumerate(wanted)]
+
+    def _observations(self, idx: np.ndarray, requests: list) -> list[dict[str, Any]]:
+        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays), with the images
+        ``requests`` ask for."""
         if not idx.size:
             return []
         full = _host(self.world.obs)[idx]
@@ -181,9 +228,9 @@ class MetaWorldBatchRollout(SyncStepPair):
         state = full[:, :AGENT_POS] if self.config["state"] == "agent_pos" else full
         expert = (np.asarray(self.worker.call("expert", task=self.config["task"], obs=full), dtype=np.float32)
                   if self.privileged else None)
-        text, out = self._spec.task.instruction, []
+        text, out, images = self._spec.task.instruction, [], self._images(idx, requests)
         for i, w in enumerate(idx.tolist()):
-            obs = {OBS_IMAGES: {}, OBS_STATE: state[i].astype(np.float32), OBS_TASK: text,
+            obs = {OBS_IMAGES: images[i], OBS_STATE: state[i].astype(np.float32), OBS_TASK: text,
                    OBS_JOINT_POSITIONS: qpos[i, self._qadr].astype(np.float32),
                    OBS_JOINT_VELOCITIES: qvel[i, self._vadr].astype(np.float32),
                    OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
@@ -195,10 +242,14 @@ class MetaWorldBatchRollout(SyncStepPair):
         return out
 
     # ------------------------------------------------------------------------------------------- the rest
-    def render(self, env: int) -> None:
+    def render(self, env: int) -> np.ndarray | None:
+        """``env``'s first camera now (None without cameras)."""
         self._check_open()
         env_indices([env], self.num_envs, "render")
-        return None  # state-only: no cameras
+        keys = list(self._spec.observation.images)
+        if not keys:
+            return None
+        return np.ascontiguousarray(_host(self.world.render()[keys[0]][env]))
 
     def failures(self) -> dict[int, EnvFailure]:
         out, self._failures = self._failures, {}

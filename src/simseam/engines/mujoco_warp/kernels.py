@@ -569,3 +569,18 @@ def unpack_rgb_u8_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, ou
     out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
     out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
     out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+
+
+@wp.kernel(enable_backward=False)
+def site_geoms_kernel(geom_xpos: wp.array2d[wp.vec3], geom_xmat: wp.array2d[wp.mat33],
+                      site_xpos: wp.array2d[wp.vec3], site_xmat: wp.array2d[wp.mat33], sites: wp.array[int],
+                      ngeom: int, out_xpos: wp.array2d[wp.vec3], out_xmat: wp.array2d[wp.mat33]):
+    """A render model's geom poses: its first ``ngeom`` the physics model's geoms', then one per drawn site."""
+    w, g = wp.tid()
+    if g < ngeom:
+        out_xpos[w, g] = geom_xpos[w, g]
+        out_xmat[w, g] = geom_xmat[w, g]
+    else:
+        s = sites[g - ngeom]
+        out_xpos[w, g] = site_xpos[w, s]
+        out_xmat[w, g] = site_xmat[w, s]

@@ -19,7 +19,7 @@ from simseam.seam import ConfigError
 import mujoco_warp as mjw  # noqa: E402  (the engine package checked these imports already)
 import warp as wp  # noqa: E402
 
-from simseam.engines.mujoco_warp import kernels as K  # noqa: E402
+from simseam.engines.mujoco_warp.cameras import WarpCameras  # noqa: E402
 
 
 def pose_state(scene) -> np.ndarray:
@@ -43,23 +43,13 @@ class PoseRenderer:
         self.device = wp.get_device(device) if device else wp.get_preferred_device()
         self._nq, self._nmocap = mjm.nq, mjm.nmocap
         self.state_size = mjm.nq + 7 * mjm.nmocap
-        names, res = [], []
-        self.cameras: dict[str, tuple[int, int]] = {}
-        for name, key, (h, w) in scene.plan.cameras:
-            names.append(f"cam:{name}")
-            res.append((w, h))
-            self.cameras[key] = (h, w)
         with wp.ScopedDevice(self.device):
             self.m = mjw.put_model(mjm)
             self.d = mjw.make_data(mjm, nworld=n)
-            self.rc = mjw.create_render_context(mjm, nworld=n, cam_res=res, render_rgb=True, render_depth=False,
-                                                cam_active=names, enabled_geom_groups=[GROUP_WORLD, GROUP_ROBOT_VISUAL])
-            self.images = {key: wp.zeros((n, h, w, 3), dtype=wp.uint8) for key, (h, w) in self.cameras.items()}
             self._qpos = wp.zeros((n, mjm.nq), dtype=float)
-            self._mpos = wp.zeros((n, max(mjm.nmocap, 1)), dtype=wp.vec3)
-            self._mquat = wp.zeros((n, max(mjm.nmocap, 1)), dtype=wp.quat)
-        adr = self.rc.rgb_adr.numpy()
-        self._adr = [(key, int(adr[i]), res[i][0]) for i, key in enumerate(self.cameras)]
+        self.renderer = WarpCameras(mjm, n, [(f"cam:{name}", key, hw) for name, key, hw in scene.plan.cameras],
+                                    device=self.device, groups=(GROUP_WORLD, GROUP_ROBOT_VISUAL))
+        self.cameras, self.images, self.rc = self.renderer.sizes, self.renderer.images, self.renderer.rc
 
     def render(self, states: np.ndarray, host: bool = True) -> dict:
         """Render ``states`` (float32[k, state_size], k <= num_envs: rows of ``pose_state``). Returns
@@ -80,13 +70,7 @@ class PoseRenderer:
                 self.d.mocap_pos.assign(full[:, nq:nq + 3 * nm].reshape(self.num_envs, nm, 3))
                 self.d.mocap_quat.assign(full[:, nq + 3 * nm:].reshape(self.num_envs, nm, 4))
             mjw.kinematics(self.m, self.d)
-            mjw.camlight(self.m, self.d)
-            mjw.refit_bvh(self.m, self.d, self.rc)
-            mjw.render(self.m, self.d, self.rc)
-            for key, adr, width in self._adr:
-                out = self.images[key]
-                wp.launch(K.unpack_rgb_u8_kernel, dim=(self.num_envs, out.shape[1] * out.shape[2]),
-                          inputs=[self.rc.rgb_data, adr, width, out])
+            self.renderer.render(self.m, self.d)
         if not host:
             return self.images
         if self.device.is_cpu:  # numpy() is a view of the device buffer there: the next render would overwrite it

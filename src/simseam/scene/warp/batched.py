@@ -242,24 +242,18 @@ class BatchedScene:
     def _make_cameras(self, host, mjm) -> None:
         self.cameras: dict[str, tuple[int, int]] = {}  # feature key -> (H, W)
         self.images: dict[str, wp.array] = {}
-        self.rc = None
+        self.rc = self.camera_renderer = None
         cams = host.plan.cameras
         if not (self.options.render_images and cams):
             return
-        names = [f"cam:{name}" for name, _, _ in cams]
-        res = []
-        for _, key, (h, w) in cams:
-            self.cameras[key] = (h, w)
-            res.append((w, h))
-            self.images[key] = wp.zeros((self.num_envs, h, w, 3), dtype=wp.uint8)
         from simseam.engines.mujoco.engine import GROUP_ROBOT_VISUAL, GROUP_WORLD
+        from simseam.engines.mujoco_warp.cameras import WarpCameras
 
-        self.rc = mjw.create_render_context(mjm, nworld=self.num_envs, cam_res=res, render_rgb=True,
-                                            render_depth=False, cam_active=names, use_textures=True,
-                                            enabled_geom_groups=[GROUP_WORLD, GROUP_ROBOT_VISUAL],
-                                            background_color=(0.0, 0.0, 0.0, 1.0))
-        adr = self.rc.rgb_adr.numpy()
-        self._cam_adr = [(key, int(adr[i]), res[i][0]) for i, (_, key, _) in enumerate(cams)]
+        self.camera_renderer = WarpCameras(mjm, self.num_envs, [(f"cam:{name}", key, hw) for name, key, hw in cams],
+                                           device=self.device, groups=(GROUP_WORLD, GROUP_ROBOT_VISUAL),
+                                           use_textures=True, background_color=(0.0, 0.0, 0.0, 1.0))
+        self.cameras, self.images, self.rc = (self.camera_renderer.sizes, self.camera_renderer.images,
+                                              self.camera_renderer.rc)
 
     # ---------------------------------------------------------------------------------------- resets
     def _draw(self, seed: int):
@@ -473,14 +467,7 @@ class BatchedScene:
         return self.images
 
     def _render(self) -> None:
-        m, d = self.m, self.d
-        mjw.camlight(m, d)
-        mjw.refit_bvh(m, d, self.rc)
-        mjw.render(m, d, self.rc)
-        for key, adr, width in self._cam_adr:
-            out = self.images[key]
-            wp.launch(K.unpack_rgb_u8_kernel, dim=(self.num_envs, out.shape[1] * out.shape[2]),
-                      inputs=[self.rc.rgb_data, adr, width, out])
+        self.camera_renderer.render(self.m, self.d)
 
     # ---------------------------------------------------------------------------------------- reading
     def _to_host(self, arr) -> np.ndarray:
