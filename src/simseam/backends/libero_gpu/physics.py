@@ -43,8 +43,7 @@ class ArmLayout:
     joints: np.ndarray  # [7] joint ids
     qpos: np.ndarray  # [7]
     dofs: np.ndarray  # [7]
-    mass_csr: np.ndarray  # [7, 7] index of each (i, j) of the arm's block into CPU MuJoCo's ``d.M`` (CSR, lower)
-    mass_madr: np.ndarray  # [7, 7] ... into MuJoCo Warp's sparse ``qM`` (``dof_Madr`` layout)
+    mass_csr: np.ndarray  # [7, 7] index of each (i, j) of the arm's block into ``d.M`` (CSR, lower; both engines)
 
     @classmethod
     def from_model(cls, mjm: Any, facts: dict[str, Any]) -> "ArmLayout":
@@ -58,8 +57,7 @@ class ArmLayout:
         if sorted(ancestors) != sorted(dofs.tolist()) or np.any(np.asarray(mjm.jnt_type)[joints] != HINGE):
             raise SimulationError(f"LIBERO port: the end-effector site {facts['eef_site']!r} hangs from dofs "
                                   f"{sorted(ancestors)}, not only the arm's hinges {dofs.tolist()}")
-        return cls(site, joints, np.asarray(facts["qpos_index"], np.int64), dofs, _csr_index(mjm, dofs),
-                   _madr_index(mjm, dofs))
+        return cls(site, joints, np.asarray(facts["qpos_index"], np.int64), dofs, _csr_index(mjm, dofs))
 
 
 def _csr_index(mjm: Any, dofs: np.ndarray) -> np.ndarray:
@@ -74,23 +72,6 @@ def _csr_index(mjm: Any, dofs: np.ndarray) -> np.ndarray:
             if lo not in cols:
                 raise SimulationError(f"LIBERO port: arm dofs {i} and {j} are not on one chain")
             out[a, b] = adr + cols.index(lo)
-    return out
-
-
-def _madr_index(mjm: Any, dofs: np.ndarray) -> np.ndarray:
-    """Where (i, j) of the arm's block sits in the ``dof_Madr`` layout (MuJoCo Warp's sparse ``qM``): row ``hi``
-    holds its diagonal at ``dof_Madr[hi]``, then one slot per ancestor dof, nearest first."""
-    madr, parent = np.asarray(mjm.dof_Madr), np.asarray(mjm.dof_parentid)
-    out = np.zeros((len(dofs), len(dofs)), np.int64)
-    for a, i in enumerate(dofs.tolist()):
-        for b, j in enumerate(dofs.tolist()):
-            hi, lo = max(i, j), min(i, j)
-            k, steps = hi, 0
-            while k != lo:
-                k, steps = int(parent[k]), steps + 1
-                if k < 0:
-                    raise SimulationError(f"LIBERO port: arm dofs {i} and {j} are not on one chain")
-            out[a, b] = int(madr[hi]) + steps
     return out
 
 
@@ -131,7 +112,6 @@ class WarpTerms:
             self.m = mjw.put_model(mjm)
             self.d = mjw.put_data(mjm, host, nworld=num_worlds)
         self.xp = np if not self.device.is_cuda else __import__("cupy")
-        self.sparse = tuple(self.d.qM.shape[1:]) != (mjm.nv, mjm.nv)
 
     def view(self, a: Any) -> Any:
         return self.xp.from_dlpack(a) if self.device.is_cuda else a.numpy()
@@ -150,13 +130,7 @@ class WarpTerms:
             self._wp.synchronize_device(self.device)
         v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
         site = v(d.site_xpos)[:, lay.site]
-        qm = v(d.qM)
-        if self.sparse:
-            mass = qm[:, 0][:, xp.asarray(lay.mass_madr)]
-        else:
-            dofs = xp.asarray(lay.dofs)
-            mass = qm[:, dofs[:, None], dofs[None, :]]
-            mass = xp.tril(mass) + xp.swapaxes(xp.tril(mass, -1), -1, -2)  # the lower triangle is MuJoCo's
+        mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
         joints = xp.asarray(lay.joints)
         return ArmTerms(ee_pos=site, ee_mat=v(d.site_xmat)[:, lay.site].reshape(-1, 3, 3),
                         jac=_jacobian(xp, v(d.xaxis)[:, joints], v(d.xanchor)[:, joints], site), mass=mass,
