@@ -86,7 +86,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.out.exists() and not args.overwrite:
         print(f"libero_warp_checks: {args.out} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
-    result = {"config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}, "tasks": []}
+    config = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    if args.out.resolve().is_relative_to(RESULTS.parent.parent):
+        config["out"] = str(args.out.resolve().relative_to(RESULTS.parent.parent))
+    result = {"config": config, "tasks": []}
     print(f"{'task':<18} {'nv':>3} {'ngeom':>5} {'model':>5} {'ncon':>9} {'cpu torque':>11} {'warp torque':>11} "
           f"{'warp rel':>9} {'s':>6}")
     from simseam.backends.provision import catalog

