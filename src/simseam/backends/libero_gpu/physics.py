@@ -1,0 +1,164 @@
+"""What robosuite's controller reads of a substep's state (``ArmTerms``), for N worlds of one LIBERO model, from
+CPU MuJoCo (``cpu_terms``, any number of ``MjData``) or MuJoCo Warp (``WarpTerms``, N worlds on a Warp device):
+the end-effector site's pose, its 6 x 7 Jacobian over the arm's joints, the arm's 7 x 7 block of the joint-space
+inertia (armature included, as ``mj_fullM`` gives it), the bias forces (gravity, Coriolis: ``qfrc_bias``) and
+the arm's joint positions and velocities.
+
+The Jacobian is built from the joints' world axes and anchors (``xaxis``, ``xanchor``: for a hinge, the
+linear column is ``axis x (site - anchor)``, the angular one ``axis``); ``ArmLayout`` checks that the site's
+only ancestor joints are the arm's 7 hinges, so no other column of robosuite's full Jacobian is non-zero.
+On MuJoCo Warp the terms come from its smooth pipeline alone (kinematics, com_pos, crb, com_vel, rne): no
+collision or constraint solve is needed for them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from simseam.seam.errors import SimulationError
+
+HINGE = 3  # mjJNT_HINGE
+
+
+@dataclass
+class ArmTerms:
+    """Per world (arrays of ``xp``, float64): ``ee_pos`` [N, 3], ``ee_mat`` [N, 3, 3], ``jac`` [N, 6, 7] (rows:
+    linear, angular), ``mass`` [N, 7, 7], ``bias`` [N, 7], ``qpos`` [N, 7], ``qvel`` [N, 7]."""
+
+    ee_pos: Any
+    ee_mat: Any
+    jac: Any
+    mass: Any
+    bias: Any
+    qpos: Any
+    qvel: Any
+
+
+@dataclass(frozen=True)
+class ArmLayout:
+    site: int
+    joints: np.ndarray  # [7] joint ids
+    qpos: np.ndarray  # [7]
+    dofs: np.ndarray  # [7]
+    mass_csr: np.ndarray  # [7, 7] index of each (i, j) of the arm's block into ``d.M`` (CSR, lower; both engines)
+
+    @classmethod
+    def from_model(cls, mjm: Any, facts: dict[str, Any]) -> "ArmLayout":
+        site, dofs = int(facts["eef_site_id"]), np.asarray(facts["qvel_index"], np.int64)
+        joints = np.asarray(mjm.dof_jntid)[dofs]
+        ancestors, body = [], int(mjm.site_bodyid[site])
+        while body > 0:
+            adr, num = int(mjm.body_dofadr[body]), int(mjm.body_dofnum[body])
+            ancestors += list(range(adr, adr + num))
+            body = int(mjm.body_parentid[body])
+        if sorted(ancestors) != sorted(dofs.tolist()) or np.any(np.asarray(mjm.jnt_type)[joints] != HINGE):
+            raise SimulationError(f"LIBERO port: the end-effector site {facts['eef_site']!r} hangs from dofs "
+                                  f"{sorted(ancestors)}, not only the arm's hinges {dofs.tolist()}")
+        return cls(site, joints, np.asarray(facts["qpos_index"], np.int64), dofs, _csr_index(mjm, dofs))
+
+
+def _csr_index(mjm: Any, dofs: np.ndarray) -> np.ndarray:
+    """Where (i, j) of the arm's block sits in MuJoCo's CSR ``d.M`` (row ``hi``, the later of the two dofs, lists
+    its ancestor dofs' columns and its own: ``M_rowadr``, ``M_rownnz``, ``M_colind``)."""
+    out = np.zeros((len(dofs), len(dofs)), np.int64)
+    for a, i in enumerate(dofs.tolist()):
+        for b, j in enumerate(dofs.tolist()):
+            hi, lo = max(i, j), min(i, j)
+            adr, nnz = int(mjm.M_rowadr[hi]), int(mjm.M_rownnz[hi])
+            cols = np.asarray(mjm.M_colind[adr:adr + nnz]).tolist()
+            if lo not in cols:
+                raise SimulationError(f"LIBERO port: arm dofs {i} and {j} are not on one chain")
+            out[a, b] = adr + cols.index(lo)
+    return out
+
+
+def _jacobian(xp, xaxis, xanchor, site_pos):
+    """float[N, 7, 3] axes and anchors, [N, 3] site -> float[N, 6, 7]."""
+    lin = xp.cross(xaxis, site_pos[:, None, :] - xanchor)
+    return xp.concatenate([xp.swapaxes(lin, -1, -2), xp.swapaxes(xaxis, -1, -2)], axis=-2)
+
+
+def cpu_terms(mjm: Any, datas: list[Any], layout: ArmLayout) -> ArmTerms:
+    """The terms of CPU MuJoCo states (each ``MjData`` already forwarded), stacked over worlds."""
+    s, j, dofs = layout.site, layout.joints, layout.dofs
+    stack = lambda f: np.stack([f(d) for d in datas])  # noqa: E731
+    return ArmTerms(
+        ee_pos=stack(lambda d: d.site_xpos[s].copy()), ee_mat=stack(lambda d: d.site_xmat[s].reshape(3, 3).copy()),
+        jac=_jacobian(np, stack(lambda d: d.xaxis[j]), stack(lambda d: d.xanchor[j]), stack(lambda d: d.site_xpos[s])),
+        mass=stack(lambda d: d.M[layout.mass_csr]), bias=stack(lambda d: d.qfrc_bias[dofs].copy()),
+        qpos=stack(lambda d: d.qpos[layout.qpos].copy()), qvel=stack(lambda d: d.qvel[dofs].copy()))
+
+
+class WarpTerms:
+    """N worlds of one model on MuJoCo Warp (``device``: a Warp device name, e.g. ``cpu`` or ``cuda:0``):
+    ``load(qpos, qvel)`` sets the worlds' states (float[N, nq], [N, nv]); ``terms()`` runs the smooth pipeline
+    and returns their ``ArmTerms`` as ``xp`` arrays (NumPy on the CPU device, CuPy on CUDA), in float64;
+    ``read()`` returns them as the last pipeline left them (after ``mujoco_warp.step1``: see ``stepping``).
+    ``nconmax`` / ``njmax``: contact and constraint rows per world, for stepping (default: mujoco_warp's, from
+    the model's default pose, where a LIBERO scene's objects overlap in 1,300-1,900 contacts: ample for the
+    10-120 they hold at rest)."""
+
+    def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None,
+                 nconmax: int | None = None, njmax: int | None = None):
+        import mujoco
+        import mujoco_warp as mjw
+        import warp as wp
+
+        wp.config.quiet = True
+        wp.init()
+        self._wp, self._mjw, self.mjm, self.layout, self.num_worlds = wp, mjw, mjm, layout, num_worlds
+        self.device = wp.get_device(device) if device else wp.get_preferred_device()
+        host = mujoco.MjData(mjm)
+        mujoco.mj_forward(mjm, host)
+        with wp.ScopedDevice(self.device):
+            self.m = mjw.put_model(mjm)
+            self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
+        self.xp = np if not self.device.is_cuda else __import__("cupy")
+
+    def view(self, a: Any) -> Any:
+        return self.xp.from_dlpack(a) if self.device.is_cuda else a.numpy()
+
+    def load(self, qpos, qvel) -> None:
+        self.view(self.d.qpos)[...] = self.xp.asarray(qpos)
+        self.view(self.d.qvel)[...] = self.xp.asarray(qvel)
+        if self.device.is_cuda:
+            self.xp.cuda.get_current_stream().synchronize()
+
+    def terms(self) -> ArmTerms:
+        mjw, m, d = self._mjw, self.m, self.d
+        with self._wp.ScopedDevice(self.device):
+            for stage in (mjw.kinematics, mjw.com_pos, mjw.crb, mjw.com_vel, mjw.rne):
+                stage(m, d)
+            self._wp.synchronize_device(self.device)
+        return self.read()
+
+    def step1(self) -> None:
+        """MuJoCo Warp's ``step1``: the position and velocity stages of a step (what the controller reads)."""
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step1(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def step2(self) -> None:
+        """... and the rest of it (actuation from ``ctrl``, acceleration, constraints, integration)."""
+        if self.device.is_cuda:
+            self.xp.cuda.get_current_stream().synchronize()  # what CuPy wrote into ctrl
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step2(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def read(self) -> ArmTerms:
+        d, lay, xp = self.d, self.layout, self.xp
+        v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
+        site = v(d.site_xpos)[:, lay.site]
+        mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
+        joints = xp.asarray(lay.joints)
+        return ArmTerms(ee_pos=site, ee_mat=v(d.site_xmat)[:, lay.site].reshape(-1, 3, 3),
+                        jac=_jacobian(xp, v(d.xaxis)[:, joints], v(d.xanchor)[:, joints], site), mass=mass,
+                        bias=v(d.qfrc_bias)[:, xp.asarray(lay.dofs)], qpos=v(d.qpos)[:, xp.asarray(lay.qpos)],
+                        qvel=v(d.qvel)[:, xp.asarray(lay.dofs)])
+
+    def close(self) -> None:
+        self.m = self.d = None

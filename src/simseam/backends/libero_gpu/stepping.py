@@ -1,0 +1,37 @@
+"""A LIBERO control step on MuJoCo Warp with robosuite's controller in the loop, for N worlds of one task.
+
+robosuite, per substep: ``sim.forward()``, the controller reads the state and sets ``ctrl``, ``sim.step()``.
+With LIBERO's Euler integrator that is MuJoCo Warp's ``step1`` (position and velocity stages: the terms the
+controller reads), the batched controller (``control.substep``), the torques and finger ctrl written into the
+worlds' ``ctrl``, then ``step2`` (actuation, acceleration, constraint solve, integration).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.libero_gpu import control as C
+from simseam.backends.libero_gpu.physics import WarpTerms
+from simseam.seam.errors import SimulationError
+
+EULER = 0  # mjINT_EULER
+
+
+def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any]) -> C.OscState:
+    """One 20 Hz control step (``cfg.substeps`` physics steps) of every world under ``action`` float[N, 7]
+    (``xp`` of ``physics``); returns the controller's state after it."""
+    if int(physics.mjm.opt.integrator) != EULER:
+        raise SimulationError("LIBERO port: the controller runs between step1 and step2, which needs the Euler "
+                              f"integrator; this model uses integrator {int(physics.mjm.opt.integrator)}")
+    xp = physics.xp
+    arm, fingers = xp.asarray(np.asarray(facts["arm_actuators"])), xp.asarray(np.asarray(facts["gripper_actuators"]))
+    ctrl = physics.view(physics.d.ctrl)
+    for k in range(cfg.substeps):
+        physics.step1()
+        tau, grip, state = C.substep(xp, cfg, state, physics.read(), action, k == 0)
+        ctrl[:, arm] = tau.astype(ctrl.dtype)
+        ctrl[:, fingers] = grip.astype(ctrl.dtype)
+        physics.step2()
+    return state

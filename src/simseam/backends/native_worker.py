@@ -1,0 +1,178 @@
+"""A native worker: one process of a benchmark's provisioned interpreter, started once and asked many times,
+for the GPU ports of benchmarks (``metaworld_gpu``, ``libero_gpu``), which need what only the native env knows
+(its compiled model, its resets, its controller's outputs) on the native simulator's own version.
+
+- Client side (``NativeWorker``): started from simseam's interpreter; ``call(command, **kwargs)``.
+- Native side (``serve(commands)``): the worker module's ``__main__`` answers ``(command, kwargs)`` requests
+  from a table of functions until stdin closes.
+
+The worker imports this checkout's ``simseam`` (a symlink on its path, as the sidecar does), so what it runs is
+the very code ``simseam eval`` runs in that venv. Messages are pickled, length-prefixed; the protocol runs on a
+private copy of stdout (fd 1 goes to stderr, so nothing the benchmark prints can corrupt it).
+
+Also here, for the native side: ``model_arrays`` and ``option_values`` (an ``MjModel``'s numeric arrays and
+options as plain data, which the port's model checks compare). Imports numpy only.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import struct
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+HEADER = struct.Struct("<Q")
+#: a mesh's derived arrays (polygon normals...) are not reproducible between two compiles; no reset moves them
+DERIVED = ("mesh_",)
+OPTION_KEYS = ("timestep", "integrator", "cone", "solver", "iterations", "ls_iterations", "tolerance",
+               "ls_tolerance", "noslip_iterations", "impratio", "gravity", "o_margin", "jacobian", "disableflags",
+               "enableflags", "density", "viscosity", "wind", "magnetic", "ccd_iterations")
+
+
+def model_arrays(model: Any) -> dict[str, np.ndarray]:
+    """Every numeric array of an ``MjModel`` (copies)."""
+    out = {}
+    for key in dir(model):
+        if key.startswith("_"):
+            continue
+        try:
+            value = getattr(model, key)
+        except Exception:  # noqa: BLE001 - accessors that need arguments
+            continue
+        if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+            out[key] = value.copy()
+    return out
+
+
+def option_values(model: Any) -> dict[str, Any]:
+    return {k: np.array(getattr(model.opt, k)).tolist() for k in OPTION_KEYS}
+
+
+def changed_arrays(now: dict[str, np.ndarray], fresh: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The arrays of ``now`` that differ from ``fresh`` (a model's arrays as compiled), derived mesh data aside."""
+    return {k: v for k, v in now.items()
+            if k in fresh and not k.startswith(DERIVED) and (v.shape != fresh[k].shape or not np.array_equal(v, fresh[k]))}
+
+
+# --- native side ---------------------------------------------------------------------------------------------
+
+def _read(stream) -> Any:
+    head = stream.read(HEADER.size)
+    if len(head) < HEADER.size:
+        return None
+    return pickle.loads(stream.read(HEADER.unpack(head)[0]))
+
+
+def _write(stream, obj: Any) -> None:
+    blob = pickle.dumps(obj, protocol=4)
+    stream.write(HEADER.pack(len(blob)) + blob)
+    stream.flush()
+
+
+def serve(commands: dict[str, Callable[..., Any]]) -> None:
+    """Answer requests ``(command, kwargs)`` until stdin closes: ``("ok", result)`` or ``("error", text)``."""
+    import warnings
+
+    warnings.filterwarnings("ignore")
+    out = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    inp = os.fdopen(0, "rb")
+    _write(out, ("ok", "ready"))
+    while (msg := _read(inp)) is not None:
+        command, kwargs = msg
+        try:
+            _write(out, ("ok", commands[command](**kwargs)))
+        except Exception as exc:  # noqa: BLE001 - reported to the client, which raises it
+            _write(out, ("error", f"{type(exc).__name__}: {exc}"))
+
+
+# --- client side ---------------------------------------------------------------------------------------------
+
+class NativeWorker:
+    """``with NativeWorker("libero", "simseam.backends.libero_gpu.native") as w: w.call("describe", ...)``.
+
+    ``backend``: the provisioned backend whose interpreter runs ``module`` (``python`` overrides it;
+    ``BackendUnavailableError`` naming the command that provisions it when absent). ``once``: commands whose
+    answer is the same for the worker's life, asked once per argument set (callers only read them)."""
+
+    once: tuple[str, ...] = ("describe",)
+
+    def __init__(self, backend: str, module: str, python: str | os.PathLike | None = None):
+        from simseam.seam.errors import BackendUnavailableError
+
+        if python is None:
+            from simseam.backends.provision import require
+
+            python = require(backend)
+        self.backend, self.python = backend, str(python)
+        self._answers: dict[tuple, Any] = {}
+        self._proc = None
+        self._tmp = tempfile.TemporaryDirectory(prefix=f"simseam-{backend}-native-")
+        os.symlink(Path(__file__).resolve().parents[1], Path(self._tmp.name) / "simseam")
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV", "PYTHONPATH")}
+        env.update(PYTHONPATH=self._tmp.name, MUJOCO_GL=env.get("MUJOCO_GL", "egl"))
+        self._proc = subprocess.Popen([self.python, "-m", module], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      env=env)
+        status, what = self._receive("start")
+        if status != "ok":
+            self.close()
+            raise BackendUnavailableError(f"{backend} native worker ({self.python}) failed to start: {what}")
+
+    def call(self, command: str, **kwargs: Any) -> Any:
+        """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it."""
+        if command in self.once:
+            key = (command, tuple(sorted((k, repr(v)) for k, v in kwargs.items())))
+            if key not in self._answers:
+                self._answers[key] = self._call(command, **kwargs)
+            return self._answers[key]
+        return self._call(command, **kwargs)
+
+    def _call(self, command: str, **kwargs: Any) -> Any:
+        from simseam.seam.errors import SimulationError
+
+        if self._proc is None:
+            raise SimulationError(f"{self.backend} native worker: called after close()")
+        blob = pickle.dumps((command, kwargs), protocol=4)
+        self._proc.stdin.write(HEADER.pack(len(blob)) + blob)
+        self._proc.stdin.flush()
+        status, result = self._receive(command)
+        if status != "ok":
+            raise SimulationError(f"{self.backend} native worker: {command}({_brief(kwargs)}) failed: {result}")
+        return result
+
+    def _receive(self, what: str) -> tuple[str, Any]:
+        from simseam.seam.errors import BackendUnavailableError
+
+        head = self._proc.stdout.read(HEADER.size)
+        if len(head) < HEADER.size:
+            rc = self._proc.poll()
+            raise BackendUnavailableError(f"{self.backend} native worker exited (rc={rc}) during {what}; "
+                                          "its stderr above says why")
+        return pickle.loads(self._proc.stdout.read(HEADER.unpack(head)[0]))
+
+    def close(self) -> None:
+        if self._proc is not None:
+            proc, self._proc = self._proc, None
+            proc.stdin.close()
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            proc.stdout.close()
+        self._tmp.cleanup()
+
+    def __enter__(self) -> "NativeWorker":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def _brief(kwargs: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in kwargs.items() if isinstance(v, (str, int, float)))
