@@ -182,3 +182,40 @@ def test_static_geoms_follow_each_worlds_reset(worker):
             assert float(np.abs(np.asarray(warp.obs)[k] - np.asarray(cpu.obs)[0]).max()) < 2e-3, (t, k)
     for env in (warp, *cpus):
         env.close()
+
+
+def test_sites_and_geoms_in_their_bodys_frame_ignore_reset_writes(worker):
+    """basketball's reset writes the goal's world position into ``site_pos`` of a site compiled in its body's
+    frame (``site_sameframe``), which CPU MuJoCo then ignores (the site is posed from the body) and MuJoCo
+    Warp would read: before the fix the goal landed at twice its position on Warp and Warp's expert succeeded
+    0/10 where CPU MuJoCo and native Meta-World did 9/10 and 8/10 (MT50 x 10 seeds, Warp's CPU device).
+    After a reset of two worlds every site and geom is where CPU MuJoCo puts it, and the expert's success
+    flags agree over 150 native expert steps."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    task, seeds = "basketball-v3", [0, 1]
+    warp = MetaWorldBatch(task, len(seeds), worker, engine="mujoco_warp", device="cpu")
+    warp.reset(list(range(len(seeds))), seeds)
+    cpus = []
+    for s in seeds:
+        cpu = MetaWorldBatch(task, 1, worker, engine="mujoco")
+        cpu.reset([0], [s])
+        cpus.append(cpu)
+    sid = warp.names.index("site", "goal")
+    assert np.abs(np.asarray(warp.physics.mjm.site_pos[sid])).max() > 0.1, "the reset wrote the site: not vacuous"
+    for k, cpu in enumerate(cpus):
+        for field in ("site_xpos", "geom_xpos"):
+            np.testing.assert_allclose(np.asarray(getattr(warp.physics.poses(), field)[k]),
+                                       np.asarray(getattr(cpu.physics.poses(), field)[0]), atol=1e-5, err_msg=field)
+    replays = [worker.call("replay", task=task, variation="mt1", goal_seed=0, seed=s, actions=None, steps=150)
+               for s in seeds]
+    actions = np.stack([r["action"] for r in replays]).astype(np.float32)
+    warp_success, cpu_success = np.zeros(2, bool), np.zeros(2, bool)
+    for t in range(actions.shape[1]):
+        warp_success |= warp.step(actions[:, t])["success"]
+        for k, cpu in enumerate(cpus):
+            cpu_success[k] |= cpu.step(actions[k:k + 1, t])["success"][0]
+    assert cpu_success.any(), "the expert scores within 150 steps: the comparison is not vacuous"
+    np.testing.assert_array_equal(warp_success, cpu_success)
+    for env in (warp, *cpus):
+        env.close()

@@ -35,6 +35,26 @@ def _static_geoms(mjm: Any) -> np.ndarray:
     return np.flatnonzero(static).astype(np.int64)
 
 
+def _sameframe(mjm: Any) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per model field, the columns MuJoCo ignores and the values it uses instead: a site or geom whose
+    compiled frame is its body's frame or its body's inertial frame (``site_sameframe`` / ``geom_sameframe``:
+    1 body, 2 inertia, 3 body rotation, 4 inertia rotation) is posed from that frame by CPU MuJoCo whatever its
+    ``*_pos`` / ``*_quat`` say later; MuJoCo Warp reads them. basketball's reset writes its goal's world
+    position into such a site's ``site_pos``: on Warp that site would land at twice the goal."""
+    out = {}
+    for kind in ("site", "geom"):
+        same = np.asarray(getattr(mjm, f"{kind}_sameframe"))
+        body = np.asarray(getattr(mjm, f"{kind}_bodyid"))
+        pos = np.flatnonzero((same == 1) | (same == 2))
+        if pos.size:
+            out[f"{kind}_pos"] = (pos, np.where((same[pos] == 2)[:, None], mjm.body_ipos[body[pos]], 0.0))
+        rot = np.flatnonzero(same != 0)
+        if rot.size:
+            inertial = ((same[rot] == 2) | (same[rot] == 4))[:, None]
+            out[f"{kind}_quat"] = (rot, np.where(inertial, mjm.body_iquat[body[rot]], [1.0, 0.0, 0.0, 0.0]))
+    return out
+
+
 def _widen(native: np.ndarray, pristine: np.ndarray) -> np.ndarray:
     """A native model array in this MuJoCo's shape (a wider field keeps its extra compiled columns)."""
     if native.shape == pristine.shape:
@@ -118,6 +138,7 @@ class WarpPhysics:
         self.device = wp.get_device(device) if device else wp.get_preferred_device()
         self.batched = tuple(dict.fromkeys((*ALWAYS_BATCHED, *batched)))
         self._pristine = {k: np.array(getattr(mjm, k)) for k in self.batched}
+        self._ignored = _sameframe(mjm)
         host = mujoco.MjData(mjm)
         mujoco.mj_forward(mjm, host)
         with wp.ScopedDevice(self.device):
@@ -145,9 +166,12 @@ class WarpPhysics:
             raise ValueError(f"reset changes model fields {sorted(unknown)} that are not batched per world")
         xp, idx = self.xp, self.xp.asarray(np.asarray(rows, dtype=np.int64))
         for key in self.batched:
-            rowsof = [self._pristine[key] if s["model"].get(key) is None
-                      else _widen(np.asarray(s["model"][key]), self._pristine[key]) for s in states]
-            self.view(getattr(self.m, key))[idx] = xp.asarray(np.stack(rowsof))
+            rowsof = np.stack([self._pristine[key] if s["model"].get(key) is None
+                               else _widen(np.asarray(s["model"][key]), self._pristine[key]) for s in states])
+            if key in self._ignored:  # what CPU MuJoCo ignores stays as compiled (``_sameframe``)
+                cols, values = self._ignored[key]
+                rowsof[:, cols] = values
+            self.view(getattr(self.m, key))[idx] = xp.asarray(rowsof)
         for key in STATE_FIELDS:
             dst = getattr(self.d, key)
             if dst.size == 0:
