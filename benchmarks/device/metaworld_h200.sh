@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # The Meta-World-on-Warp measurements on the lent GPU machine, after metaworld_upload.sh's install (one call):
 #   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first)
+#   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
+#     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes; a CUDA smoke
 #     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off)
 # Logs and JSON go to $OUT (the device tool brings them back).
@@ -41,5 +43,13 @@ case "${1:-}" in
     cp -r /tmp/mwfid/. "$OUT/"; tail -8 /tmp/mwfid/fidelity.log
     ls /tmp/mwfid/metaworld_warp_fidelity.parts | wc -l
     ;;
-  *) echo "usage: $0 throughput | fidelity" >&2; exit 2 ;;
+  cameras)  # carry .gl too: the CPU backend's cameras render through EGL (the GL loader debs, as vector_lockstep.sh)
+    for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig; export MUJOCO_GL=egl
+    timeout "${TP_LIMIT:-540}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --no-state \
+      --tasks "${TP_TASKS:-reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,peg-insert-side-v3,window-open-v3,window-close-v3}" \
+      --cameras corner,gripperPOV --image 128 --camera-worlds "${TP_WORLDS:-1024,4096}" --steps 10 --cpu-procs 16 \
+      --cpu-seconds "${TP_CPU_S:-15}" --episodes 0 --out "$OUT/throughput_cameras.json" --overwrite 2>&1 | quiet > "$OUT/cameras.log"
+    tail -12 "$OUT/cameras.log"
+    ;;
+  *) echo "usage: $0 throughput | fidelity | cameras" >&2; exit 2 ;;
 esac
