@@ -230,6 +230,8 @@ class SimExpert:
         self._obj = env.obj_body_id[self.goal.obj]
         self._holder = env.obj_body_id[self.goal.holder]
         self._region = m.site(self.goal.target).id if self.goal.predicate == "in" else None
+        others = [b for name, b in env.obj_body_id.items() if name != self.goal.obj]
+        self._others = [(b, body_box(m, d, b)) for b in others]
         rot = d.site_xmat[self._site].reshape(3, 3)
         closing = d.xpos[self._fingers[0]] - d.xpos[self._fingers[1]]
         ctrl = robot.controller
@@ -241,7 +243,7 @@ class SimExpert:
         self._expert = lx.PickPlaceExpert(self.goal, facts)
 
     def act(self, env) -> np.ndarray:
-        from simseam.backends.libero_expert import Poses
+        from simseam.backends.libero_expert import Poses, world_box
 
         d = env.sim.data._data
         f1, f2 = (d.xpos[i] for i in self._fingers)
@@ -251,7 +253,8 @@ class SimExpert:
                       obj_pos=d.xpos[self._obj].copy(), obj_rot=d.xmat[self._obj].reshape(3, 3).copy(),
                       holder_pos=d.xpos[self._holder].copy(), holder_rot=d.xmat[self._holder].reshape(3, 3).copy(),
                       region_pos=None if region is None else d.site_xpos[region].copy(),
-                      region_rot=None if region is None else d.site_xmat[region].reshape(3, 3).copy())
+                      region_rot=None if region is None else d.site_xmat[region].reshape(3, 3).copy(),
+                      obstacles=[world_box(box, d.xpos[b], d.xmat[b].reshape(3, 3)) for b, box in self._others])
         return self._expert.act(poses)
 
 

@@ -39,8 +39,17 @@ PHASES = ("hover", "descend", "close", "lift", "carry", "lower", "release", "ret
 MAX_OPENING = 0.07  # m: objects narrower than this are grasped across their centre, wider ones by the rim
 RIM_INSET = 0.012  # m: rim grasp point inside the rim's outer edge
 RIM_DEPTH = 0.02  # m: rim grasp below the rim's top
+RIM_SIDES = 16  # rim points considered, evenly around the rim
+FINGER_REACH = 0.04  # m from the grasp point to the outer finger (half the fingers' opening)
+FINGER_BELOW = 0.03  # m: objects whose top is higher than the grasp point less this are in the fingers' way
+ROOM = 0.04  # m of room for the outer finger that counts (more is no better)
+FACING = 0.02  # score (m) for a side facing the gripper's start (cosine-weighted)
+TURNING = 0.005  # score (m) taken from a side that needs a quarter turn of the wrist (linear in the turn)
+FAILED = 0.1  # score (m) taken from a side where a grasp failed
+ELONGATED = 1.5  # a box whose long side is this many times its short side is grasped off centre ...
+NEAR_SHIFT = 0.02  # m ... this much towards the gripper's start, along the long side
 GRASP_DEPTH = 0.03  # m: centre grasp below the object's top (at most half its height)
-HOVER = 0.15  # m above the grasp point before descending
+HOVER = 0.10  # m above the grasp point before descending
 CLEARANCE = 0.08  # m: the carried object's bottom above the higher of its start and the target's top
 PLACE_GAP = 0.015  # m: On: the object's bottom above the target's top when released
 RIM_DROP = 0.05  # m: In: the object's bottom below the container's top when released (kept inside the region)
@@ -86,6 +95,7 @@ class Poses:
     holder_rot: np.ndarray
     region_pos: np.ndarray | None  # In: the region site's position
     region_rot: np.ndarray | None
+    obstacles: list = ()  # world (lo, hi) boxes of the scene's other objects and fixtures
 
 
 def goal_of(task: str, goal_state: list, movable: set[str], regions: dict[str, str]) -> Goal:
@@ -152,6 +162,7 @@ class PickPlaceExpert:
         self._down: np.ndarray | None = None  # the end-effector rotation at the episode's start
         self._start_xy: np.ndarray | None = None
         self._grasp: tuple[np.ndarray, float] | None = None  # (point, yaw) fixed at the descent
+        self._failed: list[np.ndarray] = []  # horizontal closing directions of grasps that failed
         self._obj_bottom0 = 0.0
         self._retreat_from: np.ndarray | None = None
         self._speed = 0.0  # m the end-effector moved since the last observation
@@ -169,15 +180,44 @@ class PickPlaceExpert:
         if 2.0 * half[narrow] <= MAX_OPENING:
             across = p.obj_rot[:, narrow]
             point = np.array([center[0], center[1], hi[2] - min(GRASP_DEPTH, height / 2.0)])
-        else:  # too wide for the fingers: grasp the rim on the side facing the gripper's start
-            across = np.append(self._start_xy - center[:2], 0.0)
-            across /= max(np.linalg.norm(across), 1e-9)
+            wide = flat[flat != narrow][0]
+            if half[wide] > ELONGATED * half[narrow]:  # a long box: held nearer the robot (LIBERO's far objects
+                along = p.obj_rot[:, wide] * np.sign(p.obj_rot[:, wide][:2] @ (self._start_xy - center[:2]))
+                point += min(NEAR_SHIFT, half[wide] - NEAR_SHIFT) * along  # are at the edge of the arm's reach)
+        else:  # too wide for the fingers: grasp the rim
             radius = float(np.min(half[flat]))
-            point = np.append(center[:2] + (radius - RIM_INSET) * across[:2], hi[2] - min(RIM_DEPTH, height / 2.0))
+            z = hi[2] - min(RIM_DEPTH, height / 2.0)
+            across = self._rim_side(p, center[:2], radius, z)
+            point = np.append(center[:2] + (radius - RIM_INSET) * across[:2], z)
+        return point, self._yaw_to(across)
+
+    def _yaw_to(self, across: np.ndarray) -> float:
+        """The turn about z (rad) from the start that makes the fingers close along ``across`` (the nearer
+        half-turn: the fingers are symmetric)."""
         closing = self._down @ self.facts.closing_axis
         yaw = math.atan2(across[1], across[0]) - math.atan2(closing[1], closing[0])
-        yaw = (yaw + math.pi / 2.0) % math.pi - math.pi / 2.0  # fingers are symmetric: the nearer half-turn
-        return point, yaw
+        return (yaw + math.pi / 2.0) % math.pi - math.pi / 2.0
+
+    def _rim_side(self, p: Poses, center: np.ndarray, radius: float, z: float) -> np.ndarray:
+        """The unit direction (3) from the centre to the rim point grasped: the side whose outer finger has the
+        most room from the other objects standing higher than the fingertips (up to ``ROOM``), then the one
+        facing the gripper's start and needing the least turn of the wrist (far reaches fail turned); sides
+        where a grasp already failed are avoided."""
+        start = self._start_xy - center
+        start /= max(np.linalg.norm(start), 1e-9)
+        best, best_score = None, -np.inf
+        for angle in np.linspace(0.0, 2.0 * math.pi, RIM_SIDES, endpoint=False):
+            u = np.array([math.cos(angle), math.sin(angle)])
+            finger = center + (radius - RIM_INSET + FINGER_REACH) * u
+            room = ROOM
+            for lo, hi in p.obstacles:
+                if hi[2] > z - FINGER_BELOW:
+                    room = min(room, float(np.linalg.norm(np.maximum(0.0, np.maximum(lo[:2] - finger, finger - hi[:2])))))
+            score = (room + FACING * float(u @ start) - TURNING * abs(self._yaw_to(u)) / (math.pi / 2)
+                     - sum(FAILED for f in self._failed if abs(u @ f[:2]) > 0.8))
+            if score > best_score:
+                best, best_score = u, score
+        return np.append(best, 0.0)
 
     def _obj_bottom(self, p: Poses) -> float:
         return float(world_box(self.facts.obj_box, p.obj_pos, p.obj_rot)[0][2])
@@ -261,6 +301,7 @@ class PickPlaceExpert:
         if self._reached(p, target):
             if self._obj_bottom(p) - self._obj_bottom0 < 0.5 * CLEARANCE:  # the object stayed behind
                 self.tries += 1
+                self._failed.append(rot_z(yaw) @ self._down @ self.facts.closing_axis)
                 self._next("hover" if self.tries < MAX_TRIES else "retreat")
             else:
                 self._next("carry")
