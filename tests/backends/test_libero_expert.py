@@ -54,11 +54,14 @@ def _poses(obj_pos, obj_rot=np.eye(3)) -> Poses:
 
 
 def test_the_grasp_crosses_a_narrow_object_and_takes_a_wide_ones_rim_facing_the_start():
+    """No other objects around: a long box is held across its short side, nearer the robot; a bowl by its rim
+    on the side facing the gripper's start."""
     box = _expert([-0.04, -0.02, -0.03], [0.04, 0.02, 0.03])  # 8 x 4 cm, turned 90 degrees about z
     p = _poses([0.0, 0.1, 0.93], rot_z(math.pi / 2))
     box.act(p)
     point, yaw = box._grasp_plan(p)
-    np.testing.assert_allclose(point, [0.0, 0.1, 0.93], atol=1e-9)  # the centre, 3 cm below the 6 cm top
+    # 3 cm below the 6 cm top, 2 cm off the centre along the long side, towards the gripper's start (-0.2, 0)
+    np.testing.assert_allclose(point, [0.0, 0.08, 0.93], atol=1e-9)
     closing = rot_z(yaw) @ p.eef_rot @ box.facts.closing_axis
     assert abs(closing @ (rot_z(math.pi / 2) @ [0.0, 1.0, 0.0])) == pytest.approx(1.0)  # across the 4 cm side
     bowl = _expert([-0.055, -0.055, 0.0], [0.055, 0.055, 0.05])  # 11 cm wide: wider than the fingers open
@@ -70,6 +73,26 @@ def test_the_grasp_crosses_a_narrow_object_and_takes_a_wide_ones_rim_facing_the_
     assert abs(closing @ [1.0, 0.0, 0.0]) == pytest.approx(1.0)  # across the rim, radially
     a = bowl.act(p)
     assert a.shape == (7,) and a[6] == -1.0 and a[0] > 0 and np.all(np.abs(a) <= 1.0)  # open, towards the hover
+
+
+def test_a_rim_grasp_avoids_a_neighbour_where_the_outer_finger_would_land_and_a_side_that_failed():
+    import dataclasses
+
+    bowl = _expert([-0.055, -0.055, 0.0], [0.055, 0.055, 0.05])
+    ramekin = (np.array([0.0, -0.05, 0.9]), np.array([0.03, 0.05, 0.945]))  # against the bowl's side facing the start
+    p = dataclasses.replace(_poses([0.1, 0.0, 0.9]), obstacles=[ramekin])
+    bowl.act(p)
+    point, _ = bowl._grasp_plan(p)
+    side = (point[:2] - [0.1, 0.0]) / np.linalg.norm(point[:2] - [0.1, 0.0])
+    finger = point[:2] + 0.04 * side
+    assert not (ramekin[0][0] - 0.01 < finger[0] < ramekin[1][0] + 0.01 and abs(finger[1]) < 0.06), (point, side)
+    low = (np.array([0.0, -0.05, 0.88]), np.array([0.03, 0.05, 0.895]))  # below the fingertips: no obstacle
+    p = dataclasses.replace(p, obstacles=[low])
+    np.testing.assert_allclose(bowl._grasp_plan(p)[0][:2], [0.1 - 0.043, 0.0], atol=1e-9)
+    bowl._failed.append(np.array([1.0, 0.0, 0.0]))  # a grasp closing along x failed: that side is avoided now
+    point, _ = bowl._grasp_plan(p)
+    side = (point[:2] - [0.1, 0.0]) / np.linalg.norm(point[:2] - [0.1, 0.0])
+    assert abs(side[0]) <= 0.8, (point, side)  # at least ~37 degrees off the failed closing axis
 
 
 @pytest.mark.parametrize("task, seeds", [("libero_spatial/0", (10, 11)), ("libero_object/3", (10, 11))])

