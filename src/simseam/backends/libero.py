@@ -230,8 +230,11 @@ class SimExpert:
         self._obj = env.obj_body_id[self.goal.obj]
         self._holder = env.obj_body_id[self.goal.holder]
         self._region = m.site(self.goal.target).id if self.goal.predicate == "in" else None
-        others = [b for name, b in env.obj_body_id.items() if name != self.goal.obj]
-        self._others = [(b, body_box(m, d, b)) for b in others]
+        mine = subtree(m, self._obj)
+        others = np.zeros(m.nbody, dtype=bool)
+        for name, b in env.obj_body_id.items():
+            others |= subtree(m, b) if name != self.goal.obj else False
+        self._others = np.flatnonzero(others[m.geom_bodyid] & ~mine[m.geom_bodyid] & collides(m))
         rot = d.site_xmat[self._site].reshape(3, 3)
         closing = d.xpos[self._fingers[0]] - d.xpos[self._fingers[1]]
         ctrl = robot.controller
@@ -243,7 +246,7 @@ class SimExpert:
         self._expert = lx.PickPlaceExpert(self.goal, facts)
 
     def act(self, env) -> np.ndarray:
-        from simseam.backends.libero_expert import Poses, world_box
+        from simseam.backends.libero_expert import Poses
 
         d = env.sim.data._data
         f1, f2 = (d.xpos[i] for i in self._fingers)
@@ -254,23 +257,42 @@ class SimExpert:
                       holder_pos=d.xpos[self._holder].copy(), holder_rot=d.xmat[self._holder].reshape(3, 3).copy(),
                       region_pos=None if region is None else d.site_xpos[region].copy(),
                       region_rot=None if region is None else d.site_xmat[region].reshape(3, 3).copy(),
-                      obstacles=[world_box(box, d.xpos[b], d.xmat[b].reshape(3, 3)) for b, box in self._others])
+                      obstacles=geom_boxes(env.sim.model._model, d, self._others))
         return self._expert.act(poses)
 
 
-def body_box(m, d, body: int) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) in ``body``'s frame of the collision geoms of its subtree (their bounding boxes' corners)."""
+SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+
+
+def subtree(m, body: int) -> np.ndarray:
+    """Which bodies are ``body`` or below it (a boolean mask over the model's bodies)."""
     inside = np.zeros(m.nbody, dtype=bool)
     inside[body] = True
     for b in range(body + 1, m.nbody):  # MuJoCo numbers a body after its parent
         inside[b] = inside[m.body_parentid[b]]
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-    rot, pos, points = d.xmat[body].reshape(3, 3), d.xpos[body], []
-    for g in np.flatnonzero(inside[m.geom_bodyid] & ((m.geom_contype != 0) | (m.geom_conaffinity != 0))):
-        corners = signs * m.geom_aabb[g, 3:] + m.geom_aabb[g, :3]
-        world = corners @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
-        points.append((world - pos) @ rot)
-    points = np.concatenate(points)
+    return inside
+
+
+def collides(m) -> np.ndarray:
+    return (m.geom_contype != 0) | (m.geom_conaffinity != 0)
+
+
+def geom_corners(m, d, geoms: np.ndarray) -> np.ndarray:
+    """(G, 8, 3) world corners of the geoms' bounding boxes."""
+    local = SIGNS[None] * m.geom_aabb[geoms, None, 3:] + m.geom_aabb[geoms, None, :3]
+    return np.einsum("gij,gkj->gki", d.geom_xmat[geoms].reshape(-1, 3, 3), local) + d.geom_xpos[geoms, None]
+
+
+def geom_boxes(m, d, geoms: np.ndarray) -> np.ndarray:
+    """(G, 2, 3) world-axis (lo, hi) bounds of the geoms."""
+    corners = geom_corners(m, d, geoms)
+    return np.stack([corners.min(axis=1), corners.max(axis=1)], axis=1)
+
+
+def body_box(m, d, body: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) in ``body``'s frame of the collision geoms of its subtree (their bounding boxes' corners)."""
+    geoms = np.flatnonzero(subtree(m, body)[m.geom_bodyid] & collides(m))
+    points = (geom_corners(m, d, geoms).reshape(-1, 3) - d.xpos[body]) @ d.xmat[body].reshape(3, 3)
     return points.min(axis=0), points.max(axis=0)
 
 

@@ -59,9 +59,9 @@ MAX_TRIES = 3  # grasps before giving up (the expert then hovers where it is)
 TIMEOUT = {"hover": 60, "descend": 40, "lift": 40, "carry": 60, "lower": 40}
 SPEED = {"hover": 1.0, "descend": 0.5, "close": 0.5, "lift": 0.8, "carry": 0.8, "lower": 0.4, "release": 0.5,
          "retreat": 0.8}  # cap on the translation action's norm, per phase
-POS_TOL = {"hover": 0.006, "descend": 0.006, "lift": 0.02, "carry": 0.01, "lower": 0.008}
+POS_TOL = {"hover": 0.01, "descend": 0.006, "lift": 0.02, "carry": 0.01, "lower": 0.008}
 ROT_TOL = 0.05  # rad, at the hover
-VERTICAL = ("descend", "lower")  # phases that move straight up or down
+VERTICAL = ("lower",)  # phases that move straight down (the descent to a grasp moves as it goes)
 VERTICAL_TOL = 0.008  # m: they stop going down while further than this off the vertical
 STILL = 0.003  # m per step: the end-effector has stopped (a phase that ends on arrival waits for it)
 
@@ -95,7 +95,8 @@ class Poses:
     holder_rot: np.ndarray
     region_pos: np.ndarray | None  # In: the region site's position
     region_rot: np.ndarray | None
-    obstacles: list = ()  # world (lo, hi) boxes of the scene's other objects and fixtures
+    obstacles: np.ndarray | tuple = ()  # (K, 2, 3): world (lo, hi) boxes of the other objects' and fixtures'
+    # collision geoms (a drawer's walls, not the whole cabinet)
 
 
 def goal_of(task: str, goal_state: list, movable: set[str], regions: dict[str, str]) -> Goal:
@@ -200,19 +201,21 @@ class PickPlaceExpert:
 
     def _rim_side(self, p: Poses, center: np.ndarray, radius: float, z: float) -> np.ndarray:
         """The unit direction (3) from the centre to the rim point grasped: the side whose outer finger has the
-        most room from the other objects standing higher than the fingertips (up to ``ROOM``), then the one
+        most room from the other bodies' collision geoms reaching above the fingertips (up to ``ROOM``), then the one
         facing the gripper's start and needing the least turn of the wrist (far reaches fail turned); sides
         where a grasp already failed are avoided."""
         start = self._start_xy - center
         start /= max(np.linalg.norm(start), 1e-9)
         best, best_score = None, -np.inf
+        boxes = np.asarray(p.obstacles, dtype=np.float64).reshape(-1, 2, 3)
+        tall = boxes[boxes[:, 1, 2] > z - FINGER_BELOW]
         for angle in np.linspace(0.0, 2.0 * math.pi, RIM_SIDES, endpoint=False):
             u = np.array([math.cos(angle), math.sin(angle)])
             finger = center + (radius - RIM_INSET + FINGER_REACH) * u
             room = ROOM
-            for lo, hi in p.obstacles:
-                if hi[2] > z - FINGER_BELOW:
-                    room = min(room, float(np.linalg.norm(np.maximum(0.0, np.maximum(lo[:2] - finger, finger - hi[:2])))))
+            if len(tall):
+                gap = np.maximum(0.0, np.maximum(tall[:, 0, :2] - finger, finger - tall[:, 1, :2]))
+                room = min(room, float(np.min(np.linalg.norm(gap, axis=1))))
             score = (room + FACING * float(u @ start) - TURNING * abs(self._yaw_to(u)) / (math.pi / 2)
                      - sum(FAILED for f in self._failed if abs(u @ f[:2]) > 0.8))
             if score > best_score:
