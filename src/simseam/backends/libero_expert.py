@@ -9,18 +9,19 @@ a batched GPU port) can drive it:
 - static facts (``Facts``, once per scene): the object's and the target's boxes in their body frames
   (their collision geometry's bounds), the target region's half-sizes (``In``), the gripper's closing
   axis in the end-effector frame and the controller's metres / radians per action unit;
-- per step (``Poses``): the end-effector site's position and rotation, the finger opening, and the
-  object's and the target's world poses.
+- per step (``Poses``): the end-effector site's position and rotation, the finger opening, the
+  object's and the target's world poses and the world boxes of the other bodies' collision geoms.
 
 It is a state machine over ``PHASES``: hover over the grasp point (turned so the fingers close across
 the object's narrow side), descend, close, lift (back to the hover when the object did not come up),
 carry at a height that clears the target, lower the object onto it (``On``: its bottom just above the
 target's top, its centre over the target's; ``In``: inside the region, below the container's rim),
-open and retreat. A grasp is a centre grasp when the object fits between the fingers, else a rim grasp
-on the side facing the gripper's start (LIBERO's bowls). Actions are LIBERO's 7-D OSC_POSE deltas
+open and retreat. A grasp is a centre grasp when the object fits between the fingers (off centre,
+nearer the robot, on a long box), else a rim grasp (LIBERO's bowls) on the side where the outer finger
+has room, facing the gripper's start, with the least wrist turn, and not where a grasp failed. Actions are LIBERO's 7-D OSC_POSE deltas
 (``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1], world frame, grip -1 open / +1 closed), a
 proportional step towards each phase's target with a speed cap. Deterministic: the action depends on the
-poses and the phase alone.
+poses and the expert's state (phase, grasp, failed sides) alone.
 
 Imports numpy and simseam.seam only.
 """
