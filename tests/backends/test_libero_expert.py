@@ -103,11 +103,11 @@ def test_the_expert_succeeds_on_held_out_init_states_through_eval(tmp_path, task
                    "--episodes", str(len(seeds)), "--out", str(out))
     assert proc.returncode == 0, proc.stderr[-3000:]
     episodes = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
-    assert [(e["task"], e["seed"]) for e in episodes] == [(task, s) for s in seeds]
+    assert sorted((e["task"], e["seed"]) for e in episodes) == [(task, s) for s in seeds]  # in the order they end
     limit = {"libero_spatial": 220, "libero_object": 280}[task.split("/")[0]]
     assert all(e["success"] and e["steps"] < limit for e in episodes), episodes
     spec = json.loads((out / "spec.json").read_text())
-    assert "privileged" in spec["capabilities"] and "expert_action" in spec["observation"]["fields"]
+    assert "privileged" in spec["capabilities"] and "expert_action" in spec["observation"]
 
 
 def test_a_goal_the_expert_does_not_handle_is_a_one_line_error_naming_task_and_predicate(tmp_path):
