@@ -1,6 +1,6 @@
 """LIBERO's scripted expert (``--policy scripted``): its goal from LIBERO's parsed BDDL problem, its grasp
 geometry on given poses, and whole episodes through ``simseam eval`` on init states it was not tuned on
-(it was tuned on init states 0-9; benchmarks/libero_expert_cpu.py measures it on 10-29)."""
+(it was tuned on init states 0-9; benchmarks/libero_expert_cpu.py measured it on 10-29: 95.5 % and 100 %)."""
 
 from __future__ import annotations
 
