@@ -29,9 +29,11 @@ def test_the_goal_comes_from_the_parsed_bddl_and_an_unhandled_one_names_task_and
     cases = {
         "(open wooden_cabinet_1_middle_region)": [["open", "wooden_cabinet_1_middle_region"]],
         "(turnon flat_stove_1)": [["turnon", "flat_stove_1"]],
-        "(in alphabet_soup_1 basket_1_contain_region) (in akita_black_bowl_1 basket_1_contain_region)":
-            [["in", "alphabet_soup_1", "basket_1_contain_region"], ["in", "akita_black_bowl_1", "basket_1_contain_region"]],
-        "(in akita_black_bowl_1 wooden_cabinet_1_top_region)": [["in", "akita_black_bowl_1", "wooden_cabinet_1_top_region"]],
+        "(in alphabet_soup_1 basket_1_contain_region) (in akita_black_bowl_1 basket_1_contain_region)": [
+            ["in", "alphabet_soup_1", "basket_1_contain_region"],
+            ["in", "akita_black_bowl_1", "basket_1_contain_region"]],
+        "(in akita_black_bowl_1 wooden_cabinet_1_top_region)": [
+            ["in", "akita_black_bowl_1", "wooden_cabinet_1_top_region"]],
     }
     for shown, goal in cases.items():
         with pytest.raises(ConfigError) as err:
@@ -41,7 +43,8 @@ def test_the_goal_comes_from_the_parsed_bddl_and_an_unhandled_one_names_task_and
 
 
 def _expert(lo, hi) -> PickPlaceExpert:
-    facts = Facts(obj_box=(np.array(lo), np.array(hi)), holder_box=(np.array([-0.07, -0.07, 0.0]), np.array([0.07, 0.07, 0.02])),
+    plate = (np.array([-0.07, -0.07, 0.0]), np.array([0.07, 0.07, 0.02]))
+    facts = Facts(obj_box=(np.array(lo), np.array(hi)), holder_box=plate,
                   region_half=None, closing_axis=np.array([0.0, 1.0, 0.0]), max_translation=0.05, max_rotation=0.5)
     return PickPlaceExpert(Goal("on", "o", "p", "p"), facts)
 

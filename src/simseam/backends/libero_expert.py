@@ -18,10 +18,10 @@ carry at a height that clears the target, lower the object onto it (``On``: its 
 target's top, its centre over the target's; ``In``: inside the region, below the container's rim),
 open and retreat. A grasp is a centre grasp when the object fits between the fingers (off centre,
 nearer the robot, on a long box), else a rim grasp (LIBERO's bowls) on the side where the outer finger
-has room, facing the gripper's start, with the least wrist turn, and not where a grasp failed. Actions are LIBERO's 7-D OSC_POSE deltas
-(``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1], world frame, grip -1 open / +1 closed), a
-proportional step towards each phase's target with a speed cap. Deterministic: the action depends on the
-poses and the expert's state (phase, grasp, failed sides) alone.
+has room, facing the gripper's start, with the least wrist turn, and not where a grasp failed. Actions
+are LIBERO's 7-D OSC_POSE deltas (``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1], world frame, grip
+-1 open / +1 closed), a proportional step towards each phase's target with a speed cap. Deterministic:
+the action depends on the poses and the expert's state (phase, grasp, failed sides) alone.
 
 Imports numpy and simseam.seam only.
 """
