@@ -123,3 +123,16 @@ def test_a_goal_the_expert_does_not_handle_is_a_one_line_error_naming_task_and_p
     assert len(lines) == 1, proc.stderr
     assert "libero_goal/0" in lines[0] and "(open wooden_cabinet_1_middle_region)" in lines[0], lines[0]
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_collect_records_the_experts_demonstration_from_a_libero_scene(tmp_path):
+    """``simseam collect --policy scripted`` on scenes/libero_spatial.yaml (libero_spatial/3), held-out init state 10."""
+    backend_python("libero")
+    out = tmp_path / "demos"
+    proc = simseam("collect", "--scene", "scenes/libero_spatial.yaml", "--policy", "scripted", "--episodes", "1",
+                   "--seed", "10", "--no-cameras", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "(1/1 episodes succeeded)" in proc.stdout, proc.stdout[-2000:]
+    info = json.loads((out / "meta" / "info.json").read_text())
+    assert info["total_episodes"] == 1 and 50 < info["total_frames"] < 220
+    assert info["features"]["action"]["names"] == ["dx", "dy", "dz", "dax", "day", "daz", "grip"]
