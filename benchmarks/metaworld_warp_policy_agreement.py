@@ -50,8 +50,17 @@ def checkpoint(task: str, recipe: proof.Recipe, work: Path, train_s: float) -> t
                   "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1)}}
 
 
-def evaluate(task: str, ckpt: Path, seed: int, episodes: int, out: Path, engine_args: list[str], log: Path) -> dict:
-    """One ``simseam eval`` of the checkpoint; its summary."""
+def evaluate(task: str, ckpt: Path, seed: int, episodes: int, out: Path, engine_args: list[str], log: Path,
+             reuse: bool = False) -> dict:
+    """One ``simseam eval`` of the checkpoint; its summary. ``reuse``: a finished run already in ``out`` of the
+    same task and seeds is read instead of run again (``--reuse-cpu``: the CPU backend's runs, whose code the
+    port's changes do not touch)."""
+    done = out / "summary.json"
+    if reuse and done.exists():
+        summary = json.loads(done.read_text())
+        if sorted(e["seed"] for e in summary["episodes"]) == list(range(seed, seed + episodes)) \
+                and list(summary["per_task"]) == [task]:
+            return summary
     proof._simseam("eval", "metaworld_mt10", "--tasks", task, "--policy", f"lerobot:{ckpt}", "--seed", str(seed),
                    "--episodes", str(episodes), "--out", str(out), "--overwrite", "--device", "cpu", *engine_args, log=log)
     return json.loads((out / "summary.json").read_text())
@@ -61,11 +70,12 @@ def port_cpu_episodes(task: str, ckpt: Path, seed: int, episodes: int) -> list[d
     """The port on CPU MuJoCo (its version), one world, the policy as ``simseam eval`` builds it; per episode
     its seed, success (at any step) and steps (to success, else ``max_path_length``)."""
     from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
     from simseam.policies.batch import make_policy_batch
 
     out = []
     config = {"task": task, "variation": "mt1", "max_steps": 500}
-    with MetaWorldBatchRollout.open(config, 1, engine="mujoco") as batch:
+    with NativeWorker() as worker, MetaWorldBatchRollout(config, 1, worker, engine="mujoco") as batch:
         policy = make_policy_batch(f"lerobot:{ckpt}", 1, device="cpu")
         for s in range(seed, seed + episodes):
             policy.reset(0, batch.spec)
@@ -73,8 +83,8 @@ def port_cpu_episodes(task: str, ckpt: Path, seed: int, episodes: int) -> list[d
             while not done:
                 r = batch.step([0], policy.act_batch([0], obs))
                 obs, steps = r.observations, steps + 1
-                done = bool(r.success[0] or r.truncated[0])
-            out.append({"seed": s, "success": bool(r.success[0]), "steps": steps})
+                done = bool(r.terminated[0] or r.truncated[0])  # the port terminates on success
+            out.append({"seed": s, "success": bool(r.terminated[0]), "steps": steps})
         policy.close()
     return out
 
@@ -112,6 +122,8 @@ def main() -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/mwp"))
     ap.add_argument("--json", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--reuse-cpu", action="store_true", help="read the CPU backend's finished eval runs in --work "
+                    "(same task and seeds) instead of running them again")
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         print(f"{args.json} exists; pass --overwrite to replace it", file=sys.stderr)
@@ -126,7 +138,7 @@ def main() -> int:
     for task in args.tasks.split(","):
         ckpt, facts = checkpoint(task, recipe, args.work, args.train_s)
         log = args.work / f"{task}.log"
-        cpu = evaluate(task, ckpt, args.seed, args.episodes, args.work / f"{task}_eval", [], log)
+        cpu = evaluate(task, ckpt, args.seed, args.episodes, args.work / f"{task}_eval", [], log, args.reuse_cpu)
         warp = evaluate(task, ckpt, args.seed, args.episodes, args.work / f"{task}_eval_warp",
                         ["--engine", "mujoco_warp", "--sim-device", args.sim_device], log)
         port = port_cpu_episodes(task, ckpt, args.seed, args.episodes)
