@@ -148,15 +148,10 @@ def test_model_checks_of_a_few_more_tasks(worker, task):
     assert touching == ([[3, 37]] if task == "plate-slide-v3" else [])
 
 
-def test_static_geoms_follow_each_worlds_reset(worker):
-    """drawer-close moves its drawer case (a body welded to the world) at every reset. MuJoCo Warp places a
-    static geom once, at put_data, so without re-placing them world k's case would collide where the first
-    state had it (measured before the fix: 3.2 cm off, the engine gap 0.18 and Warp 1/3 where CPU and native
-    were 3/3). After a reset of three worlds to MT1 variations 0-2 every geom of every world is where CPU
-    MuJoCo puts it for that variation, and 40 native expert steps stay within 2 mm of CPU MuJoCo."""
+def _warp_and_cpus(worker, task: str, seeds: list[int]):
+    """``task`` reset to ``seeds``: one Warp batch (CPU device) of their worlds, and one CPU MuJoCo world each."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
-    task, seeds = "drawer-close-v3", [0, 1, 2]
     warp = MetaWorldBatch(task, len(seeds), worker, engine="mujoco_warp", device="cpu")
     warp.reset(list(range(len(seeds))), seeds)
     cpus = []
@@ -164,6 +159,17 @@ def test_static_geoms_follow_each_worlds_reset(worker):
         cpu = MetaWorldBatch(task, 1, worker, engine="mujoco")
         cpu.reset([0], [s])
         cpus.append(cpu)
+    return warp, cpus
+
+
+def test_static_geoms_follow_each_worlds_reset(worker):
+    """drawer-close moves its drawer case (a body welded to the world) at every reset. MuJoCo Warp places a
+    static geom once, at put_data, so without re-placing them world k's case would collide where the first
+    state had it (measured before the fix: 3.2 cm off, the engine gap 0.18 and Warp 1/3 where CPU and native
+    were 3/3). After a reset of three worlds to MT1 variations 0-2 every geom of every world is where CPU
+    MuJoCo puts it for that variation, and 40 native expert steps stay within 2 mm of CPU MuJoCo."""
+    task, seeds = "drawer-close-v3", [0, 1, 2]
+    warp, cpus = _warp_and_cpus(worker, task, seeds)
     moved = [float(np.abs(np.asarray(cpus[k].physics.poses().geom_xpos[0])
                           - np.asarray(cpus[0].physics.poses().geom_xpos[0])).max()) for k in (1, 2)]
     assert min(moved) > 0.02, "the variations move the case: the check below is not vacuous"
@@ -191,16 +197,8 @@ def test_sites_and_geoms_in_their_bodys_frame_ignore_reset_writes(worker):
     0/10 where CPU MuJoCo and native Meta-World did 9/10 and 8/10 (MT50 x 10 seeds, Warp's CPU device).
     After a reset of two worlds every site and geom is where CPU MuJoCo puts it, and the expert's success
     flags agree over 150 native expert steps."""
-    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
-
     task, seeds = "basketball-v3", [0, 1]
-    warp = MetaWorldBatch(task, len(seeds), worker, engine="mujoco_warp", device="cpu")
-    warp.reset(list(range(len(seeds))), seeds)
-    cpus = []
-    for s in seeds:
-        cpu = MetaWorldBatch(task, 1, worker, engine="mujoco")
-        cpu.reset([0], [s])
-        cpus.append(cpu)
+    warp, cpus = _warp_and_cpus(worker, task, seeds)
     sid = warp.names.index("site", "goal")
     assert np.abs(np.asarray(warp.physics.mjm.site_pos[sid])).max() > 0.1, "the reset wrote the site: not vacuous"
     for k, cpu in enumerate(cpus):
