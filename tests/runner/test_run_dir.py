@@ -3,7 +3,7 @@ counted (parallel workers finish out of order and leave gaps)."""
 
 import json
 
-from simseam.runner.evaluate import _todo
+from simseam.runner.evaluate import eval_indices
 from simseam.runner.run_dir import RunDir
 from simseam.runner.episodes import EpisodeResult
 
@@ -16,5 +16,5 @@ def test_an_eval_resumed_from_a_log_with_a_gap_queues_exactly_the_missing_episod
         json.dumps(EpisodeResult(i, i, success=True, steps=3, reward=1.0).to_json()) + "\n" for i in (0, 4, 1, 3)))
     run_dir = RunDir(tmp_path, config, resume=True)
     assert run_dir.done == {0, 1, 3, 4}
-    assert _todo(config["tasks"], 3, run_dir, None) == [2, 5]
-    assert _todo(config["tasks"], 3, run_dir, [1, 3, 5]) == [5]  # a shard's own indices (--shard 1/2)
+    assert run_dir.left(eval_indices(config["tasks"], 3)) == [2, 5]
+    assert run_dir.left(eval_indices(config["tasks"], 3, (1, 2))) == [5]  # a shard's own indices (--shard 1/2)

@@ -156,7 +156,7 @@ def eval_command(
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    todo = [i for i in planned if i not in run_dir.done]
+    todo = run_dir.left(planned)
     executor = _eval_executor(len(todo), n, num_envs, engine, ray_address,
                               (policy_groups, policy_ready, envs_per_worker))
     job = Job(eval_recipe(p, task_list, n, engine, sim_device), policy, policy_kwargs(device, n_action_steps), todo,

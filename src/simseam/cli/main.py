@@ -181,7 +181,7 @@ def run(
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
-    todo = [i for i in planned if i not in run_dir.done]
+    todo = run_dir.left(planned)
     try:
         executor = _run_executor(scene, cfg, len(todo), num_envs, ray_address, renderer, record_dataset,
                                  (policy_groups, policy_ready, envs_per_worker))

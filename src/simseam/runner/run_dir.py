@@ -185,6 +185,12 @@ class RunDir:
         """Episode indices already in the log (skipped when resuming)."""
         return {int(e["index"]) for e in self.resumed}
 
+    def left(self, planned) -> list[int]:
+        """Of the ``planned`` episode indices, the ones not yet in the log, in order: what a resumed run still
+        runs (read from the indices logged, never counted: parallel workers finish out of order)."""
+        done = self.done
+        return [i for i in sorted(planned) if i not in done]
+
     def write_spec(self, spec_json: dict) -> None:
         self.start()
         write_json_atomic(self.path / SPEC_FILE, spec_json)
