@@ -57,6 +57,59 @@ def test_eval_cli_on_warp_cpu_device(tmp_path):
     assert paired["n_pairs"] == 3 and paired["only_first_succeeded"] == paired["only_second_succeeded"] == 0
 
 
+class _ImageExpert:
+    """Meta-World's expert that also reads the cameras: it acts as ``scripted`` does (so its episodes are the
+    state-only expert's) and keeps every image it was handed, per world, in ``SEEN``."""
+
+    SEEN: list[list[dict]] = []
+
+    def __new__(cls):
+        from simseam.policies.scripted import ScriptedPolicy
+
+        class ImageExpert(ScriptedPolicy):
+            uses_images = True
+
+            def reset(self, spec):
+                super().reset(spec)
+                self.seen = []
+                cls.SEEN.append(self.seen)
+
+            def act(self, observation):
+                self.seen.append({k: np.array(v) for k, v in observation["images"].items()})
+                return super().act(observation)
+
+        return ImageExpert()
+
+
+def test_an_image_policy_runs_on_warp_with_the_cpu_backends_cameras(tmp_path, monkeypatch):
+    """``simseam eval --engine mujoco_warp`` with a policy that reads images: the port draws the preset's
+    camera (Meta-World's ``corner2`` as ``camera1``, at the CPU backend's size and dtype, MuJoCo Warp's ray
+    tracer) at every step, the images change as the arm moves, and the episodes are the state-only expert's
+    (same seeds, steps and success): drawing the cameras changes no physics."""
+    from simseam.policies.base import POLICIES
+
+    monkeypatch.setitem(POLICIES, "image_expert", _ImageExpert)
+    _ImageExpert.SEEN.clear()
+    runs = {}
+    for policy in ("image_expert", "scripted"):
+        out = tmp_path / policy
+        res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", policy, "--tasks", TASK, "--episodes",
+                                       "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                       "--out", str(out)])
+        assert res.exit_code == 0, res.output
+        runs[policy] = [(r["seed"], r["steps"], r["success"]) for r in _lines(out)]
+    assert runs["image_expert"] == runs["scripted"] and all(ok for _, _, ok in runs["scripted"])
+    episodes = [seen for seen in _ImageExpert.SEEN if seen]
+    assert len(episodes) == 2  # the two worlds' episodes (a reset that acts no step keeps nothing)
+    for seen in episodes:
+        assert all(set(images) == {"camera1"} for images in seen)
+        assert all(images["camera1"].shape == (224, 224, 3) and images["camera1"].dtype == np.uint8
+                   for images in seen)
+        first, last = seen[0]["camera1"].astype(float), seen[-1]["camera1"].astype(float)
+        assert first.std() > 10  # a scene, not a blank frame
+        assert np.abs(first - last).mean() > 0.5  # the arm moved between the first step and the last
+
+
 def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
     """Episodes 0..3 on 1 world and on 3 (the shorter episodes end first, the next start in their worlds):
     the same seed, steps, success and reward per episode."""

@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
-from simseam.seam import ConfigError
 
 
 @dataclass(frozen=True)
@@ -126,9 +125,12 @@ class BenchmarkRecipe:
     first_task: int = 0
     per_task: dict = field(default_factory=dict)
     #: a batched engine with a port of the benchmark (``mujoco_warp`` for Meta-World: each task's episodes
-    #: as the worlds of one batch in this process, state-only), and its device; None: the backend's sidecars
+    #: as the worlds of one batch in this process), and its device; None: the backend's sidecars
     engine: str | None = None
     device: str | None = None
+    #: the policy reads images: the engine's port draws the benchmark's cameras (its own renderer); without
+    #: it the port renders nothing (the backend's sidecars draw their cameras either way)
+    images: bool = False
 
     def task_config(self, ti: int) -> dict:
         """The backend's config of task ``ti``: its own fields over the preset's, and its name."""
@@ -160,11 +162,10 @@ class BenchmarkRecipe:
 
     def for_policy(self, privileged: bool, uses_images: bool) -> "BenchmarkRecipe":
         """This recipe for a policy: its privileged state; a backend whose cameras are off unless asked for
-        (its ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images."""
-        if self.engine is not None and uses_images:
-            raise ConfigError(f"--engine {self.engine}: the port is state-only; the policy reads images")
+        (its ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images, and so
+        does a batched engine's port (drawn by the engine's renderer: MuJoCo Warp's ray tracer)."""
         return dataclasses.replace(self, config={**self.config, **cameras_for(self.backend, uses_images)},
-                                   privileged=privileged)
+                                   privileged=privileged, images=uses_images)
 
     def parts(self, indices: Sequence[int], seed: int) -> list[tuple["BenchmarkRecipe", list[int], int]]:
         """``(recipe, indices, seed_base)`` per task the episodes belong to, task-major: episode ``e`` of
@@ -214,5 +215,5 @@ class BenchmarkRecipe:
         from simseam.runner.warp_vector import benchmark_port
 
         port = benchmark_port(self.engine, self.backend)
-        config = {**self.task_config(self.first_task), "cameras": False}
+        config = {**self.task_config(self.first_task), **({} if self.images else {"cameras": False})}
         return BatchVectorEnv(port(config, n, shared, privileged=self.privileged, device=self.device))
