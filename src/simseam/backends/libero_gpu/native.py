@@ -242,15 +242,19 @@ def _observed(env: Any) -> dict[str, Any]:
             "contacts": np.asarray(d.contact.geom[:d.ncon], np.int64).reshape(-1, 2)}
 
 
-def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, terms: list | None = None,
-          seed: int = 0) -> dict[str, Any]:
-    """LIBERO's own evaluation of states (float[S, nq], [S, nv]) in the env reset with ``seed`` (which places its
-    fixtures: seed 0 is ``describe``'s model), each set and forwarded: ``success``
-    (``_check_success()``) bool[S], ``values`` bool[S, P] (``_eval_predicate`` of each goal predicate),
-    ``extra`` bool[S, Q] (of each of ``terms``, e.g. ``[["up", "plate_1"]]``) and ``observed``: what the
-    predicates read of each forwarded state (``_observed``)."""
-    env, inits = _env(suite, task)
-    _reset(env, inits, 0, seed)
+def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, body_pos: np.ndarray, body_quat: np.ndarray,
+          terms: list | None = None) -> dict[str, Any]:
+    """LIBERO's own evaluation of states (float[S, nq], [S, nv]) in the task's env with its fixtures placed by
+    ``body_pos`` / ``body_quat`` (the port model's: where a reset put them depends on the env's earlier resets,
+    not on the seed alone), each set and forwarded: ``success`` (``_check_success()``) bool[S], ``values``
+    bool[S, P] (``_eval_predicate`` of each goal predicate), ``extra`` bool[S, Q] (of each of ``terms``, e.g.
+    ``[["up", "plate_1"]]``) and ``observed``: what the predicates read of each forwarded state (``_observed``)."""
+    env, _ = _env(suite, task)
+    model = env.env.sim.model._model
+    if model.body_pos.shape != np.shape(body_pos) or model.body_quat.shape != np.shape(body_quat):
+        raise ValueError(f"body_pos / body_quat {np.shape(body_pos)} / {np.shape(body_quat)} are not of this "
+                         f"model's {model.nbody} bodies")
+    model.body_pos[:], model.body_quat[:] = body_pos, body_quat
     e = env.env
     goal = e.parsed_problem["goal_state"]
     out: dict[str, list] = {"success": [], "values": [], "extra": [], "observed": []}
@@ -269,7 +273,7 @@ def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, terms: list
 SWEEP = np.linspace(-0.15, 0.15, 31) + 0.0037
 JOINT_SWEEP = 25  # joint values across the joint's range ...
 NEAR = 0.002  # ... and this far either side of each end of LIBERO's articulation ranges
-LIFT = {"on": 0.08, "in": 0.03}  # m above the target where an object is dropped
+LIFT = {"on": 0.08, "in": 0.0}  # m above the target where an object is posed (In: at the region's centre)
 SPREAD = 0.05  # m between objects dropped onto one target
 JOINT_NAMES = ("open", "close", "turnon", "turnoff")  # LIBERO's predicates on an object's joints
 
@@ -338,9 +342,10 @@ def _pose_goal(env: Any, goal: list) -> None:
 def craft(suite: str, task: int, init: int = 0, seed: int = 0, settle: int = 10, drop: int = 20) -> dict[str, Any]:
     """States made to turn the goal's predicates true and false, from init state ``init`` after ``settle`` steps
     (the env reset with ``seed``): the goal posed (``_pose_goal``) and dropped for ``drop`` control steps of
-    physics (dummy actions); then, from where it landed, each moved object swept along x, y and z (``SWEEP``,
-    no physics) and each unary predicate's joints swept across their range (no physics). Returns ``labels``
-    [S], ``qpos`` float[S, nq], ``qvel`` [S, nv]."""
+    physics (dummy actions); then each moved object swept along x, y and z (``SWEEP``, no physics) through where
+    it was posed (``In``: the region's centre) or where it landed (``On``: resting on its target), and each unary
+    predicate's joints swept across their range where the goal landed (no physics). Returns ``labels`` [S],
+    ``qpos`` float[S, nq], ``qvel`` [S, nv]."""
     env, inits = _env(suite, task)
     _settled(env, inits, init, seed, settle)
     goal = [[str(a) for a in g] for g in env.env.parsed_problem["goal_state"]]
@@ -355,7 +360,7 @@ def craft(suite: str, task: int, init: int = 0, seed: int = 0, settle: int = 10,
         if len(term) == 3:
             adr = _free_qpos(env, term[1])
             for axis, t in ((a, t) for a in range(3) for t in SWEEP):
-                q = base_q.copy()
+                q = (rows[1][1] if term[0] == "in" else base_q).copy()
                 q[adr + axis] += t
                 rows.append((f"{term[1]} {'xyz'[axis]}{t:+.4f}", q, base_v))
         elif term[0] in JOINT_NAMES:
