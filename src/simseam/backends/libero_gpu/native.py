@@ -7,11 +7,15 @@ It answers with what only LIBERO / robosuite know, computed on their pinned MuJo
   site-packages, referenced by absolute path), the versions, the native model's arrays (a fresh compile of that
   XML, and the env's model after a reset from init state 0, which moves fixtures in ``body_pos`` /
   ``body_quat``), its options, the settled state (init state 0 after LIBERO's settle steps: qpos, qvel, contact
-  pairs) and the controller's constants (``controller_facts``);
+  pairs), the controller's constants (``controller_facts``) and the goal (``goal``: LIBERO's parsed goal and what
+  its object states read, ``goal_facts``: ``predicates.GoalCheck.compile``'s input);
 - ``record(suite, task, init, actions, settle)``: an episode from init state ``init`` (openpi's path, as
   ``backends.libero`` runs it: ``seed``, ``reset``, ``set_init_state``, ``settle`` dummy steps) under
   ``actions`` float[T, 7], with what robosuite's controller saw and did at every physics substep (the state it
-  read, its goal and the gripper's ramp state before and after, the torques it applied, the whole ``ctrl``).
+  read, its goal and the gripper's ramp state before and after, the torques it applied, the whole ``ctrl``);
+- for the goal predicates (``goal_replay``, ``benchmarks/libero_predicates_check.py``): ``check`` (LIBERO's own
+  ``_check_success`` and ``_eval_predicate`` of given states), ``craft`` (states made to turn the goal's
+  predicates true and false) and ``episode`` (states along an episode of the expert, zero or random actions).
 
 The env is LIBERO's ``ControlEnv`` without cameras or renderer (they change neither the model nor the physics).
 """
