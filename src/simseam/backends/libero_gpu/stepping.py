@@ -8,7 +8,7 @@ worlds' ``ctrl``, then ``step2`` (actuation, acceleration, constraint solve, int
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -19,9 +19,11 @@ from simseam.seam.errors import SimulationError
 EULER = 0  # mjINT_EULER
 
 
-def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any]) -> C.OscState:
+def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any],
+                 after_substep: Callable[[], None] | None = None) -> C.OscState:
     """One 20 Hz control step (``cfg.substeps`` physics steps) of every world under ``action`` float[N, 7]
-    (``xp`` of ``physics``); returns the controller's state after it."""
+    (``xp`` of ``physics``); returns the controller's state after it. ``after_substep()`` runs after each
+    physics step (where robosuite updates its observables)."""
     if int(physics.mjm.opt.integrator) != EULER:
         raise SimulationError("LIBERO port: the controller runs between step1 and step2, which needs the Euler "
                               f"integrator; this model uses integrator {int(physics.mjm.opt.integrator)}")
@@ -34,4 +36,6 @@ def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action
         ctrl[:, arm] = tau.astype(ctrl.dtype)
         ctrl[:, fingers] = grip.astype(ctrl.dtype)
         physics.step2()
+        if after_substep is not None:
+            after_substep()
     return state
