@@ -4,9 +4,10 @@ under robosuite's controller batched (``control.py``, ``stepping.control_step``)
 Reset of world ``w`` for episode seed ``s``, as ``backends.libero`` resets its env: the native reset state of
 seed ``s`` (``resets.ResetCache``: init state ``s % 50``, seed ``s``'s fixture placement in the world's own
 ``body_pos`` / ``body_quat``, the controller's state after the reset), then ``settle_steps`` control steps of
-the dummy action ``[0, 0, 0, 0, 0, 0, -1]`` under the batched controller. The settle steps step every world;
-the worlds not being reset are put back as they were (``worlds.LiberoWorlds.save`` / ``restore``, and their
-controller state), so a world's episode does not depend on when the others reset.
+the dummy action ``[0, 0, 0, 0, 0, 0, -1]`` under the batched controller. MuJoCo Warp steps every world of a
+batch; a reset's settle steps, and a step of some of the worlds, put the other worlds back as they were
+(``_hold``: their physics through ``worlds.LiberoWorlds.save`` / ``restore``, their controller state, observable
+clock and observation), so a world's episode does not depend on when the others reset or step.
 
 A control step: the action clipped to [-1, 1] (the seam's clip), ``stepping.control_step`` (25 substeps of
 ``step1``, the controller, ``step2``), as robosuite's ``step``. The observation is what robosuite's observables
@@ -21,6 +22,7 @@ nothing into the batch's shared contact arrays; the others go on.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import fields, replace
 from typing import Any
 
@@ -75,25 +77,34 @@ class LiberoBatch:
         """Put each seed's reset into its world (``worlds[i]`` <- ``seeds[i]``), then the settle steps."""
         rows = np.asarray(worlds, dtype=np.int64)
         states = self._reset_states(np.asarray(seeds, dtype=np.int64).tolist())
-        others = np.setdiff1d(np.arange(self.num_worlds), rows)
-        saved, before = self.physics.save(others), self.osc
-        clock, observed = self.clock.copy(), {k: v.copy() for k, v in self.observed.items()}
-        self.physics.load(rows, states)
-        self.clock.set(rows, [s["clock"] for s in states])
-        self._observe(rows)  # set_init_state's forced update: the state as loaded
-        osc = with_rows(self.xp, before, rows, OscState.from_native(self.xp, [s["start"] for s in states]))
-        for _ in range(self.settle_steps):
-            osc = control_step(self.physics, self.cfg, osc, self._dummy, self.facts, self._tick)
-        self.physics.restore(others, saved)
-        self.clock.put(others, clock)
-        idx = self.xp.asarray(others)
-        for key, value in observed.items():
-            self.observed[key][idx] = value[idx]
-        self.osc = with_rows(self.xp, before, rows, take(self.xp, osc, rows))
+        with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
+            self.physics.load(rows, states)
+            self.clock.set(rows, [s["clock"] for s in states])
+            self._observe(rows)  # set_init_state's forced update: the state as loaded
+            self.osc = with_rows(self.xp, self.osc, rows, OscState.from_native(self.xp, [s["start"] for s in states]))
+            for _ in range(self.settle_steps):
+                self.osc = control_step(self.physics, self.cfg, self.osc, self._dummy, self.facts, self._tick)
         self.steps[rows], self.errors[rows] = 0, False
         self.seeds[rows] = [s["seed"] for s in states]
         self.inits[rows] = [s["init"] for s in states]
         self._flag(rows)
+
+    @contextmanager
+    def _hold(self, others: np.ndarray):
+        """The worlds ``others`` as they are now, put back after the block (their physics, controller, observable
+        clock and observation): the block steps every world."""
+        if not len(others):
+            yield
+            return
+        saved, osc, clock = self.physics.save(others), self.osc, self.clock.copy()
+        idx = self.xp.asarray(others)
+        observed = {k: v[idx].copy() for k, v in self.observed.items()}
+        yield
+        self.physics.restore(others, saved)
+        self.clock.put(others, clock)
+        for key, value in observed.items():
+            self.observed[key][idx] = value
+        self.osc = with_rows(self.xp, self.osc, others, take(self.xp, osc, others))
 
     def _reset_states(self, seeds: list[int]) -> list[dict[str, Any]]:
         """The seeds' reset states, their model changes less those every reset makes alike (the compiled model
@@ -103,14 +114,17 @@ class LiberoBatch:
                 for s in self.resets.get(seeds)]
 
     # ------------------------------------------------------------------------------------------- step
-    def step(self, actions) -> np.ndarray:
-        """One control step of every world under ``actions`` float[N, 7] (host or ``xp``); returns bool[N]
-        (host): the worlds that became non-finite in it."""
+    def step(self, actions, worlds=None) -> np.ndarray:
+        """One control step of ``worlds`` (default all) under ``actions`` float[N, 7] (host or ``xp``; the rows of
+        the other worlds unused: those worlds stay as they are); returns bool[N] (host): the worlds that became
+        non-finite in it."""
         xp = self.xp
+        rows = np.arange(self.num_worlds) if worlds is None else np.asarray(worlds, dtype=np.int64)
         a = xp.clip(xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 7), -1.0, 1.0)
-        self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
-        self.steps += 1
-        return self._flag(np.arange(self.num_worlds))
+        with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
+            self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
+        self.steps[rows] += 1
+        return self._flag(rows)
 
     def _flag(self, rows: np.ndarray) -> np.ndarray:
         """Flag (and park) ``rows``' worlds that are not finite and were not flagged yet."""

@@ -10,8 +10,7 @@ What each environment gives is the CPU backend's (``backends.libero``), on the s
 - observation: ``state`` (end-effector position, the axis-angle of ``robot0_eef_quat``, the two finger joints'
   qpos), ``joint_positions`` / ``joint_velocities`` (the arm's 7 joints and the 2 finger joints), ``task`` (the
   language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; no images;
-- step: every world's physics advances (an environment left out holds the dummy action ``[0, ..., 0, -1]``
-  until its reset);
+- step: the environments asked advance; the others stay as they are (``LiberoBatch.step``);
 - ``privileged`` (``--policy scripted``): ``expert_action`` is the LIBERO expert's action, one expert per
   world (``expert.BatchExpert``);
 - a world whose state goes non-finite: its episode ends as a failure (``failures()``, its task, init state and
@@ -164,7 +163,7 @@ class LiberoBatchRollout(SyncStepPair):
             raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
         full = np.tile(np.asarray(DUMMY_ACTION, dtype=np.float32), (self.num_envs, 1))
         full[idx] = batch_actions(self._spec, actions, idx.size)
-        new = self.world.step(full)
+        new = self.world.step(full, idx)
         self._end_failed(idx, new)
         success = np.zeros(idx.size, dtype=bool)  # TODO(issue 38 item 5): the batched goal predicates
         steps = self.world.steps[idx]
