@@ -46,8 +46,10 @@ GROUPS: tuple[tuple[str, ...], ...] = (
     ("tests/backends/test_metaworld_rewards.py", "tests/backends/test_metaworld_gpu.py",
      "tests/backends/test_metaworld_gpu_eval.py", "tests/backends/test_metaworld_warp_fidelity.py",
      "tests/backends/test_metaworld_gpu_cameras.py"),
-    # LIBERO's first parts on Warp's CPU device (four suites' models) and its scripted expert through simseam eval
-    ("tests/backends/test_libero_gpu.py", "tests/backends/test_libero_expert.py"),
+    # LIBERO's first parts on Warp's CPU device (four suites' models), its goal predicates against LIBERO's own
+    # evaluation, and its scripted expert through simseam eval
+    ("tests/backends/test_libero_gpu.py", "tests/backends/test_libero_predicates.py",
+     "tests/backends/test_libero_expert.py"),
     ("tests/backends",),  # the other backends' files (the ones above are excluded from it)
     ("tests/policies",),
 )

@@ -15,7 +15,9 @@ sampled: they sample after the physics step where their clock says (``Clock``: r
 replayed per world, from the clock the native reset left; with LIBERO's reset that is the 24th of the 25
 substeps, not the last), reading the end-effector site's position and the ``eef_body``'s quaternion as that
 substep's ``step1`` posed them (MuJoCo's ``mj_step`` leaves the poses of the state before its integration) and
-the joints' qpos and qvel after it. A world whose qpos or qvel is not finite is flagged in
+the joints' qpos and qvel after it. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
+``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
+evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
 nothing into the batch's shared contact arrays; the others go on.
 """
@@ -31,7 +33,9 @@ import numpy as np
 from simseam.backends.libero_gpu.control import OscConfig, OscState
 from simseam.backends.libero_gpu.model import load_or_build
 from simseam.backends.libero_gpu.physics import ArmLayout
+from simseam.backends.libero_gpu.predicates import GoalCheck
 from simseam.backends.libero_gpu.resets import ResetCache
+from simseam.backends.libero_gpu.state import LiberoState
 from simseam.backends.libero_gpu.stepping import control_step
 from simseam.backends.libero_gpu.worlds import LiberoWorlds
 
@@ -51,6 +55,7 @@ class LiberoBatch:
         mjm, self.facts = self.model.model, info["control"]
         self.layout = ArmLayout.from_model(mjm, self.facts)
         self.cfg = OscConfig.from_facts(self.facts, mjm)
+        self.goal = GoalCheck.compile(self.label, info["goal"]["goal_state"], mjm, info["goal"]["objects"])
         self.resets = ResetCache(worker, info)
         first = self._reset_states([0])[0]
         self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device)
@@ -125,6 +130,11 @@ class LiberoBatch:
             self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
         self.steps[rows] += 1
         return self._flag(rows)
+
+    def success(self) -> np.ndarray:
+        """bool[N] (host): LIBERO's ``_check_success`` of every world as the last step left it (its goal's
+        predicates, batched: ``predicates.GoalCheck``, on the data as robosuite's ``step`` leaves it)."""
+        return _host(self.goal.met(LiberoState.from_warp(self.model.model, self.physics.d))).astype(bool)
 
     def _flag(self, rows: np.ndarray) -> np.ndarray:
         """Flag (and park) ``rows``' worlds that are not finite and were not flagged yet."""

@@ -23,7 +23,7 @@ class BatchExpert:
     def __init__(self, batch: Any):
         names, facts = batch.info["names"], batch.facts
         label = f"{batch.suite}/{batch.task} ({batch.info['language']})"
-        self.goal = goal_of(label, names["goal_state"], set(names["movable"]), names["regions"])
+        self.goal = goal_of(label, batch.info["goal"]["goal_state"], set(names["movable"]), names["regions"])
         self.batch, self.model = batch, batch.model.model
         self.ids = ExpertIds.of(self.model, self.goal, names["bodies"], int(facts["eef_site_id"]))
         out = np.asarray(facts["output_max"], dtype=np.float64)

@@ -103,15 +103,45 @@ def controller_facts(env: Any) -> dict[str, Any]:
 
 
 def problem_names(env: Any) -> dict[str, Any]:
-    """What the port reads of LIBERO's parsed problem: the goal (``parsed_problem["goal_state"]``), the movable
-    objects, each object's and fixture's root body (``obj_body_id``), each region site's parent and the body whose
-    pose is ``robot0_eef_quat`` (the robot model's ``eef_name``)."""
+    """What the port's expert and observation read of LIBERO's problem: the movable objects, each object's and
+    fixture's root body (``obj_body_id``), each region site's parent and the body whose pose is
+    ``robot0_eef_quat`` (the robot model's ``eef_name``); the goal is ``goal_facts``'."""
     e = env.env
     robot = e.robots[0]
-    return {"goal_state": [[str(a) for a in g] for g in e.parsed_problem["goal_state"]],
-            "movable": sorted(e.objects_dict), "bodies": {k: int(v) for k, v in e.obj_body_id.items()},
+    return {"movable": sorted(e.objects_dict), "bodies": {k: int(v) for k, v in e.obj_body_id.items()},
             "regions": {name: site.parent_name for name, site in e.object_sites_dict.items()},
             "eef_body": int(e.sim.model.body_name2id(robot.robot_model.eef_name))}
+
+
+def _thing(env: Any, name: str) -> dict[str, Any]:
+    """What LIBERO's object state of ``name`` reads, by MuJoCo element names (``predicates`` resolves them)."""
+    e = env.env
+    obj = e.get_object(name)
+    if name in e.object_sites_dict:
+        return {"kind": "site", "site": name, "size": np.asarray(obj.size, float).tolist(),
+                "parent": obj.parent_name if e.get_object(obj.parent_name) is not None else None,
+                "joints": list(obj.joints or []), "under": hasattr(obj, "under")}
+    model = e.sim.model
+    names = {model.geom_id2name(i) for i in range(model.ngeom)}
+    return {"kind": "fixture" if name in e.fixtures_dict else "object",
+            "body": model.body_id2name(e.obj_body_id[name]),
+            "geoms": [g for g in obj.contact_geoms if g in names], "joints": list(obj.joints or []),
+            "category": getattr(obj, "category_name", None),
+            "articulation": {k: list(v) for k, v in obj.object_properties.get("articulation", {}).items()}}
+
+
+def goal_facts(env: Any) -> dict[str, Any]:
+    """LIBERO's parsed goal (``goal_state``) and, for each name in it and each region's parent, what its object
+    state reads (``objects``): ``predicates.GoalCheck.compile``'s input."""
+    goal = [[str(a) for a in g] for g in env.env.parsed_problem["goal_state"]]
+    objects: dict[str, Any] = {}
+    todo = [a for g in goal for a in g[1:]]
+    while todo:
+        name = todo.pop()
+        if name not in objects:
+            objects[name] = _thing(env, name)
+            todo += [objects[name]["parent"]] if objects[name].get("parent") else []
+    return {"goal_state": goal, "objects": objects}
 
 
 def _arrays(model: Any) -> dict[str, np.ndarray]:
@@ -141,6 +171,7 @@ def describe(suite: str, task: int) -> dict[str, Any]:
         "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
         "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
         "names": problem_names(env),
+        "goal": goal_facts(env),
     }
 
 
@@ -262,7 +293,199 @@ def resets(suite: str, task: int, seeds: list[int]) -> list[dict[str, Any]]:
     return out
 
 
-COMMANDS = {"describe": describe, "record": record, "resets": resets}
+def _load(env: Any, qpos: np.ndarray, qvel: np.ndarray) -> None:
+    """Set the env's state and forward it (poses and contacts of that state, as ``sim.forward`` leaves them)."""
+    sim = env.env.sim
+    sim.data.qpos[:], sim.data.qvel[:] = qpos, qvel
+    sim.forward()
+
+
+def _observed(env: Any) -> dict[str, Any]:
+    """What the predicates read of the env's data as it is (see ``state.LiberoState``)."""
+    d = env.env.sim.data._data
+    return {"qpos": d.qpos.copy(), "xpos": d.xpos.copy(), "xquat": d.xquat.copy(), "site_xpos": d.site_xpos.copy(),
+            "site_xmat": d.site_xmat.reshape(-1, 3, 3).copy(),
+            "contacts": np.asarray(d.contact.geom[:d.ncon], np.int64).reshape(-1, 2)}
+
+
+def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, terms: list | None = None,
+          seed: int = 0) -> dict[str, Any]:
+    """LIBERO's own evaluation of states (float[S, nq], [S, nv]) in the env reset with ``seed`` (which places its
+    fixtures: seed 0 is ``describe``'s model), each set and forwarded: ``success``
+    (``_check_success()``) bool[S], ``values`` bool[S, P] (``_eval_predicate`` of each goal predicate),
+    ``extra`` bool[S, Q] (of each of ``terms``, e.g. ``[["up", "plate_1"]]``) and ``observed``: what the
+    predicates read of each forwarded state (``_observed``)."""
+    env, inits = _env(suite, task)
+    _reset(env, inits, 0, seed)
+    e = env.env
+    goal = e.parsed_problem["goal_state"]
+    out: dict[str, list] = {"success": [], "values": [], "extra": [], "observed": []}
+    for q, v in zip(np.asarray(qpos, float), np.asarray(qvel, float)):
+        _load(env, q, v)
+        out["values"].append([bool(e._eval_predicate(t)) for t in goal])
+        out["extra"].append([bool(e._eval_predicate(list(t))) for t in terms or []])
+        out["success"].append(bool(e._check_success()))
+        out["observed"].append(_observed(env))
+    return {"success": np.asarray(out["success"], bool), "values": np.asarray(out["values"], bool).reshape(len(qpos), -1),
+            "extra": np.asarray(out["extra"], bool).reshape(len(qpos), -1), "observed": out["observed"]}
+
+
+#: crafted states: an object's offsets (m) from where it landed, along each world axis (off the round numbers of
+#: LIBERO's thresholds, so no state sits on one to float precision)
+SWEEP = np.linspace(-0.15, 0.15, 31) + 0.0037
+JOINT_SWEEP = 25  # joint values across the joint's range ...
+NEAR = 0.002  # ... and this far either side of each end of LIBERO's articulation ranges
+LIFT = {"on": 0.08, "in": 0.03}  # m above the target where an object is dropped
+SPREAD = 0.05  # m between objects dropped onto one target
+JOINT_NAMES = ("open", "close", "turnon", "turnoff")  # LIBERO's predicates on an object's joints
+
+
+def _settled(env: Any, inits: Any, init: int, seed: int, settle: int) -> None:
+    _reset(env, inits, init, seed)
+    for _ in range(int(settle)):
+        env.step(list(DUMMY_ACTION))
+
+
+def _state(env: Any) -> tuple[np.ndarray, np.ndarray]:
+    d = env.env.sim.data
+    return d.qpos.copy(), d.qvel.copy()
+
+
+def _free_qpos(env: Any, name: str) -> int:
+    """The qpos address of a movable object's free joint (LIBERO sets ``joints[-1]`` to place it)."""
+    start, _end = env.env.sim.model.get_joint_qpos_addr(env.env.get_object(name).joints[-1])
+    return int(start)
+
+
+def _joint_qpos(env: Any, name: str) -> list[int]:
+    """The qpos addresses of the joints LIBERO's object state reads for ``name`` (an object's or a region's)."""
+    e = env.env
+    joints = e.object_sites_dict[name].joints if name in e.object_sites_dict else e.get_object(name).joints
+    return [int(e.sim.model.get_joint_qpos_addr(j)) for j in joints or []]
+
+
+def _owner(env: Any, name: str) -> Any:
+    """The object whose articulation rules apply to ``name`` (a region's parent)."""
+    e = env.env
+    return e.get_object(e.object_sites_dict[name].parent_name) if name in e.object_sites_dict else e.get_object(name)
+
+
+def _target_point(env: Any, name: str) -> np.ndarray:
+    e = env.env
+    if name in e.object_sites_dict:
+        return e.sim.data.get_site_xpos(name).copy()
+    return e.sim.data.body_xpos[e.obj_body_id[name]].copy()
+
+
+def _pose_goal(env: Any, goal: list) -> None:
+    """Move the goal's objects over their targets and set its joints inside LIBERO's ranges for each unary
+    predicate (the middle of ``default_<predicate>_ranges``), velocities zeroed."""
+    sim = env.env.sim
+    sim.data.qvel[:] = 0.0
+    for term in goal:
+        if len(term) == 2 and term[0] in JOINT_NAMES:
+            ranges = _owner(env, term[1]).object_properties["articulation"][f"default_{term[0]}_ranges"]
+            for adr in _joint_qpos(env, term[1]):
+                sim.data.qpos[adr] = float(np.mean(ranges))
+    sim.forward()
+    targets: dict[str, list[str]] = {}
+    for term in goal:
+        if len(term) == 3 and term[0] in LIFT:
+            targets.setdefault(term[2], []).append(term[1])
+    for target, objs in targets.items():
+        point = _target_point(env, target)
+        lift = LIFT["in" if any(t[0] == "in" and t[2] == target for t in goal) else "on"]
+        for k, obj in enumerate(objs):
+            adr = _free_qpos(env, obj)
+            sim.data.qpos[adr:adr + 3] = point + [SPREAD * (k - (len(objs) - 1) / 2), 0.0, lift]
+    sim.forward()
+
+
+def craft(suite: str, task: int, init: int = 0, seed: int = 0, settle: int = 10, drop: int = 20) -> dict[str, Any]:
+    """States made to turn the goal's predicates true and false, from init state ``init`` after ``settle`` steps
+    (the env reset with ``seed``): the goal posed (``_pose_goal``) and dropped for ``drop`` control steps of
+    physics (dummy actions); then, from where it landed, each moved object swept along x, y and z (``SWEEP``,
+    no physics) and each unary predicate's joints swept across their range (no physics). Returns ``labels``
+    [S], ``qpos`` float[S, nq], ``qvel`` [S, nv]."""
+    env, inits = _env(suite, task)
+    _settled(env, inits, init, seed, settle)
+    goal = [[str(a) for a in g] for g in env.env.parsed_problem["goal_state"]]
+    rows = [("settled", *_state(env))]
+    _pose_goal(env, goal)
+    rows.append(("posed", *_state(env)))
+    for k in range(int(drop)):
+        env.step(list(DUMMY_ACTION))
+        rows.append((f"drop {k + 1}", *_state(env)))
+    base_q, base_v = _state(env)
+    for term in goal:
+        if len(term) == 3:
+            adr = _free_qpos(env, term[1])
+            for axis, t in ((a, t) for a in range(3) for t in SWEEP):
+                q = base_q.copy()
+                q[adr + axis] += t
+                rows.append((f"{term[1]} {'xyz'[axis]}{t:+.4f}", q, base_v))
+        elif term[0] in JOINT_NAMES:
+            rows += _joint_rows(env, term, base_q, base_v)
+    return {"labels": [r[0] for r in rows], "qpos": np.stack([r[1] for r in rows]), "qvel": np.stack([r[2] for r in rows])}
+
+
+
+def _joint_rows(env: Any, term: list, base_q: np.ndarray, base_v: np.ndarray) -> list:
+    model = env.env.sim.model._model
+    rows = []
+    ends = [v for r in _owner(env, term[1]).object_properties["articulation"].values() for v in r]
+    for adr in _joint_qpos(env, term[1]):
+        jid = int(np.flatnonzero(model.jnt_qposadr == adr)[0])
+        lo, hi = model.jnt_range[jid] if model.jnt_limited[jid] else (-np.pi, np.pi)
+        values = np.concatenate([np.linspace(lo, hi, JOINT_SWEEP), [e + s * NEAR for e in ends for s in (-1, 1)]])
+        for value in values:
+            q = base_q.copy()
+            q[adr] = value
+            rows.append((f"{term[1]} q[{adr}]={value:+.4f}", q, base_v))
+    return rows
+
+
+def episode(suite: str, task: int, init: int, policy: str, steps: int, settle: int = 10, seed: int = 0,
+            after: int = 5) -> dict[str, Any]:
+    """States along an episode from init state ``init`` (the env reset with ``seed``, ``settle`` dummy steps):
+    ``policy`` ``expert`` (``backends.libero``'s scripted expert), ``zero`` (no motion, gripper open) or
+    ``random`` (uniform actions, seeded by ``init``), for ``steps`` control steps or until ``after`` steps past
+    LIBERO's first success. Returns ``qpos`` [T + 1, nq], ``qvel``, and ``done`` bool[T + 1]: LIBERO's own flag
+    from ``env.step`` (the settled state's from the last settle step)."""
+    env, inits = _env(suite, task)
+    e = env.env
+    _reset(env, inits, init, seed)
+    done = False
+    for _ in range(int(settle)):
+        _obs, _r, done, _info = env.step(list(DUMMY_ACTION))
+    act = _policy(env, suite, task, init, policy)
+    qs, vs, dones, left = [e.sim.data.qpos.copy()], [e.sim.data.qvel.copy()], [bool(done)], int(after)
+    for _ in range(int(steps)):
+        _obs, _r, done, _info = env.step(list(act()))
+        qs.append(e.sim.data.qpos.copy()), vs.append(e.sim.data.qvel.copy()), dones.append(bool(done))
+        left -= any(dones)
+        if left < 0:
+            break
+    return {"qpos": np.stack(qs), "qvel": np.stack(vs), "done": np.asarray(dones, bool)}
+
+
+def _policy(env: Any, suite: str, task: int, init: int, policy: str):
+    if policy == "expert":
+        from simseam.backends.libero import make_expert
+
+        expert = make_expert(env.env, f"{suite}/{task}")
+        expert.reset(env.env)
+        return lambda: expert.act(env.env)
+    if policy == "zero":
+        return lambda: np.asarray(DUMMY_ACTION)
+    if policy == "random":
+        rng = np.random.default_rng(int(init))
+        return lambda: rng.uniform(-1.0, 1.0, 7)
+    raise ValueError(f"unknown policy {policy!r} (expert, zero, random)")
+
+
+COMMANDS = {"describe": describe, "record": record, "resets": resets, "check": check, "craft": craft,
+            "episode": episode}
 
 if __name__ == "__main__":
     sys.exit(serve(COMMANDS))

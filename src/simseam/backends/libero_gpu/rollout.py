@@ -15,9 +15,9 @@ What each environment gives is the CPU backend's (``backends.libero``), on the s
   world (``expert.BatchExpert``);
 - a world whose state goes non-finite: its episode ends as a failure (``failures()``, its task, init state and
   seed in the message); the others carry on.
-
-Success, reward and termination are LIBERO's goal predicates, batched (``predicates.GoalCheck``); until they
-are wired in, ``success`` is not evaluated (see docs/engines.md).
+- success: LIBERO's ``_check_success`` after each step (its BDDL goal, batched: ``predicates.GoalCheck``); reward
+  1.0 on success (LIBERO's sparse reward); ``terminated`` = success, ``truncated`` = not success at
+  ``max_steps`` (openpi's step limits).
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ class LiberoBatchRollout(SyncStepPair):
         full[idx] = batch_actions(self._spec, actions, idx.size)
         new = self.world.step(full, idx)
         self._end_failed(idx, new)
-        success = np.zeros(idx.size, dtype=bool)  # TODO(issue 38 item 5): the batched goal predicates
+        success = self.world.success()[idx]
         steps = self.world.steps[idx]
         infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]), INFO_DIAGNOSTICS: {}}
                  for i in range(idx.size)]
