@@ -50,6 +50,13 @@ def _bddl(suite: str, task: int):
     return os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file), inits
 
 
+def _instruction(suite: str, task: int) -> str:
+    """The task's language as LIBERO's benchmark names it (what the CPU backend and openpi's client send)."""
+    from libero.libero import benchmark
+
+    return str(benchmark.get_benchmark_dict()[suite]().get_task(int(task)).language)
+
+
 def _env(suite: str, task: int):
     """One env per task for the worker's life (``record`` resets it)."""
     key = (suite, int(task))
@@ -170,7 +177,7 @@ def describe(suite: str, task: int) -> dict[str, Any]:
                      "mujoco": mujoco.__version__},
         "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
         "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
-        "names": problem_names(env),
+        "names": problem_names(env), "instruction": _instruction(suite, task),
         "goal": goal_facts(env),
     }
 

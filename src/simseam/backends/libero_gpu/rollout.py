@@ -118,7 +118,7 @@ class LiberoBatchRollout(SyncStepPair):
         return RolloutSpec(
             robot=RobotFacts(name="panda_libero", base_link="robot0_base", tool_link="gripper0_grip_site",
                              joints=joints),
-            task=TaskSpec(name=f"{c['suite']}/{c['task']}", instruction=str(info["language"]), max_steps=c["max_steps"]),
+            task=TaskSpec(name=f"{c['suite']}/{c['task']}", instruction=str(info["instruction"]), max_steps=c["max_steps"]),
             observation=observation_spec({}, STATE_NAMES, JOINTS, extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
