@@ -63,7 +63,9 @@ class LiberoBatch:
         n = self.num_worlds
         self.physics.load(np.arange(n), [first] * n)
         self.osc = OscState.from_native(xp, [first["start"]] * n)
-        self._park = {"qpos": xp.asarray(first["qpos"]), "qvel": xp.asarray(first["qvel"])}
+        self._park = {"qpos": xp.asarray(first["qpos"]), "qvel": xp.asarray(first["qvel"]),
+                      "qacc_warmstart": xp.zeros(mjm.nv)}
+        self._park_start = dict(first["start"], cached=None)
         self.settle_steps = int(settle_steps)
         self.steps = np.zeros(n, dtype=np.int64)
         self.seeds = np.full(n, -1, dtype=np.int64)
@@ -137,14 +139,16 @@ class LiberoBatch:
         return _host(self.goal.met(LiberoState.from_warp(self.model.model, self.physics.d))).astype(bool)
 
     def _flag(self, rows: np.ndarray) -> np.ndarray:
-        """Flag (and park) ``rows``' worlds that are not finite and were not flagged yet."""
+        """Flag ``rows``' worlds that are not finite and were not flagged yet; park every flagged world of ``rows``
+        (a finite state, the controller as after a reset) so that it spreads nothing into the batch."""
         new = np.zeros(self.num_worlds, dtype=bool)
         new[rows] = ~self.physics.finite()[rows] & ~self.errors[rows]
-        if new.any():
-            self.errors |= new
-            bad = np.flatnonzero(new)
+        self.errors |= new
+        bad = rows[self.errors[rows]]
+        if len(bad):
             k = len(bad)
             self.physics.restore(bad, {key: self.xp.stack([v] * k) for key, v in self._park.items()})
+            self.osc = with_rows(self.xp, self.osc, bad, OscState.from_native(self.xp, [self._park_start] * k))
         return new
 
     def error_message(self, world: int) -> str:
