@@ -165,3 +165,26 @@ def test_a_goal_the_expert_cannot_do_is_one_line(worker):
 def test_images_are_refused_until_rendered(worker):
     with pytest.raises(ConfigError, match="images are not rendered yet"):
         _batch(worker, "libero_spatial/0", 1, cameras=True)
+
+
+def test_eval_runs_the_port_with_one_expert_per_world(tmp_path):
+    """The eval path (``BenchmarkRecipe`` on ``mujoco_warp``, the episode scheduler, ``--policy scripted``): three
+    episodes of libero_spatial/0 on two worlds, each its own seed, logged with the task and episode as the CPU
+    path logs them (a short step limit: the expert does not finish in 4 steps)."""
+    import json
+
+    from simseam.runner.job import Executor, Job, execute
+    from simseam.runner.recipe import BenchmarkRecipe
+    from simseam.runner.run_dir import RunDir
+
+    recipe = BenchmarkRecipe("libero", {"max_steps": 4, "settle_steps": 2}, ("libero_spatial/0",), 3,
+                             engine="mujoco_warp", device="cpu")
+    run_dir = RunDir(tmp_path / "run", {"worlds": 2})
+    execute(Job(recipe, "scripted", {}, [0, 1, 2], 10, run_dir), Executor("vector", 2))
+    run_dir.close()
+    lines = sorted((json.loads(x) for x in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines()),
+                   key=lambda r: r["index"])
+    assert [(r["task"], r["episode"], r["seed"]) for r in lines] == [("libero_spatial/0", e, 10 + e) for e in range(3)]
+    assert all(r["steps"] == 4 and not r["success"] and r["error"] is None for r in lines), lines
+    spec = json.loads((tmp_path / "run" / "spec.json").read_text())
+    assert "mujoco_warp" in spec["engine"] and "expert_action" in spec["observation"]
