@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from dataclasses import fields, replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -40,6 +40,10 @@ from simseam.backends.libero_gpu.stepping import control_step
 from simseam.backends.libero_gpu.worlds import LiberoWorlds
 
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
+IMAGE = "image:"  # the cameras' keys in ``observed``
+#: what robosuite's offscreen renderer draws of a LIBERO scene, in MuJoCo Warp's ray tracer: the visual geoms
+#: (groups 1 and 2: robosuite turns group 0, the collision geoms, off), textures, the lights' shadows
+RENDER = {"groups": (1, 2), "use_textures": True, "use_shadows": True}
 ARRAYS = ("goal_pos", "goal_ori", "initial_joint", "grip")  # OscState's per-world arrays
 
 
@@ -48,7 +52,7 @@ class LiberoBatch:
     ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``."""
 
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
-                 settle_steps: int = 10):
+                 settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = ()):
         info = worker.call("describe", suite=suite, task=int(task))
         self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
         self.model = load_or_build(info)
@@ -74,23 +78,29 @@ class LiberoBatch:
         self._dummy = xp.asarray(np.tile(np.asarray(DUMMY_ACTION), (n, 1)))
         self.clock = Clock(n, float(self.facts["model_timestep"]))
         self.observed = {k: v.copy() for k, v in self._sensed().items()}
+        self.cameras, self._render = self._make_cameras(cameras), False
 
     @property
     def label(self) -> str:
         return f"LIBERO task {self.suite}/{self.task}"
 
     # ------------------------------------------------------------------------------------------ reset
-    def reset(self, worlds, seeds) -> None:
-        """Put each seed's reset into its world (``worlds[i]`` <- ``seeds[i]``), then the settle steps."""
+    def reset(self, worlds, seeds, render: bool = False) -> None:
+        """Put each seed's reset into its world (``worlds[i]`` <- ``seeds[i]``), then the settle steps; ``render``:
+        the cameras render where the last settle step's observables sample (the CPU backend's cameras render
+        on that step only), or at the reset itself without settle steps."""
         rows = np.asarray(worlds, dtype=np.int64)
         states = self._reset_states(np.asarray(seeds, dtype=np.int64).tolist())
         with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
             self.physics.load(rows, states)
             self.clock.set(rows, [s["clock"] for s in states])
+            self._render = render and not self.settle_steps
             self._observe(rows)  # set_init_state's forced update: the state as loaded
             self.osc = with_rows(self.xp, self.osc, rows, OscState.from_native(self.xp, [s["start"] for s in states]))
-            for _ in range(self.settle_steps):
+            for k in range(self.settle_steps):
+                self._render = render and k == self.settle_steps - 1
                 self.osc = control_step(self.physics, self.cfg, self.osc, self._dummy, self.facts, self._tick)
+            self._render = False
         self.steps[rows], self.errors[rows] = 0, False
         self.seeds[rows] = [s["seed"] for s in states]
         self.inits[rows] = [s["init"] for s in states]
@@ -121,15 +131,17 @@ class LiberoBatch:
                 for s in self.resets.get(seeds)]
 
     # ------------------------------------------------------------------------------------------- step
-    def step(self, actions, worlds=None) -> np.ndarray:
+    def step(self, actions, worlds=None, render: bool = False) -> np.ndarray:
         """One control step of ``worlds`` (default all) under ``actions`` float[N, 7] (host or ``xp``; the rows of
-        the other worlds unused: those worlds stay as they are); returns bool[N] (host): the worlds that became
-        non-finite in it."""
+        the other worlds unused: those worlds stay as they are); ``render``: the cameras render where the
+        observables sample. Returns bool[N] (host): the worlds that became non-finite in it."""
         xp = self.xp
         rows = np.arange(self.num_worlds) if worlds is None else np.asarray(worlds, dtype=np.int64)
         a = xp.clip(xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 7), -1.0, 1.0)
         with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
+            self._render = render
             self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
+            self._render = False
         self.steps[rows] += 1
         return self._flag(rows)
 
@@ -163,11 +175,31 @@ class LiberoBatch:
                 "qpos": p.qpos, "qvel": p.qvel}
 
     def _observe(self, rows: np.ndarray) -> None:
-        """``rows``' observables sample now."""
+        """``rows``' observables sample now (the cameras too while ``_render``: every world's images are drawn,
+        ``rows``' kept; turned as the CPU backend turns robosuite's, which is MuJoCo's image mirrored left-right)."""
         if len(rows):
             idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
-            for key, value in self._sensed().items():
+            sensed = self._sensed()
+            if self._render and self.cameras is not None:
+                sensed.update({IMAGE + k: v[:, :, ::-1] for k, v in self.physics.render(self.cameras).items()})
+            for key, value in sensed.items():
                 self.observed[key][idx] = value[idx]
+
+    def _make_cameras(self, cameras) -> Any:
+        """MuJoCo Warp's ray tracer for ``cameras`` (``(camera, feature key, (H, W))`` each), drawing what robosuite's
+        offscreen renderer draws (``RENDER``); their images' buffers in ``observed`` (``IMAGE`` + key)."""
+        if not cameras:
+            return None
+        from simseam.engines.mujoco_warp.cameras import WarpCameras
+
+        for _, key, (h, w) in cameras:
+            self.observed[IMAGE + key] = self.xp.zeros((self.num_worlds, h, w, 3), dtype=self.xp.uint8)
+        return WarpCameras(self.model.model, self.num_worlds, list(cameras), device=self.physics.device, **RENDER)
+
+    def images(self, rows: np.ndarray, keys: Sequence[str]) -> dict[str, np.ndarray]:
+        """Host uint8[k, H, W, 3] of ``rows``' last sampled images, per feature key of ``keys``."""
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        return {k: _host(self.observed[IMAGE + k][idx]) for k in keys}
 
     def _tick(self) -> None:
         """After a physics step: the worlds whose observables' clock says so sample."""

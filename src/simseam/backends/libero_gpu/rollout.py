@@ -4,12 +4,16 @@
 What each environment gives is the CPU backend's (``backends.libero``), on the same init states:
 
 - config: the CPU backend's (``normalize_config``: ``suite``, ``task``, ``settle_steps``, ``max_steps``,
-  ``expert``; ``image_size`` is accepted and unused), plus ``cameras`` (false: the port is state-only);
+  ``expert``, ``image_size``), plus ``cameras`` (default false: state-only);
 - reset: an episode seed ``s`` gets init state ``s % 50`` and seed ``s``'s fixture placement, then the settle
   steps, whatever the other environments hold or which of them end first;
 - observation: ``state`` (end-effector position, the axis-angle of ``robot0_eef_quat``, the two finger joints'
   qpos), ``joint_positions`` / ``joint_velocities`` (the arm's 7 joints and the 2 finger joints), ``task`` (the
-  language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; no images;
+  language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; with ``cameras``,
+  ``images`` ``camera1`` (agentview) and ``camera2`` (eye in hand) at ``image_size``, oriented as the CPU
+  backend's, drawn by MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``) for every world at
+  once when a request asks for one, at the substep robosuite's observables sample (not the CPU renderer's
+  pixels: docs/benchmarks.md says how close they are);
 - step: the environments asked advance; the others stay as they are (``LiberoBatch.step``);
 - ``privileged`` (``--policy scripted``): ``expert_action`` is the LIBERO expert's action, one expert per
   world (``expert.BatchExpert``);
@@ -27,7 +31,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.base import observation_spec
-from simseam.backends.libero import JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
+from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, LiberoBatch
 from simseam.seam import (
     INFO_DIAGNOSTICS,
@@ -39,6 +43,7 @@ from simseam.seam import (
     OBS_SIM_TIME_NS,
     OBS_STATE,
     OBS_TASK,
+    ObsRequest,
     ActionSlot,
     ActionSpec,
     ConfigError,
@@ -47,6 +52,7 @@ from simseam.seam import (
     JointFacts,
     RobotFacts,
     RolloutSpec,
+    SensorFacts,
     SimulationError,
     TaskSpec,
 )
@@ -56,11 +62,20 @@ ENGINE = "mujoco_warp"
 
 
 def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
-    """The CPU backend's config, checked; ``cameras`` must be off (the port renders no images yet)."""
+    """The CPU backend's config, checked, and ``cameras`` (default false: the port renders only when asked)."""
     config = dict(config)
-    if config.pop("cameras", False):
-        raise ConfigError("LIBERO on mujoco_warp: images are not rendered yet (state-only port); drop cameras")
-    return normalize_config(config)
+    cameras = config.pop("cameras", False)
+    if not isinstance(cameras, bool):
+        raise ConfigError(f"benchmark.cameras: expected true or false, got {cameras!r}")
+    return {**normalize_config(config), "cameras": cameras}
+
+
+def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
+    """``(camera, feature key, (H, W))`` of the CPU backend's cameras (none when ``cameras`` is off)."""
+    if not config["cameras"]:
+        return []
+    size = tuple(config["image_size"])
+    return [(native.removesuffix("_image"), key, size) for key, native in CAMERAS.items()]
 
 
 class LiberoBatchRollout(SyncStepPair):
@@ -71,7 +86,7 @@ class LiberoBatchRollout(SyncStepPair):
         self.config = c = gpu_config(config)
         self.worker, self.privileged = worker, bool(privileged)
         self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device,
-                                 settle_steps=c["settle_steps"])
+                                 settle_steps=c["settle_steps"], cameras=camera_plan(c))
         self.expert = None
         if self.privileged:
             from simseam.backends.libero_gpu.expert import BatchExpert
@@ -115,11 +130,14 @@ class LiberoBatchRollout(SyncStepPair):
         joints = tuple(arm) + tuple(JointFacts(j, "gripper") for j in JOINTS[7:])
         extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")} if self.privileged else None
         out_max = np.asarray(facts["output_max"], dtype=np.float64)
+        cams = {key: size for _, key, size in camera_plan(c)}
+        sensors = tuple(SensorFacts(name=name, kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0),
+                                    feature_key=key, width=w, height=h) for name, key, (h, w) in camera_plan(c))
         return RolloutSpec(
             robot=RobotFacts(name="panda_libero", base_link="robot0_base", tool_link="gripper0_grip_site",
-                             joints=joints),
+                             joints=joints, sensors=sensors),
             task=TaskSpec(name=f"{c['suite']}/{c['task']}", instruction=str(info["instruction"]), max_steps=c["max_steps"]),
-            observation=observation_spec({}, STATE_NAMES, JOINTS, extra),
+            observation=observation_spec(cams, STATE_NAMES, JOINTS, extra),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
                               + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
@@ -146,31 +164,31 @@ class LiberoBatchRollout(SyncStepPair):
         seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
         if len(seeds) != idx.size:
             raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
-        per_env_requests(observe, idx.size, "reset")
+        requests = per_env_requests(observe, idx.size, "reset")
         if idx.size:
-            self.world.reset(idx, seeds)
+            self.world.reset(idx, seeds, render=any(self._wanted(requests)))
             if self.expert is not None:
                 self.expert.reset(idx)
         self._started[idx] = True
         self._end_failed(idx, np.zeros(self.num_envs, dtype=bool))
-        return self._observations(idx)
+        return self._observations(idx, requests)
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
         self._check_open()
         idx = env_indices(envs, self.num_envs, "step")
-        per_env_requests(observe, idx.size, "step")
+        requests = per_env_requests(observe, idx.size, "step")
         if not self._started[idx].all():
             raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
         full = np.tile(np.asarray(DUMMY_ACTION, dtype=np.float32), (self.num_envs, 1))
         full[idx] = batch_actions(self._spec, actions, idx.size)
-        new = self.world.step(full, idx)
+        new = self.world.step(full, idx, render=any(self._wanted(requests)))
         self._end_failed(idx, new)
         success = self.world.success()[idx]
         steps = self.world.steps[idx]
         infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]), INFO_DIAGNOSTICS: {}}
                  for i in range(idx.size)]
         truncated = ~success & (steps >= self._spec.task.max_steps)
-        return BatchStepResult(idx, self._observations(idx), success.astype(np.float64), success.copy(), truncated,
+        return BatchStepResult(idx, self._observations(idx, requests), success.astype(np.float64), success.copy(), truncated,
                                infos)
 
     def _end_failed(self, idx: np.ndarray, new: np.ndarray) -> None:
@@ -180,8 +198,14 @@ class LiberoBatchRollout(SyncStepPair):
             self._failures[env] = EnvFailure(self.world.error_message(env))
             self._started[env] = False
 
-    def _observations(self, idx: np.ndarray) -> list[dict[str, Any]]:
-        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays)."""
+    def _wanted(self, requests: list) -> list[list[str]]:
+        """Per environment, the image keys its request asks for (none without cameras)."""
+        keys = list(self._spec.observation.images)
+        return [[k for k in keys if (r or ObsRequest()).wants_image(k)] for r in requests]
+
+    def _observations(self, idx: np.ndarray, requests: list) -> list[dict[str, Any]]:
+        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays), with the images
+        ``requests`` ask for (drawn during the step or reset that asked)."""
         if not idx.size:
             return []
         s = self.world.robot_state(idx)
@@ -190,10 +214,14 @@ class LiberoBatchRollout(SyncStepPair):
         qpos = np.concatenate([s["joint_pos"], s["gripper_qpos"]], axis=1).astype(np.float32)
         qvel = np.concatenate([s["joint_vel"], s["gripper_qvel"]], axis=1).astype(np.float32)
         expert = self.expert.act(idx) if self.expert is not None else None
+        wanted = self._wanted(requests)
+        asked = sorted({k for w in wanted for k in w})
+        images = self.world.images(idx, asked) if asked else {}
         text, out = self._spec.task.instruction, []
         for i, w in enumerate(idx.tolist()):
-            obs = {OBS_IMAGES: {}, OBS_STATE: state[i], OBS_TASK: text, OBS_JOINT_POSITIONS: qpos[i],
-                   OBS_JOINT_VELOCITIES: qvel[i], OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
+            obs = {OBS_IMAGES: {k: np.ascontiguousarray(images[k][i]) for k in wanted[i]}, OBS_STATE: state[i],
+                   OBS_TASK: text, OBS_JOINT_POSITIONS: qpos[i], OBS_JOINT_VELOCITIES: qvel[i],
+                   OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
             if expert is not None:
                 obs[OBS_EXPERT_ACTION] = expert[i]
             out.append(obs)
@@ -201,10 +229,11 @@ class LiberoBatchRollout(SyncStepPair):
 
     # ------------------------------------------------------------------------------------------- the rest
     def render(self, env: int) -> np.ndarray | None:
-        """None: the port renders no images yet."""
+        """``env``'s first camera as last drawn (None without cameras)."""
         self._check_open()
         env_indices([env], self.num_envs, "render")
-        return None
+        keys = list(self._spec.observation.images)
+        return self.world.images(np.array([env]), keys[:1])[keys[0]][0] if keys else None
 
     def failures(self) -> dict[int, EnvFailure]:
         out, self._failures = self._failures, {}
