@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/libero_warp_expert.py [--tasks libero_spatial/0,libero_spatial/1]
         [--init-states 10:15] [--num-envs 5] [--sim-device cpu] [--work DIR] [--json PATH]
+    .venv/bin/python benchmarks/libero_warp_expert.py --merge A.json B.json --json PATH   # runs of other tasks
 
 For each task runs the command a user runs twice on the same episodes (episode ``e`` starts from LIBERO's init
 state ``A + e``, the same fixture placement):
@@ -88,6 +89,19 @@ def print_table(rows: dict) -> None:
               f"{str(r['only_cpu'] or ''):<12} {str(r['only_warp'] or ''):<12} {r['mcnemar_p']:>9.3f}  {steps}")
 
 
+def merge(docs: list[dict]) -> dict:
+    """One document from runs of other tasks on the same init states and Warp settings (their revisions listed)."""
+    for key in ("init_states", "warp", "policy"):
+        if len({json.dumps(d[key], sort_keys=True) for d in docs}) != 1:
+            raise SystemExit(f"--merge: the runs differ in {key}")
+    tasks = [t for d in docs for t in d["results"]]
+    if len(set(tasks)) != len(tasks):
+        raise SystemExit(f"--merge: a task was measured twice ({tasks})")
+    return {**docs[0], "revision": [d["revision"] for d in docs], "work": [d["work"] for d in docs],
+            "seconds": {t: v for d in docs for t, v in d["seconds"].items()},
+            "results": {t: r for d in docs for t, r in d["results"].items()}}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--tasks", default="libero_spatial/0,libero_spatial/1")
@@ -97,9 +111,16 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=None, help="keep (and resume) the eval run directories here")
     ap.add_argument("--json", type=Path, default=HERE / "results" / "libero_warp_expert.json")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    ap.add_argument("--merge", type=Path, nargs="+", help="combine earlier runs' JSON (other tasks); runs nothing")
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
+    if args.merge:
+        doc = merge([json.loads(m.read_text()) for m in args.merge])
+        print_table(doc["results"])
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
+        return
     first, _, end = args.init_states.partition(":")
     first, end = int(first), int(end)
     work = args.work or Path(f"runs/libero_warp_expert_{time.strftime('%Y%m%d_%H%M%S')}")
