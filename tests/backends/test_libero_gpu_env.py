@@ -214,3 +214,15 @@ def test_eval_runs_the_port_with_one_expert_per_world(tmp_path):
     assert all(r["steps"] == 4 and not r["success"] and r["error"] is None for r in lines), lines
     spec = json.loads((tmp_path / "run" / "spec.json").read_text())
     assert "mujoco_warp" in spec["engine"] and "expert_action" in spec["observation"]
+
+
+@pytest.mark.parametrize("task", ["libero_goal/0", "libero_10/0"])
+def test_the_other_suites_run_as_batches(task, worker):
+    """libero_goal's and libero_10's goals (a drawer to open; two objects in a basket) compile to the batched
+    predicates and their episodes run: two worlds, the reset and two steps, not solved by holding still."""
+    with _batch(worker, task, 2, settle_steps=2) as batch:
+        obs = batch.reset([0, 1], [0, 1])
+        r = batch.step([0, 1], np.tile(np.asarray([0, 0, 0, 0, 0, 0, -1], np.float32), (2, 1)))
+        r = batch.step([0, 1], np.tile(np.asarray([0, 0, 0, 0, 0, 0, -1], np.float32), (2, 1)))
+        assert batch.failures() == {} and not r.terminated.any() and r.reward.tolist() == [0.0, 0.0]
+        assert [o["state"].shape for o in obs] == [(8,), (8,)] and not np.array_equal(obs[0]["state"], obs[1]["state"])
