@@ -50,6 +50,8 @@ GROUPS: tuple[tuple[str, ...], ...] = (
     # evaluation, and its scripted expert through simseam eval
     ("tests/backends/test_libero_gpu.py", "tests/backends/test_libero_predicates.py",
      "tests/backends/test_libero_expert.py"),
+    # LIBERO's episodes on Warp's CPU device (~3-5 min): against the CPU backend, the pairing, faults, the eval path
+    ("tests/backends/test_libero_gpu_env.py",),
     ("tests/backends",),  # the other backends' files (the ones above are excluded from it)
     ("tests/policies",),
 )

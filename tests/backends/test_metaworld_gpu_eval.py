@@ -178,7 +178,7 @@ def test_benchmark_scene_with_no_port_is_one_line(tmp_path):
     res = CliRunner().invoke(app, ["run", "--scene", str(scene), "--policy", "zero", "--episodes", "1",
                                    "--out", str(tmp_path / "run")])
     assert res.exit_code != 0
-    assert "benchmark 'pusht' has no mujoco_warp port; benchmarks with one: metaworld" in res.output
+    assert "benchmark 'pusht' has no mujoco_warp port; benchmarks with one: metaworld, libero" in res.output
 
 
 def test_graph_option_leaves_the_cpu_device_path_unchanged():

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -225,40 +226,69 @@ class SimExpert:
 
         m, d = env.sim.model._model, env.sim.data._data
         robot = env.robots[0]
-        self._site = robot.eef_site_id
-        self._fingers = [m.body(f"gripper0_{n}").id for n in ("finger_joint1_tip", "finger_joint2_tip")]
-        self._obj = env.obj_body_id[self.goal.obj]
-        self._holder = env.obj_body_id[self.goal.holder]
-        self._region = m.site(self.goal.target).id if self.goal.predicate == "in" else None
-        mine = subtree(m, self._obj)
-        others = np.zeros(m.nbody, dtype=bool)
-        for name, b in env.obj_body_id.items():
-            others |= subtree(m, b) if name != self.goal.obj else False
-        self._others = np.flatnonzero(others[m.geom_bodyid] & ~mine[m.geom_bodyid] & collides(m))
-        rot = d.site_xmat[self._site].reshape(3, 3)
-        closing = d.xpos[self._fingers[0]] - d.xpos[self._fingers[1]]
+        self._ids = ExpertIds.of(m, self.goal, env.obj_body_id, robot.eef_site_id)
         ctrl = robot.controller
-        facts = lx.Facts(obj_box=body_box(m, d, self._obj), holder_box=body_box(m, d, self._holder),
-                         region_half=None if self._region is None else np.array(m.site_size[self._region]),
-                         closing_axis=rot.T @ closing / np.linalg.norm(closing),
-                         max_translation=float(np.max(ctrl.output_max[:3])),
-                         max_rotation=float(np.max(ctrl.output_max[3:6])))
-        self._expert = lx.PickPlaceExpert(self.goal, facts)
+        self._expert = lx.PickPlaceExpert(self.goal, expert_facts(m, d, self._ids, float(np.max(ctrl.output_max[:3])),
+                                                                  float(np.max(ctrl.output_max[3:6]))))
 
     def act(self, env) -> np.ndarray:
-        from simseam.backends.libero_expert import Poses
+        return self._expert.act(expert_poses(env.sim.model._model, env.sim.data._data, self._ids))
 
-        d = env.sim.data._data
-        f1, f2 = (d.xpos[i] for i in self._fingers)
-        region = self._region
-        poses = Poses(eef_pos=d.site_xpos[self._site].copy(), eef_rot=d.site_xmat[self._site].reshape(3, 3).copy(),
-                      opening=float(np.linalg.norm(f1 - f2)),
-                      obj_pos=d.xpos[self._obj].copy(), obj_rot=d.xmat[self._obj].reshape(3, 3).copy(),
-                      holder_pos=d.xpos[self._holder].copy(), holder_rot=d.xmat[self._holder].reshape(3, 3).copy(),
-                      region_pos=None if region is None else d.site_xpos[region].copy(),
-                      region_rot=None if region is None else d.site_xmat[region].reshape(3, 3).copy(),
-                      obstacles=geom_boxes(env.sim.model._model, d, self._others))
-        return self._expert.act(poses)
+
+@dataclass(frozen=True)
+class ExpertIds:
+    """What the expert reads of a LIBERO model, by id: the end-effector site, the two finger tips, the object,
+    the target's body (``holder``), the target region's site (``In``; else None) and the other bodies' collision
+    geoms (the obstacles)."""
+
+    site: int
+    fingers: tuple[int, int]
+    obj: int
+    holder: int
+    region: int | None
+    others: np.ndarray
+
+    @classmethod
+    def of(cls, m, goal, bodies: dict[str, int], site: int) -> "ExpertIds":
+        """From the model, the goal, LIBERO's ``obj_body_id`` (each object's and fixture's root body) and the
+        end-effector site's id."""
+        fingers = tuple(m.body(f"gripper0_{n}").id for n in ("finger_joint1_tip", "finger_joint2_tip"))
+        obj = bodies[goal.obj]
+        mine = subtree(m, obj)
+        others = np.zeros(m.nbody, dtype=bool)
+        for name, b in bodies.items():
+            others |= subtree(m, b) if name != goal.obj else False
+        return cls(int(site), fingers, int(obj), int(bodies[goal.holder]),
+                   m.site(goal.target).id if goal.predicate == "in" else None,
+                   np.flatnonzero(others[m.geom_bodyid] & ~mine[m.geom_bodyid] & collides(m)))
+
+
+def expert_facts(m, d, ids: ExpertIds, max_translation: float, max_rotation: float):
+    """The expert's static ``Facts`` from a state ``d`` (an ``MjData``, or any object with its ``xpos``,
+    ``xmat``, ``site_xmat``, ``geom_xpos``, ``geom_xmat`` arrays of one world)."""
+    from simseam.backends import libero_expert as lx
+
+    rot = np.asarray(d.site_xmat[ids.site]).reshape(3, 3)
+    closing = np.asarray(d.xpos[ids.fingers[0]]) - np.asarray(d.xpos[ids.fingers[1]])
+    return lx.Facts(obj_box=body_box(m, d, ids.obj), holder_box=body_box(m, d, ids.holder),
+                    region_half=None if ids.region is None else np.array(m.site_size[ids.region]),
+                    closing_axis=rot.T @ closing / np.linalg.norm(closing),
+                    max_translation=max_translation, max_rotation=max_rotation)
+
+
+def expert_poses(m, d, ids: ExpertIds):
+    """The expert's ``Poses`` of a state ``d`` (as ``expert_facts``'; ``site_xpos`` too)."""
+    from simseam.backends.libero_expert import Poses
+
+    f1, f2 = (np.asarray(d.xpos[i]) for i in ids.fingers)
+    region = ids.region
+    return Poses(eef_pos=np.array(d.site_xpos[ids.site]), eef_rot=np.array(d.site_xmat[ids.site]).reshape(3, 3),
+                 opening=float(np.linalg.norm(f1 - f2)),
+                 obj_pos=np.array(d.xpos[ids.obj]), obj_rot=np.array(d.xmat[ids.obj]).reshape(3, 3),
+                 holder_pos=np.array(d.xpos[ids.holder]), holder_rot=np.array(d.xmat[ids.holder]).reshape(3, 3),
+                 region_pos=None if region is None else np.array(d.site_xpos[region]),
+                 region_rot=None if region is None else np.array(d.site_xmat[region]).reshape(3, 3),
+                 obstacles=geom_boxes(m, d, ids.others))
 
 
 SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)

@@ -117,8 +117,8 @@ def eval_command(
                               "(task_index * episodes + e) % K == i; combine the K run directories with "
                               "simseam merge."),
     engine: str = typer.Option(None, "--engine", help="mujoco_warp: the preset's environments as worlds of one "
-                               "batch per task on MuJoCo Warp (Meta-World presets; an image policy's cameras drawn by "
-                               "MuJoCo Warp's ray tracer), in this process; "
+                               "batch per task on MuJoCo Warp (Meta-World and LIBERO presets; an image policy's "
+                               "cameras drawn by MuJoCo Warp's ray tracer), in this process; "
                                "default: the preset's backend, a CPU process per environment."),
     sim_device: str = typer.Option(None, "--sim-device", help="--engine mujoco_warp: the Warp device of the "
                                    "worlds (cuda:K or cpu; default Warp's preferred one)."),

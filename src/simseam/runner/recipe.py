@@ -124,8 +124,8 @@ class BenchmarkRecipe:
     privileged: bool = False
     first_task: int = 0
     per_task: dict = field(default_factory=dict)
-    #: a batched engine with a port of the benchmark (``mujoco_warp`` for Meta-World: each task's episodes
-    #: as the worlds of one batch in this process), and its device; None: the backend's sidecars
+    #: a batched engine with a port of the benchmark (``mujoco_warp`` for Meta-World and LIBERO: each task's
+    #: episodes as the worlds of one batch in this process), and its device; None: the backend's sidecars
     engine: str | None = None
     device: str | None = None
     #: the policy reads images: the engine's port draws the benchmark's cameras (its own renderer); without
@@ -196,13 +196,13 @@ class BenchmarkRecipe:
         return "workers"
 
     def shared(self):
-        """What every task's batch on the engine shares: Meta-World's native worker (its resets); None for
-        the backend's sidecars."""
+        """What every task's batch on the engine shares (the port's ``shared()``: its benchmark's native worker,
+        which answers resets); None for the backend's sidecars."""
         if self.engine is None:
             return None
-        from simseam.backends.metaworld_gpu.worker import NativeWorker
+        from simseam.runner.warp_vector import benchmark_port
 
-        return NativeWorker()
+        return benchmark_port(self.engine, self.backend).shared()
 
     def open_envs(self, n: int, *, renderer: str = "workers", envs_per_worker: int = 1, shared=None):
         """``n`` environments of ``tasks[first_task]``: a batch of ``n`` worlds on the engine (``shared``:

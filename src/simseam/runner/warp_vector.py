@@ -6,7 +6,8 @@ worker processes. A policy with ``act_arrays(observations)`` gets the batch's ob
 arrays instead (``WarpBatchRollout.observation_arrays()``, no host copy; runner.scheduler). ``make_vector_env`` picks it for scenes whose
 engine is ``mujoco_warp``, a sidecar batch (``SidecarBatchRollout``) for a benchmark whose backend
 simulates the environments together (ManiSkill3 on ``physx_cuda``), a benchmark's port to a batched engine
-(``engine: mujoco_warp`` with ``benchmark: {name: metaworld}``: ``MetaWorldBatchRollout``), and the worker
+(``engine: mujoco_warp`` with ``benchmark: {name: metaworld}``: ``MetaWorldBatchRollout``; ``libero``:
+``LiberoBatchRollout``), and the worker
 processes otherwise.
 """
 
@@ -56,7 +57,8 @@ class WarpVectorEnv(BatchVectorEnv):
 #: batched engines that run a benchmark of their own: engine -> {benchmark (backend): its port, the
 #: ``BatchRollout`` class (simseam.registry: "module:attribute", imported when asked for)}
 BENCHMARK_PORTS: dict[str, dict[str, Any]] = {
-    "mujoco_warp": {"metaworld": "simseam.backends.metaworld_gpu.rollout:MetaWorldBatchRollout"},
+    "mujoco_warp": {"metaworld": "simseam.backends.metaworld_gpu.rollout:MetaWorldBatchRollout",
+                    "libero": "simseam.backends.libero_gpu.rollout:LiberoBatchRollout"},
 }
 
 

@@ -37,15 +37,28 @@ _ENVS: dict[tuple[str, int], Any] = {}  # the last task's env only (a LIBERO env
 
 
 def _bddl(suite: str, task: int):
+    """The task's BDDL file and its init states; a missing init-state file is a one-line error naming the task
+    and the path LIBERO looks in (``get_libero_path("init_states")``, which ``LIBERO_CONFIG_PATH`` can move)."""
+    import os
+
     from libero.libero import benchmark, get_libero_path
 
     bench = benchmark.get_benchmark_dict()[suite]()
     if task >= bench.n_tasks:
         raise ValueError(f"{suite} has tasks 0..{bench.n_tasks - 1}; got {task}")
     spec = bench.get_task(task)
-    import os
+    try:
+        inits = bench.get_task_init_states(task)
+    except FileNotFoundError as exc:  # LIBERO's message names the file it looked for
+        raise FileNotFoundError(f"LIBERO task {suite}/{task}: its init-state file is missing: {exc}") from None
+    return os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file), inits
 
-    return os.path.join(get_libero_path("bddl_files"), spec.problem_folder, spec.bddl_file), bench.get_task_init_states(task)
+
+def _instruction(suite: str, task: int) -> str:
+    """The task's language as LIBERO's benchmark names it (what the CPU backend and openpi's client send)."""
+    from libero.libero import benchmark
+
+    return str(benchmark.get_benchmark_dict()[suite]().get_task(int(task)).language)
 
 
 def _env(suite: str, task: int):
@@ -84,6 +97,7 @@ def controller_facts(env: Any) -> dict[str, Any]:
         "arm_actuators": np.asarray(robot._ref_joint_actuator_indexes, np.int64),
         "gripper_actuators": np.asarray(grip_act, np.int64),
         "gripper_qpos_index": np.asarray(robot._ref_gripper_joint_pos_indexes, np.int64),
+        "gripper_qvel_index": np.asarray(robot._ref_gripper_joint_vel_indexes, np.int64),
         "torque_low": np.asarray(robot.torque_limits[0], float), "torque_high": np.asarray(robot.torque_limits[1], float),
         "kp": np.asarray(c.kp, float), "kd": np.asarray(c.kd, float),
         "input_min": np.asarray(c.input_min, float), "input_max": np.asarray(c.input_max, float),
@@ -97,6 +111,17 @@ def controller_facts(env: Any) -> dict[str, Any]:
         "gripper": type(robot.gripper).__name__, "gripper_speed": float(robot.gripper.speed),
         "gripper_dof": int(robot.gripper.dof),
     }
+
+
+def problem_names(env: Any) -> dict[str, Any]:
+    """What the port's expert and observation read of LIBERO's problem: the movable objects, each object's and
+    fixture's root body (``obj_body_id``), each region site's parent and the body whose pose is
+    ``robot0_eef_quat`` (the robot model's ``eef_name``); the goal is ``goal_facts``'."""
+    e = env.env
+    robot = e.robots[0]
+    return {"movable": sorted(e.objects_dict), "bodies": {k: int(v) for k, v in e.obj_body_id.items()},
+            "regions": {name: site.parent_name for name, site in e.object_sites_dict.items()},
+            "eef_body": int(e.sim.model.body_name2id(robot.robot_model.eef_name))}
 
 
 def _thing(env: Any, name: str) -> dict[str, Any]:
@@ -156,6 +181,7 @@ def describe(suite: str, task: int) -> dict[str, Any]:
                      "mujoco": mujoco.__version__},
         "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
         "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
+        "names": problem_names(env), "instruction": _instruction(suite, task),
         "goal": goal_facts(env),
     }
 
@@ -208,6 +234,13 @@ def _cached(c: Any) -> dict[str, Any] | None:
             "ee_vel": np.concatenate([c.ee_pos_vel, c.ee_ori_vel]).astype(float)}
 
 
+def _start(robot: Any) -> dict[str, Any]:
+    """The controller's state right after a reset: goal, nullspace target, gripper ramp, stale reading."""
+    c = robot.controller
+    return {"goal_pos": np.array(c.goal_pos, float), "goal_ori": np.array(c.goal_ori, float),
+            "initial_joint": np.array(c.initial_joint, float), "grip": _grip(robot.gripper), "cached": _cached(c)}
+
+
 def record(suite: str, task: int, init: int, actions: np.ndarray, settle: int = 10, seed: int | None = None) -> dict:
     """From init state ``init``: ``settle`` dummy steps, then ``actions`` (float[T, 7], clipped to [-1, 1] as the
     seam does); every substep's controller inputs and outputs (``_Recorder.KEYS``, one row per substep), the
@@ -215,10 +248,7 @@ def record(suite: str, task: int, init: int, actions: np.ndarray, settle: int = 
     env, inits = _env(suite, task)
     _reset(env, inits, int(init), int(init if seed is None else seed))
     robot = env.env.robots[0]
-    c = robot.controller
-    start = {"goal_pos": np.array(c.goal_pos, float), "goal_ori": np.array(c.goal_ori, float),
-             "initial_joint": np.array(c.initial_joint, float), "grip": _grip(robot.gripper),
-             "cached": _cached(c)}
+    start = _start(robot)
     steps = [np.asarray(DUMMY_ACTION, float)] * int(settle) + [np.clip(np.asarray(a, float), -1, 1) for a in actions]
     rec = _Recorder(robot, env.env.sim)
     try:
@@ -229,6 +259,49 @@ def record(suite: str, task: int, init: int, actions: np.ndarray, settle: int = 
     substeps = int(env.env.control_timestep / env.env.model_timestep)
     rows["step"] = np.repeat(np.arange(len(steps)), substeps)
     return {"start": start, "rows": rows, "settle": int(settle), "init": int(init)}
+
+
+STATE = ("qpos", "qvel", "act", "ctrl", "qacc_warmstart", "mocap_pos", "mocap_quat")
+
+
+OBSERVED = ("robot0_eef_pos", "robot0_eef_quat", "robot0_joint_pos", "robot0_joint_vel", "robot0_gripper_qpos",
+            "robot0_gripper_qvel")
+
+
+def observable_clock(env: Any) -> dict[str, Any]:
+    """When robosuite's observables sample (``Observable.update``, after every physics step): their clock, one for
+    all of ``OBSERVED`` (the time since the last sample, whether this period has sampled, the period); an
+    observable with a delay, or clocks that differ, is an error."""
+    obs = env.env._observables
+    clocks = {(o._time_since_last_sample, o._sampled, o._sampling_timestep, o._current_delay) for o in
+              (obs[k] for k in OBSERVED)}
+    if len(clocks) != 1 or next(iter(clocks))[3] != 0.0:
+        raise ValueError(f"robosuite's observables {OBSERVED} sample on different clocks or with a delay: {clocks}")
+    t, sampled, period, _ = clocks.pop()
+    return {"t": float(t), "sampled": bool(sampled), "period": float(period)}
+
+
+def resets(suite: str, task: int, seeds: list[int]) -> list[dict[str, Any]]:
+    """Each seed's reset as ``backends.libero`` does it before its settle steps (``seed``, ``reset``,
+    ``set_init_state(init_states[seed % n])``): the state (``STATE``), the model arrays the reset changed against
+    a fresh compile of its XML (the fixtures' ``body_pos`` / ``body_quat``, placed by the seeded sampler), the
+    controller's state (``start``, as ``record``'s), the observables' clock (``observable_clock``) and the init
+    state's index."""
+    import mujoco
+
+    env, inits = _env(suite, task)
+    out, fresh = [], None
+    for seed in seeds:
+        init = int(seed) % len(inits)
+        _reset(env, inits, init, int(seed))
+        model, d = env.env.sim.model._model, env.env.sim.data._data
+        if fresh is None:
+            fresh = _arrays(mujoco.MjModel.from_xml_string(env.env.model.get_xml()))
+        state = {k: np.array(getattr(d, k)) for k in STATE}
+        state["model"] = changed_arrays(_arrays(model), fresh)
+        state.update(seed=int(seed), init=init, start=_start(env.env.robots[0]), clock=observable_clock(env))
+        out.append(state)
+    return out
 
 
 def _load(env: Any, qpos: np.ndarray, qvel: np.ndarray) -> None:
@@ -427,7 +500,8 @@ def _policy(env: Any, suite: str, task: int, init: int, policy: str):
     raise ValueError(f"unknown policy {policy!r} (expert, zero, random)")
 
 
-COMMANDS = {"describe": describe, "record": record, "check": check, "craft": craft, "episode": episode}
+COMMANDS = {"describe": describe, "record": record, "resets": resets, "check": check, "craft": craft,
+            "episode": episode}
 
 if __name__ == "__main__":
     sys.exit(serve(COMMANDS))

@@ -92,7 +92,37 @@ def cpu_terms(mjm: Any, datas: list[Any], layout: ArmLayout) -> ArmTerms:
         qpos=stack(lambda d: d.qpos[layout.qpos].copy()), qvel=stack(lambda d: d.qvel[dofs].copy()))
 
 
-class WarpTerms:
+class ControllerReads:
+    """What robosuite's controller loop needs of N worlds on MuJoCo Warp (``self``: ``m``, ``d``, ``device``,
+    ``xp``, ``layout``, ``view``, ``_wp``, ``_mjw``): ``step1``, ``step2`` and ``read``."""
+
+    def step1(self) -> None:
+        """MuJoCo Warp's ``step1``: the position and velocity stages of a step (what the controller reads)."""
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step1(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def step2(self) -> None:
+        """... and the rest of it (actuation from ``ctrl``, acceleration, constraints, integration)."""
+        if self.device.is_cuda:
+            self.xp.cuda.get_current_stream().synchronize()  # what CuPy wrote into ctrl
+        with self._wp.ScopedDevice(self.device):
+            self._mjw.step2(self.m, self.d)
+            self._wp.synchronize_device(self.device)
+
+    def read(self) -> ArmTerms:
+        d, lay, xp = self.d, self.layout, self.xp
+        v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
+        site = v(d.site_xpos)[:, lay.site]
+        mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
+        joints = xp.asarray(lay.joints)
+        return ArmTerms(ee_pos=site, ee_mat=v(d.site_xmat)[:, lay.site].reshape(-1, 3, 3),
+                        jac=_jacobian(xp, v(d.xaxis)[:, joints], v(d.xanchor)[:, joints], site), mass=mass,
+                        bias=v(d.qfrc_bias)[:, xp.asarray(lay.dofs)], qpos=v(d.qpos)[:, xp.asarray(lay.qpos)],
+                        qvel=v(d.qvel)[:, xp.asarray(lay.dofs)])
+
+
+class WarpTerms(ControllerReads):
     """N worlds of one model on MuJoCo Warp (``device``: a Warp device name, e.g. ``cpu`` or ``cuda:0``):
     ``load(qpos, qvel)`` sets the worlds' states (float[N, nq], [N, nv]); ``terms()`` runs the smooth pipeline
     and returns their ``ArmTerms`` as ``xp`` arrays (NumPy on the CPU device, CuPy on CUDA), in float64;
@@ -134,31 +164,6 @@ class WarpTerms:
                 stage(m, d)
             self._wp.synchronize_device(self.device)
         return self.read()
-
-    def step1(self) -> None:
-        """MuJoCo Warp's ``step1``: the position and velocity stages of a step (what the controller reads)."""
-        with self._wp.ScopedDevice(self.device):
-            self._mjw.step1(self.m, self.d)
-            self._wp.synchronize_device(self.device)
-
-    def step2(self) -> None:
-        """... and the rest of it (actuation from ``ctrl``, acceleration, constraints, integration)."""
-        if self.device.is_cuda:
-            self.xp.cuda.get_current_stream().synchronize()  # what CuPy wrote into ctrl
-        with self._wp.ScopedDevice(self.device):
-            self._mjw.step2(self.m, self.d)
-            self._wp.synchronize_device(self.device)
-
-    def read(self) -> ArmTerms:
-        d, lay, xp = self.d, self.layout, self.xp
-        v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
-        site = v(d.site_xpos)[:, lay.site]
-        mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
-        joints = xp.asarray(lay.joints)
-        return ArmTerms(ee_pos=site, ee_mat=v(d.site_xmat)[:, lay.site].reshape(-1, 3, 3),
-                        jac=_jacobian(xp, v(d.xaxis)[:, joints], v(d.xanchor)[:, joints], site), mass=mass,
-                        bias=v(d.qfrc_bias)[:, xp.asarray(lay.dofs)], qpos=v(d.qpos)[:, xp.asarray(lay.qpos)],
-                        qvel=v(d.qvel)[:, xp.asarray(lay.dofs)])
 
     def close(self) -> None:
         self.m = self.d = None

@@ -8,20 +8,24 @@ worlds' ``ctrl``, then ``step2`` (actuation, acceleration, constraint solve, int
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import fields as dataclass_fields
+from dataclasses import replace
+from typing import Any, Callable
 
 import numpy as np
 
 from simseam.backends.libero_gpu import control as C
-from simseam.backends.libero_gpu.physics import WarpTerms
+from simseam.backends.libero_gpu.physics import ArmTerms, WarpTerms
 from simseam.seam.errors import SimulationError
 
 EULER = 0  # mjINT_EULER
 
 
-def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any]) -> C.OscState:
+def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any],
+                 after_substep: Callable[[], None] | None = None) -> C.OscState:
     """One 20 Hz control step (``cfg.substeps`` physics steps) of every world under ``action`` float[N, 7]
-    (``xp`` of ``physics``); returns the controller's state after it."""
+    (``xp`` of ``physics``); returns the controller's state after it. ``after_substep()`` runs after each
+    physics step (where robosuite updates its observables)."""
     if int(physics.mjm.opt.integrator) != EULER:
         raise SimulationError("LIBERO port: the controller runs between step1 and step2, which needs the Euler "
                               f"integrator; this model uses integrator {int(physics.mjm.opt.integrator)}")
@@ -30,8 +34,25 @@ def control_step(physics: WarpTerms, cfg: C.OscConfig, state: C.OscState, action
     ctrl = physics.view(physics.d.ctrl)
     for k in range(cfg.substeps):
         physics.step1()
-        tau, grip, state = C.substep(xp, cfg, state, physics.read(), action, k == 0)
+        terms, bad = finite_terms(xp, physics.read())
+        tau, grip, state = C.substep(xp, cfg, state, terms, action, k == 0)
+        tau = xp.where(bad[:, None], 0.0, tau)
         ctrl[:, arm] = tau.astype(ctrl.dtype)
         ctrl[:, fingers] = grip.astype(ctrl.dtype)
         physics.step2()
+        if after_substep is not None:
+            after_substep()
     return state
+
+
+def finite_terms(xp, terms: ArmTerms) -> tuple[ArmTerms, Any]:
+    """``terms`` with the worlds whose reading is not finite (``bad``, bool[N]) read as a neutral state (zero
+    Jacobian, identity inertia, zeros elsewhere), so that the batched linear algebra of the others runs; their
+    torques are zeroed by the caller, and the batch ends their episodes."""
+    fields = {f.name: getattr(terms, f.name) for f in dataclass_fields(terms)}
+    bad = xp.zeros(len(terms.qpos), dtype=bool)
+    for value in fields.values():
+        bad |= ~xp.isfinite(value.reshape(len(value), -1)).all(axis=1)
+    neutral = {"mass": xp.eye(terms.mass.shape[-1])[None], "ee_mat": xp.eye(3)[None]}
+    out = {k: xp.where(bad.reshape((-1,) + (1,) * (v.ndim - 1)), neutral.get(k, 0.0), v) for k, v in fields.items()}
+    return replace(terms, **out), bad

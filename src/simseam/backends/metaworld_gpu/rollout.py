@@ -112,9 +112,7 @@ class MetaWorldBatchRollout(SyncStepPair):
     def open(cls, config: dict[str, Any], num_envs: int, *, privileged: bool = False, device: str | None = None,
              python: str | None = None) -> "MetaWorldBatchRollout":
         """A batch with its own native worker (Meta-World's provisioned venv, or ``python``), closed with it."""
-        from simseam.backends.metaworld_gpu.worker import NativeWorker
-
-        worker = NativeWorker(python)
+        worker = cls.shared(python)
         try:
             batch = cls(config, num_envs, worker, privileged=privileged, device=device)
         except BaseException:
@@ -122,6 +120,13 @@ class MetaWorldBatchRollout(SyncStepPair):
             raise
         batch._own_worker = True
         return batch
+
+    @staticmethod
+    def shared(python: str | None = None) -> Any:
+        """What every task's batch of a run shares: Meta-World's native worker (its resets, its expert)."""
+        from simseam.backends.metaworld_gpu.worker import NativeWorker
+
+        return NativeWorker(python)
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model

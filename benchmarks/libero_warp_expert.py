@@ -1,0 +1,147 @@
+"""LIBERO's scripted expert on MuJoCo Warp (Warp's CPU device here) against the CPU benchmark, paired per init state.
+
+    .venv/bin/python benchmarks/libero_warp_expert.py [--tasks libero_spatial/0,libero_spatial/1]
+        [--init-states 10:15] [--num-envs 5] [--sim-device cpu] [--work DIR] [--json PATH]
+    .venv/bin/python benchmarks/libero_warp_expert.py --merge A.json B.json --json PATH   # runs of other tasks
+
+For each task runs the command a user runs twice on the same episodes (episode ``e`` starts from LIBERO's init
+state ``A + e``, the same fixture placement):
+
+- ``simseam eval SUITE --policy scripted --tasks T --seed A --episodes B-A`` (the ``libero`` backend: LIBERO
+  itself in its venv behind the sidecar, LIBERO's success check);
+- the same with ``--engine mujoco_warp --sim-device DEV --num-envs N`` (``backends/libero_gpu``: the episodes as
+  the worlds of one batch, robosuite's controller and LIBERO's goal predicates batched, one expert per world).
+
+Prints one row per task (successes on each engine, the init states where they disagree, the mean steps of the
+episodes both engines solved, exact McNemar p over the discordant pairs) and writes JSON (default
+benchmarks/results/libero_warp_expert.json). ``--work DIR`` keeps the run directories; a run already there is
+resumed. Nothing is asserted. Slow on Warp's CPU device (about 1 s per control step of a 5-world batch on the
+2-core machine): run it niced, in the background.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+
+
+def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None) -> float:
+    suite = task.split("/")[0]
+    cmd = [sys.executable, "-m", "simseam.cli.main", "eval", suite, "--policy", "scripted", "--tasks", task,
+           "--seed", str(first), "--episodes", str(count), "--out", str(out)]
+    if warp is not None:
+        cmd += ["--engine", "mujoco_warp", "--sim-device", warp["device"], "--num-envs", str(warp["num_envs"])]
+    if (out / "run.json").exists():
+        cmd.append("--resume")
+    t0 = time.perf_counter()
+    subprocess.run(cmd, cwd=REPO, check=True, env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")))
+    return time.perf_counter() - t0
+
+
+def episodes(out: Path) -> dict[int, dict]:
+    lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
+    return {e["seed"]: e for e in lines}
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """Two-sided exact McNemar p over ``b`` + ``c`` discordant pairs (binomial, p = 1/2)."""
+    n = b + c
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(0, min(b, c) + 1)) / 2 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def paired(cpu: dict[int, dict], warp: dict[int, dict]) -> dict:
+    seeds = sorted(cpu)
+    if sorted(warp) != seeds:
+        raise SystemExit(f"the engines ran different episodes: CPU {seeds}, Warp {sorted(warp)}")
+    both = [s for s in seeds if cpu[s]["success"] and warp[s]["success"]]
+    only_cpu = [s for s in seeds if cpu[s]["success"] and not warp[s]["success"]]
+    only_warp = [s for s in seeds if warp[s]["success"] and not cpu[s]["success"]]
+    mean = (lambda side: sum(side[s]["steps"] for s in both) / len(both)) if both else (lambda side: None)
+    return {"init_states": [s % 50 for s in seeds], "episodes": len(seeds),
+            "cpu_successes": sum(cpu[s]["success"] for s in seeds),
+            "warp_successes": sum(warp[s]["success"] for s in seeds),
+            "only_cpu": [s % 50 for s in only_cpu], "only_warp": [s % 50 for s in only_warp],
+            "mcnemar_p": mcnemar_exact(len(only_cpu), len(only_warp)),
+            "mean_steps_both_solved": {"cpu": mean(cpu), "warp": mean(warp)},
+            "steps": {str(s % 50): [cpu[s]["steps"], warp[s]["steps"]] for s in seeds},
+            "errors": {str(s % 50): warp[s]["error"] for s in seeds if warp[s].get("error")}}
+
+
+def print_table(rows: dict) -> None:
+    print(f"\n{'task':<20} {'CPU':>7} {'Warp':>7}  {'only CPU':<12} {'only Warp':<12} {'McNemar p':>9}  steps (both ok)")
+    for task, r in rows.items():
+        m = r["mean_steps_both_solved"]
+        steps = "-" if m["cpu"] is None else f"{m['cpu']:.0f} / {m['warp']:.0f}"
+        print(f"{task:<20} {r['cpu_successes']:>3}/{r['episodes']:<3} {r['warp_successes']:>3}/{r['episodes']:<3}  "
+              f"{str(r['only_cpu'] or ''):<12} {str(r['only_warp'] or ''):<12} {r['mcnemar_p']:>9.3f}  {steps}")
+
+
+def merge(docs: list[dict]) -> dict:
+    """One document from runs of other tasks on the same init states and Warp settings (their revisions listed)."""
+    for key in ("init_states", "warp", "policy"):
+        if len({json.dumps(d[key], sort_keys=True) for d in docs}) != 1:
+            raise SystemExit(f"--merge: the runs differ in {key}")
+    tasks = [t for d in docs for t in d["results"]]
+    if len(set(tasks)) != len(tasks):
+        raise SystemExit(f"--merge: a task was measured twice ({tasks})")
+    return {**docs[0], "revision": [d["revision"] for d in docs], "work": [d["work"] for d in docs],
+            "seconds": {t: v for d in docs for t, v in d["seconds"].items()},
+            "results": {t: r for d in docs for t, r in d["results"].items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--tasks", default="libero_spatial/0,libero_spatial/1")
+    ap.add_argument("--init-states", default="10:15", help="A:B: init states A..B-1 of every task")
+    ap.add_argument("--num-envs", type=int, default=5, help="worlds of the Warp batch")
+    ap.add_argument("--sim-device", default="cpu", help="the Warp device (cpu, cuda:0, ...)")
+    ap.add_argument("--work", type=Path, default=None, help="keep (and resume) the eval run directories here")
+    ap.add_argument("--json", type=Path, default=HERE / "results" / "libero_warp_expert.json")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    ap.add_argument("--merge", type=Path, nargs="+", help="combine earlier runs' JSON (other tasks); runs nothing")
+    args = ap.parse_args()
+    if args.json.exists() and not args.overwrite:
+        ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
+    if args.merge:
+        doc = merge([json.loads(m.read_text()) for m in args.merge])
+        print_table(doc["results"])
+        args.json.write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"wrote {args.json}")
+        return
+    first, _, end = args.init_states.partition(":")
+    first, end = int(first), int(end)
+    work = args.work or Path(f"runs/libero_warp_expert_{time.strftime('%Y%m%d_%H%M%S')}")
+    warp = {"device": args.sim_device, "num_envs": args.num_envs}
+    rows, seconds = {}, {}
+    for task in args.tasks.split(","):
+        name = task.replace("/", "-")
+        seconds[task] = {"cpu": run_eval(task, first, end - first, work / f"cpu-{name}", None),
+                         "warp": run_eval(task, first, end - first, work / f"warp-{name}", warp)}
+        rows[task] = paired(episodes(work / f"cpu-{name}"), episodes(work / f"warp-{name}"))
+        print_table({task: rows[task]})
+    print_table(rows)
+    revision = json.loads((work / f"warp-{name}" / "run.json").read_text())["provenance"]["simseam"]["revision"]
+    doc = {"benchmark": "libero_warp_expert", "policy": "scripted (simseam.backends.libero_expert)",
+           "init_states": [first, end - 1], "warp": warp, "seconds": seconds, "revision": revision,
+           "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "work": str(work),
+           "results": rows}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,296 @@
+"""N worlds of one LIBERO task on MuJoCo Warp (any Warp device), reset from LIBERO's own init states and stepped
+under robosuite's controller batched (``control.py``, ``stepping.control_step``).
+
+Reset of world ``w`` for episode seed ``s``, as ``backends.libero`` resets its env: the native reset state of
+seed ``s`` (``resets.ResetCache``: init state ``s % 50``, seed ``s``'s fixture placement in the world's own
+``body_pos`` / ``body_quat``, the controller's state after the reset), then ``settle_steps`` control steps of
+the dummy action ``[0, 0, 0, 0, 0, 0, -1]`` under the batched controller. MuJoCo Warp steps every world of a
+batch; a reset's settle steps, and a step of some of the worlds, put the other worlds back as they were
+(``_hold``: their physics through ``worlds.LiberoWorlds.save`` / ``restore``, their controller state, observable
+clock and observation), so a world's episode does not depend on when the others reset or step.
+
+A control step: the action clipped to [-1, 1] (the seam's clip), ``stepping.control_step`` (25 substeps of
+``step1``, the controller, ``step2``), as robosuite's ``step``. The observation is what robosuite's observables
+sampled: they sample after the physics step where their clock says (``Clock``: robosuite's ``Observable.update``
+replayed per world, from the clock the native reset left; with LIBERO's reset that is the 24th of the 25
+substeps, not the last), reading the end-effector site's position and the ``eef_body``'s quaternion as that
+substep's ``step1`` posed them (MuJoCo's ``mj_step`` leaves the poses of the state before its integration) and
+the joints' qpos and qvel after it. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
+``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
+evaluates it. A world whose qpos or qvel is not finite is flagged in
+``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
+nothing into the batch's shared contact arrays; the others go on.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import fields, replace
+from typing import Any, Sequence
+
+import numpy as np
+
+from simseam.backends.libero_gpu.control import OscConfig, OscState
+from simseam.backends.libero_gpu.model import load_or_build
+from simseam.backends.libero_gpu.physics import ArmLayout
+from simseam.backends.libero_gpu.predicates import GoalCheck
+from simseam.backends.libero_gpu.resets import ResetCache
+from simseam.backends.libero_gpu.state import LiberoState
+from simseam.backends.libero_gpu.stepping import control_step
+from simseam.backends.libero_gpu.worlds import LiberoWorlds
+
+DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
+IMAGE = "image:"  # the cameras' keys in ``observed``
+#: what robosuite's offscreen renderer draws of a LIBERO scene, in MuJoCo Warp's ray tracer: the visual geoms
+#: (groups 1 and 2: robosuite turns group 0, the collision geoms, off), textures, the lights' shadows
+RENDER = {"groups": (1, 2), "use_textures": True, "use_shadows": True}
+ARRAYS = ("goal_pos", "goal_ori", "initial_joint", "grip")  # OscState's per-world arrays
+
+
+class LiberoBatch:
+    """``LiberoBatch(suite, task, num_worlds, worker)``; ``reset(worlds, seeds)``, ``step(actions)``,
+    ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``."""
+
+    def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
+                 settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = ()):
+        info = worker.call("describe", suite=suite, task=int(task))
+        self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
+        self.model = load_or_build(info)
+        mjm, self.facts = self.model.model, info["control"]
+        self.layout = ArmLayout.from_model(mjm, self.facts)
+        self.cfg = OscConfig.from_facts(self.facts, mjm)
+        self.goal = GoalCheck.compile(self.label, info["goal"]["goal_state"], mjm, info["goal"]["objects"])
+        self.resets = ResetCache(worker, info)
+        first = self._reset_states([0])[0]
+        self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device)
+        self.xp = xp = self.physics.xp
+        n = self.num_worlds
+        self.physics.load(np.arange(n), [first] * n)
+        self.osc = OscState.from_native(xp, [first["start"]] * n)
+        self._park = {"qpos": xp.asarray(first["qpos"]), "qvel": xp.asarray(first["qvel"]),
+                      "qacc_warmstart": xp.zeros(mjm.nv)}
+        self._park_start = dict(first["start"], cached=None)
+        self.settle_steps = int(settle_steps)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.seeds = np.full(n, -1, dtype=np.int64)
+        self.inits = np.full(n, -1, dtype=np.int64)
+        self.errors = np.zeros(n, dtype=bool)
+        self._dummy = xp.asarray(np.tile(np.asarray(DUMMY_ACTION), (n, 1)))
+        self.clock = Clock(n, float(self.facts["model_timestep"]))
+        self.observed = {k: v.copy() for k, v in self._sensed().items()}
+        self.cameras, self._render = self._make_cameras(cameras), False
+
+    @property
+    def label(self) -> str:
+        return f"LIBERO task {self.suite}/{self.task}"
+
+    # ------------------------------------------------------------------------------------------ reset
+    def reset(self, worlds, seeds, render: bool = False) -> None:
+        """Put each seed's reset into its world (``worlds[i]`` <- ``seeds[i]``), then the settle steps; ``render``:
+        the cameras render where the last settle step's observables sample (the CPU backend's cameras render
+        on that step only), or at the reset itself without settle steps."""
+        rows = np.asarray(worlds, dtype=np.int64)
+        states = self._reset_states(np.asarray(seeds, dtype=np.int64).tolist())
+        with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
+            self.physics.load(rows, states)
+            self.clock.set(rows, [s["clock"] for s in states])
+            self._render = render and not self.settle_steps
+            self._observe(rows)  # set_init_state's forced update: the state as loaded
+            self.osc = with_rows(self.xp, self.osc, rows, OscState.from_native(self.xp, [s["start"] for s in states]))
+            for k in range(self.settle_steps):
+                self._render = render and k == self.settle_steps - 1
+                self.osc = control_step(self.physics, self.cfg, self.osc, self._dummy, self.facts, self._tick)
+            self._render = False
+        self.steps[rows], self.errors[rows] = 0, False
+        self.seeds[rows] = [s["seed"] for s in states]
+        self.inits[rows] = [s["init"] for s in states]
+        self._flag(rows)
+
+    @contextmanager
+    def _hold(self, others: np.ndarray):
+        """The worlds ``others`` as they are now, put back after the block (their physics, controller, observable
+        clock and observation): the block steps every world."""
+        if not len(others):
+            yield
+            return
+        saved, osc, clock = self.physics.save(others), self.osc, self.clock.copy()
+        idx = self.xp.asarray(others)
+        observed = {k: v[idx].copy() for k, v in self.observed.items()}
+        yield
+        self.physics.restore(others, saved)
+        self.clock.put(others, clock)
+        for key, value in observed.items():
+            self.observed[key][idx] = value
+        self.osc = with_rows(self.xp, self.osc, others, take(self.xp, osc, others))
+
+    def _reset_states(self, seeds: list[int]) -> list[dict[str, Any]]:
+        """The seeds' reset states, their model changes less those every reset makes alike (the compiled model
+        holds them: hidden sites' ``site_rgba``); what is left are the fixtures' poses, batched per world."""
+        mjm = self.model.model
+        return [dict(s, model={k: v for k, v in s["model"].items() if not np.array_equal(v, getattr(mjm, k))})
+                for s in self.resets.get(seeds)]
+
+    # ------------------------------------------------------------------------------------------- step
+    def step(self, actions, worlds=None, render: bool = False) -> np.ndarray:
+        """One control step of ``worlds`` (default all) under ``actions`` float[N, 7] (host or ``xp``; the rows of
+        the other worlds unused: those worlds stay as they are); ``render``: the cameras render where the
+        observables sample. Returns bool[N] (host): the worlds that became non-finite in it."""
+        xp = self.xp
+        rows = np.arange(self.num_worlds) if worlds is None else np.asarray(worlds, dtype=np.int64)
+        a = xp.clip(xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 7), -1.0, 1.0)
+        with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
+            self._render = render
+            self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
+            self._render = False
+        self.steps[rows] += 1
+        return self._flag(rows)
+
+    def success(self) -> np.ndarray:
+        """bool[N] (host): LIBERO's ``_check_success`` of every world as the last step left it (its goal's
+        predicates, batched: ``predicates.GoalCheck``, on the data as robosuite's ``step`` leaves it)."""
+        return _host(self.goal.met(LiberoState.from_warp(self.model.model, self.physics.d))).astype(bool)
+
+    def _flag(self, rows: np.ndarray) -> np.ndarray:
+        """Flag ``rows``' worlds that are not finite and were not flagged yet; park every flagged world of ``rows``
+        (a finite state, the controller as after a reset) so that it spreads nothing into the batch."""
+        new = np.zeros(self.num_worlds, dtype=bool)
+        new[rows] = ~self.physics.finite()[rows] & ~self.errors[rows]
+        self.errors |= new
+        bad = rows[self.errors[rows]]
+        if len(bad):
+            k = len(bad)
+            self.physics.restore(bad, {key: self.xp.stack([v] * k) for key, v in self._park.items()})
+            self.osc = with_rows(self.xp, self.osc, bad, OscState.from_native(self.xp, [self._park_start] * k))
+        return new
+
+    def error_message(self, world: int) -> str:
+        return (f"{self.label}, init state {int(self.inits[world])} (seed {int(self.seeds[world])}): the simulation "
+                f"of world {world} became non-finite at step {int(self.steps[world])}")
+
+    # ------------------------------------------------------------------------------------ observation
+    def _sensed(self) -> dict[str, Any]:
+        """What robosuite's observables read of every world now (``xp`` arrays, views or gathers)."""
+        p, f = self.physics.poses(), self.facts
+        return {"eef_pos": p.site_xpos[:, int(f["eef_site_id"])], "eef_quat": p.xquat[:, int(self.info["names"]["eef_body"])],
+                "qpos": p.qpos, "qvel": p.qvel}
+
+    def _observe(self, rows: np.ndarray) -> None:
+        """``rows``' observables sample now (the cameras too while ``_render``: every world's images are drawn,
+        ``rows``' kept; turned as the CPU backend turns robosuite's, which is MuJoCo's image mirrored left-right)."""
+        if len(rows):
+            idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+            sensed = self._sensed()
+            if self._render and self.cameras is not None:
+                sensed.update({IMAGE + k: v[:, :, ::-1] for k, v in self.physics.render(self.cameras).items()})
+            for key, value in sensed.items():
+                self.observed[key][idx] = value[idx]
+
+    def _make_cameras(self, cameras) -> Any:
+        """MuJoCo Warp's ray tracer for ``cameras`` (``(camera, feature key, (H, W))`` each), drawing what robosuite's
+        offscreen renderer draws (``RENDER``); their images' buffers in ``observed`` (``IMAGE`` + key)."""
+        if not cameras:
+            return None
+        from simseam.engines.mujoco_warp.cameras import WarpCameras
+
+        for _, key, (h, w) in cameras:
+            self.observed[IMAGE + key] = self.xp.zeros((self.num_worlds, h, w, 3), dtype=self.xp.uint8)
+        return WarpCameras(self.model.model, self.num_worlds, list(cameras), device=self.physics.device, **RENDER)
+
+    def images(self, rows: np.ndarray, keys: Sequence[str]) -> dict[str, np.ndarray]:
+        """Host uint8[k, H, W, 3] of ``rows``' last sampled images, per feature key of ``keys``."""
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        return {k: _host(self.observed[IMAGE + k][idx]) for k in keys}
+
+    def _tick(self) -> None:
+        """After a physics step: the worlds whose observables' clock says so sample."""
+        self._observe(np.flatnonzero(self.clock.tick()))
+
+    def robot_state(self, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """Host float64 arrays of ``rows``' observation (robosuite's observables as last sampled): ``eef_pos``
+        [k, 3], ``eef_quat`` [k, 4] (x, y, z, w, as robosuite's ``robot0_eef_quat``), ``gripper_qpos`` /
+        ``gripper_qvel`` [k, 2], ``joint_pos`` / ``joint_vel`` [k, 7]."""
+        o, f = self.observed, self.facts
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        qpos, qvel = _host(o["qpos"][idx]).astype(np.float64), _host(o["qvel"][idx]).astype(np.float64)
+        quat = _host(o["eef_quat"][idx]).astype(np.float64)
+        return {"eef_pos": _host(o["eef_pos"][idx]).astype(np.float64), "eef_quat": quat[:, [1, 2, 3, 0]],
+                "joint_pos": qpos[:, f["qpos_index"]], "joint_vel": qvel[:, f["qvel_index"]],
+                "gripper_qpos": qpos[:, f["gripper_qpos_index"]], "gripper_qvel": qvel[:, f["gripper_qvel_index"]]}
+
+    def close(self) -> None:
+        self.physics.close()
+
+
+class Clock:
+    """robosuite's ``Observable.update`` clock, per world (host float64, the same arithmetic): after each physics
+    step ``t += dt``; an observable that has not sampled this period samples while ``t <= period`` (no delay), or
+    late once ``t >= period``, which then wraps ``t`` (``t %= period``) and starts a new period."""
+
+    def __init__(self, n: int, dt: float):
+        self.dt = dt
+        self.t, self.sampled, self.period = np.zeros(n), np.zeros(n, dtype=bool), np.full(n, np.inf)
+
+    def set(self, rows: np.ndarray, clocks: list[dict[str, Any]]) -> None:
+        self.t[rows] = [c["t"] for c in clocks]
+        self.sampled[rows] = [c["sampled"] for c in clocks]
+        self.period[rows] = [c["period"] for c in clocks]
+
+    def copy(self) -> "Clock":
+        out = Clock(0, self.dt)
+        out.t, out.sampled, out.period = self.t.copy(), self.sampled.copy(), self.period.copy()
+        return out
+
+    def put(self, rows: np.ndarray, other: "Clock") -> None:
+        """``rows`` as ``other`` holds them."""
+        self.t[rows], self.sampled[rows], self.period[rows] = other.t[rows], other.sampled[rows], other.period[rows]
+
+    def tick(self) -> np.ndarray:
+        """One physics step: bool[N], the worlds whose observables sample after it."""
+        self.t += self.dt
+        now = ~self.sampled & (self.period >= self.t)
+        self.sampled |= now
+        wrap = self.t >= self.period
+        now |= wrap & ~self.sampled
+        self.t[wrap] %= self.period[wrap]
+        self.sampled[wrap] = False
+        return now
+
+
+def take(xp, state: OscState, rows: np.ndarray) -> OscState:
+    """``state``'s rows ``rows`` (the stale reading too, when one is held)."""
+    idx = xp.asarray(np.asarray(rows, dtype=np.int64))
+    out = {k: getattr(state, k)[idx] for k in ARRAYS}
+    if state.cached is not None:
+        out["cached"] = replace(state.cached, **{f.name: getattr(state.cached, f.name)[idx]
+                                                 for f in fields(state.cached) if f.name != "bias"})
+        out["cached_mask"] = state.cached_mask[idx]
+    return OscState(**out)
+
+
+def with_rows(xp, state: OscState, rows: np.ndarray, new: OscState) -> OscState:
+    """``state`` with its rows ``rows`` replaced by ``new``'s (one row each, in order)."""
+    idx = xp.asarray(np.asarray(rows, dtype=np.int64))
+    out = {}
+    for key in ARRAYS:
+        out[key] = getattr(state, key).copy()
+        out[key][idx] = getattr(new, key)
+    if state.cached is None and new.cached is None:
+        return OscState(**out)
+    n = len(state.goal_pos)
+    base = state if state.cached is not None else new
+    cached, mask = {}, xp.zeros(n, dtype=bool)
+    for f in fields(base.cached):
+        if f.name == "bias":
+            continue
+        like = getattr(base.cached, f.name)
+        full = xp.zeros((n,) + like.shape[1:]) if state.cached is None else getattr(state.cached, f.name).copy()
+        full[idx] = getattr(new.cached, f.name) if new.cached is not None else 0.0
+        cached[f.name] = full
+    if state.cached is not None:
+        mask[...] = state.cached_mask
+    mask[idx] = new.cached_mask if new.cached is not None else False
+    return OscState(**out, cached=replace(base.cached, **cached), cached_mask=mask)
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)

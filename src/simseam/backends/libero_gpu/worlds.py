@@ -1,0 +1,48 @@
+"""N worlds of one LIBERO task on MuJoCo Warp, for its batch (``env.LiberoBatch``).
+
+The worlds are Meta-World's port's ``WarpPhysics`` (``backends.metaworld_gpu.physics``: the model fields a
+reset moves batched per world, ``load`` scattering native reset states into chosen worlds, the poses of static
+geoms recomputed for them, ``poses()``) with what robosuite's controller loop reads and runs between
+``step1`` and ``step2`` (``physics.ControllerReads``), and a save and restore of chosen worlds' carried state:
+LIBERO's settle steps after a reset step every world, so the worlds that were not reset are put back as they
+were (``CARRIED``: their next ``step1`` recomputes everything else from it).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simseam.backends.libero_gpu.physics import ArmLayout, ControllerReads
+from simseam.backends.metaworld_gpu.physics import WarpPhysics
+
+#: what a step carries over (the rest of ``Data`` is recomputed from it by the next ``step1``)
+CARRIED = ("time", "qpos", "qvel", "act", "ctrl", "qacc_warmstart")
+
+
+class LiberoWorlds(ControllerReads, WarpPhysics):
+    """``LiberoWorlds(mjm, layout, num_worlds, device, batched)``: ``batched`` the model fields resets move
+    (beyond ``WarpPhysics``' own); ``nconmax`` / ``njmax`` per world (default: mujoco_warp's, as ``WarpTerms``)."""
+
+    def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None,
+                 batched: tuple[str, ...] = (), nconmax: int | None = None, njmax: int | None = None):
+        super().__init__(mjm, num_worlds, device, batched, nconmax=nconmax, njmax=njmax, graph=False)
+        self.layout = layout
+
+    def save(self, rows: np.ndarray) -> dict[str, Any]:
+        """Copies of ``rows``' carried state."""
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        return {k: self.view(getattr(self.d, k))[idx].copy() for k in CARRIED if getattr(self.d, k).size}
+
+    def restore(self, rows: np.ndarray, saved: dict[str, Any]) -> None:
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        for key, value in saved.items():
+            self.view(getattr(self.d, key))[idx] = value
+        self.synchronize()
+
+    def finite(self) -> np.ndarray:
+        """bool[N] (host): whether each world's qpos and qvel are finite."""
+        xp, d = self.xp, self.d
+        ok = xp.all(xp.isfinite(self.view(d.qpos)), axis=1) & xp.all(xp.isfinite(self.view(d.qvel)), axis=1)
+        return ok.get() if hasattr(ok, "get") else np.asarray(ok)

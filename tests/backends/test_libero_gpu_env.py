@@ -1,0 +1,249 @@
+"""LIBERO on MuJoCo Warp as a BatchRollout (backends/libero_gpu: env.py, rollout.py, expert.py), on Warp's CPU
+device, against LIBERO itself: its resets answered by the native worker in the LIBERO backend's provisioned venv,
+and the CPU benchmark (``backends.libero``, the real LIBERO env in its sidecar) on the same init states.
+
+- observations: the CPU backend's keys and layout, equal within float32 drift after the settle steps and over
+  a few steps of varied actions, on a libero_spatial and a libero_object task, with the expert's action;
+- episode i of a task gets init state i and the same first observation whatever the number of worlds and
+  whichever episodes end first (the pairing of lerobot#4152);
+- a world gone non-finite ends alone, named by task and init state; the others carry on;
+- images (``cameras: true``): the CPU backend's views and orientation, drawn by MuJoCo Warp's ray tracer;
+  SSIM / PSNR against the CPU renderer's images measured;
+- bad input: a missing init-state file, a goal the expert cannot do: one line each.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from backend_util import backend_python
+
+from simseam.seam import ObsRequest
+from simseam.seam.errors import ConfigError, SimulationError
+
+pytestmark = pytest.mark.backends
+
+STATE_ONLY = ObsRequest.state_only()
+
+
+def _actions(steps: int) -> np.ndarray:
+    """Varied actions: arm deltas of both signs, a rotation, the gripper closing then opening."""
+    k = np.arange(steps)[:, None]
+    a = np.concatenate([0.4 * np.sin(k / 2.0 + np.arange(3)), 0.2 * np.cos(k / 3.0 + np.arange(3)),
+                        np.where(k % 4 < 2, 1.0, -1.0)], axis=1)
+    return a.astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def worker():
+    from simseam.backends.libero_gpu.worker import NativeWorker
+
+    with NativeWorker(backend_python("libero")) as w:
+        yield w
+
+
+def _batch(worker, task: str, n: int, **config):
+    from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
+
+    suite, _, index = task.partition("/")
+    privileged = config.pop("privileged", False)
+    return LiberoBatchRollout({"suite": suite, "task": int(index), **config}, n, worker, privileged=privileged,
+                              device="cpu")
+
+
+@pytest.mark.parametrize("task", ["libero_spatial/3", "libero_object/1"])
+def test_observations_are_the_cpu_backends_on_the_same_init_states(task, worker, open_backend):
+    """Seeds 1 and 7 (init states 1 and 7; fixtures placed by each seed, batched per world) as two worlds, against
+    the CPU backend's episodes of the same seeds under the same actions: the state (end-effector position,
+    axis-angle, fingers), the joints and the expert's action."""
+    suite, _, index = task.partition("/")
+    seeds, actions = [1, 7], _actions(5)
+    cpu = open_backend("libero", {"suite": suite, "task": int(index)}, privileged=True)
+    want = []
+    for seed in seeds:
+        run = [cpu.reset(seed=seed, observe=STATE_ONLY)]
+        run += [cpu.step(a, observe=STATE_ONLY).observation for a in actions]
+        want.append(run)
+    with _batch(worker, task, 2, privileged=True) as batch:
+        assert set(batch.spec.observation.fields) == set(cpu.spec.observation.fields)
+        assert batch.spec.action == cpu.spec.action and batch.spec.task.instruction == cpu.spec.task.instruction
+        got = [batch.reset([0, 1], seeds)]
+        got += [batch.step([0, 1], np.stack([a, a])).observations for a in actions]
+    gaps = {k: max(float(np.abs(g[w][k] - want[w][t][k]).max()) for t, g in enumerate(got) for w in range(2))
+            for k in ("state", "joint_positions", "joint_velocities", "expert_action")}
+    print(f"{task}: worst gaps to the CPU backend over 2 init states x 6 observations: {gaps}")
+    for t, g in enumerate(got):
+        for w in range(2):
+            assert g[w]["state"].dtype == np.float32 and g[w]["state"].shape == (8,)
+            assert g[w]["sim_time_ns"] == want[w][t]["sim_time_ns"] and g[w]["task"] == want[w][t]["task"]
+    # MuJoCo Warp's float32 state against CPU MuJoCo's float64 (measured: state <= 9e-5, joints <= 6e-5, expert <= 7e-5)
+    assert gaps["state"] <= 2e-4 and gaps["joint_positions"] <= 2e-4, gaps
+    assert gaps["joint_velocities"] <= 5e-3 and gaps["expert_action"] <= 5e-3, gaps
+
+
+def _play(worker, n: int, lengths: list[int]) -> dict[int, tuple]:
+    """Episodes 0.. (seed = index) of ``lengths[i]`` steps on ``n`` worlds, each freed world reset with the next
+    episode at once (the scheduler's way): per episode its world's init state and first and last state."""
+    queue, out, busy = list(range(len(lengths))), {}, {}
+    with _batch(worker, "libero_spatial/0", n, settle_steps=2) as batch:
+        while queue or busy:
+            free = [w for w in range(n) if w not in busy][:len(queue)]
+            if free:
+                episodes = [queue.pop(0) for _ in free]
+                for w, e, obs in zip(free, episodes, batch.reset(free, episodes)):
+                    busy[w] = [e, 0, obs["state"]]
+                    out[e] = (int(batch.world.inits[w]), obs["state"])
+            envs = sorted(busy)
+            r = batch.step(envs, np.stack([_actions(9)[busy[w][1]] for w in envs]))
+            for w, obs in zip(envs, r.observations):
+                busy[w][1] += 1
+                e = busy[w][0]
+                if busy[w][1] == lengths[e]:
+                    out[e] += (obs["state"],)
+                    del busy[w]
+    return out
+
+
+def test_episode_i_gets_init_state_i_whatever_the_worlds(worker):
+    """Episodes of 1-4 steps on 1, 3 and 4 worlds: the shorter ones end first and the next episodes start in
+    their worlds while the others go on. Each episode gets its own init state and the same first state, bit for
+    bit, and the same last state: a reset's settle steps and a step of some worlds leave the other worlds as they
+    were."""
+    lengths = [3, 1, 2, 4, 1, 2]
+    runs = {n: _play(worker, n, lengths) for n in (1, 3, 4)}
+    for n, run in runs.items():
+        assert [run[e][0] for e in range(len(lengths))] == list(range(len(lengths))), n
+        for e in range(len(lengths)):
+            np.testing.assert_array_equal(run[e][1], runs[1][e][1], err_msg=f"episode {e}'s first state, {n} worlds")
+            # later states agree to float32 rounding, not bit for bit (measured: 2.9e-7 after 4 steps on 3 worlds;
+            # which of MuJoCo Warp's batch-wide computations couples the worlds' last bits is not traced)
+            np.testing.assert_allclose(run[e][2], runs[1][e][2], atol=1e-5, err_msg=f"episode {e}'s last state, {n}")
+    assert len({tuple(runs[1][e][1]) for e in range(len(lengths))}) == len(lengths)  # six different init states
+
+
+def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):
+    actions = _actions(3)
+    with _batch(worker, "libero_spatial/0", 2, settle_steps=2) as ref:
+        ref.reset([0, 1], [5, 6])
+        want = [ref.step([0, 1], np.stack([a, a])).observations[0]["state"] for a in actions]
+    with _batch(worker, "libero_spatial/0", 2, settle_steps=2) as batch:
+        batch.reset([0, 1], [5, 6])
+        got = [batch.step([0, 1], np.stack([actions[0]] * 2)).observations[0]["state"]]
+        batch.world.physics.view(batch.world.physics.d.qvel)[1, :] = np.nan
+        r = batch.step([0, 1], np.stack([actions[1]] * 2))
+        fails = batch.failures()
+        assert list(fails) == [1]
+        assert "libero_spatial/0, init state 6 (seed 6)" in fails[1].message and "step 2" in fails[1].message
+        got.append(r.observations[0]["state"])
+        got.append(batch.step([0], actions[2:3]).observations[0]["state"])  # the other world carries on
+        assert batch.failures() == {} and np.isfinite(batch.world.physics.view(batch.world.physics.d.qpos)).all()
+    np.testing.assert_allclose(np.stack(got), np.stack(want), atol=1e-5)  # as on its own (float32 rounding)
+
+
+def test_the_worlds_keep_the_batched_seam_contract(worker):
+    from simseam.seam import check_batch_rollout
+
+    spec = check_batch_rollout(_batch(worker, "libero_spatial/0", 2, settle_steps=1, privileged=True))
+    assert "mujoco_warp" in spec.engine and spec.action.dim == 7 and "expert_action" in spec.observation.fields
+
+
+def test_a_missing_init_state_file_is_one_line_naming_task_and_path(tmp_path, monkeypatch):
+    from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
+
+    (tmp_path / "config.yaml").write_text(f"init_states: {tmp_path / 'nowhere'}\n")
+    monkeypatch.setenv("LIBERO_CONFIG_PATH", str(tmp_path))
+    with pytest.raises(SimulationError) as err:
+        LiberoBatchRollout.open({"suite": "libero_object", "task": 2}, 1, device="cpu", python=backend_python("libero"))
+    message = str(err.value)
+    assert "\n" not in message and "LIBERO task libero_object/2: its init-state file is missing" in message
+    assert str(tmp_path / "nowhere" / "libero_object") in message
+
+
+def test_a_goal_the_expert_cannot_do_is_one_line(worker):
+    with pytest.raises(ConfigError, match=r"libero_goal/0 .*: the LIBERO expert does not handle the goal predicate"):
+        _batch(worker, "libero_goal/0", 1, privileged=True)
+
+
+def test_images_are_the_cpu_backends_views_drawn_by_the_ray_tracer(worker, open_backend):
+    """``cameras: true``: agentview and the eye-in-hand camera, oriented as the CPU backend's, drawn by MuJoCo Warp's
+    ray tracer at the substep robosuite samples, only when asked. Not the CPU renderer's pixels (a ray tracer, its
+    own lighting): SSIM and PSNR per camera against the CPU backend's images of the same episodes (libero_spatial/3,
+    init states 1 and 7, the reset and one step), and the orientation: nearer the CPU image than its mirror."""
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    seeds, action = [1, 7], _actions(1)[0]
+    cpu = open_backend("libero", {"suite": "libero_spatial", "task": 3, "image_size": [128, 128]})
+    want = [[cpu.reset(seed=s)["images"], cpu.step(action).observation["images"]] for s in seeds]
+    with _batch(worker, "libero_spatial/3", 2, image_size=[128, 128], cameras=True) as batch:
+        assert set(batch.spec.observation.images) == {"camera1", "camera2"}
+        got = [batch.reset([0, 1], seeds)]
+        got.append(batch.step([0, 1], np.stack([action, action])).observations)
+        assert batch.step([0, 1], np.stack([action, action]), STATE_ONLY).observations[0]["images"] == {}
+    for key in ("camera1", "camera2"):
+        ssim, psnr = [], []
+        for t in range(2):
+            for w in range(2):
+                g, c = got[t][w]["images"][key], want[w][t][key]
+                assert g.shape == c.shape == (128, 128, 3) and g.dtype == np.uint8
+                assert np.abs(g.astype(float) - c).mean() < np.abs(g[:, ::-1].astype(float) - c).mean()
+                ssim.append(structural_similarity(g, c, channel_axis=2))
+                psnr.append(peak_signal_noise_ratio(c, g))
+        print(f"{key}: SSIM {np.round(ssim, 3).tolist()}, PSNR {np.round(psnr, 1).tolist()} dB")
+        # measured: SSIM 0.64-0.88, PSNR 17.2-22.3 dB (the ray tracer's light and materials, not the geometry)
+        assert min(ssim) >= 0.55 and min(psnr) >= 15.0, (key, ssim, psnr)
+
+
+def test_eval_runs_the_port_with_one_expert_per_world(tmp_path):
+    """The eval path (``BenchmarkRecipe`` on ``mujoco_warp``, the episode scheduler, ``--policy scripted``): three
+    episodes of libero_spatial/0 on two worlds, each its own seed, logged with the task and episode as the CPU
+    path logs them (a short step limit: the expert does not finish in 4 steps)."""
+    import json
+
+    from simseam.runner.job import Executor, Job, execute
+    from simseam.runner.recipe import BenchmarkRecipe
+    from simseam.runner.run_dir import RunDir
+
+    recipe = BenchmarkRecipe("libero", {"max_steps": 4, "settle_steps": 2}, ("libero_spatial/0",), 3,
+                             engine="mujoco_warp", device="cpu")
+    run_dir = RunDir(tmp_path / "run", {"worlds": 2})
+    execute(Job(recipe, "scripted", {}, [0, 1, 2], 10, run_dir), Executor("vector", 2))
+    run_dir.close()
+    lines = sorted((json.loads(x) for x in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines()),
+                   key=lambda r: r["index"])
+    assert [(r["task"], r["episode"], r["seed"]) for r in lines] == [("libero_spatial/0", e, 10 + e) for e in range(3)]
+    assert all(r["steps"] == 4 and not r["success"] and r["error"] is None for r in lines), lines
+    spec = json.loads((tmp_path / "run" / "spec.json").read_text())
+    assert "mujoco_warp" in spec["engine"] and "expert_action" in spec["observation"]
+
+
+@pytest.mark.parametrize("task", ["libero_goal/0", "libero_10/0"])
+def test_the_other_suites_run_as_batches(task, worker):
+    """libero_goal's and libero_10's goals (a drawer to open; two objects in a basket) compile to the batched
+    predicates and their episodes run: two worlds, the reset and two steps, not solved by holding still."""
+    with _batch(worker, task, 2, settle_steps=2) as batch:
+        obs = batch.reset([0, 1], [0, 1])
+        r = batch.step([0, 1], np.tile(np.asarray([0, 0, 0, 0, 0, 0, -1], np.float32), (2, 1)))
+        r = batch.step([0, 1], np.tile(np.asarray([0, 0, 0, 0, 0, 0, -1], np.float32), (2, 1)))
+        assert batch.failures() == {} and not r.terminated.any() and r.reward.tolist() == [0.0, 0.0]
+        assert [o["state"].shape for o in obs] == [(8,), (8,)] and not np.array_equal(obs[0]["state"], obs[1]["state"])
+
+
+def test_a_libero_scene_file_on_mujoco_warp(tmp_path):
+    """``engine: mujoco_warp`` in a LIBERO scene file: ``simseam run`` steps its worlds in one batch, episode i with
+    seed i (init state i), the expert acting in each."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from simseam.cli.main import app
+
+    scene = tmp_path / "libero.yaml"
+    scene.write_text("benchmark: {name: libero, suite: libero_spatial, task: 3, settle_steps: 2, max_steps: 3}\n"
+                     "engine: {name: mujoco_warp, num_envs: 2, device: cpu}\n")
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["run", "--scene", str(scene), "--policy", "scripted", "--episodes", "3",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    lines = sorted((json.loads(x) for x in (out / "episodes.jsonl").read_text().splitlines()), key=lambda r: r["seed"])
+    assert [(r["seed"], r["steps"], r["error"]) for r in lines] == [(s, 3, None) for s in range(3)]
+    assert "mujoco_warp" in json.loads((out / "spec.json").read_text())["engine"]
