@@ -101,8 +101,11 @@ def libero(cfg, seed, actions):
                                             o["robot0_gripper_qpos"]]))
         out["image"].append(o["agentview_image"][::-1, ::-1])
         out["wrist"].append(o["robot0_eye_in_hand_image"][::-1, ::-1])
+        # the BDDL problem's objects as LIBERO observes them: {obj}_pos, {obj}_quat (x, y, z, w)
+        out["objects"].append([np.concatenate([o[f"{n}_pos"], o[f"{n}_quat"]]) for n in names])
 
-    out = {"state": [], "image": [], "wrist": [], "reward": [], "success": []}
+    names = list(env.env.objects_dict)
+    out = {"state": [], "image": [], "wrist": [], "objects": [], "object_names": names, "reward": [], "success": []}
     record(obs)
     for a in actions:
         obs, r, done, _ = env.step(a)

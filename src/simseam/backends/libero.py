@@ -14,11 +14,22 @@ Mapping to the seam (the keys openpi's client builds, ``remote:...?format=libero
 - ``images``: ``camera1`` = ``agentview_image[::-1, ::-1]``, ``camera2`` =
   ``robot0_eye_in_hand_image[::-1, ::-1]`` (upright: robosuite renders them rotated by 180 degrees);
   a camera not requested gets a sensor that renders nothing for that step (robosuite's sampling
-  clock is untouched, so every observation is the native one);
+  clock is untouched, so every observation is the native one); ``cameras: false`` declares none and
+  builds the env without camera observables (``use_camera_obs=False``: nothing is ever rendered, the
+  state observables are the same): a state-only rollout, what ``simseam collect --no-cameras`` and a
+  ``run`` whose policy reads no image set (``CAMERA_OPTION``);
 - ``state`` (8-D): ``robot0_eef_pos``, the axis-angle of ``robot0_eef_quat``, ``robot0_gripper_qpos``;
 - action: LIBERO's 7-D OSC_POSE delta ``[dx, dy, dz, dax, day, daz, grip]`` in [-1, 1]
   (CARTESIAN_DELTA, 0.05 m and 0.5 rad per unit; grip -1 open, +1 closed), clipped;
 - ``joint_positions`` / ``joint_velocities``: the Panda's 7 joints and 2 finger joints;
+- ``environment_state`` (``environment_state: true``; off by default): the task's objects' poses as
+  LIBERO's own object observables report them, ``{obj}_pos`` (world x, y, z) then ``{obj}_quat``
+  (robosuite's x, y, z, w), 7 numbers per object, the objects in the order of the env's
+  ``objects_dict`` (the BDDL problem's objects, as LIBERO creates their observables; fixtures such as
+  the table or a cabinet that is not an object of the problem are not included); named
+  ``{obj}_x, {obj}_y, {obj}_z, {obj}_qx, {obj}_qy, {obj}_qz, {obj}_qw`` in the spec. It is what a
+  state-based learned policy reads (LeRobot's ``observation.environment_state``): the 8-D ``state``
+  holds the robot alone;
 - reward: LIBERO's sparse 1.0 on success; success: LIBERO's ``_check_success`` (``done``);
 - ``expert_action`` (privileged rollouts only, i.e. ``--policy scripted``): the action of simseam's
   pick-and-place expert (``libero_expert``) for the task's BDDL goal, read from LIBERO's parsed problem
@@ -41,6 +52,7 @@ import numpy as np
 from simseam.backends.base import BenchmarkRollout, check_image_size, check_int, check_keys, observation_spec
 from simseam.backends.robosuite_cameras import CameraSwitch, release_render_context
 from simseam.seam import (
+    OBS_ENV_STATE,
     OBS_EXPERT_ACTION,
     OBS_IMAGES,
     STATE_ONLY,
@@ -61,16 +73,19 @@ from simseam.seam import (
 )
 
 NAME = "libero"
+CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
 HAS_EXPERT = True  # libero_expert: pick and place for (On OBJ TARGET) / (In OBJ REGION) goals
 #: the suites and their step limits in openpi's LIBERO example (max_steps, not counting the settle steps)
 SUITES = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520, "libero_90": 400}
 DEFAULTS = {"suite": "libero_spatial", "task": 0, "image_size": [256, 256], "settle_steps": 10, "max_steps": None,
-            "expert": False}
+            "expert": False, "environment_state": False, "cameras": True}
 CAMERAS = {"camera1": "agentview_image", "camera2": "robot0_eye_in_hand_image"}
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
 N_INIT = 50
 STATE_NAMES = ("eef_x", "eef_y", "eef_z", "eef_ax", "eef_ay", "eef_az", "finger_left", "finger_right")
 JOINTS = tuple(f"robot0_joint{i}" for i in range(1, 8)) + ("robot0_finger_joint1", "robot0_finger_joint2")
+#: one object's part of ``environment_state``: its ``{obj}_pos`` then its ``{obj}_quat`` (x, y, z, w)
+POSE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw")
 
 
 def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
@@ -86,8 +101,9 @@ def normalize_config(config: dict[str, Any], where: str = "benchmark") -> dict[s
     out["task"] = check_int(out["task"], f"{where}.task", low=0)
     out["image_size"] = check_image_size(out["image_size"], where)
     out["settle_steps"] = check_int(out["settle_steps"], f"{where}.settle_steps", low=0)
-    if not isinstance(out["expert"], bool):
-        raise ConfigError(f"{where}.expert: expected true or false, got {out['expert']!r}")
+    for key in ("expert", "environment_state", "cameras"):
+        if not isinstance(out[key], bool):
+            raise ConfigError(f"{where}.{key}: expected true or false, got {out[key]!r}")
     if out["max_steps"] is None:
         out["max_steps"] = SUITES[out["suite"]]
     out["max_steps"] = check_int(out["max_steps"], f"{where}.max_steps")
@@ -102,6 +118,33 @@ def quat_to_axis_angle(quat_xyzw: np.ndarray) -> np.ndarray:
     if math.isclose(den, 0.0):
         return np.zeros(3)
     return q[:3] * 2.0 * math.acos(w) / den
+
+
+def object_names(env, obs: dict) -> tuple[str, ...]:
+    """The objects of ``environment_state``, in the order of LIBERO's ``objects_dict`` (each must have its
+    ``{obj}_pos`` and ``{obj}_quat`` observables in ``obs``)."""
+    names = tuple(env.objects_dict)
+    missing = [f"{n}_{k}" for n in names for k in ("pos", "quat") if f"{n}_{k}" not in obs]
+    if missing:
+        raise ConfigError(f"benchmark.environment_state: LIBERO's observation has no {missing} "
+                          f"(its keys: {sorted(obs)})")
+    return names
+
+
+def environment_state(obs: dict, objects: tuple[str, ...]) -> np.ndarray:
+    """float32[7 * len(objects)]: each object's ``{obj}_pos`` then ``{obj}_quat`` (x, y, z, w) from LIBERO's
+    observation ``obs``."""
+    return np.concatenate([np.concatenate([obs[f"{n}_pos"], obs[f"{n}_quat"]]) for n in objects]).astype(np.float32)
+
+
+def extra_fields(expert: bool, objects: tuple[str, ...]) -> dict[str, FieldSpec] | None:
+    """The keys a LIBERO rollout declares beyond the common ones: the expert's action (privileged) and the
+    objects' poses (``environment_state``)."""
+    extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")} if expert else {}
+    if objects:
+        extra[OBS_ENV_STATE] = FieldSpec("float32", (7 * len(objects),), presence="declared",
+                                         names=tuple(f"{n}_{c}" for n in objects for c in POSE_NAMES))
+    return extra or None
 
 
 def catalog() -> dict[str, Any]:
@@ -132,30 +175,31 @@ class LiberoRollout(BenchmarkRollout):
         self._init_states = suite.get_task_init_states(config["task"])
         h, w = config["image_size"]
         bddl = os.path.join(get_libero_path("bddl_files"), task.problem_folder, task.bddl_file)
-        self.env = OffScreenRenderEnv(bddl_file_name=bddl, camera_heights=h, camera_widths=w)
+        self.env = OffScreenRenderEnv(bddl_file_name=bddl, camera_heights=h, camera_widths=w,
+                                      use_camera_obs=config["cameras"])
         self._settle = config["settle_steps"]
-        self._switch = CameraSwitch(CAMERAS)
+        self._switch = CameraSwitch(CAMERAS if config["cameras"] else {})
         self._obs: dict = {}
         self._expert = None
         if config["expert"]:
             self._expert = make_expert(self.env.env, f"{config['suite']}/{config['task']} ({task.language})")
         self._native_reset(0)
+        self._objects = object_names(self.env.env, self._obs) if config["environment_state"] else ()
         robot = self.env.env.robots[0]
         lo, hi = robot.sim.model.jnt_range[robot.joint_indexes].T if hasattr(robot, "joint_indexes") else (None, None)
         joints = tuple(JointFacts(j, "arm", None if lo is None else float(lo[i]), None if hi is None else float(hi[i]))
                        for i, j in enumerate(JOINTS[:7])) + tuple(JointFacts(j, "gripper") for j in JOINTS[7:])
         sensors = tuple(SensorFacts(name=native.removesuffix("_image"), kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0),
                                     rpy=(0.0, 0.0, 0.0), feature_key=key, width=w, height=h)
-                        for key, native in CAMERAS.items())
+                        for key, native in self._switch.cameras.items())
         ctrl = robot.controller
         spec = RolloutSpec(
             robot=RobotFacts(name="panda_libero", base_link="robot0_base", tool_link="gripper0_grip_site", joints=joints,
                              sensors=sensors),
             task=TaskSpec(name=f"{config['suite']}/{config['task']}", instruction=str(task.language),
                           max_steps=config["max_steps"]),
-            observation=observation_spec({k: (h, w) for k in CAMERAS}, STATE_NAMES, JOINTS,
-                                         {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")}
-                                         if self._expert else None),
+            observation=observation_spec({k: (h, w) for k in self._switch.cameras}, STATE_NAMES, JOINTS,
+                                         extra_fields(self._expert is not None, self._objects)),
             action=ActionSpec(ControlMode.CARTESIAN_DELTA,
                               tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
                               + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
@@ -190,7 +234,7 @@ class LiberoRollout(BenchmarkRollout):
 
     def _observe_native(self, request: ObsRequest) -> dict[str, Any]:
         o = self._obs
-        images = {key: self._render_camera(key) for key in CAMERAS if request.wants_image(key)}
+        images = {key: self._render_camera(key) for key in self._switch.cameras if request.wants_image(key)}
         state = np.concatenate([o["robot0_eef_pos"], quat_to_axis_angle(o["robot0_eef_quat"]),
                                 o["robot0_gripper_qpos"]])
         out = {
@@ -199,6 +243,8 @@ class LiberoRollout(BenchmarkRollout):
             OBS_JOINT_POSITIONS: np.concatenate([o["robot0_joint_pos"], o["robot0_gripper_qpos"]]).astype(np.float32),
             OBS_JOINT_VELOCITIES: np.concatenate([o["robot0_joint_vel"], o["robot0_gripper_qvel"]]).astype(np.float32),
         }
+        if self._objects:
+            out[OBS_ENV_STATE] = environment_state(o, self._objects)
         if self._expert is not None:
             out[OBS_EXPERT_ACTION] = self._expert.act(self.env.env)
         return out

@@ -1,0 +1,232 @@
+"""LIBERO: simseam's scripted expert -> demonstrations through the seam -> one ACT policy per task, from state ->
+evaluated on held-out init states, with the expert on the same init states as the reference.
+
+    .venv/bin/python benchmarks/libero_proof.py [--suite libero_spatial] [--tasks 0,1,2,3,4]
+        [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--work DIR] [--json FILE]
+
+For each task, through the ``simseam`` command a user types (the CPU ``libero`` backend in LIBERO's venv
+behind the sidecar):
+
+1. ``simseam collect --scene <task>.yaml --policy scripted --no-cameras --seed 0 --episodes 30``:
+   simseam's LIBERO expert (``backends/libero_expert.py``: privileged poses, approach, grasp, carry, place)
+   from LIBERO's init states 0-29 (episode seed ``s`` starts from init state ``s % 50``); collect keeps the
+   successful episodes only. State alone: ``observation.state`` (the robot's 8-D: end-effector position,
+   axis-angle, finger joints) and ``observation.environment_state`` (``environment_state: true``: every
+   object of the task's BDDL problem, its position and quaternion from LIBERO's own object observables,
+   7 numbers each, in ``objects_dict`` order); the scene is the preset's (``settle_steps: 10``, openpi's
+   step limit) with ``environment_state: true``;
+2. ``simseam train``: LeRobot ACT from scratch, the state proofs' recipe (benchmarks/metaworld_proof.py: no
+   VAE, chunk 10, one model call per step with temporal ensembling 0.01, a small transformer, cosine lr),
+   capped at ``--train-s`` wall seconds;
+3. ``simseam run --scene <task>.yaml --policy lerobot:<ckpt> --seed 30 --episodes 20``: the policy on init
+   states 30-49, never demonstrated (the same scene: the ``libero_spatial`` preset's config plus
+   ``environment_state``, which the preset does not turn on), and ``simseam eval <suite> --tasks <task>
+   --policy scripted --seed 30 --episodes 20``: the expert on the same init states (the preset itself).
+
+Nothing was tuned on init states 30-49: the recipe is Meta-World's, and the budgets (30 demonstrations,
+``--train-s``) were set by the time this 2-core machine had, before any evaluation. Every ``simseam``
+command runs with ``OMP_NUM_THREADS=1`` (unless set). Prints a table, writes JSON after every task (default
+``benchmarks/results/libero_proof.json``), so a run cut off keeps its finished tasks. The last printed line
+ends with ``success_rate=<float>``: the mean of the tasks' held-out success rates. Exits 0 when every phase
+finished (whatever the rate), 1 when one failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SIMSEAM = str(Path(sys.executable).with_name("simseam"))
+N_INIT = 50  # LIBERO's init states per task; episode seed s starts from init state s % 50
+STEPS = {"libero_spatial": 220, "libero_object": 280}  # the eval presets' (openpi's) step limits
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """The training recipe, the same for every task: metaworld_proof.py's (docs/policies.md)."""
+
+    steps: int = 3000
+    batch_size: int = 64
+    lr: float = 3e-4
+    lr_schedule: str = "cosine"
+    chunk_size: int = 10
+    n_action_steps: int = 1
+    temporal_ensemble: float | None = 0.01
+    dim_model: int = 128
+    ff_dim: int = 512
+    encoder_layers: int = 2
+
+
+def scene_yaml(suite: str, task: int) -> str:
+    return (f"# {suite}/{task} as the {suite} eval preset runs it, plus the objects' poses (environment_state) for "
+            "a state policy (benchmarks/libero_proof.py)\n"
+            f"benchmark: {{name: libero, suite: {suite}, task: {task}, environment_state: true, settle_steps: 10, "
+            f"max_steps: {STEPS[suite]}}}\n")
+
+
+def _simseam(*args: str, log: Path) -> float:
+    """Run one ``simseam`` command (output appended to ``log``); returns its wall time in seconds."""
+    t0 = time.perf_counter()
+    with log.open("a") as f:
+        f.write(f"$ simseam {' '.join(args)}\n")
+        f.flush()
+        rc = subprocess.run([SIMSEAM, *args], stdout=f, stderr=subprocess.STDOUT, cwd=ROOT).returncode
+    if rc != 0:
+        raise RuntimeError(f"simseam {args[0]} exited {rc}; its output is in {log}")
+    return time.perf_counter() - t0
+
+
+def _result(out: Path, policy: str, states: range, seconds: float, key: str | None) -> dict:
+    """One evaluation's row from its run directory (``key``: the task in an eval's ``per_task``)."""
+    summary = json.loads((out / "summary.json").read_text())
+    t = summary["per_task"][key] if key else summary
+    eps = summary["episodes"]
+    return {"policy": policy, "init_states": f"{states.start}:{states.stop}", "episodes": t["n_episodes"],
+            "successes": t["n_success"], "success_rate": t["success_rate"], "wilson95": t["success_rate_wilson95"],
+            "mean_steps": round(sum(e["steps"] for e in eps) / len(eps), 1),
+            "failed_init_states": sorted(e["seed"] % N_INIT for e in eps if not e["success"]),
+            "seconds": round(seconds, 1)}
+
+
+def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt: Path, train_s: float,
+                      log: Path) -> tuple[float, float]:
+    """Phases 1 and 2 for one task: the expert's demonstrations into ``data``, ACT trained into ``ckpt``;
+    their wall seconds."""
+    collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(len(demo)),
+                         "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite", log=log)
+    train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
+                          "--workers", "0", "--device", "cpu", "--no-vae",
+                          "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
+                          "--batch-size", str(recipe.batch_size), "--lr", str(recipe.lr),
+                          "--lr-schedule", recipe.lr_schedule,
+                          "--chunk-size", str(recipe.chunk_size), "--n-action-steps", str(recipe.n_action_steps),
+                          *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
+                          "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
+                          "--encoder-layers", str(recipe.encoder_layers), log=log)
+    return collect_s, train_wall
+
+
+def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work: Path, log: Path) -> tuple[dict, dict]:
+    """Phase 3: the policy (``simseam run`` on the scene) and the expert (``simseam eval`` of the preset) on
+    init states ``states``."""
+    name, n = f"{suite}/{task}", str(len(states))
+    out = work / f"{suite}_{task}_eval"
+    seconds = _simseam("run", "--scene", str(scene), "--policy", f"lerobot:{ckpt}", "--device", "cpu",
+                       "--seed", str(states.start), "--episodes", n, "--out", str(out), "--overwrite", log=log)
+    policy = _result(out, f"lerobot:{ckpt}", states, seconds, None)
+    out = work / f"{suite}_{task}_expert"
+    seconds = _simseam("eval", suite, "--tasks", name, "--policy", "scripted", "--seed", str(states.start),
+                       "--episodes", n, "--out", str(out), "--overwrite", log=log)
+    return policy, _result(out, "scripted", states, seconds, name)
+
+
+def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float) -> dict:
+    """Collect, train and evaluate one task (and the expert on the same init states); its row of the report."""
+    scene = work / f"{suite}_{task}.yaml"
+    scene.write_text(scene_yaml(suite, task))
+    data, ckpt = work / f"{suite}_{task}_data", work / f"{suite}_{task}_act"
+    log = work / f"{suite}_{task}.log"
+    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log)
+    info = json.loads((data / "meta" / "info.json").read_text())
+    training = json.loads((ckpt / "training.json").read_text())
+    policy, expert = evaluate(suite, task, scene, ckpt, held_out, work, log)
+    return {
+        "task": f"{suite}/{task}", "scene": scene_yaml(suite, task).splitlines()[-1],
+        "environment_state_dim": info["features"]["observation.environment_state"]["shape"][0],
+        "demos": {"init_states": f"{demo.start}:{demo.stop}", "episodes_run": len(demo),
+                  "episodes_kept": info["total_episodes"], "frames": info["total_frames"],
+                  "seconds": round(collect_s, 1)},
+        "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
+                     "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
+                     "final_loss": training["losses"][-1][1] if training["losses"] else None,
+                     "device": training["device"]},
+        "eval": policy, "expert": expert,
+    }
+
+
+def init_range(text: str, flag: str) -> range:
+    a, _, b = text.partition(":")
+    if not (a.isdigit() and b.isdigit() and int(a) < int(b) <= N_INIT):
+        raise SystemExit(f"{flag}: expected A:B with 0 <= A < B <= {N_INIT}, got {text!r}")
+    return range(int(a), int(b))
+
+
+def summarize(report: dict) -> None:
+    rows = report["tasks"]
+    if rows:
+        report["mean_success_rate"] = sum(r["eval"]["success_rate"] for r in rows) / len(rows)
+        report["expert_mean_success_rate"] = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
+
+
+def print_table(report: dict) -> None:
+    print(f"{'task':18} {'demos':>5} {'frames':>6} {'train s':>7} {'steps':>6} {'loss':>7} "
+          f"{'ACT':>7} {'Wilson 95 %':>14} {'expert':>7} {'Wilson 95 %':>14}")
+    for r in report["tasks"]:
+        e, x = r["eval"], r["expert"]
+        print(f"{r['task']:18} {r['demos']['episodes_kept']:5d} {r['demos']['frames']:6d} "
+              f"{r['training']['seconds']:7.0f} {r['training']['steps']:6d} {r['training']['final_loss']:7.4f} "
+              f"{e['successes']:3d}/{e['episodes']:<3d} [{e['wilson95'][0]:.3f}, {e['wilson95'][1]:.3f}] "
+              f"{x['successes']:3d}/{x['episodes']:<3d} [{x['wilson95'][0]:.3f}, {x['wilson95'][1]:.3f}]")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--suite", default="libero_spatial", choices=sorted(STEPS))
+    ap.add_argument("--tasks", default="0,1,2,3,4", help="comma-separated task indices (default 0,1,2,3,4)")
+    ap.add_argument("--demo-states", default="0:30", help="init states A:B demonstrated (default 0:30)")
+    ap.add_argument("--eval-states", default="30:50", help="held-out init states A:B evaluated (default 30:50)")
+    ap.add_argument("--train-s", type=float, default=150.0, help="training wall-clock cap per task, seconds")
+    ap.add_argument("--train-steps", type=int, default=None, help="optimizer steps per task (default: the recipe's)")
+    ap.add_argument("--work", type=Path, default=None, help="keep scenes, datasets, checkpoints and runs here "
+                    "(default: a new temporary directory)")
+    ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "libero_proof.json")
+    args = ap.parse_args()
+    tasks = [int(t) for t in args.tasks.split(",") if t.strip()]
+    demo, held_out = init_range(args.demo_states, "--demo-states"), init_range(args.eval_states, "--eval-states")
+    if set(demo) & set(held_out):
+        raise SystemExit(f"--eval-states {args.eval_states} overlaps the demonstrated init states {args.demo_states}")
+    recipe = Recipe(**({"steps": args.train_steps} if args.train_steps is not None else {}))
+    work = args.work or Path(tempfile.mkdtemp(prefix="libero_proof_"))
+    work.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one torch thread per process (metaworld_proof.py says why)
+    report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+              "suite": args.suite, "recipe": asdict(recipe), "train_budget_s": args.train_s,
+              "demo_init_states": args.demo_states, "held_out_init_states": args.eval_states, "work": str(work),
+              "tasks": []}
+
+    def save() -> None:
+        summarize(report)
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+
+    try:
+        for task in tasks:
+            report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s))
+            save()
+            print(f"libero_proof: {report['tasks'][-1]['task']} done", flush=True)
+    except RuntimeError as exc:
+        print(f"libero_proof: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        save()
+    print_table(report)
+    print(f"mean over {len(report['tasks'])} task(s): ACT {report['mean_success_rate']:.3f}, "
+          f"expert {report['expert_mean_success_rate']:.3f}")
+    print(f"json: {args.json}")
+    print(f"libero_proof: mean task success rate on held-out init states {args.eval_states} "
+          f"success_rate={report['mean_success_rate']:.4f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
