@@ -9,6 +9,13 @@
 - ``run DIR --out FILE`` (there, with mujoco, mujoco_warp and warp importable): the states as the worlds of
   MuJoCo Warp batches on ``--device`` (default ``cuda:0``), the predicates evaluated with CuPy, compared with
   LIBERO's answers; prints and writes the disagreements (JSON).
+
+Getting it there (64 MiB a call): ``DIR`` (``model.mjb.gz`` 41 MB, ``check.npz``) is one call's carry; the
+wheels of warp-lang 1.19.0 (149 MB, in three pieces as ``benchmarks/device/warp_upload.sh`` splits it),
+mujoco 4.0.1 and mujoco-core 4.0.1 (the ``.mjb`` is this MuJoCo's; warp_upload.sh fetches 4.0.0) and
+mujoco-warp 4.0.0 take three more, then ``pip install --no-index --no-deps --target /tmp/site`` there and
+``PYTHONPATH=/tmp/site:src python3 benchmarks/libero_predicates_device.py run DIR --out $OUT/x.json``.
+Not yet run: no machine was lent when it was written.
 """
 
 from __future__ import annotations
