@@ -20,6 +20,11 @@ the joints' qpos and qvel after it. Success after a step is LIBERO's ``_check_su
 evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
 nothing into the batch's shared contact arrays; the others go on.
+
+Cameras (``cameras``: ``(camera, feature key, (H, W))`` each) are observables too: when a step or reset asks for
+images (``render=True``) they are drawn at the substep the clock samples (a reset's: its last settle step, where
+the CPU backend turns its cameras on), by MuJoCo Warp's ray tracer for every world at once (``renderer="warp"``)
+or by MuJoCo's OpenGL renderer for the sampled worlds on the host (``"opengl"``: ``render.OpenGLCameras``).
 """
 
 from __future__ import annotations
