@@ -95,7 +95,11 @@ class LiberoBatchRollout(SyncStepPair):
         if self.privileged:
             from simseam.backends.libero_gpu.expert import BatchExpert
 
-            self.expert = BatchExpert(self.world)
+            try:
+                self.expert = BatchExpert(self.world)
+            except BaseException:  # a goal the expert cannot do: the worlds go with the error
+                self.world.close()
+                raise
         self._spec = self._make_spec()
         self._dt_ns = int(round(1e9 / self._spec.control_hz))
         self._seed_stream = np.random.default_rng(0)
