@@ -4,7 +4,7 @@ with both cameras drawn, and what a reset (its settle steps) costs.
     .venv/bin/python benchmarks/libero_warp_step.py [--task libero_spatial/0] [--worlds 1,4] [--steps 5]
         [--image-size 128] [--sim-device cpu] [--json PATH]
 
-For each N: a ``LiberoBatchRollout`` of N worlds (``cameras: true``), the reset of all N (10 settle steps, the
+For each renderer (``render: warp``, ``opengl``) and N: a ``LiberoBatchRollout`` of N worlds (``cameras: true``), the reset of all N (10 settle steps, the
 cameras drawn on the last), then ``--steps`` steps of every world state-only and ``--steps`` with both images
 asked (the dummy action). Prints one row per N (seconds per reset, per step state-only and with images, and per
 world-step) and writes JSON (default benchmarks/results/libero_warp_step_cpu.json). Wall-clock on whatever else
@@ -25,12 +25,12 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 
 
-def measure(task: str, n: int, steps: int, size: int, device: str, worker) -> dict:
+def measure(task: str, n: int, steps: int, size: int, device: str, worker, render: str) -> dict:
     from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
     from simseam.seam import ObsRequest
 
     suite, _, index = task.partition("/")
-    config = {"suite": suite, "task": int(index), "image_size": [size, size], "cameras": True}
+    config = {"suite": suite, "task": int(index), "image_size": [size, size], "cameras": True, "render": render}
     envs, action = list(range(n)), np.tile(np.asarray([0, 0, 0, 0, 0, 0, -1], np.float32), (n, 1))
     with LiberoBatchRollout(config, n, worker, device=device) as batch:
         batch.reset(envs, envs)  # kernels compiled and loaded, reset states cached: not timed
@@ -38,7 +38,7 @@ def measure(task: str, n: int, steps: int, size: int, device: str, worker) -> di
         t0 = time.perf_counter()
         batch.reset(envs, envs)
         reset = time.perf_counter() - t0
-        out = {"worlds": n, "reset_s": reset}
+        out = {"worlds": n, "render": render, "reset_s": reset}
         for name, request in (("state_only", ObsRequest.state_only()), ("images", ObsRequest())):
             t0 = time.perf_counter()
             for _ in range(steps):
@@ -55,18 +55,20 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--image-size", type=int, default=128)
     ap.add_argument("--sim-device", default="cpu")
+    ap.add_argument("--render", default="warp,opengl", help="the renderers of the images (warp, opengl)")
     ap.add_argument("--json", type=Path, default=HERE / "results" / "libero_warp_step_cpu.json")
     args = ap.parse_args()
     from simseam.backends.libero_gpu.worker import NativeWorker
 
     rows = []
     with NativeWorker() as worker:
-        for n in (int(x) for x in args.worlds.split(",")):
-            rows.append(measure(args.task, n, args.steps, args.image_size, args.sim_device, worker))
-            r = rows[-1]
-            print(f"{n:>3} worlds: reset {r['reset_s']:.2f} s, step {r['step_s_state_only']:.3f} s state-only "
-                  f"({r['world_step_ms_state_only']:.0f} ms per world), {r['step_s_images']:.3f} s with 2 x "
-                  f"{args.image_size}^2 images", flush=True)
+        for render in args.render.split(","):
+            for n in (int(x) for x in args.worlds.split(",")):
+                rows.append(measure(args.task, n, args.steps, args.image_size, args.sim_device, worker, render))
+                r = rows[-1]
+                print(f"{render:>6} {n:>3} worlds: reset {r['reset_s']:.2f} s, step {r['step_s_state_only']:.3f} s "
+                      f"state-only ({r['world_step_ms_state_only']:.0f} ms per world), {r['step_s_images']:.3f} s "
+                      f"with 2 x {args.image_size}^2 images", flush=True)
     doc = {"benchmark": "libero_warp_step", "task": args.task, "sim_device": args.sim_device,
            "image_size": args.image_size, "steps": args.steps, "load_1min": os.getloadavg()[0],
            "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "rows": rows}

@@ -20,6 +20,11 @@ the joints' qpos and qvel after it. Success after a step is LIBERO's ``_check_su
 evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
 nothing into the batch's shared contact arrays; the others go on.
+
+Cameras (``cameras``: ``(camera, feature key, (H, W))`` each) are observables too: when a step or reset asks for
+images (``render=True``) they are drawn at the substep the clock samples (a reset's: its last settle step, where
+the CPU backend turns its cameras on), by MuJoCo Warp's ray tracer for every world at once (``renderer="warp"``)
+or by MuJoCo's OpenGL renderer for the sampled worlds on the host (``"opengl"``: ``render.OpenGLCameras``).
 """
 
 from __future__ import annotations
@@ -38,9 +43,11 @@ from simseam.backends.libero_gpu.resets import ResetCache
 from simseam.backends.libero_gpu.state import LiberoState
 from simseam.backends.libero_gpu.stepping import control_step
 from simseam.backends.libero_gpu.worlds import LiberoWorlds
+from simseam.seam.errors import ConfigError
 
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
 IMAGE = "image:"  # the cameras' keys in ``observed``
+RENDERERS = ("warp", "opengl")
 #: what robosuite's offscreen renderer draws of a LIBERO scene, in MuJoCo Warp's ray tracer: the visual geoms
 #: (groups 1 and 2: robosuite turns group 0, the collision geoms, off), textures, the lights' shadows
 RENDER = {"groups": (1, 2), "use_textures": True, "use_shadows": True}
@@ -52,7 +59,8 @@ class LiberoBatch:
     ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``."""
 
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
-                 settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = ()):
+                 settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = (),
+                 renderer: str = "warp"):
         info = worker.call("describe", suite=suite, task=int(task))
         self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
         self.model = load_or_build(info)
@@ -78,6 +86,9 @@ class LiberoBatch:
         self._dummy = xp.asarray(np.tile(np.asarray(DUMMY_ACTION), (n, 1)))
         self.clock = Clock(n, float(self.facts["model_timestep"]))
         self.observed = {k: v.copy() for k, v in self._sensed().items()}
+        if renderer not in RENDERERS:
+            raise ConfigError(f"{self.label}: render {renderer!r}: one of {list(RENDERERS)}")
+        self.renderer = renderer
         self.cameras, self._render = self._make_cameras(cameras), False
 
     @property
@@ -179,21 +190,33 @@ class LiberoBatch:
         ``rows``' kept; turned as the CPU backend turns robosuite's, which is MuJoCo's image mirrored left-right)."""
         if len(rows):
             idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
-            sensed = self._sensed()
-            if self._render and self.cameras is not None:
-                sensed.update({IMAGE + k: v[:, :, ::-1] for k, v in self.physics.render(self.cameras).items()})
-            for key, value in sensed.items():
+            for key, value in self._sensed().items():
                 self.observed[key][idx] = value[idx]
+            if self._render and self.cameras is not None:
+                for key, value in self._draw(rows, idx).items():
+                    self.observed[IMAGE + key][idx] = value[:, :, ::-1]
+
+    def _draw(self, rows: np.ndarray, idx: Any) -> dict[str, Any]:
+        """``rows``' images now, as their renderer returns them: MuJoCo Warp's ray tracer draws every world at once;
+        MuJoCo's OpenGL renderer (``render: opengl``) draws ``rows``, one after another, on the host."""
+        if self.renderer == "opengl":
+            return {k: self.xp.asarray(v) for k, v in self.cameras.render(self.physics, rows).items()}
+        return {k: v[idx] for k, v in self.physics.render(self.cameras).items()}
 
     def _make_cameras(self, cameras) -> Any:
-        """MuJoCo Warp's ray tracer for ``cameras`` (``(camera, feature key, (H, W))`` each), drawing what robosuite's
-        offscreen renderer draws (``RENDER``); their images' buffers in ``observed`` (``IMAGE`` + key)."""
+        """The renderer of ``cameras`` (``(camera, feature key, (H, W))`` each): MuJoCo Warp's ray tracer drawing
+        what robosuite's offscreen renderer draws (``RENDER``), or MuJoCo's OpenGL renderer (``render.OpenGLCameras``);
+        their images' buffers in ``observed`` (``IMAGE`` + key)."""
         if not cameras:
             return None
-        from simseam.engines.mujoco_warp.cameras import WarpCameras
-
         for _, key, (h, w) in cameras:
             self.observed[IMAGE + key] = self.xp.zeros((self.num_worlds, h, w, 3), dtype=self.xp.uint8)
+        if self.renderer == "opengl":
+            from simseam.backends.libero_gpu.render import OpenGLCameras
+
+            return OpenGLCameras(self.model.model, list(cameras))
+        from simseam.engines.mujoco_warp.cameras import WarpCameras
+
         return WarpCameras(self.model.model, self.num_worlds, list(cameras), device=self.physics.device, **RENDER)
 
     def images(self, rows: np.ndarray, keys: Sequence[str]) -> dict[str, np.ndarray]:
@@ -218,6 +241,8 @@ class LiberoBatch:
                 "gripper_qpos": qpos[:, f["gripper_qpos_index"]], "gripper_qvel": qvel[:, f["gripper_qvel_index"]]}
 
     def close(self) -> None:
+        if self.renderer == "opengl" and self.cameras is not None:
+            self.cameras.close()
         self.physics.close()
 
 

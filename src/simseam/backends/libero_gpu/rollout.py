@@ -13,7 +13,8 @@ What each environment gives is the CPU backend's (``backends.libero``), on the s
   ``images`` ``camera1`` (agentview) and ``camera2`` (eye in hand) at ``image_size``, oriented as the CPU
   backend's, drawn by MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``) for every world at
   once when a request asks for one, at the substep robosuite's observables sample (not the CPU renderer's
-  pixels: docs/benchmarks.md says how close they are);
+  pixels: docs/benchmarks.md says how close they are), or with ``render: opengl`` by MuJoCo's OpenGL renderer
+  drawing each world's state on the host as robosuite draws it (``render.OpenGLCameras``);
 - step: the environments asked advance; the others stay as they are (``LiberoBatch.step``);
 - ``privileged`` (``--policy scripted``): ``expert_action`` is the LIBERO expert's action, one expert per
   world (``expert.BatchExpert``);
@@ -32,7 +33,7 @@ import numpy as np
 
 from simseam.backends.base import observation_spec
 from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
-from simseam.backends.libero_gpu.env import DUMMY_ACTION, LiberoBatch
+from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
 from simseam.seam import (
     INFO_DIAGNOSTICS,
     INFO_STEPS,
@@ -62,12 +63,15 @@ ENGINE = "mujoco_warp"
 
 
 def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
-    """The CPU backend's config, checked, and ``cameras`` (default false: the port renders only when asked)."""
+    """The CPU backend's config, checked, and ``cameras`` (default false: the port renders only when asked) and
+    ``render`` (``warp``: MuJoCo Warp's ray tracer; ``opengl``: MuJoCo's OpenGL renderer on the host)."""
     config = dict(config)
-    cameras = config.pop("cameras", False)
+    cameras, render = config.pop("cameras", False), config.pop("render", "warp")
     if not isinstance(cameras, bool):
         raise ConfigError(f"benchmark.cameras: expected true or false, got {cameras!r}")
-    return {**normalize_config(config), "cameras": cameras}
+    if render not in RENDERERS:
+        raise ConfigError(f"benchmark.render: one of {list(RENDERERS)}, got {render!r}")
+    return {**normalize_config(config), "cameras": cameras, "render": render}
 
 
 def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
@@ -86,12 +90,16 @@ class LiberoBatchRollout(SyncStepPair):
         self.config = c = gpu_config(config)
         self.worker, self.privileged = worker, bool(privileged)
         self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device,
-                                 settle_steps=c["settle_steps"], cameras=camera_plan(c))
+                                 settle_steps=c["settle_steps"], cameras=camera_plan(c), renderer=c["render"])
         self.expert = None
         if self.privileged:
             from simseam.backends.libero_gpu.expert import BatchExpert
 
-            self.expert = BatchExpert(self.world)
+            try:
+                self.expert = BatchExpert(self.world)
+            except BaseException:  # a goal the expert cannot do: the worlds go with the error
+                self.world.close()
+                raise
         self._spec = self._make_spec()
         self._dt_ns = int(round(1e9 / self._spec.control_hz))
         self._seed_stream = np.random.default_rng(0)
