@@ -18,12 +18,16 @@ from simseam.seam.errors import ConfigError
 
 pytestmark = pytest.mark.backends
 
-#: (suite, task): what it covers
+#: (suite, task): what it covers, and predicates LIBERO evaluates besides the goal (its suites' goals use neither)
 TASKS = {
-    ("libero_spatial", 0): "On an object (contact, heights, 3 cm)",
-    ("libero_object", 0): "In a region (its site box)",
+    ("libero_spatial", 0): ("On an object: contact, heights, 3 cm", []),
+    ("libero_object", 0): ("In a region: its site box", []),
+    ("libero_goal", 0): ("Open a region: its parent's rule on the region's joints", []),
+    ("libero_goal", 5): ("On a table zone: no parent, no contact", []),
+    ("libero_10", 2): ("TurnOn a fixture and On its region (the parent's contact); Up, TurnOff",
+                       [["up", "moka_pot_1"], ["turnoff", "flat_stove_1"]]),
+    ("libero_10", 9): ("In a region and Close an object (all its joints)", []),
 }
-
 
 @pytest.fixture(scope="module")
 def worker():
@@ -52,18 +56,26 @@ def _task(worker, suite: str, task: int):
 
 @pytest.mark.parametrize("suite,task", list(TASKS))
 def test_crafted_states_give_liberos_answer_on_every_engine(worker, cache, suite, task):
-    from simseam.backends.libero_gpu.goal_replay import compare
+    from simseam.backends.libero_gpu.goal_replay import compare, libero_check
+    from simseam.backends.libero_gpu.predicates import GoalCheck
 
+    what, extra = TASKS[suite, task]
     info, mjm, check = _task(worker, suite, task)
     crafted = worker.call("craft", suite=suite, task=task)
-    native = worker.call("check", suite=suite, task=task, qpos=crafted["qpos"], qvel=crafted["qvel"])
+    native = libero_check(worker, suite, task, mjm, crafted["qpos"], crafted["qvel"], terms=extra)
     # the crafted states make each predicate true and false, by LIBERO's own evaluation
-    assert native["values"].any(axis=0).all() and (~native["values"]).any(axis=0).all(), check.names
+    for values in (native["values"], native["extra"]):
+        assert values.any(axis=0).all() and (~values).any(axis=0).all(), check.names
     assert native["success"].any() and not native["success"].all()
     gaps = compare(check, mjm, native, crafted["qpos"], crafted["qvel"], device="cpu")
-    print(f"{suite}/{task} {TASKS[suite, task]}: {len(crafted['labels'])} states, "
-          f"{int(native['success'].sum())} successes; disagreements {gaps}")
-    assert gaps == {e: {"success": [], "values": []} for e in ("native", "mujoco", "mujoco_warp")}
+    print(f"{suite}/{task} {what}: {len(crafted['labels'])} states, {int(native['success'].sum())} successes; "
+          f"disagreements {gaps}")
+    none = {e: {"success": [], "values": []} for e in ("native", "mujoco", "mujoco_warp")}
+    assert gaps == none
+    if extra:
+        other = GoalCheck.compile(f"{suite}/{task}", extra, mjm, info["goal"]["objects"])
+        as_goal = {"success": native["extra"].all(axis=1), "values": native["extra"], "observed": native["observed"]}
+        assert compare(other, mjm, as_goal, crafted["qpos"], crafted["qvel"], device="cpu") == none
 
 
 def test_bad_goals_are_one_line_errors_naming_task_and_predicate(worker, cache):

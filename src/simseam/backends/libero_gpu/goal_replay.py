@@ -16,6 +16,13 @@ from simseam.backends.libero_gpu.state import LiberoState
 ENGINES = ("native", "mujoco", "mujoco_warp")
 
 
+def libero_check(worker: Any, suite: str, task: int, mjm: Any, qpos: np.ndarray, qvel: np.ndarray,
+                 terms: list | None = None) -> dict[str, Any]:
+    """LIBERO's own evaluation of the states (``native.check``), its fixtures placed as in ``mjm``."""
+    return worker.call("check", suite=suite, task=task, qpos=np.asarray(qpos), qvel=np.asarray(qvel),
+                       body_pos=np.array(mjm.body_pos), body_quat=np.array(mjm.body_quat), terms=terms)
+
+
 def native_state(observed: list[dict[str, Any]]) -> LiberoState:
     """The states as LIBERO's data held them (``native.check``'s ``observed``), one world each (NumPy)."""
     stack = lambda k: np.stack([o[k] for o in observed])  # noqa: E731
@@ -39,9 +46,11 @@ def cpu_state(mjm: Any, qpos: np.ndarray, qvel: np.ndarray) -> LiberoState:
 
 
 def warp_values(check: GoalCheck, mjm: Any, qpos: np.ndarray, qvel: np.ndarray, device: str | None = None,
-                nconmax: int = 512, njmax: int = 2048) -> tuple[np.ndarray, np.ndarray]:
-    """``check``'s ``met`` and ``values`` (host arrays) of the states as the worlds of one MuJoCo Warp batch on
-    ``device`` (default: Warp's preferred), each set and forwarded (``mujoco_warp.forward``)."""
+                nconmax: int = 1024, njmax: int = 2048, chunk: int = 128) -> tuple[np.ndarray, np.ndarray]:
+    """``check``'s ``met`` and ``values`` (host arrays) of the states as the worlds of MuJoCo Warp batches of up to
+    ``chunk`` worlds on ``device`` (default: Warp's preferred), each set and forwarded (``mujoco_warp.forward``).
+    ``nconmax``: contacts per world on average (a batch that detects more than it holds is a ``SimulationError``:
+    lost contacts would change the answer)."""
     import mujoco
     import mujoco_warp as mjw
     import warp as wp
@@ -52,14 +61,28 @@ def warp_values(check: GoalCheck, mjm: Any, qpos: np.ndarray, qvel: np.ndarray, 
     host = mujoco.MjData(mjm)  # its contacts are not read: the model's default pose overlaps in 1,300-1,900
     with wp.ScopedDevice(dev):
         m = mjw.put_model(mjm)
-        d = mjw.put_data(mjm, host, nworld=len(qpos), naconmax=nconmax * len(qpos), njmax=njmax)
-        d.qpos.assign(wp.array(np.asarray(qpos, np.float32), dtype=float))
-        d.qvel.assign(wp.array(np.asarray(qvel, np.float32), dtype=float))
-        mjw.forward(m, d)
-        wp.synchronize_device(dev)
-    state = LiberoState.from_warp(mjm, d)
-    host_of = lambda a: a.get() if hasattr(a, "get") else np.asarray(a)  # noqa: E731
-    return host_of(check.met(state)), host_of(check.values(state))
+    met, values = [], []
+    for at in range(0, len(qpos), chunk):
+        q, v = qpos[at:at + chunk], qvel[at:at + chunk]
+        with wp.ScopedDevice(dev):
+            d = mjw.put_data(mjm, host, nworld=len(q), naconmax=nconmax * len(q), njmax=njmax)
+            d.qpos.assign(wp.array(np.asarray(q, np.float32), dtype=float))
+            d.qvel.assign(wp.array(np.asarray(v, np.float32), dtype=float))
+            mjw.forward(m, d)
+            wp.synchronize_device(dev)
+        if int(d.nacon.numpy()[0]) > d.naconmax:
+            from simseam.seam.errors import SimulationError
+
+            raise SimulationError(f"goal replay on MuJoCo Warp: {int(d.nacon.numpy()[0])} contacts in states "
+                                  f"{at}..{at + len(q) - 1}, more than the {d.naconmax} allocated (raise nconmax)")
+        state = LiberoState.from_warp(mjm, d)
+        met.append(_host(check.met(state)))
+        values.append(_host(check.values(state)))
+    return np.concatenate(met), np.concatenate(values)
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)
 
 
 def compare(check: GoalCheck, mjm: Any, native: dict[str, Any], qpos: np.ndarray, qvel: np.ndarray,

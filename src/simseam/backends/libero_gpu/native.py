@@ -7,11 +7,15 @@ It answers with what only LIBERO / robosuite know, computed on their pinned MuJo
   site-packages, referenced by absolute path), the versions, the native model's arrays (a fresh compile of that
   XML, and the env's model after a reset from init state 0, which moves fixtures in ``body_pos`` /
   ``body_quat``), its options, the settled state (init state 0 after LIBERO's settle steps: qpos, qvel, contact
-  pairs) and the controller's constants (``controller_facts``);
+  pairs), the controller's constants (``controller_facts``) and the goal (``goal``: LIBERO's parsed goal and what
+  its object states read, ``goal_facts``: ``predicates.GoalCheck.compile``'s input);
 - ``record(suite, task, init, actions, settle)``: an episode from init state ``init`` (openpi's path, as
   ``backends.libero`` runs it: ``seed``, ``reset``, ``set_init_state``, ``settle`` dummy steps) under
   ``actions`` float[T, 7], with what robosuite's controller saw and did at every physics substep (the state it
-  read, its goal and the gripper's ramp state before and after, the torques it applied, the whole ``ctrl``).
+  read, its goal and the gripper's ramp state before and after, the torques it applied, the whole ``ctrl``);
+- for the goal predicates (``goal_replay``, ``benchmarks/libero_predicates_check.py``): ``check`` (LIBERO's own
+  ``_check_success`` and ``_eval_predicate`` of given states), ``craft`` (states made to turn the goal's
+  predicates true and false) and ``episode`` (states along an episode of the expert, zero or random actions).
 
 The env is LIBERO's ``ControlEnv`` without cameras or renderer (they change neither the model nor the physics).
 """
@@ -315,15 +319,19 @@ def _observed(env: Any) -> dict[str, Any]:
             "contacts": np.asarray(d.contact.geom[:d.ncon], np.int64).reshape(-1, 2)}
 
 
-def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, terms: list | None = None,
-          seed: int = 0) -> dict[str, Any]:
-    """LIBERO's own evaluation of states (float[S, nq], [S, nv]) in the env reset with ``seed`` (which places its
-    fixtures: seed 0 is ``describe``'s model), each set and forwarded: ``success``
-    (``_check_success()``) bool[S], ``values`` bool[S, P] (``_eval_predicate`` of each goal predicate),
-    ``extra`` bool[S, Q] (of each of ``terms``, e.g. ``[["up", "plate_1"]]``) and ``observed``: what the
-    predicates read of each forwarded state (``_observed``)."""
-    env, inits = _env(suite, task)
-    _reset(env, inits, 0, seed)
+def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, body_pos: np.ndarray, body_quat: np.ndarray,
+          terms: list | None = None) -> dict[str, Any]:
+    """LIBERO's own evaluation of states (float[S, nq], [S, nv]) in the task's env with its fixtures placed by
+    ``body_pos`` / ``body_quat`` (the port model's: where a reset put them depends on the env's earlier resets,
+    not on the seed alone), each set and forwarded: ``success`` (``_check_success()``) bool[S], ``values``
+    bool[S, P] (``_eval_predicate`` of each goal predicate), ``extra`` bool[S, Q] (of each of ``terms``, e.g.
+    ``[["up", "plate_1"]]``) and ``observed``: what the predicates read of each forwarded state (``_observed``)."""
+    env, _ = _env(suite, task)
+    model = env.env.sim.model._model
+    if model.body_pos.shape != np.shape(body_pos) or model.body_quat.shape != np.shape(body_quat):
+        raise ValueError(f"body_pos / body_quat {np.shape(body_pos)} / {np.shape(body_quat)} are not of this "
+                         f"model's {model.nbody} bodies")
+    model.body_pos[:], model.body_quat[:] = body_pos, body_quat
     e = env.env
     goal = e.parsed_problem["goal_state"]
     out: dict[str, list] = {"success": [], "values": [], "extra": [], "observed": []}
@@ -342,7 +350,7 @@ def check(suite: str, task: int, qpos: np.ndarray, qvel: np.ndarray, terms: list
 SWEEP = np.linspace(-0.15, 0.15, 31) + 0.0037
 JOINT_SWEEP = 25  # joint values across the joint's range ...
 NEAR = 0.002  # ... and this far either side of each end of LIBERO's articulation ranges
-LIFT = {"on": 0.08, "in": 0.03}  # m above the target where an object is dropped
+LIFT = {"on": 0.08, "in": 0.0}  # m above the target where an object is posed (In: at the region's centre)
 SPREAD = 0.05  # m between objects dropped onto one target
 JOINT_NAMES = ("open", "close", "turnon", "turnoff")  # LIBERO's predicates on an object's joints
 
@@ -411,9 +419,10 @@ def _pose_goal(env: Any, goal: list) -> None:
 def craft(suite: str, task: int, init: int = 0, seed: int = 0, settle: int = 10, drop: int = 20) -> dict[str, Any]:
     """States made to turn the goal's predicates true and false, from init state ``init`` after ``settle`` steps
     (the env reset with ``seed``): the goal posed (``_pose_goal``) and dropped for ``drop`` control steps of
-    physics (dummy actions); then, from where it landed, each moved object swept along x, y and z (``SWEEP``,
-    no physics) and each unary predicate's joints swept across their range (no physics). Returns ``labels``
-    [S], ``qpos`` float[S, nq], ``qvel`` [S, nv]."""
+    physics (dummy actions); then each moved object swept along x, y and z (``SWEEP``, no physics) through where
+    it was posed (``In``: the region's centre) or where it landed (``On``: resting on its target), and each unary
+    predicate's joints swept across their range where the goal landed (no physics). Returns ``labels`` [S],
+    ``qpos`` float[S, nq], ``qvel`` [S, nv]."""
     env, inits = _env(suite, task)
     _settled(env, inits, init, seed, settle)
     goal = [[str(a) for a in g] for g in env.env.parsed_problem["goal_state"]]
@@ -428,7 +437,7 @@ def craft(suite: str, task: int, init: int = 0, seed: int = 0, settle: int = 10,
         if len(term) == 3:
             adr = _free_qpos(env, term[1])
             for axis, t in ((a, t) for a in range(3) for t in SWEEP):
-                q = base_q.copy()
+                q = (rows[1][1] if term[0] == "in" else base_q).copy()
                 q[adr + axis] += t
                 rows.append((f"{term[1]} {'xyz'[axis]}{t:+.4f}", q, base_v))
         elif term[0] in JOINT_NAMES:

@@ -20,6 +20,13 @@ API (stable; ``state.py`` documents ``LiberoState``)::
   its contact geoms (robosuite's ``contact_geoms``), its joints, its category and articulation ranges (LIBERO's
   ``object_properties["articulation"]``), a region's size (LIBERO's ``SiteObject.size``) and parent.
 
+When: LIBERO's episode success is ``_check_success()`` right after ``env.step``, on the poses and contacts the
+step's last physics step computed before integrating (see ``state.py``): evaluate ``met`` on MuJoCo Warp's data
+as ``step`` leaves it to reproduce that. The predicates read world poses from the data only (never the model's
+``body_pos``), so fixtures placed per world through batched model fields are honoured. On MuJoCo Warp the state
+is float32: a position within float32 rounding of a threshold may decide differently than LIBERO's float64.
+``goal_replay.py`` checks the predicates against LIBERO itself (``benchmarks/libero_predicates_check.py``).
+
 A predicate this module does not evaluate (or an argument LIBERO itself could not evaluate it on, e.g. ``Open``
 of a movable object) is a one-line ``ConfigError`` naming the task and the predicate, raised by ``compile``.
 

@@ -9,7 +9,8 @@ Build it with
 - ``LiberoState.from_cpu(mjm, datas)``: ``datas`` a list of ``MjData`` of ``mjm`` (copies are taken);
 - ``LiberoState.from_warp(mjm, d)``: ``d`` MuJoCo Warp's ``Data`` of ``d.nworld`` worlds of ``mjm``, on whatever
   Warp device it lives (read from ``d``: never assumed); the arrays are zero-copy views of the device data, valid
-  until the worlds are stepped again (no host synchronisation, not even of the contact count).
+  until the worlds are stepped again (no host synchronisation, not even of the contact count; on CUDA, read them
+  after Warp's work is done: ``wp.synchronize_device``, or CuPy on Warp's stream).
 
 Both read the data *as it is*: LIBERO evaluates its goal right after ``env.step``, whose last physics step leaves
 poses and contacts of the state *before* that step's integration (``mj_step`` runs collision and kinematics
