@@ -32,6 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.base import observation_spec
+from simseam.backends.native_port import NativePort
 from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
 from simseam.seam import (
@@ -57,7 +58,7 @@ from simseam.seam import (
     SimulationError,
     TaskSpec,
 )
-from simseam.seam.batch import BatchStepResult, EnvFailure, SyncStepPair, batch_actions, env_indices, per_env_requests
+from simseam.seam.batch import BatchStepResult, EnvFailure, batch_actions, env_indices, per_env_requests
 
 ENGINE = "mujoco_warp"
 
@@ -82,13 +83,16 @@ def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]
     return [(native.removesuffix("_image"), key, size) for key, native in CAMERAS.items()]
 
 
-class LiberoBatchRollout(SyncStepPair):
+class LiberoBatchRollout(NativePort):
     """``num_envs`` environments of ``config``'s task (``worker``: a started LIBERO ``NativeWorker``, shared)."""
+
+    WORKER = "simseam.backends.libero_gpu.worker:NativeWorker"
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
                  device: str | None = None):
         self.config = c = gpu_config(config)
-        self.worker, self.privileged = worker, bool(privileged)
+        self._start(worker)
+        self.privileged = bool(privileged)
         self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device,
                                  settle_steps=c["settle_steps"], cameras=camera_plan(c), renderer=c["render"])
         self.expert = None
@@ -104,29 +108,6 @@ class LiberoBatchRollout(SyncStepPair):
         self._dt_ns = int(round(1e9 / self._spec.control_hz))
         self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
-        self._failures: dict[int, EnvFailure] = {}
-        self._closed = False
-        self._own_worker = False
-
-    @classmethod
-    def open(cls, config: dict[str, Any], num_envs: int, *, privileged: bool = False, device: str | None = None,
-             python: str | None = None) -> "LiberoBatchRollout":
-        """A batch with its own native worker (LIBERO's provisioned venv, or ``python``), closed with it."""
-        worker = cls.shared(python)
-        try:
-            batch = cls(config, num_envs, worker, privileged=privileged, device=device)
-        except BaseException:
-            worker.close()
-            raise
-        batch._own_worker = True
-        return batch
-
-    @staticmethod
-    def shared(python: str | None = None) -> Any:
-        """What every task's batch of a run shares: LIBERO's native worker."""
-        from simseam.backends.libero_gpu.worker import NativeWorker
-
-        return NativeWorker(python)
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model
@@ -156,14 +137,6 @@ class LiberoBatchRollout(SyncStepPair):
             backend="inprocess",
             capabilities=("privileged",) if self.privileged else (),
         )
-
-    @property
-    def spec(self) -> RolloutSpec:
-        return self._spec
-
-    @property
-    def num_envs(self) -> int:
-        return self.world.num_worlds
 
     # ------------------------------------------------------------------------------------------ episodes
     def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
@@ -243,26 +216,6 @@ class LiberoBatchRollout(SyncStepPair):
         keys = list(self._spec.observation.images)
         return self.world.images(np.array([env]), keys[:1])[keys[0]][0] if keys else None
 
-    def failures(self) -> dict[int, EnvFailure]:
-        out, self._failures = self._failures, {}
-        return out
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self.world.close()
-            if self._own_worker:
-                self.worker.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise SimulationError("the batch is closed")
-
-    def __enter__(self) -> "LiberoBatchRollout":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _mujoco_version() -> str:

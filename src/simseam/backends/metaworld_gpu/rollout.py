@@ -25,6 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.base import observation_spec
+from simseam.backends.native_port import NativePort
 from simseam.backends.metaworld import (
     AGENT_POS,
     DIAGNOSTICS,
@@ -63,7 +64,6 @@ from simseam.seam import (
 from simseam.seam.batch import (
     BatchStepResult,
     EnvFailure,
-    SyncStepPair,
     batch_actions,
     env_indices,
     per_env_requests,
@@ -85,13 +85,16 @@ def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]
     return [(name, f"camera{i + 1}", size) for i, name in enumerate(camera_names(config))]
 
 
-class MetaWorldBatchRollout(SyncStepPair):
+class MetaWorldBatchRollout(NativePort):
     """``num_envs`` environments of ``config['task']`` (``worker``: a started ``NativeWorker``, shared)."""
+
+    WORKER = "simseam.backends.metaworld_gpu.worker:NativeWorker"
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
                  device: str | None = None, engine: str = ENGINE):
         self.config = gpu_config(config)
-        self.worker, self.privileged = worker, bool(privileged)
+        self._start(worker)
+        self.privileged = bool(privileged)
         c = self.config
         self.world = MetaWorldBatch(c["task"], num_envs, worker, engine=engine, device=device,
                                     variation=c["variation"], goal_seed=c["goal_seed"], cameras=camera_plan(c),
@@ -104,29 +107,6 @@ class MetaWorldBatchRollout(SyncStepPair):
         self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
         self._success = np.zeros(num_envs, dtype=bool)
-        self._failures: dict[int, EnvFailure] = {}
-        self._closed = False
-        self._own_worker = False
-
-    @classmethod
-    def open(cls, config: dict[str, Any], num_envs: int, *, privileged: bool = False, device: str | None = None,
-             python: str | None = None) -> "MetaWorldBatchRollout":
-        """A batch with its own native worker (Meta-World's provisioned venv, or ``python``), closed with it."""
-        worker = cls.shared(python)
-        try:
-            batch = cls(config, num_envs, worker, privileged=privileged, device=device)
-        except BaseException:
-            worker.close()
-            raise
-        batch._own_worker = True
-        return batch
-
-    @staticmethod
-    def shared(python: str | None = None) -> Any:
-        """What every task's batch of a run shares: Meta-World's native worker (its resets, its expert)."""
-        from simseam.backends.metaworld_gpu.worker import NativeWorker
-
-        return NativeWorker(python)
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model
@@ -166,14 +146,6 @@ class MetaWorldBatchRollout(SyncStepPair):
 
     def _spec_dt_ns(self) -> int:
         return int(round(float(self.world.model.model.opt.timestep) * int(self.world.info["frame_skip"]) * 1e9))
-
-    @property
-    def spec(self) -> RolloutSpec:
-        return self._spec
-
-    @property
-    def num_envs(self) -> int:
-        return self.world.num_worlds
 
     # ------------------------------------------------------------------------------------------ episodes
     def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
@@ -256,26 +228,6 @@ class MetaWorldBatchRollout(SyncStepPair):
             return None
         return np.ascontiguousarray(_host(self.world.render()[keys[0]][env]))
 
-    def failures(self) -> dict[int, EnvFailure]:
-        out, self._failures = self._failures, {}
-        return out
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self.world.close()
-            if self._own_worker:
-                self.worker.close()
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise SimulationError("the batch is closed")
-
-    def __enter__(self) -> "MetaWorldBatchRollout":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _host(a: Any) -> np.ndarray:
