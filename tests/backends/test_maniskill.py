@@ -259,5 +259,5 @@ def test_eval_turns_maniskills_camera_on_for_a_policy_that_reads_images():
     p = preset("maniskill_tabletop")
     assert p.backend_config(uses_images=True) == {**p.config, "cameras": True}
     assert p.backend_config(uses_images=False) == p.config and "cameras" not in p.config
-    libero = preset("libero_goal")  # always renders its cameras: nothing to turn on
-    assert libero.backend_config(uses_images=True) == libero.config
+    aloha = preset("aloha_insertion")  # always renders its cameras (no camera option): nothing to turn on
+    assert aloha.backend_config(uses_images=True) == aloha.config
