@@ -2,7 +2,8 @@
 evaluated on held-out init states, with the expert on the same init states as the reference.
 
     .venv/bin/python benchmarks/libero_proof.py [--suite libero_spatial] [--tasks 0,1,2,3,4]
-        [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--work DIR] [--json FILE]
+        [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--action-noise 0]
+        [--work DIR] [--json FILE]
 
 For each task, through the ``simseam`` command a user types (the CPU ``libero`` backend in LIBERO's venv
 behind the sidecar):
@@ -98,11 +99,12 @@ def _result(out: Path, policy: str, states: range, seconds: float, key: str | No
 
 
 def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt: Path, train_s: float,
-                      log: Path) -> tuple[float, float]:
-    """Phases 1 and 2 for one task: the expert's demonstrations into ``data``, ACT trained into ``ckpt``;
-    their wall seconds."""
+                      log: Path, noise: float = 0.0) -> tuple[float, float]:
+    """Phases 1 and 2 for one task: the expert's demonstrations into ``data`` (executed with Gaussian action
+    noise ``noise`` when > 0, the expert's own action recorded), ACT trained into ``ckpt``; their wall seconds."""
     collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(len(demo)),
-                         "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite", log=log)
+                         "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite",
+                         *(["--action-noise", str(noise)] if noise > 0 else []), log=log)
     train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                           "--workers", "0", "--device", "cpu", "--no-vae",
                           "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
@@ -129,13 +131,14 @@ def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work
     return policy, _result(out, "scripted", states, seconds, name)
 
 
-def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float) -> dict:
+def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float,
+          noise: float = 0.0) -> dict:
     """Collect, train and evaluate one task (and the expert on the same init states); its row of the report."""
     scene = work / f"{suite}_{task}.yaml"
     scene.write_text(scene_yaml(suite, task))
     data, ckpt = work / f"{suite}_{task}_data", work / f"{suite}_{task}_act"
     log = work / f"{suite}_{task}.log"
-    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log)
+    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise)
     info = json.loads((data / "meta" / "info.json").read_text())
     training = json.loads((ckpt / "training.json").read_text())
     policy, expert = evaluate(suite, task, scene, ckpt, held_out, work, log)
@@ -144,7 +147,7 @@ def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, w
         "environment_state_dim": info["features"]["observation.environment_state"]["shape"][0],
         "demos": {"init_states": f"{demo.start}:{demo.stop}", "episodes_run": len(demo),
                   "episodes_kept": info["total_episodes"], "frames": info["total_frames"],
-                  "seconds": round(collect_s, 1)},
+                  "action_noise": noise, "seconds": round(collect_s, 1)},
         "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
                      "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
                      "final_loss": training["losses"][-1][1] if training["losses"] else None,
@@ -186,6 +189,8 @@ def main() -> int:
     ap.add_argument("--eval-states", default="30:50", help="held-out init states A:B evaluated (default 30:50)")
     ap.add_argument("--train-s", type=float, default=150.0, help="training wall-clock cap per task, seconds")
     ap.add_argument("--train-steps", type=int, default=None, help="optimizer steps per task (default: the recipe's)")
+    ap.add_argument("--action-noise", type=float, default=0.0, help="collect --action-noise: Gaussian noise (action "
+                    "units) on the executed demonstration actions, the expert's own recorded (default 0: off)")
     ap.add_argument("--work", type=Path, default=None, help="keep scenes, datasets, checkpoints and runs here "
                     "(default: a new temporary directory)")
     ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "libero_proof.json")
@@ -201,6 +206,7 @@ def main() -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one torch thread per process (metaworld_proof.py says why)
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "suite": args.suite, "recipe": asdict(recipe), "train_budget_s": args.train_s,
+              "action_noise": args.action_noise,
               "demo_init_states": args.demo_states, "held_out_init_states": args.eval_states, "work": str(work),
               "tasks": []}
 
@@ -211,7 +217,8 @@ def main() -> int:
 
     try:
         for task in tasks:
-            report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s))
+            report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s,
+                                         args.action_noise))
             save()
             print(f"libero_proof: {report['tasks'][-1]['task']} done", flush=True)
     except RuntimeError as exc:
