@@ -666,11 +666,13 @@ def test_busy_polling_sides_serve_the_same_trajectory_and_take_messages_spinning
 
     monkeypatch.setattr(local, "spin_until_readable", spy)
     ref = make_scene(panda_spec, "lift_cube", image_size=(32, 32), render_images=False)
-    steps = actions(seed=3, n=20, dim=7)
+    steps = actions(seed=3, n=100, dim=7)
     expected = [ref.reset(seed=5)] + [ref.step(a) for a in steps]
     # 20 ms each side: far longer than a state-only step or this loop's turn (the reference ran
     # first, so the client sends each request as soon as the last reply is read), so the sidecar
-    # takes the next request in its busy-poll loop (not its poller) and the client its replies in its own
+    # takes the next request in its busy-poll loop (not its poller) and the client its replies in its own.
+    # A loaded machine can take a side off its core for longer than the spin (CI saw 8 of 23 requests
+    # taken spinning), so this asks for a few of 101, not most: any at all shows the path carries messages.
     r = make_sidecar(options=scene_options(render_images=False), spin_us=local.MAX_SPIN_US)
     assert r.fast
     got = [r.reset(seed=5)] + [r.step(a) for a in steps]
@@ -678,9 +680,9 @@ def test_busy_polling_sides_serve_the_same_trajectory_and_take_messages_spinning
     for g, e in zip(got[1:], expected[1:]):
         assert_same(g.observation, e.observation)
         assert (g.reward, g.terminated, g.truncated) == (e.reward, e.terminated, e.truncated)
-    assert len(caught) == 21 and sum(caught) >= 10, caught  # replies taken while spinning
+    assert len(caught) == 101 and sum(caught) >= 5, caught  # replies taken while spinning
     reply = r._request("close", {})
-    assert reply["requests"] >= 21 and reply["spun"] >= 10, reply  # requests taken while spinning
+    assert reply["requests"] >= 101 and reply["spun"] >= 5, reply  # requests taken while spinning
 
 
 def test_without_spin_nothing_is_taken_busy_polling(make_sidecar):
