@@ -1,10 +1,12 @@
 """N worlds of one LIBERO task on MuJoCo Warp (any Warp device), reset from LIBERO's own init states and stepped
 under robosuite's controller batched (``control.py``, ``stepping.control_step``).
 
-Reset of world ``w`` for episode seed ``s``, as ``backends.libero`` resets its env: the native reset state of
-seed ``s`` (``resets.ResetCache``: init state ``s % 50``, seed ``s``'s fixture placement in the world's own
-``body_pos`` / ``body_quat``, the controller's state after the reset), then ``settle_steps`` control steps of
-the dummy action ``[0, 0, 0, 0, 0, 0, -1]`` under the batched controller. MuJoCo Warp steps every world of a
+Reset of world ``w`` for episode seed ``s``, as ``backends.libero`` resets its env: seed ``s``'s reset (init
+state ``s % 50``, seed ``s``'s fixture placement in the world's own ``body_pos`` / ``body_quat``) and its
+``settle_steps`` control steps of the dummy action ``[0, 0, 0, 0, 0, 0, -1]``, all but the last run by LIBERO
+itself (``resets.ResetCache``: the objects an init state holds in the air land where LIBERO lands them; where
+they land is chaotic, so MuJoCo Warp's float32 would land some elsewhere) and the last by the batched
+controller on the worlds (where the observables and cameras sample, as below). MuJoCo Warp steps every world of a
 batch; a reset's settle steps, and a step of some of the worlds, put the other worlds back as they were
 (``_hold``: their physics through ``worlds.LiberoWorlds.save`` / ``restore``, their controller state, observable
 clock and observation), so a world's episode does not depend on when the others reset or step.
@@ -68,7 +70,11 @@ class LiberoBatch:
         self.layout = ArmLayout.from_model(mjm, self.facts)
         self.cfg = OscConfig.from_facts(self.facts, mjm)
         self.goal = GoalCheck.compile(self.label, info["goal"]["goal_state"], mjm, info["goal"]["objects"])
-        self.resets = ResetCache(worker, info)
+        self.settle_steps = int(settle_steps)
+        #: the settle steps LIBERO runs (``ResetCache``) and those the worlds run (the last one, where the
+        #: observables sample)
+        self.native_settle = max(self.settle_steps - 1, 0)
+        self.resets = ResetCache(worker, info, self.native_settle)
         first = self._reset_states([0])[0]
         self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device)
         self.xp = xp = self.physics.xp
@@ -78,7 +84,6 @@ class LiberoBatch:
         self._park = {"qpos": xp.asarray(first["qpos"]), "qvel": xp.asarray(first["qvel"]),
                       "qacc_warmstart": xp.zeros(mjm.nv)}
         self._park_start = dict(first["start"], cached=None)
-        self.settle_steps = int(settle_steps)
         self.steps = np.zeros(n, dtype=np.int64)
         self.seeds = np.full(n, -1, dtype=np.int64)
         self.inits = np.full(n, -1, dtype=np.int64)
@@ -97,9 +102,10 @@ class LiberoBatch:
 
     # ------------------------------------------------------------------------------------------ reset
     def reset(self, worlds, seeds, render: bool = False) -> None:
-        """Put each seed's reset into its world (``worlds[i]`` <- ``seeds[i]``), then the settle steps; ``render``:
-        the cameras render where the last settle step's observables sample (the CPU backend's cameras render
-        on that step only), or at the reset itself without settle steps."""
+        """Put each seed's reset, settled by LIBERO but for its last settle step, into its world (``worlds[i]`` <-
+        ``seeds[i]``), then that step; ``render``: the cameras render where the last settle step's observables
+        sample (the CPU backend's cameras render on that step only), or at the reset itself without settle
+        steps."""
         rows = np.asarray(worlds, dtype=np.int64)
         states = self._reset_states(np.asarray(seeds, dtype=np.int64).tolist())
         with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
@@ -108,8 +114,9 @@ class LiberoBatch:
             self._render = render and not self.settle_steps
             self._observe(rows)  # set_init_state's forced update: the state as loaded
             self.osc = with_rows(self.xp, self.osc, rows, OscState.from_native(self.xp, [s["start"] for s in states]))
-            for k in range(self.settle_steps):
-                self._render = render and k == self.settle_steps - 1
+            left = self.settle_steps - self.native_settle
+            for k in range(left):
+                self._render = render and k == left - 1
                 self.osc = control_step(self.physics, self.cfg, self.osc, self._dummy, self.facts, self._tick)
             self._render = False
         self.steps[rows], self.errors[rows] = 0, False

@@ -281,12 +281,12 @@ def observable_clock(env: Any) -> dict[str, Any]:
     return {"t": float(t), "sampled": bool(sampled), "period": float(period)}
 
 
-def resets(suite: str, task: int, seeds: list[int]) -> list[dict[str, Any]]:
-    """Each seed's reset as ``backends.libero`` does it before its settle steps (``seed``, ``reset``,
-    ``set_init_state(init_states[seed % n])``): the state (``STATE``), the model arrays the reset changed against
-    a fresh compile of its XML (the fixtures' ``body_pos`` / ``body_quat``, placed by the seeded sampler), the
-    controller's state (``start``, as ``record``'s), the observables' clock (``observable_clock``) and the init
-    state's index."""
+def resets(suite: str, task: int, seeds: list[int], settle: int = 0) -> list[dict[str, Any]]:
+    """Each seed's reset as ``backends.libero`` does it (``seed``, ``reset``, ``set_init_state(init_states[seed %
+    n])``), then ``settle`` of its settle steps (the dummy action, as ``env.step``): the state (``STATE``), the
+    model arrays the reset changed against a fresh compile of its XML (the fixtures' ``body_pos`` / ``body_quat``,
+    placed by the seeded sampler), the controller's state (``start``, as ``record``'s), the observables' clock
+    (``observable_clock``), the init state's index and ``settle``."""
     import mujoco
 
     env, inits = _env(suite, task)
@@ -294,12 +294,15 @@ def resets(suite: str, task: int, seeds: list[int]) -> list[dict[str, Any]]:
     for seed in seeds:
         init = int(seed) % len(inits)
         _reset(env, inits, init, int(seed))
+        for _ in range(int(settle)):
+            env.step(list(DUMMY_ACTION))
         model, d = env.env.sim.model._model, env.env.sim.data._data
         if fresh is None:
             fresh = _arrays(mujoco.MjModel.from_xml_string(env.env.model.get_xml()))
         state = {k: np.array(getattr(d, k)) for k in STATE}
         state["model"] = changed_arrays(_arrays(model), fresh)
-        state.update(seed=int(seed), init=init, start=_start(env.env.robots[0]), clock=observable_clock(env))
+        state.update(seed=int(seed), init=init, start=_start(env.env.robots[0]), clock=observable_clock(env),
+                     settle=int(settle))
         out.append(state)
     return out
 
