@@ -469,8 +469,9 @@ def episode(suite: str, task: int, init: int, policy: str, steps: int, settle: i
     """States along an episode from init state ``init`` (the env reset with ``seed``, ``settle`` dummy steps):
     ``policy`` ``expert`` (``backends.libero``'s scripted expert), ``zero`` (no motion, gripper open) or
     ``random`` (uniform actions, seeded by ``init``), for ``steps`` control steps or until ``after`` steps past
-    LIBERO's first success. Returns ``qpos`` [T + 1, nq], ``qvel``, and ``done`` bool[T + 1]: LIBERO's own flag
-    from ``env.step`` (the settled state's from the last settle step)."""
+    LIBERO's first success. Returns ``qpos`` [T + 1, nq], ``qvel``, ``done`` bool[T + 1]: LIBERO's own flag
+    from ``env.step`` (the settled state's from the last settle step), and ``actions`` [T, 7]: what the policy
+    sent."""
     env, inits = _env(suite, task)
     e = env.env
     _reset(env, inits, init, seed)
@@ -479,13 +480,16 @@ def episode(suite: str, task: int, init: int, policy: str, steps: int, settle: i
         _obs, _r, done, _info = env.step(list(DUMMY_ACTION))
     act = _policy(env, suite, task, init, policy)
     qs, vs, dones, left = [e.sim.data.qpos.copy()], [e.sim.data.qvel.copy()], [bool(done)], int(after)
+    sent = []
     for _ in range(int(steps)):
-        _obs, _r, done, _info = env.step(list(act()))
+        sent.append(np.asarray(act(), float))
+        _obs, _r, done, _info = env.step(list(sent[-1]))
         qs.append(e.sim.data.qpos.copy()), vs.append(e.sim.data.qvel.copy()), dones.append(bool(done))
         left -= any(dones)
         if left < 0:
             break
-    return {"qpos": np.stack(qs), "qvel": np.stack(vs), "done": np.asarray(dones, bool)}
+    return {"qpos": np.stack(qs), "qvel": np.stack(vs), "done": np.asarray(dones, bool),
+            "actions": np.asarray(sent, float).reshape(-1, 7)}
 
 
 def _policy(env: Any, suite: str, task: int, init: int, policy: str):

@@ -14,6 +14,7 @@ collision or constraint solve is needed for them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -167,3 +168,31 @@ class WarpTerms(ControllerReads):
 
     def close(self) -> None:
         self.m = self.d = None
+
+
+class CpuArm:
+    """One world of a LIBERO model on CPU MuJoCo, stepped by ``stepping.control_step`` as the MuJoCo Warp worlds
+    are (``step1``, ``read``, the controller writing ``view(d.ctrl)``, ``step2``): the port's own code on the CPU
+    engine, which tells the gaps the port's code and the MuJoCo version make from those MuJoCo Warp's float32
+    makes. ``mjm``: the world's model (its fixtures' fields set); ``data``: its ``MjData``."""
+
+    xp = np
+
+    def __init__(self, mjm: Any, data: Any, layout: ArmLayout):
+        import mujoco
+
+        self._mj, self.mjm, self.data, self.layout = mujoco, mjm, data, layout
+        self.d = SimpleNamespace(ctrl=np.zeros((1, mjm.nu)))
+
+    def view(self, a: Any) -> Any:
+        return a
+
+    def step1(self) -> None:
+        self._mj.mj_step1(self.mjm, self.data)
+
+    def read(self) -> ArmTerms:
+        return cpu_terms(self.mjm, [self.data], self.layout)
+
+    def step2(self) -> None:
+        self.data.ctrl[:] = self.d.ctrl[0]
+        self._mj.mj_step2(self.mjm, self.data)
