@@ -24,7 +24,6 @@ benchmarks/results/libero_warp_divergence.json). Nothing is asserted.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import os
 import platform
@@ -69,8 +68,6 @@ def _host(a) -> np.ndarray:
 
 def replay_mujoco(batch, inits: list[int], actions: np.ndarray) -> np.ndarray:
     """The same on CPU MuJoCo, one world at a time: ``batch``'s model, reset states and controller."""
-    import mujoco
-
     from simseam.backends.libero_gpu.control import OscState
     from simseam.backends.libero_gpu.env import DUMMY_ACTION
     from simseam.backends.libero_gpu.physics import CpuArm
@@ -78,21 +75,13 @@ def replay_mujoco(batch, inits: list[int], actions: np.ndarray) -> np.ndarray:
 
     out = np.zeros((len(actions) + 1, len(inits), batch.model.model.nq))
     for w, state in enumerate(batch._reset_states(inits)):
-        model = copy.deepcopy(batch.model.model)
-        for key, value in state["model"].items():
-            getattr(model, key)[...] = np.asarray(value).reshape(getattr(model, key).shape)
-        data = mujoco.MjData(model)
-        for key in ("qpos", "qvel", "act", "ctrl", "qacc_warmstart"):
-            if getattr(data, key).size:
-                getattr(data, key)[...] = np.asarray(state[key]).reshape(getattr(data, key).shape)
-        mujoco.mj_forward(model, data)
-        arm, osc = CpuArm(model, data, batch.layout), OscState.from_native(np, [state["start"]])
+        arm, osc = CpuArm.from_reset(batch.model.model, batch.layout, state), OscState.from_native(np, [state["start"]])
         for _ in range(batch.settle_steps - batch.native_settle):
             osc = control_step(arm, batch.cfg, osc, np.asarray([DUMMY_ACTION]), batch.facts)
-        out[0, w] = data.qpos
+        out[0, w] = arm.data.qpos
         for k, a in enumerate(actions):
             osc = control_step(arm, batch.cfg, osc, np.clip(a[w:w + 1], -1, 1), batch.facts)
-            out[k + 1, w] = data.qpos
+            out[k + 1, w] = arm.data.qpos
     return out
 
 

@@ -184,6 +184,24 @@ class CpuArm:
         self._mj, self.mjm, self.data, self.layout = mujoco, mjm, data, layout
         self.d = SimpleNamespace(ctrl=np.zeros((1, mjm.nu)))
 
+    @classmethod
+    def from_reset(cls, mjm: Any, layout: ArmLayout, state: dict[str, Any]) -> "CpuArm":
+        """A world of its own model (a copy of ``mjm`` with the reset's fixture fields) holding a reset state
+        (``resets.ResetCache``'s), forwarded."""
+        import copy
+
+        import mujoco
+
+        model = copy.deepcopy(mjm)
+        for key, value in state["model"].items():
+            getattr(model, key)[...] = np.asarray(value).reshape(getattr(model, key).shape)
+        data = mujoco.MjData(model)
+        for key in ("qpos", "qvel", "act", "ctrl", "qacc_warmstart"):
+            if getattr(data, key).size:
+                getattr(data, key)[...] = np.asarray(state[key]).reshape(getattr(data, key).shape)
+        mujoco.mj_forward(model, data)
+        return cls(model, data, layout)
+
     def view(self, a: Any) -> Any:
         return a
 
