@@ -187,10 +187,12 @@ class LiberoBatch:
 
     # ------------------------------------------------------------------------------------ observation
     def _sensed(self) -> dict[str, Any]:
-        """What robosuite's observables read of every world now (``xp`` arrays, views or gathers)."""
-        p, f = self.physics.poses(), self.facts
-        return {"eef_pos": p.site_xpos[:, int(f["eef_site_id"])], "eef_quat": p.xquat[:, int(self.info["names"]["eef_body"])],
-                "qpos": p.qpos, "qvel": p.qvel}
+        """What robosuite's observables read of every world now (``xp`` arrays, views or gathers): the robot's and
+        each object's root body pose (LIBERO's ``{obj}_pos`` / ``{obj}_quat``, ``objects_dict`` order)."""
+        p, f, names = self.physics.poses(), self.facts, self.info["names"]
+        bodies = self.xp.asarray(np.asarray([names["bodies"][o] for o in names["objects"]], dtype=np.int64))
+        return {"eef_pos": p.site_xpos[:, int(f["eef_site_id"])], "eef_quat": p.xquat[:, int(names["eef_body"])],
+                "qpos": p.qpos, "qvel": p.qvel, "obj_pos": p.xpos[:, bodies], "obj_quat": p.xquat[:, bodies]}
 
     def _observe(self, rows: np.ndarray) -> None:
         """``rows``' observables sample now (the cameras too while ``_render``: every world's images are drawn,
@@ -246,6 +248,15 @@ class LiberoBatch:
         return {"eef_pos": _host(o["eef_pos"][idx]).astype(np.float64), "eef_quat": quat[:, [1, 2, 3, 0]],
                 "joint_pos": qpos[:, f["qpos_index"]], "joint_vel": qvel[:, f["qvel_index"]],
                 "gripper_qpos": qpos[:, f["gripper_qpos_index"]], "gripper_qvel": qvel[:, f["gripper_qvel_index"]]}
+
+    def environment_state(self, rows: np.ndarray) -> np.ndarray:
+        """Host float32[k, 7 * objects] of ``rows``' objects as last sampled: each object's position, then its
+        quaternion (x, y, z, w, as LIBERO's ``{obj}_quat``), in ``objects_dict`` order (the CPU backend's
+        ``environment_state``)."""
+        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        pos = _host(self.observed["obj_pos"][idx]).astype(np.float64)
+        quat = _host(self.observed["obj_quat"][idx]).astype(np.float64)[..., [1, 2, 3, 0]]
+        return np.concatenate([pos, quat], axis=2).reshape(len(rows), -1).astype(np.float32)
 
     def close(self) -> None:
         if self.renderer == "opengl" and self.cameras is not None:

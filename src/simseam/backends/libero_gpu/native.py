@@ -114,12 +114,14 @@ def controller_facts(env: Any) -> dict[str, Any]:
 
 
 def problem_names(env: Any) -> dict[str, Any]:
-    """What the port's expert and observation read of LIBERO's problem: the movable objects, each object's and
-    fixture's root body (``obj_body_id``), each region site's parent and the body whose pose is
-    ``robot0_eef_quat`` (the robot model's ``eef_name``); the goal is ``goal_facts``'."""
+    """What the port's expert and observation read of LIBERO's problem: the movable objects (sorted; ``objects``:
+    in ``objects_dict``'s order, that of their observables), each object's and fixture's root body
+    (``obj_body_id``), each region site's parent and the body whose pose is ``robot0_eef_quat`` (the robot
+    model's ``eef_name``); the goal is ``goal_facts``'."""
     e = env.env
     robot = e.robots[0]
-    return {"movable": sorted(e.objects_dict), "bodies": {k: int(v) for k, v in e.obj_body_id.items()},
+    return {"movable": sorted(e.objects_dict), "objects": list(e.objects_dict),
+            "bodies": {k: int(v) for k, v in e.obj_body_id.items()},
             "regions": {name: site.parent_name for name, site in e.object_sites_dict.items()},
             "eef_body": int(e.sim.model.body_name2id(robot.robot_model.eef_name))}
 

@@ -4,12 +4,14 @@
 What each environment gives is the CPU backend's (``backends.libero``), on the same init states:
 
 - config: the CPU backend's (``normalize_config``: ``suite``, ``task``, ``settle_steps``, ``max_steps``,
-  ``expert``, ``image_size``), plus ``cameras`` (default false: state-only);
+  ``expert``, ``image_size``, ``environment_state``), plus ``cameras`` (default false: state-only);
 - reset: an episode seed ``s`` gets init state ``s % 50`` and seed ``s``'s fixture placement, then the settle
   steps, whatever the other environments hold or which of them end first;
 - observation: ``state`` (end-effector position, the axis-angle of ``robot0_eef_quat``, the two finger joints'
   qpos), ``joint_positions`` / ``joint_velocities`` (the arm's 7 joints and the 2 finger joints), ``task`` (the
-  language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; with ``cameras``,
+  language instruction), ``sim_time_ns`` (control steps since the reset x 50 ms), float32; with
+  ``environment_state: true``, ``environment_state``: each object's position and quaternion (x, y, z, w) as
+  LIBERO's object observables sample them, in ``objects_dict`` order (the CPU backend's); with ``cameras``,
   ``images`` ``camera1`` (agentview) and ``camera2`` (eye in hand) at ``image_size``, oriented as the CPU
   backend's, drawn by MuJoCo Warp's ray tracer (``engines.mujoco_warp.cameras.WarpCameras``) for every world at
   once when a request asks for one, at the substep robosuite's observables sample (not the CPU renderer's
@@ -33,10 +35,11 @@ import numpy as np
 
 from simseam.backends.base import observation_spec
 from simseam.backends.native_port import NativePort
-from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, normalize_config, quat_to_axis_angle
+from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, extra_fields, normalize_config, quat_to_axis_angle
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
 from simseam.seam import (
     INFO_DIAGNOSTICS,
+    OBS_ENV_STATE,
     INFO_STEPS,
     OBS_EXPERT_ACTION,
     OBS_IMAGES,
@@ -50,7 +53,6 @@ from simseam.seam import (
     ActionSpec,
     ConfigError,
     ControlMode,
-    FieldSpec,
     JointFacts,
     RobotFacts,
     RolloutSpec,
@@ -117,7 +119,8 @@ class LiberoBatchRollout(NativePort):
             lo, hi = (float(v) for v in m.jnt_range[m.joint(name).id])
             arm.append(JointFacts(name, "arm", lo, hi))
         joints = tuple(arm) + tuple(JointFacts(j, "gripper") for j in JOINTS[7:])
-        extra = {OBS_EXPERT_ACTION: FieldSpec("float32", (7,), presence="declared")} if self.privileged else None
+        objects = tuple(info["names"]["objects"]) if c["environment_state"] else ()
+        extra = extra_fields(self.privileged, objects)
         out_max = np.asarray(facts["output_max"], dtype=np.float64)
         cams = {key: size for _, key, size in camera_plan(c)}
         sensors = tuple(SensorFacts(name=name, kind="rgb", parent="world", xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0),
@@ -195,6 +198,7 @@ class LiberoBatchRollout(NativePort):
         qpos = np.concatenate([s["joint_pos"], s["gripper_qpos"]], axis=1).astype(np.float32)
         qvel = np.concatenate([s["joint_vel"], s["gripper_qvel"]], axis=1).astype(np.float32)
         expert = self.expert.act(idx) if self.expert is not None else None
+        objects = self.world.environment_state(idx) if self.config["environment_state"] else None
         wanted = self._wanted(requests)
         asked = sorted({k for w in wanted for k in w})
         images = self.world.images(idx, asked) if asked else {}
@@ -205,6 +209,8 @@ class LiberoBatchRollout(NativePort):
                    OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
             if expert is not None:
                 obs[OBS_EXPERT_ACTION] = expert[i]
+            if objects is not None:
+                obs[OBS_ENV_STATE] = objects[i]
             out.append(obs)
         return out
 
