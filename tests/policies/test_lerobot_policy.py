@@ -268,6 +268,7 @@ def test_a_single_camera_policy_follows_a_scene_whose_only_camera_is_not_camera1
 def test_a_state_policy_reads_the_object_state_and_never_asks_for_an_image(state_act, panda_spec, make_scene):
     policy = make_policy(f"lerobot:{state_act}", device="cpu")
     assert not policy.uses_images and policy.contract.env_state_dim == 7 and policy.contract.images == {}
+    assert policy.reads_environment_state  # what turns a benchmark's objects' state on in `simseam eval`
     scene = make_scene(panda_spec, render_images=False, environment_state=True, max_steps=6)
     captured = []
     pre = policy.preprocessor

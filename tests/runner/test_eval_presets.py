@@ -81,3 +81,38 @@ def test_run_json_records_the_per_task_fields_only_where_a_preset_has_them():
     assert mp["task_config"] == {"control_mode": "pd_joint_pos", "environment_state": True}
     plain = eval_config(preset("maniskill_tabletop"), "scripted", ["PickCube-v1"], 50, 0, False)
     assert "per_task_config" not in plain  # an earlier run's run.json still resumes
+
+
+def test_an_eval_turns_on_the_object_state_for_a_policy_that_reads_it(monkeypatch):
+    """LIBERO's ``environment_state`` is off unless asked for: a policy that reads it (a LeRobot checkpoint
+    trained on it says so in its contract) gets it from a preset, with and without its cameras; one that does
+    not read it leaves the preset's config as it is. No backend is started: ``open_benchmark`` is replaced."""
+    from types import SimpleNamespace
+
+    from simseam.policies.base import BasePolicy
+    from simseam.runner.job import reads_environment_state
+    from simseam.runner.recipe import policy_options
+
+    assert policy_options("libero", False, True) == {"environment_state": True}
+    assert policy_options("libero", True, True) == {"cameras": True, "environment_state": True}
+    assert policy_options("libero", False, False) == {}
+    assert policy_options("metaworld", False, True) == {}  # Meta-World gives its object state by default
+    assert not reads_environment_state(BasePolicy()) and not reads_environment_state(SimpleNamespace())
+    opened = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_open(backend, config, privileged=False, **kwargs):
+        opened.append(config)
+        raise Stop
+
+    class StatePolicy(BasePolicy):
+        reads_environment_state = True
+
+    monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
+    monkeypatch.setattr("simseam.policies.base.make_policy", lambda spec, **kw: StatePolicy())
+    job = Job(evaluate.eval_recipe(preset("libero_spatial"), ["libero_spatial/0"], 1), "state", {}, [0])
+    with pytest.raises(Stop):
+        execute(job, Executor("inline"))
+    assert opened[0]["environment_state"] is True and opened[0]["task"] == "libero_spatial/0"

@@ -74,6 +74,7 @@ from simseam.seam import (
 
 NAME = "libero"
 CAMERA_OPTION = "cameras"  # on unless turned off: build_rollout turns it off when nothing reads images
+ENV_STATE_OPTION = "environment_state"  # off unless asked: eval turns it on for a policy that reads it
 HAS_EXPERT = True  # libero_expert: pick and place for (On OBJ TARGET) / (In OBJ REGION) goals
 #: the suites and their step limits in openpi's LIBERO example (max_steps, not counting the settle steps)
 SUITES = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520, "libero_90": 400}

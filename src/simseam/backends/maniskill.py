@@ -87,6 +87,7 @@ from simseam.seam.errors import BackendUnavailableError
 NAME = "maniskill"
 HAS_EXPERT = True  # mani_skill.examples.motionplanning (mplib), for EXPERT_TASKS
 CAMERA_OPTION = "cameras"  # state-only unless asked: eval turns it on for a policy that reads images
+ENV_STATE_OPTION = "environment_state"  # off unless asked: eval turns it on for a policy that reads it
 #: table-top Panda tasks whose assets ship in the wheel and that run physics-only (checked here)
 TASKS = ("PickCube-v1", "PushCube-v1", "StackCube-v1", "PegInsertionSide-v1", "PullCube-v1", "LiftPegUpright-v1",
          "PokeCube-v1", "PlaceSphere-v1", "RollBall-v1")

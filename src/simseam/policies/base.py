@@ -48,6 +48,9 @@ class BasePolicy:
 
     requires_privileged: ClassVar[bool] = False
     uses_images: ClassVar[bool] = False
+    #: consumes ``observation['environment_state']`` (optional beyond the protocol; the runner reads it with a
+    #: default of False): a benchmark whose objects' state is off unless asked for turns it on
+    reads_environment_state: ClassVar[bool] = False
 
     def reset(self, spec: RolloutSpec) -> None:
         self.spec = spec

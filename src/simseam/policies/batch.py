@@ -34,6 +34,7 @@ class PolicyBatch:
 
     requires_privileged: bool = False
     uses_images: bool = False
+    reads_environment_state: bool = False
     n: int
 
     def reset(self, env: int, spec: RolloutSpec) -> None:  # pragma: no cover - abstract
@@ -63,6 +64,7 @@ class PerEnvPolicies(PolicyBatch):
         self.n = n
         self.requires_privileged = bool(self.policies[0].requires_privileged)
         self.uses_images = bool(self.policies[0].uses_images)
+        self.reads_environment_state = bool(getattr(self.policies[0], "reads_environment_state", False))
 
     def reset(self, env: int, spec: RolloutSpec) -> None:
         self.policies[env].reset(spec)

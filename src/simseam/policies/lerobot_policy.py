@@ -219,6 +219,7 @@ class LeRobotPolicy(BasePolicy):
         self.image_names = list(derived.images)
         #: a policy of state alone (object state included) never asks the scene for an image
         self.uses_images = bool(self.image_names)
+        self.reads_environment_state = self.contract.env_state_dim is not None
         self._feature_keys = image_keys(cfg)  # policy image name -> its LeRobot batch key
         self._torch = torch
         #: number of chunks predicted in the current episode (one model call each)
@@ -365,6 +366,7 @@ class LeRobotBatch(PolicyBatch):
     def __init__(self, policy: LeRobotPolicy, n: int):
         self.policy = policy
         self.uses_images = policy.uses_images
+        self.reads_environment_state = policy.reads_environment_state
         self.n = n
         self.queues: list[deque] = [deque() for _ in range(n)]
         self.specs: list[RolloutSpec | None] = [None] * n

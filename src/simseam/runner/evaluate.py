@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 from simseam import registry
-from simseam.runner.recipe import BenchmarkRecipe, cameras_for
+from simseam.runner.recipe import BenchmarkRecipe, policy_options
 from simseam.runner.warp_vector import BENCHMARK_PORTS
 from simseam.seam import ConfigError
 from simseam.seam.errors import did_you_mean
@@ -61,7 +61,7 @@ class Preset:
         """The backend's config for a policy (and ``task``: its ``per_task`` fields, e.g. its step limit,
         over the preset's): a backend whose cameras are off unless asked for (its ``CAMERA_OPTION``,
         ManiSkill's ``cameras``) turns them on for a policy that reads images."""
-        return {**self.config, **(self.per_task.get(task, {}) if task else {}), **cameras_for(self.backend, uses_images)}
+        return {**self.config, **(self.per_task.get(task, {}) if task else {}), **policy_options(self.backend, uses_images)}
 
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (

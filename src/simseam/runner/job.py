@@ -33,6 +33,12 @@ from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import Lockstep
 from simseam.seam import ConfigError, RolloutSpec
 
+
+def reads_environment_state(policy: Any) -> bool:
+    """Whether ``policy`` reads ``environment_state`` (a LeRobot checkpoint trained on it says so in its
+    contract): a benchmark whose objects' state is off unless asked for turns it on for it."""
+    return bool(getattr(policy, "reads_environment_state", False))
+
 EXECUTORS = ("inline", "vector", "ray")
 
 
@@ -168,7 +174,7 @@ def _inline(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     policy = make_policy(job.policy, **job.policy_kwargs)
     rollout = None
     try:
-        recipe = job.recipe.for_policy(policy.requires_privileged, policy.uses_images)
+        recipe = job.recipe.for_policy(policy.requires_privileged, policy.uses_images, reads_environment_state(policy))
         for part, indices, seed in recipe.parts(job.indices, job.seed):
             with report.status(part.describe()) as status:
                 rollout = part.build(progress=status.update)
@@ -216,7 +222,7 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     probe = make_policy(job.policy, **job.policy_kwargs)
     batch = None
     try:
-        recipe = job.recipe.for_policy(probe.requires_privileged, probe.uses_images)
+        recipe = job.recipe.for_policy(probe.requires_privileged, probe.uses_images, reads_environment_state(probe))
         n = max(1, min(executor.num_envs or 1, len(job.indices)))
         rule = executor.lockstep.fit(n)
         renderer = recipe.renderer_for(executor.renderer)
@@ -318,7 +324,8 @@ def _ray(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
 
     probe = _SpecProbe(job.policy, job.policy_kwargs)  # meets the first actor's spec before anything is written
     try:
-        recipe = job.recipe.for_policy(probe.policy.requires_privileged, probe.policy.uses_images)
+        recipe = job.recipe.for_policy(probe.policy.requires_privileged, probe.policy.uses_images,
+                                        reads_environment_state(probe.policy))
         first, _, _ = recipe.parts(job.indices, job.seed)[0]
         if report.on_envs:
             report.on_envs(None, executor.num_envs or 0, f"Ray ({executor.address})")

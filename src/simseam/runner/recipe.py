@@ -50,9 +50,10 @@ class SceneRecipe:
     def rollout_for(self, rollout, index: int, seed: int):
         return rollout, seed
 
-    def for_policy(self, privileged: bool, uses_images: bool) -> "SceneRecipe":
+    def for_policy(self, privileged: bool, uses_images: bool, reads_environment_state: bool = False) -> "SceneRecipe":
         """This recipe for a policy: its privileged state, its cameras rendered (besides what the run
-        itself renders: videos, a dataset's frames)."""
+        itself renders: videos, a dataset's frames). A scene file says itself whether it gives the objects'
+        state (the policy's contract check names it when it does not)."""
         return dataclasses.replace(self, privileged=privileged, render_images=self.render_images or uses_images)
 
     def parts(self, indices: Sequence[int], seed: int) -> list[tuple["SceneRecipe", list[int], int]]:
@@ -103,13 +104,16 @@ class SceneRecipe:
         return None
 
 
-def cameras_for(backend: str, uses_images: bool) -> dict:
-    """The config a backend whose cameras are off unless asked for (its ``CAMERA_OPTION``, ManiSkill's
-    ``cameras``) needs for a policy that reads images ({} otherwise)."""
+def policy_options(backend: str, uses_images: bool, reads_environment_state: bool = False) -> dict:
+    """The config a backend needs for a policy: its cameras (``CAMERA_OPTION``) for a policy that reads images,
+    its objects' state (``ENV_STATE_OPTION``: LIBERO's and ManiSkill's are off unless asked for) for one that
+    reads ``environment_state``; {} for neither."""
     from simseam.backends import backend_module
 
-    option = getattr(backend_module(backend), "CAMERA_OPTION", None)
-    return {option: True} if option and uses_images else {}
+    module = backend_module(backend)
+    camera, state = getattr(module, "CAMERA_OPTION", None), getattr(module, "ENV_STATE_OPTION", None)
+    return {**({camera: True} if camera and uses_images else {}),
+            **({state: True} if state and reads_environment_state else {})}
 
 
 @dataclass
@@ -160,12 +164,14 @@ class BenchmarkRecipe:
             rollout = self._open(ti)
         return rollout, seed - ti * self.episodes
 
-    def for_policy(self, privileged: bool, uses_images: bool) -> "BenchmarkRecipe":
+    def for_policy(self, privileged: bool, uses_images: bool, reads_environment_state: bool = False) -> "BenchmarkRecipe":
         """This recipe for a policy: its privileged state; a backend whose cameras are off unless asked for
         (its ``CAMERA_OPTION``, ManiSkill's ``cameras``) turns them on for a policy that reads images, and so
-        does a batched engine's port (drawn by the engine's renderer: MuJoCo Warp's ray tracer)."""
-        return dataclasses.replace(self, config={**self.config, **cameras_for(self.backend, uses_images)},
-                                   privileged=privileged, images=uses_images)
+        does a batched engine's port (drawn by the engine's renderer: MuJoCo Warp's ray tracer); one whose
+        objects' state is off unless asked for (``ENV_STATE_OPTION``) turns it on for a policy that reads it."""
+        options = policy_options(self.backend, uses_images, reads_environment_state)
+        return dataclasses.replace(self, config={**self.config, **options}, privileged=privileged,
+                                   images=uses_images)
 
     def parts(self, indices: Sequence[int], seed: int) -> list[tuple["BenchmarkRecipe", list[int], int]]:
         """``(recipe, indices, seed_base)`` per task the episodes belong to, task-major: episode ``e`` of
