@@ -1,13 +1,15 @@
-"""LIBERO's scripted expert on MuJoCo Warp (Warp's CPU device here) against the CPU benchmark, paired per init state.
+"""LIBERO's scripted expert (or another policy) on MuJoCo Warp (Warp's CPU device here) against the CPU benchmark,
+paired per init state.
 
     .venv/bin/python benchmarks/libero_warp_expert.py [--tasks libero_spatial/0,libero_spatial/1]
         [--init-states 10:15] [--num-envs 5] [--sim-device cpu] [--work DIR] [--json PATH]
+        [--policy 'lerobot:CKPTS/{suite}_{index}_act']   # one checkpoint per task: {suite}, {index} filled in
     .venv/bin/python benchmarks/libero_warp_expert.py --merge A.json B.json --json PATH   # runs of other tasks
 
 For each task runs the command a user runs twice on the same episodes (episode ``e`` starts from LIBERO's init
 state ``A + e``, the same fixture placement):
 
-- ``simseam eval SUITE --policy scripted --tasks T --seed A --episodes B-A`` (the ``libero`` backend: LIBERO
+- ``simseam eval SUITE --policy P --tasks T --seed A --episodes B-A`` (``P``: ``scripted`` by default) (the ``libero`` backend: LIBERO
   itself in its venv behind the sidecar, LIBERO's success check);
 - the same with ``--engine mujoco_warp --sim-device DEV --num-envs N`` (``backends/libero_gpu``: the episodes as
   the worlds of one batch, robosuite's controller and LIBERO's goal predicates batched, one expert per world).
@@ -35,9 +37,10 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 
 
-def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None) -> float:
-    suite = task.split("/")[0]
-    cmd = [sys.executable, "-m", "simseam.cli.main", "eval", suite, "--policy", "scripted", "--tasks", task,
+def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, policy: str = "scripted") -> float:
+    suite, _, index = task.partition("/")
+    cmd = [sys.executable, "-m", "simseam.cli.main", "eval", suite, "--policy", policy.format(suite=suite, index=index),
+           "--tasks", task,
            "--seed", str(first), "--episodes", str(count), "--out", str(out)]
     if warp is not None:
         cmd += ["--engine", "mujoco_warp", "--sim-device", warp["device"], "--num-envs", str(warp["num_envs"])]
@@ -112,6 +115,7 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=HERE / "results" / "libero_warp_expert.json")
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     ap.add_argument("--merge", type=Path, nargs="+", help="combine earlier runs' JSON (other tasks); runs nothing")
+    ap.add_argument("--policy", default="scripted", help="the policy spec; {suite} and {index} are the task's")
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
@@ -128,13 +132,14 @@ def main() -> None:
     rows, seconds = {}, {}
     for task in args.tasks.split(","):
         name = task.replace("/", "-")
-        seconds[task] = {"cpu": run_eval(task, first, end - first, work / f"cpu-{name}", None),
-                         "warp": run_eval(task, first, end - first, work / f"warp-{name}", warp)}
+        seconds[task] = {"cpu": run_eval(task, first, end - first, work / f"cpu-{name}", None, args.policy),
+                         "warp": run_eval(task, first, end - first, work / f"warp-{name}", warp, args.policy)}
         rows[task] = paired(episodes(work / f"cpu-{name}"), episodes(work / f"warp-{name}"))
         print_table({task: rows[task]})
     print_table(rows)
     revision = json.loads((work / f"warp-{name}" / "run.json").read_text())["provenance"]["simseam"]["revision"]
-    doc = {"benchmark": "libero_warp_expert", "policy": "scripted (simseam.backends.libero_expert)",
+    policy = "scripted (simseam.backends.libero_expert)" if args.policy == "scripted" else args.policy
+    doc = {"benchmark": "libero_warp_expert", "policy": policy,
            "init_states": [first, end - 1], "warp": warp, "seconds": seconds, "revision": revision,
            "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "work": str(work),
            "results": rows}
