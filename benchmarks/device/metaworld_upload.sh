@@ -7,7 +7,7 @@
 # are the machine's own.
 #
 #   here:   bash benchmarks/device/metaworld_upload.sh prepare [DIR]   (default DIR: .cache/mwcarry)
-#           -> DIR/c1 .. DIR/c4, each < 62 MB: the warp-lang wheel (149 MB) in three chunks + SHA256,
+#           -> DIR/c1 .. DIR/c4, each < 57 MiB: the warp-lang wheel (149 MB) in three chunks + SHA256,
 #              and the other cp312 wheels (simseam's src/ and the benchmarks travel with the checkout)
 #   there:  call k (k = 1..4, while the machine stays warm), carrying DIR/ck:
 #             bash benchmarks/device/metaworld_upload.sh receive DIR/ck      (copies to /tmp/mw)
@@ -46,10 +46,11 @@ case "$cmd" in
     basename "$W" > "$DIR/c1/warp.name"
     rm "$W"
     mv "$DIR/warp.part00" "$DIR/c1/"; mv "$DIR/warp.part01" "$DIR/c2/"; mv "$DIR/warp.part02" "$DIR/c3/"
-    mkdir -p "$DIR/c1/main" "$DIR/c2/main" "$DIR/c3/mw" "$DIR/c4/mw"
-    mv "$DIR"/main/mujoco_core-*.whl "$DIR/c1/main/"
+    # each chunk plus the sent checkout (~7 MiB) must stay under the 64 MiB a call carries
+    mkdir -p "$DIR/c2/main" "$DIR/c3/mw" "$DIR/c4/main" "$DIR/c4/mw"
+    mv "$DIR"/main/mujoco_core-*.whl "$DIR/c4/main/"
     mv "$DIR"/main/*.whl "$DIR/c2/main/"
-    mv "$DIR"/mw/metaworld-*.whl "$DIR/c4/mw/"
+    mv "$DIR"/mw/metaworld-*.whl "$DIR"/mw/mujoco-*.whl "$DIR"/mw/[Pp]y[Oo]pen[Gg][Ll]-*.whl "$DIR/c4/mw/"
     mv "$DIR"/mw/*.whl "$DIR/c3/mw/"
     rmdir "$DIR/main" "$DIR/mw"
     du -sh "$DIR"/c*
