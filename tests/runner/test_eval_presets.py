@@ -57,19 +57,26 @@ def test_eval_recipe_opens_each_task_with_its_own_fields(monkeypatch, first_task
     assert all(priv for _, _, priv in opened)
 
 
-def test_an_inline_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
-    opened = []
+class _Stop(Exception):
+    """Raised by ``_stop_at_open``'s stand-in for ``open_benchmark``: the job goes no further."""
 
-    class Stop(Exception):
-        pass
+
+def _stop_at_open(monkeypatch) -> list:
+    """Replace ``open_benchmark`` by one that records the config it is given and stops the job there."""
+    opened = []
 
     def fake_open(backend, config, privileged=False, **kwargs):
         opened.append(config)
-        raise Stop
+        raise _Stop
 
     monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
+    return opened
+
+
+def test_an_inline_eval_opens_each_task_with_its_own_fields(monkeypatch, tmp_path):
+    opened = _stop_at_open(monkeypatch)
     job = Job(evaluate.eval_recipe(preset("maniskill_tabletop_mp"), ["StackCube-v1"], 2), "zero", {}, [0, 1])
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         execute(job, Executor("inline"))
     assert opened == [{"control_mode": "pd_joint_pos", "environment_state": True, "max_steps": 200,
                        "task": "StackCube-v1"}]
@@ -98,21 +105,13 @@ def test_an_eval_turns_on_the_object_state_for_a_policy_that_reads_it(monkeypatc
     assert policy_options("libero", False, False) == {}
     assert policy_options("metaworld", False, True) == {}  # Meta-World gives its object state by default
     assert not reads_environment_state(BasePolicy()) and not reads_environment_state(SimpleNamespace())
-    opened = []
-
-    class Stop(Exception):
-        pass
-
-    def fake_open(backend, config, privileged=False, **kwargs):
-        opened.append(config)
-        raise Stop
+    opened = _stop_at_open(monkeypatch)
 
     class StatePolicy(BasePolicy):
         reads_environment_state = True
 
-    monkeypatch.setattr("simseam.sidecar.benchmark.open_benchmark", fake_open)
     monkeypatch.setattr("simseam.policies.base.make_policy", lambda spec, **kw: StatePolicy())
     job = Job(evaluate.eval_recipe(preset("libero_spatial"), ["libero_spatial/0"], 1), "state", {}, [0])
-    with pytest.raises(Stop):
+    with pytest.raises(_Stop):
         execute(job, Executor("inline"))
     assert opened[0]["environment_state"] is True and opened[0]["task"] == "libero_spatial/0"
