@@ -17,7 +17,8 @@ state ``A + e``, the same fixture placement):
 Prints one row per task (successes on each engine, the init states where they disagree, the mean steps of the
 episodes both engines solved, exact McNemar p over the discordant pairs) and writes JSON (default
 benchmarks/results/libero_warp_expert.json). ``--work DIR`` keeps the run directories; a run already there is
-resumed. Nothing is asserted. Slow on Warp's CPU device (about 1 s per control step of a 5-world batch on the
+resumed. The JSON records each task's revisions (both sides) and wall seconds (summed over the calls that ran
+it; null for a run finished before this script recorded them). Nothing is asserted. Slow on Warp's CPU device (about 1 s per control step of a 5-world batch on the
 2-core machine): run it niced, in the background.
 """
 
@@ -37,7 +38,9 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 
 
-def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, policy: str = "scripted") -> float:
+def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, policy: str = "scripted") -> float | None:
+    """Run (or resume) one eval; its wall seconds, summed over the calls that ran it (``out/wall_seconds``), or
+    None for a run an earlier version of this script finished without recording them."""
     suite, _, index = task.partition("/")
     cmd = [sys.executable, "-m", "simseam.cli.main", "eval", suite, "--policy", policy.format(suite=suite, index=index),
            "--tasks", task,
@@ -46,9 +49,20 @@ def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, po
         cmd += ["--engine", "mujoco_warp", "--sim-device", warp["device"], "--num-envs", str(warp["num_envs"])]
     if (out / "run.json").exists():
         cmd.append("--resume")
+    resumed = (out / "run.json").exists()
+    record = out / "wall_seconds"
+    before = float(record.read_text()) if record.exists() else (None if resumed else 0.0)
     t0 = time.perf_counter()
     subprocess.run(cmd, cwd=REPO, check=True, env=dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl")))
-    return time.perf_counter() - t0
+    if before is None:
+        return None
+    total = before + time.perf_counter() - t0
+    record.write_text(f"{total:.1f}\n")
+    return total
+
+
+def revision(out: Path) -> dict:
+    return json.loads((out / "run.json").read_text())["provenance"]["simseam"]["revision"]
 
 
 def episodes(out: Path) -> dict[int, dict]:
@@ -100,7 +114,7 @@ def merge(docs: list[dict]) -> dict:
     tasks = [t for d in docs for t in d["results"]]
     if len(set(tasks)) != len(tasks):
         raise SystemExit(f"--merge: a task was measured twice ({tasks})")
-    return {**docs[0], "revision": [d["revision"] for d in docs], "work": [d["work"] for d in docs],
+    return {**docs[0], "revision": {t: r for d in docs for t, r in d["revision"].items()}, "work": [d["work"] for d in docs],
             "seconds": {t: v for d in docs for t, v in d["seconds"].items()},
             "results": {t: r for d in docs for t, r in d["results"].items()}}
 
@@ -129,18 +143,18 @@ def main() -> None:
     first, end = int(first), int(end)
     work = args.work or Path(f"runs/libero_warp_expert_{time.strftime('%Y%m%d_%H%M%S')}")
     warp = {"device": args.sim_device, "num_envs": args.num_envs}
-    rows, seconds = {}, {}
+    rows, seconds, revisions = {}, {}, {}
     for task in args.tasks.split(","):
         name = task.replace("/", "-")
         seconds[task] = {"cpu": run_eval(task, first, end - first, work / f"cpu-{name}", None, args.policy),
                          "warp": run_eval(task, first, end - first, work / f"warp-{name}", warp, args.policy)}
         rows[task] = paired(episodes(work / f"cpu-{name}"), episodes(work / f"warp-{name}"))
+        revisions[task] = {"cpu": revision(work / f"cpu-{name}"), "warp": revision(work / f"warp-{name}")}
         print_table({task: rows[task]})
     print_table(rows)
-    revision = json.loads((work / f"warp-{name}" / "run.json").read_text())["provenance"]["simseam"]["revision"]
     policy = "scripted (simseam.backends.libero_expert)" if args.policy == "scripted" else args.policy
     doc = {"benchmark": "libero_warp_expert", "policy": policy,
-           "init_states": [first, end - 1], "warp": warp, "seconds": seconds, "revision": revision,
+           "init_states": [first, end - 1], "warp": warp, "seconds": seconds, "revision": revisions,
            "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "work": str(work),
            "results": rows}
     args.json.parent.mkdir(parents=True, exist_ok=True)
