@@ -21,6 +21,7 @@ from __future__ import annotations
 import atexit
 import dataclasses
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -173,8 +174,10 @@ class RemoteIsaac:
         finally:
             if self._proc.poll() is None:
                 self._proc.kill()
+                self._proc.wait(60)
             self._sock.close(0)
             self._log.close()
+            shutil.rmtree(self._dir, ignore_errors=True)  # its log's tail is in every error the worker raised
 
 
 class RemoteEngine:

@@ -60,13 +60,19 @@ def standin(monkeypatch):
         pytest.fail(missing, pytrace=False)
 
     yield use
+    while _BUILT:  # each engine's close removes its USD work directory
+        _BUILT.pop().close()
     isaac_standin.uninstall()
+
+
+_BUILT: list = []  # the engines built_engine made, closed when the test's stand-in goes
 
 
 def built_engine(state_scenario=None, robot=None, objects=(), cameras=(), options=None, ground=True):
     from simseam.engines.isaac.engine import IsaacEngine
 
     engine = IsaacEngine(options or EngineOptions())
+    _BUILT.append(engine)
     engine.load_robot(robot or tiny_arm())
     if ground:
         engine.add_ground()
@@ -814,5 +820,8 @@ def test_a_scene_on_the_isaac_adapter_keeps_the_seam_contract(standin, panda_spe
                      link_names=list(urdf.links), robot_prim="/panda"))
     monkeypatch.setattr(gpu, "rtx_problem", lambda *a: None)
     scene = ManifestScene(panda_spec, "lift_cube", IsaacEngine(EngineOptions()), SceneOptions(image_size=(16, 16)))
-    spec = check_rollout(scene, steps=2)
+    try:
+        spec = check_rollout(scene, steps=2)
+    finally:
+        scene.close()
     assert spec.engine == "isaac" and spec.cameras == {"camera1": (16, 16), "camera2": (16, 16)}
