@@ -114,7 +114,7 @@ def test_two_clones_on_one_cached_venv_each_run_their_own_source(tmp_path, panda
     a_pkg, b_pkg = str(a / "src" / "simseam"), str(b / "src" / "simseam")
     # a kept-alive sidecar of clone a: clone b does not adopt it (it boots its own), clone a does
     first = client(a / ".venv" / "bin" / "python", tmp_path, "keep", "leave")
-    kept = [first["dir"]]  # a kept-alive sidecar's private dir outlives its client: ours to remove
+    kept = [first["dir"]]  # a kept-alive sidecar's private dir outlives its client; the sidecar removes it
     try:
         assert first == {"client": a_pkg, "sidecar": a_pkg, "pid": first["pid"], "adopted": False,
                          "dir": first["dir"]}
@@ -125,6 +125,9 @@ def test_two_clones_on_one_cached_venv_each_run_their_own_source(tmp_path, panda
         back = client(a / ".venv" / "bin" / "python", tmp_path, "keep", "stop")
         kept.append(back["dir"])
         assert back == {**first, "adopted": True, "dir": None}
+        for pid, d in ((first["pid"], first["dir"]), (other["pid"], other["dir"])):  # both stopped
+            assert process_gone(pid, timeout=60), f"stopped sidecar {pid} still runs"
+            assert not Path(d).exists(), f"a stopped kept-alive sidecar left its private folder {d}"
     finally:
         if not process_gone(first["pid"], timeout=10):
             os.kill(first["pid"], 9)

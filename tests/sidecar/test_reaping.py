@@ -55,7 +55,8 @@ def test_close_leaves_no_child_process(make_sidecar):
 @pytest.mark.parametrize("how", ["exit", "sigterm", "sigkill"])
 def test_client_exit_and_signals_reap_the_sidecar(how, tmp_path):
     """(a) the client exits without close(), (b) it gets SIGTERM, (c) it is SIGKILLed (the sidecar's
-    parent-death signal and its parent watch take over): the sidecar is gone within seconds."""
+    parent-death signal and its parent watch take over): the sidecar is gone within seconds, and so is the
+    private folder of its sockets."""
     proc = subprocess.Popen([sys.executable, "-c", CLIENT, how], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=tmp_path)
     try:
@@ -74,5 +75,6 @@ def test_client_exit_and_signals_reap_the_sidecar(how, tmp_path):
             assert not sock_dir.exists()
         # a hang guard only (on a loaded machine the sidecar's exit can take seconds); it normally goes at once
         assert process_gone(sidecar, timeout=60.0), f"sidecar {sidecar} outlived its client ({how})"
+        assert not sock_dir.exists()  # after a SIGKILLed client, the sidecar removed its private folder itself
     finally:
-        end_client(proc, sock_dir if how == "sigkill" and "sock_dir" in locals() else None)
+        end_client(proc, sock_dir if "sock_dir" in locals() else None)

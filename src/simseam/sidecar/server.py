@@ -40,6 +40,7 @@ import hmac
 import json
 import os
 import select
+import shutil
 import signal
 import socket
 import sys
@@ -500,9 +501,17 @@ def serve(boot: dict) -> int:
             server.detach()
         if registry is not None:
             registry.unlink(missing_ok=True)
+        if registry is not None or (parent is not None and os.getppid() != parent):
+            # kept alive, or its client is gone: the private folder of its sockets is no one else's to remove
+            _remove_private_dir(boot["endpoint"])
         scene.close()
         if lock is not None:
             os.close(lock)
+
+
+def _remove_private_dir(endpoint: str) -> None:
+    if endpoint.startswith("ipc://"):
+        shutil.rmtree(os.path.dirname(endpoint[len("ipc://"):]), ignore_errors=True)
 
 
 def _loop(sock: Any, poller: Any, server: Server, clients: LocalClients | None, parent: int | None) -> int:
