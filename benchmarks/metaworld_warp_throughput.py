@@ -82,7 +82,20 @@ def cpu_worker(tasks: list[str], chunk: int, seconds: float, seed: int, cameras:
                 steps[task] += 1
                 if result.truncated or result.terminated:
                     rollout.reset(seed=seed + steps[task])
-    print(json.dumps({"steps": steps, "seconds": time.perf_counter() - t0}), flush=True)
+    print(json.dumps({"steps": steps, "seconds": time.perf_counter() - t0,
+                      "gl_renderer": gl_renderer() if cameras else None}), flush=True)
+
+
+def gl_renderer() -> str:
+    """The OpenGL renderer the env's cameras drew with (its context is current after a render): the machine fact
+    that decides the CPU backend's camera cost (a GPU's driver, or Mesa's llvmpipe on the CPU)."""
+    try:
+        from OpenGL import GL
+
+        name = GL.glGetString(GL.GL_RENDERER)
+        return name.decode() if name else "unknown (no current context)"
+    except Exception as exc:  # noqa: BLE001 - reported, never fatal: the figure stands without it
+        return f"unknown ({type(exc).__name__}: {exc})"
 
 
 def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float, cameras: list[str] = (),
@@ -115,7 +128,8 @@ def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float, camera
         for task, n in c["steps"].items():
             per_task[task] = per_task.get(task, 0) + n
     rate = sum(sum(c["steps"].values()) / c["seconds"] for c in counts)
-    return {"procs": procs, "seconds": seconds, "cameras": list(cameras), "image": image if cameras else None, "setup_seconds": round(setup, 1), "env_steps_per_s": rate,
+    return {"procs": procs, "seconds": seconds, "gl_renderers": sorted({c["gl_renderer"] for c in counts} - {None}),
+            "cameras": list(cameras), "image": image if cameras else None, "setup_seconds": round(setup, 1), "env_steps_per_s": rate,
             "steps_per_task": per_task, "per_proc_env_steps_per_s": [sum(c["steps"].values()) / c["seconds"]
                                                                     for c in counts]}
 
