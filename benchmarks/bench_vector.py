@@ -46,7 +46,10 @@ them alike); the median round is reported. ``main_us`` is this
 process's own CPU time (user + system) per env-step in the vector modes: what bounds lockstep
 efficiency at large N. ``step us`` is one rollout step as timed inside the process that runs it (a
 lockstep worker or a bare process; ``StepTimer``): its mean wall and CPU time, so a lockstep loss
-splits into steps that got slower (cold caches, a shared core) and time between the steps. Prints a table and writes JSON.
+splits into steps that got slower (cold caches, a shared core) and time between the steps. ``run-queue wait``
+(``sched`` in the JSON, Linux's ``/proc/PID/schedstat``): how long the parent and the workers sat runnable but
+not running during the timed run, per env-step, with their involuntary context switches: a lockstep parent
+that waits for a core holds up every environment, and this is where that shows. Prints a table and writes JSON.
 
 Scenes are built without pydantic (``BenchRecipe``: a RobotSpec, the task, SceneOptions), so the GPU
 machine needs only numpy, mujoco (+ PyOpenGL for EGL), and warp-lang + mujoco-warp for ``batched``.
@@ -328,6 +331,40 @@ def _cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def sched_facts(pid: int | str = "self") -> tuple[int, int, int] | None:
+    """(run-queue wait ns, CPU ns, involuntary context switches) of a process so far (Linux ``/proc``:
+    ``schedstat``, ``status``); None where the kernel does not keep them or the process is gone."""
+    try:
+        cpu_ns, wait_ns, _ = (int(x) for x in Path(f"/proc/{pid}/schedstat").read_text().split())
+        status = Path(f"/proc/{pid}/status").read_text()
+    except (OSError, ValueError):
+        return None
+    forced = next((int(line.split()[1]) for line in status.splitlines() if line.startswith("nonvoluntary_ctxt")), 0)
+    return wait_ns, cpu_ns, forced
+
+
+def sched_delta(before: dict, after: dict, env_steps: int) -> dict:
+    """How long the parent and the workers sat runnable but not running during the timed run, per env-step:
+    where lockstep's parent waits for a core (every environment then waits), this is where it shows."""
+    def per(key: str) -> dict | None:
+        pairs = [(before[p], after[p]) for p in before if p in after and before[p] and after[p]
+                 and (p == "self") == (key == "parent")]
+        if not pairs:
+            return None
+        wait = [(a[0] - b[0]) / env_steps / 1e3 for b, a in pairs]
+        return {"runqueue_wait_us_per_env_step": sum(wait), "worst_process_us_per_env_step": max(wait),
+                "involuntary_switches": sum(a[2] - b[2] for b, a in pairs)}
+
+    return {"parent": per("parent"), "workers": per("workers")}
+
+
+def _waits(sched: dict | None) -> str:
+    if not sched:
+        return ""
+    part = lambda side: "-" if not sched.get(side) else f"{sched[side]['runqueue_wait_us_per_env_step']:.1f}"
+    return f"{part('parent')} / {part('workers')}"
+
+
 def run_vector(case: str, n: int, steps: int, episodes: int, renderer: str = "workers",
                spin_us: int | None = None, groups: int = 1, ready: int | None = None, envs_per_worker: int = 1) -> dict:
     with _step_times_dir() as times:  # the workers time their steps (StepTimer)
@@ -359,17 +396,21 @@ def _run_vector(case: str, n: int, steps: int, episodes: int, renderer: str, spi
             state = vec.central.scene.engine.render_state()
             vec.central.render([state] * n)
         pol = ZeroBatch(n, images)
+        pids = ["self", *dict.fromkeys(vec.pids())]
+        sched0 = {p: sched_facts(p) for p in pids}
         t0, c0 = time.perf_counter(), _cpu()
         # groups / ready passed only when used: the plain modes also run on sources before run(groups=)
         rule = {"groups": min(groups, n)} if groups > 1 else {"ready": min(ready, n)} if ready else {}
         results = vec.run(pol, range(episodes), **rule)
         wall, cpu = time.perf_counter() - t0, _cpu() - c0
+        sched1 = {p: sched_facts(p) for p in pids}
     steps_done = sum(r.steps for r in results)
     if images:
         assert pol.seen >= 2 * steps_done, "the policy did not get both cameras every step"
     return {"wall_s": wall, "env_steps": steps_done, "episodes": len(results),
             "main_cpu_us_per_env_step": cpu / steps_done * 1e6, "spin_us": spin, "groups": min(groups, n),
-            "ready": min(ready, n) if ready else None, "processes": procs, "envs_per_worker": envs_per_worker}
+            "ready": min(ready, n) if ready else None, "processes": procs, "envs_per_worker": envs_per_worker,
+            "sched": sched_delta(sched0, sched1, steps_done)}
 
 
 def profile_vector(case: str, n: int, steps: int, episodes: int, top: int = 15, **kw) -> list[dict]:
@@ -407,8 +448,9 @@ def _bare_worker(case, steps, indices, ready, go, out):
     try:
         ready.put(os.getpid())
         go.wait()
+        before = sched_facts()
         res = run_episodes(rollout, ZeroPolicy(images), indices)
-        out.put(sum(r.steps for r in res))
+        out.put((sum(r.steps for r in res), before, sched_facts()))
     finally:
         rollout.close()
 
@@ -419,11 +461,13 @@ def run_bare(case: str, n: int, steps: int, episodes: int) -> dict:
     procs = [ctx.Process(target=_bare_worker, args=(case, steps, list(range(k, episodes, n)), ready, go, out))
              for k in range(n)]
     with _step_times_dir() as times:
-        wall, total = _bare_run(procs, ready, go, out)
-    return {"wall_s": wall, "env_steps": total, "episodes": episodes, **times}
+        wall, counts = _bare_run(procs, ready, go, out)
+    total = sum(c[0] for c in counts)
+    sched = sched_delta({k: c[1] for k, c in enumerate(counts)}, {k: c[2] for k, c in enumerate(counts)}, total)
+    return {"wall_s": wall, "env_steps": total, "episodes": episodes, "sched": sched, **times}
 
 
-def _bare_run(procs, ready, go, out) -> tuple[float, int]:
+def _bare_run(procs, ready, go, out) -> tuple[float, list]:
     for p in procs:
         p.start()
     try:
@@ -431,14 +475,14 @@ def _bare_run(procs, ready, go, out) -> tuple[float, int]:
             ready.get(timeout=600)
         t0 = time.perf_counter()
         go.set()
-        total = sum(out.get(timeout=3600) for _ in procs)
+        counts = [out.get(timeout=3600) for _ in procs]  # (env-steps, sched_facts before, after) per process
         wall = time.perf_counter() - t0
     finally:
         for p in procs:
             p.join(30)
             if p.is_alive():
                 p.kill()
-    return wall, total
+    return wall, counts
 
 
 def machine_facts() -> dict:
@@ -550,15 +594,15 @@ def main() -> None:
                   + (f"  step {r['step_cpu_us']:6.1f} us cpu" if "step_cpu_us" in r else ""), flush=True)
     print()
     print(f"| case | mode | renderer | N | env-steps/s | episodes/h ({args.steps} steps) | efficiency | vs bare | "
-          "main us/env-step | step us (wall / cpu) |")
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
+          "main us/env-step | step us (wall / cpu) | run-queue wait us/env-step (parent / workers) |")
+    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         main_us = r.get("main_cpu_us_per_env_step")
         vs = r.get("vs_bare")
         step = f"{r['step_wall_us']:.0f} / {r['step_cpu_us']:.0f}" if "step_cpu_us" in r else ""
         print(f"| {r['case']} | {r['mode']} | {r['renderer']} | {r['n']} | {r['env_steps_per_s']:.0f} | "
               f"{r['episodes_per_hour']:.0f} | {r['efficiency']:.2f} | {'' if vs is None else f'{vs:.2f}'} | "
-              f"{'' if main_us is None else f'{main_us:.1f}'} | {step} |")
+              f"{'' if main_us is None else f'{main_us:.1f}'} | {step} | {_waits(r.get('sched'))} |")
     machine = machine_facts()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"machine": machine, "steps_per_episode": args.steps,
