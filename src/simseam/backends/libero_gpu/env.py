@@ -76,7 +76,7 @@ class LiberoBatch:
         self.native_settle = max(self.settle_steps - 1, 0)
         self.resets = ResetCache(worker, info, self.native_settle)
         first = self._reset_states([0])[0]
-        self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device)
+        self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device, what=f"LIBERO {suite}/{task} on MuJoCo Warp")
         self.xp = xp = self.physics.xp
         n = self.num_worlds
         self.physics.load(np.arange(n), [first] * n)

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from simseam.engines.mujoco_warp.memory import put_worlds
 from simseam.seam.errors import SimulationError
 
 HINGE = 3  # mjJNT_HINGE
@@ -144,9 +145,8 @@ class WarpTerms(ControllerReads):
         self.device = wp.get_device(device) if device else wp.get_preferred_device()
         host = mujoco.MjData(mjm)
         mujoco.mj_forward(mjm, host)
-        with wp.ScopedDevice(self.device):
-            self.m = mjw.put_model(mjm)
-            self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
+        self.m, self.d = put_worlds(mjm, host, num_worlds, self.device, "LIBERO's worlds on MuJoCo Warp",
+                                    nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else __import__("cupy")
 
     def view(self, a: Any) -> Any:

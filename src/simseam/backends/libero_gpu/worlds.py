@@ -26,8 +26,9 @@ class LiberoWorlds(ControllerReads, WarpPhysics):
     (beyond ``WarpPhysics``' own); ``nconmax`` / ``njmax`` per world (default: mujoco_warp's, as ``WarpTerms``)."""
 
     def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None,
-                 batched: tuple[str, ...] = (), nconmax: int | None = None, njmax: int | None = None):
-        super().__init__(mjm, num_worlds, device, batched, nconmax=nconmax, njmax=njmax, graph=False)
+                 batched: tuple[str, ...] = (), nconmax: int | None = None, njmax: int | None = None,
+                 what: str = "LIBERO on MuJoCo Warp"):
+        super().__init__(mjm, num_worlds, device, batched, nconmax=nconmax, njmax=njmax, graph=False, what=what)
         self.layout = layout
 
     def save(self, rows: np.ndarray) -> dict[str, Any]:

@@ -73,7 +73,8 @@ class MetaWorldBatch:
         if engine == "mujoco":
             self.physics = CpuPhysics(mjm, self.num_worlds)
         else:
-            self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]), graph=graph)
+            self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]), graph=graph,
+                                       what=f"Meta-World {task} on MuJoCo Warp")
         self.cameras = self._make_cameras(task, cameras)
         self.image_flip = bool(image_flip)
         self.xp = xp = self.physics.xp

@@ -23,6 +23,7 @@ import numpy as np
 from simseam.scene.tasks.batch import quat_to_matrix
 
 from simseam.backends.metaworld_gpu.state import Contacts, Poses
+from simseam.engines.mujoco_warp.memory import put_worlds
 
 STATE_FIELDS = ("qpos", "qvel", "mocap_pos", "mocap_quat", "ctrl", "act", "qacc_warmstart")
 ALWAYS_BATCHED = ("body_pos", "body_quat", "site_pos", "site_quat", "geom_pos", "geom_quat")
@@ -124,10 +125,12 @@ class CpuPhysics:
 
 
 class WarpPhysics:
-    """N worlds on MuJoCo Warp (``device``: a Warp device name; default Warp's preferred one)."""
+    """N worlds on MuJoCo Warp (``device``: a Warp device name; default Warp's preferred one). ``what``: the
+    task, for the one-line error when the device's memory cannot hold the worlds (``engines.mujoco_warp.memory``:
+    it names the largest number that fits, measured)."""
 
     def __init__(self, mjm: Any, num_worlds: int, device: str | None = None, batched: tuple[str, ...] = (),
-                 nconmax: int = 64, njmax: int = 256, graph: bool = True):
+                 nconmax: int = 64, njmax: int = 256, graph: bool = True, what: str = "MuJoCo Warp"):
         import mujoco
         import mujoco_warp as mjw
         import warp as wp
@@ -141,9 +144,8 @@ class WarpPhysics:
         self._ignored = _sameframe(mjm)
         host = mujoco.MjData(mjm)
         mujoco.mj_forward(mjm, host)
-        with wp.ScopedDevice(self.device):
-            self.m = mjw.put_model(mjm, batch_sizes={k: num_worlds for k in self.batched})
-            self.d = mjw.put_data(mjm, host, nworld=num_worlds, nconmax=nconmax, njmax=njmax)
+        self.m, self.d = put_worlds(mjm, host, num_worlds, self.device, what, batch_sizes=dict.fromkeys(self.batched),
+                                    nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else _cupy()
         self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)

@@ -55,6 +55,7 @@ except ImportError as exc:  # pragma: no cover - exercised only without the pack
 
 from simseam.engines.mujoco_warp import kernels as K
 from simseam.engines.mujoco_warp.graphs import CudaGraphs
+from simseam.engines.mujoco_warp.memory import put_worlds
 from simseam.scene.warp.task_state import WarpTaskState, array_module, array_stream
 
 DEFAULT_NCONMAX = 96  # contacts per world (allocated for the whole batch)
@@ -146,8 +147,8 @@ class BatchedScene:
         host.reset(0, STATE_ONLY)
         self.xp = array_module(self.device)
         with wp.ScopedDevice(self.device):
-            self.m = mjw.put_model(mjm)
-            self.d = mjw.put_data(mjm, host.engine.data, nworld=n, nconmax=wopts.nconmax, njmax=wopts.njmax)
+            self.m, self.d = put_worlds(mjm, host.engine.data, n, self.device, f"{robot.name} {task} on MuJoCo Warp",
+                                        nconmax=wopts.nconmax, njmax=wopts.njmax)
             self._make_buffers(host, mjm)
             self._make_cameras(host, mjm)
             with array_stream(self.xp, self.device):
