@@ -78,7 +78,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
-    first, _, end = (int(x) if x else 0 for x in args.seeds.partition(":"))
+    first, _, end = args.seeds.partition(":")
+    first, end = int(first), int(end)
     runs = {}
     for sigma in (float(s) for s in args.sigmas.split(",")):
         runs[str(sigma)] = run(args.policy, args.task, first, end - first, sigma)
