@@ -181,9 +181,23 @@ def test_two_environments_per_worker_give_the_results_of_one_process(tmp_path, r
     pol = make_policy_batch("scripted", 4)
     with VectorEnv(_recipe(scene, pol, 4), 4, envs_per_worker=2) as vec:
         assert vec.num_workers == 2 and len(set(vec.pids())) == 2
-        assert vec.pids()[0] == vec.pids()[1] != vec.pids()[2] == vec.pids()[3]
+        assert vec.pids()[0] == vec.pids()[2] != vec.pids()[1] == vec.pids()[3]  # environment j in worker j % 2
         results = vec.run(pol, range(7), seed=4, **rule)
     assert {r.index: _outcome(r) for r in results} == reference
+
+
+def test_fewer_episodes_than_environments_still_use_every_worker(tmp_path):
+    """Two episodes on four environments of two workers (two each): the environments the scheduler fills first
+    lie on both workers, so neither worker idles while the other steps both episodes (where environment j
+    lived in worker j // 2, both episodes went to the first worker: half the machine idle, the lockstep
+    figure of 0.45-0.51 of bare processes measured with 32 episodes on 64 environments)."""
+    scene = _scene(tmp_path, steps=10)
+    pol = make_policy_batch("scripted", 4)
+    played = []
+    with VectorEnv(_recipe(scene, pol, 4), 4, envs_per_worker=2) as vec:
+        results = vec.run(pol, range(2), seed=0, on_start=lambda env, index: played.append(env))
+        pids = vec.pids()
+    assert len(results) == 2 and len({pids[env] for env in played}) == 2, (played, pids)
 
 
 @pytest.mark.parametrize("rule", [{}, {"ready": 1}], ids=["lockstep", "ready"])
@@ -209,7 +223,7 @@ def test_a_killed_worker_of_two_environments_reruns_both_episodes_once(tmp_path,
         results = vec.run(pol, range(6), seed=1, **rule, on_start=on_start, on_step=on_step, on_done=done.append,
                           on_worker_failure=failures.append)
         assert vec.restarts == 1
-    sibling = killed[0] ^ 1  # the other environment of that worker, mid-episode too (6 episodes, 4 environments)
+    sibling = killed[0] ^ 2  # the other environment of that worker (j % 2), mid-episode too (6 episodes, 4 environments)
     assert sorted((f.env, f.index) for f in failures) == sorted([(killed[0], 2), (sibling, at_kill[sibling])])
     assert all(f.exitcode == -signal.SIGKILL for f in failures)
     assert sorted(r.index for r in done) == list(range(6))

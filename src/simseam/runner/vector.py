@@ -579,8 +579,10 @@ class _Slot:
 
 
 class VectorEnv:
-    """``num_envs`` rollouts built from ``recipe``, ``envs_per_worker`` to a worker process (environment
-    ``j`` in worker ``j // envs_per_worker``; see the module docstring): a ``BatchRollout``
+    """``num_envs`` rollouts built from ``recipe``, at most ``envs_per_worker`` to a worker process (environment
+    ``j`` in worker ``j % num_workers``, so that any first few environments, which the scheduler fills first
+    when there are fewer episodes than environments, lie on as many workers as they can; see the module
+    docstring): a ``BatchRollout``
     (seam/batch.py). ``spec`` is the rollout's spec (from the first environment ready). Use as a context
     manager, or call ``close()``."""
 
@@ -596,8 +598,8 @@ class VectorEnv:
         self.boot_timeout = boot_timeout
         self._ctx = mp.get_context(start_method)
         self.envs_per_worker = envs_per_worker
-        self.slots = [_Slot(env=j, worker=j // envs_per_worker) for j in range(num_envs)]
-        self.num_workers = self.slots[-1].worker + 1
+        self.num_workers = -(-num_envs // envs_per_worker)
+        self.slots = [_Slot(env=j, worker=j % self.num_workers) for j in range(num_envs)]
         self.spec: RolloutSpec | None = None
         self.restarts = 0  #: workers started again after one died
         self._failures: dict[int, EnvFailure] = {}
@@ -635,8 +637,7 @@ class VectorEnv:
     # -- processes
     def _members(self, worker: int) -> list[_Slot]:
         """The environments worker process ``worker`` holds."""
-        k = self.envs_per_worker
-        return self.slots[worker * k:(worker + 1) * k]
+        return self.slots[worker::self.num_workers]
 
     def _spawn(self, worker: int) -> None:
         """Start worker process ``worker``, one pipe per environment it holds."""
@@ -649,7 +650,7 @@ class VectorEnv:
         proc = self._ctx.Process(target=_worker_main, daemon=True,
                                  args=([child for _, child in pipes], self._bell_w, envs, self.recipe, os.getpid(),
                                        self.sidecar_spin_us, self.spin_us),
-                                 name=f"simseam-env-{envs[0]}" + (f"-{envs[-1]}" if len(envs) > 1 else ""))
+                                 name="simseam-env-" + "-".join(map(str, envs)))
         proc.start()
         for s, (parent, child) in zip(members, pipes):
             child.close()
