@@ -493,6 +493,10 @@ def serve(boot: dict) -> int:
         return _loop(sock, poller, server, clients, parent)
     finally:  # a second SIGTERM must not cut this short: a context left unterminated hangs the exit
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # the private folder of its sockets goes with it: a client that closes it removes the folder too, but a
+        # client that died, or a kept-alive sidecar's, cannot; first, before anything that could outlast the
+        # exit's grace period (SIGALRM ends the process)
+        _remove_private_dir(boot["endpoint"])
         sock.close(0)
         ctx.destroy(0)
         if clients is not None:
@@ -501,9 +505,6 @@ def serve(boot: dict) -> int:
             server.detach()
         if registry is not None:
             registry.unlink(missing_ok=True)
-        if registry is not None or (parent is not None and os.getppid() != parent):
-            # kept alive, or its client is gone: the private folder of its sockets is no one else's to remove
-            _remove_private_dir(boot["endpoint"])
         scene.close()
         if lock is not None:
             os.close(lock)
