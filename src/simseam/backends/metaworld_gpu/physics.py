@@ -144,7 +144,7 @@ class WarpPhysics:
         self._ignored = _sameframe(mjm)
         host = mujoco.MjData(mjm)
         mujoco.mj_forward(mjm, host)
-        self.m, self.d = put_worlds(mjm, host, num_worlds, self.device, what, batch_sizes=dict.fromkeys(self.batched),
+        self.m, self.d = put_worlds(mjm, host, num_worlds, self.device, what, batched=self.batched,
                                     nconmax=nconmax, njmax=njmax)
         self.xp = np if not self.device.is_cuda else _cupy()
         self._static = _static_geoms(mjm)

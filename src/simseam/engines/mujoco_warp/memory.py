@@ -1,7 +1,7 @@
 """N worlds of one model put on a Warp device, or a one-line error with the largest N that fits there.
 
 ``put_worlds(mjm, host, n, device, what)`` is ``mujoco_warp.put_model`` + ``put_data`` for ``n`` worlds (the
-keyword arguments go to them: ``batch_sizes`` to the model, ``nconmax`` / ``njmax`` to the data). When the
+keyword arguments go to them: ``batched`` model fields to the model, ``nconmax`` / ``njmax`` to the data). When the
 device's memory cannot hold them, it finds the largest number of worlds that does by allocating them (a
 bisection over ``put_data``, each try freed before the next: measured, not estimated from sizes), and raises
 ``WorldsDoNotFit``, a ``ConfigError`` of one line naming what was asked, the device and that number. The
@@ -79,18 +79,17 @@ def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any) -> A
                          f"ask for fewer worlds (--num-envs) or free the device", n, largest) from None
 
 
-def put_worlds(mjm: Any, host: Any, n: int, device: Any, what: str, *, batch_sizes: dict | None = None,
+def put_worlds(mjm: Any, host: Any, n: int, device: Any, what: str, *, batched: tuple[str, ...] = (),
                **data_sizes: Any) -> tuple[Any, Any]:
     """(``mujoco_warp.Model``, ``mujoco_warp.Data`` of ``n`` worlds from the host data ``host``) on ``device``
-    (a Warp device); out of memory: ``WorldsDoNotFit`` (module docstring). ``batch_sizes`` names model fields
-    with one value per world (their size follows each try's number of worlds)."""
+    (a Warp device); out of memory: ``WorldsDoNotFit`` (module docstring). ``batched``: the model fields with
+    one value per world (their size follows each try's number of worlds)."""
     import mujoco_warp as mjw
     import warp as wp
 
     def build(k: int) -> tuple[Any, Any]:
         with wp.ScopedDevice(device):
-            sizes = {key: k for key in batch_sizes} if batch_sizes else None
-            m = mjw.put_model(mjm, batch_sizes=sizes) if sizes else mjw.put_model(mjm)
+            m = mjw.put_model(mjm, batch_sizes=dict.fromkeys(batched, k)) if batched else mjw.put_model(mjm)
             return m, mjw.put_data(mjm, host, nworld=k, **data_sizes)
 
     return fit_worlds(build, n, what, device)

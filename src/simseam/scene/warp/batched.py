@@ -146,9 +146,9 @@ class BatchedScene:
         t0 = time.perf_counter()
         host.reset(0, STATE_ONLY)
         self.xp = array_module(self.device)
+        self.m, self.d = put_worlds(mjm, host.engine.data, n, self.device, f"{robot.name} {task} on MuJoCo Warp",
+                                    nconmax=wopts.nconmax, njmax=wopts.njmax)
         with wp.ScopedDevice(self.device):
-            self.m, self.d = put_worlds(mjm, host.engine.data, n, self.device, f"{robot.name} {task} on MuJoCo Warp",
-                                        nconmax=wopts.nconmax, njmax=wopts.njmax)
             self._make_buffers(host, mjm)
             self._make_cameras(host, mjm)
             with array_stream(self.xp, self.device):
