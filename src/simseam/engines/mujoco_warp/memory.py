@@ -6,9 +6,10 @@ device's memory cannot hold them, it finds the largest number of worlds that doe
 bisection over ``put_data``, each try freed before the next: measured, not estimated from sizes), and raises
 ``WorldsDoNotFit``, a ``ConfigError`` of one line naming what was asked, the device and that number. The
 worlds' MuJoCo Warp data is most of a batch's memory (contacts and constraint rows per world); what a batch
-allocates after it (cameras, a policy) can still run out, so the number is an upper bound for the batch; and
-freed memory comes back fragmented, so asking for exactly that number again can fall short by a fraction of a
-percent (on Warp's CPU device under a capped address space: 14,571 of a measured 14,648 fit again).
+allocates after it (cameras, a policy) can still run out, so the number is an upper bound for the batch. The
+bisection's freed tries fragment the memory, so asking for that number again in the same process can fail;
+a fresh process (what a user starts next) fits it (on Warp's CPU device under a capped address space: two
+measurements named 14,823 and 12,357 worlds, and each fitted exactly in a fresh process).
 
 Recognised as out of memory: Warp's "Failed to allocate" (CUDA and CPU devices), CuPy's ``OutOfMemoryError``
 and Python's ``MemoryError`` (host-side arrays), also where another exception was raised from one.
