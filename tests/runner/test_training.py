@@ -352,3 +352,48 @@ def test_diffusion_needs_proprioception(tmp_path, tiny_dp_config, scripted_datas
     (root / "meta" / "info.json").write_text(json.dumps(info))
     with pytest.raises(ConfigError, match="Diffusion Policy needs observation.state"):
         train_act(root, tmp_path / "out", TrainConfig(steps=1, device="cpu", **tiny_dp_config))
+
+
+def _saved_stats(ckpt) -> dict:
+    from safetensors.numpy import load_file
+
+    (path,) = ckpt.glob("policy_preprocessor_step_*_normalizer_processor.safetensors")
+    return load_file(str(path))
+
+
+def test_a_state_std_floor_bounds_how_far_a_resting_input_is_scaled(state_dataset, tmp_path, tiny_act_config):
+    """LeRobot's own statistics scale each state input by 1/std (the cube's quaternion: std 2e-3 over these
+    demonstrations, a resting LIBERO object's down to 1e-10); with a floor (here 1e-2, above some of those
+    spreads) the checkpoint's normaliser holds std >= floor for the state inputs, the data's own std where it is
+    larger, and the actions' statistics untouched, so a 1e-6 nudge of any state input moves the policy's
+    normalised input by at most 1e-4."""
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    cfg = {**tiny_act_config, "n_action_steps": 1}
+    train_act(state_dataset[0], tmp_path / "raw", ActTrainConfig(steps=1, device="cpu", use_vae=False, **cfg))
+    train_act(state_dataset[0], tmp_path / "floor",
+              ActTrainConfig(steps=1, device="cpu", use_vae=False, state_std_floor=1e-2, **cfg))
+    raw, floored = _saved_stats(tmp_path / "raw"), _saved_stats(tmp_path / "floor")
+    env = "observation.environment_state.std"
+    assert raw[env].min() < 1e-2 < raw[env].max()  # the floor binds on some inputs, not all
+    for key in ("observation.state.std", env):
+        np.testing.assert_allclose(floored[key], np.maximum(raw[key], 1e-2), rtol=1e-6)
+    for key in ("action.mean", "action.std", "observation.state.mean", "observation.environment_state.mean"):
+        np.testing.assert_array_equal(floored[key], raw[key])
+    assert floored[env].min() >= np.float32(1e-2) and floored["observation.state.std"].min() >= np.float32(1e-2)
+    assert json.loads((tmp_path / "floor" / "training.json").read_text())["config"]["state_std_floor"] == 1e-2
+
+
+def test_the_floor_widens_min_max_about_the_middle_and_leaves_wider_inputs_alone():
+    from simseam.runner.training import state_spread
+
+    stats = {"observation.environment_state": {"min": np.array([0.5, -1.0]), "max": np.array([0.5 + 1e-9, 1.0]),
+                                               "std": np.array([1e-10, 0.7])},
+             "action": {"std": np.array([1e-9])}}
+    out = state_spread(stats, 0.01)
+    env = out["observation.environment_state"]
+    np.testing.assert_allclose(env["min"], [0.5 - 0.01, -1.0], atol=1e-7)
+    np.testing.assert_allclose(env["max"], [0.5 + 0.01, 1.0], atol=1e-7)
+    np.testing.assert_allclose(env["std"], [0.01, 0.7], rtol=1e-6)
+    assert out["action"]["std"][0] == 1e-9 and stats["observation.environment_state"]["std"][0] == 1e-10
+    assert state_spread(stats, None) is stats

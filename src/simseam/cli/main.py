@@ -503,6 +503,12 @@ def train(
     seed: int = typer.Option(0, "--seed", help="Random seed (a non-negative integer)."),
     checkpoint_every: int = typer.Option(None, "--checkpoint-every", min=1,
                                          help="Save a resumable checkpoint every N steps (out/checkpoints/)."),
+    state_std_floor: float = typer.Option(None, "--state-std-floor", min=0.0,
+                                          help="The smallest spread the normaliser gives each state input "
+                                               "(observation.state, observation.environment_state), in its units "
+                                               "(m, rad): an input at rest in the demonstrations is otherwise "
+                                               "scaled by ~1e8, and another engine's float32 jitter reads as "
+                                               "hundreds of deviations (e.g. 1e-3; default: the data's own)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a training run already in --out."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the newest checkpoint in --out up to "
                                 "--steps in total."),
@@ -515,7 +521,8 @@ def train(
                         warmup_steps=warmup_steps, horizon=horizon, n_obs_steps=n_obs_steps, down_dims=down_dims,
                         inference_steps=inference_steps, temporal_ensemble=temporal_ensemble, dim_model=dim_model,
                         ff_dim=ff_dim, encoder_layers=encoder_layers, vae=vae, device=device, workers=workers,
-                        cache=cache, amp=amp, seed=seed, checkpoint_every=checkpoint_every)
+                        cache=cache, amp=amp, seed=seed, checkpoint_every=checkpoint_every,
+                        state_std_floor=state_std_floor)
     _train_and_report(dataset, out, cfg, overwrite, resume)
 
 
@@ -523,7 +530,8 @@ def _train_config(*, steps: int, time_budget_s: float | None, batch_size: int, p
                   lr_schedule: str, chunk_size: int, n_action_steps: int | None, warmup_steps: int, horizon: int,
                   n_obs_steps: int, down_dims: str, inference_steps: int, temporal_ensemble: float | None,
                   dim_model: int, ff_dim: int, encoder_layers: int, vae: bool, device: str | None,
-                  workers: int | None, cache: bool, amp: bool, seed: int, checkpoint_every: int | None):
+                  workers: int | None, cache: bool, amp: bool, seed: int, checkpoint_every: int | None,
+                  state_std_floor: float | None = None):
     """``simseam train``'s options as a ``TrainConfig`` (a bad combination exits 2 with its reason)."""
     from simseam.runner.training import TrainConfig, default_loader_workers
 
@@ -543,7 +551,7 @@ def _train_config(*, steps: int, time_budget_s: float | None, batch_size: int, p
                        dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
                        device=device, num_workers=default_loader_workers() if workers is None else workers,
                        cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
-                       checkpoint_every=checkpoint_every)
+                       checkpoint_every=checkpoint_every, state_std_floor=state_std_floor)
 
 
 def _train_and_report(dataset: Path, out: Path, cfg, overwrite: bool, resume: bool) -> None:

@@ -112,6 +112,9 @@ class TrainConfig:
     log_every: int = 50
     #: save a resumable checkpoint every this many steps (None: only at the end / on interrupt)
     checkpoint_every: int | None = None
+    #: the smallest spread the normaliser gives each state input (``STATE_INPUTS``), in the input's own units
+    #: (``state_spread``); None: the dataset's statistics as they are
+    state_std_floor: float | None = None
 
 
 #: the name the ACT-only trainer had
@@ -238,6 +241,37 @@ def image_stats(meta, root: Path) -> dict:
         stats[k]["mean"] = mean.reshape(3, 1, 1).numpy()
         stats[k]["std"] = (squares / n - mean**2).clamp(min=0).sqrt().reshape(3, 1, 1).numpy()
     return stats
+
+
+#: the non-image inputs the normaliser scales by the dataset's spread
+STATE_INPUTS = ("observation.state", "observation.environment_state")
+
+
+def state_spread(stats: dict, floor: float | None) -> dict:
+    """``stats`` with each state input's spread at least ``floor`` (its own units: m, rad, quaternion units):
+    its ``std`` (ACT's mean-std normalisation) and its ``max - min`` (Diffusion's min-max: widened about the
+    middle to ``2 * floor``). An input that barely moves in the demonstrations (a resting object's pose recorded
+    on deterministic float64 physics: std down to 1e-10) is otherwise divided by about LeRobot's 1e-8, so a
+    jitter of 1e-6 (another engine's float32) reads as hundreds of deviations the policy never saw. The other
+    features, and the dataset on disk, are left as they are."""
+    import copy
+
+    import numpy as np
+
+    if floor is None:
+        return stats
+    out = copy.deepcopy(stats)
+    for key in STATE_INPUTS:
+        if key not in out:
+            continue
+        entry = out[key]
+        if "std" in entry:
+            entry["std"] = np.maximum(np.asarray(entry["std"], dtype=np.float64), floor).astype(np.float32)
+        if "min" in entry and "max" in entry:
+            lo, hi = np.asarray(entry["min"], dtype=np.float64), np.asarray(entry["max"], dtype=np.float64)
+            mid, half = (lo + hi) / 2, np.maximum((hi - lo) / 2, floor)
+            entry["min"], entry["max"] = (mid - half).astype(np.float32), (mid + half).astype(np.float32)
+    return out
 
 
 def _parquet_complete(path: Path) -> bool:
@@ -618,7 +652,8 @@ class _Training:
             state = torch.load(resume_from / "training_state.pt", map_location="cpu", weights_only=False)
         policy.to(device)
         policy.train()
-        preprocessor, postprocessor = make_pre_post_processors(pcfg, dataset_stats=image_stats(meta, root))
+        preprocessor, postprocessor = make_pre_post_processors(
+            pcfg, dataset_stats=state_spread(image_stats(meta, root), cfg.state_std_floor))
         batches = _batch_source(cfg, pcfg, meta, root, device)
         optimizer = torch.optim.AdamW(param_groups, lr=cfg.lr, weight_decay=cfg.weight_decay, **adam)
         base_lrs = [g["lr"] for g in optimizer.param_groups]
