@@ -3,7 +3,7 @@ evaluated on held-out init states, with the expert on the same init states as th
 
     .venv/bin/python benchmarks/libero_proof.py [--suite libero_spatial] [--tasks 0,1,2,3,4]
         [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--action-noise 0]
-        [--work DIR] [--json FILE]
+        [--state-std-floor F] [--demos-from DIR] [--train-only] [--work DIR] [--json FILE]
 
 For each task, through the ``simseam`` command a user types (the CPU ``libero`` backend in LIBERO's venv
 behind the sidecar):
@@ -23,6 +23,11 @@ behind the sidecar):
    states 30-49, never demonstrated (the same scene: the ``libero_spatial`` preset's config plus
    ``environment_state``, which the preset does not turn on), and ``simseam eval <suite> --tasks <task>
    --policy scripted --seed 30 --episodes 20``: the expert on the same init states (the preset itself).
+
+``--state-std-floor F`` trains with ``simseam train --state-std-floor F``; ``--demos-from DIR`` trains on the
+datasets an earlier run recorded in DIR (``DIR/<suite>_<task>_data``) instead of collecting again (the expert
+is deterministic: the same init states give the same demonstrations); ``--train-only`` stops after phase 2
+(the checkpoints are then evaluated elsewhere, e.g. paired on two engines by ``libero_warp_expert.py``).
 
 Nothing was tuned on init states 30-49: the recipe is Meta-World's, and the budgets (30 demonstrations,
 ``--train-s``) were set by the time this 2-core machine had, before any evaluation. Every ``simseam``
@@ -99,13 +104,22 @@ def _result(out: Path, policy: str, states: range, seconds: float, key: str | No
 
 
 def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt: Path, train_s: float,
-                      log: Path, noise: float = 0.0) -> tuple[float, float]:
+                      log: Path, noise: float = 0.0, floor: float | None = None,
+                      demos_from: Path | None = None) -> tuple[float, float]:
     """Phases 1 and 2 for one task: the expert's demonstrations into ``data`` (executed with Gaussian action
-    noise ``noise`` when > 0, the expert's own action recorded), ACT trained into ``ckpt``; their wall seconds."""
+    noise ``noise`` when > 0, the expert's own action recorded; or ``demos_from``'s dataset of the task), ACT
+    trained into ``ckpt`` (``floor``: ``--state-std-floor``); their wall seconds (0 for a reused dataset)."""
+    if demos_from is not None:
+        return 0.0, _train(recipe, demos_from / data.name, ckpt, train_s, log, floor)
     collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(len(demo)),
                          "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite",
                          *(["--action-noise", str(noise)] if noise > 0 else []), log=log)
-    train_wall = _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
+    return collect_s, _train(recipe, data, ckpt, train_s, log, floor)
+
+
+def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, floor: float | None) -> float:
+    """``simseam train`` with the recipe; its wall seconds."""
+    return _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                           "--workers", "0", "--device", "cpu", "--no-vae",
                           "--steps", str(recipe.steps), "--time-budget-s", str(train_s),
                           "--batch-size", str(recipe.batch_size), "--lr", str(recipe.lr),
@@ -113,8 +127,8 @@ def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt
                           "--chunk-size", str(recipe.chunk_size), "--n-action-steps", str(recipe.n_action_steps),
                           *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
                           "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
-                          "--encoder-layers", str(recipe.encoder_layers), log=log)
-    return collect_s, train_wall
+                          "--encoder-layers", str(recipe.encoder_layers),
+                          *(["--state-std-floor", str(floor)] if floor is not None else []), log=log)
 
 
 def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work: Path, log: Path) -> tuple[dict, dict]:
@@ -132,28 +146,32 @@ def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work
 
 
 def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float,
-          noise: float = 0.0) -> dict:
-    """Collect, train and evaluate one task (and the expert on the same init states); its row of the report."""
+          noise: float = 0.0, floor: float | None = None, demos_from: Path | None = None,
+          evaluate_too: bool = True) -> dict:
+    """Collect, train and evaluate one task (and the expert on the same init states); its row of the report
+    (without ``eval`` / ``expert`` when not ``evaluate_too``)."""
     scene = work / f"{suite}_{task}.yaml"
     scene.write_text(scene_yaml(suite, task))
     data, ckpt = work / f"{suite}_{task}_data", work / f"{suite}_{task}_act"
     log = work / f"{suite}_{task}.log"
-    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise)
-    info = json.loads((data / "meta" / "info.json").read_text())
+    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise, floor, demos_from)
+    info = json.loads(((demos_from or work) / data.name / "meta" / "info.json").read_text())
     training = json.loads((ckpt / "training.json").read_text())
-    policy, expert = evaluate(suite, task, scene, ckpt, held_out, work, log)
-    return {
+    row = {
         "task": f"{suite}/{task}", "scene": scene_yaml(suite, task).splitlines()[-1],
         "environment_state_dim": info["features"]["observation.environment_state"]["shape"][0],
         "demos": {"init_states": f"{demo.start}:{demo.stop}", "episodes_run": len(demo),
                   "episodes_kept": info["total_episodes"], "frames": info["total_frames"],
-                  "action_noise": noise, "seconds": round(collect_s, 1)},
+                  "action_noise": noise, "seconds": round(collect_s, 1),
+                  "from": str(demos_from / data.name) if demos_from else None},
         "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
                      "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
                      "final_loss": training["losses"][-1][1] if training["losses"] else None,
-                     "device": training["device"]},
-        "eval": policy, "expert": expert,
+                     "device": training["device"], "state_std_floor": floor},
     }
+    if evaluate_too:
+        row["eval"], row["expert"] = evaluate(suite, task, scene, ckpt, held_out, work, log)
+    return row
 
 
 def init_range(text: str, flag: str) -> range:
@@ -165,7 +183,7 @@ def init_range(text: str, flag: str) -> range:
 
 def summarize(report: dict) -> None:
     rows = report["tasks"]
-    if rows:
+    if rows and all("eval" in r for r in rows):
         report["mean_success_rate"] = sum(r["eval"]["success_rate"] for r in rows) / len(rows)
         report["expert_mean_success_rate"] = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
 
@@ -174,6 +192,11 @@ def print_table(report: dict) -> None:
     print(f"{'task':18} {'demos':>5} {'frames':>6} {'train s':>7} {'steps':>6} {'loss':>7} "
           f"{'ACT':>7} {'Wilson 95 %':>14} {'expert':>7} {'Wilson 95 %':>14}")
     for r in report["tasks"]:
+        if "eval" not in r:
+            print(f"{r['task']:18} {r['demos']['episodes_kept']:5d} {r['demos']['frames']:6d} "
+                  f"{r['training']['seconds']:7.0f} {r['training']['steps']:6d} {r['training']['final_loss']:7.4f} "
+                  "(trained only)")
+            continue
         e, x = r["eval"], r["expert"]
         print(f"{r['task']:18} {r['demos']['episodes_kept']:5d} {r['demos']['frames']:6d} "
               f"{r['training']['seconds']:7.0f} {r['training']['steps']:6d} {r['training']['final_loss']:7.4f} "
@@ -191,6 +214,11 @@ def main() -> int:
     ap.add_argument("--train-steps", type=int, default=None, help="optimizer steps per task (default: the recipe's)")
     ap.add_argument("--action-noise", type=float, default=0.0, help="collect --action-noise: Gaussian noise (action "
                     "units) on the executed demonstration actions, the expert's own recorded (default 0: off)")
+    ap.add_argument("--state-std-floor", type=float, default=None, help="simseam train --state-std-floor (default: "
+                    "off, the data's own statistics)")
+    ap.add_argument("--demos-from", type=Path, default=None, help="train on the datasets an earlier run recorded in "
+                    "this work directory instead of collecting")
+    ap.add_argument("--train-only", action="store_true", help="stop after training (no evaluation)")
     ap.add_argument("--work", type=Path, default=None, help="keep scenes, datasets, checkpoints and runs here "
                     "(default: a new temporary directory)")
     ap.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "libero_proof.json")
@@ -206,7 +234,7 @@ def main() -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one torch thread per process (metaworld_proof.py says why)
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "suite": args.suite, "recipe": asdict(recipe), "train_budget_s": args.train_s,
-              "action_noise": args.action_noise,
+              "action_noise": args.action_noise, "state_std_floor": args.state_std_floor,
               "demo_init_states": args.demo_states, "held_out_init_states": args.eval_states, "work": str(work),
               "tasks": []}
 
@@ -218,7 +246,8 @@ def main() -> int:
     try:
         for task in tasks:
             report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s,
-                                         args.action_noise))
+                                         args.action_noise, args.state_std_floor, args.demos_from,
+                                         not args.train_only))
             save()
             print(f"libero_proof: {report['tasks'][-1]['task']} done", flush=True)
     except RuntimeError as exc:
@@ -227,6 +256,9 @@ def main() -> int:
     finally:
         save()
     print_table(report)
+    if "mean_success_rate" not in report:
+        print(f"json: {args.json}")
+        return 0
     print(f"mean over {len(report['tasks'])} task(s): ACT {report['mean_success_rate']:.3f}, "
           f"expert {report['expert_mean_success_rate']:.3f}")
     print(f"json: {args.json}")

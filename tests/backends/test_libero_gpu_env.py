@@ -43,13 +43,13 @@ def worker():
         yield w
 
 
-def _batch(worker, task: str, n: int, **config):
+def _batch(worker, task: str, n: int, engine: str = "mujoco_warp", **config):
     from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
 
     suite, _, index = task.partition("/")
     privileged = config.pop("privileged", False)
     return LiberoBatchRollout({"suite": suite, "task": int(index), **config}, n, worker, privileged=privileged,
-                              device="cpu")
+                              device="cpu", engine=engine)
 
 
 @pytest.mark.parametrize("task", ["libero_spatial/3", "libero_object/1"])
@@ -83,6 +83,30 @@ def test_observations_are_the_cpu_backends_on_the_same_init_states(task, worker,
     assert gaps["state"] <= 3e-4 and gaps["joint_positions"] <= 3e-4, gaps
     assert gaps["joint_velocities"] <= 5e-3 and gaps["expert_action"] <= 5e-3, gaps
     assert gaps["environment_state"] <= 2e-4, gaps  # objects at rest or pushed: float32 drift
+
+
+def test_the_port_on_cpu_mujoco_is_the_cpu_backend_to_float64(worker, open_backend):
+    """The port's code on CPU MuJoCo (``engine="mujoco"``: this venv's MuJoCo, float64, one world), seeds 1 and 7
+    one after the other under the same varied actions as above: the CPU backend's observations (LIBERO on its
+    own MuJoCo 3.17) to float64 rounding (the version adds nothing here), so what MuJoCo Warp adds (the test
+    above) is the engine's; and it refuses what it does not do."""
+    seeds, actions = [1, 7], _actions(5)
+    cpu = open_backend("libero", {"suite": "libero_spatial", "task": 3, "environment_state": True}, privileged=True)
+    keys = ("state", "joint_positions", "joint_velocities", "expert_action", "environment_state")
+    gaps = dict.fromkeys(keys, 0.0)
+    with _batch(worker, "libero_spatial/3", 1, engine="mujoco", privileged=True, environment_state=True) as batch:
+        assert batch.spec.engine.split("/")[-1].startswith("mujoco-mujoco-")
+        for seed in seeds:
+            want = [cpu.reset(seed=seed, observe=STATE_ONLY)] + [cpu.step(a, observe=STATE_ONLY).observation
+                                                                 for a in actions]
+            got = [batch.reset([0], [seed])[0]] + [batch.step([0], a[None]).observations[0] for a in actions]
+            for g, w in zip(got, want):
+                assert g["sim_time_ns"] == w["sim_time_ns"]
+                gaps = {k: max(gaps[k], float(np.abs(np.asarray(g[k], float) - w[k]).max())) for k in keys}
+    print(f"port on CPU MuJoCo vs the CPU backend, worst over 2 init states x 6 observations: {gaps}")
+    assert max(gaps.values()) <= 1e-9, gaps  # measured: state and joints equal, objects 4.5e-12, expert 9e-18
+    with pytest.raises(ConfigError, match="one world without cameras"):
+        _batch(worker, "libero_spatial/3", 2, engine="mujoco")
 
 
 def _play(worker, n: int, lengths: list[int]) -> dict[int, tuple]:

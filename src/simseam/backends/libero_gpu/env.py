@@ -42,9 +42,8 @@ from simseam.backends.libero_gpu.model import load_or_build
 from simseam.backends.libero_gpu.physics import ArmLayout
 from simseam.backends.libero_gpu.predicates import GoalCheck
 from simseam.backends.libero_gpu.resets import ResetCache
-from simseam.backends.libero_gpu.state import LiberoState
 from simseam.backends.libero_gpu.stepping import control_step
-from simseam.backends.libero_gpu.worlds import LiberoWorlds
+from simseam.backends.libero_gpu.worlds import LiberoCpuWorlds, LiberoWorlds
 from simseam.seam.errors import ConfigError
 
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
@@ -58,11 +57,13 @@ ARRAYS = ("goal_pos", "goal_ori", "initial_joint", "grip")  # OscState's per-wor
 
 class LiberoBatch:
     """``LiberoBatch(suite, task, num_worlds, worker)``; ``reset(worlds, seeds)``, ``step(actions)``,
-    ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``."""
+    ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``. ``engine``:
+    ``mujoco_warp`` (N worlds on the Warp ``device``) or ``mujoco`` (one world on CPU MuJoCo, float64, no
+    cameras: ``worlds.LiberoCpuWorlds``)."""
 
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
                  settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = (),
-                 renderer: str = "warp"):
+                 renderer: str = "warp", engine: str = "mujoco_warp"):
         info = worker.call("describe", suite=suite, task=int(task))
         self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
         self.model = load_or_build(info)
@@ -76,7 +77,7 @@ class LiberoBatch:
         self.native_settle = max(self.settle_steps - 1, 0)
         self.resets = ResetCache(worker, info, self.native_settle)
         first = self._reset_states([0])[0]
-        self.physics = LiberoWorlds(mjm, self.layout, self.num_worlds, device, what=f"LIBERO {suite}/{task} on MuJoCo Warp")
+        self.physics = self._make_physics(engine, device, bool(cameras))
         self.xp = xp = self.physics.xp
         n = self.num_worlds
         self.physics.load(np.arange(n), [first] * n)
@@ -95,6 +96,17 @@ class LiberoBatch:
             raise ConfigError(f"{self.label}: render {renderer!r}: one of {list(RENDERERS)}")
         self.renderer = renderer
         self.cameras, self._render = self._make_cameras(cameras), False
+
+    def _make_physics(self, engine: str, device: str | None, cameras: bool) -> Any:
+        if engine == "mujoco_warp":
+            return LiberoWorlds(self.model.model, self.layout, self.num_worlds, device,
+                                what=f"{self.label} on MuJoCo Warp")
+        if engine != "mujoco":
+            raise ConfigError(f"{self.label}: engine {engine!r}: one of ['mujoco_warp', 'mujoco']")
+        if cameras or self.num_worlds != 1:
+            raise ConfigError(f"{self.label}: the port on CPU MuJoCo runs one world without cameras "
+                              f"(asked: {self.num_worlds} worlds, cameras {cameras})")
+        return LiberoCpuWorlds(self.model.model, self.layout)
 
     @property
     def label(self) -> str:
@@ -166,7 +178,7 @@ class LiberoBatch:
     def success(self) -> np.ndarray:
         """bool[N] (host): LIBERO's ``_check_success`` of every world as the last step left it (its goal's
         predicates, batched: ``predicates.GoalCheck``, on the data as robosuite's ``step`` leaves it)."""
-        return _host(self.goal.met(LiberoState.from_warp(self.model.model, self.physics.d))).astype(bool)
+        return _host(self.goal.met(self.physics.goal_state())).astype(bool)
 
     def _flag(self, rows: np.ndarray) -> np.ndarray:
         """Flag ``rows``' worlds that are not finite and were not flagged yet; park every flagged world of ``rows``

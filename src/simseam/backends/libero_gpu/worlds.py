@@ -1,4 +1,4 @@
-"""N worlds of one LIBERO task on MuJoCo Warp, for its batch (``env.LiberoBatch``).
+"""N worlds of one LIBERO task on MuJoCo Warp, for its batch (``env.LiberoBatch``), or one world on CPU MuJoCo.
 
 The worlds are Meta-World's port's ``WarpPhysics`` (``backends.metaworld_gpu.physics``: the model fields a
 reset moves batched per world, ``load`` scattering native reset states into chosen worlds, the poses of static
@@ -6,6 +6,11 @@ geoms recomputed for them, ``poses()``) with what robosuite's controller loop re
 ``step1`` and ``step2`` (``physics.ControllerReads``), and a save and restore of chosen worlds' carried state:
 LIBERO's settle steps after a reset step every world, so the worlds that were not reset are put back as they
 were (``CARRIED``: their next ``step1`` recomputes everything else from it).
+
+``LiberoCpuWorlds`` is the same interface over one world on CPU MuJoCo (this venv's version, float64): the
+port's own code (resets, controller, observables, predicates) on the CPU engine, which tells the gap MuJoCo
+Warp's float32 makes (the engine gap: same MuJoCo version) from the one the port's code and the MuJoCo version
+make against LIBERO itself (the version gap).
 """
 
 from __future__ import annotations
@@ -14,8 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from simseam.backends.libero_gpu.physics import ArmLayout, ControllerReads
-from simseam.backends.metaworld_gpu.physics import WarpPhysics
+from types import SimpleNamespace
+
+from simseam.backends.libero_gpu.physics import ArmLayout, ArmTerms, ControllerReads, cpu_terms
+from simseam.backends.libero_gpu.state import LiberoState
+from simseam.backends.metaworld_gpu.physics import CpuPhysics, WarpPhysics
 
 #: what a step carries over (the rest of ``Data`` is recomputed from it by the next ``step1``)
 CARRIED = ("time", "qpos", "qvel", "act", "ctrl", "qacc_warmstart")
@@ -47,3 +55,50 @@ class LiberoWorlds(ControllerReads, WarpPhysics):
         xp, d = self.xp, self.d
         ok = xp.all(xp.isfinite(self.view(d.qpos)), axis=1) & xp.all(xp.isfinite(self.view(d.qvel)), axis=1)
         return ok.get() if hasattr(ok, "get") else np.asarray(ok)
+
+    def goal_state(self) -> LiberoState:
+        """What LIBERO's goal predicates read of every world, on the device."""
+        return LiberoState.from_warp(self.mjm, self.d)
+
+
+class LiberoCpuWorlds(CpuPhysics):
+    """``LiberoWorlds``' interface over one world on CPU MuJoCo (``num_worlds`` must be 1): ``load`` (the model
+    fields a reset moves, then the state), ``step1`` / ``read`` / ``step2`` around the controller writing
+    ``view(d.ctrl)``, ``save`` / ``restore``, ``finite``, ``poses``, ``goal_state``."""
+
+    device = None  # no Warp device: the batch draws no images on this engine
+
+    def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int = 1):
+        super().__init__(mjm, num_worlds)
+        self.layout = layout
+        self.d = SimpleNamespace(ctrl=np.zeros((1, mjm.nu)))  # what the controller writes; step2 applies it
+
+    def view(self, a: Any) -> Any:
+        return a
+
+    def step1(self) -> None:
+        self._mj.mj_step1(self.mjm, self.data)
+
+    def read(self) -> ArmTerms:
+        return cpu_terms(self.mjm, [self.data], self.layout)
+
+    def step2(self) -> None:
+        self.data.ctrl[:] = self.d.ctrl[0]
+        self._mj.mj_step2(self.mjm, self.data)
+
+    def save(self, rows: np.ndarray) -> dict[str, Any]:
+        return {k: np.asarray(getattr(self.data, k)).copy()[None] for k in CARRIED if np.size(getattr(self.data, k))}
+
+    def restore(self, rows: np.ndarray, saved: dict[str, Any]) -> None:
+        for key, value in saved.items():
+            if key == "time":
+                self.data.time = float(np.asarray(value).reshape(-1)[0])
+            else:
+                getattr(self.data, key)[...] = np.asarray(value)[0]
+        self.d.ctrl[0] = self.data.ctrl
+
+    def finite(self) -> np.ndarray:
+        return np.array([bool(np.isfinite(self.data.qpos).all() and np.isfinite(self.data.qvel).all())])
+
+    def goal_state(self) -> LiberoState:
+        return LiberoState.from_cpu(self.mjm, [self.data])

@@ -89,7 +89,8 @@ class CpuPhysics:
             target[...] = _widen(np.asarray(value), self._pristine[key])
         self._mj.mj_resetData(self.mjm, self.data)
         for key in STATE_FIELDS:
-            getattr(self.data, key)[...] = state[key]
+            if getattr(self.data, key).size:  # a model without mocap bodies (LIBERO's) has none to load
+                getattr(self.data, key)[...] = np.asarray(state[key]).reshape(getattr(self.data, key).shape)
         self._mj.mj_forward(self.mjm, self.data)
 
     def control(self, mocap_pos: np.ndarray, mocap_quat: np.ndarray, ctrl: np.ndarray) -> None:
