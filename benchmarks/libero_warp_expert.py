@@ -4,6 +4,7 @@ paired per init state.
     .venv/bin/python benchmarks/libero_warp_expert.py [--tasks libero_spatial/0,libero_spatial/1]
         [--init-states 10:15] [--num-envs 5] [--sim-device cpu] [--work DIR] [--json PATH]
         [--policy 'lerobot:CKPTS/{suite}_{index}_act']   # one checkpoint per task: {suite}, {index} filled in
+        [--port-cpu]   # a third side: the port's code on CPU MuJoCo (engine gap vs version gap)
     .venv/bin/python benchmarks/libero_warp_expert.py --merge A.json B.json --json PATH   # runs of other tasks
 
 For each task runs the command a user runs twice on the same episodes (episode ``e`` starts from LIBERO's init
@@ -13,6 +14,13 @@ state ``A + e``, the same fixture placement):
   itself in its venv behind the sidecar, LIBERO's success check);
 - the same with ``--engine mujoco_warp --sim-device DEV --num-envs N`` (``backends/libero_gpu``: the episodes as
   the worlds of one batch, robosuite's controller and LIBERO's goal predicates batched, one expert per world).
+
+With ``--port-cpu``, a third side: the port's own code on CPU MuJoCo of the port's version (``engine="mujoco"``:
+one world, float64, in this process, the policy as ``simseam eval`` builds it, episode for episode as ``simseam
+eval`` runs them: the step limit or success), and two more pairings per task: ``version`` (the CPU benchmark,
+LIBERO on its own MuJoCo, against the port on CPU MuJoCo: what the port's code and the MuJoCo version change) and
+``engine`` (the port on CPU MuJoCo against the port on MuJoCo Warp: the same MuJoCo version, what the engine
+changes). Its episodes go to ``WORK/port-cpu-TASK/episodes.jsonl`` as they finish (a run cut off resumes).
 
 Prints one row per task (successes on each engine, the init states where they disagree, the mean steps of the
 episodes both engines solved, exact McNemar p over the discordant pairs) and writes JSON (default
@@ -36,6 +44,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
+STEPS = {"libero_spatial": 220, "libero_object": 280}  # the eval presets' step limits (openpi's)
 
 
 def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, policy: str = "scripted") -> float | None:
@@ -61,8 +70,49 @@ def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, po
     return total
 
 
+def port_cpu_run(task: str, first: int, count: int, out: Path, policy_spec: str) -> float:
+    """The port on CPU MuJoCo (one world) for episodes ``first`` .. ``first + count - 1`` of ``task``; each
+    finished episode appended to ``out/episodes.jsonl`` (seed, success, steps), those already there skipped;
+    returns this call's wall seconds."""
+    from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
+    from simseam.backends.libero_gpu.worker import NativeWorker
+    from simseam.policies.batch import make_policy_batch
+    from simseam.runner.job import reads_environment_state
+
+    suite, _, index = task.partition("/")
+    out.mkdir(parents=True, exist_ok=True)
+    done = episodes(out) if (out / "episodes.jsonl").exists() else {}
+    todo = [s for s in range(first, first + count) if s not in done]
+    t0 = time.perf_counter()
+    if not todo:
+        return 0.0
+    policy = make_policy_batch(policy_spec.format(suite=suite, index=index), 1, device="cpu")
+    config = {"suite": suite, "task": int(index), "max_steps": STEPS[suite], "settle_steps": 10,
+              "environment_state": reads_environment_state(policy)}
+    with NativeWorker() as worker, \
+            LiberoBatchRollout(config, 1, worker, privileged=policy.requires_privileged, engine="mujoco") as batch:
+        for seed in todo:
+            policy.reset(0, batch.spec)
+            obs, steps, r = batch.reset([0], [seed]), 0, None
+            while r is None or not (r.terminated[0] or r.truncated[0]):
+                r = batch.step([0], policy.act_batch([0], obs))
+                obs, steps = r.observations, steps + 1
+            with (out / "episodes.jsonl").open("a") as f:
+                f.write(json.dumps({"seed": seed, "success": bool(r.terminated[0]), "steps": steps}) + "\n")
+    policy.close()
+    return time.perf_counter() - t0
+
+
 def revision(out: Path) -> dict:
     return json.loads((out / "run.json").read_text())["provenance"]["simseam"]["revision"]
+
+
+def revisions_now() -> dict:
+    """This checkout's commit and whether it has changes (the in-process side's revision)."""
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--", "src"], cwd=REPO, capture_output=True,
+                                text=True).stdout.strip())
+    return {"commit": head, "dirty": dirty}
 
 
 def episodes(out: Path) -> dict[int, dict]:
@@ -97,6 +147,19 @@ def paired(cpu: dict[int, dict], warp: dict[int, dict]) -> dict:
             "errors": {str(s % 50): warp[s]["error"] for s in seeds if warp[s].get("error")}}
 
 
+def two_sided(a: dict[int, dict], b: dict[int, dict], names: tuple[str, str]) -> dict:
+    """Two sides' episodes paired by seed: each side's successes, the init states only one solved, McNemar."""
+    seeds = sorted(a)
+    if sorted(b) != seeds:
+        raise SystemExit(f"the sides ran different episodes: {seeds} vs {sorted(b)}")
+    x, y = names
+    only_x = [s % 50 for s in seeds if a[s]["success"] and not b[s]["success"]]
+    only_y = [s % 50 for s in seeds if b[s]["success"] and not a[s]["success"]]
+    return {f"{x}_successes": sum(a[s]["success"] for s in seeds), f"{y}_successes": sum(b[s]["success"] for s in seeds),
+            f"only_{x}": only_x, f"only_{y}": only_y, "mcnemar_p": mcnemar_exact(len(only_x), len(only_y)),
+            "same_steps": sum(a[s]["steps"] == b[s]["steps"] for s in seeds)}
+
+
 def print_table(rows: dict) -> None:
     print(f"\n{'task':<20} {'CPU':>7} {'Warp':>7}  {'only CPU':<12} {'only Warp':<12} {'McNemar p':>9}  steps (both ok)")
     for task, r in rows.items():
@@ -104,6 +167,10 @@ def print_table(rows: dict) -> None:
         steps = "-" if m["cpu"] is None else f"{m['cpu']:.0f} / {m['warp']:.0f}"
         print(f"{task:<20} {r['cpu_successes']:>3}/{r['episodes']:<3} {r['warp_successes']:>3}/{r['episodes']:<3}  "
               f"{str(r['only_cpu'] or ''):<12} {str(r['only_warp'] or ''):<12} {r['mcnemar_p']:>9.3f}  {steps}")
+        for key in ("version", "engine"):
+            if key in r:
+                v = r[key]
+                print(f"  {key:<8} {json.dumps({k: x for k, x in v.items()})}")
 
 
 def merge(docs: list[dict]) -> dict:
@@ -130,6 +197,7 @@ def main() -> None:
     ap.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     ap.add_argument("--merge", type=Path, nargs="+", help="combine earlier runs' JSON (other tasks); runs nothing")
     ap.add_argument("--policy", default="scripted", help="the policy spec; {suite} and {index} are the task's")
+    ap.add_argument("--port-cpu", action="store_true", help="a third side: the port's code on CPU MuJoCo (one world)")
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
@@ -148,8 +216,20 @@ def main() -> None:
         name = task.replace("/", "-")
         seconds[task] = {"cpu": run_eval(task, first, end - first, work / f"cpu-{name}", None, args.policy),
                          "warp": run_eval(task, first, end - first, work / f"warp-{name}", warp, args.policy)}
-        rows[task] = paired(episodes(work / f"cpu-{name}"), episodes(work / f"warp-{name}"))
+        cpu, gpu = episodes(work / f"cpu-{name}"), episodes(work / f"warp-{name}")
+        rows[task] = paired(cpu, gpu)
         revisions[task] = {"cpu": revision(work / f"cpu-{name}"), "warp": revision(work / f"warp-{name}")}
+        if args.port_cpu:
+            side = work / f"port-cpu-{name}"
+            spent = port_cpu_run(task, first, end - first, side, args.policy)
+            record = side / "wall_seconds"
+            total = spent + (float(record.read_text()) if record.exists() else 0.0)
+            record.write_text(f"{total:.1f}\n")
+            seconds[task]["port_cpu"] = total
+            port = episodes(side)
+            revisions[task]["port_cpu"] = revisions_now()
+            rows[task]["version"] = two_sided(cpu, port, ("cpu", "port_cpu"))
+            rows[task]["engine"] = two_sided(port, gpu, ("port_cpu", "warp"))
         print_table({task: rows[task]})
     print_table(rows)
     policy = "scripted (simseam.backends.libero_expert)" if args.policy == "scripted" else args.policy
