@@ -170,7 +170,25 @@ class WarpTerms(ControllerReads):
         self.m = self.d = None
 
 
-class CpuArm:
+class CpuControllerReads:
+    """``ControllerReads`` for one world on CPU MuJoCo (``self``: ``_mj`` the mujoco module, ``mjm``, ``data``,
+    ``layout``, and ``d.ctrl`` float[1, nu], where the controller writes): ``step1``, ``read``, ``step2``."""
+
+    def view(self, a: Any) -> Any:
+        return a
+
+    def step1(self) -> None:
+        self._mj.mj_step1(self.mjm, self.data)
+
+    def read(self) -> ArmTerms:
+        return cpu_terms(self.mjm, [self.data], self.layout)
+
+    def step2(self) -> None:
+        self.data.ctrl[:] = self.d.ctrl[0]
+        self._mj.mj_step2(self.mjm, self.data)
+
+
+class CpuArm(CpuControllerReads):
     """One world of a LIBERO model on CPU MuJoCo, stepped by ``stepping.control_step`` as the MuJoCo Warp worlds
     are (``step1``, ``read``, the controller writing ``view(d.ctrl)``, ``step2``): the port's own code on the CPU
     engine, which tells the gaps the port's code and the MuJoCo version make from those MuJoCo Warp's float32
@@ -202,15 +220,3 @@ class CpuArm:
         mujoco.mj_forward(model, data)
         return cls(model, data, layout)
 
-    def view(self, a: Any) -> Any:
-        return a
-
-    def step1(self) -> None:
-        self._mj.mj_step1(self.mjm, self.data)
-
-    def read(self) -> ArmTerms:
-        return cpu_terms(self.mjm, [self.data], self.layout)
-
-    def step2(self) -> None:
-        self.data.ctrl[:] = self.d.ctrl[0]
-        self._mj.mj_step2(self.mjm, self.data)

@@ -21,7 +21,7 @@ import numpy as np
 
 from types import SimpleNamespace
 
-from simseam.backends.libero_gpu.physics import ArmLayout, ArmTerms, ControllerReads, cpu_terms
+from simseam.backends.libero_gpu.physics import ArmLayout, ControllerReads, CpuControllerReads
 from simseam.backends.libero_gpu.state import LiberoState
 from simseam.backends.metaworld_gpu.physics import CpuPhysics, WarpPhysics
 
@@ -61,7 +61,7 @@ class LiberoWorlds(ControllerReads, WarpPhysics):
         return LiberoState.from_warp(self.mjm, self.d)
 
 
-class LiberoCpuWorlds(CpuPhysics):
+class LiberoCpuWorlds(CpuControllerReads, CpuPhysics):
     """``LiberoWorlds``' interface over one world on CPU MuJoCo (``num_worlds`` must be 1): ``load`` (the model
     fields a reset moves, then the state), ``step1`` / ``read`` / ``step2`` around the controller writing
     ``view(d.ctrl)``, ``save`` / ``restore``, ``finite``, ``poses``, ``goal_state``."""
@@ -72,19 +72,6 @@ class LiberoCpuWorlds(CpuPhysics):
         super().__init__(mjm, num_worlds)
         self.layout = layout
         self.d = SimpleNamespace(ctrl=np.zeros((1, mjm.nu)))  # what the controller writes; step2 applies it
-
-    def view(self, a: Any) -> Any:
-        return a
-
-    def step1(self) -> None:
-        self._mj.mj_step1(self.mjm, self.data)
-
-    def read(self) -> ArmTerms:
-        return cpu_terms(self.mjm, [self.data], self.layout)
-
-    def step2(self) -> None:
-        self.data.ctrl[:] = self.d.ctrl[0]
-        self._mj.mj_step2(self.mjm, self.data)
 
     def save(self, rows: np.ndarray) -> dict[str, Any]:
         return {k: np.asarray(getattr(self.data, k)).copy()[None] for k in CARRIED if np.size(getattr(self.data, k))}
