@@ -1,14 +1,16 @@
-"""Why MuJoCo Warp disagrees with LIBERO on libero_goal/2's crafted states (``libero_predicates_check.py``): the
-wine bottle that LIBERO's physics settled on the cabinet's top touches it by less than a float32 step.
+"""Why MuJoCo Warp disagrees with LIBERO on a crafted state of ``libero_predicates_check.py``: an object that
+LIBERO's physics settled on another touches it by less than a float32 step (libero_goal/2: the wine bottle on the
+cabinet's top, the default; libero_90/87: the yellow book on the shelf's top).
 
-For one crafted state (``--label``, default the 10th control step of the drop, where the bottle rests), prints
-and records: the bottle-cabinet contacts and their distances on CPU MuJoCo (float64) at LIBERO's state and at the
-state rounded to float32; on MuJoCo Warp (Warp's CPU device unless ``--device``) at the state and with the bottle
+For one crafted state (``--label``, default the 10th control step of the drop, where the object rests), prints
+and records: the object-parent contacts and their distances on CPU MuJoCo (float64) at LIBERO's state and at the
+state rounded to float32; on MuJoCo Warp (Warp's CPU device unless ``--device``) at the state and with the object
 lowered by 1 um, 10 um and 0.1 mm; and MuJoCo Warp's own physics from the state (one world, ``--steps`` steps of
 2 ms, the arm unpowered): the contact count and the deepest distance every 10 steps. Writes
 ``benchmarks/results/libero_predicates_float32.json`` (``--overwrite`` to replace it). Usage::
 
-    python benchmarks/libero_predicates_float32.py [--label "drop 10"] [--steps 250] [--device cpu] [--overwrite]
+    python benchmarks/libero_predicates_float32.py [--suite libero_goal --task 2 --object wine_bottle_1
+        --parent wooden_cabinet_1] [--label "drop 10"] [--steps 250] [--device cpu] [--out FILE] [--overwrite]
 """
 
 from __future__ import annotations
@@ -24,7 +26,6 @@ from simseam.backends.libero_gpu import model as M
 from simseam.backends.libero_gpu.worker import NativeWorker
 
 RESULTS = Path(__file__).resolve().parent / "results"
-SUITE, TASK, OBJ, PARENT = "libero_goal", 2, "wine_bottle_1", "wooden_cabinet_1"
 
 
 def _between(geom, dist, a: set, b: set) -> list[float]:
@@ -69,6 +70,10 @@ class _Warp:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--suite", default="libero_goal")
+    p.add_argument("--task", type=int, default=2)
+    p.add_argument("--object", default="wine_bottle_1", help="the resting object (a goal object of the task)")
+    p.add_argument("--parent", default="wooden_cabinet_1", help="what it rests on (a goal object of the task)")
     p.add_argument("--label", default="drop 10")
     p.add_argument("--steps", type=int, default=250)
     p.add_argument("--device", default="cpu")
@@ -79,15 +84,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"libero_predicates_float32: {args.out} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
     with NativeWorker() as w:
-        info = w.call("describe", suite=SUITE, task=TASK)
-        crafted = w.call("craft", suite=SUITE, task=TASK)
+        info = w.call("describe", suite=args.suite, task=args.task)
+        crafted = w.call("craft", suite=args.suite, task=args.task)
     mjm = M.load_or_build(info).model
     objects = info["goal"]["objects"]
-    a, b = ({mjm.geom(g).id for g in objects[n]["geoms"]} for n in (OBJ, PARENT))
+    for name in (args.object, args.parent):
+        if name not in objects:
+            print(f"libero_predicates_float32: {name!r} is not a goal object of {args.suite}/{args.task}: "
+                  f"{sorted(objects)}", file=sys.stderr)
+            return 2
+    if args.label not in crafted["labels"]:
+        print(f"libero_predicates_float32: no crafted state {args.label!r} in {args.suite}/{args.task}",
+              file=sys.stderr)
+        return 2
+    a, b = ({mjm.geom(g).id for g in objects[n]["geoms"]} for n in (args.object, args.parent))
     i = crafted["labels"].index(args.label)
     q, v = crafted["qpos"][i], crafted["qvel"][i]
-    z = int(mjm.jnt_qposadr[mjm.body(objects[OBJ]["body"]).jntadr[0]]) + 2
-    out = {"task": f"{SUITE}/{TASK}", "state": args.label, "bottle_z": float(q[z]),
+    z = int(mjm.jnt_qposadr[mjm.body(objects[args.object]["body"]).jntadr[0]]) + 2
+    out = {"task": f"{args.suite}/{args.task}", "object": args.object, "parent": args.parent, "state": args.label,
+           "object_z": float(q[z]),
            "float32_step_at_z": float(np.spacing(np.float32(q[z]))),
            "cpu": cpu_contacts(mjm, q, a, b), "cpu_float32_state": cpu_contacts(mjm, q.astype(np.float32), a, b)}
     warp = _Warp(mjm, args.device)
