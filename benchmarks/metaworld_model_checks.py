@@ -43,7 +43,7 @@ def check_task(worker: NativeWorker, task: str, seeds: int) -> dict:
     batched = sorted({k for s in states for k in s["model"]} - {"eq_data"})
     entry["reset_fields"] = batched
     try:
-        from simseam.backends.metaworld_gpu.physics import WarpPhysics
+        from simseam.backends.warp_physics import WarpPhysics
 
         loaded = states[:2] if len(states) >= 2 else states * 2
         physics = WarpPhysics(model, 2, "cpu", tuple(batched))
@@ -60,7 +60,7 @@ def check_task(worker: NativeWorker, task: str, seeds: int) -> dict:
 def _pose_gap(physics, states: list) -> float:
     """The largest gap between the geoms' world positions on Warp after loading ``states`` and CPU MuJoCo's
     (``CpuPhysics``, the same model, each state alone)."""
-    from simseam.backends.metaworld_gpu.physics import CpuPhysics
+    from simseam.backends.warp_physics import CpuPhysics
 
     gap = 0.0
     for w, state in enumerate(states):

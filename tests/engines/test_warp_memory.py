@@ -73,7 +73,7 @@ import gc, json, resource, sys
 import mujoco, warp as wp
 wp.config.quiet = True
 wp.init()
-from simseam.backends.metaworld_gpu.physics import WarpPhysics
+from simseam.backends.warp_physics import WarpPhysics
 from simseam.engines.mujoco_warp.memory import WorldsDoNotFit, put_worlds
 XML = '''<mujoco><worldbody><body><freejoint/><geom type="box" size=".1 .1 .1"/></body>
 <body pos="0 0 1"><freejoint/><geom type="sphere" size=".1"/></body></worldbody></mujoco>'''

@@ -1,6 +1,6 @@
 """N worlds of one LIBERO task on MuJoCo Warp, for its batch (``env.LiberoBatch``), or one world on CPU MuJoCo.
 
-The worlds are Meta-World's port's ``WarpPhysics`` (``backends.metaworld_gpu.physics``: the model fields a
+The worlds are the ports' shared ``WarpPhysics`` (``backends.warp_physics``: the model fields a
 reset moves batched per world, ``load`` scattering native reset states into chosen worlds, the poses of static
 geoms recomputed for them, ``poses()``) with what robosuite's controller loop reads and runs between
 ``step1`` and ``step2`` (``physics.ControllerReads``), and a save and restore of chosen worlds' carried state:
@@ -23,7 +23,7 @@ from types import SimpleNamespace
 
 from simseam.backends.libero_gpu.physics import ArmLayout, ControllerReads, CpuControllerReads
 from simseam.backends.libero_gpu.state import LiberoState
-from simseam.backends.metaworld_gpu.physics import CpuPhysics, WarpPhysics
+from simseam.backends.warp_physics import CpuPhysics, WarpPhysics
 
 #: what a step carries over (the rest of ``Data`` is recomputed from it by the next ``step1``)
 CARRIED = ("time", "qpos", "qvel", "act", "ctrl", "qacc_warmstart")

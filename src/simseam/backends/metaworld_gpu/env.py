@@ -30,7 +30,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.metaworld_gpu.model import load_or_build
-from simseam.backends.metaworld_gpu.physics import CpuPhysics, WarpPhysics
+from simseam.backends.warp_physics import CpuPhysics, WarpPhysics
 from simseam.backends.metaworld_gpu.resets import ResetCache
 from simseam.backends.metaworld_gpu.state import MetaWorldState, ModelNames
 from simseam.backends.metaworld_gpu.tasks import DIAL_JOINT, DIAL_RADIUS, OBJECTS, scipy_quat

@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from simseam.backends.warp_physics import Contacts, Poses
+
 LEFT_PAD_GEOM = "leftpad_geom"
 RIGHT_PAD_GEOM = "rightpad_geom"
 
@@ -94,33 +96,6 @@ class ModelNames:
         if name in self.body_geoms:
             return self.body_geoms[name]
         raise KeyError(f"Meta-World task {self.task!r}: no geom or body named {name!r} in its model")
-
-
-@dataclass
-class Contacts:
-    """The active contacts of all worlds, flat: ``geom`` int[C, 2], ``world`` int[C], ``force`` float[C]
-    (``efc_force`` at the contact's ``efc_address``; 0 where the contact has no constraint row)."""
-
-    geom: Any
-    world: Any
-    force: Any
-
-
-@dataclass
-class Poses:
-    """The arrays the lookups read, one row per world: ``qpos`` float[N, nq], ``qvel`` float[N, nv];
-    ``xpos`` / ``xquat`` / ``xmat`` [N, nbody, 3 | 4 | (3, 3)]; ``site_xpos`` / ``site_xmat``
-    [N, nsite, ...]; ``geom_xpos`` / ``geom_xmat`` [N, ngeom, ...]."""
-
-    qpos: Any
-    qvel: Any
-    xpos: Any
-    xquat: Any
-    xmat: Any
-    site_xpos: Any
-    site_xmat: Any
-    geom_xpos: Any
-    geom_xmat: Any
 
 
 @dataclass

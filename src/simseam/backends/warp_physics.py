@@ -1,4 +1,5 @@
-"""N worlds of one Meta-World model, two implementations of one small interface:
+"""N worlds of one benchmark model (a Meta-World or LIBERO task), two implementations of one small interface,
+shared by the benchmark ports (``metaworld_gpu``, ``libero_gpu``):
 
 - ``WarpPhysics``: MuJoCo Warp, N worlds on a Warp device (``cuda:K`` or ``cpu``); the model fields that
   resets move get a per-world batch dimension (``mujoco_warp.put_model(batch_sizes=...)``);
@@ -7,7 +8,7 @@
 Both: ``load(rows, states)`` puts native reset states into those worlds (model fields first, restored to
 the compiled values then changed as the reset changed them); ``control(mocap_pos, mocap_quat, ctrl)``;
 ``advance(n)`` = n ``mj_step`` then ``mj_forward`` (Meta-World's ``do_simulation`` then its ``mj_forward``);
-``poses()`` -> ``state.Poses`` and ``contacts()`` -> ``state.Contacts`` as arrays of ``xp``.
+``poses()`` -> ``Poses`` and ``contacts()`` -> ``Contacts`` as arrays of ``xp``.
 
 On a CUDA device ``WarpPhysics`` replays the control step's physics (``advance``) and the reset's forward
 as captured CUDA graphs (``graph=False``: launched one by one, as the CPU device always does); a reset
@@ -16,14 +17,41 @@ scatters its rows into the device arrays in place (the graphs keep pointing at t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from simseam.engines.mujoco_warp.memory import put_worlds
 from simseam.scene.tasks.batch import quat_to_matrix
 
-from simseam.backends.metaworld_gpu.state import Contacts, Poses
-from simseam.engines.mujoco_warp.memory import put_worlds
+
+@dataclass
+class Contacts:
+    """The active contacts of all worlds, flat: ``geom`` int[C, 2], ``world`` int[C], ``force`` float[C]
+    (``efc_force`` at the contact's ``efc_address``; 0 where the contact has no constraint row)."""
+
+    geom: Any
+    world: Any
+    force: Any
+
+
+@dataclass
+class Poses:
+    """The arrays the lookups read, one row per world: ``qpos`` float[N, nq], ``qvel`` float[N, nv];
+    ``xpos`` / ``xquat`` / ``xmat`` [N, nbody, 3 | 4 | (3, 3)]; ``site_xpos`` / ``site_xmat``
+    [N, nsite, ...]; ``geom_xpos`` / ``geom_xmat`` [N, ngeom, ...]."""
+
+    qpos: Any
+    qvel: Any
+    xpos: Any
+    xquat: Any
+    xmat: Any
+    site_xpos: Any
+    site_xmat: Any
+    geom_xpos: Any
+    geom_xmat: Any
+
 
 STATE_FIELDS = ("qpos", "qvel", "mocap_pos", "mocap_quat", "ctrl", "act", "qacc_warmstart")
 ALWAYS_BATCHED = ("body_pos", "body_quat", "site_pos", "site_quat", "geom_pos", "geom_quat")
