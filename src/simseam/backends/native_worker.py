@@ -176,3 +176,18 @@ class NativeWorker:
 
 def _brief(kwargs: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v!r}" for k, v in kwargs.items() if isinstance(v, (str, int, float)))
+
+
+def cached_answers(folder: Path, keys: list[int], ask: Callable[[list[int]], list[Any]]) -> list[Any]:
+    """One answer per key of ``keys`` (in order), each kept in ``folder/<key>.pkl``: the keys not there yet are
+    asked of the native worker at once (``ask(missing)``, one answer per missing key in order) and written
+    atomically (a killed writer leaves no partial file under the final name); keys repeated share one answer."""
+    missing = sorted({k for k in keys if not (folder / f"{k}.pkl").is_file()})
+    if missing:
+        folder.mkdir(parents=True, exist_ok=True)
+        for key, answer in zip(missing, ask(missing)):
+            tmp = folder / f"{key}.partial"
+            tmp.write_bytes(pickle.dumps(answer, protocol=4))
+            os.replace(tmp, folder / f"{key}.pkl")
+    loaded = {k: pickle.loads((folder / f"{k}.pkl").read_bytes()) for k in dict.fromkeys(keys)}
+    return [loaded[k] for k in keys]

@@ -16,12 +16,10 @@ expert then fails. Settled natively, the worlds start from the state LIBERO's ow
 
 from __future__ import annotations
 
-import os
-import pickle
-from pathlib import Path
 from typing import Any
 
 from simseam.backends.libero_gpu.model import cache_dir
+from simseam.backends.native_worker import cached_answers
 
 #: what a cached reset state holds (``native.resets``' answer); another format is another folder
 FORMAT = 3
@@ -36,18 +34,6 @@ class ResetCache:
         self.suite, self.task = info["suite"], int(info["task"])
         self.folder = cache_dir(info) / f"resets-v{FORMAT}" / f"{self.suite}-{self.task}" / f"settle-{self.settle}"
 
-    def _path(self, seed: int) -> Path:
-        return self.folder / f"{seed}.pkl"
-
     def get(self, seeds: list[int]) -> list[dict[str, Any]]:
-        seeds = [int(s) for s in seeds]
-        missing = sorted({s for s in seeds if not self._path(s).is_file()})
-        if missing:
-            fresh = self.worker.call("resets", suite=self.suite, task=self.task, seeds=missing, settle=self.settle)
-            self.folder.mkdir(parents=True, exist_ok=True)
-            for seed, state in zip(missing, fresh):
-                tmp = self._path(seed).with_suffix(".partial")
-                tmp.write_bytes(pickle.dumps(state, protocol=4))
-                os.replace(tmp, self._path(seed))
-        loaded = {s: pickle.loads(self._path(s).read_bytes()) for s in dict.fromkeys(seeds)}
-        return [loaded[s] for s in seeds]
+        return cached_answers(self.folder, [int(s) for s in seeds], lambda missing: self.worker.call(
+            "resets", suite=self.suite, task=self.task, seeds=missing, settle=self.settle))

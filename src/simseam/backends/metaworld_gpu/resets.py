@@ -9,12 +9,10 @@ the seed itself for ``sampled`` and ``lerobot``. Episode i gets its own seed's s
 
 from __future__ import annotations
 
-import os
-import pickle
-from pathlib import Path
 from typing import Any
 
 from simseam.backends.metaworld_gpu.model import cache_dir
+from simseam.backends.native_worker import cached_answers
 
 N_VARIATIONS = 50
 
@@ -32,20 +30,8 @@ class ResetCache:
         self.task, self.variation, self.goal_seed = info["task"], variation, int(goal_seed)
         self.folder = cache_dir(info) / "resets" / self.task / f"{variation}-goal{self.goal_seed}"
 
-    def _path(self, key: int) -> Path:
-        return self.folder / f"{key}.pkl"
-
     def get(self, seeds: list[int]) -> list[dict[str, Any]]:
+        """Worlds that share a variation (``mt1`` / ``ml1``: seeds s and s + 50) share its read-only state."""
         keys = [state_key(self.variation, s) for s in seeds]
-        missing = sorted({k for k in keys if not self._path(k).is_file()})
-        if missing:
-            # mt1 / ml1: the key is a seed of that variation; sampled / lerobot: the seed itself
-            fresh = self.worker.call("resets", task=self.task, variation=self.variation, goal_seed=self.goal_seed,
-                                     seeds=missing)
-            self.folder.mkdir(parents=True, exist_ok=True)
-            for key, state in zip(missing, fresh):
-                tmp = self._path(key).with_suffix(".partial")
-                tmp.write_bytes(pickle.dumps(state, protocol=4))
-                os.replace(tmp, self._path(key))
-        loaded = {k: pickle.loads(self._path(k).read_bytes()) for k in dict.fromkeys(keys)}
-        return [loaded[k] for k in keys]  # worlds that share a variation share its (read-only) state
+        return cached_answers(self.folder, keys, lambda missing: self.worker.call(
+            "resets", task=self.task, variation=self.variation, goal_seed=self.goal_seed, seeds=missing))
