@@ -43,15 +43,14 @@ import argparse
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SIMSEAM = str(Path(sys.executable).with_name("simseam"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from metaworld_proof import _simseam  # noqa: E402  (one command runner for the proofs: output to the log, rc checked)
 N_INIT = 50  # LIBERO's init states per task; episode seed s starts from init state s % 50
 STEPS = {"libero_spatial": 220, "libero_object": 280}  # the eval presets' (openpi's) step limits
 
@@ -77,18 +76,6 @@ def scene_yaml(suite: str, task: int) -> str:
             "a state policy (benchmarks/libero_proof.py)\n"
             f"benchmark: {{name: libero, suite: {suite}, task: {task}, environment_state: true, settle_steps: 10, "
             f"max_steps: {STEPS[suite]}}}\n")
-
-
-def _simseam(*args: str, log: Path) -> float:
-    """Run one ``simseam`` command (output appended to ``log``); returns its wall time in seconds."""
-    t0 = time.perf_counter()
-    with log.open("a") as f:
-        f.write(f"$ simseam {' '.join(args)}\n")
-        f.flush()
-        rc = subprocess.run([SIMSEAM, *args], stdout=f, stderr=subprocess.STDOUT, cwd=ROOT).returncode
-    if rc != 0:
-        raise RuntimeError(f"simseam {args[0]} exited {rc}; its output is in {log}")
-    return time.perf_counter() - t0
 
 
 def _result(out: Path, policy: str, states: range, seconds: float, key: str | None) -> dict:
