@@ -160,6 +160,7 @@ def test_robosuite_matches_native(open_backend, run_native):
     ("pusht", {}),
     ("aloha", {"task": "insertion"}),
     ("libero", {"suite": "libero_object", "task": 1, "image_size": [64, 64], "settle_steps": 0}),
+    ("libero", {"suite": "libero_spatial", "task": 0, "environment_state": True, "cameras": False, "settle_steps": 0}),
     ("robosuite", {"task": "Stack", "robot": "Panda", "image_size": [64, 64]}),
 ])
 def test_backend_keeps_the_seam_contract(open_backend, name, config):
