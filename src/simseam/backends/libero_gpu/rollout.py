@@ -25,6 +25,10 @@ What each environment gives is the CPU backend's (``backends.libero``), on the s
 - success: LIBERO's ``_check_success`` after each step (its BDDL goal, batched: ``predicates.GoalCheck``); reward
   1.0 on success (LIBERO's sparse reward); ``terminated`` = success, ``truncated`` = not success at
   ``max_steps`` (openpi's step limits).
+
+``engine="mujoco"`` runs the same code on CPU MuJoCo of this venv's version (one environment, float64, no
+cameras): the reference that tells MuJoCo Warp's engine gap from the version gap (its observations are the CPU
+backend's to float64 rounding; docs/benchmarks.md).
 """
 
 from __future__ import annotations
