@@ -34,13 +34,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from simseam.runner.compare import mcnemar_exact
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -71,13 +72,15 @@ def run_eval(task: str, first: int, count: int, out: Path, warp: dict | None, po
 
 
 def port_cpu_run(task: str, first: int, count: int, out: Path, policy_spec: str) -> float:
-    """The port on CPU MuJoCo (one world) for episodes ``first`` .. ``first + count - 1`` of ``task``; each
-    finished episode appended to ``out/episodes.jsonl`` (seed, success, steps), those already there skipped;
+    """The port on CPU MuJoCo (one world) for episodes ``first`` .. ``first + count - 1`` of ``task``, run by the
+    scheduler ``simseam eval`` uses (``run_batch``: episode ``i`` gets seed ``first + i``); each finished episode
+    appended to ``out/episodes.jsonl`` (seed, success, steps), those already there skipped;
     returns this call's wall seconds."""
     from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
     from simseam.backends.libero_gpu.worker import NativeWorker
     from simseam.policies.batch import make_policy_batch
     from simseam.runner.job import reads_environment_state
+    from simseam.runner.scheduler import run_batch
 
     suite, _, index = task.partition("/")
     out.mkdir(parents=True, exist_ok=True)
@@ -86,19 +89,19 @@ def port_cpu_run(task: str, first: int, count: int, out: Path, policy_spec: str)
     t0 = time.perf_counter()
     if not todo:
         return 0.0
-    policy = make_policy_batch(policy_spec.format(suite=suite, index=index), 1, device="cpu")
+    spec = policy_spec.format(suite=suite, index=index)
+    policy = make_policy_batch(spec, 1, **({"device": "cpu"} if spec.startswith("lerobot:") else {}))
     config = {"suite": suite, "task": int(index), "max_steps": STEPS[suite], "settle_steps": 10,
               "environment_state": reads_environment_state(policy)}
+
+    def write(result) -> None:  # each finished episode kept at once (a run cut off resumes)
+        with (out / "episodes.jsonl").open("a") as f:
+            f.write(json.dumps({"seed": result.seed, "success": result.success, "steps": result.steps,
+                                **({"error": result.error} if result.error else {})}) + "\n")
+
     with NativeWorker() as worker, \
             LiberoBatchRollout(config, 1, worker, privileged=policy.requires_privileged, engine="mujoco") as batch:
-        for seed in todo:
-            policy.reset(0, batch.spec)
-            obs, steps, r = batch.reset([0], [seed]), 0, None
-            while r is None or not (r.terminated[0] or r.truncated[0]):
-                r = batch.step([0], policy.act_batch([0], obs))
-                obs, steps = r.observations, steps + 1
-            with (out / "episodes.jsonl").open("a") as f:
-                f.write(json.dumps({"seed": seed, "success": bool(r.terminated[0]), "steps": steps}) + "\n")
+        run_batch(batch, policy, [s - first for s in todo], seed=first, on_done=write, keep=False)
     policy.close()
     return time.perf_counter() - t0
 
@@ -118,15 +121,6 @@ def revisions_now() -> dict:
 def episodes(out: Path) -> dict[int, dict]:
     lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
     return {e["seed"]: e for e in lines}
-
-
-def mcnemar_exact(b: int, c: int) -> float:
-    """Two-sided exact McNemar p over ``b`` + ``c`` discordant pairs (binomial, p = 1/2)."""
-    n = b + c
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, k) for k in range(0, min(b, c) + 1)) / 2 ** n
-    return min(1.0, 2.0 * tail)
 
 
 def paired(cpu: dict[int, dict], warp: dict[int, dict]) -> dict:

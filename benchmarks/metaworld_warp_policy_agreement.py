@@ -66,27 +66,23 @@ def evaluate(task: str, ckpt: Path, seed: int, episodes: int, out: Path, engine_
     return json.loads((out / "summary.json").read_text())
 
 
-def port_cpu_episodes(task: str, ckpt: Path, seed: int, episodes: int) -> list[dict]:
-    """The port on CPU MuJoCo (its version), one world, the policy as ``simseam eval`` builds it; per episode
-    its seed, success (at any step) and steps (to success, else ``max_path_length``)."""
+def port_cpu_episodes(task: str, ckpt: Path, seed: int, episodes: int, policy_spec: str | None = None) -> list[dict]:
+    """The port on CPU MuJoCo (its version), one world, the policy as ``simseam eval`` builds it (``policy_spec``,
+    default ``lerobot:<ckpt>``), its episodes run by ``simseam eval``'s scheduler (``run_batch``: 500 steps or
+    success); per episode its seed, success (at any step) and steps (to success, else ``max_path_length``)."""
     from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
     from simseam.backends.metaworld_gpu.worker import NativeWorker
     from simseam.policies.batch import make_policy_batch
+    from simseam.runner.scheduler import run_batch
 
-    out = []
     config = {"task": task, "variation": "mt1", "max_steps": 500}
-    with NativeWorker() as worker, MetaWorldBatchRollout(config, 1, worker, engine="mujoco") as batch:
-        policy = make_policy_batch(f"lerobot:{ckpt}", 1, device="cpu")
-        for s in range(seed, seed + episodes):
-            policy.reset(0, batch.spec)
-            obs, done, steps = batch.reset([0], [s]), False, 0
-            while not done:
-                r = batch.step([0], policy.act_batch([0], obs))
-                obs, steps = r.observations, steps + 1
-                done = bool(r.terminated[0] or r.truncated[0])  # the port terminates on success
-            out.append({"seed": s, "success": bool(r.terminated[0]), "steps": steps})
-        policy.close()
-    return out
+    spec = policy_spec or f"lerobot:{ckpt}"
+    policy = make_policy_batch(spec, 1, **({"device": "cpu"} if spec.startswith("lerobot:") else {}))
+    with NativeWorker() as worker, MetaWorldBatchRollout(config, 1, worker, engine="mujoco",
+                                                         privileged=policy.requires_privileged) as batch:
+        results = run_batch(batch, policy, range(episodes), seed=seed)
+    policy.close()
+    return [{"seed": r.seed, "success": r.success, "steps": r.steps} for r in sorted(results, key=lambda r: r.seed)]
 
 
 def paired(first: list[dict], second: list[dict], names: tuple[str, str]) -> dict[str, Any]:
