@@ -3,7 +3,7 @@ evaluated on held-out init states, with the expert on the same init states as th
 
     .venv/bin/python benchmarks/libero_proof.py [--suite libero_spatial] [--tasks 0,1,2,3,4]
         [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--action-noise 0]
-        [--state-std-floor F] [--demos-from DIR] [--train-only] [--work DIR] [--json FILE]
+        [--state-std-floor F] [--state-noise S] [--demos-from DIR] [--train-only] [--work DIR] [--json FILE]
 
 For each task, through the ``simseam`` command a user types (the CPU ``libero`` backend in LIBERO's venv
 behind the sidecar):
@@ -24,10 +24,11 @@ behind the sidecar):
    ``environment_state``, which the preset does not turn on), and ``simseam eval <suite> --tasks <task>
    --policy scripted --seed 30 --episodes 20``: the expert on the same init states (the preset itself).
 
-``--state-std-floor F`` trains with ``simseam train --state-std-floor F``; ``--demos-from DIR`` trains on the
-datasets an earlier run recorded in DIR (``DIR/<suite>_<task>_data``) instead of collecting again (the expert
-is deterministic: the same init states give the same demonstrations); ``--train-only`` stops after phase 2
-(the checkpoints are then evaluated elsewhere, e.g. paired on two engines by ``libero_warp_expert.py``).
+``--state-std-floor F`` and ``--state-noise S`` train with ``simseam train``'s options of the same names;
+``--demos-from DIR`` trains on the datasets an earlier run recorded in DIR (``DIR/<suite>_<task>_data``)
+instead of collecting again (the expert is deterministic: the same init states give the same demonstrations);
+``--train-only`` stops after phase 2 (the checkpoints are then evaluated elsewhere, e.g. paired on two engines
+by ``libero_warp_expert.py``).
 
 Nothing was tuned on init states 30-49: the recipe is Meta-World's, and the budgets (30 demonstrations,
 ``--train-s``) were set by the time this 2-core machine had, before any evaluation. Every ``simseam``
@@ -52,6 +53,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from metaworld_proof import _simseam  # noqa: E402  (one command runner for the proofs: output to the log, rc checked)
 N_INIT = 50  # LIBERO's init states per task; episode seed s starts from init state s % 50
+STATE_OPTIONS = ("state_std_floor", "state_noise")  # simseam train's options on the state inputs
 STEPS = {"libero_spatial": 220, "libero_object": 280}  # the eval presets' (openpi's) step limits
 
 
@@ -91,20 +93,21 @@ def _result(out: Path, policy: str, states: range, seconds: float, key: str | No
 
 
 def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt: Path, train_s: float,
-                      log: Path, noise: float = 0.0, floor: float | None = None,
+                      log: Path, noise: float = 0.0, state: dict | None = None,
                       demos_from: Path | None = None) -> tuple[float, float]:
     """Phases 1 and 2 for one task: the expert's demonstrations into ``data`` (executed with Gaussian action
     noise ``noise`` when > 0, the expert's own action recorded; or ``demos_from``'s dataset of the task), ACT
-    trained into ``ckpt`` (``floor``: ``--state-std-floor``); their wall seconds (0 for a reused dataset)."""
+    trained into ``ckpt`` (``state``: ``state_std_floor`` / ``state_noise``, those ``simseam train`` options);
+    their wall seconds (0 for a reused dataset)."""
     if demos_from is not None:
-        return 0.0, _train(recipe, demos_from / data.name, ckpt, train_s, log, floor)
+        return 0.0, _train(recipe, demos_from / data.name, ckpt, train_s, log, state)
     collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(len(demo)),
                          "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite",
                          *(["--action-noise", str(noise)] if noise > 0 else []), log=log)
-    return collect_s, _train(recipe, data, ckpt, train_s, log, floor)
+    return collect_s, _train(recipe, data, ckpt, train_s, log, state)
 
 
-def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, floor: float | None) -> float:
+def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, state: dict | None) -> float:
     """``simseam train`` with the recipe; its wall seconds."""
     return _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                           "--workers", "0", "--device", "cpu", "--no-vae",
@@ -115,7 +118,12 @@ def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, fl
                           *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
                           "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
                           "--encoder-layers", str(recipe.encoder_layers),
-                          *(["--state-std-floor", str(floor)] if floor is not None else []), log=log)
+                          *_state_flags(state), log=log)
+
+
+def _state_flags(state: dict | None) -> list[str]:
+    """``simseam train`` flags of the options in ``state`` that are set (``state_noise`` -> ``--state-noise``)."""
+    return [x for k, v in (state or {}).items() if v is not None for x in (f"--{k.replace('_', '-')}", str(v))]
 
 
 def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work: Path, log: Path) -> tuple[dict, dict]:
@@ -133,7 +141,7 @@ def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work
 
 
 def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float,
-          noise: float = 0.0, floor: float | None = None, demos_from: Path | None = None,
+          noise: float = 0.0, state: dict | None = None, demos_from: Path | None = None,
           evaluate_too: bool = True) -> dict:
     """Collect, train and evaluate one task (and the expert on the same init states); its row of the report
     (without ``eval`` / ``expert`` when not ``evaluate_too``)."""
@@ -141,7 +149,7 @@ def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, w
     scene.write_text(scene_yaml(suite, task))
     data, ckpt = work / f"{suite}_{task}_data", work / f"{suite}_{task}_act"
     log = work / f"{suite}_{task}.log"
-    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise, floor, demos_from)
+    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise, state, demos_from)
     info = json.loads(((demos_from or work) / data.name / "meta" / "info.json").read_text())
     training = json.loads((ckpt / "training.json").read_text())
     row = {
@@ -154,7 +162,7 @@ def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, w
         "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
                      "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
                      "final_loss": training["losses"][-1][1] if training["losses"] else None,
-                     "device": training["device"], "state_std_floor": floor},
+                     "device": training["device"], **{k: training["config"].get(k) for k in STATE_OPTIONS}},
     }
     if evaluate_too:
         row["eval"], row["expert"] = evaluate(suite, task, scene, ckpt, held_out, work, log)
@@ -203,6 +211,7 @@ def main() -> int:
                     "units) on the executed demonstration actions, the expert's own recorded (default 0: off)")
     ap.add_argument("--state-std-floor", type=float, default=None, help="simseam train --state-std-floor (default: "
                     "off, the data's own statistics)")
+    ap.add_argument("--state-noise", type=float, default=None, help="simseam train --state-noise (default: off)")
     ap.add_argument("--demos-from", type=Path, default=None, help="train on the datasets an earlier run recorded in "
                     "this work directory instead of collecting")
     ap.add_argument("--train-only", action="store_true", help="stop after training (no evaluation)")
@@ -221,7 +230,7 @@ def main() -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one torch thread per process (metaworld_proof.py says why)
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "suite": args.suite, "recipe": asdict(recipe), "train_budget_s": args.train_s,
-              "action_noise": args.action_noise, "state_std_floor": args.state_std_floor,
+              "action_noise": args.action_noise, **{k: getattr(args, k) for k in STATE_OPTIONS},
               "demo_init_states": args.demo_states, "held_out_init_states": args.eval_states, "work": str(work),
               "tasks": []}
 
@@ -233,7 +242,8 @@ def main() -> int:
     try:
         for task in tasks:
             report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s,
-                                         args.action_noise, args.state_std_floor, args.demos_from,
+                                         args.action_noise, {k: getattr(args, k) for k in STATE_OPTIONS},
+                                         args.demos_from,
                                          not args.train_only))
             save()
             print(f"libero_proof: {report['tasks'][-1]['task']} done", flush=True)

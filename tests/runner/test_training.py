@@ -397,3 +397,83 @@ def test_the_floor_widens_min_max_about_the_middle_and_leaves_wider_inputs_alone
     np.testing.assert_allclose(env["std"], [0.01, 0.7], rtol=1e-6)
     assert out["action"]["std"][0] == 1e-9 and stats["observation.environment_state"]["std"][0] == 1e-10
     assert state_spread(stats, None) is stats
+
+
+def test_state_noise_is_drawn_on_the_state_inputs_only_and_repeats_with_its_seed():
+    import torch
+
+    from simseam.runner.training import noisy_states
+
+    batch = {"observation.state": torch.zeros(4000, 8), "observation.environment_state": torch.ones(4000, 2, 7),
+             "observation.images.front": torch.full((2, 3, 4, 4), 0.5), "action": torch.zeros(4000, 10, 7)}
+    out = noisy_states(batch, 1e-3, torch.Generator().manual_seed(7))
+    for key, mean in (("observation.state", 0.0), ("observation.environment_state", 1.0)):
+        drawn = (out[key] - batch[key]).double()
+        assert abs(drawn.std().item() - 1e-3) < 2e-5 and abs(drawn.mean().item()) < 2e-5
+        assert out[key].dtype == torch.float32
+        assert abs(out[key].double().mean().item() - mean) < 1e-4
+    for key in ("observation.images.front", "action"):
+        assert out[key] is batch[key]
+    again = noisy_states(batch, 1e-3, torch.Generator().manual_seed(7))
+    assert torch.equal(again["observation.state"], out["observation.state"])
+    assert noisy_states(batch, None, torch.Generator()) is batch
+    assert noisy_states(batch, 0.0, torch.Generator()) is batch
+
+
+def test_training_with_state_noise_sees_the_noise_and_scales_by_the_noisy_spread(state_dataset, tmp_path,
+                                                                                 tiny_act_config, monkeypatch):
+    """Every training batch reaches the policy with the noise on its state inputs (the same seed: the same
+    weights), and the checkpoint's normaliser divides each state input by the noisy data's spread,
+    ``sqrt(std**2 + noise**2)``: a resting input is no longer scaled by ~1e8."""
+    import torch
+    from safetensors.torch import load_file
+
+    from simseam.runner import training
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    seen, real = [], training.noisy_states
+
+    def spy(batch, noise, generator):
+        out = real(batch, noise, generator)
+        seen.append((noise, (out["observation.environment_state"] - batch["observation.environment_state"]).std()))
+        return out
+
+    monkeypatch.setattr(training, "noisy_states", spy)
+    cfg = {**tiny_act_config, "n_action_steps": 1, "use_vae": False, "device": "cpu", "steps": 3}
+    train_act(state_dataset[0], tmp_path / "raw", ActTrainConfig(**cfg))
+    assert [float(d) for _, d in seen] == [0.0] * 3 and {n for n, _ in seen} == {None}
+    seen.clear()
+    for name in ("noisy", "noisy_again"):
+        train_act(state_dataset[0], tmp_path / name, ActTrainConfig(state_noise=1e-3, **cfg))
+    assert len(seen) == 6 and all(n == 1e-3 and 5e-4 < float(d) < 2e-3 for n, d in seen)
+    raw, noisy = _saved_stats(tmp_path / "raw"), _saved_stats(tmp_path / "noisy")
+    for key in ("observation.state.std", "observation.environment_state.std"):
+        np.testing.assert_allclose(noisy[key], np.hypot(raw[key].astype(np.float64), 1e-3), rtol=1e-5)
+    for key in ("action.mean", "action.std", "observation.environment_state.mean"):
+        np.testing.assert_array_equal(noisy[key], raw[key])
+    first, again = (load_file(str(tmp_path / name / "model.safetensors")) for name in ("noisy", "noisy_again"))
+    assert all(torch.equal(first[k], again[k]) for k in first)
+    assert json.loads((tmp_path / "noisy" / "training.json").read_text())["config"]["state_noise"] == 1e-3
+
+
+@pytest.mark.parametrize("field", ["state_noise", "state_std_floor"])
+@pytest.mark.parametrize("value", [-1e-3, float("nan"), float("inf")])
+def test_a_bad_state_noise_or_floor_is_one_line(field, value, tmp_path, state_dataset, tiny_act_config):
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    with pytest.raises(ConfigError, match=f"--{field.replace('_', '-')} must be a non-negative number") as exc:
+        train_act(state_dataset[0], tmp_path / "bad", ActTrainConfig(steps=1, device="cpu", **{field: value},
+                                                                    **tiny_act_config))
+    assert "\n" not in str(exc.value) and not (tmp_path / "bad").exists()
+
+
+def test_the_noisy_spread_widens_min_max_by_three_deviations_and_composes_with_the_floor():
+    from simseam.runner.training import state_spread
+
+    stats = {"observation.state": {"min": np.array([0.0, -1.0]), "max": np.array([0.0, 1.0]),
+                                   "std": np.array([0.0, 0.5])}}
+    env = state_spread(stats, None, 1e-3)["observation.state"]
+    np.testing.assert_allclose(env["min"], [-3e-3, -1.003], rtol=1e-6)
+    np.testing.assert_allclose(env["std"], [1e-3, np.hypot(0.5, 1e-3)], rtol=1e-6)
+    both = state_spread(stats, 1e-2, 1e-3)["observation.state"]
+    np.testing.assert_allclose(both["std"], [1e-2, np.hypot(0.5, 1e-3)], rtol=1e-6)

@@ -509,6 +509,11 @@ def train(
                                                "(m, rad): an input at rest in the demonstrations is otherwise "
                                                "scaled by ~1e8, and another engine's float32 jitter reads as "
                                                "hundreds of deviations (e.g. 1e-3; default: the data's own)."),
+    state_noise: float = typer.Option(None, "--state-noise", min=0.0,
+                                      help="Gaussian noise of this std (the input's units: m, rad) added to every "
+                                           "state input of every training sample, so the policy learns that "
+                                           "changes of this size mean nothing (e.g. another engine's float32 "
+                                           "jitter, 1e-5); the normaliser's spread is the noisy data's."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a training run already in --out."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the newest checkpoint in --out up to "
                                 "--steps in total."),
@@ -522,7 +527,7 @@ def train(
                         inference_steps=inference_steps, temporal_ensemble=temporal_ensemble, dim_model=dim_model,
                         ff_dim=ff_dim, encoder_layers=encoder_layers, vae=vae, device=device, workers=workers,
                         cache=cache, amp=amp, seed=seed, checkpoint_every=checkpoint_every,
-                        state_std_floor=state_std_floor)
+                        state_std_floor=state_std_floor, state_noise=state_noise)
     _train_and_report(dataset, out, cfg, overwrite, resume)
 
 
@@ -531,7 +536,7 @@ def _train_config(*, steps: int, time_budget_s: float | None, batch_size: int, p
                   n_obs_steps: int, down_dims: str, inference_steps: int, temporal_ensemble: float | None,
                   dim_model: int, ff_dim: int, encoder_layers: int, vae: bool, device: str | None,
                   workers: int | None, cache: bool, amp: bool, seed: int, checkpoint_every: int | None,
-                  state_std_floor: float | None = None):
+                  state_std_floor: float | None = None, state_noise: float | None = None):
     """``simseam train``'s options as a ``TrainConfig`` (a bad combination exits 2 with its reason)."""
     from simseam.runner.training import TrainConfig, default_loader_workers
 
@@ -551,7 +556,8 @@ def _train_config(*, steps: int, time_budget_s: float | None, batch_size: int, p
                        dim_feedforward=ff_dim, n_encoder_layers=encoder_layers, use_vae=vae,
                        device=device, num_workers=default_loader_workers() if workers is None else workers,
                        cache_on_device=cache, use_amp=amp, seed=seed, log_every=max(1, min(100, steps // 10)),
-                       checkpoint_every=checkpoint_every, state_std_floor=state_std_floor)
+                       checkpoint_every=checkpoint_every, state_std_floor=state_std_floor,
+                       state_noise=state_noise)
 
 
 def _train_and_report(dataset: Path, out: Path, cfg, overwrite: bool, resume: bool) -> None:

@@ -115,6 +115,9 @@ class TrainConfig:
     #: the smallest spread the normaliser gives each state input (``STATE_INPUTS``), in the input's own units
     #: (``state_spread``); None: the dataset's statistics as they are
     state_std_floor: float | None = None
+    #: Gaussian noise of this standard deviation (the input's own units) added to every state input of every
+    #: training sample (``noisy_states``); the normaliser's spread is the noisy data's (``state_spread``)
+    state_noise: float | None = None
 
 
 #: the name the ACT-only trainer had
@@ -134,6 +137,9 @@ def resolve_config(cfg: TrainConfig) -> TrainConfig:
     for name, value in (("lr", cfg.lr), ("lr_backbone", cfg.lr_backbone), ("time_budget_s", cfg.time_budget_s)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise ConfigError(f"--{name.replace('_', '-')} must be a positive number, got {value!r}")
+    for name, value in (("state_std_floor", cfg.state_std_floor), ("state_noise", cfg.state_noise)):
+        if value is not None and not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"--{name.replace('_', '-')} must be a non-negative number, got {value!r}")
     if cfg.temporal_ensemble_coeff is not None and cfg.n_action_steps != 1:
         raise ConfigError(f"temporal ensembling queries the policy every step: it needs n_action_steps 1, "
                           f"not {cfg.n_action_steps}")
@@ -247,30 +253,50 @@ def image_stats(meta, root: Path) -> dict:
 STATE_INPUTS = ("observation.state", "observation.environment_state")
 
 
-def state_spread(stats: dict, floor: float | None) -> dict:
-    """``stats`` with each state input's spread at least ``floor`` (its own units: m, rad, quaternion units):
-    its ``std`` (ACT's mean-std normalisation) and its ``max - min`` (Diffusion's min-max: widened about the
-    middle to ``2 * floor``). An input that barely moves in the demonstrations (a resting object's pose recorded
-    on deterministic float64 physics: std down to 1e-10) is otherwise divided by about LeRobot's 1e-8, so a
-    jitter of 1e-6 (another engine's float32) reads as hundreds of deviations the policy never saw. The other
-    features, and the dataset on disk, are left as they are."""
+def state_spread(stats: dict, floor: float | None, noise: float | None = None) -> dict:
+    """``stats`` as the normaliser should see the state inputs: with training noise of std ``noise``, each
+    state input's spread is the noisy data's (std ``sqrt(std**2 + noise**2)``, min-max widened by ``3 * noise``
+    each side); with a ``floor`` (its own units: m, rad, quaternion units), at least ``floor`` (std at least
+    ``floor``, max - min at least ``2 * floor`` about the middle). An input that barely moves in the
+    demonstrations (a resting object's pose recorded on deterministic float64 physics: std down to 1e-10) is
+    otherwise divided by about LeRobot's 1e-8, so a jitter of 1e-6 (another engine's float32) reads as hundreds
+    of deviations the policy never saw. The other features, and the dataset on disk, are left as they are."""
     import copy
 
     import numpy as np
 
-    if floor is None:
+    if floor is None and not noise:
         return stats
+    floor, noise = floor or 0.0, noise or 0.0
     out = copy.deepcopy(stats)
     for key in STATE_INPUTS:
         if key not in out:
             continue
         entry = out[key]
         if "std" in entry:
-            entry["std"] = np.maximum(np.asarray(entry["std"], dtype=np.float64), floor).astype(np.float32)
+            std = np.hypot(np.asarray(entry["std"], dtype=np.float64), noise)
+            entry["std"] = np.maximum(std, floor).astype(np.float32)
         if "min" in entry and "max" in entry:
             lo, hi = np.asarray(entry["min"], dtype=np.float64), np.asarray(entry["max"], dtype=np.float64)
-            mid, half = (lo + hi) / 2, np.maximum((hi - lo) / 2, floor)
+            mid, half = (lo + hi) / 2, np.maximum((hi - lo) / 2 + 3 * noise, floor)
             entry["min"], entry["max"] = (mid - half).astype(np.float32), (mid + half).astype(np.float32)
+    return out
+
+
+def noisy_states(batch: dict, noise: float | None, generator) -> dict:
+    """``batch`` with Gaussian noise of std ``noise`` added to its state inputs (``STATE_INPUTS``, every frame
+    of an observation history too), drawn from ``generator`` (a CPU ``torch.Generator``: the same seed, the same
+    noise on any device); images and actions untouched. Training a state policy so teaches it that changes of
+    this size mean nothing (another engine's float32 jitter on a resting object's pose)."""
+    import torch
+
+    if not noise:
+        return batch
+    out = dict(batch)
+    for key in STATE_INPUTS:
+        if key in out:
+            x = out[key]
+            out[key] = x + noise * torch.randn(x.shape, generator=generator, dtype=x.dtype).to(x.device)
     return out
 
 
@@ -653,7 +679,7 @@ class _Training:
         policy.to(device)
         policy.train()
         preprocessor, postprocessor = make_pre_post_processors(
-            pcfg, dataset_stats=state_spread(image_stats(meta, root), cfg.state_std_floor))
+            pcfg, dataset_stats=state_spread(image_stats(meta, root), cfg.state_std_floor, cfg.state_noise))
         batches = _batch_source(cfg, pcfg, meta, root, device)
         optimizer = torch.optim.AdamW(param_groups, lr=cfg.lr, weight_decay=cfg.weight_decay, **adam)
         base_lrs = [g["lr"] for g in optimizer.param_groups]
@@ -674,11 +700,12 @@ class _Training:
         policy, optimizer, result, base_lrs = self.policy, self.optimizer, self.result, self.base_lrs
         amp = cfg.use_amp and self.device.startswith("cuda")
         running = 0.0
+        noise_source = torch.Generator(device="cpu").manual_seed(cfg.seed + 1)
         done = result.steps >= cfg.steps
         since_log = 0
         try:
             while not done:
-                batch = self.preprocessor(next(self.batches))
+                batch = self.preprocessor(noisy_states(next(self.batches), cfg.state_noise, noise_source))
                 with torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=amp):
                     loss, _ = policy.forward(batch)
                 optimizer.zero_grad(set_to_none=True)
