@@ -3,7 +3,7 @@ evaluated on held-out init states, with the expert on the same init states as th
 
     .venv/bin/python benchmarks/libero_proof.py [--suite libero_spatial] [--tasks 0,1,2,3,4]
         [--demo-states 0:30] [--eval-states 30:50] [--train-steps 3000] [--train-s 150] [--action-noise 0]
-        [--state-std-floor F] [--state-noise S] [--demos-from DIR] [--train-only] [--work DIR] [--json FILE]
+        [--state-std-floor F] [--state-noise S] [--train-seed N] [--demos-from DIR] [--no-expert] [--train-only] [--work DIR] [--json FILE]
 
 For each task, through the ``simseam`` command a user types (the CPU ``libero`` backend in LIBERO's venv
 behind the sidecar):
@@ -24,7 +24,8 @@ behind the sidecar):
    ``environment_state``, which the preset does not turn on), and ``simseam eval <suite> --tasks <task>
    --policy scripted --seed 30 --episodes 20``: the expert on the same init states (the preset itself).
 
-``--state-std-floor F`` and ``--state-noise S`` train with ``simseam train``'s options of the same names;
+``--state-std-floor F``, ``--state-noise S`` and ``--train-seed N`` train with ``simseam train``'s
+``--state-std-floor``, ``--state-noise`` and ``--seed``; ``--no-expert`` leaves out the expert's evaluation;
 ``--demos-from DIR`` trains on the datasets an earlier run recorded in DIR (``DIR/<suite>_<task>_data``)
 instead of collecting again (the expert is deterministic: the same init states give the same demonstrations);
 ``--train-only`` stops after phase 2 (the checkpoints are then evaluated elsewhere, e.g. paired on two engines
@@ -53,7 +54,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from metaworld_proof import _simseam  # noqa: E402  (one command runner for the proofs: output to the log, rc checked)
 N_INIT = 50  # LIBERO's init states per task; episode seed s starts from init state s % 50
-STATE_OPTIONS = ("state_std_floor", "state_noise")  # simseam train's options on the state inputs
+#: simseam train options the proof passes through -> this script's argument holding each
+TRAIN_OPTIONS = {"state_std_floor": "state_std_floor", "state_noise": "state_noise", "seed": "train_seed"}
 STEPS = {"libero_spatial": 220, "libero_object": 280}  # the eval presets' (openpi's) step limits
 
 
@@ -93,21 +95,21 @@ def _result(out: Path, policy: str, states: range, seconds: float, key: str | No
 
 
 def collect_and_train(recipe: Recipe, scene: Path, demo: range, data: Path, ckpt: Path, train_s: float,
-                      log: Path, noise: float = 0.0, state: dict | None = None,
+                      log: Path, noise: float = 0.0, options: dict | None = None,
                       demos_from: Path | None = None) -> tuple[float, float]:
     """Phases 1 and 2 for one task: the expert's demonstrations into ``data`` (executed with Gaussian action
     noise ``noise`` when > 0, the expert's own action recorded; or ``demos_from``'s dataset of the task), ACT
-    trained into ``ckpt`` (``state``: ``state_std_floor`` / ``state_noise``, those ``simseam train`` options);
+    trained into ``ckpt`` (``options``: ``simseam train`` options by name, ``TRAIN_OPTIONS``);
     their wall seconds (0 for a reused dataset)."""
     if demos_from is not None:
-        return 0.0, _train(recipe, demos_from / data.name, ckpt, train_s, log, state)
+        return 0.0, _train(recipe, demos_from / data.name, ckpt, train_s, log, options)
     collect_s = _simseam("collect", "--scene", str(scene), "--policy", "scripted", "--episodes", str(len(demo)),
                          "--seed", str(demo.start), "--no-cameras", "--out", str(data), "--overwrite",
                          *(["--action-noise", str(noise)] if noise > 0 else []), log=log)
-    return collect_s, _train(recipe, data, ckpt, train_s, log, state)
+    return collect_s, _train(recipe, data, ckpt, train_s, log, options)
 
 
-def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, state: dict | None) -> float:
+def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, options: dict | None) -> float:
     """``simseam train`` with the recipe; its wall seconds."""
     return _simseam("train", "--dataset", str(data), "--out", str(ckpt), "--overwrite", "--cache",
                           "--workers", "0", "--device", "cpu", "--no-vae",
@@ -118,22 +120,25 @@ def _train(recipe: Recipe, data: Path, ckpt: Path, train_s: float, log: Path, st
                           *(["--temporal-ensemble", str(recipe.temporal_ensemble)] if recipe.temporal_ensemble else []),
                           "--dim-model", str(recipe.dim_model), "--ff-dim", str(recipe.ff_dim),
                           "--encoder-layers", str(recipe.encoder_layers),
-                          *_state_flags(state), log=log)
+                          *_option_flags(options), log=log)
 
 
-def _state_flags(state: dict | None) -> list[str]:
-    """``simseam train`` flags of the options in ``state`` that are set (``state_noise`` -> ``--state-noise``)."""
-    return [x for k, v in (state or {}).items() if v is not None for x in (f"--{k.replace('_', '-')}", str(v))]
+def _option_flags(options: dict | None) -> list[str]:
+    """``simseam train`` flags of the options that are set (``state_noise`` -> ``--state-noise``)."""
+    return [x for k, v in (options or {}).items() if v is not None for x in (f"--{k.replace('_', '-')}", str(v))]
 
 
-def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work: Path, log: Path) -> tuple[dict, dict]:
-    """Phase 3: the policy (``simseam run`` on the scene) and the expert (``simseam eval`` of the preset) on
-    init states ``states``."""
+def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work: Path, log: Path,
+             expert: bool = True) -> tuple[dict, dict | None]:
+    """Phase 3: the policy (``simseam run`` on the scene) and the expert (``simseam eval`` of the preset; None
+    when not ``expert``) on init states ``states``."""
     name, n = f"{suite}/{task}", str(len(states))
     out = work / f"{suite}_{task}_eval"
     seconds = _simseam("run", "--scene", str(scene), "--policy", f"lerobot:{ckpt}", "--device", "cpu",
                        "--seed", str(states.start), "--episodes", n, "--out", str(out), "--overwrite", log=log)
     policy = _result(out, f"lerobot:{ckpt}", states, seconds, None)
+    if not expert:
+        return policy, None
     out = work / f"{suite}_{task}_expert"
     seconds = _simseam("eval", suite, "--tasks", name, "--policy", "scripted", "--seed", str(states.start),
                        "--episodes", n, "--out", str(out), "--overwrite", log=log)
@@ -141,15 +146,15 @@ def evaluate(suite: str, task: int, scene: Path, ckpt: Path, states: range, work
 
 
 def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, work: Path, train_s: float,
-          noise: float = 0.0, state: dict | None = None, demos_from: Path | None = None,
-          evaluate_too: bool = True) -> dict:
+          noise: float = 0.0, options: dict | None = None, demos_from: Path | None = None,
+          evaluate_too: bool = True, expert: bool = True) -> dict:
     """Collect, train and evaluate one task (and the expert on the same init states); its row of the report
     (without ``eval`` / ``expert`` when not ``evaluate_too``)."""
     scene = work / f"{suite}_{task}.yaml"
     scene.write_text(scene_yaml(suite, task))
     data, ckpt = work / f"{suite}_{task}_data", work / f"{suite}_{task}_act"
     log = work / f"{suite}_{task}.log"
-    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise, state, demos_from)
+    collect_s, train_wall = collect_and_train(recipe, scene, demo, data, ckpt, train_s, log, noise, options, demos_from)
     info = json.loads(((demos_from or work) / data.name / "meta" / "info.json").read_text())
     training = json.loads((ckpt / "training.json").read_text())
     row = {
@@ -162,10 +167,10 @@ def prove(suite: str, task: int, recipe: Recipe, demo: range, held_out: range, w
         "training": {"steps": training["steps"], "seconds": round(training["seconds"], 1),
                      "wall_seconds": round(train_wall, 1), "n_params": training["n_params"],
                      "final_loss": training["losses"][-1][1] if training["losses"] else None,
-                     "device": training["device"], **{k: training["config"].get(k) for k in STATE_OPTIONS}},
+                     "device": training["device"], **{k: training["config"].get(k) for k in TRAIN_OPTIONS}},
     }
     if evaluate_too:
-        row["eval"], row["expert"] = evaluate(suite, task, scene, ckpt, held_out, work, log)
+        row["eval"], row["expert"] = evaluate(suite, task, scene, ckpt, held_out, work, log, expert)
     return row
 
 
@@ -180,6 +185,7 @@ def summarize(report: dict) -> None:
     rows = report["tasks"]
     if rows and all("eval" in r for r in rows):
         report["mean_success_rate"] = sum(r["eval"]["success_rate"] for r in rows) / len(rows)
+    if rows and all(r.get("expert") for r in rows):
         report["expert_mean_success_rate"] = sum(r["expert"]["success_rate"] for r in rows) / len(rows)
 
 
@@ -196,7 +202,8 @@ def print_table(report: dict) -> None:
         print(f"{r['task']:18} {r['demos']['episodes_kept']:5d} {r['demos']['frames']:6d} "
               f"{r['training']['seconds']:7.0f} {r['training']['steps']:6d} {r['training']['final_loss']:7.4f} "
               f"{e['successes']:3d}/{e['episodes']:<3d} [{e['wilson95'][0]:.3f}, {e['wilson95'][1]:.3f}] "
-              f"{x['successes']:3d}/{x['episodes']:<3d} [{x['wilson95'][0]:.3f}, {x['wilson95'][1]:.3f}]")
+              + (f"{x['successes']:3d}/{x['episodes']:<3d} [{x['wilson95'][0]:.3f}, {x['wilson95'][1]:.3f}]"
+                 if x else "(expert not run)"))
 
 
 def main() -> int:
@@ -212,6 +219,8 @@ def main() -> int:
     ap.add_argument("--state-std-floor", type=float, default=None, help="simseam train --state-std-floor (default: "
                     "off, the data's own statistics)")
     ap.add_argument("--state-noise", type=float, default=None, help="simseam train --state-noise (default: off)")
+    ap.add_argument("--train-seed", type=int, default=None, help="simseam train --seed (default: its own, 0)")
+    ap.add_argument("--no-expert", action="store_true", help="leave out the expert's evaluation")
     ap.add_argument("--demos-from", type=Path, default=None, help="train on the datasets an earlier run recorded in "
                     "this work directory instead of collecting")
     ap.add_argument("--train-only", action="store_true", help="stop after training (no evaluation)")
@@ -230,7 +239,7 @@ def main() -> int:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one torch thread per process (metaworld_proof.py says why)
     report = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
               "suite": args.suite, "recipe": asdict(recipe), "train_budget_s": args.train_s,
-              "action_noise": args.action_noise, **{k: getattr(args, k) for k in STATE_OPTIONS},
+              "action_noise": args.action_noise, **{k: getattr(args, a) for k, a in TRAIN_OPTIONS.items()},
               "demo_init_states": args.demo_states, "held_out_init_states": args.eval_states, "work": str(work),
               "tasks": []}
 
@@ -242,9 +251,8 @@ def main() -> int:
     try:
         for task in tasks:
             report["tasks"].append(prove(args.suite, task, recipe, demo, held_out, work, args.train_s,
-                                         args.action_noise, {k: getattr(args, k) for k in STATE_OPTIONS},
-                                         args.demos_from,
-                                         not args.train_only))
+                                         args.action_noise, {k: getattr(args, a) for k, a in TRAIN_OPTIONS.items()},
+                                         args.demos_from, not args.train_only, not args.no_expert))
             save()
             print(f"libero_proof: {report['tasks'][-1]['task']} done", flush=True)
     except RuntimeError as exc:
@@ -256,8 +264,9 @@ def main() -> int:
     if "mean_success_rate" not in report:
         print(f"json: {args.json}")
         return 0
+    expert = report.get("expert_mean_success_rate")
     print(f"mean over {len(report['tasks'])} task(s): ACT {report['mean_success_rate']:.3f}, "
-          f"expert {report['expert_mean_success_rate']:.3f}")
+          f"expert {'not run' if expert is None else f'{expert:.3f}'}")
     print(f"json: {args.json}")
     print(f"libero_proof: mean task success rate on held-out init states {args.eval_states} "
           f"success_rate={report['mean_success_rate']:.4f}")
