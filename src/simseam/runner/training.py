@@ -700,7 +700,8 @@ class _Training:
         policy, optimizer, result, base_lrs = self.policy, self.optimizer, self.result, self.base_lrs
         amp = cfg.use_amp and self.device.startswith("cuda")
         running = 0.0
-        noise_source = torch.Generator(device="cpu").manual_seed(cfg.seed + 1)
+        # a resumed run draws a new stream (not the first steps' noise again); a fresh one: seed + 1
+        noise_source = torch.Generator(device="cpu").manual_seed(cfg.seed + 1 + result.steps)
         done = result.steps >= cfg.steps
         since_log = 0
         try:
