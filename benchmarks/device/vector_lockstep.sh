@@ -11,6 +11,8 @@
 #            bench_idle_step.py of AFTER)
 #   there: bash benchmarks/device/vector_lockstep.sh run [DIR]      (carry DIR and .gl)
 #            -> $OUT/log.txt (every table), $OUT/vector_<i>_<side>.json; ~8 of the 10 minutes
+#   there: TAG=k bash benchmarks/device/vector_lockstep.sh holds [DIR] [MODE ...]   (AFTER only, N = 16, ~3 minutes,
+#            no profile; unpacks DIR only when /tmp/vl is not there yet) -> $OUT/vector_holds_k.json, $OUT/log.txt
 #   there: bash benchmarks/device/vector_lockstep.sh grid [DIR] [MODE ...]   (AFTER only, N = 16, ~4 minutes)
 #            lockstep variants against bare (default: plain, 4 and 8 policy groups, each with the default
 #            busy-poll rule and with it forced on, plain and 8 groups also with a 200 us one; or the bench_vector
@@ -95,7 +97,25 @@ PY
       --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf --out "$OUT/idle_step.json" 2>&1 | tee -a "$LOG"
     echo "total $SECONDS s" | tee -a "$LOG"
     ;;
+  holds)  # AFTER only, N = 16, no profile (~2-3 minutes): which lockstep rules hold >= 0.8 of bare, call after call.
+    # The carry is unpacked only when /tmp/vl is not there yet, so back-to-back calls on a warm machine need not
+    # carry it again (they may carry other work's files instead). TAG names the output: $OUT/vector_holds_TAG.json
+    DIR="${2:-.cache/vectorcarry}"
+    shift $(($# < 2 ? $# : 2))
+    MODES="${*:-vector vector_x2_ready4 vector_x2_ready8 vector_x4_ready8 vector_x4_ready16}"
+    if [ -f /tmp/vl/REVS ] && [ -d /tmp/vl/site ]; then
+      LOG=$OUT/log.txt; export MUJOCO_GL=egl PYTHONUNBUFFERED=1; for f in .gl/*.deb; do [ -f "$f" ] && dpkg -x "$f" /; done; ldconfig
+    else
+      unpack "$DIR"
+    fi
+    echo "$(cat /tmp/vl/REVS) (holds); $(nproc) cores; load $(cut -d' ' -f1-3 /proc/loadavg)" | tee -a "$LOG"
+    PYTHONPATH=/tmp/vl/site:/tmp/vl/src-after timeout "${HOLDS_LIMIT:-400}" python3 /tmp/vl/bench_vector.py \
+      --robot-json /tmp/vl/panda.json --urdf /tmp/vl/franka_panda/panda.urdf \
+      --n 16 --steps 600 --episodes-per-env "${EPISODES_PER_ENV:-2}" --rounds "${ROUNDS:-3}" --cases state \
+      --modes $MODES bare --out "$OUT/vector_holds_${TAG:-0}.json" 2>&1 | grep -v '^  state' | tee -a "$LOG"
+    echo "total $SECONDS s" | tee -a "$LOG"
+    ;;
   *)
-    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR] | grid [DIR] [MODE ...]" >&2; exit 2
+    echo "usage: $0 prepare BEFORE [AFTER] [DIR] | run [DIR] | grid [DIR] [MODE ...] | holds [DIR] [MODE ...]" >&2; exit 2
     ;;
 esac
