@@ -143,7 +143,7 @@ def run_jobs(args, tasks: list[str]) -> dict[str, Any]:
             stale.unlink()
     done = _finished(args)
     todo = [t for t in tasks if t not in done]
-    first = len(list(parts.glob("part*.json")))  # a resumed run's parts come after the kept ones
+    first = next_part(parts)  # a resumed run's parts come after the kept ones
     procs = []
     for j in range(min(args.jobs, len(todo))):
         argv = [sys.executable, __file__, "--tasks", ",".join(todo[j::args.jobs]), "--seeds", args.seeds,
@@ -154,6 +154,13 @@ def run_jobs(args, tasks: list[str]) -> dict[str, Any]:
     if failed:
         print(f"jobs failed for tasks {failed}; their finished tasks are kept", file=sys.stderr)
     return {t: merged[t] for t in tasks if t in merged}
+
+
+def next_part(parts: Path) -> int:
+    """The first part number after every kept part's (not their count: a job cut off before its first task
+    left no part, and a count would reuse, and overwrite, a kept part's number)."""
+    numbers = [int(p.stem[4:]) for p in parts.glob("part*.json") if p.stem[4:].isdigit()]
+    return max(numbers, default=-1) + 1
 
 
 def _parts(parts: Path) -> dict[str, Any]:

@@ -46,3 +46,17 @@ def test_the_harness_on_five_tasks_keeps_the_engine_gap_small_and_the_successes_
         assert 0.0 <= r["p_engine_holm"] <= 1.0 and r["version_gap"]["worst"] >= 0.0
     # an existing file is kept
     assert _harness().main(["--tasks", "reach-v3", "--out", str(out)]) == 2
+
+
+def test_a_resumed_run_numbers_its_parts_after_every_kept_one(tmp_path):
+    """A job cut off before its first task leaves no part: kept parts 0, 1 and 3 mean the resumed jobs start at
+    4 (counting them would start at 3 and overwrite part 3's finished tasks, as a CUDA run of 6 December did)."""
+    harness = _harness()
+    parts = tmp_path / "fidelity.parts"
+    parts.mkdir()
+    assert harness.next_part(parts) == 0
+    for k in (0, 1, 3):
+        (parts / f"part{k}.json").write_text(json.dumps({"tasks": {f"task{k}": {}}}))
+    (parts / "part2.partial").write_text("{}")  # a write cut off: not a part
+    assert harness.next_part(parts) == 4
+    assert sorted(harness._parts(parts)) == ["task0", "task1", "task3"]
