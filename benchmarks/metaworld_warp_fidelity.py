@@ -191,6 +191,21 @@ def _finished(args) -> dict[str, Any]:
     return found
 
 
+def merge(args) -> int:
+    """``--merge``: the tasks a run left in ``--out`` and its parts (another machine's, say), in the order asked,
+    written as one document, ``complete`` only if every task asked for is there; nothing runs."""
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+
+    args.resume = True
+    found = _finished(args)
+    tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
+    results = {t: found[t] for t in tasks if t in found}
+    write(args, results, final=len(results) == len(tasks))
+    missing = [t for t in tasks if t not in results]
+    print(f"wrote {args.out}: {len(results)} of {len(tasks)} tasks" + (f"; missing {', '.join(missing)}" if missing else ""))
+    return 0
+
+
 def _seeds(text: str) -> list[int]:
     lo, hi = (int(x) for x in text.split(":"))
     return list(range(lo, hi))
@@ -208,7 +223,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="keep the tasks already in --out (and its .parts/) for the same seeds, steps and device; run the rest")
     ap.add_argument("--jobs", type=int, default=1,
                     help="processes, each taking every J-th task with its own native worker (merged at the end)")
+    ap.add_argument("--merge", action="store_true",
+                    help="run nothing: write --out from the tasks in it and its .parts/ (same seeds, steps and device)")
     args = ap.parse_args(argv)
+    if args.merge:
+        return merge(args)
     if args.out.exists() and not (args.overwrite or args.resume):
         print(f"{args.out} exists; pass --overwrite to replace it or --resume to finish it", file=sys.stderr)
         return 2

@@ -4,7 +4,9 @@
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes; a CUDA smoke
-#     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off)
+#     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off; returns mwfid.tgz:
+#     untar it into DIR, then: metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --device cuda:0 --merge
+#     --out DIR/metaworld_warp_fidelity.json)
 # Logs and JSON go to $OUT (the device tool brings them back).
 set -uo pipefail
 source /tmp/mw/env.sh
@@ -32,7 +34,8 @@ case "${1:-}" in
     mkdir -p /tmp/mwfid; FID=/tmp/mwfid/metaworld_warp_fidelity.json
     if [ -z "${FID_RESUME:-}" ]; then  # a CUDA smoke first (it compiles the kernels once for the 15 jobs); if it
       # hangs, a watchdog sends SIGABRT and faulthandler prints where every process of it waits
-      ( sleep "${SMOKE_LIMIT:-150}"; pkill -ABRT -f 'metaworld_gpu.native|metaworld_warp_fidelity' ) & wd=$!
+      # (300 s: on a fresh machine the first CUDA compile of the kernels alone took over 150 s, 6 December)
+      ( sleep "${SMOKE_LIMIT:-300}"; pkill -ABRT -f 'metaworld_gpu.native|metaworld_warp_fidelity' ) & wd=$!
       PYTHONFAULTHANDLER=1 python3 benchmarks/metaworld_warp_fidelity.py --tasks reach-v3,drawer-close-v3 --seeds 0:4 \
         --steps 60 --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -40
       kill "$wd" 2>/dev/null
@@ -40,7 +43,8 @@ case "${1:-}" in
     fi
     timeout "${FID_LIMIT:-400}" python3 benchmarks/metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --steps 500 \
       --device cuda:0 --jobs "${FID_JOBS:-15}" --out "$FID" --resume 2>&1 | quiet >> /tmp/mwfid/fidelity.log
-    cp -r /tmp/mwfid/. "$OUT/"; tail -8 /tmp/mwfid/fidelity.log
+    # one archive: the device tool brings back at most 8 files, and there is a part per job and call
+    tar -C /tmp/mwfid -czf "$OUT/mwfid.tgz" . && cp /tmp/mwfid/fidelity.log "$OUT/"; tail -8 /tmp/mwfid/fidelity.log
     ls /tmp/mwfid/metaworld_warp_fidelity.parts | wc -l
     ;;
   cameras)  # carry .gl too: the CPU backend's cameras render through EGL (the GL loader debs, as vector_lockstep.sh)

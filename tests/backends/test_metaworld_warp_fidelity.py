@@ -60,3 +60,21 @@ def test_a_resumed_run_numbers_its_parts_after_every_kept_one(tmp_path):
     (parts / "part2.partial").write_text("{}")  # a write cut off: not a part
     assert harness.next_part(parts) == 4
     assert sorted(harness._parts(parts)) == ["task0", "task1", "task3"]
+
+
+def test_merge_writes_the_parts_tasks_in_the_order_asked_and_says_what_is_missing(tmp_path, capsys):
+    harness = _harness()
+    out = tmp_path / "fidelity.json"
+    parts = out.with_suffix(".parts")
+    parts.mkdir()
+    row = {"p_engine": 1.0, "p_version": 0.5, "success_judged": True}
+    head = {"seeds": "0:50", "steps": 500, "device": "cuda:0"}
+    (parts / "part0.json").write_text(json.dumps({**head, "tasks": {"reach-v3": dict(row)}}))
+    (parts / "part3.json").write_text(json.dumps({**head, "tasks": {"assembly-v3": dict(row)}}))
+    (parts / "part4.json").write_text(json.dumps({**head, "device": "cpu", "tasks": {"push-v3": dict(row)}}))
+    argv = ["--tasks", "reach-v3,push-v3,assembly-v3", "--device", "cuda:0", "--out", str(out), "--merge"]
+    assert harness.main(argv) == 0
+    doc = json.loads(out.read_text())
+    assert list(doc["tasks"]) == ["reach-v3", "assembly-v3"]  # another device's part is not this run's
+    assert doc["complete"] is False and doc["tasks"]["reach-v3"]["p_version_holm"] == 1.0  # Holm over the two
+    assert "2 of 3 tasks; missing push-v3" in capsys.readouterr().out

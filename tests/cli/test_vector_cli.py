@@ -272,3 +272,23 @@ def test_batched_renderer_refuses_a_sidecar_scene_in_one_line(tmp_path):
                  "--renderer", "batched", "--out", tmp_path / "out")
     assert r.returncode == 2
     assert "--renderer batched: engine.process: sidecar" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_default_rule_applies_only_where_neither_a_rule_nor_the_environments_are_named(scene):
+    """No --policy-groups / --policy-ready / --envs-per-worker and no --num-envs: the executor's rule is ``auto``
+    (the job picks the measured default where the policy acts here: tests/runner/test_job.py); naming either keeps
+    what was named, plain lockstep included (--num-envs N alone)."""
+    from simseam.cli.benchmarks import _eval_executor
+    from simseam.cli.main import _run_executor
+    from simseam.runner.scene_config import load_scene_config
+    from simseam.runner.scheduler import Lockstep
+
+    plain = (1, None, 1)
+    assert _eval_executor(10, 10, None, None, None, plain).lockstep == Lockstep(auto=True)
+    assert _eval_executor(10, 10, 4, None, None, plain).lockstep == Lockstep()
+    assert _eval_executor(10, 10, None, None, None, (1, 2, 1)).lockstep == Lockstep(ready=2)
+    path = scene()
+    cfg, _ = load_scene_config(path)
+    assert _run_executor(path, cfg, 10, None, None, "workers", None, plain).lockstep == Lockstep(auto=True)
+    assert _run_executor(path, cfg, 10, 3, None, "workers", None, plain).lockstep == Lockstep()
+    assert _run_executor(path, cfg, 10, None, None, "workers", None, (1, None, 2)).lockstep == Lockstep(envs_per_worker=2)

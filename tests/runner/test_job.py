@@ -13,7 +13,7 @@ from simseam.runner.job import Executor, Job, JobReport, execute
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.run_dir import RunDir
 from simseam.runner.scene_config import load_scene_config
-from simseam.runner.scheduler import Lockstep
+from simseam.runner.scheduler import Lockstep, default_lockstep
 
 TIMING = ("step_latency_ms", "policy_latency_ms", "worker")
 SEED = 7
@@ -65,6 +65,59 @@ def test_the_report_names_where_the_policy_acts(scene, tmp_path):
     _run(scene, tmp_path / "groups", Executor("vector", 2, Lockstep(groups=2)), report)
     assert seen == [("lift_cube", 2, "a policy in each worker"),
                     ("lift_cube", 2, "one batched policy, 2 policy groups")]
+
+
+class _Sharing:
+    """The scripted expert as a policy that shares something across environments (``make_batch``, as
+    ``lerobot:`` ACT does), so the run's policy acts here."""
+
+    def __init__(self, real):
+        self._real = real
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    def make_batch(self, n):
+        from simseam.policies.base import make_policy as real_make
+        from simseam.policies.batch import PerEnvPolicies
+
+        made = [self._real]
+        return PerEnvPolicies(lambda: made.pop() if made else real_make("scripted"), n)
+
+
+def test_the_default_rule_is_the_measured_one_on_enough_cores_and_plain_lockstep_below():
+    assert default_lockstep(16, 100, 16) == (Lockstep(ready=8, envs_per_worker=2), 32)  # as measured: x2, ready 8
+    assert default_lockstep(16, 20, 32) == (Lockstep(ready=5, envs_per_worker=2), 20)  # one env per episode at most
+    assert default_lockstep(8, 100, 8) == (Lockstep(ready=4, envs_per_worker=2), 16)
+    assert default_lockstep(7, 100, 7) == (Lockstep(), 7)  # too few cores: plain lockstep
+    assert default_lockstep(2, 100, 2) == (Lockstep(), 2)
+    assert default_lockstep(16, 1, 16) == (Lockstep(), 16)
+
+
+@pytest.mark.parametrize("cores, policy, want", [
+    (8, "sharing", (4, "one batched policy, acting once 1 step is in, 2 environments per worker (the default on 8 cores)")),
+    (2, "sharing", (2, "one batched policy")),
+    (8, "scripted", (2, "a policy in each worker")),
+])
+def test_a_run_that_names_no_rule_gets_the_default_where_its_policy_acts_here(scene, tmp_path, monkeypatch, cores,
+                                                                            policy, want):
+    """``Lockstep(auto=True)`` (the CLI's when neither a rule nor --num-envs is given): on 8 cores a policy that
+    shares a model gets two environments per worker and the ready rule at half the workers; on 2 cores, or for a
+    policy that plays whole episodes in each worker, the run is as before. The episodes are the same."""
+    import simseam.policies.base as base
+    import simseam.runner.vector as vector
+
+    real_make = base.make_policy
+    if policy == "sharing":
+        monkeypatch.setattr(base, "make_policy", lambda name, **kw: _Sharing(real_make(name, **kw)))
+    monkeypatch.setattr(vector, "usable_cores", lambda: cores)
+    seen = []
+    report = JobReport(on_envs=lambda spec, n, where: seen.append((n, where)))
+    episodes, _ = _run(scene, tmp_path / "auto", Executor("vector", 2, Lockstep(auto=True)), report)
+    assert seen == [want]
+    monkeypatch.setattr(base, "make_policy", real_make)
+    inline, _ = _run(scene, tmp_path / "inline", Executor("inline"))
+    assert episodes == inline
 
 
 def test_an_overwritten_run_gets_the_new_runs_spec_and_a_resumed_one_keeps_its_own(scene, tmp_path):

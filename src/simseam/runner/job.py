@@ -230,21 +230,44 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
         if here and rule.envs_per_worker > 1:
             raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {recipe.describe()} steps its {n} "
                               "environments in one batch in this process, not in worker processes")
-        batch = batch_for(probe, job.policy, n, job.policy_kwargs,
-                          acts_here=here or renderer == "batched" or rule.acts_here)
+        chosen = ""
+        if rule.auto and not here and renderer == "workers":  # no rule named: the default one, if it acts here
+            batch, n, rule, chosen = _default_rule(job, probe, n)
+        if batch is None:
+            batch = batch_for(probe, job.policy, n, job.policy_kwargs,
+                              acts_here=here or renderer == "batched" or rule.acts_here)
         if batch is None:
             first, probe = probe, None
             _whole_episodes(job, recipe, n, first, report, log)
             return
         probe = None  # the batch owns it
         where = "one batched policy" + recipe.parts_in_turn
-        where += (", cameras drawn here in one batch" if renderer == "batched" else "") + rule.describe()
-        _stepped(job, executor, recipe, batch, n, renderer, where, report, log)
+        where += (", cameras drawn here in one batch" if renderer == "batched" else "") + rule.describe() + chosen
+        _stepped(job, recipe, batch, n, rule, renderer, where, report, log)
     finally:
         if batch is not None:
             batch.close()
         if probe is not None:
             _close(probe)
+
+
+def _default_rule(job: Job, probe, workers: int) -> tuple[Any, int, Lockstep, str]:
+    """A run that named no lockstep rule: when its policy shares a model or a server (so it acts here), the
+    batch for ``default_lockstep``'s environments, their number, the rule and a note for the run's first line;
+    else no batch, ``workers`` and plain lockstep (the caller then chooses as for any run)."""
+    from simseam.policies.base import make_policy
+    from simseam.policies.batch import shared_batch
+    from simseam.runner.scheduler import default_lockstep
+    from simseam.runner.vector import usable_cores
+
+    cores = usable_cores()
+    rule, envs = default_lockstep(workers, len(job.indices), cores)
+    if not rule.acts_here:
+        return None, workers, Lockstep(), ""
+    batch = shared_batch(probe, envs, lambda: make_policy(job.policy, **job.policy_kwargs))
+    if batch is None:
+        return None, workers, Lockstep(), ""
+    return batch, envs, rule, f" (the default on {cores} cores)"
 
 
 def _whole_episodes(job: Job, recipe, n: int, probe, report: JobReport, log: _Log) -> None:
@@ -272,15 +295,15 @@ def _whole_episodes(job: Job, recipe, n: int, probe, report: JobReport, log: _Lo
                   on_worker_failure=report.on_worker_failure, keep=False)
 
 
-def _stepped(job: Job, executor: Executor, recipe, batch, n: int, renderer: str, where: str, report: JobReport,
+def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str, where: str, report: JobReport,
              log: _Log) -> None:
     """Each part on its own environments (at most ``n``), stepped together from here with the policy
-    ``batch``."""
+    ``batch`` by the ``lockstep`` rule."""
     shared = recipe.shared()
     try:
         for part, indices, seed in recipe.parts(job.indices, job.seed):
             m = max(1, min(n, len(indices)))
-            rule = executor.lockstep.fit(m)
+            rule = lockstep.fit(m)
             with part.open_envs(m, renderer=renderer, envs_per_worker=rule.envs_per_worker,
                                 shared=shared) as envs:
                 batch.reset(0, envs.spec)  # the policy's contract, before anything is written

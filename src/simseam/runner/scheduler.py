@@ -191,14 +191,21 @@ class _Videos:
             self.drop(env)
 
 
+#: the fewest usable cores on which a run that names no lockstep rule gets ``default_lockstep``'s (it was measured
+#: on 16; on fewer cores this process's own work per step takes a core the workers need, and no rule held)
+DEFAULT_RULE_MIN_CORES = 8
+
+
 @dataclass(frozen=True)
 class Lockstep:
     """How worker processes are stepped from this process: ``groups`` policy groups or the ready rule
-    ``ready`` (``run_batch``), ``envs_per_worker`` environments in each worker (``VectorEnv``)."""
+    ``ready`` (``run_batch``), ``envs_per_worker`` environments in each worker (``VectorEnv``). ``auto``: the
+    run named no rule and no environment count, so where the policy acts here it gets ``default_lockstep``'s."""
 
     groups: int = 1
     ready: int | None = None
     envs_per_worker: int = 1
+    auto: bool = False
 
     @property
     def acts_here(self) -> bool:
@@ -208,7 +215,7 @@ class Lockstep:
     def fit(self, num_envs: int) -> "Lockstep":
         """Each number capped at ``num_envs`` (fewer episodes than environments asked for)."""
         return Lockstep(min(self.groups, num_envs), None if self.ready is None else min(self.ready, num_envs),
-                        min(self.envs_per_worker, num_envs))
+                        min(self.envs_per_worker, num_envs), self.auto)
 
     def describe(self) -> str:
         """For a run's first line ('' for plain lockstep)."""
@@ -218,6 +225,19 @@ class Lockstep:
         if self.envs_per_worker > 1:
             words += f", {self.envs_per_worker} environments per worker"
         return words
+
+
+def default_lockstep(workers: int, episodes: int, cores: int) -> tuple[Lockstep, int]:
+    """The rule, and the environments, of a run that names neither (``Lockstep.auto``) when its policy acts in
+    this process over ``workers`` worker processes (sized to the cores): on ``DEFAULT_RULE_MIN_CORES`` or more
+    cores, two environments per worker and the ready rule at half the workers (16 cores: ``--num-envs 32
+    --envs-per-worker 2 --policy-ready 8``, the rule that held 0.82-0.91 of bare processes in every call of 6
+    December; docs/evaluation.md), at most one environment per episode; on fewer, plain lockstep."""
+    if cores < DEFAULT_RULE_MIN_CORES or workers < 2 or episodes < 2:
+        return Lockstep(), workers
+    envs = min(2 * workers, episodes)
+    procs = -(-envs // 2)
+    return Lockstep(ready=max(1, procs // 2), envs_per_worker=2), envs
 
 
 def check_ready(ready: int | None, num_envs: int, groups: int = 1) -> None:

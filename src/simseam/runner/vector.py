@@ -112,14 +112,18 @@ def check_envs_per_worker(k: int, num_envs: int) -> None:
         raise ConfigError(f"envs per worker must be an integer in 1..{num_envs} (the environments), got {k!r}")
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity; the machine's count where there is none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
 def default_num_envs(episodes: int, cores: int | None = None, envs_per_worker: int = 1) -> int:
     """Sized to the cores this process may use (``envs_per_worker`` environments each) and the episode
     count (at least 1)."""
-    if cores is None:
-        try:
-            cores = len(os.sched_getaffinity(0))
-        except AttributeError:  # not Linux
-            cores = os.cpu_count() or 1
+    cores = usable_cores() if cores is None else cores
     return max(1, min(int(cores) * envs_per_worker, int(episodes)))
 
 
