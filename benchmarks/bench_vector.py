@@ -33,7 +33,8 @@ while the policy's action for another is on its way); ``_gG`` pipelined lockstep
 (``run(ready=M)``: the policy acts for the environments whose steps are in once M of them are);
 ``_spin`` the busy-poll forced on (``DEFAULT_VECTOR_SPIN_US``, or US microseconds). G and M are capped
 at the environments. E.g. ``vector_g4_spin``, ``vector_x2_ready8`` (32 environments on 16 workers at
-N = 16, the policy acting once 8 steps are in). ``local`` is
+N = 16, the policy acting once 8 steps are in). ``vector_default`` is the rule a run that names none gets on
+this machine (``runner.scheduler.default_lockstep``: ``vector_x2_ready8`` at N = 16 on 16 cores). ``local`` is
 ``runner.whole_episodes.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the
@@ -310,8 +311,16 @@ MODE_RE = re.compile(r"vector(?P<off>0)?(?:_x(?P<k>[1-9]\d*))?(?:_g(?P<g>[1-9]\d
                      r"(?:_spin(?P<us>\d+)?(?P<on>))?")
 
 
-def mode_rule(mode: str) -> dict | None:
-    """A lockstep mode's keyword arguments for run_vector, or None when ``mode`` is not one."""
+def mode_rule(mode: str, n: int = 1, episodes: int = 1) -> dict | None:
+    """A lockstep mode's keyword arguments for run_vector at ``n`` workers and ``episodes``, or None when ``mode``
+    is not one. ``vector_default``: the rule a run naming none gets on this machine (``default_lockstep``; its
+    environments are K x n here, as every _xK mode's, so give --episodes-per-env 2 or more to match a run's)."""
+    if mode == "vector_default":
+        from simseam.runner.scheduler import default_lockstep
+        from simseam.runner.vector import usable_cores
+
+        rule, _ = default_lockstep(n, episodes, usable_cores())
+        return {"spin_us": None, "groups": 1, "ready": rule.ready, "envs_per_worker": rule.envs_per_worker}
     hit = MODE_RE.fullmatch(mode)
     if hit is None:
         return None
@@ -323,7 +332,8 @@ def mode_rule(mode: str) -> dict | None:
 def check_mode(mode: str) -> str:
     if mode in ("local", "bare") or mode_rule(mode) is not None:
         return mode
-    raise argparse.ArgumentTypeError(f"{mode!r}: expected local, bare or vector[0][_xK][_gG|_readyM][_spin[US]]")
+    raise argparse.ArgumentTypeError(f"{mode!r}: expected local, bare, vector_default or "
+                                     "vector[0][_xK][_gG|_readyM][_spin[US]]")
 
 
 def _cpu() -> float:
@@ -549,7 +559,8 @@ def main() -> None:
                         elif mode == "local":
                             r = run_local(case, n, args.steps, episodes)
                         else:
-                            r = run_vector(case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
+                            r = run_vector(case, n, args.steps, episodes, renderer=renderer,
+                                           **mode_rule(mode, n, episodes))
                     r["cpu"] = window.facts()
                     measured.setdefault((case, mode, renderer, n), []).append(r)
                     c = r["cpu"]
@@ -561,7 +572,7 @@ def main() -> None:
                 for (c, mode, renderer) in points:
                     if c == case and mode_rule(mode) is not None:
                         profiles[(case, mode, renderer)] = prof = profile_vector(
-                            case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode))
+                            case, n, args.steps, episodes, renderer=renderer, **mode_rule(mode, n, episodes))
                         print(f"\nprofile: {case} {mode} {renderer} N={n} (us per env-step, own time)")
                         for p in prof:
                             print(f"  {p['own_us_per_env_step']:7.2f}  {p['calls_per_env_step']:5.2f} calls  {p['function']}")

@@ -102,7 +102,7 @@ PY
     # carry it again (they may carry other work's files instead). TAG names the output: $OUT/vector_holds_TAG.json
     DIR="${2:-.cache/vectorcarry}"
     shift $(($# < 2 ? $# : 2))
-    MODES="${*:-vector vector_x2_ready4 vector_x2_ready8 vector_x4_ready8 vector_x4_ready16}"
+    MODES="${*:-vector vector_default vector_x2_ready4 vector_x4_ready8}"  # vector_default: what a run naming no rule gets
     if [ -f /tmp/vl/REVS ] && [ -d /tmp/vl/site ]; then
       LOG=$OUT/log.txt; export MUJOCO_GL=egl PYTHONUNBUFFERED=1; for f in .gl/*.deb; do [ -f "$f" ] && dpkg -x "$f" /; done; ldconfig
     else
