@@ -3,10 +3,10 @@
 #   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
-#   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes; a CUDA smoke
+#   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes (FID_JOBS); a CUDA smoke
 #     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off; returns mwfid.tgz:
 #     untar it into DIR, then: metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --device cuda:0 --merge
-#     --out DIR/metaworld_warp_fidelity.json)
+#     --out DIR/metaworld_warp_fidelity.json; FID_FROM=JSON keeps that file's tasks and runs only the others)
 # Logs and JSON go to $OUT (the device tool brings them back).
 set -uo pipefail
 source /tmp/mw/env.sh
@@ -32,6 +32,9 @@ case "${1:-}" in
     ;;
   fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
     mkdir -p /tmp/mwfid; FID=/tmp/mwfid/metaworld_warp_fidelity.json
+    # FID_FROM: an earlier call's merged JSON (same seeds, steps, device): its tasks are kept, only the rest run
+    # (e.g. FID_FROM=benchmarks/results/metaworld_warp_fidelity_mt50_cuda.json: the four tasks it lacks)
+    [ -n "${FID_FROM:-}" ] && [ ! -f "$FID" ] && cp "$FID_FROM" "$FID"
     if [ -z "${FID_RESUME:-}" ]; then  # a CUDA smoke first (it compiles the kernels once for the 15 jobs); if it
       # hangs, a watchdog sends SIGABRT and faulthandler prints where every process of it waits
       # (300 s: on a fresh machine the first CUDA compile of the kernels alone took over 150 s, 6 December)

