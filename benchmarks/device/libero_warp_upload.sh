@@ -15,13 +15,18 @@
 #           and only those other files that libero_spatial's and libero_object's 20 tasks read (keep.txt, traced
 #           here by libero_warp_trace.py through the provisioned LIBERO venv); everything else in them goes
 #           (about 1.1 GB of meshes and textures of other robots and objects). LW_SUITES names other suites.
-#           robosuite gets a macros_private.py with MUJOCO_GPU_RENDERING = False: the native side never renders,
-#           and robosuite would otherwise force MUJOCO_GL=egl and import EGL, which the machine lacks.
+#           robosuite gets a macros_private.py turning robosuite.macros.MUJOCO_GPU_RENDERING off: the native side
+#           never renders, and robosuite would otherwise force MUJOCO_GL=egl and load EGL, which the machine lacks.
+# Also dropped: warp's tests/examples, MuJoCo's docs and 3.17's studio GUI, and warp-clang.so (Warp's CPU device:
+# a run on cuda:K never uses it; LW_WARP_CPU=1 keeps it, +19 MB packed, one more call).
+# Sizes (2026-12, pins key fab4b90e0c4b): 556 MB staged -> 161 MB xz -> 3 pieces = 3 device calls
+# (LW_WARP_CPU=1: 180 MB, 4 calls); the CPU backend's libero_upload.sh is 817 MB, 14 calls.
 # simseam's src/ and this script travel with the checkout.
 #
 #   here:   bash benchmarks/device/libero_warp_upload.sh prepare [DIR]   (default DIR: .cache/libero_warp_carry)
-#           -> DIR/c01 .. DIR/cNN, one per device call, each one piece (<= 60,000,000 bytes) of pkg.tar.xz;
-#              c01 also holds the count and the SHA256. Needs: the repo's .venv (pip download), a Python 3.12
+#           -> DIR/c01 .. DIR/cNN, one per device call, each one piece of pkg.tar.xz: at most 60,000,000 bytes
+#              and at most 64 MiB less the checkout that travels with it, less 1 MiB (57.7 MB with an 8.3 MB
+#              checkout); c01 also holds the count and the SHA256. Needs: the repo's .venv (pip download), a Python 3.12
 #              (pyenv; PY312 names another) and the LIBERO backend provisioned here (`simseam backends provision
 #              libero`, for the trace). Wheels and keep.txt are cached in ~/.cache/simseam/libero-warp-device-<key>.
 #   there:  call k = 1 .. N, consecutive while the machine stays warm, carrying DIR/ck (paths carried in one call
@@ -30,7 +35,8 @@
 #           the last call then (same command line):
 #             bash benchmarks/device/libero_warp_upload.sh install && source /tmp/lww/env.sh && <the run>, e.g.
 #             python3 -m simseam.cli.main eval libero_spatial --engine mujoco_warp --sim-device cuda:0 \
-#               --policy zero --episodes 2 --tasks 0 --num-envs 16 --out $OUT/run
+#               --policy zero --episodes 2 --tasks libero_spatial/0 --num-envs 16 --out $OUT/run
+#           (a later call on the same warm machine needs only `source /tmp/lww/env.sh`; install takes ~45 s)
 #           install checks the pieces and the SHA256, unpacks to /tmp/lww, checks that every kept file is there,
 #           writes env.sh (PYTHONPATH: site + the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH under /tmp/lww),
 #           makes the LIBERO backend look provisioned (the venv dir of simseam.backends.provision.venv_dir("libero")
