@@ -120,6 +120,19 @@ def test_a_run_that_names_no_rule_gets_the_default_where_its_policy_acts_here(sc
     assert episodes == inline
 
 
+def test_the_default_rule_is_for_engines_inside_the_workers_only(scene, tmp_path):
+    """Measured on in-process MuJoCo; a sidecar's scene or a preset (its backend's sidecars) keeps plain lockstep:
+    two environments per worker would be two sidecars per core, neither measured nor cheap in memory."""
+    cfg, base = load_scene_config(scene)
+    inproc = SceneRecipe(cfg.model_dump(mode="json"), str(base))
+    side = tmp_path / "side.yaml"
+    side.write_text(scene.read_text() + "engine:\n  process: sidecar\n")
+    cfg2, base2 = load_scene_config(side)
+    assert inproc.engine_in_worker() is True
+    assert SceneRecipe(cfg2.model_dump(mode="json"), str(base2)).engine_in_worker() is False
+    assert BenchmarkRecipe("metaworld", {}, ("reach-v3",), 2).engine_in_worker() is False
+
+
 def test_an_overwritten_run_gets_the_new_runs_spec_and_a_resumed_one_keeps_its_own(scene, tmp_path):
     out = tmp_path / "run"
     _run(scene, out, Executor("inline"))

@@ -231,7 +231,7 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
             raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {recipe.describe()} steps its {n} "
                               "environments in one batch in this process, not in worker processes")
         chosen = ""
-        if rule.auto and not here and renderer == "workers":  # no rule named: the default one, if it acts here
+        if rule.auto and not here and renderer == "workers" and recipe.engine_in_worker():  # no rule named
             batch, n, rule, chosen = _default_rule(job, probe, n)
         if batch is None:
             batch = batch_for(probe, job.policy, n, job.policy_kwargs,

@@ -83,6 +83,12 @@ class SceneRecipe:
 
         return batched_in_one_process(self._config(), self.render_images)
 
+    def engine_in_worker(self) -> bool:
+        """Whether each environment's engine runs inside its worker process (in-process MuJoCo, no sidecar): the
+        case the default lockstep rule was measured on (``runner.scheduler.default_lockstep``)."""
+        cfg = self._config()
+        return cfg.benchmark is None and cfg.engine.process != "sidecar"
+
     def renderer_for(self, asked: str) -> str:
         """Who draws the worker processes' cameras (``--renderer``: workers, batched or auto)."""
         from simseam.runner.central_render import choose_renderer
@@ -197,6 +203,10 @@ class BenchmarkRecipe:
 
     def steps_here(self) -> bool:
         return self.engine is not None
+
+    def engine_in_worker(self) -> bool:
+        """False: a preset's environments are its backend's sidecars (or one batch here)."""
+        return False
 
     def renderer_for(self, asked: str) -> str:
         return "workers"

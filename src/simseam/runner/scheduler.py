@@ -229,7 +229,8 @@ class Lockstep:
 
 def default_lockstep(workers: int, episodes: int, cores: int) -> tuple[Lockstep, int]:
     """The rule, and the environments, of a run that names neither (``Lockstep.auto``) when its policy acts in
-    this process over ``workers`` worker processes (sized to the cores): on ``DEFAULT_RULE_MIN_CORES`` or more
+    this process over ``workers`` worker processes (sized to the cores) that run their engines themselves (no
+    sidecar: ``engine_in_worker``): on ``DEFAULT_RULE_MIN_CORES`` or more
     cores, two environments per worker and the ready rule at half the workers (16 cores: ``--num-envs 32
     --envs-per-worker 2 --policy-ready 8``, the rule that held 0.82-0.91 of bare processes in every call of 6
     December; docs/evaluation.md), at most one environment per episode; on fewer, plain lockstep."""
