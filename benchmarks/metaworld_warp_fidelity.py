@@ -194,16 +194,21 @@ def _finished(args) -> dict[str, Any]:
 def merge(args) -> int:
     """``--merge``: the tasks a run left in ``--out`` and its parts (another machine's, say), in the order asked,
     written as one document, ``complete`` only if every task asked for is there; nothing runs."""
-    from simseam.backends.metaworld_gpu.tasks import OBJECTS
-
     args.resume = True
     found = _finished(args)
-    tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
+    tasks = _tasks(args.tasks)
     results = {t: found[t] for t in tasks if t in found}
     write(args, results, final=len(results) == len(tasks))
     missing = [t for t in tasks if t not in results]
     print(f"wrote {args.out}: {len(results)} of {len(tasks)} tasks" + (f"; missing {', '.join(missing)}" if missing else ""))
     return 0
+
+
+def _tasks(text: str) -> list[str]:
+    """``--tasks``: comma-separated names, or ``mt50`` for every task of the port."""
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+
+    return sorted(OBJECTS) if text == "mt50" else text.split(",")
 
 
 def _seeds(text: str) -> list[int]:
@@ -231,10 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.out.exists() and not (args.overwrite or args.resume):
         print(f"{args.out} exists; pass --overwrite to replace it or --resume to finish it", file=sys.stderr)
         return 2
-    from simseam.backends.metaworld_gpu.tasks import OBJECTS
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
-    tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
+    tasks = _tasks(args.tasks)
     seeds = _seeds(args.seeds)
     results: dict[str, Any] = _finished(args) if args.jobs <= 1 else {}
     if args.jobs > 1:

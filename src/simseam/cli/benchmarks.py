@@ -197,7 +197,7 @@ def _eval_executor(todo: int, episodes: int, num_envs: int | None, engine: str |
         from simseam.runner.vector import default_num_envs
 
         num_envs = default_num_envs(todo, envs_per_worker=rule.envs_per_worker)
-        rule = Lockstep(auto=True) if rule == Lockstep() else rule  # neither named: the default rule
+        rule = rule.or_default()  # neither a rule nor --num-envs named
     num_envs = max(1, min(num_envs, todo or 1))
     return Executor("vector" if num_envs > 1 else "inline", num_envs, rule)
 

@@ -249,7 +249,7 @@ def _run_executor(scene: Path, cfg, todo: int, num_envs: int | None, ray_address
         from simseam.runner.vector import default_num_envs
 
         num_envs = 1 if record_dataset is not None else default_num_envs(todo, envs_per_worker=lockstep.envs_per_worker)
-        lockstep = Lockstep(auto=True) if lockstep == Lockstep() else lockstep  # neither named: the default rule
+        lockstep = lockstep.or_default()  # neither a rule nor --num-envs named
     if not (num_envs > 1 or renderer == "batched" or ported):
         return Executor("inline")
     if cfg.engine.keep_alive:  # N workers cannot all adopt the one sidecar left running

@@ -231,9 +231,11 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
             raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {recipe.describe()} steps its {n} "
                               "environments in one batch in this process, not in worker processes")
         chosen = ""
-        if rule.auto and not here and renderer == "workers" and recipe.engine_in_worker():  # no rule named
-            batch, n, rule, chosen = _default_rule(job, probe, n)
-        if batch is None:
+        default = (_default_rule(job, probe, n) if rule.auto and not here and renderer == "workers"
+                   and recipe.engine_in_worker() else None)  # no rule named
+        if default is not None:
+            batch, n, rule, chosen = default
+        else:
             batch = batch_for(probe, job.policy, n, job.policy_kwargs,
                               acts_here=here or renderer == "batched" or rule.acts_here)
         if batch is None:
@@ -251,10 +253,10 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
             _close(probe)
 
 
-def _default_rule(job: Job, probe, workers: int) -> tuple[Any, int, Lockstep, str]:
-    """A run that named no lockstep rule: when its policy shares a model or a server (so it acts here), the
-    batch for ``default_lockstep``'s environments, their number, the rule and a note for the run's first line;
-    else no batch, ``workers`` and plain lockstep (the caller then chooses as for any run)."""
+def _default_rule(job: Job, probe, workers: int) -> tuple[Any, int, Lockstep, str] | None:
+    """A run that named no lockstep rule: when ``default_lockstep`` has one here and the policy shares a model or
+    a server (so it acts here), the batch for that rule's environments, their number, the rule and a note for
+    the run's first line; else None (the caller chooses as for any run)."""
     from simseam.policies.base import make_policy
     from simseam.policies.batch import shared_batch
     from simseam.runner.scheduler import default_lockstep
@@ -263,11 +265,9 @@ def _default_rule(job: Job, probe, workers: int) -> tuple[Any, int, Lockstep, st
     cores = usable_cores()
     rule, envs = default_lockstep(workers, len(job.indices), cores)
     if not rule.acts_here:
-        return None, workers, Lockstep(), ""
+        return None
     batch = shared_batch(probe, envs, lambda: make_policy(job.policy, **job.policy_kwargs))
-    if batch is None:
-        return None, workers, Lockstep(), ""
-    return batch, envs, rule, f" (the default on {cores} cores)"
+    return None if batch is None else (batch, envs, rule, f" (the default on {cores} cores)")
 
 
 def _whole_episodes(job: Job, recipe, n: int, probe, report: JobReport, log: _Log) -> None:

@@ -217,6 +217,11 @@ class Lockstep:
         return Lockstep(min(self.groups, num_envs), None if self.ready is None else min(self.ready, num_envs),
                         min(self.envs_per_worker, num_envs), self.auto)
 
+    def or_default(self) -> "Lockstep":
+        """This rule, or ``auto`` when it is plain lockstep (a run whose command named no rule and no
+        environment count: the job then picks ``default_lockstep``'s where the policy acts here)."""
+        return Lockstep(auto=True) if self == Lockstep() else self
+
     def describe(self) -> str:
         """For a run's first line ('' for plain lockstep)."""
         words = f", {self.groups} policy groups" if self.groups > 1 else ""

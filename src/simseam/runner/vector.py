@@ -627,7 +627,7 @@ class VectorEnv:
         self._poll.register(self._bell, select.POLLIN)
         self._sentinels: dict[int, list[_Slot]] = {}  # the sentinels in the poll, and their workers' environments
         self._dead: set[int] = set()  # environments whose worker was found dead while nothing was asked of it
-        cores = len(os.sched_getaffinity(0))
+        cores = usable_cores()
         self.sidecar_spin_us = sidecar_spin_us(num_envs, cores)
         self.spin_us = vector_spin_us(self.num_workers, cores)  # lockstep only: run_local workers wait for whole episodes
         try:
