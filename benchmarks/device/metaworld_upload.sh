@@ -11,6 +11,9 @@
 #              and the other cp312 wheels (simseam's src/ and the benchmarks travel with the checkout)
 #   there:  call k (k = 1..4, while the machine stays warm), carrying DIR/ck:
 #             bash benchmarks/device/metaworld_upload.sh receive DIR/ck      (copies to /tmp/mw)
+#           (where MuJoCo Warp's side is already there, e.g. after libero_warp_upload.sh's install: `side` here
+#            -> .cache/mwside, ~46 MB, one call: `receive .cache/mwside && ... install /tmp/lww/site`; MW_WARP_CACHE=/tmp/lww/cache/warp shares
+#            the kernels LIBERO compiled)
 #           the last call then:
 #             bash benchmarks/device/metaworld_upload.sh install
 #             source /tmp/mw/env.sh   (PYTHONPATH: the wheels and the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH)
@@ -58,15 +61,23 @@ case "$cmd" in
   receive)
     mkdir -p /tmp/mw; cp -r "$2"/. /tmp/mw/; ls /tmp/mw
     ;;
-  install)
+  side)  # here: only Meta-World's side (~46 MB, one call) into DIR/mw, from prepare's SRC
+    ROOT="$(cd "$(dirname "$0")/../.." && pwd)"
+    SRC="${2:-$ROOT/.cache/mwcarry}" DIR="${3:-$ROOT/.cache/mwside}"
+    rm -rf "$DIR"; mkdir -p "$DIR/mw"; cp "$SRC"/c3/mw/*.whl "$SRC"/c4/mw/*.whl "$DIR/mw/"; du -sh "$DIR"
+    ;;
+  install)  # install SITE: MuJoCo Warp's side is already in SITE (e.g. /tmp/lww/site): only Meta-World's is installed
     REPO="$PWD"   # the sent checkout (its src/ is what runs)
+    SITE="${2:-/tmp/site}"
     cd /tmp/mw
-    cat warp.part00 warp.part01 warp.part02 > "main/$(cat warp.name)"
-    echo "$(cat warp.sha256)  main/$(cat warp.name)" | sha256sum -c -
-    python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site main/*.whl
+    if [ -z "${2:-}" ]; then
+      cat warp.part00 warp.part01 warp.part02 > "main/$(cat warp.name)"
+      echo "$(cat warp.sha256)  main/$(cat warp.name)" | sha256sum -c -
+      python3 -m pip install -q --no-index --no-deps --no-compile --target "$SITE" main/*.whl
+    fi
     python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/mwsite mw/*.whl
     cat > /tmp/mw/env.sh <<EOF
-export PYTHONPATH=/tmp/site:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=/tmp/mwcache/warp MUJOCO_GL=disable
+export PYTHONPATH=$SITE:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=${MW_WARP_CACHE:-/tmp/mwcache/warp} MUJOCO_GL=disable
 EOF
     source /tmp/mw/env.sh
     venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"
@@ -80,6 +91,6 @@ EOF
     "$venv/bin/python" -c "import metaworld, mujoco; print('metaworld side: mujoco', mujoco.__version__)"
     ;;
   *)
-    echo "usage: $0 prepare [DIR] | receive DIR | install" >&2; exit 2
+    echo "usage: $0 prepare [DIR] | side [SRC] [DIR] | receive DIR | install [SITE]" >&2; exit 2
     ;;
 esac
