@@ -34,7 +34,7 @@ while the policy's action for another is on its way); ``_gG`` pipelined lockstep
 ``_spin`` the busy-poll forced on (``DEFAULT_VECTOR_SPIN_US``, or US microseconds). G and M are capped
 at the environments. E.g. ``vector_g4_spin``, ``vector_x2_ready8`` (32 environments on 16 workers at
 N = 16, the policy acting once 8 steps are in). ``vector_default`` is the rule a run that names none gets on
-this machine (``runner.scheduler.default_lockstep``: ``vector_x2_ready8`` at N = 16 on 16 cores). ``local`` is
+this machine (``runner.scheduler.default_lockstep``: ``vector_x2_ready4`` at N = 16 on 16 cores). ``local`` is
 ``runner.whole_episodes.run_local`` (the built-in ``zero``
 policy inside each worker, whole episodes per command; state-only cases only); ``bare`` is N plain
 independent processes, each running its share of the episodes with ``run_episodes`` (the baseline the

@@ -86,9 +86,10 @@ class _Sharing:
 
 
 def test_the_default_rule_is_the_measured_one_on_enough_cores_and_plain_lockstep_below():
-    assert default_lockstep(16, 100, 16) == (Lockstep(ready=8, envs_per_worker=2), 32)  # as measured: x2, ready 8
-    assert default_lockstep(16, 20, 32) == (Lockstep(ready=5, envs_per_worker=2), 20)  # one env per episode at most
-    assert default_lockstep(8, 100, 8) == (Lockstep(ready=4, envs_per_worker=2), 16)
+    assert default_lockstep(16, 100, 16) == (Lockstep(ready=4, envs_per_worker=2), 32)  # as measured: x2, ready 4
+    assert default_lockstep(16, 20, 32) == (Lockstep(ready=2, envs_per_worker=2), 20)  # one env per episode at most
+    assert default_lockstep(8, 100, 8) == (Lockstep(ready=2, envs_per_worker=2), 16)
+    assert default_lockstep(8, 4, 8) == (Lockstep(ready=1, envs_per_worker=2), 4)  # at least one
     assert default_lockstep(7, 100, 7) == (Lockstep(), 7)  # too few cores: plain lockstep
     assert default_lockstep(2, 100, 2) == (Lockstep(), 2)
     assert default_lockstep(16, 1, 16) == (Lockstep(), 16)
@@ -102,7 +103,7 @@ def test_the_default_rule_is_the_measured_one_on_enough_cores_and_plain_lockstep
 def test_a_run_that_names_no_rule_gets_the_default_where_its_policy_acts_here(scene, tmp_path, monkeypatch, cores,
                                                                             policy, want):
     """``Lockstep(auto=True)`` (the CLI's when neither a rule nor --num-envs is given): on 8 cores a policy that
-    shares a model gets two environments per worker and the ready rule at half the workers; on 2 cores, or for a
+    shares a model gets two environments per worker and the ready rule at a quarter of the workers; on 2 cores, or for a
     policy that plays whole episodes in each worker, the run is as before. The episodes are the same."""
     import simseam.policies.base as base
     import simseam.runner.vector as vector

@@ -95,7 +95,7 @@ POLICY_READY_HELP = ("The ready rule: every --num-envs environment's step in fli
 ENVS_PER_WORKER_HELP = ("Environments in each worker process (1..--num-envs, default 1; --num-envs then defaults to "
                         "K x the cores): a worker steps one while the action for another is on its way, the "
                         "policy acting in this process. With no rule and no --num-envs named, a policy that acts "
-                        "here on an in-process scene gets 2 with --policy-ready at half the workers on 8+ cores. "
+                        "here on an in-process scene gets 2 with --policy-ready at a quarter of the workers on 8+ cores. "
                         "docs/evaluation.md")
 
 

@@ -236,14 +236,15 @@ def default_lockstep(workers: int, episodes: int, cores: int) -> tuple[Lockstep,
     """The rule, and the environments, of a run that names neither (``Lockstep.auto``) when its policy acts in
     this process over ``workers`` worker processes (sized to the cores) that run their engines themselves (no
     sidecar: ``engine_in_worker``): on ``DEFAULT_RULE_MIN_CORES`` or more
-    cores, two environments per worker and the ready rule at half the workers (16 cores: ``--num-envs 32
-    --envs-per-worker 2 --policy-ready 8``, the rule that held 0.82-0.91 of bare processes in every call of 6
-    December; docs/evaluation.md), at most one environment per episode; on fewer, plain lockstep."""
+    cores, two environments per worker and the ready rule at a quarter of the workers (16 cores: ``--num-envs 32
+    --envs-per-worker 2 --policy-ready 4``, the rule that held 0.8 of bare processes in three calls on each of two
+    machines, 0.78-0.87 in all seven of 6 December; docs/evaluation.md), at most one environment per episode; on
+    fewer, plain lockstep."""
     if cores < DEFAULT_RULE_MIN_CORES or workers < 2 or episodes < 2:
         return Lockstep(), workers
     envs = min(2 * workers, episodes)
     procs = -(-envs // 2)
-    return Lockstep(ready=max(1, procs // 2), envs_per_worker=2), envs
+    return Lockstep(ready=max(1, procs // 4), envs_per_worker=2), envs
 
 
 def check_ready(ready: int | None, num_envs: int, groups: int = 1) -> None:
