@@ -6,6 +6,8 @@ paired per init state.
         [--policy 'lerobot:CKPTS/{suite}_{index}_act']   # one checkpoint per task: {suite}, {index} filled in
         [--port-cpu]   # a third side: the port's code on CPU MuJoCo (engine gap vs version gap)
     .venv/bin/python benchmarks/libero_warp_expert.py --merge A.json B.json --json PATH   # runs of other tasks
+    .venv/bin/python benchmarks/libero_warp_expert.py --from-runs --cpu-runs DIR ... --warp-runs DIR ... \
+        --init-states 10:30 --sim-device cuda:0 --json PATH   # pairs runs made elsewhere (a GPU machine); runs nothing
 
 For each task runs the command a user runs twice on the same episodes (episode ``e`` starts from LIBERO's init
 state ``A + e``, the same fixture placement):
@@ -21,6 +23,10 @@ eval`` runs them: the step limit or success), and two more pairings per task: ``
 LIBERO on its own MuJoCo, against the port on CPU MuJoCo: what the port's code and the MuJoCo version change) and
 ``engine`` (the port on CPU MuJoCo against the port on MuJoCo Warp: the same MuJoCo version, what the engine
 changes). Its episodes go to ``WORK/port-cpu-TASK/episodes.jsonl`` as they finish (a run cut off resumes).
+
+``--from-runs`` pairs the episodes of run directories made elsewhere (``simseam eval`` of whole suites, say the
+CPU benchmark here and ``--engine mujoco_warp --sim-device cuda:0`` on a GPU machine): every task whose episodes
+for init states A..B-1 are all in both sides, by seed; a task one side has not finished is listed as left out.
 
 Prints one row per task (successes on each engine, the init states where they disagree, the mean steps of the
 episodes both engines solved, exact McNemar p over the discordant pairs) and writes JSON (default
@@ -154,6 +160,35 @@ def two_sided(a: dict[int, dict], b: dict[int, dict], names: tuple[str, str]) ->
             "same_steps": sum(a[s]["steps"] == b[s]["steps"] for s in seeds)}
 
 
+def run_episodes(dirs: list[Path]) -> dict[str, dict[int, dict]]:
+    """The episodes of ``dirs``' runs (``episodes.jsonl``), per task and seed; a seed run twice is an error."""
+    out: dict[str, dict[int, dict]] = {}
+    for d in dirs:
+        lines = (d / "episodes.jsonl").read_text().splitlines()
+        for e in (json.loads(line) for line in lines if line.strip()):
+            task = out.setdefault(e["task"], {})
+            if e["seed"] in task:
+                raise SystemExit(f"--from-runs: {e['task']} seed {e['seed']} is in two runs ({d})")
+            task[e["seed"]] = e
+    return out
+
+
+def from_runs(cpu_dirs: list[Path], warp_dirs: list[Path], seeds: range) -> tuple[dict, dict, list[str]]:
+    """Each task's pairing (``paired``) where both sides hold every seed of ``seeds``; each task's revisions
+    (both sides' run.json); the tasks left out, with what each side holds."""
+    cpu, warp = run_episodes(cpu_dirs), run_episodes(warp_dirs)
+    rows, revisions, left = {}, {}, []
+    for task in sorted(set(cpu) | set(warp), key=lambda t: (t.split("/")[0], int(t.split("/")[1]))):
+        a, b = cpu.get(task, {}), warp.get(task, {})
+        if not all(s in a and s in b for s in seeds):
+            left.append(f"{task} (CPU {sum(s in a for s in seeds)}, Warp {sum(s in b for s in seeds)} of {len(seeds)})")
+            continue
+        rows[task] = paired({s: a[s] for s in seeds}, {s: b[s] for s in seeds})
+    revisions = {"cpu": sorted({json.dumps(revision(d)) for d in cpu_dirs}),
+                 "warp": sorted({json.dumps(revision(d)) for d in warp_dirs})}
+    return rows, {k: [json.loads(v) for v in vs] for k, vs in revisions.items()}, left
+
+
 def print_table(rows: dict) -> None:
     print(f"\n{'task':<20} {'CPU':>7} {'Warp':>7}  {'only CPU':<12} {'only Warp':<12} {'McNemar p':>9}  steps (both ok)")
     for task, r in rows.items():
@@ -192,6 +227,9 @@ def main() -> None:
     ap.add_argument("--merge", type=Path, nargs="+", help="combine earlier runs' JSON (other tasks); runs nothing")
     ap.add_argument("--policy", default="scripted", help="the policy spec; {suite} and {index} are the task's")
     ap.add_argument("--port-cpu", action="store_true", help="a third side: the port's code on CPU MuJoCo (one world)")
+    ap.add_argument("--from-runs", action="store_true", help="pair --cpu-runs with --warp-runs; runs nothing")
+    ap.add_argument("--cpu-runs", type=Path, nargs="+", default=[], help="--from-runs: the CPU benchmark's run dirs")
+    ap.add_argument("--warp-runs", type=Path, nargs="+", default=[], help="--from-runs: the port's run dirs")
     args = ap.parse_args()
     if args.json.exists() and not args.overwrite:
         ap.error(f"--json: {args.json} exists; pass --overwrite to replace it")
@@ -203,6 +241,9 @@ def main() -> None:
         return
     first, _, end = args.init_states.partition(":")
     first, end = int(first), int(end)
+    if args.from_runs:
+        write_from_runs(args, first, end)
+        return
     work = args.work or Path(f"runs/libero_warp_expert_{time.strftime('%Y%m%d_%H%M%S')}")
     warp = {"device": args.sim_device, "num_envs": args.num_envs}
     rows, seconds, revisions = {}, {}, {}
@@ -230,6 +271,26 @@ def main() -> None:
     doc = {"benchmark": "libero_warp_expert", "policy": policy,
            "init_states": [first, end - 1], "warp": warp, "seconds": seconds, "revision": revisions,
            "machine": {"cpus": os.cpu_count(), "python": platform.python_version()}, "work": str(work),
+           "results": rows}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(doc, indent=1) + "\n")
+    print(f"wrote {args.json}")
+
+
+def write_from_runs(args, first: int, end: int) -> None:
+    """``--from-runs``: the pairing of runs made elsewhere, printed and written to ``--json``."""
+    if not args.cpu_runs or not args.warp_runs:
+        raise SystemExit("--from-runs needs --cpu-runs and --warp-runs")
+    rows, revisions, left = from_runs(args.cpu_runs, args.warp_runs, range(first, end))
+    if not rows:
+        raise SystemExit(f"--from-runs: no task has init states {first}..{end - 1} on both sides ({'; '.join(left)})")
+    print_table(rows)
+    if left:
+        print("left out (not finished on both sides): " + "; ".join(left))
+    doc = {"benchmark": "libero_warp_expert", "policy": "runs", "init_states": [first, end - 1],
+           "warp": {"device": args.sim_device, "runs": [str(d) for d in args.warp_runs]},
+           "cpu": {"runs": [str(d) for d in args.cpu_runs]}, "revision": revisions, "left_out": left,
+           "policies": sorted({json.loads((d / "run.json").read_text())["policy"] for d in args.cpu_runs + args.warp_runs}),
            "results": rows}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(doc, indent=1) + "\n")
