@@ -36,7 +36,7 @@ class LiberoWorlds(ControllerReads, WarpPhysics):
     def __init__(self, mjm: Any, layout: ArmLayout, num_worlds: int, device: str | None = None,
                  batched: tuple[str, ...] = (), nconmax: int | None = None, njmax: int | None = None,
                  what: str = "LIBERO on MuJoCo Warp"):
-        super().__init__(mjm, num_worlds, device, batched, nconmax=nconmax, njmax=njmax, graph=False, what=what)
+        super().__init__(mjm, num_worlds, device, batched, nconmax=nconmax, njmax=njmax, what=what)
         self.layout = layout
 
     def save(self, rows: np.ndarray) -> dict[str, Any]:
