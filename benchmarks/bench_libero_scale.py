@@ -9,7 +9,11 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
     python benchmarks/bench_libero_scale.py --n 1 2 --episodes 2 --tasks libero_spatial/0,libero_spatial/1
     python benchmarks/bench_libero_scale.py --n 8 16 --episodes 5 --full 16     # the GPU machine
 
-``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. Prints a table and writes JSON
+``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. ``--warp DEVICE`` adds, after each CPU case,
+the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
+worlds per task, default the case's N): the GPU against the CPU backend in the same run, on the same machine.
+The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
+step either way): the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
 backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` on the GPU machine).
 """
@@ -48,10 +52,14 @@ def machine() -> dict:
 
 
 def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
-             log_dir: Path | None) -> dict:
-    out = workdir / f"{preset}_n{n}_{episodes or 'full'}"
+             log_dir: Path | None, warp: str | None = None) -> dict:
+    """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
+    timed end to end, and what its run directory says it did."""
+    out = workdir / f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}"
     argv = [sys.executable, "-m", "simseam.cli.main", "eval", preset, "--policy", policy, "--num-envs", str(n),
             "--out", str(out), "--overwrite"]
+    if warp:
+        argv += ["--engine", "mujoco_warp", "--sim-device", warp]
     if episodes:
         argv += ["--episodes", str(episodes)]
     if tasks:
@@ -71,7 +79,9 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     steps = sum(e["steps"] for e in rows)
     settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
     step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
-    return {"preset": preset, "policy": policy, "num_envs": n, "tasks": len(summary["config"]["tasks"]),
+    return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
+            "images": "both cameras" if not warp else "policy's only", "num_envs": n,
+            "tasks": len(summary["config"]["tasks"]),
             "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
             "episodes_per_hour": round(len(rows) / wall * 3600.0, 1), "env_steps_per_s": round(steps / wall, 1),
@@ -87,6 +97,9 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=2, help="episodes per task in the subset cases")
     ap.add_argument("--tasks", default=None, help="comma-separated task subset for the subset cases (default: all)")
     ap.add_argument("--full", type=int, nargs="*", default=[], help="also run the whole protocol at these N")
+    ap.add_argument("--warp", default=None, metavar="DEVICE",
+                    help="also run each case on the MuJoCo Warp port on this Warp device (cuda:0, cpu)")
+    ap.add_argument("--warp-n", type=int, default=None, help="the port's worlds per task (default: the case's N)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
@@ -101,24 +114,26 @@ def main() -> None:
     cases = [(n, args.episodes, args.tasks) for n in args.n] + [(n, None, None) for n in args.full]
     try:
         for n, episodes, tasks in cases:
-            r = run_case(args.preset, args.policy, n, episodes, tasks, work, args.logs)
-            results.append(r)
-            print(f"  N={n:3d}  {r['episodes']} episodes in {r['wall_s']:.1f} s: {r['episodes_per_hour']:,.0f} "
-                  f"episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
-            args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
-            args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
+            for warp in [None] + ([args.warp] if args.warp else []):
+                k = (args.warp_n or n) if warp else n
+                r = run_case(args.preset, args.policy, k, episodes, tasks, work, args.logs, warp)
+                results.append(r)
+                print(f"  {r['engine']:<22} N={k:3d}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
+                      f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
+                args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
+                args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
     finally:
         if args.keep_runs is None:
             shutil.rmtree(work, ignore_errors=True)
 
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
-    head = (f"| {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+    head = (f"| {'engine':<22} | {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
             f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
-        print(f"| {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+        print(f"| {r['engine']:<22} | {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
               f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
     print(f"\nJSON: {args.out}")

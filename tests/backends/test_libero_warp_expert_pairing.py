@@ -3,22 +3,16 @@ benchmark's runs here) paired per task and init state, a task one side has not f
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "libero_warp_expert.py"
+from backend_util import benchmark_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("libero_warp_expert", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_script("libero_warp_expert")
 
 
 def _run(path: Path, commit: str, episodes: list[tuple[str, int, bool, int]]) -> Path:

@@ -9,13 +9,9 @@ benchmarks/metaworld_warp_cameras.py computes the same): SSIM corner 0.815-0.822
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-from backend_util import backend_python
+from backend_util import backend_python, benchmark_script
 
 from simseam.seam import ConfigError, ObsRequest
 
@@ -26,15 +22,10 @@ SEEDS = [0, 1]
 SIZE = 64
 CAMERAS = ["corner", "gripperPOV"]
 SSIM_FLOOR = {"camera1": 0.72, "camera2": 0.55}  # measured 0.815 and 0.643 at the least (see above)
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "metaworld_warp_cameras.py"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("metaworld_warp_cameras", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_script("metaworld_warp_cameras")
 
 
 @pytest.fixture(scope="module")

@@ -8,26 +8,18 @@ contact-rich ones, is docs/benchmarks.md's); the version gap (MuJoCo 3.3 vs 4.0)
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
 import pytest
-from backend_util import backend_python
+from backend_util import backend_python, benchmark_script
 
 pytestmark = pytest.mark.backends
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "metaworld_warp_fidelity.py"
 TASKS = ("reach-v3", "drawer-close-v3", "drawer-open-v3", "window-open-v3", "button-press-topdown-v3")
 
 
 def _harness():
-    spec = importlib.util.spec_from_file_location("metaworld_warp_fidelity", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return benchmark_script("metaworld_warp_fidelity")
 
 
 def test_the_harness_on_five_tasks_keeps_the_engine_gap_small_and_the_successes_paired(tmp_path):
