@@ -128,12 +128,12 @@ def main() -> None:
 
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
-    head = (f"| {'engine':<22} | {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+    head = (f"| {'engine':<22} | {'images':<14} | {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
             f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
-        print(f"| {r['engine']:<22} | {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+        print(f"| {r['engine']:<22} | {r['images']:<14} | {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
               f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
     print(f"\nJSON: {args.out}")
