@@ -153,7 +153,8 @@ def test_controller_in_the_loop_on_mujoco_warp_follows_robosuite(native, models)
     """libero_spatial/0 from init state 0 (the reset the model was checked on: its fixtures), one world on Warp's
     CPU device stepped with the batched controller between step1 and step2 under the recorded actions: its
     joint and object positions stay on robosuite's trajectory (float32 physics, LIBERO's contacts). Each substep's
-    step1 and step2 go through the worlds' CUDA graphs (captured on CUDA; here they run directly)."""
+    step1, controller and step2 go through the worlds' CUDA graphs as one (captured on CUDA; here they run
+    directly)."""
     from simseam.backends.libero_gpu import control as C
     from simseam.backends.libero_gpu import physics as P
     from simseam.backends.libero_gpu.stepping import control_step
@@ -176,4 +177,4 @@ def test_controller_in_the_loop_on_mujoco_warp_follows_robosuite(native, models)
         physics.close()
     print(f"closed loop on MuJoCo Warp (CPU device), qpos gap per control step: {np.array(gaps)}")
     assert max(gaps) < 2e-5, gaps
-    assert launched == ["step1", "step2"] * (25 * steps)
+    assert launched == (["substep_first"] + ["substep"] * 24) * steps  # one graph a substep on CUDA

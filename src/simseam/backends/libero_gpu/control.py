@@ -1,7 +1,7 @@
 """robosuite's OSC_POSE controller and the Panda gripper's ramp as LIBERO configures them, batched over worlds.
 
-Array code over ``xp`` (NumPy on the CPU, CuPy on a CUDA device: the same functions), float64, one row per world.
-Per physics substep (25 per 20 Hz control step), as robosuite's ``SingleArm.control`` does it:
+One Warp kernel (``osc_kernel``: Warp's CPU device for NumPy arrays, CUDA for CuPy ones), float64, one thread per
+world. Per physics substep (25 per 20 Hz control step), as robosuite's ``SingleArm.control`` does it:
 
 - on the control step's first substep only (``policy_step``), the goal: the arm action clipped to the input
   range and scaled (0.05 m, 0.5 rad per unit), ``goal_pos = ee_pos + delta``; the goal orientation turns by the
@@ -27,9 +27,6 @@ from typing import Any
 import numpy as np
 
 from simseam.seam.errors import SimulationError
-
-PINV_RCOND = 1e-15  # numpy.linalg.pinv's default cutoff, relative to the largest singular value
-
 
 @dataclass(frozen=True)
 class OscConfig:
@@ -113,101 +110,11 @@ class OscState:
         return replace(state, cached=ArmTerms(bias=None, **fields), cached_mask=mask)
 
 
-def reading(xp, state: OscState, terms: Any) -> Any:
-    """What the controller reads this substep: ``terms``, or the cached reading where a world still holds one
-    (its bias forces live)."""
-    if state.cached is None:
-        return terms
-    picked = {}
-    for key in CACHED:
-        fresh = getattr(terms, key)
-        mask = state.cached_mask.reshape((-1,) + (1,) * (fresh.ndim - 1))
-        picked[key] = xp.where(mask, getattr(state.cached, key), fresh)
-    return replace(terms, **picked)
-
-
-def axis_angle_matrix(xp, rotvec):
-    """float[N, 3] axis-angle -> float[N, 3, 3] as robosuite turns it (``axisangle2quat`` then its numba-compiled
-    ``quat2mat``, which rounds the quaternion to float32: its products and off-diagonal sums are float32, its
-    diagonal ``1 - a - b`` float64); a zero vector is the identity. Measured against robosuite's own on 2,000
-    random rotations: equal in 84 %, one float32 ulp (1.2e-7) apart in the rest (its float32 normalisation's
-    rounding is not reproduced bit for bit)."""
-    angle = xp.sqrt(xp.sum(rotvec * rotvec, axis=-1))
-    safe = xp.where(angle > 0, angle, 1.0)
-    axis = rotvec / safe[:, None]
-    half = 0.5 * angle
-    quat = xp.concatenate([xp.cos(half)[:, None], axis * xp.sin(half)[:, None]], axis=-1)
-    quat = xp.where((angle > 0)[:, None], quat, xp.asarray([1.0, 0.0, 0.0, 0.0]))
-    q = quat.astype(xp.float32)
-    norm = xp.sum(q.astype(xp.float64) ** 2, axis=-1).astype(xp.float32)
-    q = (q.astype(xp.float64) * xp.sqrt(2.0 / norm.astype(xp.float64))[:, None]).astype(xp.float32)
-    q2 = q[:, :, None] * q[:, None, :]  # float32 outer product, w x y z
-    d = q2.astype(xp.float64)
-    w, x, y, z = 0, 1, 2, 3
-    rows = [1.0 - d[:, y, y] - d[:, z, z], q2[:, x, y] - q2[:, z, w], q2[:, x, z] + q2[:, y, w],
-            q2[:, x, y] + q2[:, z, w], 1.0 - d[:, x, x] - d[:, z, z], q2[:, y, z] - q2[:, x, w],
-            q2[:, x, z] - q2[:, y, w], q2[:, y, z] + q2[:, x, w], 1.0 - d[:, x, x] - d[:, y, y]]
-    return xp.stack([r.astype(xp.float64) for r in rows], axis=-1).reshape(-1, 3, 3)
-
-
-def set_goal(xp, cfg: OscConfig, state: OscState, terms: Any, action) -> OscState:
-    """A control step's goal from ``action`` float[N, >=6] (its first 6 slots) and the substep's pose."""
-    arm = xp.clip(action[:, :6], xp.asarray(cfg.input_min), xp.asarray(cfg.input_max))
-    delta = (arm - xp.asarray(cfg.input_mid)) * xp.asarray(cfg.scale) + xp.asarray(cfg.output_mid)
-    turn = xp.any(delta[:, 3:] != 0.0, axis=-1)
-    turned = xp.matmul(axis_angle_matrix(xp, delta[:, 3:]), terms.ee_mat)
-    goal_ori = xp.where(turn[:, None, None], turned, state.goal_ori)
-    return replace(state, goal_pos=terms.ee_pos + delta[:, :3], goal_ori=goal_ori)
-
-
-def orientation_error(xp, desired, current):
-    """robosuite's ``orientation_error``: half the sum of the columns' cross products (current x desired)."""
-    return 0.5 * xp.sum(xp.cross(xp.swapaxes(current, -1, -2), xp.swapaxes(desired, -1, -2)), axis=-2)
-
-
-def pinv(xp, a):
-    """Batched Moore-Penrose inverse by SVD, numpy.linalg.pinv's cutoff."""
-    u, s, vh = xp.linalg.svd(a)
-    cutoff = PINV_RCOND * xp.max(s, axis=-1, keepdims=True)
-    inv_s = xp.where(s > cutoff, 1.0 / xp.where(s > cutoff, s, 1.0), 0.0)
-    return xp.matmul(xp.swapaxes(vh, -1, -2) * inv_s[..., None, :], xp.swapaxes(u, -1, -2))
-
-
-def arm_torques(xp, cfg: OscConfig, state: OscState, terms: Any):
-    """The clipped joint torques float[N, 7] for this substep's state (``terms``) and goal (``state``)."""
-    jac, mass = terms.jac, terms.mass
-    jt = xp.swapaxes(jac, -1, -2)
-    vel = xp.einsum("nij,nj->ni", jac, terms.qvel)
-    kp, kd = xp.asarray(cfg.kp), xp.asarray(cfg.kd)
-    force = (state.goal_pos - terms.ee_pos) * kp[:3] - vel[:, :3] * kd[:3]
-    torque = orientation_error(xp, state.goal_ori, terms.ee_mat) * kp[3:] - vel[:, 3:] * kd[3:]
-    minv = xp.linalg.inv(mass)
-    lam_full = pinv(xp, jac @ minv @ jt)
-    lam_pos = pinv(xp, jac[:, :3] @ minv @ jt[:, :, :3])
-    lam_ori = pinv(xp, jac[:, 3:] @ minv @ jt[:, :, 3:])
-    wrench = xp.concatenate([xp.einsum("nij,nj->ni", lam_pos, force), xp.einsum("nij,nj->ni", lam_ori, torque)], axis=-1)
-    tau = xp.einsum("nij,nj->ni", jt, wrench) + terms.bias
-    jbar = minv @ jt @ lam_full
-    null = xp.eye(jac.shape[-1])[None] - jbar @ jac
-    kv = np.sqrt(cfg.nullspace_kp) * 2.0
-    pose = xp.einsum("nij,nj->ni", mass, cfg.nullspace_kp * (state.initial_joint - terms.qpos) - kv * terms.qvel)
-    tau = tau + xp.einsum("nji,nj->ni", null, pose)
-    return xp.clip(tau, xp.asarray(cfg.torque_low), xp.asarray(cfg.torque_high))
-
-
-def gripper_ctrl(xp, cfg: OscConfig, state: OscState, grip_action) -> tuple[Any, OscState]:
-    """The finger actuators' ctrl float[N, 2] for grip actions float[N] and the ramp state after this substep."""
-    step = xp.asarray([-1.0, 1.0]) * cfg.grip_speed * xp.sign(grip_action)[:, None]
-    grip = xp.clip(state.grip + step, -1.0, 1.0)
-    return xp.asarray(cfg.grip_mid) + xp.asarray(cfg.grip_half) * grip, replace(state, grip=grip)
-
-
 def substep(xp, cfg: OscConfig, state: OscState, terms: Any, action, policy_step: bool) -> tuple[Any, Any, OscState]:
-    """One physics substep of control for actions float[N, 7]: ``(arm torques [N, 7], finger ctrl [N, 2],
-    state after)``."""
-    read = reading(xp, state, terms)
-    if policy_step:
-        state = set_goal(xp, cfg, state, read, action)
-    tau = arm_torques(xp, cfg, state, read)
-    fingers, state = gripper_ctrl(xp, cfg, state, action[:, 6])
-    return tau, fingers, replace(state, cached=None, cached_mask=None)
+    """One physics substep of control for actions float[N, 7]: ``(arm torques [N, 7], finger ctrl [N, 2], state
+    after)``, ``xp`` arrays. One Warp kernel over the worlds (``osc_kernel``: NumPy on Warp's CPU device, CuPy on
+    its CUDA device): the goal where ``policy_step``, the torques, the gripper ramp; a world still holding
+    robosuite's stale reading (``state.cached``) reads it, its bias forces live."""
+    from simseam.backends.libero_gpu.osc_kernel import run_substep
+
+    return run_substep(xp, cfg, state, terms, action, policy_step)

@@ -96,23 +96,35 @@ def cpu_terms(mjm: Any, datas: list[Any], layout: ArmLayout) -> ArmTerms:
 
 class ControllerReads:
     """What robosuite's controller loop needs of N worlds on MuJoCo Warp (``self``: ``m``, ``d``, ``device``,
-    ``xp``, ``layout``, ``view``, ``graphs``, ``_wp``, ``_mjw``): ``step1``, ``step2`` and ``read``. On CUDA
-    ``step1`` and ``step2`` are each one captured graph (``engines.mujoco_warp.graphs.CudaGraphs``: replayed from
-    their third call; launched one by one, each Newton iteration's convergence test a host round trip, a LIBERO
-    substep took 13-14 ms on an H100 whatever the worlds, 1-100); the controller runs between them."""
+    ``xp``, ``layout``, ``view``, ``graphs``, ``num_worlds``, ``_wp``, ``_mjw``): ``control_substep`` and ``read``.
 
-    def step1(self) -> None:
-        """MuJoCo Warp's ``step1``: the position and velocity stages of a step (what the controller reads)."""
-        with self._wp.ScopedDevice(self.device):
-            self.graphs.launch("step1", lambda: self._mjw.step1(self.m, self.d))
-            self._wp.synchronize_device(self.device)
+    A substep is MuJoCo Warp's ``step1`` (the position and velocity stages: what the controller reads), the
+    controller (``osc_kernel.WarpController``: the reading gathered, the torques and the gripper, ``ctrl``
+    written) and ``step2`` (actuation, acceleration, constraints, integration): device launches only, so on
+    CUDA it is one captured graph (``engines.mujoco_warp.graphs.CudaGraphs``, one for a control step's first
+    substep and one for the others: replayed from their third call). Launched kernel by kernel, with the
+    controller in CuPy between the stages, a LIBERO substep took 13-14 ms on an H100 whatever the worlds (1-100)."""
 
-    def step2(self) -> None:
-        """... and the rest of it (actuation from ``ctrl``, acceleration, constraints, integration)."""
-        if self.device.is_cuda:
-            self.xp.cuda.get_current_stream().synchronize()  # what CuPy wrote into ctrl
+    def warp_controller(self, cfg: Any, facts: dict[str, Any]) -> Any:
+        """The controller's buffers for these worlds (made once: a captured graph points at them)."""
+        held = getattr(self, "_controller", None)
+        if held is None or held.cfg is not cfg:
+            from simseam.backends.libero_gpu.osc_kernel import WarpController
+
+            self.graphs.clear()  # graphs captured with other buffers
+            held = self._controller = WarpController(self, cfg, facts)
+        return held
+
+    def control_substep(self, controller: Any, first: bool) -> None:
+        """One physics substep of every world with the controller in the loop (``first``: a control step's first,
+        where the goal is set from the action)."""
+        def launches():
+            self._mjw.step1(self.m, self.d)
+            controller.launch(self.d, first)
+            self._mjw.step2(self.m, self.d)
+
         with self._wp.ScopedDevice(self.device):
-            self.graphs.launch("step2", lambda: self._mjw.step2(self.m, self.d))
+            self.graphs.launch("substep_first" if first else "substep", launches)
             self._wp.synchronize_device(self.device)
 
     def read(self) -> ArmTerms:
