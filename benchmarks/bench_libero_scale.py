@@ -11,7 +11,9 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
 
 ``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. ``--warp DEVICE`` adds, after each CPU case,
 the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
-worlds per task, default the case's N): the GPU against the CPU backend in the same run, on the same machine.
+worlds per task, default the case's N; ``--warp-shards K``: as K processes at once, each ``--shard i/K`` of the
+episodes, merged by ``simseam merge``, the merge timed too): the GPU against the CPU backend in the same run,
+on the same machine.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
@@ -51,11 +53,15 @@ def machine() -> dict:
     return info
 
 
-def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
-             log_dir: Path | None, warp: str | None = None) -> dict:
-    """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
-    timed end to end, and what its run directory says it did."""
-    out = workdir / f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}"
+def _env() -> dict:
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), *filter(None, [env.get("PYTHONPATH")])])
+    return env
+
+
+def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, out: Path,
+               warp: str | None) -> list[str]:
     argv = [sys.executable, "-m", "simseam.cli.main", "eval", preset, "--policy", policy, "--num-envs", str(n),
             "--out", str(out), "--overwrite"]
     if warp:
@@ -64,23 +70,45 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
         argv += ["--episodes", str(episodes)]
     if tasks:
         argv += ["--tasks", tasks]
-    env = dict(os.environ)
-    env.setdefault("MUJOCO_GL", "egl")
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO / "src"), *filter(None, [env.get("PYTHONPATH")])])
+    return argv
+
+
+def _run_all(commands: list[list[str]], log: Path | None) -> None:
+    """The commands at once (each its own process); the first that fails stops the benchmark."""
+    procs = [subprocess.Popen(c, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for c in commands]
+    outputs = [p.communicate()[0] for p in procs]
+    if log is not None:
+        log.write_text("\n".join(outputs))
+    for c, p, text in zip(commands, procs, outputs):
+        if p.returncode != 0:
+            raise SystemExit(f"{' '.join(c)} failed (exit {p.returncode}):\n{text[-4000:]}")
+
+
+def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
+             log_dir: Path | None, warp: str | None = None, shards: int = 1) -> dict:
+    """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
+    timed end to end, and what its run directory says it did. ``shards`` K > 1: K processes at once, each
+    ``--shard i/K`` of it, merged by ``simseam merge`` (timed too)."""
+    out = workdir / f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
+    log = (log_dir / f"{out.name}.log") if log_dir is not None else None
     t0 = time.perf_counter()
-    proc = subprocess.run(argv, env=env, capture_output=True, text=True)
+    if shards == 1:
+        _run_all([_eval_argv(preset, policy, n, episodes, tasks, out, warp)], log)
+    else:
+        parts = [out.with_name(f"{out.name}_shard{i}") for i in range(shards)]
+        _run_all([_eval_argv(preset, policy, n, episodes, tasks, part, warp) + ["--shard", f"{i}/{shards}"]
+                  for i, part in enumerate(parts)], log)
+        _run_all([[sys.executable, "-m", "simseam.cli.main", "merge", "--out", str(out), "--overwrite",
+                   *map(str, parts)]], None)
     wall = time.perf_counter() - t0
-    if log_dir is not None:
-        (log_dir / f"{out.name}.log").write_text(proc.stdout + proc.stderr)
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(argv)} failed (exit {proc.returncode}):\n{(proc.stdout + proc.stderr)[-4000:]}")
     summary = json.loads((out / "summary.json").read_text())
     rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
     steps = sum(e["steps"] for e in rows)
     settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
     step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
     return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
-            "images": "both cameras" if not warp else "policy's only", "num_envs": n,
+            "images": "both cameras" if not warp else "policy's only", "num_envs": n, "processes": shards,
             "tasks": len(summary["config"]["tasks"]),
             "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
@@ -100,6 +128,8 @@ def main() -> None:
     ap.add_argument("--warp", default=None, metavar="DEVICE",
                     help="also run each case on the MuJoCo Warp port on this Warp device (cuda:0, cpu)")
     ap.add_argument("--warp-n", type=int, default=None, help="the port's worlds per task (default: the case's N)")
+    ap.add_argument("--warp-shards", type=int, default=1, metavar="K",
+                    help="the port's case as K processes at once (--shard i/K each, then simseam merge)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
@@ -116,9 +146,10 @@ def main() -> None:
         for n, episodes, tasks in cases:
             for warp in [None] + ([args.warp] if args.warp else []):
                 k = (args.warp_n or n) if warp else n
-                r = run_case(args.preset, args.policy, k, episodes, tasks, work, args.logs, warp)
+                r = run_case(args.preset, args.policy, k, episodes, tasks, work, args.logs, warp,
+                             args.warp_shards if warp else 1)
                 results.append(r)
-                print(f"  {r['engine']:<22} N={k:3d}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
+                print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
                       f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
                 args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
                 args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
@@ -128,12 +159,12 @@ def main() -> None:
 
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
-    head = (f"| {'engine':<22} | {'images':<14} | {'N':>3} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+    head = (f"| {'engine':<22} | {'images':<14} | {'N':>3} | {'procs':>5} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
             f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
-        print(f"| {r['engine']:<22} | {r['images']:<14} | {r['num_envs']:>3} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+        print(f"| {r['engine']:<22} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
               f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
     print(f"\nJSON: {args.out}")
