@@ -1,7 +1,7 @@
 """robosuite's OSC_POSE substep and the Panda gripper's ramp (``control.substep``) as one Warp kernel, one thread per
 world, float64: the same kernel on Warp's CPU device (NumPy arrays, CPU MuJoCo's worlds) and on CUDA (CuPy arrays,
-MuJoCo Warp's worlds). Array code over CuPy issued about a hundred small kernels and several host round trips
-(batched SVDs) per substep, 25 substeps per control step; this is one launch.
+MuJoCo Warp's worlds). The array code it replaced issued dozens of small CuPy kernels per substep (three batched
+SVDs among them), 25 substeps per control step; this is one launch.
 
 The arithmetic is ``control``'s (its module docstring says what robosuite does): the goal on a control step's
 first substep, the torques from the operational-space inertias, the nullspace term, the clip, the gripper ramp.
@@ -13,7 +13,9 @@ singular values are the eigenvalues' magnitudes). robosuite's float32 ``quat2mat
 arithmetic.
 
 ``run_substep`` is ``control.substep``'s body: NumPy arrays on Warp's CPU device, CuPy arrays on their CUDA device
-(shared through DLPack).
+(shared through DLPack). ``WarpController`` runs the same kernel on MuJoCo Warp's data in place, between
+``gather_terms`` (the reading, as ``physics.ControllerReads.read`` gathers it) and ``scatter_ctrl``, on buffers
+that stay where they are: a substep is then device launches only, one captured CUDA graph.
 """
 
 from __future__ import annotations
