@@ -14,8 +14,8 @@ arithmetic.
 
 ``run_substep`` is ``control.substep``'s body: NumPy arrays on Warp's CPU device, CuPy arrays on their CUDA device
 (shared through DLPack). ``WarpController`` runs the same kernel on MuJoCo Warp's data in place, between
-``gather_terms`` (the reading, as ``physics.ControllerReads.read`` gathers it) and ``scatter_ctrl``, on buffers
-that stay where they are: a substep is then device launches only, one captured CUDA graph.
+``gather_terms`` (the reading: ``Gather``, also behind ``physics.ControllerReads.read``) and ``scatter_ctrl``, on
+buffers that stay where they are: a substep is then device launches only, one captured CUDA graph.
 """
 
 from __future__ import annotations
@@ -27,6 +27,10 @@ import numpy as np
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})  # no gradients: half the generated code, shorter compiles
+
+#: ``physics.ArmTerms``' fields (per world) in ``gather_terms``' and ``osc_substep``'s order; what a stale reading holds
+TERMS = {"ee_pos": (3,), "ee_mat": (3, 3), "jac": (6, 7), "mass": (7, 7), "bias": (7,), "qpos": (7,), "qvel": (7,)}
+CACHED = ("ee_pos", "ee_mat", "jac", "mass", "qpos", "qvel")
 
 PINV_RCOND = 1e-15  # numpy.linalg.pinv's default cutoff, relative to the largest singular value
 JACOBI_SWEEPS = 30  # a 6 x 6 symmetric matrix converges in well under 10
@@ -348,21 +352,23 @@ def osc_substep(policy_step: int,
     c_mask[i] = 0  # the stale reading serves one substep
 
 
-_CONSTANTS: dict[int, tuple[Any, Any]] = {}  # id(cfg) -> (cfg, its constants on a device)
-
-
-def _constants(xp, cfg) -> Any:
-    """``osc_substep``'s ``consts`` rows of ``cfg`` as an ``xp`` array (made once per config)."""
-    held = _CONSTANTS.get(id(cfg))
-    if held is not None and held[0] is cfg and (xp is np) == isinstance(held[1], np.ndarray):
-        return held[1]
+def _constants(cfg) -> np.ndarray:
+    """``osc_substep``'s ``consts`` rows of ``cfg`` (float64 [11, 7])."""
     rows = np.zeros((11, 7))
     for r, key in enumerate(("kp", "kd", "input_min", "input_max", "scale", "input_mid", "output_mid")):
         rows[r, :6] = getattr(cfg, key)
     rows[7], rows[8] = cfg.torque_low, cfg.torque_high
     rows[9, :2], rows[10, :2] = cfg.grip_mid, cfg.grip_half
-    _CONSTANTS[id(cfg)] = (cfg, xp.asarray(rows))
-    return _CONSTANTS[id(cfg)][1]
+    return rows
+
+
+def _osc_inputs(policy_step: bool, terms: list, mask: Any, cached: list, action: Any, consts: Any, cfg: Any,
+                state: list, out: list) -> list:
+    """``osc_substep``'s arguments in its order: the fresh terms (``TERMS`` order), the stale reading's mask and
+    terms (``CACHED`` order), the actions, the constants, the state (goal_pos, goal_ori, initial_joint, grip) and
+    the outputs (torques, fingers)."""
+    return [int(bool(policy_step)), *terms, mask, *cached, action, consts, float(cfg.nullspace_kp),
+            float(cfg.grip_speed), *state, *out]
 
 
 def _to_warp(a: Any, cuda: bool) -> Any:
@@ -377,22 +383,22 @@ def run_substep(xp, cfg, state, terms, action, policy_step: bool):
     cuda = xp is not np
     f64 = lambda a: xp.ascontiguousarray(xp.asarray(a, dtype=xp.float64))  # noqa: E731
     n = len(action)
-    fresh = [f64(getattr(terms, k)) for k in ("ee_pos", "ee_mat", "jac", "mass", "bias", "qpos", "qvel")]
+    fresh = [f64(getattr(terms, k)) for k in TERMS]
     if state.cached is None:
         mask = xp.zeros(n, dtype=xp.int32)
-        cached = [xp.zeros_like(fresh[k]) for k in (0, 1, 2, 3, 5, 6)]
+        cached = [xp.zeros((n, *TERMS[k])) for k in CACHED]
     else:
         mask = xp.ascontiguousarray(state.cached_mask.astype(xp.int32))
-        cached = [f64(getattr(state.cached, k)) for k in ("ee_pos", "ee_mat", "jac", "mass", "qpos", "qvel")]
+        cached = [f64(getattr(state.cached, k)) for k in CACHED]
     goal_pos, goal_ori, grip = f64(state.goal_pos).copy(), f64(state.goal_ori).copy(), f64(state.grip).copy()
     tau, fingers = xp.zeros((n, 7)), xp.zeros((n, 2))
-    before = [*fresh, mask, *cached, f64(action), _constants(xp, cfg)]
-    after = [goal_pos, goal_ori, f64(state.initial_joint), grip, tau, fingers]
+    w = lambda arrays: [_to_warp(a, cuda) for a in arrays]  # noqa: E731
     if cuda:
         xp.cuda.get_current_stream().synchronize()  # what CuPy wrote, before Warp's stream reads it
     wp.launch(osc_substep, dim=n, device=f"cuda:{xp.cuda.Device().id}" if cuda else "cpu",
-              inputs=[int(bool(policy_step)), *[_to_warp(a, cuda) for a in before], float(cfg.nullspace_kp),
-                      float(cfg.grip_speed), *[_to_warp(a, cuda) for a in after]])
+              inputs=_osc_inputs(policy_step, w(fresh), _to_warp(mask, cuda), w(cached), _to_warp(f64(action), cuda),
+                                 _to_warp(f64(xp.asarray(_constants(cfg))), cuda), cfg,
+                                 w([goal_pos, goal_ori, f64(state.initial_joint), grip]), w([tau, fingers])))
     if cuda:
         wp.synchronize_device(f"cuda:{xp.cuda.Device().id}")  # before CuPy reads what the kernel wrote
     return tau, fingers, replace(state, goal_pos=goal_pos, goal_ori=goal_ori, grip=grip, cached=None, cached_mask=None)
@@ -408,8 +414,9 @@ def gather_terms(site: int, joints: wp.array(dtype=wp.int32), qadr: wp.array(dty
                  jac: wp.array3d(dtype=wp.float64), mass: wp.array3d(dtype=wp.float64),
                  bias: wp.array2d(dtype=wp.float64), q: wp.array2d(dtype=wp.float64),
                  qd: wp.array2d(dtype=wp.float64)):
-    """World ``i``'s ``physics.ArmTerms`` from MuJoCo Warp's data, in float64, as ``ControllerReads.read`` gathers
-    them: the site's pose, the Jacobian from the joints' axes and anchors, the arm's block of ``M``, the bias."""
+    """World ``i``'s ``physics.ArmTerms`` from MuJoCo Warp's data, in float64 (what ``ControllerReads.read`` returns
+    and the controller's substep reads): the site's pose, the Jacobian from the joints' axes and anchors, the arm's
+    block of ``M``, the bias."""
     i = wp.tid()
     p = site_xpos[i, site]
     sp = vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
@@ -446,29 +453,46 @@ def scatter_ctrl(arm: wp.array(dtype=wp.int32), fingers: wp.array(dtype=wp.int32
         ctrl[i, fingers[k]] = float(grip[i, k])
 
 
+class Gather:
+    """``gather_terms`` for N worlds of MuJoCo Warp (``physics``: a ``ControllerReads``): the layout's indices on
+    the device, made once; ``launch(d, out)`` fills ``out`` (float64 Warp arrays, ``TERMS`` order)."""
+
+    def __init__(self, physics: Any):
+        lay, dev = physics.layout, physics.device
+        ints = lambda a: wp.array(np.asarray(a, dtype=np.int32), dtype=wp.int32, device=dev)  # noqa: E731
+        self.n, self.device, self.site = physics.num_worlds, dev, int(lay.site)
+        self.index = [ints(lay.joints), ints(lay.qpos), ints(lay.dofs), ints(lay.mass_csr)]
+
+    def launch(self, d: Any, out: list) -> None:
+        wp.launch(gather_terms, dim=self.n, device=self.device,
+                  inputs=[self.site, *self.index, d.site_xpos, d.site_xmat, d.xaxis, d.xanchor, d.M, d.qfrc_bias,
+                          d.qpos, d.qvel, *out])
+
+
+def terms_buffers(n: int, device: Any) -> dict[str, Any]:
+    """Float64 Warp arrays for N worlds' ``ArmTerms`` (``TERMS`` order)."""
+    return {k: wp.zeros((n, *shape), dtype=wp.float64, device=device) for k, shape in TERMS.items()}
+
+
 class WarpController:
     """The controller's buffers for N worlds of MuJoCo Warp (``physics``: a ``ControllerReads``), which stay where
     they are, so a substep (``step1``, ``gather_terms``, ``osc_substep``, ``scatter_ctrl``, ``step2``) can be one
     captured CUDA graph: ``load(state, action)`` before a control step, ``launch(d, policy_step)`` each substep
     (device launches only), ``state(like)`` after it."""
 
-    SHAPES = {"ee_pos": (3,), "ee_mat": (3, 3), "jac": (6, 7), "mass": (7, 7), "bias": (7,), "qpos": (7,),
-              "qvel": (7,)}
-    CACHED = ("ee_pos", "ee_mat", "jac", "mass", "qpos", "qvel")
-
     def __init__(self, physics: Any, cfg: Any, facts: dict[str, Any]):
-        n, dev, lay = physics.num_worlds, physics.device, physics.layout
+        n, dev = physics.num_worlds, physics.device
         self.cfg, self.device, self.view, self.xp, self.n = cfg, dev, physics.view, physics.xp, n
         ints = lambda a: wp.array(np.asarray(a, dtype=np.int32), dtype=wp.int32, device=dev)  # noqa: E731
         zeros = lambda *shape: wp.zeros(shape, dtype=wp.float64, device=dev)  # noqa: E731
-        self.site = int(lay.site)
-        self.index = [ints(lay.joints), ints(lay.qpos), ints(lay.dofs), ints(lay.mass_csr)]
+        self.gather = Gather(physics)
         self.actuators = [ints(facts["arm_actuators"]), ints(facts["gripper_actuators"])]
-        self.terms = {k: zeros(n, *s) for k, s in self.SHAPES.items()}
-        self.cached = {k: zeros(n, *self.SHAPES[k]) for k in self.CACHED}
+        self.terms = terms_buffers(n, dev)
+        self.cached = {k: zeros(n, *TERMS[k]) for k in CACHED}
         self.mask = wp.zeros(n, dtype=wp.int32, device=dev)
-        self.action, self.consts = zeros(n, 7), wp.array(_constants(np, cfg), dtype=wp.float64, device=dev)
-        self.goal_pos, self.goal_ori, self.initial_joint, self.grip = zeros(n, 3), zeros(n, 3, 3), zeros(n, 7), zeros(n, 2)
+        self.action, self.consts = zeros(n, 7), wp.array(_constants(cfg), dtype=wp.float64, device=dev)
+        self.goal_pos, self.goal_ori = zeros(n, 3), zeros(n, 3, 3)
+        self.initial_joint, self.grip = zeros(n, 7), zeros(n, 2)
         self.tau, self.fingers = zeros(n, 7), zeros(n, 2)
 
     def load(self, state: Any, action: Any) -> None:
@@ -479,23 +503,21 @@ class WarpController:
             v(buf)[...] = xp.asarray(value, dtype=xp.float64)
         v(self.mask)[...] = 0 if state.cached is None else xp.asarray(state.cached_mask).astype(xp.int32)
         if state.cached is not None:
-            for k in self.CACHED:
+            for k in CACHED:
                 v(self.cached[k])[...] = xp.asarray(getattr(state.cached, k), dtype=xp.float64)
         if xp is not np:
             xp.cuda.get_current_stream().synchronize()  # before Warp's stream reads them
 
     def launch(self, d: Any, policy_step: bool) -> None:
         """One substep's control between MuJoCo Warp's ``step1`` and ``step2`` of ``d`` (device launches only)."""
-        t, c, dev = self.terms, self.cached, self.device
-        terms = [t[k] for k in self.SHAPES]
-        wp.launch(gather_terms, dim=self.n, device=dev, inputs=[self.site, *self.index, d.site_xpos, d.site_xmat,
-                                                                 d.xaxis, d.xanchor, d.M, d.qfrc_bias, d.qpos, d.qvel,
-                                                                 *terms])
-        wp.launch(osc_substep, dim=self.n, device=dev,
-                  inputs=[int(bool(policy_step)), *terms, self.mask, *[c[k] for k in self.CACHED], self.action,
-                          self.consts, float(self.cfg.nullspace_kp), float(self.cfg.grip_speed), self.goal_pos,
-                          self.goal_ori, self.initial_joint, self.grip, self.tau, self.fingers])
-        wp.launch(scatter_ctrl, dim=self.n, device=dev, inputs=[*self.actuators, self.tau, self.fingers, d.ctrl])
+        terms = list(self.terms.values())
+        self.gather.launch(d, terms)
+        wp.launch(osc_substep, dim=self.n, device=self.device,
+                  inputs=_osc_inputs(policy_step, terms, self.mask, [self.cached[k] for k in CACHED], self.action,
+                                     self.consts, self.cfg, [self.goal_pos, self.goal_ori, self.initial_joint,
+                                                             self.grip], [self.tau, self.fingers]))
+        wp.launch(scatter_ctrl, dim=self.n, device=self.device,
+                  inputs=[*self.actuators, self.tau, self.fingers, d.ctrl])
 
     def state(self, like: Any) -> Any:
         """The controller's state after the control step (copies, ``xp`` arrays), its stale reading used."""

@@ -128,15 +128,17 @@ class ControllerReads:
             self._wp.synchronize_device(self.device)
 
     def read(self) -> ArmTerms:
-        d, lay, xp = self.d, self.layout, self.xp
-        v = lambda a: self.view(a).astype(xp.float64)  # noqa: E731
-        site = v(d.site_xpos)[:, lay.site]
-        mass = v(d.M)[:, xp.asarray(lay.mass_csr)]
-        joints = xp.asarray(lay.joints)
-        return ArmTerms(ee_pos=site, ee_mat=v(d.site_xmat)[:, lay.site].reshape(-1, 3, 3),
-                        jac=_jacobian(xp, v(d.xaxis)[:, joints], v(d.xanchor)[:, joints], site), mass=mass,
-                        bias=v(d.qfrc_bias)[:, xp.asarray(lay.dofs)], qpos=v(d.qpos)[:, xp.asarray(lay.qpos)],
-                        qvel=v(d.qvel)[:, xp.asarray(lay.dofs)])
+        """The worlds' ``ArmTerms`` as the last pipeline left them (``osc_kernel.gather_terms``: the gather the
+        controller's substep runs), as ``xp`` arrays (views of fresh device buffers)."""
+        from simseam.backends.libero_gpu.osc_kernel import Gather, terms_buffers
+
+        if getattr(self, "_gather", None) is None:
+            self._gather = Gather(self)
+        out = terms_buffers(self.num_worlds, self.device)
+        with self._wp.ScopedDevice(self.device):
+            self._gather.launch(self.d, list(out.values()))
+            self._wp.synchronize_device(self.device)
+        return ArmTerms(**{k: self.view(v) for k, v in out.items()})
 
 
 class WarpTerms(ControllerReads):
