@@ -121,7 +121,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--preset", default="libero_spatial")
     ap.add_argument("--policy", default="zero")
-    ap.add_argument("--n", type=int, nargs="+", default=[1, 2], help="--num-envs values for the subset cases")
+    ap.add_argument("--n", type=int, nargs="*", default=[1, 2],
+                    help="--num-envs values for the subset cases (none: `--n` alone, with --full)")
     ap.add_argument("--episodes", type=int, default=2, help="episodes per task in the subset cases")
     ap.add_argument("--tasks", default=None, help="comma-separated task subset for the subset cases (default: all)")
     ap.add_argument("--full", type=int, nargs="*", default=[], help="also run the whole protocol at these N")
