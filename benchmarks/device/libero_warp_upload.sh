@@ -29,6 +29,7 @@
 #              checkout); c01 also holds the count and the SHA256. Needs: the repo's .venv (pip download), a Python 3.12
 #              (pyenv; PY312 names another) and the LIBERO backend provisioned here (`simseam backends provision
 #              libero`, for the trace). Wheels and keep.txt are cached in ~/.cache/simseam/libero-warp-device-<key>.
+#   here:   bash benchmarks/device/libero_warp_upload.sh recut [DIR]   (the checkout grew: the same package cut again)
 #   there:  call k = 1 .. N, consecutive while the machine stays warm, carrying DIR/ck (paths carried in one call
 #           are gone in the next, so each call copies its piece out):
 #             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_carry/ck        (-> /tmp/lww)
@@ -141,11 +142,13 @@ EOF
   echo "site: $(mb "$stage/site"), lsite: $(mb "$stage/lsite")"
 }
 
-# a piece travels with the whole checkout (tracked and untracked-not-ignored files): 64 MiB less that, less 1 MiB
+# a piece travels with the whole checkout (tracked and untracked-not-ignored files): 64 MiB less that, less 1 MiB.
+# The device tool counts a file as the disk blocks it takes (4 KiB each: 718 files of 9.04 MB came to 10.3 MB in
+# December, and a piece cut from the bytes alone was refused), so each file is counted rounded up to 4 KiB.
 piece_bytes() {  # ROOT
   local tree room
   tree=$(cd "$1" && { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 stat -c %s 2>/dev/null \
-    | awk '{s += $1} END {print s + 0}')
+    | awk '{s += int(($1 + 4095) / 4096) * 4096} END {print s + 0}')
   room=$(( (64 << 20) - tree - (1 << 20) ))
   echo $(( room < CHUNK_BYTES ? room : CHUNK_BYTES ))
 }
@@ -164,6 +167,26 @@ pack() {  # DIR
   done
   echo "packed $(mb "$dir/stage") into $(mb "$dir/pkg.tar.xz") (xz): $n piece(s) of at most $CHUNK_BYTES bytes, $n device call(s)"
   rm -rf "$dir/stage" "$dir/pkg.tar.xz"
+}
+
+# the pieces already in DIR (c01 .. cNN) cut again for the checkout at hand (it grew: a piece no longer fits)
+recut() {  # DIR
+  local dir="$1" i=0 part
+  CHUNK_BYTES=$(piece_bytes "$(git rev-parse --show-toplevel)")
+  cat "$dir"/c*/pkg.part* > "$dir/pkg.tar.xz"
+  [ "$(sha256sum "$dir/pkg.tar.xz" | awk '{print $1}')" = "$(cat "$dir/c01/pkg.sha256")" ] \
+    || { echo "recut: the pieces in $dir do not match their SHA256" >&2; exit 2; }
+  cp "$dir/c01/pkg.sha256" "$dir/pkg.sha256"
+  rm -rf "$dir"/c[0-9]*
+  split -b "$CHUNK_BYTES" -d -a 2 "$dir/pkg.tar.xz" "$dir/pkg.part"
+  mkdir -p "$dir/c01"
+  mv "$dir/pkg.sha256" "$dir/c01/"
+  ls "$dir"/pkg.part* | wc -l > "$dir/c01/pkg.count"
+  for part in "$dir"/pkg.part*; do
+    i=$((i + 1)); mkdir -p "$dir/c$(printf %02d $i)"; mv "$part" "$dir/c$(printf %02d $i)/"
+  done
+  rm -f "$dir/pkg.tar.xz"
+  echo "recut into $i piece(s) of at most $CHUNK_BYTES bytes, $i device call(s)"
 }
 
 prepare() {
@@ -256,5 +279,6 @@ case "${1:-}" in
   prepare) prepare "${2:-}" ;;
   receive) receive "${2:-}" ;;
   install) install ;;
-  *) echo "usage: $0 prepare [DIR] | receive DIR/ck | install" >&2; exit 2 ;;
+  recut) recut "${2:-.cache/libero_warp_carry}" ;;
+  *) echo "usage: $0 prepare [DIR] | recut [DIR] | receive DIR/ck | install" >&2; exit 2 ;;
 esac
