@@ -181,6 +181,30 @@ def test_the_worlds_start_where_libero_settles_a_dropped_bowl(worker):
     assert cpu_gap < 1e-9, cpu_gap  # measured 6e-13: the port's controller is robosuite's, to float64 rounding
 
 
+def test_missing_resets_are_computed_by_several_libero_processes_as_by_one(worker, tmp_path, monkeypatch):
+    """``ResetCache`` asks the seeds it lacks of two LIBERO processes at once (``SIMSEAM_NATIVE_WORKERS=2``), a
+    contiguous run each: on libero_object (no sampled fixtures, so no reset history) every seed's state and model
+    changes are those one process gives, bit for bit, and each lands in the cache."""
+    from simseam.backends.libero_gpu.resets import ResetCache
+    from simseam.backends.libero_gpu.worker import NativeWorker
+
+    python = backend_python("libero")
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # an empty reset cache
+    monkeypatch.setenv("SIMSEAM_NATIVE_WORKERS", "2")
+    seeds = [0, 1, 2, 3, 4, 5, 6, 7]
+    one = worker.call("resets", suite="libero_object", task=1, seeds=seeds, settle=9)
+    with NativeWorker(python) as fresh:
+        info = fresh.call("describe", suite="libero_object", task=1)
+        cache = ResetCache(fresh, info, settle=9)
+        two = cache.get(seeds)
+        assert len(fresh._helpers) == 1  # 8 seeds, 4 per process, at most 2
+    assert [s["seed"] for s in two] == seeds and [s["init"] for s in two] == seeds
+    for a, b in zip(one, two):  # state, model changes, controller state, observables' clock: all of it
+        assert a.keys() == b.keys()
+        np.testing.assert_equal(a, b)
+    assert sorted(p.name for p in cache.folder.iterdir()) == [f"{s}.pkl" for s in seeds]
+
+
 def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):
     actions = _actions(3)
     with _batch(worker, "libero_spatial/0", 2, settle_steps=2) as ref:

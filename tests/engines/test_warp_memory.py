@@ -56,6 +56,45 @@ def test_not_even_one_world_and_other_errors():
     assert largest_that_fits(_build_up_to(5, []), 6) == 5 and largest_that_fits(_build_up_to(100, []), 6) == 5
 
 
+def _arrays_up_to(limit: int, calls: list):
+    """A stand-in build of k worlds holding 500 + 1,000 k bytes of Warp arrays on the CPU device, failing above
+    ``limit`` worlds as a full device does."""
+    import warp as wp
+
+    def build(k: int):
+        calls.append(k)
+        if k > limit:
+            raise RuntimeError(f"Failed to allocate {k * 1000} bytes on device 'cuda:0'")
+        return (wp.empty(125, dtype=wp.float32, device="cpu"), wp.empty(k * 250, dtype=wp.float32, device="cpu"))
+
+    return build
+
+
+def test_a_number_the_free_memory_cannot_hold_is_never_built():
+    """Where the device says what is free (CUDA), the footprint of 1 and 2 worlds rules out 10**6 without building
+    it (mujoco_warp spends minutes on the host building that many), and the search starts where the memory ends."""
+    calls = []
+    free = 500 + 1000 * 3000 + 10  # room for 3,000 worlds by the footprint; 3,000 allocate
+    with pytest.raises(WorldsDoNotFit) as info:
+        fit_worlds(_arrays_up_to(3000, calls), 10**6, "LIBERO task libero_spatial/0 on MuJoCo Warp", "cuda:0",
+                   free_bytes=lambda: free)
+    err = info.value
+    assert 2970 <= err.largest <= 3000 and err.asked == 10**6  # to 1 %
+    assert max(calls) < 10**6 and calls[:2] == [1, 2] and len(calls) <= 8
+    msg = str(err)
+    assert "\n" not in msg and "10000000" not in msg and "1000000 worlds do not fit" in msg
+    assert "0.00 MiB a world" in msg and "GiB free" in msg and f"the largest number that fits is {err.largest}" in msg
+    # a pessimistic footprint (the device frees more than it said): n is built after all
+    calls = []
+    assert fit_worlds(_arrays_up_to(10**6, calls), 4096, "task", "cuda:0", free_bytes=lambda: 500 + 1000 * 100)
+    assert calls[-1] == 4096 and len(calls) <= 2 + 14  # steps doubling from 2 % of the 100 estimated
+    # below FOOTPRINT_FROM worlds nothing is measured first
+    calls = []
+    with pytest.raises(WorldsDoNotFit):
+        fit_worlds(_arrays_up_to(37, calls), 1000, "task", "cuda:0", free_bytes=lambda: 0)
+    assert calls[0] == 1000
+
+
 def test_what_counts_as_out_of_memory():
     assert out_of_memory(MemoryError()) and out_of_memory(RuntimeError("Failed to allocate 8 bytes on device 'cpu'"))
     try:

@@ -102,15 +102,14 @@ class NativeWorker:
 
     once: tuple[str, ...] = ("describe",)
 
-    def __init__(self, backend: str, module: str, python: str | os.PathLike | None = None):
-        from simseam.seam.errors import BackendUnavailableError
-
+    def __init__(self, backend: str, module: str, python: str | os.PathLike | None = None, wait: bool = True):
         if python is None:
             from simseam.backends.provision import require
 
             python = require(backend)
-        self.backend, self.python = backend, str(python)
+        self.backend, self.module, self.python = backend, module, str(python)
         self._answers: dict[tuple, Any] = {}
+        self._helpers: list[NativeWorker] = []
         self._proc = None
         self._tmp = tempfile.TemporaryDirectory(prefix=f"simseam-{backend}-native-")
         os.symlink(Path(__file__).resolve().parents[1], Path(self._tmp.name) / "simseam")
@@ -118,10 +117,16 @@ class NativeWorker:
         env.update(PYTHONPATH=self._tmp.name, MUJOCO_GL=env.get("MUJOCO_GL", "egl"))
         self._proc = subprocess.Popen([self.python, "-m", module], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       env=env)
+        if wait:
+            self._wait_ready()
+
+    def _wait_ready(self) -> None:
+        from simseam.seam.errors import BackendUnavailableError
+
         status, what = self._receive("start")
         if status != "ok":
             self.close()
-            raise BackendUnavailableError(f"{backend} native worker ({self.python}) failed to start: {what}")
+            raise BackendUnavailableError(f"{self.backend} native worker ({self.python}) failed to start: {what}")
 
     def call(self, command: str, **kwargs: Any) -> Any:
         """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it."""
@@ -133,6 +138,40 @@ class NativeWorker:
         return self._call(command, **kwargs)
 
     def _call(self, command: str, **kwargs: Any) -> Any:
+        self._send(command, kwargs)
+        return self._answer(command, kwargs)
+
+    def map(self, command: str, calls: list[dict[str, Any]]) -> list[Any]:
+        """``call(command, **kw)`` for each ``kw`` of ``calls`` at once: this worker and ``len(calls) - 1`` helper
+        processes of the same interpreter and module (started when first needed, kept until ``close``: a helper's
+        own state, e.g. an env it built, serves its later calls), one call each; the answers in ``calls``' order.
+        Every answer is read before the first failure is raised, so the workers stay in step."""
+        if len(calls) <= 1:
+            return [self._call(command, **kw) for kw in calls]
+        fresh = [NativeWorker(self.backend, self.module, self.python, wait=False)
+                 for _ in range(len(calls) - 1 - len(self._helpers))]
+        try:
+            for helper in fresh:  # started together, waited for together
+                helper._wait_ready()
+        except BaseException:
+            for helper in fresh:
+                helper.close()
+            raise
+        self._helpers += fresh
+        workers = [self, *self._helpers][:len(calls)]
+        for worker, kw in zip(workers, calls):
+            worker._send(command, kw)
+        answers, failure = [], None
+        for worker, kw in zip(workers, calls):
+            try:
+                answers.append(worker._answer(command, kw))
+            except Exception as exc:  # noqa: BLE001 - raised once every worker has answered
+                failure = failure or exc
+        if failure is not None:
+            raise failure
+        return answers
+
+    def _send(self, command: str, kwargs: dict[str, Any]) -> None:
         from simseam.seam.errors import SimulationError
 
         if self._proc is None:
@@ -140,6 +179,10 @@ class NativeWorker:
         blob = pickle.dumps((command, kwargs), protocol=4)
         self._proc.stdin.write(HEADER.pack(len(blob)) + blob)
         self._proc.stdin.flush()
+
+    def _answer(self, command: str, kwargs: dict[str, Any]) -> Any:
+        from simseam.seam.errors import SimulationError
+
         status, result = self._receive(command)
         if status != "ok":
             raise SimulationError(f"{self.backend} native worker: {command}({_brief(kwargs)}) failed: {result}")
@@ -156,6 +199,9 @@ class NativeWorker:
         return pickle.loads(self._proc.stdout.read(HEADER.unpack(head)[0]))
 
     def close(self) -> None:
+        for helper in getattr(self, "_helpers", []):
+            helper.close()
+        self._helpers = []
         if self._proc is not None:
             proc, self._proc = self._proc, None
             proc.stdin.close()
@@ -176,6 +222,27 @@ class NativeWorker:
 
 def _brief(kwargs: dict[str, Any]) -> str:
     return ", ".join(f"{k}={v!r}" for k, v in kwargs.items() if isinstance(v, (str, int, float)))
+
+
+def helpers_for(items: int, per_process: int = 4) -> int:
+    """How many native processes to ask ``items`` slow answers of at once (``NativeWorker.map``): one per
+    ``per_process`` items, at most ``SIMSEAM_NATIVE_WORKERS`` (default: the cores this process may use less one,
+    at most 8; each process builds its own env: LIBERO's take about a GB each)."""
+    limit = os.environ.get("SIMSEAM_NATIVE_WORKERS", "")
+    if limit and not (limit.isdigit() and int(limit) >= 1):
+        from simseam.seam.errors import ConfigError
+
+        raise ConfigError(f"SIMSEAM_NATIVE_WORKERS={limit!r}: expected a whole number >= 1")
+    cap = int(limit) if limit else min(8, max(1, len(os.sched_getaffinity(0)) - 1))
+    return max(1, min(cap, -(-int(items) // per_process)))
+
+
+def split(keys: list[Any], parts: int) -> list[list[Any]]:
+    """``keys`` in ``parts`` contiguous runs of near-equal length (the first ones longer), none empty."""
+    parts = max(1, min(int(parts), len(keys)))
+    size, extra = divmod(len(keys), parts)
+    cuts = [i * size + min(i, extra) for i in range(parts + 1)]
+    return [keys[a:b] for a, b in zip(cuts, cuts[1:])]
 
 
 def cached_answers(folder: Path, keys: list[int], ask: Callable[[list[int]], list[Any]]) -> list[Any]:

@@ -11,6 +11,12 @@ bisection's freed tries fragment the memory, so asking for that number again in 
 a fresh process (what a user starts next) fits it (on Warp's CPU device under a capped address space: two
 measurements named 14,823 and 12,357 worlds, and each fitted exactly in a fresh process).
 
+Where the device says how much memory is free (CUDA), the worlds' footprint is first measured on one and on two
+worlds (the bytes of their arrays), and a number the free memory cannot hold is not built at all: building
+100,000 LIBERO worlds' data takes mujoco_warp minutes on the host before any device allocation fails. The search
+then starts where the footprint says the memory ends, allocates there and a step beyond, and narrows to 1 %: the
+number named is one that allocated.
+
 Recognised as out of memory: Warp's "Failed to allocate" (CUDA and CPU devices), CuPy's ``OutOfMemoryError``
 and Python's ``MemoryError`` (host-side arrays), also where another exception was raised from one.
 """
@@ -31,6 +37,10 @@ class WorldsDoNotFit(ConfigError):
         self.asked, self.largest = asked, largest
 
 
+#: from this many worlds the footprint is measured first (two small builds: negligible beside building that many)
+FOOTPRINT_FROM = 1024
+
+
 def out_of_memory(exc: BaseException | None) -> bool:
     """Whether ``exc``, or an exception it was raised from, is a device or host allocation failure (Warp wraps
     NumPy's ``MemoryError`` in a ``RuntimeError`` when it copies host data to the device)."""
@@ -45,35 +55,108 @@ def out_of_memory(exc: BaseException | None) -> bool:
     return False
 
 
-def largest_that_fits(build: Callable[[int], Any], below: int) -> int:
+def largest_that_fits(build: Callable[[int], Any], below: int, fits: int = 0, within: float = 0.0) -> int:
     """The largest ``k`` < ``below`` for which ``build(k)`` allocates without running out of memory (0 if
-    none), by bisection; each built object is dropped, and the memory collected, before the next try."""
-    lo, hi = 0, below  # build(lo) fits (or lo = 0), build(hi) does not
-    while hi - lo > 1:
+    none), by bisection from ``fits`` (known to allocate, or 0) until the range is at most ``within`` of its
+    lower end (0: exact); each built object is dropped, and the memory collected, before the next try."""
+    lo, hi = fits, below  # build(lo) fits (or lo = 0), build(hi) does not
+    while hi - lo > max(1, int(lo * within)):
         mid = (lo + hi) // 2
-        try:
-            built = build(mid)
-        except Exception as exc:  # noqa: BLE001 - only an allocation failure narrows the range; others go up
-            if not out_of_memory(exc):
-                raise
-            hi = mid
-        else:
-            del built
+        if _allocates(build, mid):
             lo = mid
-        gc.collect()
+        else:
+            hi = mid
     return lo
 
 
-def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any) -> Any:
-    """``build(n)``; out of memory: ``WorldsDoNotFit`` with the largest number of worlds ``build`` takes."""
+def _allocates(build: Callable[[int], Any], k: int) -> bool:
+    """Whether ``build(k)`` allocates (the built object dropped and the memory collected after); an error other
+    than running out of memory is raised."""
     try:
-        return build(n)
-    except Exception as exc:  # noqa: BLE001 - re-raised unless it is an allocation failure
+        built = build(k)
+    except Exception as exc:  # noqa: BLE001 - only an allocation failure says "no"; others go up
         if not out_of_memory(exc):
             raise
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        gc.collect()
+        return False
+    del built
     gc.collect()
-    largest = largest_that_fits(build, n)
+    return True
+
+
+def array_bytes(obj: Any, seen: set[int] | None = None) -> int:
+    """The bytes of the Warp arrays held by ``obj`` (mujoco_warp's ``Model`` / ``Data``: dataclasses of arrays and
+    of dataclasses; tuples and lists of them too), each array counted once."""
+    import dataclasses
+
+    import warp as wp
+
+    seen = set() if seen is None else seen
+    if id(obj) in seen:
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, wp.array):
+        return int(obj.capacity or 0)
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return sum(array_bytes(getattr(obj, f.name, None), seen) for f in dataclasses.fields(obj))
+    if isinstance(obj, (tuple, list)):
+        return sum(array_bytes(x, seen) for x in obj)
+    return 0
+
+
+def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int]) -> tuple[int, str] | None:
+    """``(estimate, reason)`` when the footprint of 1 and 2 worlds says ``n`` worlds cannot fit in the free
+    memory (``estimate``: the worlds that would), else None (and nothing is known against trying ``n``)."""
+    room = int(free_bytes())
+    one, two = (array_bytes(build(k)) for k in (1, 2))
+    gc.collect()
+    per_world, fixed = two - one, 2 * one - two
+    if per_world <= 0 or fixed + per_world * n <= room:
+        return None
+    reason = (f"{per_world / 2**20:.2f} MiB a world, {(fixed + per_world * n) / 2**30:.1f} GiB for {n}, "
+              f"{room / 2**30:.1f} GiB free")
+    return max(0, min(n - 1, (room - fixed) // per_world)), reason
+
+
+def _largest_near(build: Callable[[int], Any], estimate: int, n: int) -> int:
+    """The largest number of worlds up to ``n`` that allocates, searched from the footprint's ``estimate`` (steps
+    of 2 % up or down, doubling, until the answer is bracketed, then bisected to 1 %); ``n`` if it does after
+    all."""
+    step = max(1, estimate // 50)
+    if estimate and _allocates(build, estimate):
+        lo, hi = estimate, min(n, estimate + step)
+        while _allocates(build, hi):
+            if hi == n:
+                return n
+            step *= 2
+            lo, hi = hi, min(n, hi + step)
+    else:
+        hi, lo = estimate, max(0, estimate - step)
+        while lo and not _allocates(build, lo):
+            step *= 2
+            hi, lo = lo, max(0, lo - step)
+    return largest_that_fits(build, hi, fits=lo, within=0.01)
+
+
+def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
+               free_bytes: Callable[[], int] | None = None) -> Any:
+    """``build(n)``; out of memory: ``WorldsDoNotFit`` with the largest number of worlds ``build`` takes.
+    ``free_bytes()``: the device's free memory, where it says (then ``n`` is not built when it cannot fit)."""
+    early = _too_big(build, n, free_bytes) if free_bytes is not None and n >= FOOTPRINT_FROM else None
+    if early is not None:
+        estimate, reason = early
+        largest = _largest_near(build, estimate, n)
+        if largest == n:  # the footprint was pessimistic
+            return build(n)
+    else:
+        try:
+            return build(n)
+        except Exception as exc:  # noqa: BLE001 - re-raised unless it is an allocation failure
+            if not out_of_memory(exc):
+                raise
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        gc.collect()
+        largest = largest_that_fits(build, n)
     fits = (f"the largest number that fits is {largest} (measured by allocating them)" if largest
             else "not even one world fits")
     raise WorldsDoNotFit(f"{what}: {n} worlds do not fit in the memory of device {device} ({reason}); {fits}; "
@@ -93,4 +176,5 @@ def put_worlds(mjm: Any, host: Any, n: int, device: Any, what: str, *, batched: 
             m = mjw.put_model(mjm, batch_sizes=dict.fromkeys(batched, k)) if batched else mjw.put_model(mjm)
             return m, mjw.put_data(mjm, host, nworld=k, **data_sizes)
 
-    return fit_worlds(build, n, what, device)
+    free = (lambda: wp.get_device(device).free_memory) if wp.get_device(device).is_cuda else None
+    return fit_worlds(build, n, what, device, free)
