@@ -74,8 +74,12 @@ def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: st
 
 
 def _run_all(commands: list[list[str]], log: Path | None) -> None:
-    """The commands at once (each its own process); the first that fails stops the benchmark."""
-    procs = [subprocess.Popen(c, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    """The commands at once (each its own process); the first that fails stops the benchmark. Several port
+    processes share the cores for their LIBERO reset processes (``SIMSEAM_NATIVE_WORKERS``, unless set)."""
+    env = _env()
+    if len(commands) > 1:
+        env.setdefault("SIMSEAM_NATIVE_WORKERS", str(max(1, (len(os.sched_getaffinity(0)) - 1) // len(commands))))
+    procs = [subprocess.Popen(c, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
              for c in commands]
     outputs = [p.communicate()[0] for p in procs]
     if log is not None:
