@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from backend_util import backend_python
 
+from simseam.backends.libero_gpu.worker import NativeWorker
 from simseam.seam import ObsRequest
 from simseam.seam.errors import ConfigError, SimulationError
 
@@ -37,8 +38,6 @@ def _actions(steps: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def worker():
-    from simseam.backends.libero_gpu.worker import NativeWorker
-
     with NativeWorker(backend_python("libero")) as w:
         yield w
 
@@ -186,7 +185,6 @@ def test_missing_resets_are_computed_by_several_libero_processes_as_by_one(worke
     contiguous run each: on libero_object (no sampled fixtures, so no reset history) every seed's state and model
     changes are those one process gives, bit for bit, and each lands in the cache."""
     from simseam.backends.libero_gpu.resets import ResetCache
-    from simseam.backends.libero_gpu.worker import NativeWorker
 
     python = backend_python("libero")
     monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # an empty reset cache
@@ -203,6 +201,44 @@ def test_missing_resets_are_computed_by_several_libero_processes_as_by_one(worke
         assert a.keys() == b.keys()
         np.testing.assert_equal(a, b)
     assert sorted(p.name for p in cache.folder.iterdir()) == [f"{s}.pkl" for s in seeds]
+
+
+class NativeWorkerLog(NativeWorker):
+    """A LIBERO native worker that records the commands asked of it (``call`` and ``map``)."""
+
+    def __init__(self, python):
+        super().__init__(python)
+        self.asked = []
+
+    def call(self, command, **kwargs):
+        self.asked.append(command)
+        return super().call(command, **kwargs)
+
+    def map(self, command, calls):
+        self.asked.append(command)
+        return super().map(command, calls)
+
+
+def test_prefetch_leaves_a_batch_nothing_to_ask_libero_but_the_task(worker, tmp_path, monkeypatch):
+    """``LiberoBatchRollout.prefetch`` (what a run does for its next task while one steps): the episodes' resets
+    and seed 0's (the parking state) land in the reset cache, so the batch of that task asks LIBERO only to
+    describe it."""
+    from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
+
+    python = backend_python("libero")
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # an empty reset cache
+    with NativeWorkerLog(python) as counted:
+        LiberoBatchRollout.prefetch({"suite": "libero_object", "task": 2}, [3, 4], counted)
+        assert counted.asked == ["describe", "resets"]
+        folder = next(tmp_path.rglob("libero_object-2"))
+        assert sorted(p.name for p in folder.rglob("*.pkl")) == ["0.pkl", "3.pkl", "4.pkl"]
+        counted.asked.clear()
+        batch = LiberoBatchRollout({"suite": "libero_object", "task": 2}, 2, counted, device="cpu")
+        try:
+            batch.reset([0, 1], [3, 4])
+        finally:
+            batch.close()
+        assert counted.asked == ["describe"]
 
 
 def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):

@@ -160,3 +160,57 @@ def test_a_benchmarks_episode_indices_map_to_their_task_and_seed():
     assert recipe.log_entry({"index": 9, "seed": 109, "steps": 0, "error": "lost"}, 100)["seed"] == 101
     scene = SceneRecipe({}, ".")
     assert scene.parts([3, 1], 5) == [(scene, [3, 1], 5)] and scene.log_entry({"index": 3}, 5) == {"index": 3}
+
+
+def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
+    """``_stepped`` over a benchmark's tasks: the first task's preparation (``recipe.prefetch``: LIBERO's native
+    resets) is waited for before its batch opens; the next task's starts once this one's batch is open, runs
+    while it steps, and is waited for before the next batch opens (and at the end, before the shared worker
+    closes). Fakes stand in for the parts, the batch and the log: only the order is under test."""
+    from types import SimpleNamespace
+
+    from simseam.runner.job import _stepped
+
+    events = []
+
+    class Part:
+        def __init__(self, k):
+            self.k = k
+
+        def prefetch(self, indices, seed, shared):
+            events.append(("prefetch", self.k, tuple(indices), seed, shared))
+            return lambda: events.append(("waited", self.k))
+
+        def open_envs(self, m, **kwargs):
+            events.append(("open", self.k, m))
+            part = self
+
+            class Envs:
+                spec = SimpleNamespace(to_json=lambda: {})
+                num_envs = m
+
+                def __enter__(self):
+                    return self
+
+                def __exit__(self, *exc):
+                    events.append(("close", part.k))
+
+                def run(self, batch, indices, **kw):
+                    events.append(("run", part.k, tuple(indices), kw["seed"]))
+
+            return Envs()
+
+    parts = [(Part(0), [0, 1], 7), (Part(1), [2, 3], 5), (Part(2), [4, 5], 3)]
+    recipe = SimpleNamespace(parts=lambda indices, seed: parts,
+                             shared=lambda: SimpleNamespace(close=lambda: events.append(("shared closed",))))
+    job = SimpleNamespace(indices=[0, 1, 2, 3, 4, 5], seed=7, video_dir=None)
+    batch = SimpleNamespace(reset=lambda *a: None)
+    report = SimpleNamespace(envs=None, on_envs=None, on_error=None, on_worker_failure=None)
+    log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None)
+    _stepped(job, recipe, batch, 2, Lockstep(), "workers", "here", report, log)
+    shared = [e for e in events if e[0] == "prefetch"][0][4]
+    assert events == [
+        ("prefetch", 0, (0, 1), 7, shared), ("waited", 0), ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared),
+        ("run", 0, (0, 1), 7), ("close", 0),
+        ("waited", 1), ("open", 1, 2), ("prefetch", 2, (4, 5), 3, shared), ("run", 1, (2, 3), 5), ("close", 1),
+        ("waited", 2), ("open", 2, 2), ("run", 2, (4, 5), 3), ("close", 2), ("shared closed",)]

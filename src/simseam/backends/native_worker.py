@@ -21,6 +21,7 @@ import pickle
 import struct
 import subprocess
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any, Callable
 
@@ -110,6 +111,7 @@ class NativeWorker:
         self.backend, self.module, self.python = backend, module, str(python)
         self._answers: dict[tuple, Any] = {}
         self._helpers: list[NativeWorker] = []
+        self._lock = threading.RLock()
         self._proc = None
         self._tmp = tempfile.TemporaryDirectory(prefix=f"simseam-{backend}-native-")
         os.symlink(Path(__file__).resolve().parents[1], Path(self._tmp.name) / "simseam")
@@ -129,13 +131,15 @@ class NativeWorker:
             raise BackendUnavailableError(f"{self.backend} native worker ({self.python}) failed to start: {what}")
 
     def call(self, command: str, **kwargs: Any) -> Any:
-        """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it."""
-        if command in self.once:
-            key = (command, tuple(sorted((k, repr(v)) for k, v in kwargs.items())))
-            if key not in self._answers:
-                self._answers[key] = self._call(command, **kwargs)
-            return self._answers[key]
-        return self._call(command, **kwargs)
+        """Run ``command`` in the worker; its exception comes back as a ``SimulationError`` naming it. Threads
+        take turns: one request and its answer at a time (a run prepares its next task from a thread)."""
+        with self._lock:
+            if command in self.once:
+                key = (command, tuple(sorted((k, repr(v)) for k, v in kwargs.items())))
+                if key not in self._answers:
+                    self._answers[key] = self._call(command, **kwargs)
+                return self._answers[key]
+            return self._call(command, **kwargs)
 
     def _call(self, command: str, **kwargs: Any) -> Any:
         self._send(command, kwargs)
@@ -146,6 +150,10 @@ class NativeWorker:
         processes of the same interpreter and module (started when first needed, kept until ``close``: a helper's
         own state, e.g. an env it built, serves its later calls), one call each; the answers in ``calls``' order.
         Every answer is read before the first failure is raised, so the workers stay in step."""
+        with self._lock:
+            return self._map(command, calls)
+
+    def _map(self, command: str, calls: list[dict[str, Any]]) -> list[Any]:
         if len(calls) <= 1:
             return [self._call(command, **kw) for kw in calls]
         fresh = [NativeWorker(self.backend, self.module, self.python, wait=False)

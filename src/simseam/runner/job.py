@@ -299,13 +299,18 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
              log: _Log) -> None:
     """Each part on its own environments (at most ``n``), stepped together from here with the policy
     ``batch`` by the ``lockstep`` rule."""
-    shared = recipe.shared()
+    shared, ahead = recipe.shared(), None
+    parts = recipe.parts(job.indices, job.seed)
     try:
-        for part, indices, seed in recipe.parts(job.indices, job.seed):
+        for k, (part, indices, seed) in enumerate(parts):
             m = max(1, min(n, len(indices)))
             rule = lockstep.fit(m)
+            wait, ahead = ahead or _prefetch(parts, k, shared), None  # the first part prepares itself, now
+            if wait is not None:
+                wait()
             with part.open_envs(m, renderer=renderer, envs_per_worker=rule.envs_per_worker,
                                 shared=shared) as envs:
+                ahead = _prefetch(parts, k + 1, shared)  # the next part's, while this one steps
                 batch.reset(0, envs.spec)  # the policy's contract, before anything is written
                 log.spec(envs.spec.to_json())
                 report.envs = envs
@@ -315,8 +320,20 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
                          on_done=lambda res: log.episode(res.to_json()), on_error=report.on_error,
                          on_worker_failure=report.on_worker_failure, keep=False)
     finally:
+        if ahead is not None:
+            ahead()
         if shared is not None:
             shared.close()
+
+
+def _prefetch(parts: list, k: int, shared) -> Callable[[], None] | None:
+    """Part ``k``'s preparation started in a thread (``recipe.prefetch``) while the part before it steps; the
+    wait for it, or None (no part ``k``, or nothing to prepare)."""
+    if k >= len(parts):
+        return None
+    part, indices, seed = parts[k]
+    prefetch = getattr(part, "prefetch", None)
+    return prefetch(indices, seed, shared) if prefetch is not None else None
 
 
 class _SpecProbe:

@@ -20,6 +20,7 @@ another), ``log_entry`` gives an episode's line in the run's log (a benchmark's 
 from __future__ import annotations
 
 import dataclasses
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
@@ -231,5 +232,32 @@ class BenchmarkRecipe:
         from simseam.runner.warp_vector import benchmark_port
 
         port = benchmark_port(self.engine, self.backend)
-        config = {**self.task_config(self.first_task), **({} if self.images else {"cameras": False})}
-        return BatchVectorEnv(port(config, n, shared, privileged=self.privileged, device=self.device))
+        return BatchVectorEnv(port(self._port_config(), n, shared, privileged=self.privileged, device=self.device))
+
+    def _port_config(self) -> dict:
+        return {**self.task_config(self.first_task), **({} if self.images else {"cameras": False})}
+
+    def prefetch(self, indices: Sequence[int], seed: int, shared) -> Callable[[], None] | None:
+        """Start, in a thread, what this task's batch on the engine will first ask its benchmark's native worker
+        (``shared``; the port's ``prefetch``, e.g. LIBERO's resets of the episodes' seeds ``seed + i``), so that
+        it overlaps the previous task's steps; returns the wait for that thread, or None (no engine, or a port
+        with nothing to prepare). A failure there is left to the batch itself, which asks again and raises it
+        where it belongs."""
+        if self.engine is None or shared is None:
+            return None
+        from simseam.runner.warp_vector import benchmark_port
+
+        port = benchmark_port(self.engine, self.backend)
+        if not hasattr(port, "prefetch"):
+            return None
+        config, seeds = self._port_config(), [seed + i for i in indices]
+
+        def work() -> None:
+            try:
+                port.prefetch(config, seeds, shared)
+            except Exception:  # noqa: BLE001 - the batch asks again and reports it
+                pass
+
+        thread = threading.Thread(target=work, name=f"prefetch {self.describe()}", daemon=True)
+        thread.start()
+        return thread.join

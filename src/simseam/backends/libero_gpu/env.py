@@ -72,10 +72,8 @@ class LiberoBatch:
         self.cfg = OscConfig.from_facts(self.facts, mjm)
         self.goal = GoalCheck.compile(self.label, info["goal"]["goal_state"], mjm, info["goal"]["objects"])
         self.settle_steps = int(settle_steps)
-        #: the settle steps LIBERO runs (``ResetCache``) and those the worlds run (the last one, where the
-        #: observables sample)
-        self.native_settle = max(self.settle_steps - 1, 0)
-        self.resets = ResetCache(worker, info, self.native_settle)
+        self.resets = self.reset_cache(worker, info, self.settle_steps)
+        self.native_settle = self.resets.settle
         first = self._reset_states([0])[0]
         self.physics = self._make_physics(engine, device, bool(cameras))
         self.xp = xp = self.physics.xp
@@ -107,6 +105,12 @@ class LiberoBatch:
             raise ConfigError(f"{self.label}: the port on CPU MuJoCo runs one world without cameras "
                               f"(asked: {self.num_worlds} worlds, cameras {cameras})")
         return LiberoCpuWorlds(self.model.model, self.layout)
+
+    @staticmethod
+    def reset_cache(worker: Any, info: dict[str, Any], settle_steps: int) -> ResetCache:
+        """The task's reset states after the settle steps LIBERO runs: all but the last of ``settle_steps`` (the
+        worlds run that one, where the observables sample)."""
+        return ResetCache(worker, info, max(int(settle_steps) - 1, 0))
 
     @property
     def label(self) -> str:

@@ -116,6 +116,16 @@ class LiberoBatchRollout(NativePort):
         self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
 
+    @classmethod
+    def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
+        """Ask ``worker`` now for what a batch of ``config`` will first need of LIBERO: the task's env (built by
+        ``describe``) and the resets of ``seeds`` and of seed 0 (the parking state), kept in the reset cache on
+        disk. A run calls it from a thread for its next task while this one steps: LIBERO's resets (about a
+        second each) then no longer stand between two tasks' batches."""
+        c = gpu_config(config)
+        info = worker.call("describe", suite=c["suite"], task=int(c["task"]))
+        LiberoBatch.reset_cache(worker, info, c["settle_steps"]).get(sorted({0, *map(int, seeds)}))
+
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model
         facts = info["control"]
