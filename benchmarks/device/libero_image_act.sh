@@ -19,7 +19,10 @@
 #           NAME (default: all) with the recipe below, one after another within LIMIT seconds (default 540,
 #           counted from the script's start; TRAIN_S seconds each, default an equal share); a later call on the
 #           same warm machine may name the ones left). Each checkpoint comes back in $OUT as NAME.ckpt.txz.NN
-#           pieces (its weights rounded to float16 for the transfer: 2 pieces a policy) with the training log.
+#           pieces (its weights rounded to float16 for the transfer: 18.7 M parameters, 3 pieces a policy) with
+#           the training log (train.log); a call brings back 8 files, so the checkpoints that do not fit wait:
+#           the next call on the same warm machine, `bash benchmarks/device/libero_image_act.sh send`, brings
+#           them (two policies a call).
 #   here:   bash benchmarks/device/libero_image_act.sh unpack FILES_DIR DEST   (DEST/NAME: a checkpoint whose
 #           weights are float32 again, their values the float16 ones; `simseam eval ... --policy lerobot:DEST/NAME`)
 #
@@ -86,13 +89,29 @@ for f in pathlib.Path(sys.argv[1]).rglob("model.safetensors"):  # the weights; n
     tensors = load_file(str(f))
     save_file({k: v.half() if v.dtype == torch.float32 else v for k, v in tensors.items()}, str(f))
 PY
-  tar -C "$ROOT/pack" -cf - "$name" | xz -T0 -6 | split -b 15M -d -a 2 - "${OUT:?}/$name.ckpt.txz."
+  mkdir -p "$ROOT/out"
+  tar -C "$ROOT/pack" -cf - "$name" | xz -T0 -6 | split -b 15M -d -a 2 - "$ROOT/out/$name.ckpt.txz."
+}
+
+send() {  # into $OUT: the training log and the checkpoints not sent yet, as many whole ones as 8 files hold
+  local name n used=1
+  mkdir -p "$ROOT/sent"
+  cp "$ROOT/out/train.log" "${OUT:?}/" 2>/dev/null || true
+  for first in "$ROOT"/out/*.ckpt.txz.00; do
+    [ -f "$first" ] || continue
+    name="$(basename "$first" .ckpt.txz.00)"
+    [ -f "$ROOT/sent/$name" ] && continue
+    n=$(ls "$ROOT/out/$name".ckpt.txz.* | wc -l)
+    [ $((used + n)) -le 8 ] || { echo "send: $name waits for the next call (8 files a call)"; continue; }
+    cp "$ROOT/out/$name".ckpt.txz.* "$OUT/" && touch "$ROOT/sent/$name" && used=$((used + n))
+  done
+  ls -la "$OUT"
 }
 
 train() {  # [NAME...]
   local names=("$@") left share name t0
   [ "$DEVICE" = cpu ] || install_site
-  mkdir -p "$ROOT/data" "$ROOT/ckpt"
+  mkdir -p "$ROOT/data" "$ROOT/ckpt" "$ROOT/out"
   for t in "$ROOT"/in/data/*.tar; do tar -C "$ROOT/data" -xf "$t"; done
   [ ${#names[@]} -gt 0 ] || mapfile -t names < <(ls "$ROOT/data")
   export PYTHONPATH="$ROOT/site:$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 TQDM_DISABLE=1 \
@@ -107,11 +126,11 @@ train() {  # [NAME...]
     "$PY" -m simseam.cli.main train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
       --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr 3e-4 --lr-schedule cosine \
       --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
-      --device "$DEVICE" $([ "$DEVICE" = cpu ] || echo --amp --cache) 2>&1 | tee "$OUT/$name.train.log"
-    echo "$name: trained in $(( SECONDS - t0 )) s"
+      --device "$DEVICE" $([ "$DEVICE" = cpu ] || echo --amp --cache) 2>&1 | tee -a "$ROOT/out/train.log"
+    echo "$name: trained in $(( SECONDS - t0 )) s" | tee -a "$ROOT/out/train.log"
     pack "$ROOT/ckpt/$name" "$name"
   done
-  ls -la "$OUT"
+  send
 }
 
 unpack() {  # FILES_DIR DEST
@@ -136,6 +155,7 @@ case "${1:-}" in
   prepare) shift; prepare "$@" ;;
   receive) receive "${2:-}" ;;
   train) shift; train "$@" ;;
+  send) send ;;
   unpack) unpack "${2:?FILES_DIR}" "${3:?DEST}" ;;
-  *) echo "usage: $0 prepare DATASET... | receive DIR | train [NAME...] | unpack FILES_DIR DEST" >&2; exit 2 ;;
+  *) echo "usage: $0 prepare DATASET... | receive DIR | train [NAME...] | send | unpack FILES_DIR DEST" >&2; exit 2 ;;
 esac
