@@ -25,8 +25,9 @@ LIBERO on its own MuJoCo, against the port on CPU MuJoCo: what the port's code a
 changes). Its episodes go to ``WORK/port-cpu-TASK/episodes.jsonl`` as they finish (a run cut off resumes).
 
 ``--from-runs`` pairs the episodes of run directories made elsewhere (``simseam eval`` of whole suites, say the
-CPU benchmark here and ``--engine mujoco_warp --sim-device cuda:0`` on a GPU machine): every task whose episodes
-for init states A..B-1 are all in both sides, by seed; a task one side has not finished is listed as left out.
+CPU benchmark here and ``--engine mujoco_warp --sim-device cuda:0`` on a GPU machine, or ``simseam run --scene``
+of one task, e.g. an image policy on a scene of its cameras' size): every task whose episodes for init states
+A..B-1 are all in both sides, by seed; a task one side has not finished is listed as left out.
 
 Prints one row per task (successes on each engine, the init states where they disagree, the mean steps of the
 episodes both engines solved, exact McNemar p over the discordant pairs) and writes JSON (default
@@ -160,12 +161,26 @@ def two_sided(a: dict[int, dict], b: dict[int, dict], names: tuple[str, str]) ->
             "same_steps": sum(a[s]["steps"] == b[s]["steps"] for s in seeds)}
 
 
+def scene_task(run_dir: Path) -> str | None:
+    """The LIBERO task of a ``simseam run --scene`` directory (its ``run.json``'s scene: ``benchmark: {suite,
+    task}``), whose episodes name none; None for a run of anything else."""
+    bench = (json.loads((run_dir / "run.json").read_text()).get("scene") or {}).get("benchmark") or {}
+    return f"{bench['suite']}/{bench['task']}" if bench.get("name") == "libero" and "suite" in bench else None
+
+
 def run_episodes(dirs: list[Path]) -> dict[str, dict[int, dict]]:
-    """The episodes of ``dirs``' runs (``episodes.jsonl``), per task and seed; a seed run twice is an error."""
+    """The episodes of ``dirs``' runs (``episodes.jsonl``: ``simseam eval``'s name their task, ``simseam run
+    --scene``'s take it from the scene), per task and seed; a seed run twice is an error."""
     out: dict[str, dict[int, dict]] = {}
     for d in dirs:
         lines = (d / "episodes.jsonl").read_text().splitlines()
+        of_scene = None
         for e in (json.loads(line) for line in lines if line.strip()):
+            if "task" not in e:
+                of_scene = of_scene or scene_task(d)
+                if of_scene is None:
+                    raise SystemExit(f"--from-runs: {d}: its episodes name no task and it is no run of a LIBERO scene")
+                e = {**e, "task": of_scene}
             task = out.setdefault(e["task"], {})
             if e["seed"] in task:
                 raise SystemExit(f"--from-runs: {e['task']} seed {e['seed']} is in two runs ({d})")

@@ -62,3 +62,26 @@ def test_a_seed_in_two_runs_and_no_common_task_are_one_line_errors(tmp_path, mon
         monkeypatch.setattr(sys, "argv", ["x", "--from-runs", "--init-states", "10:12", "--cpu-runs", str(a),
                                           "--warp-runs", str(b), "--json", str(tmp_path / "o.json")])
         script.main()
+
+
+def test_runs_of_a_scene_take_their_task_from_the_scene(tmp_path):
+    """``simseam run --scene`` (an image policy on a scene of 128x128 cameras) names no task in its episodes: the
+    pairing takes it from the run's scene; a run of something else is a one-line error."""
+    def scene_run(path: Path, scene: dict, episodes: list[tuple[int, bool, int]]) -> Path:
+        path.mkdir(parents=True)
+        (path / "run.json").write_text(json.dumps({"scene": scene, "provenance": {
+            "simseam": {"revision": {"commit": "ccc", "dirty": False}}}}))
+        (path / "episodes.jsonl").write_text("".join(json.dumps(
+            {"seed": s, "success": ok, "steps": n, "error": None}) + "\n" for s, ok, n in episodes))
+        return path
+
+    libero = {"benchmark": {"name": "libero", "suite": "libero_spatial", "task": 3, "image_size": [128, 128]}}
+    cpu = scene_run(tmp_path / "cpu", libero, [(30, True, 100), (31, False, 220)])
+    warp = scene_run(tmp_path / "warp", {**libero, "engine": {"name": "mujoco_warp"}}, [(30, True, 104), (31, True, 150)])
+    rows, _, left = _script().from_runs([cpu], [warp], range(30, 32))
+    assert list(rows) == ["libero_spatial/3"] and not left
+    assert (rows["libero_spatial/3"]["cpu_successes"], rows["libero_spatial/3"]["warp_successes"]) == (1, 2)
+    assert rows["libero_spatial/3"]["only_warp"] == [31]
+    other = scene_run(tmp_path / "lift", {"task": "lift_cube", "benchmark": None}, [(30, True, 40)])
+    with pytest.raises(SystemExit, match=r"episodes name no task and it is no run of a LIBERO scene"):
+        _script().from_runs([other], [warp], range(30, 31))
