@@ -12,7 +12,7 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
 ``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. ``--warp DEVICE`` adds, after each CPU case,
 the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
 worlds per task, default the case's N; ``--warp-shards K``: as K processes at once, each ``--shard i/K`` of the
-episodes, merged by ``simseam merge``, the merge timed too): the GPU against the CPU backend in the same run,
+tasks (a port's shards take whole tasks), merged by ``simseam merge``, the merge timed too): the GPU against the CPU backend in the same run,
 on the same machine.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON

@@ -114,7 +114,8 @@ def eval_command(
     policy_ready: int = typer.Option(None, "--policy-ready", help=POLICY_READY_HELP),
     envs_per_worker: int = typer.Option(1, "--envs-per-worker", help=ENVS_PER_WORKER_HELP),
     shard: str = typer.Option(None, "--shard", help="i/K: run only the episodes whose global index "
-                              "(task_index * episodes + e) % K == i; combine the K run directories with "
+                              "(task_index * episodes + e) % K == i (with --engine: the whole tasks with "
+                              "task_index % K == i, each one batch); combine the K run directories with "
                               "simseam merge."),
     engine: str = typer.Option(None, "--engine", help="mujoco_warp: the preset's environments as worlds of one "
                                "batch per task on MuJoCo Warp (Meta-World and LIBERO presets; an image policy's "
@@ -149,10 +150,13 @@ def eval_command(
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
+        whole_tasks = shard_ik is not None and engine is not None  # a port's task is one batch: shards take tasks
         config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
                   **({"shard": list(shard_ik)} if shard_ik is not None else {}),
+                  **({"shard_unit": n} if whole_tasks else {}),
                   **({"engine": engine} if engine is not None else {})}
-        planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik), shard_ik, len(task_list) * n)
+        planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik, whole_tasks), shard_ik,
+                                             len(task_list) * n, n if whole_tasks else 1)
         config["provenance"] = for_benchmark(p.backend, policy)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:

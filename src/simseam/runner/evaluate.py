@@ -12,7 +12,8 @@ next to the pooled rate.
 
 Episode ``e`` of task ``ti`` has the global index ``ti * episodes + e``. ``--shard i/K`` runs the
 indices with ``index % K == i`` (``eval_indices``), so every shard gets a share of every task (when
-``K`` does not exceed the episodes per task); ``simseam merge`` rebuilds the eval summary from the
+``K`` does not exceed the episodes per task); on a batched engine's port, where a task's episodes are the
+worlds of one batch, it runs the whole tasks with ``ti % K == i`` instead; ``simseam merge`` rebuilds the eval summary from the
 shards. ``eval_recipe`` is what a run's ``Job`` runs (``runner.job``: inline, worker processes, a batched
 engine's port, Ray).
 """
@@ -136,11 +137,13 @@ def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: i
             "task_config": p.config, **({"per_task_config": p.per_task} if p.per_task else {})}
 
 
-def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | None = None) -> list[int]:
-    """The global episode indices a run (or its shard ``(i, K)``: ``index % K == i``) plans, task-major."""
+def eval_indices(tasks: Sequence[str], episodes: int, shard: tuple[int, int] | None = None,
+                 whole_tasks: bool = False) -> list[int]:
+    """The global episode indices a run (or its shard ``(i, K)``: ``index % K == i``; with ``whole_tasks``, a
+    batched port's, ``task_index % K == i``) plans, task-major."""
     from simseam.runner.sharding import shard_indices
 
-    return shard_indices(len(tasks) * episodes, shard)
+    return shard_indices(len(tasks) * episodes, shard, episodes if whole_tasks else 1)
 
 
 def eval_recipe(p: Preset, tasks: Sequence[str], episodes: int, engine: str | None = None,

@@ -16,7 +16,9 @@ directories into one:
   are listed.
 
 ``simseam eval --shard i/K`` shards the same way over the global episode index ``task_index *
-episodes_per_task + e`` (its config's ``episodes`` is the total); the merged summary is rebuilt by
+episodes_per_task + e`` (its config's ``episodes`` is the total), except on a batched engine's port (``--engine
+mujoco_warp``), where a task's episodes are one batch: there shard ``i`` runs the whole tasks with ``task_index
+% K == i`` (``shard_unit``: the episodes per task, in the config); the merged summary is rebuilt by
 the one summary code path, so it holds the eval summary (``per_task`` with Wilson intervals,
 ``mean_task_success_rate``) one unsharded run writes, and the missing episodes are also listed per
 task (``missing_by_task``: ``{task: [e, ...]}``). An eval run's ``spec.json`` is the spec of the task
@@ -48,30 +50,34 @@ def parse_shard(text: str) -> tuple[int, int]:
     return i_, k_
 
 
-def shard_indices(episodes: int, shard: tuple[int, int] | None) -> list[int]:
-    """The episode indices a shard runs (all of them without a shard)."""
+def shard_indices(episodes: int, shard: tuple[int, int] | None, unit: int = 1) -> list[int]:
+    """The episode indices a shard runs (all of them without a shard): ``e`` with ``(e // unit) % K == i``
+    (``unit`` > 1: whole runs of ``unit`` consecutive episodes, a batched port's whole tasks)."""
     if shard is None:
         return list(range(episodes))
     i, k = shard
-    return list(range(i, episodes, k))
+    return [e for e in range(episodes) if (e // max(1, unit)) % k == i]
 
 
-def check_shard_holds_episodes(planned: list[int], shard: tuple[int, int] | None, total: int) -> list[int]:
+def check_shard_holds_episodes(planned: list[int], shard: tuple[int, int] | None, total: int,
+                               unit: int = 1) -> list[int]:
     """``planned``, or a ``ConfigError`` when a shard holds none of the ``total`` episodes (a run of
     nothing would otherwise report 0/0 as complete)."""
     if not planned and shard is not None:
+        rule = f"e % {shard[1]} == i" if unit <= 1 else f"(e // {unit}) % {shard[1]} == i: whole tasks"
         raise ConfigError(f"--shard {shard[0]}/{shard[1]}: none of the {total} episode(s) falls in this shard "
-                          f"(shard i runs the episodes e with e % {shard[1]} == i)")
+                          f"(shard i runs the episodes e with {rule})")
     return planned
 
 
 def planned_indices(config: dict) -> list[int] | None:
-    """The indices a run's config plans (its shard's), or None when the config does not say."""
+    """The indices a run's config plans (its shard's: ``shard_unit`` whole tasks at a time for a batched port),
+    or None when the config does not say."""
     n = config.get("episodes")
     if not isinstance(n, int):
         return None
     shard = config.get("shard")
-    return shard_indices(n, tuple(shard) if shard else None)
+    return shard_indices(n, tuple(shard) if shard else None, int(config.get("shard_unit", 1)))
 
 
 def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, prefer_first: bool = False) -> dict:
