@@ -88,6 +88,9 @@ def test_a_number_the_free_memory_cannot_hold_is_never_built():
     calls = []
     assert fit_worlds(_arrays_up_to(10**6, calls), 4096, "task", "cuda:0", free_bytes=lambda: 500 + 1000 * 100)
     assert calls[-1] == 4096 and len(calls) <= 2 + 14  # steps doubling from 2 % of the 100 estimated
+    # not even the footprint's worlds allocate: the same error, naming none
+    with pytest.raises(WorldsDoNotFit, match="not even one world fits"):
+        fit_worlds(_arrays_up_to(0, []), 4096, "task", "cuda:0", free_bytes=lambda: 10**9)
     # below FOOTPRINT_FROM worlds nothing is measured first
     calls = []
     with pytest.raises(WorldsDoNotFit):

@@ -108,8 +108,14 @@ def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int])
     """``(estimate, reason)`` when the footprint of 1 and 2 worlds says ``n`` worlds cannot fit in the free
     memory (``estimate``: the worlds that would), else None (and nothing is known against trying ``n``)."""
     room = int(free_bytes())
-    one, two = (array_bytes(build(k)) for k in (1, 2))
-    gc.collect()
+    try:
+        one, two = (array_bytes(build(k)) for k in (1, 2))
+    except Exception as exc:  # noqa: BLE001 - not even two worlds allocate: the search says how many do
+        if not out_of_memory(exc):
+            raise
+        return 0, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    finally:
+        gc.collect()
     per_world, fixed = two - one, 2 * one - two
     if per_world <= 0 or fixed + per_world * n <= room:
         return None
