@@ -2,7 +2,9 @@
 for the GPU ports of benchmarks (``metaworld_gpu``, ``libero_gpu``), which need what only the native env knows
 (its compiled model, its resets, its controller's outputs) on the native simulator's own version.
 
-- Client side (``NativeWorker``): started from simseam's interpreter; ``call(command, **kwargs)``.
+- Client side (``NativeWorker``): started from simseam's interpreter; ``call(command, **kwargs)``, and
+  ``map(command, calls)`` for slow answers asked several at once (helper processes of the same kind, one call
+  each: ``helpers_for`` says how many, ``split`` what each gets).
 - Native side (``serve(commands)``): the worker module's ``__main__`` answers ``(command, kwargs)`` requests
   from a table of functions until stdin closes.
 
