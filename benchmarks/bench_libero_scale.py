@@ -12,8 +12,9 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
 ``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. ``--warp DEVICE`` adds, after each CPU case,
 the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
 worlds per task, default the case's N; ``--warp-shards K``: as K processes at once, each ``--shard i/K`` of the
-tasks (a port's shards take whole tasks), merged by ``simseam merge``, the merge timed too): the GPU against the CPU backend in the same run,
-on the same machine.
+tasks (a port's shards take whole tasks), merged by ``simseam merge``, the merge timed too; ``--warp-runs R``: R
+times in a row, the later ones with the caches the first filled): the GPU against the CPU backend in the same
+run, on the same machine.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
@@ -95,7 +96,8 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     timed end to end, and what its run directory says it did. ``shards`` K > 1: K processes at once, each
     ``--shard i/K`` of it, merged by ``simseam merge`` (timed too)."""
     out = workdir / f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
-    log = (log_dir / f"{out.name}.log") if log_dir is not None else None
+    workdir.mkdir(parents=True, exist_ok=True)
+    log = (log_dir / f"{workdir.name}_{out.name}.log") if log_dir is not None else None
     t0 = time.perf_counter()
     if shards == 1:
         _run_all([_eval_argv(preset, policy, n, episodes, tasks, out, warp)], log)
@@ -135,6 +137,9 @@ def main() -> None:
     ap.add_argument("--warp-n", type=int, default=None, help="the port's worlds per task (default: the case's N)")
     ap.add_argument("--warp-shards", type=int, default=1, metavar="K",
                     help="the port's case as K processes at once (--shard i/K each, then simseam merge)")
+    ap.add_argument("--warp-runs", type=int, default=1, metavar="R",
+                    help="the port's case R times in a row: the first with whatever caches there are (on a fresh "
+                         "machine none: LIBERO's resets, compiled kernels), the later ones warm")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
@@ -149,10 +154,11 @@ def main() -> None:
     cases = [(n, args.episodes, args.tasks) for n in args.n] + [(n, None, None) for n in args.full]
     try:
         for n, episodes, tasks in cases:
-            for warp in [None] + ([args.warp] if args.warp else []):
+            for warp, attempt in [(None, 1)] + [(args.warp, a) for a in range(1, args.warp_runs + 1) if args.warp]:
                 k = (args.warp_n or n) if warp else n
-                r = run_case(args.preset, args.policy, k, episodes, tasks, work, args.logs, warp,
+                r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs, warp,
                              args.warp_shards if warp else 1)
+                r["attempt"] = attempt  # 2, 3...: the port's same run again, its caches warm (resets, kernels)
                 results.append(r)
                 print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
                       f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
@@ -164,12 +170,12 @@ def main() -> None:
 
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
-    head = (f"| {'engine':<22} | {'images':<14} | {'N':>3} | {'procs':>5} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
+    head = (f"| {'engine':<22} | {'run':>3} | {'images':<14} | {'N':>3} | {'procs':>5} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
             f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
-        print(f"| {r['engine']:<22} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+        print(f"| {r['engine']:<22} | {r['attempt']:>3} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
               f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
     print(f"\nJSON: {args.out}")
