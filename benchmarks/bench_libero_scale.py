@@ -13,8 +13,10 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
 the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
 worlds per task, default the case's N; ``--warp-shards K``: as K processes at once, each ``--shard i/K`` of the
 tasks (a port's shards take whole tasks), merged by ``simseam merge``, the merge timed too; ``--warp-runs R``: R
-times in a row, the later ones with the caches the first filled): the GPU against the CPU backend in the same
-run, on the same machine.
+times in a row, the later ones with the caches the first filled; ``--mps``: each port case again with the shards
+as clients of one CUDA MPS server, started for the case and stopped after it): the GPU against the CPU backend in
+the same run, on the same machine. Without MPS the GPU runs one process's kernels at a time (it time-slices
+between processes); under MPS the shards' kernels run side by side.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
@@ -24,6 +26,7 @@ backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` o
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -74,10 +77,11 @@ def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: st
     return argv
 
 
-def _run_all(commands: list[list[str]], log: Path | None) -> None:
-    """The commands at once (each its own process); the first that fails stops the benchmark. Several port
-    processes share the cores for their LIBERO reset processes (``SIMSEAM_NATIVE_WORKERS``, unless set)."""
-    env = _env()
+def _run_all(commands: list[list[str]], log: Path | None, env: dict | None = None) -> None:
+    """The commands at once (each its own process; ``env``: theirs, default ``_env()``); the first that fails stops
+    the benchmark. Several port processes share the cores for their LIBERO reset processes
+    (``SIMSEAM_NATIVE_WORKERS``, unless set)."""
+    env = dict(env or _env())
     if len(commands) > 1:
         env.setdefault("SIMSEAM_NATIVE_WORKERS", str(max(1, (len(os.sched_getaffinity(0)) - 1) // len(commands))))
     procs = [subprocess.Popen(c, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -90,21 +94,48 @@ def _run_all(commands: list[list[str]], log: Path | None) -> None:
             raise SystemExit(f"{' '.join(c)} failed (exit {p.returncode}):\n{text[-4000:]}")
 
 
+class Mps:
+    """A CUDA MPS control daemon of this benchmark's own (its pipe and log folders in a temporary folder, so it
+    neither meets nor stops another): ``with Mps() as env:`` runs processes started with ``env`` as its clients.
+    The card's settings (compute mode, clocks) are left as they are; the daemon quits when the block ends."""
+
+    def __init__(self):
+        self.control = shutil.which("nvidia-cuda-mps-control")
+        if self.control is None:
+            raise SystemExit("--mps: nvidia-cuda-mps-control is not on PATH (the driver's MPS tools)")
+
+    def __enter__(self) -> dict:
+        self.dir = Path(tempfile.mkdtemp(prefix="simseam-mps-"))
+        self.env = dict(_env(), CUDA_MPS_PIPE_DIRECTORY=str(self.dir / "pipe"),
+                        CUDA_MPS_LOG_DIRECTORY=str(self.dir / "log"))
+        for sub in ("pipe", "log"):
+            (self.dir / sub).mkdir()
+        subprocess.run([self.control, "-d"], env=self.env, check=True)
+        return self.env
+
+    def __exit__(self, *exc) -> None:
+        subprocess.run([self.control], input="quit\n", text=True, env=self.env, check=False, timeout=60)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
 def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
-             log_dir: Path | None, warp: str | None = None, shards: int = 1) -> dict:
+             log_dir: Path | None, warp: str | None = None, shards: int = 1, env: dict | None = None) -> dict:
     """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
     timed end to end, and what its run directory says it did. ``shards`` K > 1: K processes at once, each
-    ``--shard i/K`` of it, merged by ``simseam merge`` (timed too)."""
-    out = workdir / f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
+    ``--shard i/K`` of it, merged by ``simseam merge`` (timed too); ``env``: the processes' environment (an MPS
+    server's clients: ``Mps``)."""
+    mps = env is not None and "CUDA_MPS_PIPE_DIRECTORY" in env
+    out = workdir / (f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
+                     + ("_mps" if mps else ""))
     workdir.mkdir(parents=True, exist_ok=True)
     log = (log_dir / f"{workdir.name}_{out.name}.log") if log_dir is not None else None
     t0 = time.perf_counter()
     if shards == 1:
-        _run_all([_eval_argv(preset, policy, n, episodes, tasks, out, warp)], log)
+        _run_all([_eval_argv(preset, policy, n, episodes, tasks, out, warp)], log, env)
     else:
         parts = [out.with_name(f"{out.name}_shard{i}") for i in range(shards)]
         _run_all([_eval_argv(preset, policy, n, episodes, tasks, part, warp) + ["--shard", f"{i}/{shards}"]
-                  for i, part in enumerate(parts)], log)
+                  for i, part in enumerate(parts)], log, env)
         _run_all([[sys.executable, "-m", "simseam.cli.main", "merge", "--out", str(out), "--overwrite",
                    *map(str, parts)]], None)
     wall = time.perf_counter() - t0
@@ -114,7 +145,7 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
     step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
     return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
-            "images": "both cameras" if not warp else "policy's only", "num_envs": n, "processes": shards,
+            "images": "both cameras" if not warp else "policy's only", "num_envs": n, "processes": shards, "mps": mps,
             "tasks": len(summary["config"]["tasks"]),
             "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
@@ -140,6 +171,8 @@ def main() -> None:
     ap.add_argument("--warp-runs", type=int, default=1, metavar="R",
                     help="the port's case R times in a row: the first with whatever caches there are (on a fresh "
                          "machine none: LIBERO's resets, compiled kernels), the later ones warm")
+    ap.add_argument("--mps", action="store_true",
+                    help="each port case once more with its shards as clients of one CUDA MPS server")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
@@ -154,13 +187,16 @@ def main() -> None:
     cases = [(n, args.episodes, args.tasks) for n in args.n] + [(n, None, None) for n in args.full]
     try:
         for n, episodes, tasks in cases:
-            for warp, attempt in [(None, 1)] + [(args.warp, a) for a in range(1, args.warp_runs + 1) if args.warp]:
+            runs = [(None, 1, False)] + [(args.warp, a, False) for a in range(1, args.warp_runs + 1) if args.warp]
+            runs += [(args.warp, args.warp_runs + 1, True)] if args.warp and args.mps else []
+            for warp, attempt, mps in runs:
                 k = (args.warp_n or n) if warp else n
-                r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs, warp,
-                             args.warp_shards if warp else 1)
+                with (Mps() if mps else contextlib.nullcontext()) as env:
+                    r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs,
+                                 warp, args.warp_shards if warp else 1, env)
                 r["attempt"] = attempt  # 2, 3...: the port's same run again, its caches warm (resets, kernels)
                 results.append(r)
-                print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
+                print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}{' MPS' if mps else ''}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
                       f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
                 args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
                 args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
@@ -171,13 +207,13 @@ def main() -> None:
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
     head = (f"| {'engine':<22} | {'run':>3} | {'images':<14} | {'N':>3} | {'procs':>5} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
-            f"| {'step ms':>7} | {'success':>7} | {'errors':>6} |")
+            f"| {'step ms':>7} | {'success':>7} | {'errors':>6} | {'MPS':>3} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
         print(f"| {r['engine']:<22} | {r['attempt']:>3} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
-              f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} |")
+              f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} | {'yes' if r['mps'] else 'no':>3} |")
     print(f"\nJSON: {args.out}")
 
 
