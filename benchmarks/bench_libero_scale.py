@@ -171,6 +171,8 @@ def main() -> None:
     ap.add_argument("--warp-runs", type=int, default=1, metavar="R",
                     help="the port's case R times in a row: the first with whatever caches there are (on a fresh "
                          "machine none: LIBERO's resets, compiled kernels), the later ones warm")
+    ap.add_argument("--port-only", action="store_true",
+                    help="the port's cases alone, no CPU baseline (e.g. to fill the caches on a fresh machine)")
     ap.add_argument("--mps", action="store_true",
                     help="each port case once more with its shards as clients of one CUDA MPS server")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
@@ -187,7 +189,7 @@ def main() -> None:
     cases = [(n, args.episodes, args.tasks) for n in args.n] + [(n, None, None) for n in args.full]
     try:
         for n, episodes, tasks in cases:
-            runs = [(None, 1, False)] + [(args.warp, a, False) for a in range(1, args.warp_runs + 1) if args.warp]
+            runs = ([] if args.port_only else [(None, 1, False)]) + [(args.warp, a, False) for a in range(1, args.warp_runs + 1) if args.warp]
             runs += [(args.warp, args.warp_runs + 1, True)] if args.warp and args.mps else []
             for warp, attempt, mps in runs:
                 k = (args.warp_n or n) if warp else n
