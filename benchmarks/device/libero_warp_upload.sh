@@ -239,15 +239,16 @@ check_kept() {  # every file the traced tasks read must be in lsite
 
 # the LIBERO backend as `simseam backends provision libero` would leave it: a venv dir with its record, whose
 # bin/python is this machine's python3 with lsite first on its path (the native worker sets PYTHONPATH to its own
-# directory, so the wrapper prepends lsite); MUJOCO_GL=disable unless the caller set it: the port's native side
+# directory, so the wrapper prepends lsite, then site: robosuite's EGL context imports PyOpenGL, which only site
+# holds, and lsite's mujoco 3.17 comes first); MUJOCO_GL=disable unless the caller set it: the port's native side
 # never renders, the CPU backend's sidecars (bench_libero_scale.py's baseline) draw their cameras with MUJOCO_GL=egl
 # (the .gl debs unpacked)
 provision_libero() {  # PY
   local py="$1" venv
   venv="$("$py" -c 'from simseam.backends.provision import venv_dir; print(venv_dir("libero"))')"
   mkdir -p "$venv/bin"
-  printf '#!/bin/sh\nexport PYTHONPATH="%s${PYTHONPATH:+:$PYTHONPATH}" MUJOCO_GL="${MUJOCO_GL:-disable}"\nexec %s "$@"\n' \
-    "$LW/lsite" "$py" > "$venv/bin/python"
+  printf '#!/bin/sh\nexport PYTHONPATH="%s:%s${PYTHONPATH:+:$PYTHONPATH}" MUJOCO_GL="${MUJOCO_GL:-disable}"\nexec %s "$@"\n' \
+    "$LW/lsite" "$LW/site" "$py" > "$venv/bin/python"
   chmod +x "$venv/bin/python"
   "$py" -c 'import json, sys; json.dump({"name": "libero", "python": sys.argv[2]}, open(sys.argv[1], "w"))' \
     "$venv/simseam-backend.json" "$py + $LW/lsite (libero_warp_upload.sh)"

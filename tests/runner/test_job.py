@@ -163,10 +163,11 @@ def test_a_benchmarks_episode_indices_map_to_their_task_and_seed():
 
 
 def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
-    """``_stepped`` over a benchmark's tasks: the first task's preparation (``recipe.prefetch``: LIBERO's native
-    resets) is waited for before its batch opens; the next task's starts once this one's batch is open, runs
-    while it steps, and is waited for before the next batch opens (and at the end, before the shared worker
-    closes). Fakes stand in for the parts, the batch and the log: only the order is under test."""
+    """``_stepped`` over a benchmark's tasks: the first task is not prepared ahead (its batch opens at once: worlds
+    the device cannot hold fail before any of LIBERO's resets are asked for); the next task's preparation
+    (``recipe.prefetch``: LIBERO's native resets) starts once this one's batch is open, runs while it steps, and is
+    waited for before the next batch opens (and at the end, before the shared worker closes). Fakes stand in for
+    the parts, the batch and the log: only the order is under test."""
     from types import SimpleNamespace
 
     from simseam.runner.job import _stepped
@@ -210,7 +211,7 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     _stepped(job, recipe, batch, 2, Lockstep(), "workers", "here", report, log)
     shared = [e for e in events if e[0] == "prefetch"][0][4]
     assert events == [
-        ("prefetch", 0, (0, 1), 7, shared), ("waited", 0), ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared),
+        ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared),
         ("run", 0, (0, 1), 7), ("close", 0),
         ("waited", 1), ("open", 1, 2), ("prefetch", 2, (4, 5), 3, shared), ("run", 1, (2, 3), 5), ("close", 1),
         ("waited", 2), ("open", 2, 2), ("run", 2, (4, 5), 3), ("close", 2), ("shared closed",)]

@@ -305,9 +305,9 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
         for k, (part, indices, seed) in enumerate(parts):
             m = max(1, min(n, len(indices)))
             rule = lockstep.fit(m)
-            # started while the part before ran; the first part prepares itself, now
-            wait = ahead if ahead is not None else _prefetch(parts, k, shared)
-            ahead = None
+            # started while the part before ran. The first part is not prepared ahead: its batch opens first, so
+            # that worlds the device cannot hold fail at once, before thousands of resets are asked of LIBERO
+            wait, ahead = ahead, None
             if wait is not None:
                 wait()
             with part.open_envs(m, renderer=renderer, envs_per_worker=rule.envs_per_worker,
