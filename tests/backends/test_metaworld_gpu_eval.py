@@ -237,3 +237,45 @@ def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path)
     keep = ("index", "seed", "success", "steps", "task", "episode")
     assert [{k: r[k] for k in keep} for r in _lines(merged)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
     assert json.loads((merged / "summary.json").read_text())["complete"] is True
+
+    # --processes 2: the same two shards run by eval itself, as two processes, and merged into --out
+    both = tmp_path / "processes"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
+                                   "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                   "--processes", "4", "--out", str(both)])  # 4 asked, one per task: 2
+    assert res.exit_code == 0, res.output
+    assert "as 2 process(es)" in res.output and sorted(p.name for p in (both / "shards").iterdir()) == \
+        ["0", "0.log", "1", "1.log"]
+    assert [{k: r[k] for k in keep} for r in _lines(both)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
+    summary = json.loads((both / "summary.json").read_text())
+    assert summary["complete"] is True and summary["per_task"]["push-v3"]["n_episodes"] == 2
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
+                                   "2", "--engine", "mujoco_warp", "--sim-device", "cpu", "--processes", "2",
+                                   "--out", str(both)])
+    assert res.exit_code == 2 and "already holds a run" in res.output  # nothing replaced without --overwrite
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--processes", "2"], "--processes 2 belongs to --engine mujoco_warp"),
+    (["--engine", "mujoco_warp", "--processes", "2", "--shard", "0/2"], "drop --shard"),
+    (["--engine", "mujoco_warp", "--mps"], "--mps shares the GPU among the processes"),
+    (["--engine", "mujoco_warp", "--sim-device", "cpu", "--processes", "2", "--mps"], "not a CUDA device"),
+])
+def test_processes_and_mps_against_the_other_options_are_one_line_errors(tmp_path, extra, message):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--out", str(out), *extra])
+    assert res.exit_code == 2 and message in res.output and not out.exists(), res.output
+
+
+def test_a_failed_process_is_named_with_its_error(tmp_path):
+    """``--processes``: a process that fails (here each: a checkpoint that is not there, refused before its run
+    starts) is named with the last line of its console, and the run says that none started (exit 2)."""
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", f"lerobot:{tmp_path / 'no_such_checkpoint'}",
+                                   "--tasks", "reach-v3,push-v3", "--episodes", "2", "--engine", "mujoco_warp",
+                                   "--sim-device", "cpu", "--processes", "2", "--out", str(out)])
+    assert res.exit_code == 2, res.output
+    for i in range(2):
+        assert f"process {i}/2 failed (exit 2): " in res.output
+    assert res.output.count("no_such_checkpoint: no such directory") == 2
+    assert "no process started its run" in res.output and not (out / "summary.json").exists()

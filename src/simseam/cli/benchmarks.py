@@ -11,6 +11,7 @@ from rich.table import Table
 from simseam.cli.common import ENVS_PER_WORKER_HELP, POLICY_GROUPS_HELP, POLICY_READY_HELP, EvalProgress, \
     check_lockstep, check_seed, checked_ci_width, ci_width_line, console, episodes_guard, err_console, \
     fail, never_started, out_path, policy_kwargs, print_notes, redacted, CI_WIDTH_HELP
+from simseam.cli.eval_processes import eval_processes, shard_args
 from simseam.cli.report import report_after_run
 from simseam.runner.evaluate import PRESETS
 from simseam.seam import ConfigError, SimseamError
@@ -91,6 +92,14 @@ def benchmarks_list(name: str = typer.Argument(None, help="One backend (default:
         fail(exc)
 
 
+PROCESSES_OPTION = typer.Option(1, "--processes", min=1, help="--engine: K processes at once on the device, each "
+                                "stepping whole tasks (--shard i/K into OUT/shards/i), merged into --out when they "
+                                "end; on CUDA add --mps.")
+MPS_OPTION = typer.Option(False, "--mps", help="--processes on CUDA: the processes as clients of a CUDA MPS server of "
+                          "this run's own, so that their kernels run side by side (without it the GPU runs one "
+                          "process's kernels at a time).")
+
+
 def eval_command(
     preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
     policy: str = typer.Option(..., "--policy", help="Policy spec: scripted (Meta-World's experts), random, zero, "
@@ -127,13 +136,14 @@ def eval_command(
                                     "HOST:PORT, or local; each Ray worker owns a sidecar of the backend and its own "
                                     "policy; --num-envs then counts Ray workers (default: the cluster's CPUs)."),
     ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
+    processes: int = PROCESSES_OPTION,
+    mps: bool = MPS_OPTION,
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.runner.evaluate import check_engine, eval_config, eval_indices, eval_recipe, preset, resolve_tasks
+    from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks
     from simseam.runner.job import Job
-    from simseam.runner.provenance import for_benchmark
     from simseam.runner.run_dir import RunDir, default_run_dir
-    from simseam.runner.sharding import check_shard_holds_episodes, parse_shard
+    from simseam.runner.sharding import parse_shard
 
     check_seed(seed)
     if resume and out is None:
@@ -145,19 +155,19 @@ def eval_command(
         check_engine(p, engine)
         _check_executor(engine, sim_device, ray_address, video, lockstep_given=(policy_groups != 1 or policy_ready
                                                                                 or envs_per_worker != 1))
+        _check_processes(processes, mps, engine, sim_device, shard)
         task_list = resolve_tasks(p, _task_subset(tasks))
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out = out is None
         out = default_run_dir() if default_out else out
-        whole_tasks = shard_ik is not None and engine is not None  # a port's task is one batch: shards take tasks
-        config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
-                  **({"shard": list(shard_ik)} if shard_ik is not None else {}),
-                  **({"shard_unit": n} if whole_tasks else {}),
-                  **({"engine": engine} if engine is not None else {})}
-        planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik, whole_tasks), shard_ik,
-                                             len(task_list) * n, n if whole_tasks else 1)
-        config["provenance"] = for_benchmark(p.backend, policy)
+        if processes > 1:
+            eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
+                                         sim_device=sim_device, device=device, n_action_steps=n_action_steps,
+                                         num_envs=num_envs), len(task_list), n, out, default_out, processes, mps,
+                           overwrite, resume)
+            return
+        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
@@ -169,6 +179,24 @@ def eval_command(
     console.print(_eval_start(p, job, executor, engine, n, config, (
         f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else "")))
     _eval_job(job, executor, p, engine)
+
+
+def _eval_plan(p, policy: str, task_list: list[str], n: int, seed: int, video: bool, ci_width: float,
+               shard_ik: tuple[int, int] | None, engine: str | None) -> tuple[dict, list[int]]:
+    """An eval's config (what its run.json records) and the episode indices it plans (its shard's)."""
+    from simseam.runner.evaluate import eval_config, eval_indices
+    from simseam.runner.provenance import for_benchmark
+    from simseam.runner.sharding import check_shard_holds_episodes
+
+    whole_tasks = shard_ik is not None and engine is not None  # a port's task is one batch: shards take tasks
+    config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
+              **({"shard": list(shard_ik)} if shard_ik is not None else {}),
+              **({"shard_unit": n} if whole_tasks else {}),
+              **({"engine": engine} if engine is not None else {})}
+    planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik, whole_tasks), shard_ik,
+                                         len(task_list) * n, n if whole_tasks else 1)
+    config["provenance"] = for_benchmark(p.backend, policy)
+    return config, planned
 
 
 def _eval_start(p, job, executor, engine: str | None, n: int, config: dict, shard: str) -> str:
@@ -271,6 +299,20 @@ def _check_executor(engine: str | None, sim_device: str | None, ray_address: str
                           "--policy-groups, --policy-ready and --envs-per-worker")
     if sim_device is not None and engine is None:
         raise ConfigError("--sim-device belongs to --engine mujoco_warp")
+
+
+def _check_processes(processes: int, mps: bool, engine: str | None, sim_device: str | None,
+                     shard: str | None) -> None:
+    """``--processes`` and ``--mps`` against the other options (a ``ConfigError`` naming the clash)."""
+    if processes > 1 and engine is None:
+        raise ConfigError(f"--processes {processes} belongs to --engine mujoco_warp (a CPU backend's environments are "
+                          "processes already: --num-envs)")
+    if processes > 1 and shard is not None:
+        raise ConfigError(f"--processes {processes} runs the shards itself (--shard i/{processes} each); drop --shard")
+    if mps and processes < 2:
+        raise ConfigError("--mps shares the GPU among the processes of --processes K (K > 1)")
+    if mps and sim_device is not None and not sim_device.startswith("cuda"):
+        raise ConfigError(f"--mps is CUDA's; --sim-device {sim_device} is not a CUDA device")
 
 
 def _task_subset(tasks: str | None) -> list[str] | None:
