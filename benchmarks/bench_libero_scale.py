@@ -11,11 +11,10 @@ steps; the preset's 10 settle steps per episode are counted separately as ``sett
 
 ``--full N`` adds the whole protocol (10 tasks x 50 episodes) at N. ``--warp DEVICE`` adds, after each CPU case,
 the same episodes on the MuJoCo Warp port (``--engine mujoco_warp --sim-device DEVICE``; ``--warp-n K``: its
-worlds per task, default the case's N; ``--warp-shards K``: as K processes at once, each ``--shard i/K`` of the
-tasks (a port's shards take whole tasks), merged by ``simseam merge``, the merge timed too; ``--warp-runs R``: R
-times in a row, the later ones with the caches the first filled; ``--mps``: each port case again with the shards
-as clients of one CUDA MPS server, started for the case and stopped after it): the GPU against the CPU backend in
-the same run, on the same machine. Without MPS the GPU runs one process's kernels at a time (it time-slices
+worlds per task, default the case's N; ``--warp-shards K``: ``--processes K``, K processes at once, each taking
+whole tasks, merged by the command itself; ``--warp-runs R``: R times in a row, the later ones with the caches the
+first filled; ``--mps``: the port's case once more with ``--mps``, the processes as clients of a CUDA MPS server
+of the run's own): the GPU against the CPU backend in the same run, on the same machine. Without MPS the GPU runs one process's kernels at a time (it time-slices
 between processes); under MPS the shards' kernels run side by side.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON
@@ -26,7 +25,6 @@ backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` o
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import platform
@@ -77,67 +75,28 @@ def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: st
     return argv
 
 
-def _run_all(commands: list[list[str]], log: Path | None, env: dict | None = None) -> None:
-    """The commands at once (each its own process; ``env``: theirs, default ``_env()``); the first that fails stops
-    the benchmark. Several port processes share the cores for their LIBERO reset processes
-    (``SIMSEAM_NATIVE_WORKERS``, unless set)."""
-    env = dict(env or _env())
-    if len(commands) > 1:
-        env.setdefault("SIMSEAM_NATIVE_WORKERS", str(max(1, (len(os.sched_getaffinity(0)) - 1) // len(commands))))
-    procs = [subprocess.Popen(c, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-             for c in commands]
-    outputs = [p.communicate()[0] for p in procs]
+def _run(command: list[str], log: Path | None) -> None:
+    """The command in its own process; its failure stops the benchmark."""
+    proc = subprocess.run(command, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     if log is not None:
-        log.write_text("\n".join(outputs))
-    for c, p, text in zip(commands, procs, outputs):
-        if p.returncode != 0:
-            raise SystemExit(f"{' '.join(c)} failed (exit {p.returncode}):\n{text[-4000:]}")
-
-
-class Mps:
-    """A CUDA MPS control daemon of this benchmark's own (its pipe and log folders in a temporary folder, so it
-    neither meets nor stops another): ``with Mps() as env:`` runs processes started with ``env`` as its clients.
-    The card's settings (compute mode, clocks) are left as they are; the daemon quits when the block ends."""
-
-    def __init__(self):
-        self.control = shutil.which("nvidia-cuda-mps-control")
-        if self.control is None:
-            raise SystemExit("--mps: nvidia-cuda-mps-control is not on PATH (the driver's MPS tools)")
-
-    def __enter__(self) -> dict:
-        self.dir = Path(tempfile.mkdtemp(prefix="simseam-mps-"))
-        self.env = dict(_env(), CUDA_MPS_PIPE_DIRECTORY=str(self.dir / "pipe"),
-                        CUDA_MPS_LOG_DIRECTORY=str(self.dir / "log"))
-        for sub in ("pipe", "log"):
-            (self.dir / sub).mkdir()
-        subprocess.run([self.control, "-d"], env=self.env, check=True)
-        return self.env
-
-    def __exit__(self, *exc) -> None:
-        subprocess.run([self.control], input="quit\n", text=True, env=self.env, check=False, timeout=60)
-        shutil.rmtree(self.dir, ignore_errors=True)
+        log.write_text(proc.stdout)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(command)} failed (exit {proc.returncode}):\n{proc.stdout[-4000:]}")
 
 
 def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
-             log_dir: Path | None, warp: str | None = None, shards: int = 1, env: dict | None = None) -> dict:
+             log_dir: Path | None, warp: str | None = None, shards: int = 1, mps: bool = False) -> dict:
     """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
-    timed end to end, and what its run directory says it did. ``shards`` K > 1: K processes at once, each
-    ``--shard i/K`` of it, merged by ``simseam merge`` (timed too); ``env``: the processes' environment (an MPS
-    server's clients: ``Mps``)."""
-    mps = env is not None and "CUDA_MPS_PIPE_DIRECTORY" in env
+    timed end to end, and what its run directory says it did. ``shards`` K > 1: ``--processes K`` (K processes of
+    whole tasks at once, merged by the command itself); ``mps``: with ``--mps``."""
     out = workdir / (f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
                      + ("_mps" if mps else ""))
     workdir.mkdir(parents=True, exist_ok=True)
     log = (log_dir / f"{workdir.name}_{out.name}.log") if log_dir is not None else None
+    argv = _eval_argv(preset, policy, n, episodes, tasks, out, warp)
+    argv += (["--processes", str(shards)] if shards > 1 else []) + (["--mps"] if mps else [])
     t0 = time.perf_counter()
-    if shards == 1:
-        _run_all([_eval_argv(preset, policy, n, episodes, tasks, out, warp)], log, env)
-    else:
-        parts = [out.with_name(f"{out.name}_shard{i}") for i in range(shards)]
-        _run_all([_eval_argv(preset, policy, n, episodes, tasks, part, warp) + ["--shard", f"{i}/{shards}"]
-                  for i, part in enumerate(parts)], log, env)
-        _run_all([[sys.executable, "-m", "simseam.cli.main", "merge", "--out", str(out), "--overwrite",
-                   *map(str, parts)]], None)
+    _run(argv, log)
     wall = time.perf_counter() - t0
     summary = json.loads((out / "summary.json").read_text())
     rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
@@ -167,14 +126,14 @@ def main() -> None:
                     help="also run each case on the MuJoCo Warp port on this Warp device (cuda:0, cpu)")
     ap.add_argument("--warp-n", type=int, default=None, help="the port's worlds per task (default: the case's N)")
     ap.add_argument("--warp-shards", type=int, default=1, metavar="K",
-                    help="the port's case as K processes at once (--shard i/K each, then simseam merge)")
+                    help="the port's case as --processes K (K processes of whole tasks at once, merged)")
     ap.add_argument("--warp-runs", type=int, default=1, metavar="R",
                     help="the port's case R times in a row: the first with whatever caches there are (on a fresh "
                          "machine none: LIBERO's resets, compiled kernels), the later ones warm")
     ap.add_argument("--port-only", action="store_true",
                     help="the port's cases alone, no CPU baseline (e.g. to fill the caches on a fresh machine)")
     ap.add_argument("--mps", action="store_true",
-                    help="each port case once more with its shards as clients of one CUDA MPS server")
+                    help="the port's case once more with --mps (its processes as clients of a CUDA MPS server)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
@@ -193,9 +152,8 @@ def main() -> None:
             runs += [(args.warp, args.warp_runs + 1, True)] if args.warp and args.mps else []
             for warp, attempt, mps in runs:
                 k = (args.warp_n or n) if warp else n
-                with (Mps() if mps else contextlib.nullcontext()) as env:
-                    r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs,
-                                 warp, args.warp_shards if warp else 1, env)
+                r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs, warp,
+                             args.warp_shards if warp else 1, mps)
                 r["attempt"] = attempt  # 2, 3...: the port's same run again, its caches warm (resets, kernels)
                 results.append(r)
                 print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}{' MPS' if mps else ''}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
