@@ -14,7 +14,8 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
   env-steps/s; over the tasks, all their steps over all their timed seconds.
 - ``mt50``: the whole evaluation a user waits for: every task, ``--episodes`` episodes (seeds 0..E-1, one
   world each) of ``max_path_length`` steps, building, resetting and stepping timed together (wall), the
-  tasks split over ``--mt50-procs`` processes sharing the device.
+  tasks split over ``--mt50-procs`` processes sharing the device (``--mps``: as clients of a CUDA MPS server of
+  the benchmark's own, so that their kernels run side by side).
 - with ``--cameras corner,gripperPOV --image 128``, the same with those cameras rendered every step, beside
   the state-only sections (``--no-state`` leaves those out): ``cpu_cameras``, the CPU backend's per-env code
   with ``camera: [corner, gripperPOV]`` at ``--image``² (each step observes both images: Meta-World's
@@ -210,12 +211,23 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None) -> dict[str
     return out
 
 
-def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None) -> dict[str, Any]:
+def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None, mps: bool = False) -> dict[str, Any]:
+    """``mps``: the processes as clients of a CUDA MPS server of the section's own (``runner.processes``)."""
+    import contextlib
+
+    from simseam.runner.processes import MpsServer
+
+    with MpsServer() if mps else contextlib.nullcontext() as env:
+        out = _mt50_timed(tasks, episodes, procs, device, env)
+    return dict(out, mps=mps)
+
+
+def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None) -> dict[str, Any]:
     t0 = time.perf_counter()
     if procs <= 1:
         per_task = mt50_worker(tasks, episodes, device)
     else:
-        env = dict(os.environ)
+        env = dict(env or os.environ)
         workers = [subprocess.Popen([sys.executable, __file__, "--mt50-worker", ",".join(tasks[j::procs]),
                                      "--episodes", str(episodes), *(["--device", device] if device else [])],
                                     stdout=subprocess.PIPE, text=True, env=env) for j in range(min(procs, len(tasks)))]
@@ -268,6 +280,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cpu-chunk", type=int, default=50)
     ap.add_argument("--episodes", type=int, default=50, help="per task, for the whole-MT50 wall time (0 skips)")
     ap.add_argument("--mt50-procs", type=int, default=1)
+    ap.add_argument("--mps", action="store_true", help="the mt50 section's processes as clients of a CUDA MPS server")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
@@ -320,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                args.image))
         save()
     if args.episodes and not args.no_state:
-        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device)
+        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps)
         save()
     print_table(doc)
     print(f"wrote {args.out}")

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The Meta-World-on-Warp measurements on the lent GPU machine, after metaworld_upload.sh's install (one call):
-#   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first)
+#   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first; then MT50 x 50 in
+#     MT50_PROCS processes (default 8), MT50_MPS=1: as clients of a CUDA MPS server; MT50_LIMIT=0 skips it)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes (FID_JOBS); a CUDA smoke
@@ -27,7 +28,7 @@ case "${1:-}" in
         --device cuda:0 --out "$OUT/smoke_fidelity.json" --overwrite 2>&1 | quiet | tee "$OUT/smoke.log" | tail -3
     fi
     [ "${MT50_LIMIT:-200}" = 0 ] || timeout "${MT50_LIMIT:-200}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
-      --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs 8 \
+      --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${MT50_PROCS:-8}" ${MT50_MPS:+--mps} \
       --out "$OUT/throughput_mt50x50.json" --overwrite 2>&1 | quiet > "$OUT/mt50.log"; tail -5 "$OUT/mt50.log"
     ;;
   fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
