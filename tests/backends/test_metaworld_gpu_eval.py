@@ -253,6 +253,15 @@ def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path)
                                    "2", "--engine", "mujoco_warp", "--sim-device", "cpu", "--processes", "2",
                                    "--out", str(both)])
     assert res.exit_code == 2 and "already holds a run" in res.output  # nothing replaced without --overwrite
+    resume = ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes", "2", "--engine",
+              "mujoco_warp", "--sim-device", "cpu", "--processes", "2", "--resume", "--out"]
+    res = CliRunner().invoke(app, [*resume, str(both)])  # every shard complete: nothing runs again, the same run
+    assert res.exit_code == 0, res.output
+    assert [{k: r[k] for k in keep} for r in _lines(both)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
+    before = (runs["whole"] / "episodes.jsonl").read_text()
+    res = CliRunner().invoke(app, [*resume, str(runs["whole"])])  # a one-process run: its episodes are not in shards
+    assert res.exit_code == 2 and "holds a run of one process" in res.output
+    assert (runs["whole"] / "episodes.jsonl").read_text() == before
 
 
 @pytest.mark.parametrize("extra, message", [

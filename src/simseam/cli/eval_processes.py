@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -24,7 +25,7 @@ def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, d
 
     k = min(processes, n_tasks)
     try:
-        _check_out(out, overwrite, resume)
+        _check_out(out, k, overwrite, resume)
         server = P.MpsServer() if mps else None
     except SimseamError as exc:
         fail(exc)
@@ -58,14 +59,26 @@ def shard_args(preset: str, policy: str, seed: int, engine: str, ci_width: float
     return args
 
 
-def _check_out(out: Path, overwrite: bool, resume: bool) -> None:
-    from simseam.runner.run_dir import RUN_FILES, check_writable
+def _check_out(out: Path, k: int, overwrite: bool, resume: bool) -> None:
+    """``out`` may take the K processes' run: empty, or ``--overwrite``, or ``--resume`` of a run of K processes
+    (its episodes are all in its shards, so the merge loses none)."""
+    from simseam.runner import processes as P
+    from simseam.runner.run_dir import CONFIG_FILE, RUN_FILES, check_writable
 
     check_writable(out)
     held = [f for f in RUN_FILES if (out / f).exists()]
     if held and not (overwrite or resume):
         raise ConfigError(f"--out {out} already holds a run ({', '.join(held)}); pass --overwrite to replace it, "
                           "--resume to continue it, or choose another directory")
+    if resume and not overwrite and held:
+        ran = [json.loads((d / CONFIG_FILE).read_text()).get("shard") for d in sorted((out / P.SHARDS).glob("*"))
+               if d.name.isdigit() and (d / CONFIG_FILE).exists()]
+        if not ran:
+            raise ConfigError(f"--resume --processes: {out} holds a run of one process; resume it without --processes")
+        before = {s[1] for s in ran if s}
+        if before != {k}:
+            raise ConfigError(f"--resume --processes {k}: {out} was run as {', '.join(map(str, sorted(before)))} "
+                              f"process(es); resume it with that --processes (at most one per task)")
 
 
 def _keep(shard: Path, overwrite: bool, resume: bool) -> list[str]:
