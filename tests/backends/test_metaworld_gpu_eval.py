@@ -110,6 +110,25 @@ def test_an_image_policy_runs_on_warp_with_the_cpu_backends_cameras(tmp_path, mo
         assert np.abs(first - last).mean() > 0.5  # the arm moved between the first step and the last
 
 
+def test_image_size_draws_the_cameras_at_that_size(tmp_path, monkeypatch):
+    """``--image-size 64``: the policy's camera comes at 64 x 64 (the port's ray tracer), the expert still
+    succeeds, and run.json records the size."""
+    from simseam.policies.base import POLICIES
+
+    monkeypatch.setitem(POLICIES, "image_expert", _ImageExpert)
+    _ImageExpert.SEEN.clear()
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "image_expert", "--tasks", TASK, "--episodes",
+                                   "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                   "--image-size", "64", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    seen = [images for episode in _ImageExpert.SEEN for images in episode]
+    assert seen and all(images["camera1"].shape == (64, 64, 3) for images in seen)
+    run = json.loads((out / "run.json").read_text())
+    assert run["task_config"]["image_size"] == [64, 64]
+    assert all(r["success"] for r in _lines(out))
+
+
 def test_episode_results_do_not_depend_on_the_worlds(tmp_path):
     """Episodes 0..3 on 1 world and on 3 (the shorter episodes end first, the next start in their worlds):
     the same seed, steps, success and reward per episode."""

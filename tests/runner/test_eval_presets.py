@@ -10,6 +10,7 @@ import pytest
 
 from simseam.runner import evaluate
 from simseam.runner.evaluate import eval_config, preset
+from simseam.seam import ConfigError
 from simseam.runner.job import Executor, Job, execute
 from simseam.runner.recipe import BenchmarkRecipe
 
@@ -115,3 +116,16 @@ def test_an_eval_turns_on_the_object_state_for_a_policy_that_reads_it(monkeypatc
     with pytest.raises(_Stop):
         execute(job, Executor("inline"))
     assert opened[0]["environment_state"] is True and opened[0]["task"] == "libero_spatial/0"
+
+
+def test_image_size_makes_a_non_standard_run_of_a_preset_whose_cameras_are_sized():
+    from simseam.runner.evaluate import with_image_size
+
+    p = preset("libero_spatial")
+    tasks = [f"libero_spatial/{i}" for i in range(10)]
+    assert eval_config(p, "zero", tasks, 50, 0, False)["standard"] is True
+    sized = eval_config(with_image_size(p, 128), "zero", tasks, 50, 0, False)
+    assert sized["standard"] is False and sized["task_config"]["image_size"] == [128, 128]
+    assert with_image_size(p, None) is p and "image_size" not in p.config  # the preset itself is untouched
+    with pytest.raises(ConfigError, match="aloha backend of preset aloha_insertion does not size its cameras"):
+        with_image_size(preset("aloha_insertion"), 128)

@@ -95,6 +95,9 @@ def benchmarks_list(name: str = typer.Argument(None, help="One backend (default:
 PROCESSES_OPTION = typer.Option(1, "--processes", min=1, help="--engine: K processes at once on the device, each "
                                 "stepping whole tasks (--shard i/K into OUT/shards/i), merged into --out when they "
                                 "end; on CUDA add --mps.")
+IMAGE_SIZE_OPTION = typer.Option(None, "--image-size", min=8, max=4096, metavar="N", help="The cameras drawn at N x N "
+                                 "instead of the preset's size (a policy trained on other images; a non-standard "
+                                 "run, as run.json records).")
 MPS_OPTION = typer.Option(False, "--mps", help="--processes on CUDA: the processes as clients of a CUDA MPS server of "
                           "this run's own, so that their kernels run side by side (without it the GPU runs one "
                           "process's kernels at a time).")
@@ -138,9 +141,10 @@ def eval_command(
     ci_width: float = typer.Option(0.05, "--ci-width", help=CI_WIDTH_HELP),
     processes: int = PROCESSES_OPTION,
     mps: bool = MPS_OPTION,
+    image_size: int = IMAGE_SIZE_OPTION,
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks
+    from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks, with_image_size
     from simseam.runner.job import Job
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import parse_shard
@@ -151,7 +155,7 @@ def eval_command(
     try:
         shard_ik = parse_shard(shard) if shard is not None else None
         check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
-        p = preset(preset_name)
+        p = with_image_size(preset(preset_name), image_size)
         check_engine(p, engine)
         _check_executor(engine, sim_device, ray_address, video, lockstep_given=(policy_groups != 1 or policy_ready
                                                                                 or envs_per_worker != 1))
@@ -159,12 +163,11 @@ def eval_command(
         task_list = resolve_tasks(p, _task_subset(tasks))
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
-        default_out = out is None
-        out = default_run_dir() if default_out else out
+        default_out, out = out is None, out or default_run_dir()
         if processes > 1:
             eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
                                          sim_device=sim_device, device=device, n_action_steps=n_action_steps,
-                                         num_envs=num_envs), len(task_list), n, out, default_out, processes, mps,
+                                         num_envs=num_envs, image_size=image_size), len(task_list), n, out, default_out, processes, mps,
                            overwrite, resume)
             return
         config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine)
@@ -172,8 +175,7 @@ def eval_command(
     except SimseamError as exc:
         fail(exc)
     todo = run_dir.left(planned)
-    executor = _eval_executor(len(todo), n, num_envs, engine, ray_address,
-                              (policy_groups, policy_ready, envs_per_worker))
+    executor = _eval_executor(len(todo), n, num_envs, engine, ray_address, (policy_groups, policy_ready, envs_per_worker))
     job = Job(eval_recipe(p, task_list, n, engine, sim_device), policy, policy_kwargs(device, n_action_steps), todo,
               seed, run_dir, video)
     console.print(_eval_start(p, job, executor, engine, n, config, (

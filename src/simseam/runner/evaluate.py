@@ -20,7 +20,7 @@ engine's port, Ray).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 from simseam import registry
@@ -129,10 +129,26 @@ def resolve_tasks(p: Preset, only: list[str] | None) -> list[str]:
     return tasks
 
 
+#: the backends whose config sizes their cameras (``image_size``: [height, width])
+SIZED_CAMERAS = ("libero", "maniskill", "metaworld", "pusht")
+
+
+def with_image_size(p: Preset, size: int | None) -> Preset:
+    """``p`` with its cameras drawn at ``size`` x ``size`` (``simseam eval --image-size``: a non-standard run, as
+    its config records), or ``p`` as it is (None)."""
+    if size is None:
+        return p
+    if p.backend not in SIZED_CAMERAS:
+        raise ConfigError(f"--image-size: the {p.backend} backend of preset {p.name} does not size its cameras "
+                          f"(the presets of {', '.join(SIZED_CAMERAS)} do)")
+    return replace(p, config={**p.config, "image_size": [int(size), int(size)]})
+
+
 def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: int, video: bool) -> dict:
     """What run.json records (``--resume`` requires the same)."""
     return {"preset": p.name, "backend": p.backend, "protocol": p.protocol, "standard": episodes == p.episodes
-            and (p.tasks is None or list(p.tasks) == tasks), "policy": policy, "tasks": tasks,
+            and (p.tasks is None or list(p.tasks) == tasks) and p.config == PRESETS[p.name].config,
+            "policy": policy, "tasks": tasks,
             "episodes": episodes * len(tasks), "episodes_per_task": episodes, "seed": seed, "video": video,
             "task_config": p.config, **({"per_task_config": p.per_task} if p.per_task else {})}
 
