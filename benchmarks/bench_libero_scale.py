@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+EXTRA: list[str] = []  # options every eval gets (--image-size)
 
 
 def machine() -> dict:
@@ -65,7 +66,7 @@ def _env() -> dict:
 def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, out: Path,
                warp: str | None) -> list[str]:
     argv = [sys.executable, "-m", "simseam.cli.main", "eval", preset, "--policy", policy, "--num-envs", str(n),
-            "--out", str(out), "--overwrite"]
+            "--out", str(out), "--overwrite", *EXTRA]
     if warp:
         argv += ["--engine", "mujoco_warp", "--sim-device", warp]
     if episodes:
@@ -104,7 +105,7 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
     step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
     return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
-            "images": "both cameras" if not warp else "policy's only", "num_envs": n, "processes": shards, "mps": mps,
+            "images": ("both cameras" if not warp else "policy's only") + (f" at {EXTRA[1]}" if EXTRA else ""), "num_envs": n, "processes": shards, "mps": mps,
             "tasks": len(summary["config"]["tasks"]),
             "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
@@ -134,10 +135,13 @@ def main() -> None:
                     help="the port's cases alone, no CPU baseline (e.g. to fill the caches on a fresh machine)")
     ap.add_argument("--mps", action="store_true",
                     help="the port's case once more with --mps (its processes as clients of a CUDA MPS server)")
+    ap.add_argument("--image-size", type=int, default=None, metavar="N",
+                    help="every case's cameras at N x N (simseam eval --image-size; e.g. a policy trained at 128)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
     args = ap.parse_args()
+    EXTRA.extend(["--image-size", str(args.image_size)] if args.image_size else [])
 
     info = machine()
     results = []
