@@ -4,7 +4,8 @@ Each case runs the real command line in a subprocess (``python -m simseam.cli.ma
 --policy zero --num-envs N ...`` into a fresh run directory) and measures its wall time: the workers'
 sidecar boots, task changes, every episode (state + the preset's two 256x256 cameras each step) and
 the summary. From the run's own episode log it reports episodes/hour and env-steps/s (the policy's
-steps; the preset's 10 settle steps per episode are counted separately as ``settle_steps``).
+steps; the preset's 10 settle steps per episode are counted separately as ``settle_steps``), the mean step and
+the policy's share of a step (``policy``: its mean time per step over that plus the environment's step).
 
     python benchmarks/bench_libero_scale.py --n 1 2 --episodes 2 --tasks libero_spatial/0,libero_spatial/1
     python benchmarks/bench_libero_scale.py --n 8 16 --episodes 5 --full 16     # the GPU machine
@@ -104,6 +105,8 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     steps = sum(e["steps"] for e in rows)
     settle = int(summary["config"]["task_config"].get("settle_steps", 0)) * len(rows)
     step_ms = [e["step_latency_ms"]["mean"] for e in rows if e["step_latency_ms"]["mean"] is not None]
+    # the policy's share: its time per step (a batch's, shared by the episodes it acted for) over the step's and its
+    policy_ms = [e["policy_latency_ms"]["mean"] for e in rows if (e.get("policy_latency_ms") or {}).get("mean") is not None]
     return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
             "images": ("both cameras" if not warp else "policy's only") + (f" at {EXTRA[1]}" if EXTRA else ""), "num_envs": n, "processes": shards, "mps": mps,
             "tasks": len(summary["config"]["tasks"]),
@@ -111,6 +114,9 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),
             "episodes_per_hour": round(len(rows) / wall * 3600.0, 1), "env_steps_per_s": round(steps / wall, 1),
             "mean_step_ms": round(sum(step_ms) / len(step_ms), 2) if step_ms else None,
+            "mean_policy_ms": round(sum(policy_ms) / len(policy_ms), 3) if policy_ms else None,
+            "policy_share": (round(sum(policy_ms) / (sum(policy_ms) + sum(step_ms)), 4)
+                             if policy_ms and len(policy_ms) == len(step_ms) else None),
             "complete": summary["complete"]}
 
 
@@ -171,14 +177,18 @@ def main() -> None:
     print(f"\n{args.preset}, policy {args.policy}, {info['cores']} cores, {info['cpu']}"
           + (f", {info['gpu']}" if info["gpu"] else "") + f", MUJOCO_GL={info['mujoco_gl']}")
     head = (f"| {'engine':<22} | {'run':>3} | {'images':<14} | {'N':>3} | {'procs':>5} | {'tasks':>5} | {'episodes':>8} | {'wall s':>8} | {'episodes/h':>10} | {'env-steps/s':>11} "
-            f"| {'step ms':>7} | {'success':>7} | {'errors':>6} | {'MPS':>3} |")
+            f"| {'step ms':>7} | {'policy':>6} | {'success':>7} | {'errors':>6} | {'MPS':>3} |")
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
         print(f"| {r['engine']:<22} | {r['attempt']:>3} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
-              f"{(r['mean_step_ms'] or 0):>7.1f} | {r['successes']:>7} | {r['errors']:>6} | {'yes' if r['mps'] else 'no':>3} |")
+              f"{(r['mean_step_ms'] or 0):>7.1f} | {_share(r):>6} | {r['successes']:>7} | {r['errors']:>6} | {'yes' if r['mps'] else 'no':>3} |")
     print(f"\nJSON: {args.out}")
+
+
+def _share(r: dict) -> str:
+    return "-" if r.get("policy_share") is None else f"{100 * r['policy_share']:.1f}%"
 
 
 if __name__ == "__main__":
