@@ -37,6 +37,9 @@ def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, d
         point_latest(out)
     console.print(f"eval [bold]{escape(p.name)}[/] as {k} process(es) of whole tasks{' under CUDA MPS' if mps else ''}"
                   f" -> {escape(str(out))} (each: {escape(str(out / P.SHARDS))}/i, its console i.log)")
+    device = args[args.index("--sim-device") + 1] if "--sim-device" in args else ""
+    if device.startswith("cuda") and not mps:
+        console.print("[dim]without --mps the GPU runs one process's kernels at a time (time slicing)[/]")
     total, interrupted = n_tasks * episodes, False
     try:
         with sigterm_as_interrupt(), (server if server is not None else _Nothing()) as env, _progress() as bar:
