@@ -37,15 +37,20 @@ def trace(task: str, seed: int, steps: int, engine: str, device: str, worker) ->
             action = np.asarray(obs[OBS_EXPERT_ACTION], np.float32)[None]
             result = batch.step([0], action)
             obs, s = result.observations[0], world.physics.goal_state()
-            xpos = np.asarray(s.xpos if not hasattr(s.xpos, "get") else s.xpos.get())[0]
+            xpos = _host(s.xpos)[0]
             out.append({"step": t, "action": action[0].round(4).tolist(),
-                        "predicates": np.asarray(world.goal.values(s)).tolist()[0],
-                        "contact_tests": np.asarray(world.goal.touch(s)).tolist()[0],
+                        "predicates": _host(world.goal.values(s)).tolist()[0],
+                        "contact_tests": _host(world.goal.touch(s)).tolist()[0],
                         "objects": {o: xpos[i].round(5).tolist() for o, i in bodies.items()},
                         "success": bool(result.terminated[0])})
             if result.terminated[0] or result.truncated[0]:
                 break
     return out
+
+
+def _host(a) -> np.ndarray:
+    """A host copy of ``a`` (NumPy, or CuPy on a CUDA device)."""
+    return a.get() if hasattr(a, "get") else np.asarray(a)
 
 
 def main() -> None:
