@@ -6,9 +6,10 @@ steps, the trace says what happened in between (a grasp that slipped, a contact 
     .venv/bin/python benchmarks/libero_warp_goal_trace.py --task libero_spatial/0 --seed 32 \\
         [--steps 240] [--sim-device cpu] [--json benchmarks/results/libero_warp_goal_trace.json]
 
-Writes JSON (``engines``: per engine the steps, each with the expert's action, the predicates' and contact tests'
-truth and the goal objects' body positions) and prints the step where each engine's goal first held and the first
-step where the objects part by more than 1 cm. Nothing is asserted.
+Writes JSON (``engines``: per engine the steps, each with the expert's action, the predicates' and contact
+tests' truth, the goal objects' body positions and the contacts between the gripper and each of them) and prints
+the step where each engine's goal first held and the first step where the objects part by more than 1 cm.
+Nothing is asserted.
 """
 
 from __future__ import annotations
@@ -33,6 +34,9 @@ def trace(task: str, seed: int, steps: int, engine: str, device: str, worker) ->
         obs, world = batch.reset([0], [seed])[0], batch.world
         names = world.info["names"]
         bodies = {o: int(names["bodies"][o]) for o in names["objects"] if any(o in g for g in world.goal.names)}
+        mjm = world.model.model
+        gripper = np.array([mjm.geom(i).name.startswith("gripper0_") for i in range(mjm.ngeom)])
+        held = {o: np.asarray(mjm.geom_bodyid) == i for o, i in bodies.items()}  # each goal object's own geoms
         for t in range(1, steps + 1):
             action = np.asarray(obs[OBS_EXPERT_ACTION], np.float32)[None]
             result = batch.step([0], action)
@@ -42,10 +46,19 @@ def trace(task: str, seed: int, steps: int, engine: str, device: str, worker) ->
                         "predicates": _host(world.goal.values(s)).tolist()[0],
                         "contact_tests": _host(world.goal.touch(s)).tolist()[0],
                         "objects": {o: xpos[i].round(5).tolist() for o, i in bodies.items()},
+                        "gripper_contacts": _gripper_contacts(s, gripper, held),
                         "success": bool(result.terminated[0])})
             if result.terminated[0] or result.truncated[0]:
                 break
     return out
+
+
+def _gripper_contacts(s, gripper: np.ndarray, held: dict) -> dict[str, int]:
+    """World 0's contacts between the gripper's geoms and each goal object's (the grasp)."""
+    geom, world = _host(s.contact_geom), _host(s.contact_world)
+    g = geom[world == 0]
+    return {o: int(((gripper[g[:, 0]] & mine[g[:, 1]]) | (gripper[g[:, 1]] & mine[g[:, 0]])).sum())
+            for o, mine in held.items()}
 
 
 def _host(a) -> np.ndarray:
