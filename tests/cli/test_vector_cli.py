@@ -284,9 +284,9 @@ def test_the_default_rule_applies_only_where_neither_a_rule_nor_the_environments
     from simseam.runner.scheduler import Lockstep
 
     plain = (1, None, 1)
-    assert _eval_executor(10, 10, None, None, None, plain).lockstep == Lockstep(auto=True)
-    assert _eval_executor(10, 10, 4, None, None, plain).lockstep == Lockstep()
-    assert _eval_executor(10, 10, None, None, None, (1, 2, 1)).lockstep == Lockstep(ready=2)
+    assert _eval_executor(10, 10, None, None, None, *plain).lockstep == Lockstep(auto=True)
+    assert _eval_executor(10, 10, 4, None, None, *plain).lockstep == Lockstep()
+    assert _eval_executor(10, 10, None, None, None, 1, 2, 1).lockstep == Lockstep(ready=2)
     path = scene()
     cfg, _ = load_scene_config(path)
     assert _run_executor(path, cfg, 10, None, None, "workers", None, plain).lockstep == Lockstep(auto=True)

@@ -164,18 +164,18 @@ def eval_command(
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out, out = out is None, out or default_run_dir()
+        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine)  # checked
         if processes > 1:
             eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
                                          sim_device=sim_device, device=device, n_action_steps=n_action_steps,
-                                         num_envs=num_envs, image_size=image_size), len(task_list), n, out, default_out, processes, mps,
-                           overwrite, resume)
+                                         num_envs=num_envs, image_size=image_size),
+                           len(task_list), n, out, default_out, processes, mps, overwrite, resume)
             return
-        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine)
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
     except SimseamError as exc:
         fail(exc)
     todo = run_dir.left(planned)
-    executor = _eval_executor(len(todo), n, num_envs, engine, ray_address, (policy_groups, policy_ready, envs_per_worker))
+    executor = _eval_executor(len(todo), n, num_envs, engine, ray_address, policy_groups, policy_ready, envs_per_worker)
     job = Job(eval_recipe(p, task_list, n, engine, sim_device), policy, policy_kwargs(device, n_action_steps), todo,
               seed, run_dir, video)
     console.print(_eval_start(p, job, executor, engine, n, config, (
@@ -215,7 +215,7 @@ def _eval_start(p, job, executor, engine: str | None, n: int, config: dict, shar
 
 
 def _eval_executor(todo: int, episodes: int, num_envs: int | None, engine: str | None, ray_address: str | None,
-                   lockstep: tuple):
+                   *lockstep: int | None):
     """Where ``simseam eval`` runs: a batched engine (``--num-envs`` worlds per task, default the task's
     episodes), Ray, ``--num-envs`` environments (default: sized to the cores and the episodes), or this
     process."""
