@@ -239,25 +239,14 @@ def test_the_worlds_keep_the_batched_seam_contract():
 
 def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path):
     """``--shard i/K`` with ``--engine mujoco_warp``: a task's episodes are one batch, so each shard runs whole
-    tasks (``task_index % K == i``), and ``simseam merge`` of the shards is the unsharded run's episodes."""
-    tasks, runs = "reach-v3,push-v3", {}
-    for name, extra in (("whole", []), ("s0", ["--shard", "0/2"]), ("s1", ["--shard", "1/2"])):
-        runs[name] = tmp_path / name
-        res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks,
-                                       "--episodes", "2", "--num-envs", "2", "--engine", "mujoco_warp",
-                                       "--sim-device", "cpu", "--out", str(runs[name]), *extra])
-        assert res.exit_code == 0, res.output
-    assert [(r["task"], r["episode"]) for r in _lines(runs["s0"])] == [("reach-v3", 0), ("reach-v3", 1)]
-    assert [(r["task"], r["episode"]) for r in _lines(runs["s1"])] == [("push-v3", 0), ("push-v3", 1)]
-    assert json.loads((runs["s1"] / "run.json").read_text())["shard_unit"] == 2
-    merged = tmp_path / "merged"
-    res = CliRunner().invoke(app, ["merge", "--out", str(merged), str(runs["s0"]), str(runs["s1"])])
+    tasks (``task_index % K == i``), and ``simseam merge`` of the shards is the unsharded run's episodes.
+    ``--processes 4`` runs those shards itself (``--shard i/2``: one process a task, into ``OUT/shards/i``) and
+    merges them into ``--out``."""
+    tasks, runs = "reach-v3,push-v3", {"whole": tmp_path / "whole"}
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
+                                   "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                   "--out", str(runs["whole"])])
     assert res.exit_code == 0, res.output
-    keep = ("index", "seed", "success", "steps", "task", "episode")
-    assert [{k: r[k] for k in keep} for r in _lines(merged)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
-    assert json.loads((merged / "summary.json").read_text())["complete"] is True
-
-    # --processes 2: the same two shards run by eval itself, as two processes, and merged into --out
     both = tmp_path / "processes"
     res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
                                    "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
@@ -265,6 +254,17 @@ def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path)
     assert res.exit_code == 0, res.output
     assert "as 2 process(es)" in res.output and sorted(p.name for p in (both / "shards").iterdir()) == \
         ["0", "0.log", "1", "1.log"]
+    runs["s0"], runs["s1"] = both / "shards" / "0", both / "shards" / "1"
+    assert [(r["task"], r["episode"]) for r in _lines(runs["s0"])] == [("reach-v3", 0), ("reach-v3", 1)]
+    assert [(r["task"], r["episode"]) for r in _lines(runs["s1"])] == [("push-v3", 0), ("push-v3", 1)]
+    shard = json.loads((runs["s1"] / "run.json").read_text())
+    assert shard["shard"] == [1, 2] and shard["shard_unit"] == 2
+    merged = tmp_path / "merged"
+    res = CliRunner().invoke(app, ["merge", "--out", str(merged), str(runs["s0"]), str(runs["s1"])])
+    assert res.exit_code == 0, res.output
+    keep = ("index", "seed", "success", "steps", "task", "episode")
+    assert [{k: r[k] for k in keep} for r in _lines(merged)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
+    assert json.loads((merged / "summary.json").read_text())["complete"] is True
     assert [{k: r[k] for k in keep} for r in _lines(both)] == [{k: r[k] for k in keep} for r in _lines(runs["whole"])]
     summary = json.loads((both / "summary.json").read_text())
     assert summary["complete"] is True and summary["per_task"]["push-v3"]["n_episodes"] == 2
