@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -42,7 +43,7 @@ def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, d
         console.print("[dim]without --mps the GPU runs one process's kernels at a time (time slicing)[/]")
     total, interrupted = n_tasks * episodes, False
     try:
-        with sigterm_as_interrupt(), (server if server is not None else _Nothing()) as env, _progress() as bar:
+        with sigterm_as_interrupt(), (server if server is not None else contextlib.nullcontext()) as env, _progress() as bar:
             task = bar.add_task("episodes", total=total)
             codes = P.run_processes(argvs, logs, P.child_env(k, env),
                                     on_poll=lambda: bar.update(task, completed=P.episodes_done(out, k)))
@@ -130,12 +131,3 @@ def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                     console=console, transient=True)
 
-
-class _Nothing:
-    """No MPS server: the processes get this process's environment."""
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc) -> None:
-        pass
