@@ -4,8 +4,9 @@ One pytest session keeps one core busy: measured alone here, tests/engines/test_
 a core, tests/backends/test_libero_lerobot.py 89 %, tests/cli/test_learning_cli.py 85 % (its sidecars, peers
 and CLI children included). On a 2-core machine the second core idled for most of the suite. So the suite
 is cut into groups (a directory or a few slow files, each a pytest session of its own) that run two at a
-time, the longest first; the last group, ``tests`` less every path named before it, takes whatever is not
-listed, so no test is left out whatever files are added (a listed path that no longer exists is dropped).
+time, the longest first (a group lying inside another is left out of it, wherever either is listed); the last
+group, ``tests`` less every path named before it, takes whatever is not listed, so no test is left out whatever
+files are added (a listed path that no longer exists is dropped).
 Each session writes JUnit XML; at the end the runner prints every group's closing line and wall time and
 the 25 slowest tests over all of them.
 
@@ -31,29 +32,31 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-#: the groups, longest first (measured alone on the 2-core machine, warm, December 2026; the order only
-#: decides which start first: a free slot takes the next one)
+#: the groups, longest first (wall seconds of each in CI warm 20, 6 December 2026, two at a time, beside the
+#: Python 3.12 pass). A free slot takes the next group, so this order decides how evenly the two slots end: in
+#: the listed order the first pass ends ~47 s later than longest first. A group may come before a group it lies
+#: in (test_policy_proof.py before tests/policies): the enclosing group ignores it wherever it is listed.
 GROUPS: tuple[tuple[str, ...], ...] = (
-    ("tests/policies/test_policy_proof.py",),  # ~5 min: the proof's training, then nine CLI runs two at a time
-    ("tests/backends/test_fidelity.py",),
-    ("tests/sidecar",),
-    ("tests/engines",),
-    ("tests/cli",),
-    ("tests/runner",),
-    ("tests/ros2",),
-    ("tests/backends/test_maniskill.py", "tests/backends/test_maniskill_batch.py"),
-    # Meta-World on Warp's CPU device: its batched rules, the port, its eval, the fidelity harness on a subset
+    ("tests/backends",),  # ~435 s: the other backends' files (the ones of the groups below are excluded from it)
+    ("tests/cli",),  # ~413 s
+    ("tests/policies/test_policy_proof.py",),  # ~378 s: the proof's training, then nine CLI runs two at a time
+    # ~332 s: Meta-World on Warp's CPU device: its batched rules, the port, its eval, the fidelity harness on a subset
     ("tests/backends/test_metaworld_rewards.py", "tests/backends/test_metaworld_gpu.py",
      "tests/backends/test_metaworld_gpu_eval.py", "tests/backends/test_metaworld_warp_fidelity.py",
      "tests/backends/test_metaworld_gpu_cameras.py"),
-    # LIBERO's first parts on Warp's CPU device (four suites' models), its goal predicates against LIBERO's own
-    # evaluation, and its scripted expert through simseam eval
+    # ~316 s: LIBERO's episodes on Warp's CPU device: against the CPU backend, the pairing, faults, the eval path
+    ("tests/backends/test_libero_gpu_env.py",),
+    ("tests/backends/test_fidelity.py",),  # ~313 s
+    ("tests/engines",),  # ~250 s
+    ("tests/runner",),  # ~228 s
+    ("tests/backends/test_maniskill.py", "tests/backends/test_maniskill_batch.py"),  # ~204 s
+    # ~182 s: LIBERO's first parts on Warp's CPU device (four suites' models), its goal predicates against
+    # LIBERO's own evaluation, and its scripted expert through simseam eval
     ("tests/backends/test_libero_gpu.py", "tests/backends/test_libero_predicates.py",
      "tests/backends/test_libero_expert.py"),
-    # LIBERO's episodes on Warp's CPU device (~3-5 min): against the CPU backend, the pairing, faults, the eval path
-    ("tests/backends/test_libero_gpu_env.py",),
-    ("tests/backends",),  # the other backends' files (the ones above are excluded from it)
-    ("tests/policies",),
+    ("tests/policies",),  # ~123 s
+    ("tests/sidecar",),  # ~109 s
+    ("tests/ros2",),  # ~65 s
 )
 NO_TESTS = 5  # pytest's exit status when a session selected no test
 
@@ -63,14 +66,12 @@ def plan(pytest_args: list[str]) -> list[list[str]]:
     session when ``pytest_args`` names test paths."""
     if any(Path(REPO, a.split("::")[0]).exists() for a in pytest_args if not a.startswith("-")):
         return [list(pytest_args)]
-    sessions, taken = [], []
-    for group in GROUPS:
-        group = tuple(p for p in group if (REPO / p).exists())  # a renamed file: the last session takes it
-        if not group:
-            continue
-        inside = [p for p in taken if any(Path(p).is_relative_to(g) for g in group)]
+    groups = [g for g in (tuple(p for p in group if (REPO / p).exists()) for group in GROUPS) if g]
+    taken = [p for g in groups for p in g]  # a renamed file is in none: the last session takes it
+    sessions = []
+    for group in groups:
+        inside = [p for p in taken if p not in group and any(Path(p).is_relative_to(g) for g in group)]
         sessions.append([*group, *(f"--ignore={p}" for p in inside), *pytest_args])
-        taken.extend(group)
     sessions.append(["tests", *(f"--ignore={p}" for p in taken), *pytest_args])
     return sessions
 
