@@ -11,7 +11,7 @@
 #   here:   bash benchmarks/device/libero_image_act.sh prepare DATASET_DIR...   (-> .cache/limg/c1, c2)
 #             c1: the wheels lerobot needs beyond the machine's own (lerobot 0.4.4 and its pure-Python needs,
 #                 10 MB: the list act_lift.sh documents, less MuJoCo) and the datasets without their PNG frames;
-#             c2: the PyAV wheel.
+#             c2: the PyAV wheel and transformers 4.57 (below, at AV).
 #   there:  call 1, carrying .cache/limg/c1:  bash benchmarks/device/libero_image_act.sh receive .cache/limg/c1
 #           call 2, carrying .cache/limg/c2:  bash benchmarks/device/libero_image_act.sh receive .cache/limg/c2 \
 #                                               && bash benchmarks/device/libero_image_act.sh train [NAME...]
@@ -43,8 +43,13 @@ CARRY=.cache/limg
 # opencv, safetensors... are its own); huggingface-hub 0.35: lerobot needs < 0.36, the machine has 1.x
 WHEELS="lerobot==0.4.4 datasets==4.8.5 dill multiprocess draccus==0.10.0 mergedeep pyyaml-include toml
 deepdiff==8.6.2 orderly-set gymnasium==1.4.0 farama-notifications diffusers==0.35.2 importlib_metadata jsonlines
-termcolor pydantic==2.14.4 pydantic-core==2.50.5 annotated-types typing-inspection huggingface-hub==0.35.3 pyserial"
-AV="av==15.1.0"
+termcolor pydantic==2.14.4 pydantic-core==2.50.5 annotated-types typing-inspection huggingface-hub==0.35.3 pyserial
+tokenizers==0.22.1"
+# c2: PyAV, and transformers 4.x: lerobot 0.4.4 needs transformers < 5 (its policies package imports GR00T's, whose
+# dataclasses fail to build on transformers 5: "non-default argument 'backbone_cfg' follows default argument"), and
+# transformers 5 needs huggingface-hub 1.x ("cannot import name 'is_offline_mode'"); the machine's own was 5.17.0
+# on 6 December (fifth session: found there, the training did not start)
+AV="av==15.1.0 transformers==4.57.6"
 PLAT=(--no-deps --only-binary=:all: --python-version 3.12 --implementation cp --platform manylinux_2_28_x86_64
       --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
 export PIP_CONSTRAINT="" PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
@@ -55,7 +60,8 @@ prepare() {  # DATASET_DIR...
   rm -rf "$CARRY" && mkdir -p "$CARRY/c1/whl" "$CARRY/c1/data" "$CARRY/c2/whl"
   # shellcheck disable=SC2086
   "$pip_py" -m pip download -q "${PLAT[@]}" -d "$CARRY/c1/whl" $WHEELS
-  "$pip_py" -m pip download -q "${PLAT[@]}" -d "$CARRY/c2/whl" "$AV"
+  # shellcheck disable=SC2086
+  "$pip_py" -m pip download -q "${PLAT[@]}" -d "$CARRY/c2/whl" $AV
   for d in "$@"; do
     [ -f "$d/meta/info.json" ] && [ -d "$d/videos" ] \
       || { echo "prepare: $d is not a dataset recorded with --videos (no meta/info.json or videos/)" >&2; exit 2; }
