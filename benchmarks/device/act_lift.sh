@@ -32,7 +32,9 @@
 #                  mergedeep pyyaml-include toml deepdiff==8.6.2 orderly-set gymnasium==1.4.0 farama-notifications \
 #                  diffusers==0.35.2 importlib_metadata jsonlines termcolor mujoco==4.0.0 mujoco-core==4.0.0 glfw \
 #                  pyopengl pydantic==2.14.4 pydantic-core==2.50.5 annotated-types typing-inspection \
-#                  huggingface-hub==0.35.3 pyserial
+#                  huggingface-hub==0.35.3 pyserial transformers==4.57.6 tokenizers==0.22.1
+#              (transformers 4.x since 6 December: the image's transformers became 5.17.0, which breaks lerobot
+#              0.4.4's import (its GR00T dataclasses; lerobot pins transformers < 5); 15 MB more)
 #              (Diffusion Policy needs nothing more: diffusers and einops are already imported on ACT's path,
 #              through lerobot's factory);
 #              (huggingface-hub 0.35: lerobot 0.4.4 needs < 0.36, the image has 1.x; mujoco-studio is not
