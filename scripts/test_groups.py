@@ -33,8 +33,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 #: the groups, longest first (wall seconds of each in CI warm 20, 6 December 2026, two at a time, beside the
-#: Python 3.12 pass). A free slot takes the next group, so this order decides how evenly the two slots end: in
-#: the listed order the first pass ends ~47 s later than longest first. A group may come before a group it lies
+#: Python 3.12 pass). A free slot takes the next group, so this order decides how evenly the two slots end: the
+#: order before (the proof first, tests/backends late) ended the first pass ~47 s later on those figures. A group may come before a group it lies
 #: in (test_policy_proof.py before tests/policies): the enclosing group ignores it wherever it is listed.
 GROUPS: tuple[tuple[str, ...], ...] = (
     ("tests/backends",),  # ~435 s: the other backends' files (the ones of the groups below are excluded from it)

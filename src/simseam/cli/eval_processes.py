@@ -43,7 +43,7 @@ def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, d
         console.print("[dim]without --mps the GPU runs one process's kernels at a time (time slicing)[/]")
     total, interrupted = n_tasks * episodes, False
     try:
-        with sigterm_as_interrupt(), (server if server is not None else contextlib.nullcontext()) as env, _progress() as bar:
+        with sigterm_as_interrupt(), server or contextlib.nullcontext() as env, _progress() as bar:
             task = bar.add_task("episodes", total=total)
             codes = P.run_processes(argvs, logs, P.child_env(k, env),
                                     on_poll=lambda: bar.update(task, completed=P.episodes_done(out, k)))
