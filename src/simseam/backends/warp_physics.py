@@ -13,17 +13,47 @@ the compiled values then changed as the reset changed them); ``control(mocap_pos
 On a CUDA device ``WarpPhysics`` replays the control step's physics (``advance``) and the reset's forward
 as captured CUDA graphs (``graph=False``: launched one by one, as the CPU device always does); a reset
 scatters its rows into the device arrays in place (the graphs keep pointing at them).
+
+``imported_meanwhile(call, engine)``: a port's wait on its native worker (``describe``) with MuJoCo Warp imported on
+a thread meanwhile, so the import (about 2 s) no longer adds to a batch's start.
 """
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from simseam.engines.mujoco_warp.memory import put_worlds
 from simseam.scene.tasks.batch import quat_to_matrix
+
+
+T = TypeVar("T")
+
+
+def imported_meanwhile(call: Callable[[], T], engine: str = "mujoco_warp") -> T:
+    """``call()`` (a wait on another process, such as a native worker's ``describe``) while MuJoCo Warp and Warp
+    are imported on a thread (``engine`` ``mujoco_warp`` only; for another engine, just ``call()``). The thread is
+    joined before this returns, so nothing imports beside the caller afterwards."""
+    if engine != "mujoco_warp":
+        return call()
+    thread = threading.Thread(target=_import_engine, name="simseam-import-mujoco-warp", daemon=True)
+    thread.start()
+    try:
+        return call()
+    finally:
+        thread.join()
+
+
+def _import_engine() -> None:
+    # an import that fails here fails again, with its own message, where WarpPhysics imports the engine
+    try:
+        import mujoco_warp  # noqa: F401
+        import warp  # noqa: F401
+    except Exception:
+        pass
 
 
 @dataclass

@@ -44,6 +44,7 @@ from simseam.backends.libero_gpu.predicates import GoalCheck
 from simseam.backends.libero_gpu.resets import ResetCache
 from simseam.backends.libero_gpu.stepping import control_step
 from simseam.backends.libero_gpu.worlds import LiberoCpuWorlds, LiberoWorlds
+from simseam.backends.warp_physics import imported_meanwhile
 from simseam.seam.errors import ConfigError
 
 DUMMY_ACTION = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0)
@@ -64,7 +65,7 @@ class LiberoBatch:
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
                  settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = (),
                  renderer: str = "warp", engine: str = "mujoco_warp"):
-        info = worker.call("describe", suite=suite, task=int(task))
+        info = imported_meanwhile(lambda: worker.call("describe", suite=suite, task=int(task)), engine)
         self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
         self.model = load_or_build(info)
         mjm, self.facts = self.model.model, info["control"]

@@ -30,7 +30,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.metaworld_gpu.model import load_or_build
-from simseam.backends.warp_physics import CpuPhysics, WarpPhysics
+from simseam.backends.warp_physics import CpuPhysics, WarpPhysics, imported_meanwhile
 from simseam.backends.metaworld_gpu.resets import ResetCache
 from simseam.backends.metaworld_gpu.state import MetaWorldState, ModelNames
 from simseam.backends.metaworld_gpu.tasks import DIAL_JOINT, DIAL_RADIUS, OBJECTS, scipy_quat
@@ -59,7 +59,7 @@ class MetaWorldBatch:
             raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
         if engine not in ENGINES:
             raise ConfigError(f"engine {engine!r}: one of {list(ENGINES)}")
-        info = worker.call("describe", task=task)
+        info = imported_meanwhile(lambda: worker.call("describe", task=task), engine)
         self.resets = ResetCache(worker, info, variation, goal_seed)
         settled = self.resets.get([0])[0]
         self.model = load_or_build(info, settled)
