@@ -30,7 +30,9 @@
 # with temporal ensembling 0.01, cosine lr 3e-4, batch 64, 3,000 steps) with the image lift proof's model
 # (benchmarks/train_act_lift.py: a ResNet-18 from scratch, no ImageNet weights offline; a transformer 256 wide,
 # feed-forward 1,024, 4 encoder layers); `--amp --cache` (the frames decoded onto the GPU once). The normalisers'
-# statistics travel as they are (float32); only model.safetensors is rounded. LIMG_ROOT moves /tmp/limg; PY names the interpreter.
+# statistics travel as they are (float32); only model.safetensors is rounded. The training runs through
+# benchmarks/device/lerobot_pyav.py: the frames decoded by PyAV (that machine's torchvision has no VideoReader and
+# it lacks torchcodec's FFmpeg libraries; the first training call of 6 December stopped there). LIMG_ROOT moves /tmp/limg; PY names the interpreter.
 # Rehearsal on a machine without CUDA: DEVICE=cpu STEPS=4 SKIP_INSTALL=1 (the repo's venv as PY).
 set -euo pipefail
 
@@ -129,7 +131,7 @@ train() {  # [NAME...]
     share=${TRAIN_S:-$(( left / (${#names[@]} - i) ))}
     [ "$share" -ge 30 ] || { echo "train: $name: no time left ($left s)"; break; }
     t0=$SECONDS
-    "$PY" -m simseam.cli.main train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
+    "$PY" benchmarks/device/lerobot_pyav.py train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
       --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr 3e-4 --lr-schedule cosine \
       --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
       --device "$DEVICE" $([ "$DEVICE" = cpu ] || echo --amp --cache) 2>&1 | tee -a "$ROOT/out/train.log"
