@@ -1,16 +1,21 @@
-"""How long a benchmark port's batch takes to build, with MuJoCo Warp imported while the native worker answers
-``describe`` (``warp_physics.imported_meanwhile``, the default) and with the two one after the other (the
-baseline: the import left to ``WarpPhysics``), side by side in one run.
+"""How long a benchmark port's batch takes to build, side by side in one run, the ways it can start:
+
+- ``default``: as simseam does it: MuJoCo Warp imported on a thread while the batch asks its native worker and
+  loads its model (``warp_physics.imported_meanwhile``), and for LIBERO the task's description kept on disk beside
+  its model (``libero_gpu.model.described``: the worker asked only for its versions);
+- ``no-overlap``: the import left to ``WarpPhysics``, after the rest;
+- ``no-kept`` (LIBERO): LIBERO's ``describe`` asked every time (the env built in the worker, 160 MB sent);
+- ``neither`` (LIBERO): both, as the port started before either.
 
     .venv/bin/python benchmarks/port_start.py [--port libero|metaworld] [--task libero_spatial/1]
         [--repeats 3] [--sim-device cpu] [--json PATH] [--overwrite]
 
 Each trial is a fresh interpreter (an import happens once per process): it starts the port's native worker and
 waits for it to be ready (not timed), then builds one world's batch (``LiberoBatch`` or ``MetaWorldBatch``) and
-times it: the model and the reset states come from the disk caches, which a first untimed trial fills. The trials alternate between the two
-ways, so a machine that slows down during the run moves both. Prints one row per trial and the medians; writes
-JSON (default benchmarks/results/port_start_<port>_<device>.json) with the machine's CPU facts and the load
-around each trial. Wall-clock on whatever else the machine runs. Nothing is asserted.
+times it: the model, description and reset states come from the disk caches, which a first untimed trial fills.
+Each round runs every way, in turn forward and backward, so a machine that slows down during the run moves all of
+them. Prints one row per trial and each way's median; writes JSON (default
+benchmarks/results/port_start_<port>_<device>.json) with the machine's CPU facts and the load around each trial. Wall-clock on whatever else the machine runs. Nothing is asserted.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from cpu_facts import CpuWindow, topology  # noqa: E402
 
-WAYS = ("overlapped", "sequential")
+WAYS = {"libero": ("default", "no-overlap", "no-kept", "neither"), "metaworld": ("default", "no-overlap")}
 
 # one trial, in its own interpreter: argv = port, task, device, way; prints the seconds as JSON
 TRIAL = r"""
@@ -42,8 +47,11 @@ else:
     from simseam.backends.metaworld_gpu import env as module
     from simseam.backends.metaworld_gpu.worker import NativeWorker
     build = lambda w: module.MetaWorldBatch(task, 1, w, device=device)
-if way == "sequential":
+if way in ("no-overlap", "neither"):
     module.imported_meanwhile = lambda call, engine="mujoco_warp": call()
+if way in ("no-kept", "neither"):
+    from simseam.backends.libero_gpu import model as M
+    module.task_model = lambda w, suite, task: M.load_or_build(w.call("describe", suite=suite, task=task))
 with NativeWorker() as worker:
     t0 = time.perf_counter()
     batch = build(worker)
@@ -75,19 +83,19 @@ def main() -> None:
     path = a.json or HERE / "results" / f"port_start_{a.port}_{a.sim_device.replace(':', '')}.json"
     if path.exists() and not a.overwrite:
         raise SystemExit(f"port_start: {path} exists; pass --overwrite or another --json")
-    trial(a.port, task, a.sim_device, "overlapped")  # fills the model and reset caches; not counted
+    ways = WAYS[a.port]
+    trial(a.port, task, a.sim_device, "default")  # fills the model, description and reset caches; not counted
     rows = []
     print(f"{'trial':>5} {'way':>11} {'built s':>8} {'busy %':>7}")
     for i in range(a.repeats):
-        for way in (WAYS if i % 2 == 0 else WAYS[::-1]):
+        for way in (ways if i % 2 == 0 else ways[::-1]):
             row = trial(a.port, task, a.sim_device, way)
             rows.append({"trial": i, **row})
             print(f"{i:5d} {way:>11} {row['built_s']:8.2f} {100 * (row['cpu'].get('busy_share') or 0):7.1f}")
-    medians = {w: statistics.median(r["built_s"] for r in rows if r["way"] == w) for w in WAYS}
-    for w in WAYS:
+    medians = {w: statistics.median(r["built_s"] for r in rows if r["way"] == w) for w in ways}
+    for w in ways:
         worst = max(r["built_s"] for r in rows if r["way"] == w)
-        print(f"median {w}: {medians[w]:.2f} s (worst {worst:.2f} s)")
-    print(f"saved by the overlap (medians): {medians['sequential'] - medians['overlapped']:.2f} s")
+        print(f"median {w:>10}: {medians[w]:.2f} s (worst {worst:.2f} s)")
     result = {"port": a.port, "task": task, "sim_device": a.sim_device, "repeats": a.repeats,
               "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": topology(),
               "median_built_s": medians, "trials": rows}

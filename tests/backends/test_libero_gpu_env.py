@@ -15,6 +15,8 @@ and the CPU benchmark (``backends.libero``, the real LIBERO env in its sidecar) 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from backend_util import backend_python
@@ -221,24 +223,53 @@ class NativeWorkerLog(NativeWorker):
 
 def test_prefetch_leaves_a_batch_nothing_to_ask_libero_but_the_task(worker, tmp_path, monkeypatch):
     """``LiberoBatchRollout.prefetch`` (what a run does for its next task while one steps): the episodes' resets
-    and seed 0's (the parking state) land in the reset cache, so the batch of that task asks LIBERO only to
-    describe it."""
+    and seed 0's (the parking state) land in the reset cache, and the task's description beside them, so the
+    batch of that task asks LIBERO only for the model it builds; a later batch asks only for the versions (its
+    model and description on disk, LIBERO's env never built), and gets the same description."""
+    from simseam.backends.libero_gpu import model as M
     from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
 
     python = backend_python("libero")
-    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # an empty reset cache
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # empty caches
+    task = {"suite": "libero_object", "task": 2}
     with NativeWorkerLog(python) as counted:
-        LiberoBatchRollout.prefetch({"suite": "libero_object", "task": 2}, [3, 4], counted)
-        assert counted.asked == ["describe", "resets"]
+        LiberoBatchRollout.prefetch(task, [3, 4], counted)
+        assert counted.asked == ["versions", "describe", "resets"]
         folder = next(tmp_path.rglob("libero_object-2"))
         assert sorted(p.name for p in folder.rglob("*.pkl")) == ["0.pkl", "3.pkl", "4.pkl"]
         counted.asked.clear()
-        batch = LiberoBatchRollout({"suite": "libero_object", "task": 2}, 2, counted, device="cpu")
-        try:
-            batch.reset([0, 1], [3, 4])
-        finally:
-            batch.close()
-        assert counted.asked == ["describe"]
+        batches = []
+        for asked in (["versions", "describe"], ["versions"]):
+            batch = LiberoBatchRollout(task, 2, counted, device="cpu")
+            try:
+                batch.reset([0, 1], [3, 4])
+                batches.append((batch.world.info, batch.world.model.path))
+            finally:
+                batch.close()
+            assert counted.asked == asked
+            counted.asked.clear()
+    (kept, path), (again, path_again) = batches
+    assert set(kept) == {*M.KEPT, "xml_sha256"} and path == path_again
+    np.testing.assert_equal(kept, again)
+    assert json.loads(path.with_suffix(".json").read_text())["source_sha256"] == kept["xml_sha256"]
+
+
+def test_the_kept_description_follows_the_workers_code(tmp_path, monkeypatch):
+    """Another version of the code that answers ``describe`` (or of LIBERO, robosuite, MuJoCo: the same folder
+    key) is asked again, never answered from what an older one kept."""
+    from simseam.backends.libero_gpu import model as M
+
+    python = backend_python("libero")
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))
+    with NativeWorkerLog(python) as counted:
+        first = M.described(counted, "libero_spatial", 0)
+        np.testing.assert_equal(M.described(counted, "libero_spatial", 0), first)
+        assert counted.asked == ["versions", "describe", "versions"]
+        counted.asked.clear()
+        monkeypatch.setattr(M, "_worker_code", lambda: "0123456789abcdef")
+        M.described(counted, "libero_spatial", 0)
+        assert counted.asked == ["versions", "describe"]
+    assert len(list(tmp_path.rglob("libero_spatial-0.pkl"))) == 2
 
 
 def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):

@@ -171,6 +171,20 @@ def digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def load_cached(folder: Path, name: str, source_sha256: str) -> tuple[Any, dict[str, Any], Path] | None:
+    """``(model, report, path)`` of ``folder/<name>.mjb`` when its record names ``source_sha256`` and these
+    checks (``cached_model`` wrote both), else None."""
+    import mujoco
+
+    mjb, meta = folder / f"{name}.mjb", folder / f"{name}.json"
+    if not (mjb.is_file() and meta.is_file()):
+        return None
+    record = json.loads(meta.read_text())
+    if record.get("source_sha256") != source_sha256 or record.get("checks") != CHECKS:
+        return None
+    return mujoco.MjModel.from_binary_path(str(mjb)), record["report"], mjb
+
+
 def cached_model(folder: Path, name: str, source_sha256: str, compile_model: Callable[[], Any],
                  check: Callable[[Any], dict[str, Any]],
                  extra: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any], Path]:
@@ -180,11 +194,10 @@ def cached_model(folder: Path, name: str, source_sha256: str, compile_model: Cal
     copy the checks (which set a settled state's model fields) did not touch."""
     import mujoco
 
+    cached = load_cached(folder, name, source_sha256)
+    if cached is not None:
+        return cached
     mjb, meta = folder / f"{name}.mjb", folder / f"{name}.json"
-    if mjb.is_file() and meta.is_file():
-        record = json.loads(meta.read_text())
-        if record.get("source_sha256") == source_sha256 and record.get("checks") == CHECKS:
-            return mujoco.MjModel.from_binary_path(str(mjb)), record["report"], mjb
     meta.unlink(missing_ok=True)
     model = compile_model()
     folder.mkdir(parents=True, exist_ok=True)

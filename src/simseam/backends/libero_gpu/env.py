@@ -38,7 +38,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.libero_gpu.control import OscConfig, OscState
-from simseam.backends.libero_gpu.model import load_or_build
+from simseam.backends.libero_gpu.model import task_model
 from simseam.backends.libero_gpu.physics import ArmLayout
 from simseam.backends.libero_gpu.predicates import GoalCheck
 from simseam.backends.libero_gpu.resets import ResetCache
@@ -65,9 +65,9 @@ class LiberoBatch:
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
                  settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = (),
                  renderer: str = "warp", engine: str = "mujoco_warp"):
-        info = imported_meanwhile(lambda: worker.call("describe", suite=suite, task=int(task)), engine)
-        self.info, self.suite, self.task, self.num_worlds = info, suite, int(task), int(num_worlds)
-        self.model = load_or_build(info)
+        self.model = imported_meanwhile(lambda: task_model(worker, suite, int(task)), engine)
+        self.info = info = self.model.info
+        self.suite, self.task, self.num_worlds = suite, int(task), int(num_worlds)
         mjm, self.facts = self.model.model, info["control"]
         self.layout = ArmLayout.from_model(mjm, self.facts)
         self.cfg = OscConfig.from_facts(self.facts, mjm)

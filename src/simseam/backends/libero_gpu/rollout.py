@@ -41,6 +41,7 @@ from simseam.backends.base import observation_spec
 from simseam.backends.native_port import NativePort
 from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, extra_fields, normalize_config, quat_to_axis_angle
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
+from simseam.backends.libero_gpu.model import described
 from simseam.seam import (
     INFO_DIAGNOSTICS,
     OBS_ENV_STATE,
@@ -118,12 +119,12 @@ class LiberoBatchRollout(NativePort):
 
     @classmethod
     def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
-        """Ask ``worker`` now for what a batch of ``config`` will first need of LIBERO: the task's env (built by
-        ``describe``) and the resets of ``seeds`` and of seed 0 (the parking state), kept in the reset cache on
+        """Ask ``worker`` now for what a batch of ``config`` will first need of LIBERO: the task's description
+        (``model.described``: LIBERO's env built by ``describe``, unless kept on disk) and the resets of ``seeds`` and of seed 0 (the parking state), kept in the reset cache on
         disk. A run calls it from a thread for its next task while this one steps: LIBERO's resets (about a
         second each) then no longer stand between two tasks' batches."""
         c = gpu_config(config)
-        info = worker.call("describe", suite=c["suite"], task=int(c["task"]))
+        info = described(worker, c["suite"], int(c["task"]))
         LiberoBatch.reset_cache(worker, info, c["settle_steps"]).get(sorted({0, *map(int, seeds)}))
 
     def _make_spec(self) -> RolloutSpec:
