@@ -133,7 +133,7 @@ train() {  # [NAME...]
     t0=$SECONDS
     "$PY" benchmarks/device/lerobot_pyav.py train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
       --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr 3e-4 --lr-schedule cosine \
-      --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
+      --no-vae --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
       --device "$DEVICE" $([ "$DEVICE" = cpu ] || echo --amp --cache) 2>&1 | tee -a "$ROOT/out/train.log"
     echo "$name: trained in $(( SECONDS - t0 )) s" | tee -a "$ROOT/out/train.log"
     pack "$ROOT/ckpt/$name" "$name"

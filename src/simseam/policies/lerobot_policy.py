@@ -300,7 +300,7 @@ class LeRobotPolicy(BasePolicy):
             if key not in images:
                 raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
                                   f"(cameras: {sorted(images)})")
-            img = torch.from_numpy(np.ascontiguousarray(images[key]))
+            img = torch.from_numpy(np.array(images[key], order="C"))  # a writable copy: a frame may be read-only
             batch[self._feature_keys[name]] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
             if last_images is not None:
                 last_images[name] = batch[self._feature_keys[name]]
