@@ -81,9 +81,9 @@ def test_each_camera_reaches_its_own_key_as_channels_height_width(tiny_act, pand
     np.testing.assert_array_equal(raw["observation.state"].numpy()[0], obs["state"])
 
 
-def test_read_only_frames_are_read_without_a_warning(tiny_act, panda_spec, make_scene):
-    """Frames a backend hands out read-only (a sidecar's shared buffers) reach the model unchanged and without
-    torch's "non-writable tensor" warning."""
+def test_read_only_observations_are_read_without_a_warning(tiny_act, panda_spec, make_scene):
+    """Frames and state a backend hands out read-only (a sidecar's shared buffers) reach the model unchanged and
+    without torch's "non-writable tensor" warning."""
     import warnings
 
     out, _ = tiny_act
@@ -91,12 +91,13 @@ def test_read_only_frames_are_read_without_a_warning(tiny_act, panda_spec, make_
     scene = make_scene(panda_spec, image_size=(40, 56), max_steps=3)
     obs = scene.reset(5)
     frames = {cam: img.copy() for cam, img in obs["images"].items()}
-    for img in frames.values():
-        img.flags.writeable = False
+    state = obs["state"].astype(np.float32)  # already float32: np.asarray would hand torch this very array
+    for array in (state, *frames.values()):
+        array.flags.writeable = False
     policy.reset(scene.spec)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        action = policy.act({**obs, "images": frames})
+        action = policy.act({**obs, "state": state, "images": frames})
     policy.reset(scene.spec)
     np.testing.assert_array_equal(action, policy.act(obs))
 

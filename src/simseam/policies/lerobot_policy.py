@@ -300,17 +300,17 @@ class LeRobotPolicy(BasePolicy):
             if key not in images:
                 raise ConfigError(f"lerobot:{self.source}: observation has no image {key!r} "
                                   f"(cameras: {sorted(images)})")
-            img = torch.from_numpy(np.array(images[key], order="C"))  # a writable copy: a frame may be read-only
+            img = torch.from_numpy(np.array(images[key], order="C"))  # copies: an observation may be read-only
             batch[self._feature_keys[name]] = (img.permute(2, 0, 1).float() / 255.0).unsqueeze(0)
             if last_images is not None:
                 last_images[name] = batch[self._feature_keys[name]]
         if STATE_KEY in self.config.input_features:
-            batch[STATE_KEY] = torch.from_numpy(np.asarray(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
+            batch[STATE_KEY] = torch.from_numpy(np.array(observation[OBS_STATE], dtype=np.float32)).unsqueeze(0)
         if ENV_STATE_KEY in self.config.input_features:
             if OBS_ENV_STATE not in observation:
                 raise ConfigError(f"lerobot:{self.source}: the policy reads environment_state and the observation "
                                   "has none (set `environment_state: true` in the scene file)")
-            env = np.asarray(observation[OBS_ENV_STATE], dtype=np.float32)
+            env = np.array(observation[OBS_ENV_STATE], dtype=np.float32)  # copies: writable
             batch[ENV_STATE_KEY] = torch.from_numpy(env).unsqueeze(0)
         batch["task"] = observation.get(OBS_TASK) or spec.task.instruction
         batch["robot_type"] = spec.robot.name
