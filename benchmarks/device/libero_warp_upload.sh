@@ -48,8 +48,10 @@
 #           makes the LIBERO backend look provisioned (the venv dir of simseam.backends.provision.venv_dir("libero")
 #           with a bin/python that runs python3 with lsite first on its path, and its simseam-backend.json), then
 #           runs the native worker's describe of task 0 of each suite: a missing file fails there, loudly.
-#           For `render: opengl` also carry .gl (README: the Debian EGL debs), unpack them first and set
-#           MUJOCO_GL=egl for the main side.
+#           Carry .gl (the GL loader debs, 384 kB) in the install call: LIBERO's env loads EGL even without
+#           cameras, and a machine without libEGL.so.1 stops install's describe ("'NoneType' object has no
+#           attribute 'eglQueryString'", 6 December); install unpacks .gl/*.deb where libEGL is missing (else a
+#           one-line error naming .gl), and env.sh sets MUJOCO_GL=egl (`render: opengl` draws through it too).
 # LW_ROOT moves /tmp/lww; PYTHON names the interpreter there (default python3; CPython 3.12: the wheels are cp312).
 set -euo pipefail
 
@@ -255,11 +257,20 @@ provision_libero() {  # PY
   echo "$venv"
 }
 
+gl_loader() {  # LIBERO's env loads EGL even without cameras: the GL loader .debs carried in .gl (384 kB)
+  ldconfig -p | grep -q 'libEGL.so.1 ' && return 0
+  compgen -G ".gl/*.deb" > /dev/null || { echo "install: this machine has no libEGL.so.1 and .gl/ was not carried:" \
+    "carry .gl with this call (LIBERO's env loads EGL: 'NoneType' object has no attribute 'eglQueryString')" >&2; exit 2; }
+  for f in .gl/*.deb; do dpkg -x "$f" /; done
+  ldconfig && echo "GL loader: unpacked .gl/*.deb"
+}
+
 install() {
   local repo="$PWD" py venv
   py="$(command -v "${PYTHON:-python3}")"
   "$py" -c 'import sys; assert sys.version_info[:2] == (3, 12), sys.version' \
     || { echo "install: $py is not CPython 3.12 (the packages are cp312); set PYTHON" >&2; exit 2; }
+  gl_loader
   rm -rf "$LW/site" "$LW/lsite"
   unpack
   check_kept
@@ -267,7 +278,7 @@ install() {
     [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
   done
   cat > "$LW/env.sh" <<EOF
-export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW/cache/warp
+export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW/cache/warp MUJOCO_GL=egl
 EOF
   # shellcheck disable=SC1091
   source "$LW/env.sh"
