@@ -8,7 +8,7 @@ Per task:
 1. the policy: ``benchmarks/metaworld_proof.py``'s recipe (Meta-World's expert, 200 ``variation: sampled``
    demonstrations on seeds 0-199 through ``simseam collect``, a state ACT from scratch through ``simseam
    train``); a checkpoint already in ``--work`` from that recipe (``<task>_act/training.json``) is reused;
-2. ``simseam eval metaworld_mt10 --tasks <task> --policy lerobot:<ckpt> --seed S --episodes E`` on the CPU
+2. ``simseam eval metaworld_mt50 --tasks <task> --policy lerobot:<ckpt> --seed S --episodes E`` on the CPU
    backend and with ``--engine mujoco_warp --sim-device D`` (MT1 variations ``seed % 50``, 500 steps);
 3. the port on CPU MuJoCo of the port's version (``MetaWorldBatchRollout(engine="mujoco")``, one world, the
    same policy code, episode for episode as ``simseam eval`` runs them: 500 steps or success);
@@ -61,7 +61,7 @@ def evaluate(task: str, ckpt: Path, seed: int, episodes: int, out: Path, engine_
         if sorted(e["seed"] for e in summary["episodes"]) == list(range(seed, seed + episodes)) \
                 and list(summary["per_task"]) == [task]:
             return summary
-    proof._simseam("eval", "metaworld_mt10", "--tasks", task, "--policy", f"lerobot:{ckpt}", "--seed", str(seed),
+    proof._simseam("eval", "metaworld_mt50", "--tasks", task, "--policy", f"lerobot:{ckpt}", "--seed", str(seed),
                    "--episodes", str(episodes), "--out", str(out), "--overwrite", "--device", "cpu", *engine_args, log=log)
     return json.loads((out / "summary.json").read_text())
 
