@@ -255,7 +255,7 @@ def split(keys: list[Any], parts: int) -> list[list[Any]]:
     return [keys[a:b] for a, b in zip(cuts, cuts[1:])]
 
 
-def cached_answers(folder: Path, keys: list[int], ask: Callable[[list[int]], list[Any]]) -> list[Any]:
+def cached_answers(folder: Path, keys: list[Any], ask: Callable[[list[Any]], list[Any]]) -> list[Any]:
     """One answer per key of ``keys`` (in order), each kept in ``folder/<key>.pkl``: the keys not there yet are
     asked of the native worker at once (``ask(missing)``, one answer per missing key in order) and written
     atomically (a killed writer leaves no partial file under the final name); keys repeated share one answer."""

@@ -19,8 +19,6 @@ batch share one model, so a batch holds one task's worlds.
 
 from __future__ import annotations
 
-import os
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from simseam.backends import warp_model
-from simseam.backends.native_worker import changed_arrays
+from simseam.backends.native_worker import cached_answers, changed_arrays
 
 PORT = "libero_gpu"
 #: what ``described`` keeps of ``describe`` (the rest builds and checks the model); another format, another folder
@@ -102,18 +100,14 @@ def _worker_code() -> str:
 
 def described(worker: Any, suite: str, task: int) -> dict[str, Any]:
     """``describe``'s ``KEPT`` keys plus ``xml_sha256``: from disk when this worker's versions and code described
-    the task before, else asked (then kept, written atomically)."""
+    the task before, else asked (then kept: ``native_worker.cached_answers``)."""
     where = cache_dir({"versions": worker.call("versions")}) / f"described-v{KEPT_FORMAT}-{_worker_code()}"
-    path = where / f"{suite}-{int(task)}.pkl"
-    if path.is_file():
-        return pickle.loads(path.read_bytes())
-    full = worker.call("describe", suite=suite, task=int(task))
-    kept = {k: full[k] for k in KEPT} | {"xml_sha256": warp_model.digest(full["xml"].encode())}
-    where.mkdir(parents=True, exist_ok=True)
-    partial = path.with_suffix(".partial")
-    partial.write_bytes(pickle.dumps(kept, protocol=4))
-    os.replace(partial, path)
-    return kept
+
+    def ask(missing: list[str]) -> list[dict[str, Any]]:
+        full = worker.call("describe", suite=suite, task=int(task))
+        return [{k: full[k] for k in KEPT} | {"xml_sha256": warp_model.digest(full["xml"].encode())}]
+
+    return cached_answers(where, [f"{suite}-{int(task)}"], ask)[0]
 
 
 def task_model(worker: Any, suite: str, task: int) -> TaskModel:

@@ -517,8 +517,8 @@ def _policy(env: Any, suite: str, task: int, init: int, policy: str):
     raise ValueError(f"unknown policy {policy!r} (expert, zero, random)")
 
 
-COMMANDS = {"versions": versions, "describe": describe, "record": record, "resets": resets, "check": check, "craft": craft,
-            "episode": episode}
+COMMANDS = {"versions": versions, "describe": describe, "record": record, "resets": resets, "check": check,
+            "craft": craft, "episode": episode}
 
 if __name__ == "__main__":
     sys.exit(serve(COMMANDS))
