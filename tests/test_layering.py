@@ -12,7 +12,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "simseam"
 
 #: simseam's packages from the bottom up, as docs/ARCHITECTURE.md draws them; a module imports its own
 #: package or a package of a lower rank, never one of its rank or above
-LAYERS = [("seam", "math3d", "origin"), ("config_files", "registry"), ("robot",), ("policies",), ("engines",), ("scene",),
+LAYERS = [("seam", "math3d", "origin", "files"), ("config_files", "registry"), ("robot",), ("policies",), ("engines",), ("scene",),
           ("backends",), ("sidecar",), ("runner",), ("gym", "hal", "ros2", "serving"), ("cli",)]
 RANK = {pkg: i for i, layer in enumerate(LAYERS) for pkg in layer}
 

@@ -29,6 +29,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from simseam.files import write_atomic
+
 HEADER = struct.Struct("<Q")
 #: a mesh's derived arrays (polygon normals...) are not reproducible between two compiles; no reset moves them
 DERIVED = ("mesh_",)
@@ -263,8 +265,6 @@ def cached_answers(folder: Path, keys: list[Any], ask: Callable[[list[Any]], lis
     if missing:
         folder.mkdir(parents=True, exist_ok=True)
         for key, answer in zip(missing, ask(missing)):
-            tmp = folder / f"{key}.partial"
-            tmp.write_bytes(pickle.dumps(answer, protocol=4))
-            os.replace(tmp, folder / f"{key}.pkl")
+            write_atomic(folder / f"{key}.pkl", pickle.dumps(answer, protocol=4))
     loaded = {k: pickle.loads((folder / f"{k}.pkl").read_bytes()) for k in dict.fromkeys(keys)}
     return [loaded[k] for k in keys]

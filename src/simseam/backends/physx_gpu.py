@@ -18,14 +18,13 @@ Standard library only (imported by the CLI, the doctor and the backend's sidecar
 
 from __future__ import annotations
 
-import os
 import platform
 import shutil
 import struct
 import subprocess
-import tempfile
 from pathlib import Path
 
+from simseam.files import atomic_path
 from simseam.seam.errors import BackendUnavailableError, ConfigError
 
 LIBRARY = "libPhysXGpu_64.so"
@@ -81,15 +80,8 @@ def install(source: Path, physx_version: str, home: Path | None = None) -> Path:
     check_library(source)
     dest = library_path(physx_version, home)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{LIBRARY}.", dir=dest.parent)
-    os.close(fd)
-    try:
+    with atomic_path(dest, mode=0o755) as tmp:
         shutil.copyfile(source, tmp)
-        os.chmod(tmp, 0o755)
-        os.replace(tmp, dest)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return dest
 
 

@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from simseam.files import atomic_path, write_atomic
 from simseam.seam.errors import SimulationError
 
 CHECKS = 3  # the version of the checks below: a model cached under other checks is rebuilt
@@ -201,13 +202,10 @@ def cached_model(folder: Path, name: str, source_sha256: str, compile_model: Cal
     meta.unlink(missing_ok=True)
     model = compile_model()
     folder.mkdir(parents=True, exist_ok=True)
-    tmp = folder / f"{name}.mjb.partial"
-    mujoco.mj_saveModel(model, str(tmp), None)
-    os.replace(tmp, mjb)
+    with atomic_path(mjb) as tmp:
+        mujoco.mj_saveModel(model, str(tmp), None)
     pristine = mujoco.MjModel.from_binary_path(str(mjb))
     report = check(model)
-    partial = meta.with_suffix(".json.partial")
-    partial.write_text(json.dumps({"checks": CHECKS, "source_sha256": source_sha256, **(extra or {}),
+    write_atomic(meta, json.dumps({"checks": CHECKS, "source_sha256": source_sha256, **(extra or {}),
                                    "report": report}, indent=1))
-    os.replace(partial, meta)
     return pristine, report, mjb

@@ -14,11 +14,10 @@ completes); several runs need ``--out FILE``. An existing page is replaced only 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from simseam.files import write_atomic
 from simseam.runner.report_html import PAGE_HEAD, render
 from simseam.runner.run_dir import CONFIG_FILE, LOG_FILE, REPORT_FILE, RUN_FILES, SUMMARY_FILE, summary_of
 from simseam.seam import ConfigError
@@ -163,15 +162,7 @@ def write_report(paths: list[Path], out: Path | None = None, *, overwrite: bool 
     target = report_path(paths, out)
     check_target(target, overwrite)
     page = render(runs, paired_comparison(runs))
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(page)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(target, page)
     return target
 
 

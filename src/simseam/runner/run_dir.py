@@ -31,6 +31,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from simseam.files import write_atomic
 from simseam.seam import ConfigError
 
 CONFIG_FILE = "run.json"
@@ -43,16 +44,7 @@ RUN_FILES = (CONFIG_FILE, SPEC_FILE, LOG_FILE, SUMMARY_FILE)
 
 def write_json_atomic(path: Path, data: Any) -> None:
     """Write JSON to ``path`` through a temp file in the same directory and a rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(path, json.dumps(data, indent=2))
 
 
 def default_run_dir(root: Path = Path("runs")) -> Path:

@@ -41,6 +41,8 @@ import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from simseam.files import atomic_path
+
 SDK_VERSION = "6.0.1.0"  # the 6.x release simseam provisions (provision.RELEASES["6.x"])
 PLATFORM = "manylinux_2_35_x86_64"
 #: wheels downloaded whole: they hold isaacsim.core.* / isaacsim.simulation_app and isaacsim.asset.importer.urdf
@@ -168,11 +170,9 @@ def _copy_members(src: zipfile.ZipFile, suffixes: tuple[str, ...], out: Path) ->
     missing = [s for s in suffixes if not any(n.endswith(s) for n in names)]
     if missing:
         raise RuntimeError(f"members not in the wheel: {missing}")
-    tmp = out.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+    with atomic_path(out) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
         for n in names:
             z.writestr(n, src.read(n))
-    tmp.replace(out)
 
 
 def _fetch_partial(dist: str, suffixes: tuple[str, ...], version: str, dest: Path, quiet: bool) -> Path:
