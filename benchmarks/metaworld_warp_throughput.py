@@ -15,7 +15,9 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
 - ``mt50``: the whole evaluation a user waits for: every task, ``--episodes`` episodes (seeds 0..E-1, one
   world each) of ``max_path_length`` steps, building, resetting and stepping timed together (wall), the
   tasks split over ``--mt50-procs`` processes sharing the device (``--mps``: as clients of a CUDA MPS server of
-  the benchmark's own, so that their kernels run side by side).
+  the benchmark's own, so that their kernels run side by side). The processes claim tasks one at a time (an
+  exclusive-create file per task), so one that finishes early takes the next; ``--mt50-order RUN.json`` offers
+  them longest first by an earlier run's per-task seconds (else in the order given).
 - with ``--cameras corner,gripperPOV --image 128``, the same with those cameras rendered every step, beside
   the state-only sections (``--no-state`` leaves those out): ``cpu_cameras``, the CPU backend's per-env code
   with ``camera: [corner, gripperPOV]`` at ``--image``² (each step observes both images: Meta-World's
@@ -189,14 +191,18 @@ def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | N
 
 
 # ----------------------------------------------------------------------------------------------- mt50
-def mt50_worker(tasks: list[str], episodes: int, device: str | None) -> dict[str, Any]:
-    """Every task's ``episodes`` episodes to their end, as one batch per task; per task the wall seconds."""
+def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Path | None = None) -> dict[str, Any]:
+    """Every task's ``episodes`` episodes to their end, as one batch per task; per task the wall seconds.
+    ``claims``: a directory shared with the other processes; a task runs here only if this process creates its
+    claim file first."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     out = {}
     with NativeWorker() as worker:
         for i, task in enumerate(tasks):
+            if claims is not None and not _claim(claims / task):
+                continue
             t0 = time.perf_counter()
             env = MetaWorldBatch(task, episodes, worker, device=device)
             env.reset(np.arange(episodes), np.arange(episodes))
@@ -207,19 +213,40 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None) -> dict[str
                 success |= env.step(rng.uniform(-1.0, 1.0, (episodes, 4)).astype(xp.float32))["success"]
             env.close()
             out[task] = {"seconds": time.perf_counter() - t0, "episodes": episodes, "steps": env.max_steps,
-                         "successes": int(success.sum())}
+                         "successes": int(success.sum()), "process": os.getpid()}
     return out
 
 
-def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None, mps: bool = False) -> dict[str, Any]:
-    """``mps``: the processes as clients of a CUDA MPS server of the section's own (``runner.processes``)."""
+def _claim(path: Path) -> bool:
+    try:
+        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        return True
+    except FileExistsError:
+        return False
+
+
+def longest_first(tasks: list[str], earlier: Path | None) -> list[str]:
+    """``tasks`` by an earlier run's per-task seconds (its ``mt50.per_task``), longest first; the tasks it lacks
+    last, in their order."""
+    if earlier is None:
+        return list(tasks)
+    seconds = {t: r["seconds"] for t, r in json.loads(earlier.read_text())["mt50"]["per_task"].items()}
+    return sorted(tasks, key=lambda t: -seconds.get(t, -1.0))
+
+
+def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None, mps: bool = False,
+                 order: Path | None = None) -> dict[str, Any]:
+    """``mps``: the processes as clients of a CUDA MPS server of the section's own (``runner.processes``);
+    ``order``: an earlier run's JSON, whose per-task seconds order the tasks longest first."""
     import contextlib
 
     from simseam.runner.processes import MpsServer
 
+    tasks = longest_first(tasks, order)
     with MpsServer() if mps else contextlib.nullcontext() as env:
         out = _mt50_timed(tasks, episodes, procs, device, env)
-    return dict(out, mps=mps)
+    return dict(out, mps=mps, dealing="claimed one at a time, " + (f"longest first by {order}" if order else
+                                                                    "in the order given"))
 
 
 def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None) -> dict[str, Any]:
@@ -227,21 +254,31 @@ def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None,
     if procs <= 1:
         per_task = mt50_worker(tasks, episodes, device)
     else:
-        env = dict(env or os.environ)
-        workers = [subprocess.Popen([sys.executable, __file__, "--mt50-worker", ",".join(tasks[j::procs]),
-                                     "--episodes", str(episodes), *(["--device", device] if device else [])],
-                                    stdout=subprocess.PIPE, text=True, env=env) for j in range(min(procs, len(tasks)))]
-        per_task = {}
-        for w in workers:
-            lines = w.stdout.read().strip().splitlines()
-            if w.wait() != 0 or not lines:
-                raise RuntimeError(f"mt50 worker for {w.args[3]} failed (rc {w.returncode})")
-            per_task.update(json.loads(lines[-1]))
+        per_task = _mt50_processes(tasks, episodes, procs, device, dict(env or os.environ))
     wall = time.perf_counter() - t0
     n = sum(r["episodes"] for r in per_task.values())
     return {"episodes_per_task": episodes, "tasks": len(per_task), "episodes": n, "procs": procs,
             "wall_seconds": wall, "env_steps_per_s": sum(r["episodes"] * r["steps"] for r in per_task.values()) / wall,
             "per_task": per_task}
+
+
+def _mt50_processes(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict) -> dict[str, Any]:
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="mt50-claims-") as claims:
+        workers = [subprocess.Popen([sys.executable, __file__, "--mt50-worker", ",".join(tasks), "--claims", claims,
+                                     "--episodes", str(episodes), *(["--device", device] if device else [])],
+                                    stdout=subprocess.PIPE, text=True, env=env) for _ in range(min(procs, len(tasks)))]
+        per_task = {}
+        for j, w in enumerate(workers):
+            lines = w.stdout.read().strip().splitlines()
+            if w.wait() != 0 or not lines:
+                raise RuntimeError(f"mt50 worker {j} failed (rc {w.returncode})")
+            per_task.update(json.loads(lines[-1]))
+    missing = set(tasks) - set(per_task)
+    if missing:
+        raise RuntimeError(f"mt50: no process ran {sorted(missing)}")
+    return per_task
 
 
 # ----------------------------------------------------------------------------------------------- main
@@ -281,6 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=50, help="per task, for the whole-MT50 wall time (0 skips)")
     ap.add_argument("--mt50-procs", type=int, default=1)
     ap.add_argument("--mps", action="store_true", help="the mt50 section's processes as clients of a CUDA MPS server")
+    ap.add_argument("--mt50-order", type=Path, help="an earlier run's JSON: the mt50 tasks offered longest first")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
@@ -290,13 +328,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-state", action="store_true", help="only the camera sections")
     ap.add_argument("--cpu-worker", help=argparse.SUPPRESS)
     ap.add_argument("--mt50-worker", help=argparse.SUPPRESS)
+    ap.add_argument("--claims", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cpu_worker:
         cpu_worker(args.cpu_worker.split(","), args.cpu_chunk, args.cpu_seconds, args.seed, _names(args.cameras),
                    args.image)
         return 0
     if args.mt50_worker:
-        print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device)))
+        print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device, args.claims)))
         return 0
     if args.out.exists() and not args.overwrite:
         print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
@@ -333,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                args.image))
         save()
     if args.episodes and not args.no_state:
-        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps)
+        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order)
         save()
     print_table(doc)
     print(f"wrote {args.out}")
