@@ -18,6 +18,9 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
   the benchmark's own, so that their kernels run side by side). The processes claim tasks one at a time (an
   exclusive-create file per task), so one that finishes early takes the next; ``--mt50-order RUN.json`` offers
   them longest first by an earlier run's per-task seconds (else in the order given).
+- ``--host-arrays``: the Warp sections' observation and reward code in NumPy on host copies of the poses and
+  contacts (``MetaWorldBatch(host_arrays=True)``), against the default, on the device (CuPy: each array call
+  one GPU launch).
 - with ``--cameras corner,gripperPOV --image 128``, the same with those cameras rendered every step, beside
   the state-only sections (``--no-state`` leaves those out): ``cpu_cameras``, the CPU backend's per-env code
   with ``camera: [corner, gripperPOV]`` at ``--image``² (each step observes both images: Meta-World's
@@ -139,12 +142,12 @@ def cpu_section(tasks: list[str], procs: int, chunk: int, seconds: float, camera
 
 # ----------------------------------------------------------------------------------------------- warp
 def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, seed: int,
-              cameras: list[str] = (), image: int = 128) -> dict[str, Any]:
+              cameras: list[str] = (), image: int = 128, host_arrays: bool = False) -> dict[str, Any]:
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
     t0 = time.perf_counter()
     plan = [(name, f"camera{i + 1}", (image, image)) for i, name in enumerate(cameras)]
-    env = MetaWorldBatch(task, worlds, worker, device=device, cameras=plan)
+    env = MetaWorldBatch(task, worlds, worker, device=device, cameras=plan, host_arrays=host_arrays)
     env.reset(np.arange(worlds), np.arange(worlds) % 50)
     xp = env.xp
     rng = xp.random.RandomState(seed)  # NumPy and CuPy alike
@@ -170,7 +173,7 @@ def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, se
 
 
 def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | None, cameras: list[str] = (),
-                 image: int = 128) -> dict[str, Any]:
+                 image: int = 128, host_arrays: bool = False) -> dict[str, Any]:
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     out: dict[str, Any] = {}
@@ -179,7 +182,8 @@ def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | N
         for n in sizes:
             rows = {}
             for i, task in enumerate(tasks):
-                rows[task] = warp_task(worker, task, n, steps, device, seed=i, cameras=cameras, image=image)
+                rows[task] = warp_task(worker, task, n, steps, device, seed=i, cameras=cameras, image=image,
+                                       host_arrays=host_arrays)
                 print(f"  warp {n:6d} worlds  {task:28s} {rows[task]['env_steps_per_s']:12,.0f} env-steps/s "
                       f"({what}; setup {rows[task]['setup_seconds']:.1f} s)", flush=True)
             total = sum(r["worlds"] * r["steps"] for r in rows.values())
@@ -191,7 +195,8 @@ def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | N
 
 
 # ----------------------------------------------------------------------------------------------- mt50
-def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Path | None = None) -> dict[str, Any]:
+def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Path | None = None,
+                host_arrays: bool = False) -> dict[str, Any]:
     """Every task's ``episodes`` episodes to their end, as one batch per task; per task the wall seconds.
     ``claims``: a directory shared with the other processes; a task runs here only if this process creates its
     claim file first."""
@@ -204,7 +209,7 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Pat
             if claims is not None and not _claim(claims / task):
                 continue
             t0 = time.perf_counter()
-            env = MetaWorldBatch(task, episodes, worker, device=device)
+            env = MetaWorldBatch(task, episodes, worker, device=device, host_arrays=host_arrays)
             env.reset(np.arange(episodes), np.arange(episodes))
             xp = env.xp
             rng = xp.random.RandomState(i)
@@ -235,7 +240,7 @@ def longest_first(tasks: list[str], earlier: Path | None) -> list[str]:
 
 
 def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None, mps: bool = False,
-                 order: Path | None = None) -> dict[str, Any]:
+                 order: Path | None = None, host_arrays: bool = False) -> dict[str, Any]:
     """``mps``: the processes as clients of a CUDA MPS server of the section's own (``runner.processes``);
     ``order``: an earlier run's JSON, whose per-task seconds order the tasks longest first."""
     import contextlib
@@ -244,17 +249,18 @@ def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None
 
     tasks = longest_first(tasks, order)
     with MpsServer() if mps else contextlib.nullcontext() as env:
-        out = _mt50_timed(tasks, episodes, procs, device, env)
-    return dict(out, mps=mps, dealing="claimed one at a time, " + (f"longest first by {order}" if order else
+        out = _mt50_timed(tasks, episodes, procs, device, env, host_arrays)
+    return dict(out, mps=mps, host_arrays=host_arrays, dealing="claimed one at a time, " + (f"longest first by {order}" if order else
                                                                     "in the order given"))
 
 
-def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None) -> dict[str, Any]:
+def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None,
+                host_arrays: bool = False) -> dict[str, Any]:
     t0 = time.perf_counter()
     if procs <= 1:
-        per_task = mt50_worker(tasks, episodes, device)
+        per_task = mt50_worker(tasks, episodes, device, host_arrays=host_arrays)
     else:
-        per_task = _mt50_processes(tasks, episodes, procs, device, dict(env or os.environ))
+        per_task = _mt50_processes(tasks, episodes, procs, device, dict(env or os.environ), host_arrays)
     wall = time.perf_counter() - t0
     n = sum(r["episodes"] for r in per_task.values())
     return {"episodes_per_task": episodes, "tasks": len(per_task), "episodes": n, "procs": procs,
@@ -262,12 +268,14 @@ def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None,
             "per_task": per_task}
 
 
-def _mt50_processes(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict) -> dict[str, Any]:
+def _mt50_processes(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict,
+                    host_arrays: bool) -> dict[str, Any]:
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="mt50-claims-") as claims:
         workers = [subprocess.Popen([sys.executable, __file__, "--mt50-worker", ",".join(tasks), "--claims", claims,
-                                     "--episodes", str(episodes), *(["--device", device] if device else [])],
+                                     "--episodes", str(episodes), *(["--device", device] if device else []),
+                                     *(["--host-arrays"] if host_arrays else [])],
                                     stdout=subprocess.PIPE, text=True, env=env) for _ in range(min(procs, len(tasks)))]
         per_task = {}
         for j, w in enumerate(workers):
@@ -318,6 +326,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=50, help="per task, for the whole-MT50 wall time (0 skips)")
     ap.add_argument("--mt50-procs", type=int, default=1)
     ap.add_argument("--mps", action="store_true", help="the mt50 section's processes as clients of a CUDA MPS server")
+    ap.add_argument("--host-arrays", action="store_true",
+                    help="the Warp sections' observation and reward code in NumPy on host copies (MetaWorldBatch)")
     ap.add_argument("--mt50-order", type=Path, help="an earlier run's JSON: the mt50 tasks offered longest first")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=OUT)
@@ -335,7 +345,8 @@ def main(argv: list[str] | None = None) -> int:
                    args.image)
         return 0
     if args.mt50_worker:
-        print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device, args.claims)))
+        print(json.dumps(mt50_worker(args.mt50_worker.split(","), args.episodes, args.device, args.claims,
+                                     args.host_arrays)))
         return 0
     if args.out.exists() and not args.overwrite:
         print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
@@ -360,7 +371,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
     for n in sizes:  # each world count on disk as soon as it is measured
-        doc.setdefault("warp", {}).update(warp_section(tasks, [n], args.steps, args.device))
+        doc.setdefault("warp", {}).update(warp_section(tasks, [n], args.steps, args.device,
+                                                       host_arrays=args.host_arrays))
         save()
     if cameras and args.cpu_procs:
         doc["cpu_cameras"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds, cameras, args.image)
@@ -372,7 +384,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                args.image))
         save()
     if args.episodes and not args.no_state:
-        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order)
+        doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order,
+                                   args.host_arrays)
         save()
     print_table(doc)
     print(f"wrote {args.out}")

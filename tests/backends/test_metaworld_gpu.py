@@ -133,6 +133,29 @@ def test_a_non_finite_world_ends_alone(worker):
     env.close()
 
 
+def test_host_arrays_judge_the_same_worlds_the_same(worker):
+    """``host_arrays``: the observation and Meta-World's reward and success computed in NumPy from host copies of
+    the poses and contacts give what the default gives, step by step, on the same worlds and actions; the
+    batch's array module is then NumPy (on CUDA the default's is CuPy; on this CPU device both are NumPy, so
+    this checks the plumbing and the values, not CuPy's numerics)."""
+    from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+
+    batches = [MetaWorldBatch(TASK, 2, worker, device="cpu", host_arrays=h) for h in (False, True)]
+    assert batches[1].xp is np and batches[1].physics.device_xp is np
+    actions = np.random.default_rng(3).uniform(-1, 1, (8, 2, 4)).astype(np.float32)
+    for b in batches:
+        b.reset([0, 1], SEEDS)
+    for a in actions:
+        device, host = (b.step(a) for b in batches)
+        np.testing.assert_array_equal(np.asarray(device["obs"]), host["obs"])
+        np.testing.assert_array_equal(device["reward"], host["reward"])
+        np.testing.assert_array_equal(device["success"], host["success"])
+    contacts = batches[1].physics.contacts()
+    assert all(isinstance(x, np.ndarray) for x in (contacts.geom, contacts.world, contacts.force))
+    for b in batches:
+        b.close()
+
+
 @pytest.mark.parametrize("task", ["door-open-v3", "plate-slide-v3", "hammer-v3"])
 def test_model_checks_of_a_few_more_tasks(worker, task):
     """The model checks on tasks of other kinds (a hinged door, a puck flush on the table: the pair MuJoCo

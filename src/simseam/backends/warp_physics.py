@@ -126,7 +126,7 @@ def _widen(native: np.ndarray, pristine: np.ndarray) -> np.ndarray:
 class CpuPhysics:
     """One world on CPU MuJoCo (the same version as the Warp batch)."""
 
-    xp = np
+    xp = device_xp = np
 
     def __init__(self, mjm: Any, num_worlds: int = 1):
         import mujoco
@@ -186,10 +186,13 @@ class CpuPhysics:
 class WarpPhysics:
     """N worlds on MuJoCo Warp (``device``: a Warp device name; default Warp's preferred one). ``what``: the
     task, for the one-line error when the device's memory cannot hold the worlds (``engines.mujoco_warp.memory``:
-    it names the largest number that fits, measured)."""
+    it names the largest number that fits, measured). ``host_arrays``: ``poses()``, ``contacts()`` and
+    ``mocap_pos()`` are NumPy copies on the host (``xp`` is NumPy; ``device_xp`` stays the device's module), for
+    a small batch whose observation and reward code costs less in NumPy than as one GPU launch per array call."""
 
     def __init__(self, mjm: Any, num_worlds: int, device: str | None = None, batched: tuple[str, ...] = (),
-                 nconmax: int = 64, njmax: int = 256, graph: bool = True, what: str = "MuJoCo Warp"):
+                 nconmax: int = 64, njmax: int = 256, graph: bool = True, what: str = "MuJoCo Warp",
+                 host_arrays: bool = False):
         import mujoco
         import mujoco_warp as mjw
         import warp as wp
@@ -205,7 +208,8 @@ class WarpPhysics:
         mujoco.mj_forward(mjm, host)
         self.m, self.d = put_worlds(mjm, host, num_worlds, self.device, what, batched=self.batched,
                                     nconmax=nconmax, njmax=njmax)
-        self.xp = np if not self.device.is_cuda else _cupy()
+        self.device_xp = np if not self.device.is_cuda else _cupy()
+        self.xp = np if host_arrays else self.device_xp
         self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
         self.graph = bool(graph) and self.device.is_cuda
@@ -216,8 +220,12 @@ class WarpPhysics:
     def view(self, a: Any) -> Any:
         """A warp array as an ``xp`` array sharing its memory (NumPy on the CPU, CuPy on CUDA)."""
         if self.device.is_cuda:
-            return self.xp.from_dlpack(a)
+            return self.device_xp.from_dlpack(a)
         return a.numpy()
+
+    def _read(self, a: Any) -> Any:
+        """``a`` as ``xp`` reads it: a device view, or a host copy with ``host_arrays`` on CUDA."""
+        return a.get() if self.xp is np and self.device.is_cuda else a
 
     def load(self, rows: np.ndarray, states: list[dict[str, Any]]) -> None:
         """Scatter the reset states into rows ``rows`` of the device arrays (only those rows move: the
@@ -225,7 +233,8 @@ class WarpPhysics:
         unknown = {k for s in states for k in s["model"]} - set(self.batched) - {"eq_data"}
         if unknown:
             raise ValueError(f"reset changes model fields {sorted(unknown)} that are not batched per world")
-        xp, idx = self.xp, self.xp.asarray(np.asarray(rows, dtype=np.int64))
+        xp = self.device_xp
+        idx = xp.asarray(np.asarray(rows, dtype=np.int64))
         for key in self.batched:
             rowsof = np.stack([self._pristine[key] if s["model"].get(key) is None
                                else _widen(np.asarray(s["model"][key]), self._pristine[key]) for s in states])
@@ -253,7 +262,7 @@ class WarpPhysics:
         computes every geom's."""
         if not self._static.size:
             return
-        xp, v, g = self.xp, self.view, self._static
+        xp, v, g = self.device_xp, self.view, self._static
         self._wp.synchronize_device(self.device)
         body = xp.asarray(self.mjm.geom_bodyid[g])
         xpos, xquat = v(self.d.xpos)[idx][:, body], v(self.d.xquat)[idx][:, body]
@@ -274,12 +283,13 @@ class WarpPhysics:
         """Wait for what CuPy wrote into the device arrays (CuPy's stream): before Warp reads them, and before a
         timer stops."""
         if self.device.is_cuda:
-            self.xp.cuda.get_current_stream().synchronize()
+            self.device_xp.cuda.get_current_stream().synchronize()
 
     def control(self, mocap_pos: Any, mocap_quat: Any, ctrl: Any) -> None:
-        self.view(self.d.mocap_pos)[...] = mocap_pos
-        self.view(self.d.mocap_quat)[...] = mocap_quat
-        self.view(self.d.ctrl)[...] = ctrl
+        put = self.device_xp.asarray
+        self.view(self.d.mocap_pos)[...] = put(mocap_pos)
+        self.view(self.d.mocap_quat)[...] = put(mocap_quat)
+        self.view(self.d.ctrl)[...] = put(ctrl)
 
     def advance(self, substeps: int) -> None:
         self.synchronize()
@@ -293,7 +303,7 @@ class WarpPhysics:
         self._mjw.forward(self.m, self.d)
 
     def mocap_pos(self) -> Any:
-        return self.view(self.d.mocap_pos).copy()
+        return self._read(self.view(self.d.mocap_pos).copy())
 
     def render(self, cameras: Any) -> dict[str, Any]:
         """Every world's images from ``cameras`` (a ``WarpCameras`` of this batch), as ``xp`` views of its device
@@ -305,20 +315,21 @@ class WarpPhysics:
         return {key: self.view(img) for key, img in cameras.images.items()}
 
     def poses(self) -> Poses:
-        d, v, n = self.d, self.view, self.num_worlds
+        d, n = self.d, self.num_worlds
+        v = lambda a: self._read(self.view(a))  # noqa: E731
         return Poses(qpos=v(d.qpos), qvel=v(d.qvel), xpos=v(d.xpos), xquat=v(d.xquat),
                      xmat=v(d.xmat).reshape(n, -1, 3, 3), site_xpos=v(d.site_xpos),
                      site_xmat=v(d.site_xmat).reshape(n, -1, 3, 3), geom_xpos=v(d.geom_xpos),
                      geom_xmat=v(d.geom_xmat).reshape(n, -1, 3, 3))
 
     def contacts(self) -> Contacts:
-        xp, d = self.xp, self.d
+        xp, d = self.device_xp, self.d
         n = int(d.nacon.numpy()[0])
         geom = self.view(d.contact.geom)[:n].astype(xp.int64)
         world = self.view(d.contact.worldid)[:n].astype(xp.int64)
         adr = self.view(d.contact.efc_address)[:n, 0].astype(xp.int64)
         force = self.view(d.efc.force)[world, xp.clip(adr, 0, None)]
-        return Contacts(geom.reshape(n, 2), world, xp.where(adr >= 0, force, 0.0))
+        return Contacts(self._read(geom.reshape(n, 2)), self._read(world), self._read(xp.where(adr >= 0, force, 0.0)))
 
     def close(self) -> None:
         self.m = self.d = None

@@ -21,6 +21,11 @@ set up as MuJoCo's OpenGL renderer draws Meta-World (textures, the model's skybo
 shadows of its shadow-casting light, geom groups 0-2, the sites OpenGL draws such as the goal marker, no
 per-pixel specular highlights: ``RENDER_OPTIONS``); only when asked, never by ``step``. ``camera_pos`` moves
 the first camera, ``image_flip`` turns every image by 180 degrees: the CPU backend's options.
+
+``host_arrays``: the observation, reward and success are computed in NumPy from host copies of the worlds'
+poses and contacts (``WarpPhysics(host_arrays=True)``; ``xp`` is then NumPy, the images stay on the device):
+for a small batch on CUDA, where each array call of that code would otherwise be one GPU launch. The same
+code either way; the default keeps everything on the device.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ class MetaWorldBatch:
     def __init__(self, task: str, num_worlds: int, worker: Any, *, engine: str = "mujoco_warp",
                  device: str | None = None, variation: str = "mt1", goal_seed: int = 0, graph: bool = True,
                  cameras: Sequence[tuple[str, str, tuple[int, int]]] = (), camera_pos: Sequence[float] | None = None,
-                 image_flip: bool = False):
+                 image_flip: bool = False, host_arrays: bool = False):
         if task not in OBJECTS:
             raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
         if engine not in ENGINES:
@@ -74,7 +79,7 @@ class MetaWorldBatch:
             self.physics = CpuPhysics(mjm, self.num_worlds)
         else:
             self.physics = WarpPhysics(mjm, self.num_worlds, device, tuple(settled["model"]), graph=graph,
-                                       what=f"Meta-World {task} on MuJoCo Warp")
+                                       what=f"Meta-World {task} on MuJoCo Warp", host_arrays=host_arrays)
         self.cameras = self._make_cameras(task, cameras)
         self.image_flip = bool(image_flip)
         self.xp = xp = self.physics.xp

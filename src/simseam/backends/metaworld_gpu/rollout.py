@@ -191,7 +191,7 @@ class MetaWorldBatchRollout(NativePort):
         if not asked:
             return [{} for _ in wanted]
         images = self.world.render()
-        rows = {k: _host(images[k][self.world.xp.asarray(idx)]) for k in asked}
+        rows = {k: _host(images[k][self.world.physics.device_xp.asarray(idx)]) for k in asked}
         return [{k: np.ascontiguousarray(rows[k][i]) for k in w} for i, w in enumerate(wanted)]
 
     def _observations(self, idx: np.ndarray, requests: list) -> list[dict[str, Any]]:
