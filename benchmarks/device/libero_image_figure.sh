@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Item 8's image figure (issue: LIBERO on the GPU) on the lent GPU machine, in one call: libero_spatial's 500
+# episodes with a trained image policy on the port (MuJoCo Warp, 50 worlds a task, 10 processes under CUDA MPS)
+# against the CPU backend on all 16 cores, both cameras at IMAGE x IMAGE, the same policy on both sides
+# (bench_libero_scale.py: the real command lines timed from start to merged summary).
+# Needs, on the same warm machine: libero_warp_upload.sh's install (/tmp/lww) and libero_image_act.sh's train
+# (/tmp/limg: lerobot and its needs in /tmp/limg/site, the checkpoints in /tmp/limg/ckpt).
+#   bash benchmarks/device/libero_image_figure.sh [NAME] [IMAGE]   (default libero_spatial_0_img, 128)
+# The port's case runs once, under MPS (--warp-runs 0 --mps), after the CPU backend's. The JSON and each run's
+# console come back in $OUT. A checkpoint trained on one task is a throughput figure on all ten: its successes
+# count only on its own task.
+set -euo pipefail
+NAME="${1:-libero_spatial_0_img}" IMAGE="${2:-128}" OUT="${OUT:-/tmp/out}"
+[ -f /tmp/lww/env.sh ] || { echo "libero_image_figure: /tmp/lww/env.sh missing: run libero_warp_upload.sh install first" >&2; exit 2; }
+[ -d "/tmp/limg/ckpt/$NAME" ] || { echo "libero_image_figure: /tmp/limg/ckpt/$NAME missing: run libero_image_act.sh train first" >&2; exit 2; }
+# shellcheck disable=SC1091
+source /tmp/lww/env.sh
+export PYTHONPATH="$PYTHONPATH:/tmp/limg/site" HF_HUB_OFFLINE=1 TQDM_DISABLE=1
+mkdir -p "$OUT/logs"
+python3 benchmarks/bench_libero_scale.py --policy "lerobot:/tmp/limg/ckpt/$NAME" --image-size "$IMAGE" --n --full 16 \
+  --warp cuda:0 --warp-n 50 --warp-shards 10 --warp-runs 0 --mps --out "$OUT/libero_scale_img${IMAGE}_$NAME.json" \
+  --logs "$OUT/logs"
