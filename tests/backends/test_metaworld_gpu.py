@@ -135,9 +135,10 @@ def test_a_non_finite_world_ends_alone(worker):
 
 def test_host_arrays_judge_the_same_worlds_the_same(worker):
     """``host_arrays``: the observation and Meta-World's reward and success computed in NumPy from host copies of
-    the poses and contacts give what the default gives, step by step, on the same worlds and actions; the
+    the poses and contacts give what the default gives, step by step, on the same worlds and actions (the copies
+    are made once a step and renewed when the worlds move: a stale copy would repeat the last observation); the
     batch's array module is then NumPy (on CUDA the default's is CuPy; on this CPU device both are NumPy, so
-    this checks the plumbing and the values, not CuPy's numerics)."""
+    this checks the copies and the values, not CuPy's numerics)."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 
     batches = [MetaWorldBatch(TASK, 2, worker, device="cpu", host_arrays=h) for h in (False, True)]
@@ -152,6 +153,9 @@ def test_host_arrays_judge_the_same_worlds_the_same(worker):
         np.testing.assert_array_equal(device["success"], host["success"])
     contacts = batches[1].physics.contacts()
     assert all(isinstance(x, np.ndarray) for x in (contacts.geom, contacts.world, contacts.force))
+    poses = batches[1].physics.poses()
+    assert poses is batches[1].physics.poses()  # one copy a step
+    assert not np.shares_memory(poses.qpos, batches[1].physics.d.qpos.numpy())  # a copy, not a view
     for b in batches:
         b.close()
 

@@ -210,6 +210,8 @@ class WarpPhysics:
                                     nconmax=nconmax, njmax=njmax)
         self.device_xp = np if not self.device.is_cuda else _cupy()
         self.xp = np if host_arrays else self.device_xp
+        self._copies = bool(host_arrays)  # reads are host copies (``_read``; on the CPU device too, as on CUDA)
+        self._host_poses: Poses | None = None  # those copies, kept until the worlds move (advance, load)
         self._static = _static_geoms(mjm)
         #: capture the control step's launches as one CUDA graph (CUDA only; the CPU device runs them directly)
         self.graph = bool(graph) and self.device.is_cuda
@@ -224,8 +226,10 @@ class WarpPhysics:
         return a.numpy()
 
     def _read(self, a: Any) -> Any:
-        """``a`` as ``xp`` reads it: a device view, or a host copy with ``host_arrays`` on CUDA."""
-        return a.get() if self.xp is np and self.device.is_cuda else a
+        """``a`` as ``xp`` reads it: a device view, or with ``host_arrays`` a host copy."""
+        if not self._copies:
+            return a
+        return a.get() if hasattr(a, "get") else np.array(a)
 
     def load(self, rows: np.ndarray, states: list[dict[str, Any]]) -> None:
         """Scatter the reset states into rows ``rows`` of the device arrays (only those rows move: the
@@ -233,6 +237,7 @@ class WarpPhysics:
         unknown = {k for s in states for k in s["model"]} - set(self.batched) - {"eq_data"}
         if unknown:
             raise ValueError(f"reset changes model fields {sorted(unknown)} that are not batched per world")
+        self._host_poses = None
         xp = self.device_xp
         idx = xp.asarray(np.asarray(rows, dtype=np.int64))
         for key in self.batched:
@@ -286,12 +291,13 @@ class WarpPhysics:
             self.device_xp.cuda.get_current_stream().synchronize()
 
     def control(self, mocap_pos: Any, mocap_quat: Any, ctrl: Any) -> None:
-        put = self.device_xp.asarray
+        put = lambda a: self.device_xp.asarray(np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a)  # noqa: E731
         self.view(self.d.mocap_pos)[...] = put(mocap_pos)
         self.view(self.d.mocap_quat)[...] = put(mocap_quat)
         self.view(self.d.ctrl)[...] = put(ctrl)
 
     def advance(self, substeps: int) -> None:
+        self._host_poses = None
         self.synchronize()
         with self._wp.ScopedDevice(self.device):
             self._launch(f"advance{substeps}", lambda: self._advance(substeps))
@@ -315,12 +321,17 @@ class WarpPhysics:
         return {key: self.view(img) for key, img in cameras.images.items()}
 
     def poses(self) -> Poses:
+        if self._host_poses is not None:
+            return self._host_poses
         d, n = self.d, self.num_worlds
         v = lambda a: self._read(self.view(a))  # noqa: E731
-        return Poses(qpos=v(d.qpos), qvel=v(d.qvel), xpos=v(d.xpos), xquat=v(d.xquat),
-                     xmat=v(d.xmat).reshape(n, -1, 3, 3), site_xpos=v(d.site_xpos),
-                     site_xmat=v(d.site_xmat).reshape(n, -1, 3, 3), geom_xpos=v(d.geom_xpos),
-                     geom_xmat=v(d.geom_xmat).reshape(n, -1, 3, 3))
+        poses = Poses(qpos=v(d.qpos), qvel=v(d.qvel), xpos=v(d.xpos), xquat=v(d.xquat),
+                      xmat=v(d.xmat).reshape(n, -1, 3, 3), site_xpos=v(d.site_xpos),
+                      site_xmat=v(d.site_xmat).reshape(n, -1, 3, 3), geom_xpos=v(d.geom_xpos),
+                      geom_xmat=v(d.geom_xmat).reshape(n, -1, 3, 3))
+        if self._copies:  # a step reads them several times: copied once
+            self._host_poses = poses
+        return poses
 
     def contacts(self) -> Contacts:
         xp, d = self.device_xp, self.d
