@@ -250,8 +250,8 @@ def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None
     tasks = longest_first(tasks, order)
     with MpsServer() if mps else contextlib.nullcontext() as env:
         out = _mt50_timed(tasks, episodes, procs, device, env, host_arrays)
-    return dict(out, mps=mps, host_arrays=host_arrays, dealing="claimed one at a time, " + (f"longest first by {order}" if order else
-                                                                    "in the order given"))
+    offered = f"longest first by {order}" if order else "in the order given"
+    return dict(out, mps=mps, host_arrays=host_arrays, dealing=f"claimed one at a time, {offered}")
 
 
 def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None,
@@ -352,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
     from simseam.backends.metaworld_gpu.tasks import OBJECTS
+    from simseam.files import write_atomic
 
     tasks = sorted(OBJECTS) if args.tasks == "mt50" else args.tasks.split(",")
     sizes = [] if args.no_state else [int(x) for x in args.worlds.split(",") if x]
@@ -362,9 +363,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def save() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = args.out.with_suffix(".partial")
-        tmp.write_text(json.dumps(doc, indent=1))
-        tmp.replace(args.out)
+        write_atomic(args.out, json.dumps(doc, indent=1))
 
     if args.cpu_procs and not args.no_state:
         doc["cpu"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds)

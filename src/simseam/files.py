@@ -15,8 +15,8 @@ from typing import Iterator
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, mode: int = 0o644) -> Iterator[Path]:
-    """A fresh temporary path beside ``path`` for the block to write (a file or a directory); renamed onto
-    ``path`` with permissions ``mode`` when the block ends, removed when it raises. ``path``'s directory must exist."""
+    """A fresh temporary file beside ``path`` for the block to write; renamed onto ``path`` with permissions
+    ``mode`` when the block ends, removed when it raises. ``path``'s directory must exist."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
     os.close(fd)

@@ -309,7 +309,8 @@ class WarpPhysics:
         self._mjw.forward(self.m, self.d)
 
     def mocap_pos(self) -> Any:
-        return self._read(self.view(self.d.mocap_pos).copy())
+        view = self.view(self.d.mocap_pos)
+        return self._read(view) if self._copies else view.copy()
 
     def render(self, cameras: Any) -> dict[str, Any]:
         """Every world's images from ``cameras`` (a ``WarpCameras`` of this batch), as ``xp`` views of its device
@@ -340,7 +341,8 @@ class WarpPhysics:
         world = self.view(d.contact.worldid)[:n].astype(xp.int64)
         adr = self.view(d.contact.efc_address)[:n, 0].astype(xp.int64)
         force = self.view(d.efc.force)[world, xp.clip(adr, 0, None)]
-        return Contacts(self._read(geom.reshape(n, 2)), self._read(world), self._read(xp.where(adr >= 0, force, 0.0)))
+        force = xp.where(adr >= 0, force, 0.0)
+        return Contacts(self._read(geom.reshape(n, 2)), self._read(world), self._read(force))
 
     def close(self) -> None:
         self.m = self.d = None

@@ -121,8 +121,9 @@ class LiberoBatchRollout(NativePort):
     def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
         """Ask ``worker`` now for what a batch of ``config`` will first need of LIBERO: the task's description
         (``model.described``: LIBERO's env built by ``describe``, unless kept on disk) and the resets of ``seeds``
-        and of seed 0 (the parking state), kept in the reset cache on disk. A run calls it from a thread for its next task while this one steps: LIBERO's resets (about a
-        second each) then no longer stand between two tasks' batches."""
+        and of seed 0 (the parking state), kept in the reset cache on disk. A run calls it from a thread for its
+        next task while this one steps: LIBERO's resets (about a second each) then no longer stand between two
+        tasks' batches."""
         c = gpu_config(config)
         info = described(worker, c["suite"], int(c["task"]))
         LiberoBatch.reset_cache(worker, info, c["settle_steps"]).get(sorted({0, *map(int, seeds)}))
