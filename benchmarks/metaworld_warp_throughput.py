@@ -173,24 +173,28 @@ def warp_task(worker, task: str, worlds: int, steps: int, device: str | None, se
 
 
 def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | None, cameras: list[str] = (),
-                 image: int = 128, host_arrays: bool = False) -> dict[str, Any]:
+                 image: int = 128, host_arrays: bool = False, on_task=None) -> dict[str, Any]:
+    """Each world count over ``tasks``; ``on_task(out)`` after every task with the rows so far (a run cut off by a
+    time limit keeps the tasks it measured)."""
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     out: dict[str, Any] = {}
     what = f"{len(cameras)} x {image}^2 cameras" if cameras else "state-only"
     with NativeWorker() as worker:
         for n in sizes:
-            rows = {}
+            rows = out.setdefault(str(n), {"tasks": {}})["tasks"]
             for i, task in enumerate(tasks):
                 rows[task] = warp_task(worker, task, n, steps, device, seed=i, cameras=cameras, image=image,
                                        host_arrays=host_arrays)
                 print(f"  warp {n:6d} worlds  {task:28s} {rows[task]['env_steps_per_s']:12,.0f} env-steps/s "
                       f"({what}; setup {rows[task]['setup_seconds']:.1f} s)", flush=True)
+                if on_task is not None:
+                    on_task(out)
             total = sum(r["worlds"] * r["steps"] for r in rows.values())
             secs = sum(r["seconds"] for r in rows.values())
             rates = [r["env_steps_per_s"] for r in rows.values()]
-            out[str(n)] = {"tasks": rows, "env_steps_per_s": total / secs, "slowest_task_env_steps_per_s": min(rates),
-                           "fastest_task_env_steps_per_s": max(rates)}
+            out[str(n)].update({"env_steps_per_s": total / secs, "slowest_task_env_steps_per_s": min(rates),
+                                  "fastest_task_env_steps_per_s": max(rates)})
     return out
 
 
@@ -370,8 +374,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
     for n in sizes:  # each world count on disk as soon as it is measured
-        doc.setdefault("warp", {}).update(warp_section(tasks, [n], args.steps, args.device,
-                                                       host_arrays=args.host_arrays))
+        done = dict(doc.get("warp", {}))
+        doc["warp"] = dict(done, **warp_section(tasks, [n], args.steps, args.device, host_arrays=args.host_arrays,
+                                                on_task=lambda rows: (doc.update(warp=dict(done, **rows)), save())))
         save()
     if cameras and args.cpu_procs:
         doc["cpu_cameras"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds, cameras, args.image)

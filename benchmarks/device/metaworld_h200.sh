@@ -2,6 +2,10 @@
 # The Meta-World-on-Warp measurements on the lent GPU machine, after metaworld_upload.sh's install (one call):
 #   bash benchmarks/device/metaworld_h200.sh throughput   (a CUDA smoke of the fidelity harness first; then MT50 x 50 in
 #     MT50_PROCS processes (default 8), MT50_MPS=1: as clients of a CUDA MPS server; MT50_LIMIT=0 skips it)
+#   bash benchmarks/device/metaworld_h200.sh mt50x50      (MT50 x 50 under MPS, MT50_PROCS processes (default 16), the
+#     tasks claimed longest first: first cold with --host-arrays, then warm with and without it (MT50_RUNS
+#     overrides: "host plain" = the two warm runs only); then the Warp kernel cache, when it fits, comes back as
+#     mw_kcache.txz.NN pieces, at most three (restore: cat them into one .txz and carry it with metaworld_upload.sh's install)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes (FID_JOBS); a CUDA smoke
@@ -31,6 +35,18 @@ case "${1:-}" in
       --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${MT50_PROCS:-8}" ${MT50_MPS:+--mps} \
       --out "$OUT/throughput_mt50x50.json" --overwrite 2>&1 | quiet > "$OUT/mt50.log"; tail -5 "$OUT/mt50.log"
     ;;
+  mt50x50)
+    order=benchmarks/results/metaworld_mt50x50_mps16_warm_h100.json
+    for run in ${MT50_RUNS:-cold host plain}; do
+      flag=--host-arrays; [ "$run" = plain ] && flag=
+      timeout "${MT50_LIMIT:-300}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
+        --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${MT50_PROCS:-16}" --mps --mt50-order "$order" $flag \
+        --out "$OUT/mt50x50_$run.json" --overwrite 2>&1 | quiet > "/tmp/mt50_$run.log"; echo "== $run"; tail -2 "/tmp/mt50_$run.log"
+      cat "/tmp/mt50_$run.log" >> "$OUT/mt50.log"  # one log: a call brings back at most 8 files
+    done
+    XZ_OPT="-T0 -6" tar -C "$WARP_CACHE_PATH" -cJf /tmp/mw_kcache.txz . && ls -l /tmp/mw_kcache.txz
+    [ "$(stat -c %s /tmp/mw_kcache.txz)" -le 45000000 ] && split -b 15000000 -d /tmp/mw_kcache.txz "$OUT/mw_kcache.txz."
+    ;;
   fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
     mkdir -p /tmp/mwfid; FID=/tmp/mwfid/metaworld_warp_fidelity.json
     # FID_FROM: an earlier call's merged JSON (same seeds, steps, device): its tasks are kept, only the rest run
@@ -59,5 +75,5 @@ case "${1:-}" in
       --cpu-seconds "${TP_CPU_S:-15}" --episodes 0 --out "$OUT/throughput_cameras.json" --overwrite 2>&1 | quiet > "$OUT/cameras.log"
     tail -12 "$OUT/cameras.log"
     ;;
-  *) echo "usage: $0 throughput | fidelity | cameras" >&2; exit 2 ;;
+  *) echo "usage: $0 throughput | mt50x50 | fidelity | cameras" >&2; exit 2 ;;
 esac

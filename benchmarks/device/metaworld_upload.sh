@@ -14,6 +14,9 @@
 #           (where MuJoCo Warp's side is already there, e.g. after libero_warp_upload.sh's install: `side` here
 #            -> .cache/mwside, ~46 MB, one call: `receive .cache/mwside && ... install /tmp/lww/site`; MW_WARP_CACHE=/tmp/lww/cache/warp shares
 #            the kernels LIBERO compiled)
+#           (optionally, a kernel cache brought back by `metaworld_h200.sh mt50x50` (mw_kcache.txz.NN): put the
+#            pieces in a DIR/ck before its call; install unpacks them into WARP_CACHE_PATH, so the first run loads
+#            the kernels instead of compiling them)
 #           the last call then:
 #             bash benchmarks/device/metaworld_upload.sh install
 #             source /tmp/mw/env.sh   (PYTHONPATH: the wheels and the checkout's src; SIMSEAM_CACHE, WARP_CACHE_PATH)
@@ -81,6 +84,9 @@ case "$cmd" in
 export PYTHONPATH=$SITE:$REPO/src SIMSEAM_CACHE=/tmp/mwcache WARP_CACHE_PATH=${MW_WARP_CACHE:-/tmp/mwcache/warp} MUJOCO_GL=disable
 EOF
     source /tmp/mw/env.sh
+    if compgen -G "/tmp/mw/mw_kcache.txz.*" > /dev/null; then  # a kernel cache an earlier machine brought back
+      mkdir -p "$WARP_CACHE_PATH"; cat /tmp/mw/mw_kcache.txz.* | tar -C "$WARP_CACHE_PATH" -xJf -
+    fi
     venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"
     mkdir -p "$venv/bin"
     printf '#!/bin/sh\nexport PYTHONPATH="/tmp/mwsite${PYTHONPATH:+:$PYTHONPATH}"\nexec %s "$@"\n' "$(command -v python3)" \
