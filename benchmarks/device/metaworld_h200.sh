@@ -7,7 +7,7 @@
 #     overrides: "host plain" = the two warm runs only); then the Warp kernel cache, when it fits, comes back as
 #     mw_kcache.txz.NN pieces, at most three (restore: cat them into one .txz and carry it with metaworld_upload.sh's install)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
-#     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well)
+#     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well; then SSIM against OpenGL on CUDA)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes (FID_JOBS); a CUDA smoke
 #     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off; returns mwfid.tgz:
 #     untar it into DIR, then: metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --device cuda:0 --merge
@@ -69,11 +69,17 @@ case "${1:-}" in
     ;;
   cameras)  # carry .gl too: the CPU backend's cameras render through EGL (the GL loader debs, as vector_lockstep.sh)
     for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig; export MUJOCO_GL=egl
+    # the driver's EGL where the loader does not find it (the device README's hint): the GPU's OpenGL, not llvmpipe
+    V=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json; [ -f "$V" ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$V
     timeout "${TP_LIMIT:-540}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --no-state \
       --tasks "${TP_TASKS:-reach-v3,push-v3,pick-place-v3,door-open-v3,drawer-open-v3,drawer-close-v3,button-press-topdown-v3,peg-insert-side-v3,window-open-v3,window-close-v3}" \
       --cameras corner,gripperPOV --image 128 --camera-worlds "${TP_WORLDS:-1024,4096}" --steps 10 --cpu-procs 16 \
       --cpu-seconds "${TP_CPU_S:-15}" --episodes 0 --out "$OUT/throughput_cameras.json" --overwrite 2>&1 | quiet > "$OUT/cameras.log"
     tail -12 "$OUT/cameras.log"
+    # then the SSIM / PSNR of the ray tracer against MuJoCo's OpenGL on the same states, here on CUDA (the CPU device's
+    # figure is in docs/benchmarks.md); SSIM=0 skips it
+    [ "${SSIM:-1}" = 0 ] || timeout "${SSIM_LIMIT:-240}" python3 benchmarks/metaworld_warp_cameras.py --device cuda:0 \
+      --out "$OUT/cameras_ssim_cuda.json" --overwrite 2>&1 | quiet > "$OUT/ssim.log"; tail -12 "$OUT/ssim.log"
     ;;
   *) echo "usage: $0 throughput | mt50x50 | fidelity | cameras" >&2; exit 2 ;;
 esac
