@@ -4,7 +4,7 @@
 #     MT50_PROCS processes (default 8), MT50_MPS=1: as clients of a CUDA MPS server; MT50_LIMIT=0 skips it)
 #   bash benchmarks/device/metaworld_h200.sh mt50x50      (MT50 x 50 under MPS, MT50_PROCS processes (default 16), the
 #     tasks claimed longest first: first cold with --host-arrays, then warm with and without it (MT50_RUNS
-#     overrides: "host plain" = the two warm runs only); then the Warp kernel cache, when it fits, comes back as
+#     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes); then the Warp kernel cache, when it fits, comes back as
 #     mw_kcache.txz.NN pieces, at most three (restore: cat them into one .txz and carry it with metaworld_upload.sh's install)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well; then SSIM against OpenGL on CUDA)
@@ -37,10 +37,11 @@ case "${1:-}" in
     ;;
   mt50x50)
     order=benchmarks/results/metaworld_mt50x50_mps16_warm_h100.json
-    for run in ${MT50_RUNS:-cold host plain}; do
-      flag=--host-arrays; [ "$run" = plain ] && flag=
+    for run in ${MT50_RUNS:-cold host plain}; do  # a run's name: cold, host or plain, then its processes if not MT50_PROCS
+      flag=--host-arrays; [ "${run//[0-9]/}" = plain ] && flag=
+      procs="${run//[!0-9]/}"
       timeout "${MT50_LIMIT:-300}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
-        --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${MT50_PROCS:-16}" --mps --mt50-order "$order" $flag \
+        --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${procs:-${MT50_PROCS:-16}}" --mps --mt50-order "$order" $flag \
         --out "$OUT/mt50x50_$run.json" --overwrite 2>&1 | quiet > "/tmp/mt50_$run.log"; echo "== $run"; tail -2 "/tmp/mt50_$run.log"
       cat "/tmp/mt50_$run.log" >> "$OUT/mt50.log"  # one log: a call brings back at most 8 files
     done
