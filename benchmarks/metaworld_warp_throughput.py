@@ -311,8 +311,8 @@ def machine(device: str | None) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - facts are best effort
         facts["error"] = repr(exc)
     try:
-        facts["cpu_model"] = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
-                                  if line.startswith("model name"))
+        with open("/proc/cpuinfo") as f:
+            facts["cpu_model"] = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
     return facts
@@ -373,11 +373,12 @@ def main(argv: list[str] | None = None) -> int:
         doc["cpu"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds)
         print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
-    for n in sizes:  # each world count on disk as soon as it is measured
-        done = dict(doc.get("warp", {}))
-        doc["warp"] = dict(done, **warp_section(tasks, [n], args.steps, args.device, host_arrays=args.host_arrays,
-                                                on_task=lambda rows: (doc.update(warp=dict(done, **rows)), save())))
+    def keep(rows: dict[str, Any]) -> None:  # rows: {world count: ...}, the earlier counts' kept
+        doc.setdefault("warp", {}).update(rows)
         save()
+
+    for n in sizes:  # each world count on disk as soon as it is measured, and each task within it
+        keep(warp_section(tasks, [n], args.steps, args.device, host_arrays=args.host_arrays, on_task=keep))
     if cameras and args.cpu_procs:
         doc["cpu_cameras"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds, cameras, args.image)
         print(f"cpu backend with {','.join(cameras)} at {args.image}^2, {args.cpu_procs} processes: "
