@@ -4,7 +4,8 @@
 #     MT50_PROCS processes (default 8), MT50_MPS=1: as clients of a CUDA MPS server; MT50_LIMIT=0 skips it)
 #   bash benchmarks/device/metaworld_h200.sh mt50x50      (MT50 x 50 under MPS, MT50_PROCS processes (default 16), the
 #     tasks claimed longest first: first cold with --host-arrays, then warm with and without it (MT50_RUNS
-#     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes); then the Warp kernel cache, when it fits, comes back as
+#     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes; each run within
+#     MT50_LIMIT s, default 180, a cold one MT50_COLD_LIMIT, default 330); then the Warp kernel cache, when it fits, comes back as
 #     mw_kcache.txz.NN pieces, at most three (restore: cat them into one .txz and carry it with metaworld_upload.sh's install)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well; then SSIM against OpenGL on CUDA)
@@ -40,12 +41,13 @@ case "${1:-}" in
     for run in ${MT50_RUNS:-cold host plain}; do  # a run's name: cold, host or plain, then its processes if not MT50_PROCS
       flag=--host-arrays; [ "${run//[0-9]/}" = plain ] && flag=
       procs="${run//[!0-9]/}"
-      timeout "${MT50_LIMIT:-300}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
+      limit="${MT50_LIMIT:-180}"; [ "${run//[0-9]/}" = cold ] && limit="${MT50_COLD_LIMIT:-330}"
+      timeout "$limit" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \
         --worlds "" --cpu-procs 0 --episodes 50 --mt50-procs "${procs:-${MT50_PROCS:-16}}" --mps --mt50-order "$order" $flag \
         --out "$OUT/mt50x50_$run.json" --overwrite 2>&1 | quiet > "/tmp/mt50_$run.log"; echo "== $run"; tail -2 "/tmp/mt50_$run.log"
       cat "/tmp/mt50_$run.log" >> "$OUT/mt50.log"  # one log: a call brings back at most 8 files
     done
-    XZ_OPT="-T0 -6" tar -C "$WARP_CACHE_PATH" -cJf /tmp/mw_kcache.txz . && ls -l /tmp/mw_kcache.txz
+    XZ_OPT="-T0 -6" timeout 60 tar -C "$WARP_CACHE_PATH" -cJf /tmp/mw_kcache.txz . && ls -l /tmp/mw_kcache.txz
     [ "$(stat -c %s /tmp/mw_kcache.txz)" -le 45000000 ] && split -b 15000000 -d /tmp/mw_kcache.txz "$OUT/mw_kcache.txz."
     ;;
   fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
