@@ -56,7 +56,8 @@
 set -euo pipefail
 
 LW="${LW_ROOT:-/tmp/lww}"
-CHUNK_BYTES=60000000  # at most; prepare lowers it so that a piece plus the checkout stays under a call's 64 MiB
+# shellcheck source=pieces.sh
+source "$(dirname "$0")/pieces.sh"  # mb, piece_bytes, pack, recut, receive_pieces, unpack_pieces
 SUITES="${LW_SUITES:-libero_spatial,libero_object}"
 # MuJoCo Warp's side: the versions of pyproject's `warp` extra and the MuJoCo mujoco-warp 4.0.0 is tested with
 MAIN_REQS="warp-lang==1.19.0 mujoco-warp==4.0.0 mujoco==4.0.1 mujoco-core==4.0.1 PyOpenGL==3.1.10 pyzmq==27.3.0 msgpack==1.2.4"
@@ -67,8 +68,6 @@ PLAT=(--only-binary=:all: --python-version 3.12 --implementation cp --platform m
       --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
 # this machine's pip config (a constraints file, find-links) must not steer what is packed
 export PIP_CONSTRAINT="" PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_ROOT_USER_ACTION=ignore
-
-mb() { du -sb "$@" | awk '{s += $1} END {printf "%.1f MB", s / 1e6}'; }
 
 find_py312() {
   [ -n "${PY312:-}" ] && { echo "$PY312"; return; }
@@ -149,53 +148,6 @@ EOF
   echo "site: $(mb "$stage/site"), lsite: $(mb "$stage/lsite")"
 }
 
-# a piece travels with the whole checkout (tracked and untracked-not-ignored files): 64 MiB less that, less 1 MiB.
-# The device tool counts a file as the disk blocks it takes (4 KiB each: 718 files of 9.04 MB came to 10.3 MB in
-# December, and a piece cut from the bytes alone was refused), so each file is counted rounded up to 4 KiB.
-piece_bytes() {  # ROOT
-  local tree room
-  tree=$(cd "$1" && { git ls-files -z; git ls-files -z --others --exclude-standard; } | xargs -0 stat -c %s 2>/dev/null \
-    | awk '{s += int(($1 + 4095) / 4096) * 4096} END {print s + 0}')
-  room=$(( (64 << 20) - tree - (1 << 20) ))
-  echo $(( room < CHUNK_BYTES ? room : CHUNK_BYTES ))
-}
-
-# one xz tar, split into pieces of CHUNK_BYTES, one directory per device call; c01 has the count and the SHA256
-pack() {  # DIR
-  local dir="$1" i=0 part n
-  tar -C "$dir/stage" -cf - . | xz -T0 -9 > "$dir/pkg.tar.xz"
-  split -b "$CHUNK_BYTES" -d -a 2 "$dir/pkg.tar.xz" "$dir/pkg.part"
-  n=$(ls "$dir"/pkg.part* | wc -l)
-  mkdir -p "$dir/c01"
-  sha256sum "$dir/pkg.tar.xz" | awk '{print $1}' > "$dir/c01/pkg.sha256"
-  echo "$n" > "$dir/c01/pkg.count"
-  for part in "$dir"/pkg.part*; do
-    i=$((i + 1)); mkdir -p "$dir/c$(printf %02d $i)"; mv "$part" "$dir/c$(printf %02d $i)/"
-  done
-  echo "packed $(mb "$dir/stage") into $(mb "$dir/pkg.tar.xz") (xz): $n piece(s) of at most $CHUNK_BYTES bytes, $n device call(s)"
-  rm -rf "$dir/stage" "$dir/pkg.tar.xz"
-}
-
-# the pieces already in DIR (c01 .. cNN) cut again for the checkout at hand (it grew: a piece no longer fits)
-recut() {  # DIR
-  local dir="$1" i=0 part
-  CHUNK_BYTES=$(piece_bytes "$(git rev-parse --show-toplevel)")
-  cat "$dir"/c*/pkg.part* > "$dir/pkg.tar.xz"
-  [ "$(sha256sum "$dir/pkg.tar.xz" | awk '{print $1}')" = "$(cat "$dir/c01/pkg.sha256")" ] \
-    || { echo "recut: the pieces in $dir do not match their SHA256" >&2; exit 2; }
-  cp "$dir/c01/pkg.sha256" "$dir/pkg.sha256"
-  rm -rf "$dir"/c[0-9]*
-  split -b "$CHUNK_BYTES" -d -a 2 "$dir/pkg.tar.xz" "$dir/pkg.part"
-  mkdir -p "$dir/c01"
-  mv "$dir/pkg.sha256" "$dir/c01/"
-  ls "$dir"/pkg.part* | wc -l > "$dir/c01/pkg.count"
-  for part in "$dir"/pkg.part*; do
-    i=$((i + 1)); mkdir -p "$dir/c$(printf %02d $i)"; mv "$part" "$dir/c$(printf %02d $i)/"
-  done
-  rm -f "$dir/pkg.tar.xz"
-  echo "recut into $i piece(s) of at most $CHUNK_BYTES bytes, $i device call(s)"
-}
-
 prepare() {
   local root dir pip_py py312 pins key cache
   root="$(cd "$(dirname "$0")/../.." && pwd)"
@@ -213,23 +165,6 @@ prepare() {
   CHUNK_BYTES=$(piece_bytes "$root")
   pack "$dir"
   du -b "$dir"/c* | awk '{printf "%s %.1f MB\n", $2, $1 / 1e6}'
-}
-
-receive() {
-  [ -d "${1:-}" ] || { echo "receive: no piece directory ${1:-}" >&2; exit 2; }
-  mkdir -p "$LW/in"; cp -r "$1"/. "$LW/in/"
-  echo "received $(ls "$LW"/in/pkg.part* 2>/dev/null | wc -l) piece(s) of $(cat "$LW/in/pkg.count" 2>/dev/null || echo '?') in $LW/in"
-}
-
-unpack() {
-  cd "$LW/in"
-  [ -f pkg.count ] && [ -f pkg.sha256 ] || { echo "install: the first piece (c01: count and SHA256) was not received" >&2; exit 2; }
-  local have want
-  have=$(ls pkg.part* 2>/dev/null | wc -l); want=$(cat pkg.count)
-  [ "$have" = "$want" ] || { echo "install: $have of $want pieces received ($(ls pkg.part* | tr '\n' ' '))" >&2; exit 2; }
-  [ "$(cat pkg.part* | sha256sum | awk '{print $1}')" = "$(cat pkg.sha256)" ] || { echo "install: SHA256 mismatch" >&2; exit 2; }
-  cat pkg.part* | xz -dc | tar -x -C "$LW"
-  cd - >/dev/null
 }
 
 check_kept() {  # every file the traced tasks read must be in lsite
@@ -272,7 +207,7 @@ install() {
     || { echo "install: $py is not CPython 3.12 (the packages are cp312); set PYTHON" >&2; exit 2; }
   gl_loader
   rm -rf "$LW/site" "$LW/lsite"
-  unpack
+  unpack_pieces "$LW/in" "$LW"
   check_kept
   for k in "$LW"/in/warp_kernel_cache*.txz; do  # kernels compiled on an earlier machine, received beforehand
     [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
@@ -299,7 +234,7 @@ PY
 
 case "${1:-}" in
   prepare) prepare "${2:-}" ;;
-  receive) receive "${2:-}" ;;
+  receive) receive_pieces "${2:-}" "$LW/in" ;;
   install) install ;;
   recut) recut "${2:-.cache/libero_warp_carry}" ;;
   *) echo "usage: $0 prepare [DIR] | recut [DIR] | receive DIR/ck | install" >&2; exit 2 ;;

@@ -6,7 +6,8 @@
 #     tasks claimed longest first: first cold with --host-arrays, then warm with and without it (MT50_RUNS
 #     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes; each run within
 #     MT50_LIMIT s, default 180, a cold one MT50_COLD_LIMIT, default 330); then the Warp kernel cache, when it fits, comes back as
-#     mw_kcache.txz.NN pieces, at most three (restore: cat them into one .txz and carry it with metaworld_upload.sh's install)
+#     mw_kcache.txz.NN pieces, at most three (the next machine: put them in a directory, carry it and `metaworld_upload.sh receive` it
+#     before the install call: install unpacks them)
 #   bash benchmarks/device/metaworld_h200.sh cameras      (corner + gripperPOV at 128x128: Warp's ray tracer against
 #     the CPU backend's OpenGL cameras in 16 processes; carry .gl as well; then SSIM against OpenGL on CUDA)
 #   bash benchmarks/device/metaworld_h200.sh fidelity     (MT50 x 50 seeds x 500 steps, 15 processes (FID_JOBS); a CUDA smoke
