@@ -48,6 +48,7 @@ case "${1:-}" in
         --out "$OUT/mt50x50_$run.json" --overwrite 2>&1 | quiet > "/tmp/mt50_$run.log"; echo "== $run"; tail -2 "/tmp/mt50_$run.log"
       cat "/tmp/mt50_$run.log" >> "$OUT/mt50.log"  # one log: a call brings back at most 8 files
     done
+    [ "${KCACHE:-1}" = 0 ] && exit 0  # KCACHE=0: no kernel cache back (an earlier call brought it)
     XZ_OPT="-T0 -6" timeout 60 tar -C "$WARP_CACHE_PATH" -cJf /tmp/mw_kcache.txz . && ls -l /tmp/mw_kcache.txz
     [ "$(stat -c %s /tmp/mw_kcache.txz)" -le 45000000 ] && split -b 15000000 -d /tmp/mw_kcache.txz "$OUT/mw_kcache.txz."
     ;;

@@ -16,9 +16,10 @@
 #             MW_WARP_CACHE=/tmp/lww/cache/warp to share the kernels LIBERO compiled)
 #   there:  call k = 1 .. N, back to back while the machine stays warm, carrying DIR/ck:
 #             bash benchmarks/device/metaworld_upload.sh receive DIR/ck                  (-> /tmp/mw/in)
-#           (optionally, a kernel cache brought back by `metaworld_h200.sh mt50x50` (mw_kcache.txz.NN): carried in a
-#            directory of its own and received the same way; install unpacks it into WARP_CACHE_PATH, so the first
-#            run loads the kernels instead of compiling them)
+#           (optionally, kernel caches brought back by earlier machines, received the same way before install, which
+#            unpacks them into WARP_CACHE_PATH, so that the first run loads those kernels instead of compiling them:
+#            Meta-World's, from `metaworld_h200.sh mt50x50` (mw_kcache.txz.NN, in a directory of their own), and
+#            LIBERO's, .cache/libero_warp_kcache (the kernels of MuJoCo Warp that no model specialises))
 #           the last call then:
 #             bash benchmarks/device/metaworld_upload.sh install [SITE]
 #             source /tmp/mw/env.sh   (PYTHONPATH: MuJoCo Warp's side and the checkout's src; SIMSEAM_CACHE,
@@ -80,6 +81,22 @@ side() {  # DIR: Meta-World's wheels alone
   rm -rf "$dir"; mkdir -p "$dir/mw"; cp "$cache"/mw/*.whl "$dir/mw/"; echo "$(mb "$dir") in $dir"
 }
 
+# kernel caches an earlier machine brought back, received into $MW/in: Meta-World's (mw_kcache.txz.NN pieces) and
+# LIBERO's (warp_kernel_cache*.txz: MuJoCo Warp's kernels that do not depend on the model load from it too)
+kernel_caches() {
+  local k
+  mkdir -p "$WARP_CACHE_PATH"
+  for k in "$MW"/in/warp_kernel_cache*.txz; do
+    # its paths start at warp/ (the tar of LIBERO's cache directory): unpacked beside WARP_CACHE_PATH, named warp
+    [ -f "$k" ] && [ "$(basename "$WARP_CACHE_PATH")" = warp ] && tar -C "$(dirname "$WARP_CACHE_PATH")" -xJf "$k" \
+      && echo "kernel cache: $(basename "$k")"
+  done
+  if compgen -G "$MW/in/mw_kcache.txz.*" > /dev/null; then
+    cat "$MW"/in/mw_kcache.txz.* | tar -C "$WARP_CACHE_PATH" -xJf - && echo "kernel cache: mw_kcache.txz.*"
+  fi
+  return 0
+}
+
 install() {  # [SITE]
   local repo="$PWD" site mwsite venv
   if [ -n "${1:-}" ]; then  # MuJoCo Warp's side is there already: Meta-World's wheels (`side`) only
@@ -94,10 +111,7 @@ export PYTHONPATH=$site:$repo/src SIMSEAM_CACHE=$MW/cache WARP_CACHE_PATH=${MW_W
 EOS
   # shellcheck disable=SC1091
   source "$MW/env.sh"
-  if compgen -G "$MW/in/mw_kcache.txz.*" > /dev/null; then  # a kernel cache an earlier machine brought back
-    mkdir -p "$WARP_CACHE_PATH"; cat "$MW"/in/mw_kcache.txz.* | tar -C "$WARP_CACHE_PATH" -xJf -
-    echo "kernel cache: $(ls "$WARP_CACHE_PATH" | wc -l) entries"
-  fi
+  kernel_caches
   venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"
   mkdir -p "$venv/bin"
   printf '#!/bin/sh\nexport PYTHONPATH="%s${PYTHONPATH:+:$PYTHONPATH}"\nexec %s "$@"\n' "$mwsite" "$(command -v python3)" \
