@@ -215,15 +215,35 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Pat
             t0 = time.perf_counter()
             env = MetaWorldBatch(task, episodes, worker, device=device, host_arrays=host_arrays)
             env.reset(np.arange(episodes), np.arange(episodes))
+            timer = _AdvanceTimer(env.physics)
             xp = env.xp
             rng = xp.random.RandomState(i)
             success = np.zeros(episodes, dtype=bool)
+            t1 = time.perf_counter()
             for _ in range(env.max_steps):
                 success |= env.step(rng.uniform(-1.0, 1.0, (episodes, 4)).astype(xp.float32))["success"]
+            stepping = time.perf_counter() - t1
             env.close()
             out[task] = {"seconds": time.perf_counter() - t0, "episodes": episodes, "steps": env.max_steps,
-                         "successes": int(success.sum()), "process": os.getpid()}
+                         "successes": int(success.sum()), "process": os.getpid(), "stepping_seconds": stepping,
+                         "advance_seconds": timer.seconds}
     return out
+
+
+class _AdvanceTimer:
+    """Times a batch's ``physics.advance`` (the control step's launches and the wait for the GPU to finish them),
+    so that a step splits into that and the host's own work (actions, observation, reward, success): two clock
+    reads a step, nothing else changed."""
+
+    def __init__(self, physics) -> None:
+        self.seconds = 0.0
+        self._advance = physics.advance
+        physics.advance = self
+
+    def __call__(self, substeps: int) -> None:
+        t0 = time.perf_counter()
+        self._advance(substeps)
+        self.seconds += time.perf_counter() - t0
 
 
 def _claim(path: Path) -> bool:
@@ -269,7 +289,18 @@ def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None,
     n = sum(r["episodes"] for r in per_task.values())
     return {"episodes_per_task": episodes, "tasks": len(per_task), "episodes": n, "procs": procs,
             "wall_seconds": wall, "env_steps_per_s": sum(r["episodes"] * r["steps"] for r in per_task.values()) / wall,
-            "per_task": per_task}
+            "step_split": step_split(per_task), "per_task": per_task}
+
+
+def step_split(per_task: dict[str, Any]) -> dict[str, float]:
+    """Over the tasks: a step's milliseconds (the median task's), of which ``physics.advance`` (the launches and
+    the wait for the GPU) and the host's own work (the rest); and advance's share of all the stepping."""
+    rows = list(per_task.values())
+    step = np.array([1e3 * r["stepping_seconds"] / r["steps"] for r in rows])
+    advance = np.array([1e3 * r["advance_seconds"] / r["steps"] for r in rows])
+    return {"step_ms_median": float(np.median(step)), "advance_ms_median": float(np.median(advance)),
+            "host_ms_median": float(np.median(step - advance)),
+            "advance_share": float(sum(r["advance_seconds"] for r in rows) / sum(r["stepping_seconds"] for r in rows))}
 
 
 def _mt50_processes(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict,
@@ -412,6 +443,10 @@ def print_table(doc: dict[str, Any]) -> None:
         m = doc["mt50"]
         print(f"\nwhole run: {m['tasks']} tasks x {m['episodes_per_task']} episodes ({m['episodes']}) "
               f"in {m['wall_seconds']:.1f} s wall ({m['procs']} process(es); builds and resets included)")
+        sp = m["step_split"]
+        print(f"a step (median task): {sp['step_ms_median']:.2f} ms, of which physics.advance (launches and the GPU "
+              f"wait) {sp['advance_ms_median']:.2f} ms, the host {sp['host_ms_median']:.2f} ms; advance "
+              f"{100 * sp['advance_share']:.0f} % of all stepping")
 
 
 def _names(text: str | None) -> list[str]:
