@@ -17,7 +17,10 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
   tasks split over ``--mt50-procs`` processes sharing the device (``--mps``: as clients of a CUDA MPS server of
   the benchmark's own, so that their kernels run side by side). The processes claim tasks one at a time (an
   exclusive-create file per task), so one that finishes early takes the next; ``--mt50-order RUN.json`` offers
-  them longest first by an earlier run's per-task seconds (else in the order given).
+  them longest first by an earlier run's per-task seconds (else in the order given). Each task's stepping is
+  split into ``physics.advance`` (the control step's launches and the wait for the device) and the host's own
+  work (actions, observation, reward, success): per task ``advance_seconds`` of ``stepping_seconds``, over the
+  tasks ``step_split``.
 - ``--host-arrays``: the Warp sections' observation and reward code in NumPy on host copies of the poses and
   contacts (``MetaWorldBatch(host_arrays=True)``), against the default, on the device (CuPy: each array call
   one GPU launch).
