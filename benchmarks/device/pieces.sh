@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # Packages cut into pieces for the lent GPU machine (sourced by libero_warp_upload.sh and metaworld_upload.sh).
 # A device call carries at most 64 MiB, the checkout included, so a package travels as one xz tar cut into pieces,
 # one directory per call (DIR/c01 .. DIR/cNN; c01 also holds the count and the SHA256), received one call at a
