@@ -407,21 +407,23 @@ def main(argv: list[str] | None = None) -> int:
         doc["cpu"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds)
         print(f"cpu backend, {args.cpu_procs} processes: {doc['cpu']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
-    def keep(rows: dict[str, Any]) -> None:  # rows: {world count: ...}, the earlier counts' kept
-        doc.setdefault("warp", {}).update(rows)
-        save()
+    def keeper(key: str):  # on disk after every task: {world count: ...} under doc[key], earlier counts kept
+        def keep(rows: dict[str, Any]) -> None:
+            doc.setdefault(key, {}).update(rows)
+            save()
+        return keep
 
-    for n in sizes:  # each world count on disk as soon as it is measured, and each task within it
-        keep(warp_section(tasks, [n], args.steps, args.device, host_arrays=args.host_arrays, on_task=keep))
+    for n in sizes:
+        keeper("warp")(warp_section(tasks, [n], args.steps, args.device, host_arrays=args.host_arrays,
+                                    on_task=keeper("warp")))
     if cameras and args.cpu_procs:
         doc["cpu_cameras"] = cpu_section(tasks, args.cpu_procs, args.cpu_chunk, args.cpu_seconds, cameras, args.image)
         print(f"cpu backend with {','.join(cameras)} at {args.image}^2, {args.cpu_procs} processes: "
               f"{doc['cpu_cameras']['env_steps_per_s']:,.0f} env-steps/s", flush=True)
         save()
     for n in camera_sizes:
-        doc.setdefault("warp_cameras", {}).update(warp_section(tasks, [n], args.steps, args.device, cameras,
-                                                               args.image))
-        save()
+        keeper("warp_cameras")(warp_section(tasks, [n], args.steps, args.device, cameras, args.image,
+                                            on_task=keeper("warp_cameras")))
     if args.episodes and not args.no_state:
         doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order,
                                    args.host_arrays)
