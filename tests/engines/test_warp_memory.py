@@ -16,7 +16,17 @@ import pytest
 
 pytest.importorskip("mujoco_warp")
 
-from simseam.engines.mujoco_warp.memory import WorldsDoNotFit, fit_worlds, largest_that_fits, out_of_memory  # noqa: E402
+from simseam.engines.mujoco_warp.memory import (  # noqa: E402
+    WorldsDoNotFit,
+    _footprint,
+    _sizes_at,
+    allocate_empty,
+    array_bytes,
+    array_sizes,
+    fit_worlds,
+    largest_that_fits,
+    out_of_memory,
+)
 from simseam.seam import ConfigError  # noqa: E402
 
 
@@ -70,32 +80,74 @@ def _arrays_up_to(limit: int, calls: list):
     return build
 
 
+def _budget(limit: int, calls: list):
+    """A stand-in device allocator holding at most ``limit`` bytes (real arrays on Warp's CPU device below it)."""
+
+    def allocate(sizes):
+        total = sum(size for _, size in sizes)
+        calls.append(total)
+        if total > limit:
+            raise RuntimeError(f"Failed to allocate {total} bytes on device 'cuda:0'")
+        return allocate_empty(sizes)
+
+    return allocate
+
+
 def test_a_number_the_free_memory_cannot_hold_is_never_built():
     """Where the device says what is free (CUDA), the footprint of 1 and 2 worlds rules out 10**6 without building
-    it (mujoco_warp spends minutes on the host building that many), and the search starts where the memory ends."""
-    calls = []
+    it (mujoco_warp spends minutes on the host building that many), and the search allocates the arrays' sizes
+    from where the memory ends, never building worlds near the answer (each such build took minutes on an H100)."""
+    builds, tries = [], []
     free = 500 + 1000 * 3000 + 10  # room for 3,000 worlds by the footprint; 3,000 allocate
     with pytest.raises(WorldsDoNotFit) as info:
-        fit_worlds(_arrays_up_to(3000, calls), 10**6, "LIBERO task libero_spatial/0 on MuJoCo Warp", "cuda:0",
-                   free_bytes=lambda: free)
+        fit_worlds(_arrays_up_to(10**7, builds), 10**6, "LIBERO task libero_spatial/0 on MuJoCo Warp", "cuda:0",
+                   free_bytes=lambda: free, allocate=_budget(500 + 1000 * 3000, tries))
     err = info.value
     assert 2970 <= err.largest <= 3000 and err.asked == 10**6  # to 1 %
-    assert max(calls) < 10**6 and calls[:2] == [1, 2] and len(calls) <= 8
+    assert builds == [1, 2] and max(tries) < 10**9 and len(tries) <= 8
     msg = str(err)
     assert "\n" not in msg and "10000000" not in msg and "1000000 worlds do not fit" in msg
-    assert "0.00 MiB a world" in msg and "GiB free" in msg and f"the largest number that fits is {err.largest}" in msg
+    assert "0.00 MiB a world" in msg and "GiB free" in msg
+    assert f"the largest number that fits is {err.largest} (measured by allocating arrays of their sizes)" in msg
     # a pessimistic footprint (the device frees more than it said): n is built after all
-    calls = []
-    assert fit_worlds(_arrays_up_to(10**6, calls), 4096, "task", "cuda:0", free_bytes=lambda: 500 + 1000 * 100)
-    assert calls[-1] == 4096 and len(calls) <= 2 + 14  # steps doubling from 2 % of the 100 estimated
+    builds, tries = [], []
+    assert fit_worlds(_arrays_up_to(10**6, builds), 4096, "task", "cuda:0", free_bytes=lambda: 500 + 1000 * 100,
+                      allocate=_budget(10**9, tries))
+    assert builds == [1, 2, 4096] and len(tries) <= 14  # steps doubling from 2 % of the 100 estimated
     # not even the footprint's worlds allocate: the same error, naming none
     with pytest.raises(WorldsDoNotFit, match="not even one world fits"):
         fit_worlds(_arrays_up_to(0, []), 4096, "task", "cuda:0", free_bytes=lambda: 10**9)
     # below FOOTPRINT_FROM worlds nothing is measured first
-    calls = []
+    builds = []
     with pytest.raises(WorldsDoNotFit):
-        fit_worlds(_arrays_up_to(37, calls), 1000, "task", "cuda:0", free_bytes=lambda: 0)
-    assert calls[0] == 1000
+        fit_worlds(_arrays_up_to(37, builds), 1000, "task", "cuda:0", free_bytes=lambda: 0)
+    assert builds[0] == 1000
+
+
+def test_the_arrays_of_k_worlds_follow_from_one_and_two():
+    """What the search allocates for k worlds is what mujoco_warp's put_model + put_data allocate for k, array by
+    array, per-world model fields included (the layout the fast search relies on), on Warp's CPU device; with the
+    contacts and constraint rows a world fixed, as put_worlds passes them (nconmax scaled with k would not be
+    linear: mujoco_warp sizes the contacts nworld x nconmax)."""
+    import mujoco
+    import mujoco_warp as mjw
+    import warp as wp
+
+    mjm = mujoco.MjModel.from_xml_string(XML)
+    host = mujoco.MjData(mjm)
+    mujoco.mj_forward(mjm, host)
+
+    def build(k: int):
+        with wp.ScopedDevice("cpu"):
+            model = mjw.put_model(mjm, batch_sizes={"body_pos": k})
+            return model, mjw.put_data(mjm, host, nworld=k, nconmax=8, njmax=32)
+
+    one, two = _footprint(build)
+    for k in (3, 7):
+        assert _sizes_at(one, two, k) == array_sizes(build(k))
+    assert array_bytes(build(7)) == sum(size for _, size in _sizes_at(one, two, 7))
+    blank = allocate_empty(_sizes_at(one, two, 7))
+    assert [a.capacity for a in blank] == [size for _, size in _sizes_at(one, two, 7) if size > 0]
 
 
 def test_what_counts_as_out_of_memory():
@@ -109,6 +161,9 @@ def test_what_counts_as_out_of_memory():
         assert out_of_memory(wrapped)
     assert not out_of_memory(RuntimeError("kernel launch failed")) and not out_of_memory(ValueError("x"))
 
+
+XML = """<mujoco><worldbody><body><freejoint/><geom type="box" size=".1 .1 .1"/></body>
+<body pos="0 0 1"><freejoint/><geom type="sphere" size=".1"/></body></worldbody></mujoco>"""
 
 CHILD = r"""
 import gc, json, resource, sys

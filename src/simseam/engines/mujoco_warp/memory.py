@@ -3,7 +3,8 @@
 ``put_worlds(mjm, host, n, device, what)`` is ``mujoco_warp.put_model`` + ``put_data`` for ``n`` worlds (the
 keyword arguments go to them: ``batched`` model fields to the model, ``nconmax`` / ``njmax`` to the data). When the
 device's memory cannot hold them, it finds the largest number of worlds that does by allocating them (a
-bisection over ``put_data``, each try freed before the next: measured, not estimated from sizes), and raises
+bisection, each try freed before the next: measured, not estimated from sizes; on CUDA the tries allocate the
+arrays' sizes, below), and raises
 ``WorldsDoNotFit``, a ``ConfigError`` of one line naming what was asked, the device and that number. The
 worlds' MuJoCo Warp data is most of a batch's memory (contacts and constraint rows per world); what a batch
 allocates after it (cameras, a policy) can still run out, so the number is an upper bound for the batch. The
@@ -12,10 +13,13 @@ a fresh process (what a user starts next) fits it (on Warp's CPU device under a 
 measurements named 14,823 and 12,357 worlds, and each fitted exactly in a fresh process).
 
 Where the device says how much memory is free (CUDA), the worlds' footprint is first measured on one and on two
-worlds (the bytes of their arrays), and a number the free memory cannot hold is not built at all: building
-100,000 LIBERO worlds' data takes mujoco_warp minutes on the host before any device allocation fails. The search
-then starts where the footprint says the memory ends, allocates there and a step beyond, and narrows to 1 %: the
-number named is one that allocated.
+worlds (the bytes of each of their arrays), and a number the free memory cannot hold is not built at all:
+building 100,000 LIBERO worlds' data takes mujoco_warp minutes on the host before any device allocation fails,
+and so does every try near the answer (tens of thousands of LIBERO worlds: on an H100 the search by building
+ran past 4 minutes). The search then allocates, for k worlds, empty arrays of the sizes k worlds' arrays have
+(each array's size is linear in k: its size for one world plus k - 1 times its growth from one to two),
+starting where the footprint says the memory ends, a step beyond, narrowing to 1 %: each try takes
+milliseconds, and the number named is one whose arrays allocated.
 
 Recognised as out of memory: Warp's "Failed to allocate" (CUDA and CPU devices), CuPy's ``OutOfMemoryError``
 and Python's ``MemoryError`` (host-side arrays), also where another exception was raised from one.
@@ -84,44 +88,78 @@ def _allocates(build: Callable[[int], Any], k: int) -> bool:
     return True
 
 
-def array_bytes(obj: Any, seen: set[int] | None = None) -> int:
-    """The bytes of the Warp arrays held by ``obj`` (mujoco_warp's ``Model`` / ``Data``: dataclasses of arrays and
-    of dataclasses; tuples and lists of them too), each array counted once."""
+def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int]]:
+    """``(device, bytes)`` of each Warp array held by ``obj`` (mujoco_warp's ``Model`` / ``Data``: dataclasses of
+    arrays and of dataclasses; tuples and lists of them too), each array once, in a fixed order."""
     import dataclasses
 
     import warp as wp
 
     seen = set() if seen is None else seen
     if id(obj) in seen:
-        return 0
+        return []
     seen.add(id(obj))
     if isinstance(obj, wp.array):
-        return int(obj.capacity or 0)
+        return [(obj.device, int(obj.capacity or 0))]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return sum(array_bytes(getattr(obj, f.name, None), seen) for f in dataclasses.fields(obj))
+        return [a for f in dataclasses.fields(obj) for a in array_sizes(getattr(obj, f.name, None), seen)]
     if isinstance(obj, (tuple, list)):
-        return sum(array_bytes(x, seen) for x in obj)
-    return 0
+        return [a for x in obj for a in array_sizes(x, seen)]
+    return []
 
 
-def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int]) -> tuple[int, str] | None:
-    """``(estimate, reason)`` when the footprint of 1 and 2 worlds says ``n`` worlds cannot fit in the free
-    memory (``estimate``: the worlds that would), else None (and nothing is known against trying ``n``)."""
-    room = int(free_bytes())
+def array_bytes(obj: Any) -> int:
+    """The bytes of the Warp arrays held by ``obj`` (``array_sizes``)."""
+    return sum(size for _, size in array_sizes(obj))
+
+
+def allocate_empty(sizes: list[tuple[Any, int]]) -> list[Any]:
+    """Uninitialised Warp arrays of those ``(device, bytes)``: what a build of that many worlds allocates, without
+    building anything on the host."""
+    import warp as wp
+
+    return [wp.empty(size, dtype=wp.uint8, device=device) for device, size in sizes if size > 0]
+
+
+def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple[Any, int]], list[tuple[Any, int]]] | str:
+    """The arrays' ``(device, bytes)`` of one world and of two, or the first line of the allocation failure when not
+    even two worlds allocate."""
     try:
-        one, two = (array_bytes(build(k)) for k in (1, 2))
+        one, two = (array_sizes(build(k)) for k in (1, 2))
     except Exception as exc:  # noqa: BLE001 - not even two worlds allocate: the search says how many do
         if not out_of_memory(exc):
             raise
-        return 0, str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     finally:
         gc.collect()
-    per_world, fixed = two - one, 2 * one - two
+    if len(one) != len(two):
+        raise RuntimeError(f"the build of 1 and 2 worlds holds {len(one)} and {len(two)} arrays: not one layout")
+    return one, two
+
+
+def _sizes_at(one: list[tuple[Any, int]], two: list[tuple[Any, int]], k: int) -> list[tuple[Any, int]]:
+    """Each array's bytes for ``k`` worlds: its size for one world plus ``k - 1`` times its growth to two."""
+    return [(dev, a + (b - a) * (k - 1)) for (dev, a), (_, b) in zip(one, two)]
+
+
+def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int],
+             allocate: Callable[[list], Any]) -> tuple[int, str, Callable[[int], Any]] | None:
+    """``(estimate, reason, blank)`` when the footprint of 1 and 2 worlds says ``n`` worlds cannot fit in the free
+    memory (``estimate``: the worlds that would; ``blank(k)``: ``allocate`` of k worlds' array sizes), else None
+    (and nothing is known against trying ``n``)."""
+    room = int(free_bytes())
+    layout = _footprint(build)
+    if isinstance(layout, str):
+        return 0, layout, lambda k: build(k)
+    one, two = layout
+    bytes_one, bytes_two = sum(s for _, s in one), sum(s for _, s in two)
+    per_world, fixed = bytes_two - bytes_one, 2 * bytes_one - bytes_two
     if per_world <= 0 or fixed + per_world * n <= room:
         return None
     reason = (f"{per_world / 2**20:.2f} MiB a world, {(fixed + per_world * n) / 2**30:.1f} GiB for {n}, "
               f"{room / 2**30:.1f} GiB free")
-    return max(0, min(n - 1, (room - fixed) // per_world)), reason
+    estimate = max(0, min(n - 1, (room - fixed) // per_world))
+    return estimate, reason, lambda k: allocate(_sizes_at(one, two, k))
 
 
 def _largest_near(build: Callable[[int], Any], estimate: int, n: int) -> int:
@@ -145,15 +183,17 @@ def _largest_near(build: Callable[[int], Any], estimate: int, n: int) -> int:
 
 
 def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
-               free_bytes: Callable[[], int] | None = None) -> Any:
+               free_bytes: Callable[[], int] | None = None, allocate: Callable[[list], Any] = allocate_empty) -> Any:
     """``build(n)``; out of memory: ``WorldsDoNotFit`` with the largest number of worlds ``build`` takes.
-    ``free_bytes()``: the device's free memory, where it says (then ``n`` is not built when it cannot fit)."""
-    early = _too_big(build, n, free_bytes) if free_bytes is not None and n >= FOOTPRINT_FROM else None
+    ``free_bytes()``: the device's free memory, where it says (then ``n`` is not built when it cannot fit, and the
+    search ``allocate``s the arrays' ``(device, bytes)`` instead of building)."""
+    early = _too_big(build, n, free_bytes, allocate) if free_bytes is not None and n >= FOOTPRINT_FROM else None
     if early is not None:
-        estimate, reason = early
-        largest = _largest_near(build, estimate, n)
+        estimate, reason, blank = early
+        largest = _largest_near(blank, estimate, n)
         if largest == n:  # the footprint was pessimistic
             return build(n)
+        how = "measured by allocating arrays of their sizes"
     else:
         try:
             return build(n)
@@ -162,9 +202,8 @@ def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
                 raise
             reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         gc.collect()
-        largest = largest_that_fits(build, n)
-    fits = (f"the largest number that fits is {largest} (measured by allocating them)" if largest
-            else "not even one world fits")
+        largest, how = largest_that_fits(build, n), "measured by allocating them"
+    fits = f"the largest number that fits is {largest} ({how})" if largest else "not even one world fits"
     raise WorldsDoNotFit(f"{what}: {n} worlds do not fit in the memory of device {device} ({reason}); {fits}; "
                          f"ask for fewer worlds (--num-envs) or free the device", n, largest) from None
 
