@@ -22,7 +22,7 @@
 #           pieces (its weights rounded to float16 for the transfer: 18.7 M parameters, 3 pieces a policy) with
 #           the training log (train.log); a call brings back 8 files, so the checkpoints that do not fit wait:
 #           the next call on the same warm machine, `bash benchmarks/device/libero_image_act.sh send`, brings
-#           them (two policies a call).
+#           them (whole checkpoints while 8 files and 60 MB hold them: two of ~27 MB a call).
 #   here:   bash benchmarks/device/libero_image_act.sh unpack FILES_DIR DEST   (DEST/NAME: a checkpoint whose
 #           weights are float32 again, their values the float16 ones; `simseam eval ... --policy lerobot:DEST/NAME`)
 #
@@ -101,8 +101,8 @@ PY
   tar -C "$ROOT/pack" -cf - "$name" | xz -T0 -6 | split -b 15M -d -a 2 - "$ROOT/out/$name.ckpt.txz."
 }
 
-send() {  # into $OUT: the training log and the checkpoints not sent yet, as many whole ones as 8 files hold
-  local name n used=1
+send() {  # into $OUT: the training log and the checkpoints not sent yet, whole ones while 8 files and 60 MB hold them
+  local name n bytes used=1 used_bytes=0
   mkdir -p "$ROOT/sent"
   cp "$ROOT/out/train.log" "${OUT:?}/" 2>/dev/null || true
   for first in "$ROOT"/out/*.ckpt.txz.00; do
@@ -110,15 +110,21 @@ send() {  # into $OUT: the training log and the checkpoints not sent yet, as man
     name="$(basename "$first" .ckpt.txz.00)"
     [ -f "$ROOT/sent/$name" ] && continue
     n=$(ls "$ROOT/out/$name".ckpt.txz.* | wc -l)
-    [ $((used + n)) -le 8 ] || { echo "send: $name waits for the next call (8 files a call)"; continue; }
-    cp "$ROOT/out/$name".ckpt.txz.* "$OUT/" && touch "$ROOT/sent/$name" && used=$((used + n))
+    bytes=$(cat "$ROOT/out/$name".ckpt.txz.* | wc -c)
+    # the device tool brings back at most 8 files and 64 MiB a call (7 December: a third 27 MB checkpoint was
+    # marked sent and left out as over the total)
+    if [ $((used + n)) -gt 8 ] || [ $((used_bytes + bytes)) -gt 60000000 ]; then
+      echo "send: $name waits for the next call (8 files, 60 MB a call)"; continue
+    fi
+    cp "$ROOT/out/$name".ckpt.txz.* "$OUT/" && touch "$ROOT/sent/$name" && used=$((used + n)) \
+      && used_bytes=$((used_bytes + bytes))
   done
   ls -la "$OUT"
 }
 
 train() {  # [NAME...]
-  local names=("$@") left share name t0
-  [ "$DEVICE" = cpu ] || install_site
+  local names=("$@") left share name t0 gpu=()
+  [ "$DEVICE" = cpu ] || { install_site; gpu=(--amp --cache); }
   mkdir -p "$ROOT/data" "$ROOT/ckpt" "$ROOT/out"
   for t in "$ROOT"/in/data/*.tar; do tar -C "$ROOT/data" -xf "$t"; done
   [ ${#names[@]} -gt 0 ] || mapfile -t names < <(ls "$ROOT/data")
@@ -134,7 +140,7 @@ train() {  # [NAME...]
     "$PY" benchmarks/device/lerobot_pyav.py train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
       --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr 3e-4 --lr-schedule cosine \
       --no-vae --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
-      --device "$DEVICE" $([ "$DEVICE" = cpu ] || echo --amp --cache) 2>&1 | tee -a "$ROOT/out/train.log"
+      --device "$DEVICE" "${gpu[@]}" 2>&1 | tee -a "$ROOT/out/train.log"
     echo "$name: trained in $(( SECONDS - t0 )) s" | tee -a "$ROOT/out/train.log"
     pack "$ROOT/ckpt/$name" "$name"
   done
