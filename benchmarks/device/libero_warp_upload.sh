@@ -58,6 +58,8 @@ set -euo pipefail
 LW="${LW_ROOT:-/tmp/lww}"
 # shellcheck source=pieces.sh
 source "$(dirname "$0")/pieces.sh"  # mb, piece_bytes, pack, recut, receive_pieces, unpack_pieces
+# shellcheck source=standin_backend.sh
+source "$(dirname "$0")/standin_backend.sh"  # standin_backend
 SUITES="${LW_SUITES:-libero_spatial,libero_object}"
 # MuJoCo Warp's side: the versions of pyproject's `warp` extra and the MuJoCo mujoco-warp 4.0.0 is tested with
 MAIN_REQS="warp-lang==1.19.0 mujoco-warp==4.0.0 mujoco==4.0.1 mujoco-core==4.0.1 PyOpenGL==3.1.10 pyzmq==27.3.0 msgpack==1.2.4"
@@ -180,18 +182,6 @@ check_kept() {  # every file the traced tasks read must be in lsite
 # holds, and lsite's mujoco 3.17 comes first); MUJOCO_GL=disable unless the caller set it: the port's native side
 # never renders, the CPU backend's sidecars (bench_libero_scale.py's baseline) draw their cameras with MUJOCO_GL=egl
 # (the .gl debs unpacked)
-provision_libero() {  # PY
-  local py="$1" venv
-  venv="$("$py" -c 'from simseam.backends.provision import venv_dir; print(venv_dir("libero"))')"
-  mkdir -p "$venv/bin"
-  printf '#!/bin/sh\nexport PYTHONPATH="%s:%s${PYTHONPATH:+:$PYTHONPATH}" MUJOCO_GL="${MUJOCO_GL:-disable}"\nexec %s "$@"\n' \
-    "$LW/lsite" "$LW/site" "$py" > "$venv/bin/python"
-  chmod +x "$venv/bin/python"
-  "$py" -c 'import json, sys; json.dump({"name": "libero", "python": sys.argv[2]}, open(sys.argv[1], "w"))' \
-    "$venv/simseam-backend.json" "$py + $LW/lsite (libero_warp_upload.sh)"
-  echo "$venv"
-}
-
 gl_loader() {  # LIBERO's env loads EGL even without cameras: the GL loader .debs carried in .gl (384 kB)
   ldconfig -p | grep -q 'libEGL.so.1 ' && return 0
   compgen -G ".gl/*.deb" > /dev/null || { echo "install: this machine has no libEGL.so.1 and .gl/ was not carried:" \
@@ -217,7 +207,7 @@ export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW
 EOF
   # shellcheck disable=SC1091
   source "$LW/env.sh"
-  venv="$(provision_libero "$py")"
+  venv="$(standin_backend libero "$py" "$LW/lsite:$LW/site" 'MUJOCO_GL="${MUJOCO_GL:-disable}"')"
   "$py" -c "import warp, mujoco, mujoco_warp; print('MuJoCo Warp side: warp', warp.config.version, 'mujoco', mujoco.__version__, 'mujoco_warp', mujoco_warp.__version__)"
   "$venv/bin/python" -c "import libero.libero, robosuite, mujoco; print('LIBERO side: mujoco', mujoco.__version__, 'robosuite', robosuite.__version__)" 2>&1 | grep -v WARNING
   "$py" - "$(cat "$LW/suites.txt")" <<'PY'

@@ -32,6 +32,8 @@
 set -euo pipefail
 # shellcheck source=pieces.sh
 source "$(dirname "$0")/pieces.sh"  # mb, piece_bytes, pack, recut, receive_pieces, unpack_pieces
+# shellcheck source=standin_backend.sh
+source "$(dirname "$0")/standin_backend.sh"  # standin_backend
 MW=/tmp/mw
 PLAT=(--no-deps --only-binary=:all: --python-version 3.12 --implementation cp --platform manylinux_2_28_x86_64
       --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
@@ -112,13 +114,7 @@ EOS
   # shellcheck disable=SC1091
   source "$MW/env.sh"
   kernel_caches
-  venv="$(python3 -c 'from simseam.backends.provision import venv_dir; print(venv_dir("metaworld"))')"
-  mkdir -p "$venv/bin"
-  printf '#!/bin/sh\nexport PYTHONPATH="%s${PYTHONPATH:+:$PYTHONPATH}"\nexec %s "$@"\n' "$mwsite" "$(command -v python3)" \
-    > "$venv/bin/python"
-  chmod +x "$venv/bin/python"
-  python3 -c 'import json, sys; json.dump({"name": "metaworld", "python": sys.argv[2]}, open(sys.argv[1], "w"))' \
-    "$venv/simseam-backend.json" "python3 + $mwsite (device)"
+  venv="$(standin_backend metaworld "$(command -v python3)" "$mwsite")"
   python3 -c "import warp, mujoco, mujoco_warp; print('warp', warp.config.version, 'mujoco', mujoco.__version__, 'mujoco_warp', mujoco_warp.__version__)"
   "$venv/bin/python" -c "import metaworld, mujoco; print('metaworld side: mujoco', mujoco.__version__)"
 }
