@@ -217,7 +217,9 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Pat
                 continue
             t0 = time.perf_counter()
             env = MetaWorldBatch(task, episodes, worker, device=device, host_arrays=host_arrays)
+            built = time.perf_counter()
             env.reset(np.arange(episodes), np.arange(episodes))
+            reset = time.perf_counter()
             timer = _AdvanceTimer(env.physics)
             xp = env.xp
             rng = xp.random.RandomState(i)
@@ -229,7 +231,7 @@ def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Pat
             env.close()
             out[task] = {"seconds": time.perf_counter() - t0, "episodes": episodes, "steps": env.max_steps,
                          "successes": int(success.sum()), "process": os.getpid(), "stepping_seconds": stepping,
-                         "advance_seconds": timer.seconds}
+                         "advance_seconds": timer.seconds, "build_seconds": built - t0, "reset_seconds": reset - built}
     return out
 
 
@@ -301,9 +303,13 @@ def step_split(per_task: dict[str, Any]) -> dict[str, float]:
     rows = list(per_task.values())
     step = np.array([1e3 * r["stepping_seconds"] / r["steps"] for r in rows])
     advance = np.array([1e3 * r["advance_seconds"] / r["steps"] for r in rows])
-    return {"step_ms_median": float(np.median(step)), "advance_ms_median": float(np.median(advance)),
-            "host_ms_median": float(np.median(step - advance)),
-            "advance_share": float(sum(r["advance_seconds"] for r in rows) / sum(r["stepping_seconds"] for r in rows))}
+    out = {"step_ms_median": float(np.median(step)), "advance_ms_median": float(np.median(advance)),
+           "host_ms_median": float(np.median(step - advance)),
+           "advance_share": float(sum(r["advance_seconds"] for r in rows) / sum(r["stepping_seconds"] for r in rows))}
+    if all("build_seconds" in r for r in rows):  # a task's seconds summed over the tasks: where the rest go
+        out["task_seconds"] = {k: float(sum(r[f"{k}_seconds"] for r in rows)) for k in ("build", "reset", "stepping")}
+        out["task_seconds"]["total"] = float(sum(r["seconds"] for r in rows))
+    return out
 
 
 def _mt50_processes(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict,
@@ -452,6 +458,10 @@ def print_table(doc: dict[str, Any]) -> None:
         print(f"a step (median task): {sp['step_ms_median']:.2f} ms, of which physics.advance (launches and the GPU "
               f"wait) {sp['advance_ms_median']:.2f} ms, the host {sp['host_ms_median']:.2f} ms; advance "
               f"{100 * sp['advance_share']:.0f} % of all stepping")
+        if "task_seconds" in sp:
+            t = sp["task_seconds"]
+            print(f"the tasks' seconds summed: {t['total']:.1f}, of which builds {t['build']:.1f}, resets "
+                  f"{t['reset']:.1f}, stepping {t['stepping']:.1f} (the rest: closing)")
 
 
 def _names(text: str | None) -> list[str]:

@@ -1,11 +1,12 @@
 """How long a benchmark port's batch takes to build, side by side in one run, the ways it can start:
 
 - ``default``: as simseam does it: MuJoCo Warp imported on a thread while the batch asks its native worker and
-  loads its model (``warp_physics.imported_meanwhile``), and for LIBERO the task's description kept on disk beside
-  its model (``libero_gpu.model.described``: the worker asked only for its versions);
+  loads its model (``warp_physics.imported_meanwhile``), and the task's description kept on disk beside its model
+  (``libero_gpu.model.described``, ``metaworld_gpu.model.described``: the worker asked only for its versions);
 - ``no-overlap``: the import left to ``WarpPhysics``, after the rest;
-- ``no-kept`` (LIBERO): LIBERO's ``describe`` asked every time (the env built in the worker, 160 MB sent);
-- ``neither`` (LIBERO): both, as the port started before either.
+- ``no-kept``: the benchmark's ``describe`` asked every time (its env built in the worker: LIBERO's sends 160 MB,
+  Meta-World's ~40 MB);
+- ``neither``: both, as the ports started before either.
 
     .venv/bin/python benchmarks/port_start.py [--port libero|metaworld] [--task libero_spatial/1]
         [--repeats 3] [--sim-device cpu] [--json PATH] [--overwrite]
@@ -32,7 +33,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 from cpu_facts import CpuWindow, topology  # noqa: E402
 
-WAYS = {"libero": ("default", "no-overlap", "no-kept", "neither"), "metaworld": ("default", "no-overlap")}
+WAYS = ("default", "no-overlap", "no-kept", "neither")
 
 # one trial, in its own interpreter: argv = port, task, device, way; prints the seconds as JSON
 TRIAL = r"""
@@ -49,9 +50,13 @@ else:
     build = lambda w: module.MetaWorldBatch(task, 1, w, device=device)
 if way in ("no-overlap", "neither"):
     module.imported_meanwhile = lambda call, engine="mujoco_warp": call()
-if way in ("no-kept", "neither"):
+if way in ("no-kept", "neither") and port == "libero":
     from simseam.backends.libero_gpu import model as M
     module.task_model = lambda w, suite, task: M.load_or_build(w.call("describe", suite=suite, task=task))
+elif way in ("no-kept", "neither"):
+    from simseam.backends.metaworld_gpu import model as M
+    module.described = lambda w, task: w.call("describe", task=task)
+    module.task_model = lambda w, info, settled: M.load_or_build(info, settled)
 with NativeWorker() as worker:
     t0 = time.perf_counter()
     batch = build(worker)
@@ -83,17 +88,16 @@ def main() -> None:
     path = a.json or HERE / "results" / f"port_start_{a.port}_{a.sim_device.replace(':', '')}.json"
     if path.exists() and not a.overwrite:
         raise SystemExit(f"port_start: {path} exists; pass --overwrite or another --json")
-    ways = WAYS[a.port]
     trial(a.port, task, a.sim_device, "default")  # fills the model, description and reset caches; not counted
     rows = []
     print(f"{'trial':>5} {'way':>11} {'built s':>8} {'busy %':>7}")
     for i in range(a.repeats):
-        for way in (ways if i % 2 == 0 else ways[::-1]):
+        for way in (WAYS if i % 2 == 0 else WAYS[::-1]):
             row = trial(a.port, task, a.sim_device, way)
             rows.append({"trial": i, **row})
             print(f"{i:5d} {way:>11} {row['built_s']:8.2f} {100 * (row['cpu'].get('busy_share') or 0):7.1f}")
-    medians = {w: statistics.median(r["built_s"] for r in rows if r["way"] == w) for w in ways}
-    for w in ways:
+    medians = {w: statistics.median(r["built_s"] for r in rows if r["way"] == w) for w in WAYS}
+    for w in WAYS:
         worst = max(r["built_s"] for r in rows if r["way"] == w)
         print(f"median {w:>10}: {medians[w]:.2f} s (worst {worst:.2f} s)")
     result = {"port": a.port, "task": task, "sim_device": a.sim_device, "repeats": a.repeats,

@@ -81,6 +81,44 @@ def test_model_checked_and_cached_by_versions(worker, native, tmp_path, monkeypa
         M.load_or_build(bad, settled)
 
 
+class _Counting:
+    """The worker, counting the commands asked of it; ``versions`` answered as ``versions`` says when given."""
+
+    def __init__(self, worker, versions=None):
+        self.worker, self.versions, self.asked = worker, versions, []
+
+    def call(self, command, **kwargs):
+        self.asked.append(command)
+        if command == "versions" and self.versions is not None:
+            return self.versions
+        return self.worker.call(command, **kwargs)
+
+
+def test_description_kept_on_disk_by_versions_venv_and_code(worker, native, tmp_path, monkeypatch):
+    """A batch's ``describe`` (Meta-World builds the task's env: about a second a task, each MT50 task's batch
+    paid it) is asked once per versions, venv and worker code; then read from disk, without the native model's
+    arrays, and the model comes from the cache with no env built."""
+    from simseam.backends.metaworld_gpu import model as M
+
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))
+    first = _Counting(worker)
+    info = M.described(first, TASK)
+    full = worker.call("describe", task=TASK)
+    assert first.asked == ["versions", "describe"] and not set(M.HEAVY) & set(info)
+    assert set(info) == set(full) - set(M.HEAVY) and info["xml"] == full["xml"] and info["task"] == TASK
+    np.testing.assert_array_equal(info["obs_high"], full["obs_high"])
+    built = M.task_model(first, info, native[0][0])  # no model cached yet: the full describe, built and checked
+    assert first.asked[-1] == "describe" and built.report["sizes"]["nbody"] == full["init"]["body_mass"].shape[0]
+    again = _Counting(worker)
+    kept = M.task_model(again, M.described(again, TASK), native[0][0])
+    assert again.asked == ["versions"] and kept.path == built.path and kept.report == built.report
+    np.testing.assert_array_equal(kept.model.body_mass, built.model.body_mass)
+    versions = worker.call("versions")
+    moved = _Counting(worker, dict(versions, prefix=versions["prefix"] + "-elsewhere"))  # another venv: asked again
+    M.described(moved, TASK)
+    assert moved.asked == ["versions", "describe"]
+
+
 def _replay(worker, engine: str, seeds: list[int], actions: np.ndarray):
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 

@@ -34,7 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from simseam.backends.metaworld_gpu.model import load_or_build
+from simseam.backends.metaworld_gpu.model import described, task_model
 from simseam.backends.warp_physics import CpuPhysics, WarpPhysics, imported_meanwhile
 from simseam.backends.metaworld_gpu.resets import ResetCache
 from simseam.backends.metaworld_gpu.state import MetaWorldState, ModelNames
@@ -64,10 +64,10 @@ class MetaWorldBatch:
             raise ConfigError(f"Meta-World task {task!r} has no GPU port; known: {', '.join(sorted(OBJECTS))}")
         if engine not in ENGINES:
             raise ConfigError(f"engine {engine!r}: one of {list(ENGINES)}")
-        info = imported_meanwhile(lambda: worker.call("describe", task=task), engine)
+        info = imported_meanwhile(lambda: described(worker, task), engine)
         self.resets = ResetCache(worker, info, variation, goal_seed)
         settled = self.resets.get([0])[0]
-        self.model = load_or_build(info, settled)
+        self.model = task_model(worker, info, settled)
         self.task, self.info, self.num_worlds = task, info, int(num_worlds)
         self.names = ModelNames.from_model(self.model.model, task)
         mjm = self.model.model

@@ -5,7 +5,9 @@ model applied the same way, checked against the native model, and cached keyed b
 The cache lives in ``$SIMSEAM_CACHE/metaworld_gpu/`` (default ``~/.cache/simseam``), one directory per
 (metaworld version, native MuJoCo version, this MuJoCo version), one ``<task>.mjb`` plus ``<task>.json``
 (the XML's sha256 and the check report) per task: a venv of another Meta-World or MuJoCo version, or a
-changed XML, builds a new model; a stale one is never loaded.
+changed XML, builds a new model; a stale one is never loaded. Beside them, ``described-<code>-<venv>/<task>.pkl``
+keeps the native worker's ``describe`` of each task less the native model's arrays (``described``): a batch
+whose model and description are there asks the worker only for its versions, and no env is built natively.
 
 The checks and the cache are ``backends.warp_model``'s (shared with the LIBERO port): sizes, masses,
 inertias, frames, mesh extents, options and the contacts of a settled state (a native reset's).
@@ -20,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from simseam.backends import warp_model
-from simseam.backends.native_worker import DERIVED
+from simseam.backends.native_worker import DERIVED, cached_answers
 from simseam.backends.warp_model import apply_fields
 from simseam.seam.errors import SimulationError
 
@@ -93,3 +95,39 @@ def load_or_build(info: dict[str, Any], settled: dict[str, Any] | None) -> TaskM
     model, report, path = warp_model.cached_model(cache_dir(info), task, xml_digest(info["xml"]), compile_here, check,
                                                   {"xml": info["xml"]})
     return TaskModel(task, model, info, report, path)
+
+
+#: ``describe``'s native model arrays: only a build of the model and its checks read them (~40 MB a task)
+HEAVY = ("fresh", "init", "option")
+
+
+def _worker_code() -> str:
+    """The digest of the code that answers ``describe`` (the worker's, the protocol's and the CPU backend's rollout
+    it builds)."""
+    from simseam.backends import metaworld, native_worker
+    from simseam.backends.metaworld_gpu import native
+
+    return warp_model.digest(b"".join(Path(m.__file__).read_bytes() for m in (native, native_worker, metaworld)))[:16]
+
+
+def described(worker: Any, task: str) -> dict[str, Any]:
+    """The worker's ``describe`` of ``task`` less ``HEAVY``: from disk when a worker of these versions, venv and
+    code described it before, else asked (about a second: Meta-World builds the task's env) and kept
+    (``cached_answers``)."""
+    versions = worker.call("versions")
+    where = cache_dir(versions) / f"described-{_worker_code()}-{warp_model.digest(versions['prefix'].encode())[:8]}"
+
+    def ask(missing: list[str]) -> list[dict[str, Any]]:
+        return [{k: v for k, v in worker.call("describe", task=t).items() if k not in HEAVY} for t in missing]
+
+    return cached_answers(where, [task], ask)[0]
+
+
+def task_model(worker: Any, info: dict[str, Any], settled: dict[str, Any] | None) -> TaskModel:
+    """The model of ``described``'s ``info``: from the cache when it is there (no env built natively), else built
+    from the worker's full ``describe`` and checked (``load_or_build``)."""
+    cached = warp_model.load_cached(cache_dir(info), info["task"], xml_digest(info["xml"]))
+    if cached is None:
+        return load_or_build(worker.call("describe", task=info["task"]), settled)
+    model, report, path = cached
+    return TaskModel(info["task"], model, info, report, path)

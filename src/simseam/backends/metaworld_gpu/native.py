@@ -3,6 +3,8 @@ simseam.backends.metaworld_gpu.native``), asked by ``worker.NativeWorker`` over 
 
 It answers with what only the native env knows, computed by Meta-World itself on its pinned MuJoCo:
 
+- ``versions``: Meta-World's and this venv's MuJoCo versions and the venv's prefix, without building an env
+  (what the port's caches are keyed by: a ``describe`` kept on disk is found with it);
 - ``describe``: the task's model file, the versions, the native model's arrays (compiled from the file
   and after the env's ``__init__``), the env's control and observation constants;
 - ``resets``: each seed's reset, done by simseam's own ``MetaWorldRollout._native_reset`` (the exact path
@@ -53,6 +55,14 @@ def _rollout(task: str, variation: str, goal_seed: int):
 
     config = normalize_config({"task": task, "variation": variation, "goal_seed": goal_seed, "cameras": False})
     return make_rollout(config)
+
+
+def versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    import mujoco
+
+    return {"metaworld": md.version("metaworld"), "mujoco": mujoco.__version__, "prefix": sys.prefix}
 
 
 def describe(task: str) -> dict[str, Any]:
@@ -160,7 +170,8 @@ def expert(task: str, obs: np.ndarray) -> np.ndarray:
     return np.stack([np.asarray(policy.get_action(o), dtype=np.float64) for o in np.asarray(obs, np.float64)])
 
 
-COMMANDS = {"describe": describe, "resets": resets, "replay": replay, "expert": expert, "render": render}
+COMMANDS = {"versions": versions, "describe": describe, "resets": resets, "replay": replay, "expert": expert,
+            "render": render}
 
 
 if __name__ == "__main__":
