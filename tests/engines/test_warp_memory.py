@@ -211,7 +211,8 @@ def test_on_warps_cpu_device_with_its_memory_capped():
     assert "\n" not in out["message"] and "10000000 worlds do not fit in the memory of device cpu" in out["message"]
     assert f"the largest number that fits is {out['largest']}" in out["message"]
     assert out["physics"].startswith("Meta-World reach-v3 on MuJoCo Warp: 10000000 worlds do not fit")
-    # what a user does next: start again asking for the number named; it fits under the same cap (less 2 %:
-    # the fresh process's own footprint before the cap differs by a few MiB, ~30 KiB a world)
-    asked = int(out["largest"] * 0.98)
+    # what a user does next: start again asking for the number named; it fits under the same cap (less 5 %:
+    # the fresh process's own footprint before the cap differs by a few MiB, ~30 KiB a world; idle, both name
+    # 14,576, but in a full test run one child named 16,029 and the next fitted 15,707, 2.0 % fewer)
+    asked = int(out["largest"] * 0.95)
     assert _child("ask", str(asked))["fits"] == asked

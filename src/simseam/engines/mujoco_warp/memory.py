@@ -9,8 +9,9 @@ arrays' sizes, below), and raises
 worlds' MuJoCo Warp data is most of a batch's memory (contacts and constraint rows per world); what a batch
 allocates after it (cameras, a policy) can still run out, so the number is an upper bound for the batch. The
 bisection's freed tries fragment the memory, so asking for that number again in the same process can fail;
-a fresh process (what a user starts next) fits it (on Warp's CPU device under a capped address space: two
-measurements named 14,823 and 12,357 worlds, and each fitted exactly in a fresh process).
+a fresh process (what a user starts next) fits it, or nearly: on Warp's CPU device under a capped address space
+two measurements named 14,823 and 12,357 worlds and each fitted exactly in a fresh process, but one named 16,029
+where the next process fitted 15,707 (2 % fewer: a process's own footprint before the cap moves by a few MiB).
 
 Where the device says how much memory is free (CUDA), the worlds' footprint is first measured on one and on two
 worlds (the bytes of each of their arrays), and a number the free memory cannot hold is not built at all:
