@@ -119,6 +119,31 @@ def test_description_kept_on_disk_by_versions_venv_and_code(worker, native, tmp_
     assert moved.asked == ["versions", "describe"]
 
 
+def test_prefetch_leaves_a_batch_nothing_to_ask_but_the_versions(worker, tmp_path, monkeypatch):
+    """``MetaWorldBatchRollout.prefetch`` (what a run does for its next task while one steps, from a thread): the
+    description, the episodes' resets and seed 0's, and the model land on disk, so the task's batch asks the
+    native worker only for its versions, and its episodes start from the native resets."""
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+
+    monkeypatch.setenv("SIMSEAM_CACHE", str(tmp_path))  # empty caches
+    counted = _Counting(worker)
+    MetaWorldBatchRollout.prefetch({"task": TASK}, [3, 4], counted)
+    assert counted.asked[:3] == ["versions", "describe", "resets"] and set(counted.asked[3:]) <= {"describe"}
+    folder = next(p for p in tmp_path.rglob(TASK) if p.is_dir())
+    assert sorted(p.name for p in folder.rglob("*.pkl")) == ["0.pkl", "3.pkl", "4.pkl"]
+    assert any(tmp_path.rglob(f"{TASK}.mjb"))
+    counted.asked.clear()
+    batch = MetaWorldBatchRollout({"task": TASK}, 2, counted, device="cpu")
+    try:
+        obs = batch.reset([0, 1], [3, 4])
+    finally:
+        batch.close()
+    assert counted.asked == ["versions"]
+    native = worker.call("resets", task=TASK, variation="mt1", goal_seed=0, seeds=[3, 4])
+    for o, n in zip(obs, native):
+        np.testing.assert_allclose(o["state"], n["obs"], atol=1e-5)  # the 39-D observation, to float32
+
+
 def _replay(worker, engine: str, seeds: list[int], actions: np.ndarray):
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
 

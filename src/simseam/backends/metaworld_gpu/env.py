@@ -35,10 +35,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.metaworld_gpu.model import described, task_model
-from simseam.backends.warp_physics import CpuPhysics, WarpPhysics, imported_meanwhile
 from simseam.backends.metaworld_gpu.resets import ResetCache
 from simseam.backends.metaworld_gpu.state import MetaWorldState, ModelNames
 from simseam.backends.metaworld_gpu.tasks import DIAL_JOINT, DIAL_RADIUS, OBJECTS, scipy_quat
+from simseam.backends.warp_physics import CpuPhysics, WarpPhysics, imported_meanwhile
 from simseam.seam.errors import ConfigError
 
 ENGINES = ("mujoco_warp", "mujoco")

@@ -25,7 +25,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from simseam.backends.base import observation_spec
-from simseam.backends.native_port import NativePort
 from simseam.backends.metaworld import (
     AGENT_POS,
     DIAGNOSTICS,
@@ -40,6 +39,9 @@ from simseam.backends.metaworld import (
     sawyer_joints,
 )
 from simseam.backends.metaworld_gpu.env import MetaWorldBatch
+from simseam.backends.metaworld_gpu.model import described, task_model
+from simseam.backends.metaworld_gpu.resets import ResetCache
+from simseam.backends.native_port import NativePort
 from simseam.seam import (
     INFO_DIAGNOSTICS,
     INFO_STEPS,
@@ -107,6 +109,19 @@ class MetaWorldBatchRollout(NativePort):
         self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
         self._success = np.zeros(num_envs, dtype=bool)
+
+    @classmethod
+    def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
+        """Ask ``worker`` now for what a batch of ``config`` will first need of Meta-World: the task's description
+        (``model.described``, kept on disk), the reset states of ``seeds`` and of seed 0 (the model's settled
+        state) into the reset cache on disk, and the task's model compiled, checked and cached when it is not. A
+        run calls it from a thread for its next task while this one steps, so that no env is built natively
+        between two tasks' batches."""
+        c = gpu_config(config)
+        info = described(worker, c["task"])
+        resets = ResetCache(worker, info, c["variation"], c["goal_seed"])
+        resets.get(sorted({0, *map(int, seeds)}))
+        task_model(worker, info, resets.get([0])[0])
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model

@@ -13,7 +13,9 @@ from simseam.backends import native_worker
 class NativeWorker(native_worker.NativeWorker):
     """``with NativeWorker() as w: w.call("resets", task=..., ...)``. ``python``: the interpreter
     (default: the provisioned metaworld venv's; ``BackendUnavailableError`` naming the command that
-    provisions it when absent). ``describe`` is asked once per task."""
+    provisions it when absent). ``describe`` is asked once per task, ``versions`` once."""
+
+    once = ("describe", "versions")
 
     def __init__(self, python: str | os.PathLike | None = None):
         super().__init__("metaworld", "simseam.backends.metaworld_gpu.native", python)
