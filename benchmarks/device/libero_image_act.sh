@@ -39,6 +39,12 @@ set -euo pipefail
 ROOT="${LIMG_ROOT:-/tmp/limg}"
 PY="${PY:-python3}"
 STEPS="${STEPS:-3000}"
+LR="${LR:-3e-4}"
+# RESUME=1: continue each named policy from its newest checkpoint in $ROOT/ckpt up to STEPS (`simseam train --resume`;
+# a checkpoint every 500 steps and where the time share ends a run), so a longer training spans back-to-back calls on
+# one warm machine, each call's pack sent again (7 December: 3,000 steps left the image
+# policies at a loss of 0.43-0.50 and failing; the image lift proof took 20,000)
+RESUME="${RESUME:-0}"
 DEVICE="${DEVICE:-cuda}"
 CARRY=.cache/limg
 # lerobot 0.4.4's pure-Python needs the machine lacks (torch, torchvision, numpy, pandas, pyarrow, accelerate,
@@ -89,7 +95,8 @@ install_site() {
 
 pack() {  # CKPT NAME: the checkpoint's weights as float16, xz, cut into 15 MiB pieces in $OUT
   local ckpt="$1" name="$2" tmp="$ROOT/pack/$2"
-  rm -rf "$tmp" && mkdir -p "$tmp" && cp -r "$ckpt"/. "$tmp/"
+  rm -rf "$tmp" && mkdir -p "$tmp" && tar -C "$ckpt" --exclude=./checkpoints -cf - . | tar -C "$tmp" -xf -
+  rm -f "$ROOT/out/$name".ckpt.txz.* "$ROOT/sent/$name"  # a new pack of it: not sent yet
   "$PY" - "$tmp" <<'PY'
 import sys, pathlib, torch
 from safetensors.torch import load_file, save_file
@@ -123,7 +130,7 @@ send() {  # into $OUT: the training log and the checkpoints not sent yet, whole 
 }
 
 train() {  # [NAME...]
-  local names=("$@") left share name t0 gpu=()
+  local names=("$@") left share name t0 gpu=() again
   [ "$DEVICE" = cpu ] || { install_site; gpu=(--amp --cache); }
   mkdir -p "$ROOT/data" "$ROOT/ckpt" "$ROOT/out"
   for t in "$ROOT"/in/data/*.tar; do tar -C "$ROOT/data" -xf "$t"; done
@@ -137,8 +144,10 @@ train() {  # [NAME...]
     share=${TRAIN_S:-$(( left / (${#names[@]} - i) ))}
     [ "$share" -ge 30 ] || { echo "train: $name: no time left ($left s)"; break; }
     t0=$SECONDS
-    "$PY" benchmarks/device/lerobot_pyav.py train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" --overwrite \
-      --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr 3e-4 --lr-schedule cosine \
+    again=(--overwrite)  # checkpoints every 500 steps and where the time share ends the run: RESUME=1 goes on
+    [ "$RESUME" = 1 ] && compgen -G "$ROOT/ckpt/$name/checkpoints/step_*" > /dev/null && again=(--resume)
+    "$PY" benchmarks/device/lerobot_pyav.py train --dataset "$ROOT/data/$name" --out "$ROOT/ckpt/$name" "${again[@]}" \
+      --checkpoint-every 500 --policy-type act --steps "$STEPS" --time-budget-s "$share" --batch-size 64 --lr "$LR" --lr-schedule cosine \
       --no-vae --chunk-size 10 --n-action-steps 1 --temporal-ensemble 0.01 --dim-model 256 --ff-dim 1024 --encoder-layers 4 \
       --device "$DEVICE" "${gpu[@]}" 2>&1 | tee -a "$ROOT/out/train.log"
     echo "$name: trained in $(( SECONDS - t0 )) s" | tee -a "$ROOT/out/train.log"

@@ -56,6 +56,26 @@ def test_cached_training_runs_and_stops_on_its_time_budget(scripted_dataset, tmp
                     ActTrainConfig(steps=10_000, time_budget_s=1e-9, cache_on_device=True, device="cpu",
                                    **tiny_act_config))
     assert res.steps == 1 and (tmp_path / "ck" / "model.safetensors").is_file()
+    assert not (tmp_path / "ck" / "checkpoints").exists()  # no checkpoint asked for
+
+
+def test_a_run_its_time_budget_cuts_resumes_from_there(scripted_dataset, tmp_path, tiny_act_config):
+    """With checkpoints on, the step where the time budget ends a run is checkpointed, so ``resume`` goes on
+    from it (a long training spread over calls of limited time) instead of from the last interval."""
+    import torch
+
+    from simseam.runner.training import ActTrainConfig, latest_checkpoint, train_act
+
+    out = tmp_path / "ck"
+    cut = train_act(scripted_dataset[0], out, ActTrainConfig(steps=10_000, time_budget_s=1e-9, checkpoint_every=500,
+                                                             device="cpu", **tiny_act_config))
+    ckpt = latest_checkpoint(out)
+    assert cut.steps == 1 and ckpt.name == "step_0000001"
+    assert torch.load(ckpt / "training_state.pt", weights_only=False)["step"] == 1
+    rest = train_act(scripted_dataset[0], out, ActTrainConfig(steps=3, checkpoint_every=500, device="cpu",
+                                                              **tiny_act_config), resume=True)
+    assert rest.resumed_from == 1 and rest.steps == 3
+    assert latest_checkpoint(out).name == "step_0000001"  # a run that reached its steps adds none at the end
 
 
 def test_empty_or_missing_dataset_is_a_clear_error(tmp_path, panda_spec, make_scene):

@@ -21,8 +21,9 @@ The output directory is a complete ``lerobot:`` checkpoint: ``config.json`` +
 Nothing is lost or silently replaced: an output directory that already holds a
 training run is refused unless ``overwrite`` (removed once the dataset has loaded and training
 starts; only a directory that holds a training run, never the dataset or other files) or ``resume``.
-Every ``checkpoint_every`` steps, and when the run is interrupted (Ctrl-C,
-SIGTERM), ``out_dir/checkpoints/step_NNNNNNN/`` receives the weights, both
+Every ``checkpoint_every`` steps, when the run is interrupted (Ctrl-C, SIGTERM), and (with
+``checkpoint_every`` set) where ``time_budget_s`` ends it before ``steps``,
+``out_dir/checkpoints/step_NNNNNNN/`` receives the weights, both
 processors and ``training_state.pt`` (optimizer state, step, losses), written
 under a temporary name and renamed when complete (the two newest are kept).
 ``resume`` continues from the newest checkpoint up to ``steps`` in total
@@ -726,8 +727,9 @@ class _Training:
                     if on_log:
                         on_log(result.steps, mean)
                     running, since_log = 0.0, 0
-                if cfg.checkpoint_every and result.steps % cfg.checkpoint_every == 0 and not done:
-                    self.checkpoint(out)
+                if cfg.checkpoint_every and (result.steps % cfg.checkpoint_every == 0 and not done
+                                             or over_time and result.steps < cfg.steps):
+                    self.checkpoint(out)  # and where the time budget cuts the run: --resume goes on from there
         except KeyboardInterrupt:
             result.interrupted = True
             if result.steps > result.resumed_from:
