@@ -17,6 +17,7 @@ reported as ``touching_here_only``, not a failure).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -170,6 +171,13 @@ def _check_contacts(model: Any, settled: dict[str, Any], problems: list[str]) ->
 
 def digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
+
+
+@functools.cache
+def code_digest(*modules: Any) -> str:
+    """16 hex digits of the source of ``modules`` (the code whose answers a port keeps on disk, e.g. a native
+    worker's ``describe``), read once per process."""
+    return digest(b"".join(Path(m.__file__).read_bytes() for m in modules))[:16]
 
 
 def load_cached(folder: Path, name: str, source_sha256: str) -> tuple[Any, dict[str, Any], Path] | None:

@@ -95,7 +95,7 @@ def _worker_code() -> str:
     from simseam.backends import native_worker
     from simseam.backends.libero_gpu import native
 
-    return warp_model.digest(b"".join(Path(m.__file__).read_bytes() for m in (native, native_worker)))[:16]
+    return warp_model.code_digest(native, native_worker)
 
 
 def described(worker: Any, suite: str, task: int) -> dict[str, Any]:

@@ -107,7 +107,7 @@ def _worker_code() -> str:
     from simseam.backends import metaworld, native_worker
     from simseam.backends.metaworld_gpu import native
 
-    return warp_model.digest(b"".join(Path(m.__file__).read_bytes() for m in (native, native_worker, metaworld)))[:16]
+    return warp_model.code_digest(native, native_worker, metaworld)
 
 
 def described(worker: Any, task: str) -> dict[str, Any]:

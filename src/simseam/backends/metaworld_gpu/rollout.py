@@ -119,9 +119,8 @@ class MetaWorldBatchRollout(NativePort):
         between two tasks' batches."""
         c = gpu_config(config)
         info = described(worker, c["task"])
-        resets = ResetCache(worker, info, c["variation"], c["goal_seed"])
-        resets.get(sorted({0, *map(int, seeds)}))
-        task_model(worker, info, resets.get([0])[0])
+        states = ResetCache(worker, info, c["variation"], c["goal_seed"]).get(sorted({0, *map(int, seeds)}))
+        task_model(worker, info, states[0])  # seed 0's: the settled state the model is checked in
 
     def _make_spec(self) -> RolloutSpec:
         c, info, m = self.config, self.world.info, self.world.model.model

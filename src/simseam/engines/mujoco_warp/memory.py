@@ -151,7 +151,7 @@ def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int],
     room = int(free_bytes())
     layout = _footprint(build)
     if isinstance(layout, str):
-        return 0, layout, lambda k: build(k)
+        return 0, layout, build
     one, two = layout
     bytes_one, bytes_two = sum(s for _, s in one), sum(s for _, s in two)
     per_world, fixed = bytes_two - bytes_one, 2 * bytes_one - bytes_two
