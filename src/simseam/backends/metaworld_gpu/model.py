@@ -100,6 +100,13 @@ def load_or_build(info: dict[str, Any], settled: dict[str, Any] | None) -> TaskM
 #: ``describe``'s native model arrays: only a build of the model and its checks read them (~40 MB a task)
 HEAVY = ("fresh", "init", "option")
 
+#: the full answers ``described`` asked for, by (interpreter, task), until ``task_model`` takes its task's: on a
+#: machine where neither the description nor the model is kept yet, the build reads the answer the description
+#: came from instead of asking Meta-World to build the task's env again (about a second). At most two are held
+#: (a task's and the one a run prefetches beside it: ~40 MB each).
+_ASKED: dict[tuple[str, str], dict[str, Any]] = {}
+_ASKED_MAX = 2
+
 
 def _worker_code() -> str:
     """The digest of the code that answers ``describe`` (the worker's, the protocol's and the CPU backend's rollout
@@ -118,16 +125,33 @@ def described(worker: Any, task: str) -> dict[str, Any]:
     where = cache_dir(versions) / f"described-{_worker_code()}-{warp_model.digest(versions['prefix'].encode())[:8]}"
 
     def ask(missing: list[str]) -> list[dict[str, Any]]:
-        return [{k: v for k, v in worker.call("describe", task=t).items() if k not in HEAVY} for t in missing]
+        answers = []
+        for t in missing:
+            full = worker.call("describe", task=t)
+            _hold(worker, t, full)
+            answers.append({k: v for k, v in full.items() if k not in HEAVY})
+        return answers
 
     return cached_answers(where, [task], ask)[0]
 
 
+def _hold(worker: Any, task: str, full: dict[str, Any]) -> None:
+    _ASKED[(_interpreter(worker), task)] = full
+    while len(_ASKED) > _ASKED_MAX:
+        _ASKED.pop(next(iter(_ASKED)))
+
+
+def _interpreter(worker: Any) -> str:
+    return str(getattr(worker, "python", id(worker)))
+
+
 def task_model(worker: Any, info: dict[str, Any], settled: dict[str, Any] | None) -> TaskModel:
     """The model of ``described``'s ``info``: from the cache when it is there (no env built natively), else built
-    from the worker's full ``describe`` and checked (``load_or_build``)."""
+    from the worker's full ``describe`` (the one ``described`` just asked for, when it did) and checked
+    (``load_or_build``)."""
+    asked = _ASKED.pop((_interpreter(worker), info["task"]), None)
     cached = warp_model.load_cached(cache_dir(info), info["task"], xml_digest(info["xml"]))
     if cached is None:
-        return load_or_build(worker.call("describe", task=info["task"]), settled)
+        return load_or_build(asked or worker.call("describe", task=info["task"]), settled)
     model, report, path = cached
     return TaskModel(info["task"], model, info, report, path)
