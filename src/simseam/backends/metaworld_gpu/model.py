@@ -15,6 +15,7 @@ inertias, frames, mesh extents, options and the contacts of a settled state (a n
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,6 +107,7 @@ HEAVY = ("fresh", "init", "option")
 #: (a task's and the one a run prefetches beside it: ~40 MB each).
 _ASKED: dict[tuple[str, str], dict[str, Any]] = {}
 _ASKED_MAX = 2
+_ASKED_LOCK = threading.Lock()  # a run's prefetch thread and its main thread both ask and build
 
 
 def _worker_code() -> str:
@@ -136,9 +138,15 @@ def described(worker: Any, task: str) -> dict[str, Any]:
 
 
 def _hold(worker: Any, task: str, full: dict[str, Any]) -> None:
-    _ASKED[(_interpreter(worker), task)] = full
-    while len(_ASKED) > _ASKED_MAX:
-        _ASKED.pop(next(iter(_ASKED)))
+    with _ASKED_LOCK:
+        _ASKED[(_interpreter(worker), task)] = full
+        while len(_ASKED) > _ASKED_MAX:
+            _ASKED.pop(next(iter(_ASKED)))
+
+
+def _take(worker: Any, task: str) -> dict[str, Any] | None:
+    with _ASKED_LOCK:
+        return _ASKED.pop((_interpreter(worker), task), None)
 
 
 def _interpreter(worker: Any) -> str:
@@ -149,7 +157,7 @@ def task_model(worker: Any, info: dict[str, Any], settled: dict[str, Any] | None
     """The model of ``described``'s ``info``: from the cache when it is there (no env built natively), else built
     from the worker's full ``describe`` (the one ``described`` just asked for, when it did) and checked
     (``load_or_build``)."""
-    asked = _ASKED.pop((_interpreter(worker), info["task"]), None)
+    asked = _take(worker, info["task"])
     cached = warp_model.load_cached(cache_dir(info), info["task"], xml_digest(info["xml"]))
     if cached is None:
         return load_or_build(asked or worker.call("describe", task=info["task"]), settled)
