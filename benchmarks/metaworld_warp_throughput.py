@@ -15,12 +15,12 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
 - ``mt50``: the whole evaluation a user waits for: every task, ``--episodes`` episodes (seeds 0..E-1, one
   world each) of ``max_path_length`` steps, building, resetting and stepping timed together (wall), the
   tasks split over ``--mt50-procs`` processes sharing the device (``--mps``: as clients of a CUDA MPS server of
-  the benchmark's own, so that their kernels run side by side). The processes claim tasks one at a time (an
-  exclusive-create file per task), so one that finishes early takes the next; ``--mt50-order RUN.json`` offers
-  them longest first by an earlier run's per-task seconds (else in the order given). Each task's stepping is
-  split into ``physics.advance`` (the control step's launches and the wait for the device) and the host's own
-  work (actions, observation, reward, success): per task ``advance_seconds`` of ``stepping_seconds``, over the
-  tasks ``step_split``.
+  the benchmark's own, so that their kernels run side by side). The processes claim tasks one at a time
+  (``runner.claims``, as ``simseam eval --processes`` does), so one that finishes early takes the next;
+  ``--mt50-order RUN.json`` offers them longest first by an earlier run's per-task seconds (else in the order
+  given). Each task's stepping is split into ``physics.advance`` (the control step's launches and the wait for
+  the device) and the host's own work (actions, observation, reward, success): per task ``advance_seconds`` of
+  ``stepping_seconds``, over the tasks ``step_split``.
 - ``--host-arrays``: the Warp sections' observation and reward code in NumPy on host copies of the poses and
   contacts (``MetaWorldBatch(host_arrays=True)``), against the default, on the device (CuPy: each array call
   one GPU launch).
@@ -205,15 +205,17 @@ def warp_section(tasks: list[str], sizes: list[int], steps: int, device: str | N
 def mt50_worker(tasks: list[str], episodes: int, device: str | None, claims: Path | None = None,
                 host_arrays: bool = False) -> dict[str, Any]:
     """Every task's ``episodes`` episodes to their end, as one batch per task; per task the wall seconds.
-    ``claims``: a directory shared with the other processes; a task runs here only if this process creates its
-    claim file first."""
+    ``claims``: a directory shared with the other processes; a task runs here only if this process claims it first
+    (``runner.claims``, as ``simseam eval --processes`` deals tasks)."""
     from simseam.backends.metaworld_gpu.env import MetaWorldBatch
     from simseam.backends.metaworld_gpu.worker import NativeWorker
+    from simseam.runner.claims import TaskClaims
 
     out = {}
+    held = TaskClaims(claims, os.getpid()) if claims is not None else None
     with NativeWorker() as worker:
         for i, task in enumerate(tasks):
-            if claims is not None and not _claim(claims / task):
+            if held is not None and not held.take(i):
                 continue
             t0 = time.perf_counter()
             env = MetaWorldBatch(task, episodes, worker, device=device, host_arrays=host_arrays)
@@ -252,14 +254,6 @@ class _AdvanceTimer:
         t0 = time.perf_counter()
         self._advance(substeps)
         self.seconds += time.perf_counter() - t0
-
-
-def _claim(path: Path) -> bool:
-    try:
-        os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
-        return True
-    except FileExistsError:
-        return False
 
 
 def longest_first(tasks: list[str], earlier: Path | None) -> list[str]:

@@ -239,26 +239,32 @@ def test_the_worlds_keep_the_batched_seam_contract():
 
 def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path):
     """``--shard i/K`` with ``--engine mujoco_warp``: a task's episodes are one batch, so each shard runs whole
-    tasks (``task_index % K == i``), and ``simseam merge`` of the shards is the unsharded run's episodes.
-    ``--processes 4`` runs those shards itself (``--shard i/2``: one process a task, into ``OUT/shards/i``) and
-    merges them into ``--out``."""
+    tasks (``task_index % K == i``), and ``simseam merge`` of shards is the unsharded run's episodes.
+    ``--processes 4`` runs two shard processes itself (one per task at most, into ``OUT/shards/i``), which claim
+    the tasks one at a time (``OUT/shards/claims``: each task held by the process that ran it, whole), and merges
+    them into ``--out``."""
     tasks, runs = "reach-v3,push-v3", {"whole": tmp_path / "whole"}
-    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
-                                   "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
-                                   "--out", str(runs["whole"])])
+    common = ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes", "2", "--num-envs",
+              "2", "--engine", "mujoco_warp", "--sim-device", "cpu"]
+    res = CliRunner().invoke(app, [*common, "--out", str(runs["whole"])])
     assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, [*common, "--shard", "1/2", "--out", str(tmp_path / "shard1")])
+    assert res.exit_code == 0, res.output
+    assert [(r["task"], r["episode"]) for r in _lines(tmp_path / "shard1")] == [("push-v3", 0), ("push-v3", 1)]
+    shard = json.loads((tmp_path / "shard1" / "run.json").read_text())
+    assert shard["shard"] == [1, 2] and shard["shard_unit"] == 2 and "dealing" not in shard
     both = tmp_path / "processes"
-    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "scripted", "--tasks", tasks, "--episodes",
-                                   "2", "--num-envs", "2", "--engine", "mujoco_warp", "--sim-device", "cpu",
-                                   "--processes", "4", "--out", str(both)])  # 4 asked, one per task: 2
+    res = CliRunner().invoke(app, [*common, "--processes", "4", "--out", str(both)])  # 4 asked, one per task: 2
     assert res.exit_code == 0, res.output
     assert "as 2 process(es)" in res.output and sorted(p.name for p in (both / "shards").iterdir()) == \
-        ["0", "0.log", "1", "1.log"]
+        ["0", "0.log", "1", "1.log", "claims"]
     runs["s0"], runs["s1"] = both / "shards" / "0", both / "shards" / "1"
-    assert [(r["task"], r["episode"]) for r in _lines(runs["s0"])] == [("reach-v3", 0), ("reach-v3", 1)]
-    assert [(r["task"], r["episode"]) for r in _lines(runs["s1"])] == [("push-v3", 0), ("push-v3", 1)]
-    shard = json.loads((runs["s1"] / "run.json").read_text())
-    assert shard["shard"] == [1, 2] and shard["shard_unit"] == 2
+    ran = {i: [(r["task"], r["episode"]) for r in _lines(runs[f"s{i}"])] for i in (0, 1)}
+    held = {p.name: int(p.read_text()) for p in (both / "shards" / "claims").glob("task-*")}
+    assert held.keys() == {"task-0", "task-1"}, held  # both tasks claimed, each by one process
+    for name, task in (("task-0", "reach-v3"), ("task-1", "push-v3")):  # run whole, where it was claimed
+        assert [e for t, e in ran[held[name]] if t == task] == [0, 1] and task not in dict(ran[1 - held[name]])
+    assert all(json.loads((runs[f"s{i}"] / "run.json").read_text())["dealing"] == "claims" for i in (0, 1))
     merged = tmp_path / "merged"
     res = CliRunner().invoke(app, ["merge", "--out", str(merged), str(runs["s0"]), str(runs["s1"])])
     assert res.exit_code == 0, res.output

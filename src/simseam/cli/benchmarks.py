@@ -142,6 +142,9 @@ def eval_command(
     processes: int = PROCESSES_OPTION,
     mps: bool = MPS_OPTION,
     image_size: int = IMAGE_SIZE_OPTION,
+    claims: Path = typer.Option(None, "--claims", hidden=True, help="--processes' own: with --shard i/K and "
+                                "--engine, the folder where the K processes claim whole tasks one at a time "
+                                "(runner.claims) instead of task_index % K == i."),
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks, with_image_size
@@ -164,7 +167,9 @@ def eval_command(
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out, out = out is None, out or default_run_dir()
-        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine)  # checked
+        _check_claims(claims, shard_ik, engine)
+        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine,
+                                     claims is not None)  # checked
         if processes > 1:
             eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
                                          sim_device=sim_device, device=device, n_action_steps=n_action_steps,
@@ -177,28 +182,42 @@ def eval_command(
     todo = run_dir.left(planned)
     executor = _eval_executor(len(todo), n, num_envs, engine, ray_address, policy_groups, policy_ready, envs_per_worker)
     job = Job(eval_recipe(p, task_list, n, engine, sim_device), policy, policy_kwargs(device, n_action_steps), todo,
-              seed, run_dir, video)
+              seed, run_dir, video, claims=_task_claims(claims, shard_ik))
     console.print(_eval_start(p, job, executor, engine, n, config, (
         f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else "")))
     _eval_job(job, executor, p, engine)
 
 
 def _eval_plan(p, policy: str, task_list: list[str], n: int, seed: int, video: bool, ci_width: float,
-               shard_ik: tuple[int, int] | None, engine: str | None) -> tuple[dict, list[int]]:
-    """An eval's config (what its run.json records) and the episode indices it plans (its shard's)."""
+               shard_ik: tuple[int, int] | None, engine: str | None, claimed: bool = False) -> tuple[dict, list[int]]:
+    """An eval's config (what its run.json records) and the episode indices it plans (its shard's; ``claimed``:
+    every task's, of which it runs those it claims)."""
     from simseam.runner.evaluate import eval_config, eval_indices
     from simseam.runner.provenance import for_benchmark
-    from simseam.runner.sharding import check_shard_holds_episodes
+    from simseam.runner.sharding import CLAIMED, check_shard_holds_episodes
 
     whole_tasks = shard_ik is not None and engine is not None  # a port's task is one batch: shards take tasks
     config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
               **({"shard": list(shard_ik)} if shard_ik is not None else {}),
               **({"shard_unit": n} if whole_tasks else {}),
+              **({"dealing": CLAIMED} if claimed else {}),
               **({"engine": engine} if engine is not None else {})}
-    planned = check_shard_holds_episodes(eval_indices(task_list, n, shard_ik, whole_tasks), shard_ik,
-                                         len(task_list) * n, n if whole_tasks else 1)
+    planned = check_shard_holds_episodes(eval_indices(task_list, n, None if claimed else shard_ik, whole_tasks),
+                                         shard_ik, len(task_list) * n, n if whole_tasks else 1)
     config["provenance"] = for_benchmark(p.backend, policy)
     return config, planned
+
+
+def _check_claims(claims: Path | None, shard_ik: tuple[int, int] | None, engine: str | None) -> None:
+    if claims is not None and (shard_ik is None or engine is None):
+        raise ConfigError("--claims: only with --shard i/K and --engine (the whole tasks a run of --processes "
+                          "deals)")
+
+
+def _task_claims(claims: Path | None, shard_ik: tuple[int, int] | None):
+    from simseam.runner.claims import TaskClaims
+
+    return TaskClaims(claims, shard_ik[0]) if claims is not None else None
 
 
 def _eval_start(p, job, executor, engine: str | None, n: int, config: dict, shard: str) -> str:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import shutil
 import sys
 from pathlib import Path
 
@@ -19,8 +20,9 @@ from simseam.seam import ConfigError, SimseamError
 def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, default_out: bool, processes: int,
                    mps: bool, overwrite: bool, resume: bool) -> None:
     """Run ``simseam eval`` ``args`` as ``processes`` shard processes (at most one per task) into ``out/shards``,
-    then merge them into ``out``; exit 1 when a process failed (what the others finished is merged), 130 on
-    Ctrl-C (what every process finished is merged)."""
+    each taking the next task nobody holds when it is free (``runner.claims``), then merge them into ``out``; exit
+    1 when a process failed (what the others finished is merged), 130 on Ctrl-C (what every process finished is
+    merged)."""
     from simseam.runner import processes as P
     from simseam.runner.run_dir import point_latest
 
@@ -30,8 +32,11 @@ def eval_processes(p, args: list[str], n_tasks: int, episodes: int, out: Path, d
         server = P.MpsServer() if mps else None
     except SimseamError as exc:
         fail(exc)
-    argvs = [[sys.executable, "-m", "simseam.cli.main", *args, "--shard", f"{i}/{k}", "--out",
-              str(P.shard_dir(out, i)), *_keep(P.shard_dir(out, i), overwrite, resume)] for i in range(k)]
+    claims = P.claims_dir(out)
+    if not resume and claims.exists():  # --overwrite: the tasks are claimed afresh
+        shutil.rmtree(claims)
+    argvs = [[sys.executable, "-m", "simseam.cli.main", *args, "--shard", f"{i}/{k}", "--claims", str(claims),
+              "--out", str(P.shard_dir(out, i)), *_keep(P.shard_dir(out, i), overwrite, resume)] for i in range(k)]
     logs = [P.shard_log(out, i) for i in range(k)]
     out.mkdir(parents=True, exist_ok=True)
     if default_out:

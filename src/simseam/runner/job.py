@@ -66,6 +66,7 @@ class Job:
     video: bool = False
     dataset: Dataset | None = None
     action_noise: float = 0.0
+    claims: Any = None  # runner.claims.TaskClaims: the run's parts (whole tasks) taken one at a time with others
 
     @property
     def video_dir(self) -> Path | None:
@@ -303,6 +304,8 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
     parts = recipe.parts(job.indices, job.seed)
     try:
         for k, (part, indices, seed) in enumerate(parts):
+            if job.claims is not None and not job.claims.take(part.first_task):
+                continue  # another process of the run holds this task
             m = max(1, min(n, len(indices)))
             rule = lockstep.fit(m)
             # started while the part before ran. The first part is not prepared ahead: its batch opens first, so
@@ -312,7 +315,7 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
                 wait()
             with part.open_envs(m, renderer=renderer, envs_per_worker=rule.envs_per_worker,
                                 shared=shared) as envs:
-                ahead = _prefetch(parts, k + 1, shared)  # the next part's, while this one steps
+                ahead = _prefetch(_after(parts, k, job.claims), shared)  # the next part's, while this one steps
                 batch.reset(0, envs.spec)  # the policy's contract, before anything is written
                 log.spec(envs.spec.to_json())
                 report.envs = envs
@@ -328,12 +331,22 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
             shared.close()
 
 
-def _prefetch(parts: list, k: int, shared) -> Callable[[], None] | None:
-    """Part ``k``'s preparation started in a thread (``recipe.prefetch``) while the part before it steps; the
-    wait for it, or None (no part ``k``, or nothing to prepare)."""
-    if k >= len(parts):
+def _after(parts: list, k: int, claims) -> tuple | None:
+    """The part a run prepares while part ``k`` steps: the next, or with ``claims`` the next nobody holds yet (it
+    is claimed only when this process gets there; if another takes it first, that one reads what the preparation
+    left in the disk caches); None when there is none."""
+    later = parts[k + 1:]
+    if claims is None:
+        return later[0] if later else None
+    return claims.unclaimed(later, lambda p: p[0].first_task)
+
+
+def _prefetch(item: tuple | None, shared) -> Callable[[], None] | None:
+    """A part's preparation started in a thread (``recipe.prefetch``) while the part before it steps; the wait
+    for it, or None (no part, or nothing to prepare)."""
+    if item is None:
         return None
-    part, indices, seed = parts[k]
+    part, indices, seed = item
     prefetch = getattr(part, "prefetch", None)
     return prefetch(indices, seed, shared) if prefetch is not None else None
 

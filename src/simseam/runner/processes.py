@@ -41,6 +41,11 @@ def shard_log(out: Path, i: int) -> Path:
     return Path(out) / SHARDS / f"{i}.log"
 
 
+def claims_dir(out: Path) -> Path:
+    """Where the K processes claim whole tasks (``runner.claims``); kept for a resumed run."""
+    return Path(out) / SHARDS / "claims"
+
+
 def child_env(k: int, base: dict | None = None) -> dict:
     """The processes' environment: ``base`` (default this one's), and the cores shared among the benchmark's
     native workers of the K processes (``SIMSEAM_NATIVE_WORKERS``, unless set: LIBERO's reset processes)."""

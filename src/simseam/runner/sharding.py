@@ -34,6 +34,10 @@ from typing import Sequence
 
 from simseam.seam import ConfigError
 
+#: a shard's ``dealing`` when the K processes of ``simseam eval --processes`` claim whole tasks one at a time
+#: (``runner.claims``): which tasks it runs depends on timing, so its config does not say its episodes
+CLAIMED = "claims"
+
 #: fields of an episode entry that say what happened (timings and video paths may differ between re-runs)
 RESULT_FIELDS = ("seed", "success", "steps", "reward", "error")
 
@@ -72,11 +76,11 @@ def check_shard_holds_episodes(planned: list[int], shard: tuple[int, int] | None
 
 def planned_indices(config: dict) -> list[int] | None:
     """The indices a run's config plans (its shard's: ``shard_unit`` whole tasks at a time for a batched port),
-    or None when the config does not say."""
+    or None when the config does not say (a shard whose tasks were claimed: the merged run plans them all)."""
     n = config.get("episodes")
-    if not isinstance(n, int):
-        return None
     shard = config.get("shard")
+    if not isinstance(n, int) or (shard and config.get("dealing") == CLAIMED):
+        return None
     return shard_indices(n, tuple(shard) if shard else None, int(config.get("shard_unit", 1)))
 
 
