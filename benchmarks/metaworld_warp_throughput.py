@@ -280,6 +280,36 @@ def mt50_section(tasks: list[str], episodes: int, procs: int, device: str | None
     return dict(out, mps=mps, host_arrays=host_arrays, dealing=f"claimed one at a time, {offered}")
 
 
+def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | None, mps: bool) -> dict[str, Any]:
+    """The same evaluation as a user runs it: ``simseam eval metaworld_mt50 --engine mujoco_warp --processes K
+    [--mps] --policy random`` (the policy drawn on the host, per environment, by simseam's scheduler; the
+    processes claim the tasks one at a time; the run written to disk and merged), timed from the command's start
+    to its exit."""
+    import tempfile
+
+    from simseam.backends.metaworld_gpu.tasks import OBJECTS
+
+    with tempfile.TemporaryDirectory(prefix="mt50-cli-") as tmp:
+        out = Path(tmp) / "run"
+        argv = ["eval", "metaworld_mt50", "--engine", "mujoco_warp", "--policy", "random", "--episodes",
+                str(episodes), "--processes", str(procs), *(["--mps"] if mps else []),
+                *(["--sim-device", device] if device else []),
+                *([] if sorted(tasks) == sorted(OBJECTS) else ["--tasks", ",".join(tasks)])]
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "simseam.cli.main", *argv, "--out", str(out)],
+                              capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if done.returncode != 0:
+            raise RuntimeError(f"simseam {' '.join(argv)}: exit {done.returncode}\n{done.stdout[-2000:]}")
+        summary = json.loads((out / "summary.json").read_text())
+        steps = sum(json.loads(line)["steps"] for line in (out / "episodes.jsonl").read_text().splitlines())
+        holders = [int(p.read_text()) for p in (out / "shards" / "claims").glob("task-*")]
+    return {"command": "simseam " + " ".join(argv), "wall_seconds": wall,
+            "episodes": summary["n_episodes"], "episodes_per_task": episodes, "tasks": len(tasks), "procs": procs,
+            "mps": mps, "complete": summary["complete"], "env_steps_per_s": steps / wall,
+            "tasks_per_process": sorted(holders.count(i) for i in set(holders))}
+
+
 def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None,
                 host_arrays: bool = False) -> dict[str, Any]:
     t0 = time.perf_counter()
@@ -371,6 +401,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--host-arrays", action="store_true",
                     help="the Warp sections' observation and reward code in NumPy on host copies (MetaWorldBatch)")
     ap.add_argument("--mt50-order", type=Path, help="an earlier run's JSON: the mt50 tasks offered longest first")
+    ap.add_argument("--mt50-cli", action="store_true", help="the mt50 section as a user runs it: simseam eval "
+                    "metaworld_mt50 --engine mujoco_warp --processes K [--mps] --policy random (mt50_cli)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--overwrite", action="store_true")
@@ -428,7 +460,12 @@ def main(argv: list[str] | None = None) -> int:
     for n in camera_sizes:
         keeper("warp_cameras")(warp_section(tasks, [n], args.steps, args.device, cameras, args.image,
                                             on_task=keeper("warp_cameras")))
-    if args.episodes and not args.no_state:
+    if args.episodes and args.mt50_cli:
+        doc["mt50_cli"] = mt50_cli_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps)
+        print(f"{doc['mt50_cli']['command']}: {doc['mt50_cli']['wall_seconds']:.1f} s wall, "
+              f"{doc['mt50_cli']['episodes']} episodes, tasks per process {doc['mt50_cli']['tasks_per_process']}")
+        save()
+    elif args.episodes and not args.no_state:
         doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order,
                                    args.host_arrays)
         save()

@@ -4,7 +4,8 @@
 #     MT50_PROCS processes (default 8), MT50_MPS=1: as clients of a CUDA MPS server; MT50_LIMIT=0 skips it)
 #   bash benchmarks/device/metaworld_h200.sh mt50x50      (MT50 x 50 under MPS, MT50_PROCS processes (default 16), the
 #     tasks claimed longest first: first cold with --host-arrays, then warm with and without it (MT50_RUNS
-#     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes; each run within
+#     overrides: "host plain host24" = the two warm runs, then host arrays in 24 processes; "cli": the product's own
+#     `simseam eval metaworld_mt50 --engine mujoco_warp --processes 16 --mps --policy random`; each run within
 #     MT50_LIMIT s, default 180, a cold one MT50_COLD_LIMIT, default 330); then the Warp kernel cache, when it fits, comes back as
 #     mw_kcache.txz.NN pieces, at most three (the next machine: put them in a directory, carry it and `metaworld_upload.sh receive` it
 #     before the install call: install unpacks them)
@@ -41,8 +42,9 @@ case "${1:-}" in
     ;;
   mt50x50)
     order=benchmarks/results/metaworld_mt50x50_mps16_warm_h100.json
-    for run in ${MT50_RUNS:-cold host plain}; do  # a run's name: cold, host or plain, then its processes if not MT50_PROCS
-      flag=--host-arrays; [ "${run//[0-9]/}" = plain ] && flag=
+    for run in ${MT50_RUNS:-cold host plain}; do  # a run's name: cold, host, plain or cli, then its processes if not MT50_PROCS
+      # cli: `simseam eval metaworld_mt50 --engine mujoco_warp --processes K --mps --policy random`, as a user runs it
+      flag=--host-arrays; [ "${run//[0-9]/}" = plain ] && flag=; [ "${run//[0-9]/}" = cli ] && flag=--mt50-cli
       procs="${run//[!0-9]/}"
       limit="${MT50_LIMIT:-180}"; [ "${run//[0-9]/}" = cold ] && limit="${MT50_COLD_LIMIT:-330}"
       timeout "$limit" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks mt50 \

@@ -102,6 +102,10 @@ MPS_OPTION = typer.Option(False, "--mps", help="--processes on CUDA: the process
                           "this run's own, so that their kernels run side by side (without it the GPU runs one "
                           "process's kernels at a time).")
 
+CLAIMS_OPTION = typer.Option(None, "--claims", hidden=True, help="--processes' own: with --shard i/K and --engine, "
+                             "the folder where the K processes claim whole tasks one at a time (runner.claims) "
+                             "instead of task_index % K == i.")
+
 
 def eval_command(
     preset_name: str = typer.Argument(..., metavar="PRESET", help=", ".join(PRESETS) + "."),
@@ -142,9 +146,7 @@ def eval_command(
     processes: int = PROCESSES_OPTION,
     mps: bool = MPS_OPTION,
     image_size: int = IMAGE_SIZE_OPTION,
-    claims: Path = typer.Option(None, "--claims", hidden=True, help="--processes' own: with --shard i/K and "
-                                "--engine, the folder where the K processes claim whole tasks one at a time "
-                                "(runner.claims) instead of task_index % K == i."),
+    claims: Path = CLAIMS_OPTION,
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
     from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks, with_image_size
@@ -167,9 +169,7 @@ def eval_command(
         n = episodes or p.episodes
         check_seed(seed, n)  # episode e of every task uses seed + e
         default_out, out = out is None, out or default_run_dir()
-        _check_claims(claims, shard_ik, engine)
-        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine,
-                                     claims is not None)  # checked
+        config, planned = _eval_plan(p, policy, task_list, n, seed, video, ci_width, shard_ik, engine, claims)
         if processes > 1:
             eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
                                          sim_device=sim_device, device=device, n_action_steps=n_action_steps,
@@ -189,13 +189,16 @@ def eval_command(
 
 
 def _eval_plan(p, policy: str, task_list: list[str], n: int, seed: int, video: bool, ci_width: float,
-               shard_ik: tuple[int, int] | None, engine: str | None, claimed: bool = False) -> tuple[dict, list[int]]:
-    """An eval's config (what its run.json records) and the episode indices it plans (its shard's; ``claimed``:
-    every task's, of which it runs those it claims)."""
+               shard_ik: tuple[int, int] | None, engine: str | None, claims: Path | None = None
+               ) -> tuple[dict, list[int]]:
+    """An eval's config (what its run.json records) and the episode indices it plans (its shard's; with
+    ``claims``: every task's, of which it runs those it claims), checked."""
     from simseam.runner.evaluate import eval_config, eval_indices
     from simseam.runner.provenance import for_benchmark
     from simseam.runner.sharding import CLAIMED, check_shard_holds_episodes
 
+    _check_claims(claims, shard_ik, engine)
+    claimed = claims is not None
     whole_tasks = shard_ik is not None and engine is not None  # a port's task is one batch: shards take tasks
     config = {**eval_config(p, redacted(policy), task_list, n, seed, video), "ci_width": checked_ci_width(ci_width),
               **({"shard": list(shard_ik)} if shard_ik is not None else {}),
