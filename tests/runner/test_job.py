@@ -204,7 +204,7 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     parts = [(Part(0), [0, 1], 7), (Part(1), [2, 3], 5), (Part(2), [4, 5], 3)]
     recipe = SimpleNamespace(parts=lambda indices, seed: parts,
                              shared=lambda: SimpleNamespace(close=lambda: events.append(("shared closed",))))
-    job = SimpleNamespace(indices=[0, 1, 2, 3, 4, 5], seed=7, video_dir=None)
+    job = SimpleNamespace(indices=[0, 1, 2, 3, 4, 5], seed=7, video_dir=None, claims=None)
     batch = SimpleNamespace(reset=lambda *a: None)
     report = SimpleNamespace(envs=None, on_envs=None, on_error=None, on_worker_failure=None)
     log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None)
