@@ -313,3 +313,20 @@ def test_a_failed_process_is_named_with_its_error(tmp_path):
         assert f"process {i}/2 failed (exit 2): " in res.output
     assert res.output.count("no_such_checkpoint: no such directory") == 2
     assert "no process started its run" in res.output and not (out / "summary.json").exists()
+
+
+def test_a_process_that_finds_every_task_claimed_ends_cleanly(tmp_path):
+    """A process of ``--processes K`` that starts after the others claimed every task runs nothing: it says so and
+    exits 0 (the run's merge takes the others' shards), writing no run directory."""
+    from simseam.runner.claims import TaskClaims
+
+    first = TaskClaims(tmp_path / "claims", 0)
+    assert first.take(0) and first.take(1)
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "random", "--tasks", "reach-v3,push-v3",
+                                   "--episodes", "2", "--engine", "mujoco_warp", "--sim-device", "cpu", "--shard",
+                                   "1/2", "--claims", str(tmp_path / "claims"), "--out", str(tmp_path / "s1")])
+    assert res.exit_code == 0, res.output
+    assert "claimed by the run's other processes" in res.output and not (tmp_path / "s1").exists()
+    res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "random", "--episodes", "2", "--claims",
+                                   str(tmp_path / "claims"), "--out", str(tmp_path / "s2")])
+    assert res.exit_code == 2 and "--claims: only with --shard i/K and --engine" in res.output

@@ -268,7 +268,8 @@ def _eval_job(job, executor, p, engine: str | None) -> None:
         console.print(f"resuming: {len(job.run_dir.done)} episode(s) already recorded")
         print_notes(job.run_dir.notes, "differs from the run there (the episodes are the same)")
     report = JobReport(status=lambda task: _Starting(p.backend, task))
-    with episodes_guard(job.run_dir, finish=_summary(p, job.policy, job.run_dir)), contextlib.ExitStack() as stack:
+    with episodes_guard(job.run_dir, finish=_summary(p, job.policy, job.run_dir, job.claims is not None)), \
+            contextlib.ExitStack() as stack:
         if executor.kind == "inline":
             report.on_done, report.on_error = _task_episode_line, _episode_error
         else:
@@ -347,14 +348,18 @@ def _task_subset(tasks: str | None) -> list[str] | None:
     return only
 
 
-def _summary(p, policy: str, run_dir):
-    """The ``finish`` of an eval's ``episodes_guard``: its summary."""
-    return lambda interrupted: _eval_summary(p, policy, run_dir, interrupted)
+def _summary(p, policy: str, run_dir, claimed: bool = False):
+    """The ``finish`` of an eval's ``episodes_guard``: its summary (``claimed``: a process of ``--processes`` that
+    claims its tasks, which may find every task held by the others)."""
+    return lambda interrupted: _eval_summary(p, policy, run_dir, interrupted, claimed)
 
 
-def _eval_summary(p, policy: str, run_dir, interrupted: bool) -> None:
+def _eval_summary(p, policy: str, run_dir, interrupted: bool, claimed: bool = False) -> None:
     out = run_dir.path
     summary = run_dir.summarize(interrupted=interrupted)
+    if summary is None and claimed and not interrupted:
+        console.print("every task was claimed by the run's other processes: none ran here")
+        return
     if summary is None:
         never_started(out, interrupted)
     print_task_table(summary, f"{p.name} ({policy})")
