@@ -24,6 +24,10 @@ the one summary code path, so it holds the eval summary (``per_task`` with Wilso
 task (``missing_by_task``: ``{task: [e, ...]}``). An eval run's ``spec.json`` is the spec of the task
 it started with, so the shards' specs are compared without their ``task`` part and the merge keeps
 the spec of the run holding the lowest index (the first task's, as an unsharded run's).
+
+``simseam eval --processes K`` runs K such shards whose processes claim whole tasks one at a time instead
+(``runner.claims``; their configs say ``dealing: claims``): a claimed shard's config does not say which episodes
+it holds, and the merge plans them all.
 """
 
 from __future__ import annotations
