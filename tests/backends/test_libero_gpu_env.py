@@ -224,8 +224,9 @@ class NativeWorkerLog(NativeWorker):
 def test_prefetch_leaves_a_batch_nothing_to_ask_libero_but_the_task(worker, tmp_path, monkeypatch):
     """``LiberoBatchRollout.prefetch`` (what a run does for its next task while one steps): the episodes' resets
     and seed 0's (the parking state) land in the reset cache, and the task's description beside them, so the
-    batch of that task asks LIBERO only for the model it builds; a later batch asks only for the versions (its
-    model and description on disk, LIBERO's env never built), and gets the same description."""
+    batch of that task asks LIBERO only for the versions (its model is built from the description the prefetch
+    asked for, held until then: LIBERO's env built once); a later batch asks only for the versions too (its model
+    and description on disk, LIBERO's env never built), and gets the same description."""
     from simseam.backends.libero_gpu import model as M
     from simseam.backends.libero_gpu.rollout import LiberoBatchRollout
 
@@ -239,7 +240,7 @@ def test_prefetch_leaves_a_batch_nothing_to_ask_libero_but_the_task(worker, tmp_
         assert sorted(p.name for p in folder.rglob("*.pkl")) == ["0.pkl", "3.pkl", "4.pkl"]
         counted.asked.clear()
         batches = []
-        for asked in (["versions", "describe"], ["versions"]):
+        for asked in (["versions"], ["versions"]):
             batch = LiberoBatchRollout(task, 2, counted, device="cpu")
             try:
                 batch.reset([0, 1], [3, 4])

@@ -27,3 +27,20 @@ def test_a_partial_file_from_a_killed_writer_is_asked_again(tmp_path):
     got = cached_answers(folder, [5], lambda keys: [f"answer {k}" for k in keys])
     assert got == ["answer 5"] and (folder / "5.pkl").is_file()
     assert cached_answers(folder, [5], lambda keys: ["asked again"]) == ["answer 5"]  # the kept answer is read
+
+
+def test_held_answers_are_taken_once_per_interpreter_and_the_oldest_go_first():
+    """``HeldAnswers``: a full answer read again soon (a task's ``describe``: its description, then its model's
+    build), taken once, by the worker's interpreter and key; at most ``limit`` held, the oldest dropped."""
+    from types import SimpleNamespace
+
+    from simseam.backends.native_worker import HeldAnswers
+
+    a, b = SimpleNamespace(python="/venv-a/bin/python"), SimpleNamespace(python="/venv-b/bin/python")
+    held = HeldAnswers(limit=2)
+    held.hold(a, "reach", {"xml": "a"})
+    assert held.take(b, "reach") is None  # another interpreter's answer is not this one's
+    assert held.take(a, "reach") == {"xml": "a"} and held.take(a, "reach") is None  # taken once
+    for task in ("t1", "t2", "t3"):
+        held.hold(a, task, task)
+    assert [held.take(a, t) for t in ("t1", "t2", "t3")] == [None, "t2", "t3"]

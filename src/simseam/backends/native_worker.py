@@ -257,6 +257,32 @@ def split(keys: list[Any], parts: int) -> list[list[Any]]:
     return [keys[a:b] for a, b in zip(cuts, cuts[1:])]
 
 
+class HeldAnswers:
+    """Full answers a port asked of a native worker once and reads again soon, by (the worker's interpreter, key)
+    until taken: a task's ``describe``, which its kept description is cut from and, on a machine where the task's
+    model is not cached yet, its model is built from (Meta-World or LIBERO would otherwise build the task's env a
+    second time). At most ``limit`` are held (a task's and the one a run prepares beside it: tens of MB each),
+    behind a lock (a run's prefetch thread asks beside its main thread)."""
+
+    def __init__(self, limit: int = 2):
+        self.limit, self._held, self._lock = limit, {}, threading.Lock()
+
+    def hold(self, worker: Any, key: Any, answer: Any) -> None:
+        with self._lock:
+            self._held[(_interpreter(worker), key)] = answer
+            while len(self._held) > self.limit:
+                self._held.pop(next(iter(self._held)))
+
+    def take(self, worker: Any, key: Any) -> Any:
+        """The answer held for ``key`` of this worker's interpreter (no longer held), or None."""
+        with self._lock:
+            return self._held.pop((_interpreter(worker), key), None)
+
+
+def _interpreter(worker: Any) -> str:
+    return str(getattr(worker, "python", id(worker)))
+
+
 def cached_answers(folder: Path, keys: list[Any], ask: Callable[[list[Any]], list[Any]]) -> list[Any]:
     """One answer per key of ``keys`` (in order), each kept in ``folder/<key>.pkl``: the keys not there yet are
     asked of the native worker at once (``ask(missing)``, one answer per missing key in order) and written

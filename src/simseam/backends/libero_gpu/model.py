@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from simseam.backends import warp_model
-from simseam.backends.native_worker import cached_answers, changed_arrays
+from simseam.backends.native_worker import HeldAnswers, cached_answers, changed_arrays
 
 PORT = "libero_gpu"
 #: what ``described`` keeps of ``describe`` (the rest builds and checks the model); another format, another folder
@@ -98,6 +98,10 @@ def _worker_code() -> str:
     return warp_model.code_digest(native, native_worker)
 
 
+#: the full ``describe`` answers ``described`` asked for, until ``task_model`` builds from its task's
+_ASKED = HeldAnswers()
+
+
 def described(worker: Any, suite: str, task: int) -> dict[str, Any]:
     """``describe``'s ``KEPT`` keys plus ``xml_sha256``: from disk when this worker's versions and code described
     the task before, else asked (then kept: ``native_worker.cached_answers``)."""
@@ -105,6 +109,7 @@ def described(worker: Any, suite: str, task: int) -> dict[str, Any]:
 
     def ask(missing: list[str]) -> list[dict[str, Any]]:
         full = worker.call("describe", suite=suite, task=int(task))
+        _ASKED.hold(worker, (suite, int(task)), full)
         return [{k: full[k] for k in KEPT} | {"xml_sha256": warp_model.digest(full["xml"].encode())}]
 
     return cached_answers(where, [f"{suite}-{int(task)}"], ask)[0]
@@ -112,11 +117,13 @@ def described(worker: Any, suite: str, task: int) -> dict[str, Any]:
 
 def task_model(worker: Any, suite: str, task: int) -> TaskModel:
     """The task's model with ``described``'s info: loaded from the cache when both are there, without LIBERO's
-    env; else built from the worker's full ``describe`` (``load_or_build``)."""
+    env; else built from the worker's full ``describe`` (the one ``described`` asked for, when it did:
+    ``HeldAnswers``) (``load_or_build``)."""
     info = described(worker, suite, task)
+    asked = _ASKED.take(worker, (suite, int(task)))
     cached = warp_model.load_cached(cache_dir(info), f"{suite}-{int(task)}", info["xml_sha256"])
     if cached is None:
-        built = load_or_build(worker.call("describe", suite=suite, task=int(task)))
+        built = load_or_build(asked or worker.call("describe", suite=suite, task=int(task)))
         cached = built.model, built.report, built.path
     model, report, path = cached
     return TaskModel(suite, int(task), model, info, report, path)

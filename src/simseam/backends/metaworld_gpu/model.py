@@ -15,7 +15,6 @@ inertias, frames, mesh extents, options and the contacts of a settled state (a n
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from simseam.backends import warp_model
-from simseam.backends.native_worker import DERIVED, cached_answers
+from simseam.backends.native_worker import DERIVED, HeldAnswers, cached_answers
 from simseam.backends.warp_model import apply_fields
 from simseam.seam.errors import SimulationError
 
@@ -101,13 +100,8 @@ def load_or_build(info: dict[str, Any], settled: dict[str, Any] | None) -> TaskM
 #: ``describe``'s native model arrays: only a build of the model and its checks read them (~40 MB a task)
 HEAVY = ("fresh", "init", "option")
 
-#: the full answers ``described`` asked for, by (interpreter, task), until ``task_model`` takes its task's: on a
-#: machine where neither the description nor the model is kept yet, the build reads the answer the description
-#: came from instead of asking Meta-World to build the task's env again (about a second). At most two are held
-#: (a task's and the one a run prefetches beside it: ~40 MB each).
-_ASKED: dict[tuple[str, str], dict[str, Any]] = {}
-_ASKED_MAX = 2
-_ASKED_LOCK = threading.Lock()  # a run's prefetch thread and its main thread both ask and build
+#: the full ``describe`` answers ``described`` asked for, until ``task_model`` builds from its task's
+_ASKED = HeldAnswers()
 
 
 def _worker_code() -> str:
@@ -130,34 +124,18 @@ def described(worker: Any, task: str) -> dict[str, Any]:
         answers = []
         for t in missing:
             full = worker.call("describe", task=t)
-            _hold(worker, t, full)
+            _ASKED.hold(worker, t, full)
             answers.append({k: v for k, v in full.items() if k not in HEAVY})
         return answers
 
     return cached_answers(where, [task], ask)[0]
 
 
-def _hold(worker: Any, task: str, full: dict[str, Any]) -> None:
-    with _ASKED_LOCK:
-        _ASKED[(_interpreter(worker), task)] = full
-        while len(_ASKED) > _ASKED_MAX:
-            _ASKED.pop(next(iter(_ASKED)))
-
-
-def _take(worker: Any, task: str) -> dict[str, Any] | None:
-    with _ASKED_LOCK:
-        return _ASKED.pop((_interpreter(worker), task), None)
-
-
-def _interpreter(worker: Any) -> str:
-    return str(getattr(worker, "python", id(worker)))
-
-
 def task_model(worker: Any, info: dict[str, Any], settled: dict[str, Any] | None) -> TaskModel:
     """The model of ``described``'s ``info``: from the cache when it is there (no env built natively), else built
     from the worker's full ``describe`` (the one ``described`` just asked for, when it did) and checked
     (``load_or_build``)."""
-    asked = _take(worker, info["task"])
+    asked = _ASKED.take(worker, info["task"])
     cached = warp_model.load_cached(cache_dir(info), info["task"], xml_digest(info["xml"]))
     if cached is None:
         return load_or_build(asked or worker.call("describe", task=info["task"]), settled)
