@@ -292,6 +292,56 @@ def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):
     np.testing.assert_allclose(np.stack(got), np.stack(want), atol=1e-5)  # as on its own (float32 rounding)
 
 
+def _whole_step_run(worker, whole: bool) -> tuple[list[dict], np.ndarray]:
+    """Three worlds of libero_spatial/3, world 1's observable clock moved 7 substeps on: resets, steps of all and of
+    some worlds, a reset of one; each step's observation buffers (copies) and the first step's sampling rows."""
+    from simseam.backends.libero_gpu.env import LiberoBatch
+
+    batch = LiberoBatch("libero_spatial", 3, 3, worker, device="cpu", settle_steps=2, whole_step=whole)
+    try:
+        assert batch.whole_step == whole and batch._sampler is not None
+        batch.reset([0, 1, 2], [1, 7, 9])
+        batch.clock.t[1] = (batch.clock.t[1] + 7 * batch.clock.dt) % batch.clock.period[1]
+        rows, seen = batch.clock.copy().ahead(batch.cfg.substeps), []
+        for k, a in enumerate(_actions(4)):
+            worlds = None if k % 2 == 0 else [0, 2]
+            batch.step(np.tile(a, (3, 1)), worlds=worlds)
+            seen.append({key: np.array(v) for key, v in batch.observed.items()})
+            if k == 1:
+                batch.reset([1], [4])
+        return seen, rows
+    finally:
+        batch.close()
+
+
+def test_the_observables_sampled_inside_the_step_are_the_hosts(worker):
+    """On MuJoCo Warp a whole control step runs as device launches, the observables sampled by a launch after each
+    substep (``observables.Sampler``; one captured CUDA graph per step on a GPU): bit for bit what sampling on the
+    host after each substep gives, with the worlds' clocks sampling at different substeps, through steps of some of
+    the worlds (the others held) and a reset of one."""
+    (whole, rows), (host, _) = _whole_step_run(worker, True), _whole_step_run(worker, False)
+    assert rows.shape == (25, 3) and rows.sum(axis=0).tolist() == [1, 1, 1]
+    assert np.argmax(rows[:, 0]) == 23 and np.argmax(rows[:, 1]) != 23  # LIBERO's 24th substep, and another
+    for step, (got, want) in enumerate(zip(whole, host)):
+        assert got.keys() == want.keys()
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key} after step {step}")
+    assert not np.array_equal(whole[0]["qpos"], whole[1]["qpos"])  # the steps moved the worlds
+
+
+def test_the_observables_clock_ahead_is_its_ticks():
+    from simseam.backends.libero_gpu.observables import Clock
+
+    clock = Clock(4, 0.002)
+    clock.set(np.arange(4), [{"t": t, "sampled": s, "period": 0.05} for t, s in
+                             ((0.0, False), (0.048, True), (0.01, True), (0.0, True))])
+    ticks = clock.copy()
+    ahead = clock.ahead(60)
+    np.testing.assert_array_equal(ahead, np.stack([ticks.tick() for _ in range(60)]))
+    np.testing.assert_array_equal(clock.t, ticks.t)
+    assert ahead.sum(axis=0).tolist() == [3, 3, 2, 2] and clock.ahead(0).shape == (0, 4)
+
+
 def test_the_worlds_keep_the_batched_seam_contract(worker):
     from simseam.seam import check_batch_rollout
 

@@ -13,11 +13,14 @@ clock and observation), so a world's episode does not depend on when the others 
 
 A control step: the action clipped to [-1, 1] (the seam's clip), ``stepping.control_step`` (25 substeps of
 ``step1``, the controller, ``step2``), as robosuite's ``step``. The observation is what robosuite's observables
-sampled: they sample after the physics step where their clock says (``Clock``: robosuite's ``Observable.update``
-replayed per world, from the clock the native reset left; with LIBERO's reset that is the 24th of the 25
-substeps, not the last), reading the end-effector site's position and the ``eef_body``'s quaternion as that
-substep's ``step1`` posed them (MuJoCo's ``mj_step`` leaves the poses of the state before its integration) and
-the joints' qpos and qvel after it. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
+sampled: they sample after the physics step where their clock says (``observables.Clock``: robosuite's
+``Observable.update`` replayed per world, from the clock the native reset left; with LIBERO's reset that is the
+24th of the 25 substeps, not the last), reading the end-effector site's position and the ``eef_body``'s quaternion
+as that substep's ``step1`` posed them (MuJoCo's ``mj_step`` leaves the poses of the state before its
+integration) and the joints' qpos and qvel after it. On MuJoCo Warp that sampling is a device launch after each
+substep (``observables.Sampler``: the clock depends on time alone, so a step's sampling substeps are known before
+it runs), and the whole control step is one captured CUDA graph; while the cameras draw, a graph per substep and
+the sampling on the host between them. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
 ``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
 evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
@@ -39,6 +42,7 @@ import numpy as np
 
 from simseam.backends.libero_gpu.control import OscConfig, OscState
 from simseam.backends.libero_gpu.model import task_model
+from simseam.backends.libero_gpu.observables import Clock, Sampler
 from simseam.backends.libero_gpu.physics import ArmLayout
 from simseam.backends.libero_gpu.predicates import GoalCheck
 from simseam.backends.libero_gpu.resets import ResetCache
@@ -64,7 +68,7 @@ class LiberoBatch:
 
     def __init__(self, suite: str, task: int, num_worlds: int, worker: Any, *, device: str | None = None,
                  settle_steps: int = 10, cameras: Sequence[tuple[str, str, tuple[int, int]]] = (),
-                 renderer: str = "warp", engine: str = "mujoco_warp"):
+                 renderer: str = "warp", engine: str = "mujoco_warp", whole_step: bool = True):
         self.model = imported_meanwhile(lambda: task_model(worker, suite, int(task)), engine)
         self.info = info = self.model.info
         self.suite, self.task, self.num_worlds = suite, int(task), int(num_worlds)
@@ -95,6 +99,8 @@ class LiberoBatch:
             raise ConfigError(f"{self.label}: render {renderer!r}: one of {list(RENDERERS)}")
         self.renderer = renderer
         self.cameras, self._render = self._make_cameras(cameras), False
+        self.whole_step = bool(whole_step)  # read at each step: a bench times both ways on one batch
+        self._sampler = self._make_sampler() if engine == "mujoco_warp" else None
 
     def _make_physics(self, engine: str, device: str | None, cameras: bool) -> Any:
         if engine == "mujoco_warp":
@@ -106,6 +112,21 @@ class LiberoBatch:
             raise ConfigError(f"{self.label}: the port on CPU MuJoCo runs one world without cameras "
                               f"(asked: {self.num_worlds} worlds, cameras {cameras})")
         return LiberoCpuWorlds(self.model.model, self.layout)
+
+    def _make_sampler(self) -> Sampler:
+        names = self.info["names"]
+        return Sampler(self.physics, self.observed, int(self.facts["eef_site_id"]), int(names["eef_body"]),
+                       [int(names["bodies"][o]) for o in names["objects"]], self.cfg.substeps)
+
+    def _control_step(self, actions: Any) -> None:
+        """One control step of every world, the observables sampled where their clock says: inside the step's
+        device launches (``observables.Sampler``: one captured graph per control step on CUDA), or on the host
+        after each substep (while the cameras draw, on CPU MuJoCo, or without ``whole_step``)."""
+        if not self.whole_step or self._sampler is None or (self._render and self.cameras is not None):
+            self.osc = control_step(self.physics, self.cfg, self.osc, actions, self.facts, self._tick)
+            return
+        self._sampler.load(self.clock.ahead(self.cfg.substeps))
+        self.osc = control_step(self.physics, self.cfg, self.osc, actions, self.facts, sampler=self._sampler)
 
     @staticmethod
     def reset_cache(worker: Any, info: dict[str, Any], settle_steps: int) -> ResetCache:
@@ -134,7 +155,7 @@ class LiberoBatch:
             left = self.settle_steps - self.native_settle
             for k in range(left):
                 self._render = render and k == left - 1
-                self.osc = control_step(self.physics, self.cfg, self.osc, self._dummy, self.facts, self._tick)
+                self._control_step(self._dummy)
             self._render = False
         self.steps[rows], self.errors[rows] = 0, False
         self.seeds[rows] = [s["seed"] for s in states]
@@ -175,7 +196,7 @@ class LiberoBatch:
         a = xp.clip(xp.asarray(actions, dtype=xp.float64).reshape(self.num_worlds, 7), -1.0, 1.0)
         with self._hold(np.setdiff1d(np.arange(self.num_worlds), rows)):
             self._render = render
-            self.osc = control_step(self.physics, self.cfg, self.osc, a, self.facts, self._tick)
+            self._control_step(a)
             self._render = False
         self.steps[rows] += 1
         return self._flag(rows)
@@ -279,41 +300,6 @@ class LiberoBatch:
         if self.renderer == "opengl" and self.cameras is not None:
             self.cameras.close()
         self.physics.close()
-
-
-class Clock:
-    """robosuite's ``Observable.update`` clock, per world (host float64, the same arithmetic): after each physics
-    step ``t += dt``; an observable that has not sampled this period samples while ``t <= period`` (no delay), or
-    late once ``t >= period``, which then wraps ``t`` (``t %= period``) and starts a new period."""
-
-    def __init__(self, n: int, dt: float):
-        self.dt = dt
-        self.t, self.sampled, self.period = np.zeros(n), np.zeros(n, dtype=bool), np.full(n, np.inf)
-
-    def set(self, rows: np.ndarray, clocks: list[dict[str, Any]]) -> None:
-        self.t[rows] = [c["t"] for c in clocks]
-        self.sampled[rows] = [c["sampled"] for c in clocks]
-        self.period[rows] = [c["period"] for c in clocks]
-
-    def copy(self) -> "Clock":
-        out = Clock(0, self.dt)
-        out.t, out.sampled, out.period = self.t.copy(), self.sampled.copy(), self.period.copy()
-        return out
-
-    def put(self, rows: np.ndarray, other: "Clock") -> None:
-        """``rows`` as ``other`` holds them."""
-        self.t[rows], self.sampled[rows], self.period[rows] = other.t[rows], other.sampled[rows], other.period[rows]
-
-    def tick(self) -> np.ndarray:
-        """One physics step: bool[N], the worlds whose observables sample after it."""
-        self.t += self.dt
-        now = ~self.sampled & (self.period >= self.t)
-        self.sampled |= now
-        wrap = self.t >= self.period
-        now |= wrap & ~self.sampled
-        self.t[wrap] %= self.period[wrap]
-        self.sampled[wrap] = False
-        return now
 
 
 def take(xp, state: OscState, rows: np.ndarray) -> OscState:

@@ -127,6 +127,21 @@ class ControllerReads:
             self.graphs.launch("substep_first" if first else "substep", launches)
             self._wp.synchronize_device(self.device)
 
+    def control_substeps(self, controller: Any, substeps: int, sampler: Any) -> None:
+        """A whole control step of every world (``substeps`` of ``control_substep``'s launches, ``sampler``'s
+        launch after each: ``observables.Sampler``, the observables sampled on the device): on CUDA one captured
+        graph, one launch and one wait per control step instead of one per substep."""
+        def launches():
+            for k in range(substeps):
+                self._mjw.step1(self.m, self.d)
+                controller.launch(self.d, k == 0)
+                self._mjw.step2(self.m, self.d)
+                sampler.launch(self.d, k)
+
+        with self._wp.ScopedDevice(self.device):
+            self.graphs.launch(f"control_step{substeps}", launches)
+            self._wp.synchronize_device(self.device)
+
     def read(self) -> ArmTerms:
         """The worlds' ``ArmTerms`` as the last pipeline left them (``osc_kernel.gather_terms``: the gather the
         controller's substep runs), as ``xp`` arrays (views of fresh device buffers)."""
