@@ -17,12 +17,15 @@ import pytest
 pytest.importorskip("mujoco_warp")
 
 from simseam.engines.mujoco_warp.memory import (  # noqa: E402
+    DIM_LIMIT,
+    DIM_LIMIT_TEXT,
     WorldsDoNotFit,
     _footprint,
     _sizes_at,
     allocate_empty,
     array_bytes,
     array_sizes,
+    does_not_fit,
     fit_worlds,
     largest_that_fits,
     out_of_memory,
@@ -84,7 +87,7 @@ def _budget(limit: int, calls: list):
     """A stand-in device allocator holding at most ``limit`` bytes (real arrays on Warp's CPU device below it)."""
 
     def allocate(sizes):
-        total = sum(size for _, size in sizes)
+        total = sum(size for _, size, _ in sizes)
         calls.append(total)
         if total > limit:
             raise RuntimeError(f"Failed to allocate {total} bytes on device 'cuda:0'")
@@ -145,9 +148,61 @@ def test_the_arrays_of_k_worlds_follow_from_one_and_two():
     one, two = _footprint(build)
     for k in (3, 7):
         assert _sizes_at(one, two, k) == array_sizes(build(k))
-    assert array_bytes(build(7)) == sum(size for _, size in _sizes_at(one, two, 7))
+    assert array_bytes(build(7)) == sum(size for _, size, _ in _sizes_at(one, two, 7))
     blank = allocate_empty(_sizes_at(one, two, 7))
-    assert [a.capacity for a in blank] == [size for _, size in _sizes_at(one, two, 7) if size > 0]
+    assert [a.capacity for a in blank] == [size for _, size, _ in _sizes_at(one, two, 7) if size > 0]
+
+
+def _dims_only(calls: list):
+    """A stand-in device allocator with memory to spare that keeps Warp's limit on a dimension (as
+    ``allocate_empty`` does), allocating nothing."""
+
+    def allocate(sizes):
+        calls.append(max(max(shape) for _, _, shape in sizes))
+        if calls[-1] >= DIM_LIMIT:
+            raise ValueError(f"{DIM_LIMIT_TEXT}, got {calls[-1]} in dimension 0.")
+        return []
+
+    return allocate
+
+
+def test_worlds_past_warps_limit_on_a_dimension_do_not_fit():
+    """mujoco_warp's contact and constraint arrays are one dimension of worlds x rows, and Warp refuses a dimension
+    of 2**31 or more (on an H100, 100,000 LIBERO worlds asked: a ValueError, not out of memory). Where the memory
+    would hold them, the footprint still rules such a number out, and the largest number named is exactly the
+    last whose longest array stays below the limit; a build that raises Warp's error counts as not fitting."""
+    builds, tries = [], []
+    with pytest.raises(WorldsDoNotFit) as info:
+        fit_worlds(_arrays_up_to(10**9, builds), 10**7, "LIBERO task libero_spatial/0 on MuJoCo Warp", "cuda:0",
+                   free_bytes=lambda: 10**15, allocate=_dims_only(tries))
+    err, limit = info.value, (DIM_LIMIT - 1) // 250  # the stand-in's long array: 250 k float32
+    assert err.largest == limit and builds == [1, 2] and len(tries) <= 30
+    assert "an array 2500000000 long for 10000000, past Warp's limit of 2**31 a dimension" in str(err)
+    assert "GiB free" not in str(err) and "\n" not in str(err)
+
+    def long_above(k: int):
+        if k > 37:
+            raise ValueError(f"{DIM_LIMIT_TEXT}, got {k * 10**8} in dimension 0.")
+        return k
+
+    with pytest.raises(WorldsDoNotFit, match="the largest number that fits is 37"):
+        fit_worlds(long_above, 1000, "task", "cuda:0")
+    assert does_not_fit(ValueError(DIM_LIMIT_TEXT + ", got 2147483648 in dimension 0."))
+    assert not does_not_fit(ValueError("nconmax must be positive"))
+
+
+def test_blank_arrays_keep_warps_limit_and_hold_their_bytes(monkeypatch):
+    """``allocate_empty``: a longest dimension at the limit is Warp's error; bytes past the limit (not the longest
+    dimension) are allocated as a block of whole MiB and the rest, their sum the bytes asked (the limit lowered to
+    2 MiB here, so the arrays stay small)."""
+    import simseam.engines.mujoco_warp.memory as memory
+
+    monkeypatch.setattr(memory, "DIM_LIMIT", 2**21)
+    blank = memory.allocate_empty([("cpu", 3 * 2**20 + 7, (1000, 3)), ("cpu", 64, (16,))])
+    assert [tuple(a.shape) for a in blank] == [(3, 2**20), (7,), (64,)]
+    assert sum(a.capacity for a in blank) == 3 * 2**20 + 7 + 64
+    with pytest.raises(ValueError, match="signed 32-bit integer, got 2097152"):
+        memory.allocate_empty([("cpu", 2**21, (2**21,))])
 
 
 def test_what_counts_as_out_of_memory():
@@ -208,7 +263,7 @@ def _child(*args: str) -> dict:
 def test_on_warps_cpu_device_with_its_memory_capped():
     out = _child("measure")
     assert 100 < out["largest"] < 10**7
-    assert "\n" not in out["message"] and "10000000 worlds do not fit in the memory of device cpu" in out["message"]
+    assert "\n" not in out["message"] and "10000000 worlds do not fit on device cpu" in out["message"]
     assert f"the largest number that fits is {out['largest']}" in out["message"]
     assert out["physics"].startswith("Meta-World reach-v3 on MuJoCo Warp: 10000000 worlds do not fit")
     # what a user does next: start again asking for the number named; it fits under the same cap (less 5 %:

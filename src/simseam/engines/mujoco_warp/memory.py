@@ -23,7 +23,12 @@ starting where the footprint says the memory ends, a step beyond, narrowing to 1
 milliseconds, and the number named is one whose arrays allocated.
 
 Recognised as out of memory: Warp's "Failed to allocate" (CUDA and CPU devices), CuPy's ``OutOfMemoryError``
-and Python's ``MemoryError`` (host-side arrays), also where another exception was raised from one.
+and Python's ``MemoryError`` (host-side arrays), also where another exception was raised from one. Recognised as
+not fitting either: Warp's limit on an array's dimensions (each below 2**31: mujoco_warp's contact and constraint
+arrays are one dimension of worlds x rows, so enough worlds reach it on a GPU whose memory would hold them). The
+blank arrays keep that limit (each dimension of each array grows linearly with k, as its bytes do) and are
+allocated in two parts where a flat array of their bytes would exceed it: on an H100, 100,000 LIBERO worlds asked
+gave a 4.3 GB contact array, which Warp refused as a dimension, not as memory.
 """
 
 from __future__ import annotations
@@ -44,6 +49,9 @@ class WorldsDoNotFit(ConfigError):
 
 #: from this many worlds the footprint is measured first (two small builds: negligible beside building that many)
 FOOTPRINT_FROM = 1024
+#: Warp's bound on each dimension of an array (``warp.types.check_array_shape``)
+DIM_LIMIT = 2**31
+DIM_LIMIT_TEXT = "Array shapes must not exceed the maximum representable value of a signed 32-bit integer"
 
 
 def out_of_memory(exc: BaseException | None) -> bool:
@@ -58,6 +66,12 @@ def out_of_memory(exc: BaseException | None) -> bool:
             return True
         exc = exc.__cause__ or exc.__context__
     return False
+
+
+def does_not_fit(exc: BaseException | None) -> bool:
+    """Whether ``exc`` says the worlds cannot be held: out of memory, or an array longer than Warp's
+    ``DIM_LIMIT`` along a dimension."""
+    return out_of_memory(exc) or (isinstance(exc, ValueError) and DIM_LIMIT_TEXT in str(exc))
 
 
 def largest_that_fits(build: Callable[[int], Any], below: int, fits: int = 0, within: float = 0.0) -> int:
@@ -80,7 +94,7 @@ def _allocates(build: Callable[[int], Any], k: int) -> bool:
     try:
         built = build(k)
     except Exception as exc:  # noqa: BLE001 - only an allocation failure says "no"; others go up
-        if not out_of_memory(exc):
+        if not does_not_fit(exc):
             raise
         gc.collect()
         return False
@@ -89,9 +103,9 @@ def _allocates(build: Callable[[int], Any], k: int) -> bool:
     return True
 
 
-def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int]]:
-    """``(device, bytes)`` of each Warp array held by ``obj`` (mujoco_warp's ``Model`` / ``Data``: dataclasses of
-    arrays and of dataclasses; tuples and lists of them too), each array once, in a fixed order."""
+def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int, tuple[int, ...]]]:
+    """``(device, bytes, shape)`` of each Warp array held by ``obj`` (mujoco_warp's ``Model`` / ``Data``:
+    dataclasses of arrays and of dataclasses; tuples and lists of them too), each array once, in a fixed order."""
     import dataclasses
 
     import warp as wp
@@ -101,7 +115,7 @@ def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int]]
         return []
     seen.add(id(obj))
     if isinstance(obj, wp.array):
-        return [(obj.device, int(obj.capacity or 0))]
+        return [(obj.device, int(obj.capacity or 0), tuple(int(x) for x in obj.shape))]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return [a for f in dataclasses.fields(obj) for a in array_sizes(getattr(obj, f.name, None), seen)]
     if isinstance(obj, (tuple, list)):
@@ -111,24 +125,32 @@ def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int]]
 
 def array_bytes(obj: Any) -> int:
     """The bytes of the Warp arrays held by ``obj`` (``array_sizes``)."""
-    return sum(size for _, size in array_sizes(obj))
+    return sum(size for _, size, _ in array_sizes(obj))
 
 
-def allocate_empty(sizes: list[tuple[Any, int]]) -> list[Any]:
-    """Uninitialised Warp arrays of those ``(device, bytes)``: what a build of that many worlds allocates, without
-    building anything on the host."""
+def allocate_empty(sizes: list[tuple[Any, int, tuple[int, ...]]]) -> list[Any]:
+    """Uninitialised Warp arrays of those ``(device, bytes, shape)``: what a build of that many worlds allocates,
+    without building anything on the host. A dimension past Warp's ``DIM_LIMIT`` is Warp's error, as the build
+    would raise it; bytes past it are allocated as a block of whole MiB and the rest."""
     import warp as wp
 
-    return [wp.empty(size, dtype=wp.uint8, device=device) for device, size in sizes if size > 0]
+    out = []
+    for device, size, shape in sizes:
+        longest = max(shape, default=0)
+        if longest >= DIM_LIMIT:
+            raise ValueError(f"{DIM_LIMIT_TEXT}, got {longest} in an array of {size} bytes")
+        parts = [(size,)] if size < DIM_LIMIT else [(size >> 20, 1 << 20), (size & ((1 << 20) - 1),)]
+        out += [wp.empty(shape, dtype=wp.uint8, device=device) for shape in parts if shape[-1] > 0]
+    return out
 
 
-def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple[Any, int]], list[tuple[Any, int]]] | str:
+def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple], list[tuple]] | str:
     """The arrays' ``(device, bytes)`` of one world and of two, or the first line of the allocation failure when not
     even two worlds allocate."""
     try:
         one, two = (array_sizes(build(k)) for k in (1, 2))
     except Exception as exc:  # noqa: BLE001 - not even two worlds allocate: the search says how many do
-        if not out_of_memory(exc):
+        if not does_not_fit(exc):
             raise
         return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     finally:
@@ -138,9 +160,11 @@ def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple[Any, int]], list
     return one, two
 
 
-def _sizes_at(one: list[tuple[Any, int]], two: list[tuple[Any, int]], k: int) -> list[tuple[Any, int]]:
-    """Each array's bytes for ``k`` worlds: its size for one world plus ``k - 1`` times its growth to two."""
-    return [(dev, a + (b - a) * (k - 1)) for (dev, a), (_, b) in zip(one, two)]
+def _sizes_at(one: list[tuple], two: list[tuple], k: int) -> list[tuple[Any, int, tuple[int, ...]]]:
+    """Each array's ``(device, bytes, shape)`` for ``k`` worlds: each value its value for one world plus ``k - 1``
+    times its growth to two."""
+    at = lambda a, b: a + (b - a) * (k - 1)  # noqa: E731
+    return [(dev, at(a, b), tuple(at(x, y) for x, y in zip(sa, sb))) for (dev, a, sa), (_, b, sb) in zip(one, two)]
 
 
 def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int],
@@ -153,14 +177,19 @@ def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int],
     if isinstance(layout, str):
         return 0, layout, build
     one, two = layout
-    bytes_one, bytes_two = sum(s for _, s in one), sum(s for _, s in two)
+    bytes_one, bytes_two = sum(s for _, s, _ in one), sum(s for _, s, _ in two)
     per_world, fixed = bytes_two - bytes_one, 2 * bytes_one - bytes_two
-    if per_world <= 0 or fixed + per_world * n <= room:
+    longest = max((max(shape, default=0) for _, _, shape in _sizes_at(one, two, n)), default=0)
+    if per_world <= 0 or (fixed + per_world * n <= room and longest < DIM_LIMIT):
         return None
-    reason = (f"{per_world / 2**20:.2f} MiB a world, {(fixed + per_world * n) / 2**30:.1f} GiB for {n}, "
-              f"{room / 2**30:.1f} GiB free")
-    estimate = max(0, min(n - 1, (room - fixed) // per_world))
-    return estimate, reason, lambda k: allocate(_sizes_at(one, two, k))
+    reasons = [f"{per_world / 2**20:.2f} MiB a world, {(fixed + per_world * n) / 2**30:.1f} GiB for {n}, "
+               f"{room / 2**30:.1f} GiB free"] if fixed + per_world * n > room else []
+    if longest >= DIM_LIMIT:
+        reasons.append(f"an array {longest} long for {n}, past Warp's limit of 2**31 a dimension")
+    by_dims = [(DIM_LIMIT - 1 - x) // (y - x) + 1 for (_, _, sa), (_, _, sb) in zip(one, two)
+               for x, y in zip(sa, sb) if y > x]
+    estimate = max(0, min(n - 1, (room - fixed) // per_world, *by_dims))
+    return estimate, "; ".join(reasons), lambda k: allocate(_sizes_at(one, two, k))
 
 
 def _largest_near(build: Callable[[int], Any], estimate: int, n: int) -> int:
@@ -199,13 +228,13 @@ def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
         try:
             return build(n)
         except Exception as exc:  # noqa: BLE001 - re-raised unless it is an allocation failure
-            if not out_of_memory(exc):
+            if not does_not_fit(exc):
                 raise
             reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         gc.collect()
         largest, how = largest_that_fits(build, n), "measured by allocating them"
     fits = f"the largest number that fits is {largest} ({how})" if largest else "not even one world fits"
-    raise WorldsDoNotFit(f"{what}: {n} worlds do not fit in the memory of device {device} ({reason}); {fits}; "
+    raise WorldsDoNotFit(f"{what}: {n} worlds do not fit on device {device} ({reason}); {fits}; "
                          f"ask for fewer worlds (--num-envs) or free the device", n, largest) from None
 
 
