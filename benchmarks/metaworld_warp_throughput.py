@@ -22,8 +22,9 @@ Sections (each printed as a table; all in one JSON, ``--out``, kept unless ``--o
   the device) and the host's own work (actions, observation, reward, success): per task ``advance_seconds`` of
   ``stepping_seconds``, over the tasks ``step_split``.
 - ``--host-arrays``: the Warp sections' observation and reward code in NumPy on host copies of the poses and
-  contacts (``MetaWorldBatch(host_arrays=True)``), against the default, on the device (CuPy: each array call
-  one GPU launch).
+  contacts (``MetaWorldBatch(host_arrays=True)``); without it the bench keeps them on the device
+  (``host_arrays=False``, CuPy: each array call one GPU launch), whatever the product's default
+  (``metaworld_gpu.env.host_arrays_for``: host copies on CUDA up to 64 worlds).
 - with ``--cameras corner,gripperPOV --image 128``, the same with those cameras rendered every step, beside
   the state-only sections (``--no-state`` leaves those out): ``cpu_cameras``, the CPU backend's per-env code
   with ``camera: [corner, gripperPOV]`` at ``--image``² (each step observes both images: Meta-World's
