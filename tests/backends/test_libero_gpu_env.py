@@ -16,6 +16,7 @@ and the CPU benchmark (``backends.libero``, the real LIBERO env in its sidecar) 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -500,3 +501,23 @@ def test_a_libero_scene_file_on_mujoco_warp(tmp_path):
     lines = sorted((json.loads(x) for x in (out / "episodes.jsonl").read_text().splitlines()), key=lambda r: r["seed"])
     assert [(r["seed"], r["steps"], r["error"]) for r in lines] == [(s, 3, None) for s in range(3)]
     assert "mujoco_warp" in json.loads((out / "spec.json").read_text())["engine"]
+
+
+def test_a_scene_file_picks_the_ports_renderer(tmp_path):
+    """``render:`` is the port's own field: a LIBERO scene on ``engine: mujoco_warp`` takes it (checked by the port,
+    a bad value one line naming the file), a scene on the CPU backend refuses it as unknown there."""
+    from simseam.runner.scene_config import benchmark_config, load_scene_config
+
+    def scene(benchmark: str, engine: str) -> Path:
+        path = tmp_path / f"s{len(list(tmp_path.iterdir()))}.yaml"
+        path.write_text(f"benchmark: {{name: libero, suite: libero_spatial, task: 0, {benchmark}}}\n{engine}")
+        return path
+
+    warp = "engine: {name: mujoco_warp, num_envs: 2, device: cpu}\n"
+    cfg, _ = load_scene_config(scene("cameras: true, render: opengl", warp))
+    assert benchmark_config(cfg)["render"] == "opengl"
+    bad = scene("render: vulkan", warp)
+    with pytest.raises(ConfigError, match=r"s\d\.yaml: benchmark\.render: one of \['warp', 'opengl'\], got 'vulkan'"):
+        load_scene_config(bad)
+    with pytest.raises(ConfigError, match=r"benchmark: unknown field\(s\) \['render'\]"):
+        load_scene_config(scene("render: opengl", ""))

@@ -107,10 +107,20 @@ def load_scene_config(path: str | Path) -> tuple[SceneConfig, Path]:
     are checked here too (its backend's ``normalize_config``), naming the file."""
     cfg = load_yaml_model(path, SceneConfig, "scene file")
     if cfg.benchmark is not None:
-        from simseam.backends import normalize_config
-
-        normalize_config(cfg.benchmark.name, cfg.benchmark.backend_config(), f"{path}: benchmark")
+        check_benchmark(cfg, cfg.benchmark.backend_config(), f"{path}: benchmark")
     return cfg, Path(path).resolve().parent
+
+
+def check_benchmark(cfg: SceneConfig, config: dict[str, Any], where: str) -> dict[str, Any]:
+    """A ``benchmark:`` scene's own fields, checked by what runs them: the benchmark's port on a batched engine
+    (``engine: mujoco_warp``; it reads fields of its own, such as LIBERO's ``render``), else its backend."""
+    from simseam.runner.warp_vector import benchmark_on_batched_engine, benchmark_port
+
+    if benchmark_on_batched_engine(cfg):
+        return benchmark_port(cfg.engine.name, cfg.benchmark.name).check_config(config, where)
+    from simseam.backends import normalize_config
+
+    return normalize_config(cfg.benchmark.name, config, where)
 
 
 def resolve_robot(cfg: SceneConfig, base_dir: Path):
@@ -146,11 +156,11 @@ def check_engine(cfg: SceneConfig):
 def benchmark_config(cfg: SceneConfig, render_images: bool = True) -> dict[str, Any]:
     """The backend config of a ``benchmark:`` scene, checked (bad fields fail before any process starts);
     without ``render_images`` (nothing reads images: collect --no-cameras, a state policy) its cameras off."""
-    from simseam.backends import backend_module, normalize_config
+    from simseam.backends import backend_module
 
     b = cfg.benchmark
     config = b.backend_config()
-    normalize_config(b.name, config, "benchmark")
+    check_benchmark(cfg, config, "benchmark")
     option = getattr(backend_module(b.name), "CAMERA_OPTION", None)
     if option and not render_images:
         config = {**config, option: False}

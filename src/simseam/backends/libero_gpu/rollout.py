@@ -70,16 +70,16 @@ from simseam.seam.batch import BatchStepResult, EnvFailure, batch_actions, env_i
 ENGINE = "mujoco_warp"
 
 
-def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
+def gpu_config(config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
     """The CPU backend's config, checked, and ``cameras`` (default false: the port renders only when asked) and
     ``render`` (``warp``: MuJoCo Warp's ray tracer; ``opengl``: MuJoCo's OpenGL renderer on the host)."""
     config = dict(config)
     cameras, render = config.pop("cameras", False), config.pop("render", "warp")
     if not isinstance(cameras, bool):
-        raise ConfigError(f"benchmark.cameras: expected true or false, got {cameras!r}")
+        raise ConfigError(f"{where}.cameras: expected true or false, got {cameras!r}")
     if render not in RENDERERS:
-        raise ConfigError(f"benchmark.render: one of {list(RENDERERS)}, got {render!r}")
-    return {**normalize_config(config), "cameras": cameras, "render": render}
+        raise ConfigError(f"{where}.render: one of {list(RENDERERS)}, got {render!r}")
+    return {**normalize_config(config, where), "cameras": cameras, "render": render}
 
 
 def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
@@ -94,6 +94,7 @@ class LiberoBatchRollout(NativePort):
     """``num_envs`` environments of ``config``'s task (``worker``: a started LIBERO ``NativeWorker``, shared)."""
 
     WORKER = "simseam.backends.libero_gpu.worker:NativeWorker"
+    check_config = staticmethod(gpu_config)  # a scene file's ``benchmark:`` fields, as this port reads them
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
                  device: str | None = None, engine: str = ENGINE):

@@ -74,9 +74,9 @@ from simseam.seam.batch import (
 ENGINE = "mujoco_warp"
 
 
-def gpu_config(config: dict[str, Any]) -> dict[str, Any]:
+def gpu_config(config: dict[str, Any], where: str = "benchmark") -> dict[str, Any]:
     """The CPU backend's config, checked (``cameras`` off unless asked: the port renders only what is asked)."""
-    return normalize_config({**config, "cameras": config.get("cameras", False)})
+    return normalize_config({**config, "cameras": config.get("cameras", False)}, where)
 
 
 def camera_plan(config: dict[str, Any]) -> list[tuple[str, str, tuple[int, int]]]:
@@ -91,6 +91,7 @@ class MetaWorldBatchRollout(NativePort):
     """``num_envs`` environments of ``config['task']`` (``worker``: a started ``NativeWorker``, shared)."""
 
     WORKER = "simseam.backends.metaworld_gpu.worker:NativeWorker"
+    check_config = staticmethod(gpu_config)  # a scene file's ``benchmark:`` fields, as this port reads them
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
                  device: str | None = None, engine: str = ENGINE):
