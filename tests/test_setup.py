@@ -175,3 +175,24 @@ def test_the_first_pass_sessions_take_every_test_file_once():
             assert len(owners) == 1, (f, owners)
     assert groups.plan(["tests/seam", "-x"]) == [["tests/seam", "-x"]]
     assert groups.plan(["tests/seam/test_batch.py::test_x"]) == [["tests/seam/test_batch.py::test_x"]]
+
+
+def test_a_backends_catalog_is_asked_once_and_kept_in_its_venv(monkeypatch, tmp_path):
+    """``simseam eval`` lists a preset's tasks by asking the backend's interpreter (its benchmark imported: seconds
+    at every start, once per process of ``--processes``); the answer is kept in the venv, asked again when the
+    venv is provisioned again. The venv here is a stand-in whose interpreter counts the times it is asked."""
+    monkeypatch.setenv(provision.DIR_ENV, str(tmp_path / "backends"))
+    venv = provision.venv_dir("pusht")
+    (venv / "bin").mkdir(parents=True)
+    (venv / provision.MARKER).write_text('{"seconds": 1}')
+    python = venv / "bin" / "python"
+    python.write_text(f"#!/bin/sh\necho asked >> {tmp_path / 'asked'}\n"
+                      "printf '\\n{\"suites\": {\"all\": [\"a\", \"b\"]}}'\n")
+    python.chmod(0o755)
+    asked = lambda: len((tmp_path / "asked").read_text().splitlines())  # noqa: E731
+    want = {"suites": {"all": ["a", "b"]}}
+    assert provision.catalog("pusht") == want and provision.catalog("pusht") == want and asked() == 1
+    assert provision.catalog_file("pusht").parent == venv and not list(venv.glob(".simseam-catalog-*"))
+    (venv / provision.MARKER).write_text('{"seconds": 2}')  # provisioned again
+    assert provision.catalog("pusht") == want and asked() == 2
+    assert provision.catalog("pusht") == want and asked() == 2

@@ -142,10 +142,37 @@ def provision(name: str, *, force: bool = False, progress: Callable[[str], None]
 
 
 def catalog(name: str, timeout: float = 300.0) -> dict:
-    """The backend's suites and tasks (``module.catalog()``), asked of its provisioned interpreter."""
+    """The backend's suites and tasks (``module.catalog()``), asked of its provisioned interpreter once, then kept
+    in its venv (``catalog_file``): asking imports the benchmark there, seconds that every ``simseam eval`` (and
+    each of its ``--processes``) paid at its start."""
+    python = require(name)
+    kept = catalog_file(name)
+    try:
+        return json.loads(kept.read_text())
+    except (OSError, ValueError):
+        pass
+    answer = _ask_catalog(name, python, timeout)
+    tmp = kept.with_name(f".{kept.name}.{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(answer))
+        os.replace(tmp, kept)  # whole or absent for a process reading it meanwhile
+    except OSError:  # a venv this user cannot write to: asked each time, as before
+        pass
+    return answer
+
+
+def catalog_file(name: str) -> Path:
+    """Where ``catalog`` keeps ``name``'s answer: in its venv, keyed by the provisioning record (a venv built again
+    is asked again) and by the code that answers (``simseam/backends/*.py``, which runs there)."""
+    digest = hashlib.sha256((venv_dir(name) / MARKER).read_bytes())
+    for source in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        digest.update(source.name.encode() + source.read_bytes())
+    return venv_dir(name) / f"simseam-catalog-{digest.hexdigest()[:12]}.json"
+
+
+def _ask_catalog(name: str, python: Path, timeout: float) -> dict:
     import tempfile
 
-    python = require(name)
     with tempfile.TemporaryDirectory(prefix="simseam-catalog-") as tmp:
         os.symlink(Path(__file__).resolve().parents[1], Path(tmp) / "simseam")
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME", "VIRTUAL_ENV")}
