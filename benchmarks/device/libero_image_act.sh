@@ -25,6 +25,10 @@
 #           them (whole checkpoints while 8 files and 60 MB hold them: two of ~27 MB a call).
 #   here:   bash benchmarks/device/libero_image_act.sh unpack FILES_DIR DEST   (DEST/NAME: a checkpoint whose
 #           weights are float32 again, their values the float16 ones; `simseam eval ... --policy lerobot:DEST/NAME`)
+#   there, a policy trained by an earlier machine (its pieces kept here, e.g. .cache/limg_pack, 27 MB: carried
+#           beside c1, whose call copies them to /tmp/limg/pack_in): after receive c2,
+#           `bash benchmarks/device/libero_image_act.sh policy /tmp/limg/pack_in` (into /tmp/limg/ckpt/NAME, where
+#           libero_image_figure.sh reads it)
 #
 # The recipe: the LIBERO state proofs' (benchmarks/libero_proof.py: ACT without VAE, chunk 10, one call per step
 # with temporal ensembling 0.01, cosine lr 3e-4, batch 64, 3,000 steps) with the image lift proof's model
@@ -156,14 +160,14 @@ train() {  # [NAME...]
   send
 }
 
-unpack() {  # FILES_DIR DEST
+unpack() {  # FILES_DIR DEST (UNPACK_PY: the interpreter with torch and safetensors; here the repo's venv)
   local files="$1" dest="$2" first name
   mkdir -p "$dest"
   for first in "$files"/*.ckpt.txz.00; do
     name="$(basename "$first" .ckpt.txz.00)"
     rm -rf "${dest:?}/$name"
     cat "$files/$name".ckpt.txz.* | xz -dc | tar -x -C "$dest"
-    .venv/bin/python - "$dest/$name" <<'PY'
+    "${UNPACK_PY:-.venv/bin/python}" - "$dest/$name" <<'PY'
 import sys, pathlib, torch
 from safetensors.torch import load_file, save_file
 for f in pathlib.Path(sys.argv[1]).rglob("model.safetensors"):
@@ -174,8 +178,15 @@ PY
   done
 }
 
+policy() {  # FILES_DIR: there, a checkpoint brought back by an earlier machine (its NAME.ckpt.txz.NN pieces,
+  # carried in) unpacked into $ROOT/ckpt, where libero_image_figure.sh reads it (after receive c1 and c2)
+  install_site
+  PYTHONPATH="$ROOT/site${PYTHONPATH:+:$PYTHONPATH}" UNPACK_PY="$PY" unpack "$1" "$ROOT/ckpt"
+}
+
 case "${1:-}" in
   prepare) shift; prepare "$@" ;;
+  policy) policy "${2:?FILES_DIR}" ;;
   receive) receive "${2:-}" ;;
   train) shift; train "$@" ;;
   send) send ;;
