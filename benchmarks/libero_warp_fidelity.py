@@ -78,7 +78,8 @@ def divergence(path: Path) -> dict[str, dict]:
             sides[side] = {}
             for metric, curves in t[side].items():
                 at = [[c[min(m, len(c)) - 1] for c in curves] for m in marks]
-                sides[side][metric] = {"median": [float(np.median(v)) for v in at], "worst": [float(max(v)) for v in at]}
+                sides[side][metric] = {"median": [float(np.median(v)) for v in at],
+                                       "worst": [float(max(v)) for v in at]}
         out[task] = {"marks": marks, "init_states": t["init_states"], **sides}
     return out
 
