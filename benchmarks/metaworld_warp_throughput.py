@@ -296,7 +296,7 @@ def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | 
                 str(episodes), "--processes", str(procs), *(["--mps"] if mps else []),
                 *(["--sim-device", device] if device else []),
                 *([] if sorted(tasks) == sorted(OBJECTS) else ["--tasks", ",".join(tasks)])]
-        t0 = time.perf_counter()
+        t0, t0_epoch = time.perf_counter(), time.time()
         done = subprocess.run([sys.executable, "-m", "simseam.cli.main", *argv, "--out", str(out)],
                               capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -304,6 +304,7 @@ def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | 
             raise RuntimeError(f"simseam {' '.join(argv)}: exit {done.returncode}\n{done.stdout[-2000:]}")
         summary = json.loads((out / "summary.json").read_text())
         lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+        timed = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
         names = json.loads((out / "run.json").read_text())["tasks"]  # a claim's index is its task's place here
         holder = {names[int(p.name.removeprefix("task-"))]: int(p.read_text())
                   for p in (out / "shards" / "claims").glob("task-*")}
@@ -311,7 +312,27 @@ def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | 
     return {"command": "simseam " + " ".join(argv), "wall_seconds": wall,
             "episodes": summary["n_episodes"], "episodes_per_task": episodes, "tasks": len(tasks), "procs": procs,
             "mps": mps, "complete": summary["complete"], "env_steps_per_s": sum(r["steps"] for r in lines) / wall,
-            "tasks_per_process": sorted(holders.count(i) for i in set(holders)), **cli_split(lines, holder, wall)}
+            "tasks_per_process": sorted(holders.count(i) for i in set(holders)), **cli_split(lines, holder, wall),
+            **timeline(timed, t0_epoch)}
+
+
+def timeline(timed: list[dict], launched: float) -> dict[str, Any]:
+    """From the run's ``timings.jsonl`` (a line per task: its process's start, when its batch began to open,
+    opened and finished): per process the seconds from the command's launch to the process's start, from there to
+    its first task's batch opening, and the tasks' opening (build, prefetch waited for) and running (resets,
+    steps, the episodes written) summed."""
+    procs: dict[int, list[dict]] = {}
+    for t in timed:
+        procs.setdefault(t["process"], []).append(t)
+    rows = []
+    for mine in procs.values():
+        first = min(t["open"] for t in mine)
+        rows.append({"launch_to_process": round(mine[0]["process_started"] - launched, 2),
+                     "process_to_first_open": round(first - mine[0]["process_started"], 2),
+                     "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
+                     "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
+                     "last_done": round(max(t["ran"] for t in mine) - launched, 2), "tasks": len(mine)})
+    return {"per_process": sorted(rows, key=lambda r: r["last_done"])}
 
 
 def cli_split(lines: list[dict], holder: dict[str, int], wall: float) -> dict[str, Any]:
@@ -489,6 +510,8 @@ def main(argv: list[str] | None = None) -> int:
               f"stepping {doc['mt50_cli']['stepping_seconds']:.1f} s summed (a step's median "
               f"{doc['mt50_cli']['step_ms_median']:.2f} ms), outside stepping per process "
               f"{doc['mt50_cli']['outside_stepping_per_process']} s")
+        for row in doc["mt50_cli"]["per_process"]:
+            print("  a process: " + ", ".join(f"{k} {v}" for k, v in row.items()))
         save()
     elif args.episodes and not args.no_state:
         doc["mt50"] = mt50_section(tasks, args.episodes, args.mt50_procs, args.device, args.mps, args.mt50_order,

@@ -6,6 +6,7 @@ non-finite ending alone, and the one-line error for a preset with no port."""
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -265,6 +266,14 @@ def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path)
     for name, task in (("task-0", "reach-v3"), ("task-1", "push-v3")):  # run whole, where it was claimed
         assert [e for t, e in ran[held[name]] if t == task] == [0, 1] and task not in dict(ran[1 - held[name]])
     assert all(json.loads((runs[f"s{i}"] / "run.json").read_text())["dealing"] == "claims" for i in (0, 1))
+    # where the time went: one line per task, in the shard that ran it, put together in the merged run
+    timed = [json.loads(x) for x in (both / "timings.jsonl").read_text().splitlines()]
+    assert sorted(t["part"] for t in timed) == ["push-v3", "reach-v3"]
+    assert all(t["process_started"] <= t["open"] <= t["opened"] <= t["ran"] and t["episodes"] == 2 for t in timed)
+    for name, task in (("task-0", "reach-v3"), ("task-1", "push-v3")):
+        mine = [json.loads(x) for x in (runs[f"s{held[name]}"] / "timings.jsonl").read_text().splitlines()]
+        assert task in [t["part"] for t in mine] and mine[0]["process"] != os.getpid()
+    assert len((runs["whole"] / "timings.jsonl").read_text().splitlines()) == 2
     merged = tmp_path / "merged"
     res = CliRunner().invoke(app, ["merge", "--out", str(merged), str(runs["s0"]), str(runs["s1"])])
     assert res.exit_code == 0, res.output

@@ -178,6 +178,9 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
         def __init__(self, k):
             self.k = k
 
+        def describe(self):
+            return f"task {self.k}"
+
         def prefetch(self, indices, seed, shared):
             events.append(("prefetch", self.k, tuple(indices), seed, shared))
             return lambda: events.append(("waited", self.k))
@@ -207,11 +210,17 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     job = SimpleNamespace(indices=[0, 1, 2, 3, 4, 5], seed=7, video_dir=None, claims=None)
     batch = SimpleNamespace(reset=lambda *a: None)
     report = SimpleNamespace(envs=None, on_envs=None, on_error=None, on_worker_failure=None)
-    log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None)
+    timed = []
+    log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None,
+                          timing=lambda t: (timed.append(t), events.append(("timed", t["part"], t["episodes"]))))
     _stepped(job, recipe, batch, 2, Lockstep(), "workers", "here", report, log)
     shared = [e for e in events if e[0] == "prefetch"][0][4]
     assert events == [
         ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared),
-        ("run", 0, (0, 1), 7), ("close", 0),
+        ("run", 0, (0, 1), 7), ("close", 0), ("timed", "task 0", 2),
         ("waited", 1), ("open", 1, 2), ("prefetch", 2, (4, 5), 3, shared), ("run", 1, (2, 3), 5), ("close", 1),
-        ("waited", 2), ("open", 2, 2), ("run", 2, (4, 5), 3), ("close", 2), ("shared closed",)]
+        ("timed", "task 1", 2), ("waited", 2), ("open", 2, 2), ("run", 2, (4, 5), 3), ("close", 2),
+        ("timed", "task 2", 2), ("shared closed",)]
+    # each part's timing: its process, when it began to open (before waiting for its preparation), opened, ran
+    assert all(t["process_started"] <= t["open"] <= t["opened"] <= t["ran"] for t in timed)
+    assert [t["ran"] <= u["open"] for t, u in zip(timed, timed[1:])] == [True, True]

@@ -34,3 +34,25 @@ def test_shards_of_whole_tasks_plan_their_tasks_episodes():
     assert planned_indices({"episodes": 6, "shard": [2, 3]}) == [2, 5]
     with pytest.raises(ConfigError, match=r"\(e // 2\) % 4 == i: whole tasks"):
         check_shard_holds_episodes(shard_indices(6, (3, 4), unit=2), (3, 4), 6, unit=2)
+
+
+def test_a_runs_timings_are_appended_replaced_with_it_and_put_together_by_merge(tmp_path):
+    """``timings.jsonl`` (where a stepped run's time went, per part): appended line by line, removed with the run an
+    ``overwrite`` replaces (two runs' timings never mix), its lines put together by ``simseam merge``."""
+    from simseam.runner.run_dir import TIMING_FILE
+    from simseam.runner.sharding import merge_runs
+
+    def run(path, shard, *parts, overwrite=False):
+        rd = RunDir(path, {"scene": "s.yaml", "episodes": 2, "seed": 0, "shard": shard}, overwrite=overwrite)
+        for k, part in enumerate(parts):
+            rd.append(EpisodeResult(index=shard[0] + 2 * k, seed=k, success=True, steps=3, reward=1.0).to_json())
+            rd.append_timing({"part": part, "open": 1.0, "opened": 2.0, "ran": 3.0})
+        rd.close()
+        return [json.loads(x)["part"] for x in (path / TIMING_FILE).read_text().splitlines()]
+
+    assert run(tmp_path / "a", [0, 2], "first") == ["first"]
+    assert run(tmp_path / "a", [0, 2], "again", overwrite=True) == ["again"]
+    assert run(tmp_path / "b", [1, 2], "second") == ["second"]
+    merge_runs(tmp_path / "merged", [tmp_path / "a", tmp_path / "b"])
+    lines = (tmp_path / "merged" / TIMING_FILE).read_text().splitlines()
+    assert [json.loads(x)["part"] for x in lines] == ["again", "second"]

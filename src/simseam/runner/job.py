@@ -25,6 +25,8 @@ does not fit fails with the run directory as it was.
 
 from __future__ import annotations
 
+import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -142,6 +144,10 @@ class _Log:
         if not self.spec_written:
             self.job.run_dir.write_spec(spec_json)
             self.spec_written = True
+
+    def timing(self, entry: dict) -> None:
+        if self.job.run_dir is not None:
+            self.job.run_dir.append_timing(entry)
 
     def episode(self, entry: dict, written: bool | None = None) -> None:
         entry = self.job.recipe.log_entry(entry, self.job.seed)
@@ -310,11 +316,12 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
             rule = lockstep.fit(m)
             # started while the part before ran. The first part is not prepared ahead: its batch opens first, so
             # that worlds the device cannot hold fail at once, before thousands of resets are asked of LIBERO
-            wait, ahead = ahead, None
+            wait, ahead, opening = ahead, None, time.time()
             if wait is not None:
                 wait()
             with part.open_envs(m, renderer=renderer, envs_per_worker=rule.envs_per_worker,
                                 shared=shared) as envs:
+                opened = time.time()
                 ahead = _prefetch(_after(parts, k, job.claims), shared)  # the next part's, while this one steps
                 batch.reset(0, envs.spec)  # the policy's contract, before anything is written
                 log.spec(envs.spec.to_json())
@@ -324,11 +331,23 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
                 envs.run(batch, indices, seed=seed, video_dir=job.video_dir, groups=rule.groups, ready=rule.ready,
                          on_done=lambda res: log.episode(res.to_json()), on_error=report.on_error,
                          on_worker_failure=report.on_worker_failure, keep=False)
+            log.timing({"part": part.describe(), "episodes": len(indices), "process": os.getpid(),
+                        "process_started": process_started(), "open": opening, "opened": opened, "ran": time.time()})
     finally:
         if ahead is not None:
             ahead()
         if shared is not None:
             shared.close()
+
+
+def process_started() -> float | None:
+    """When this process started (epoch seconds, to the clock tick; Linux's /proc), or None where it cannot say."""
+    try:
+        ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])  # field 22: starttime
+        boot = time.time() - float(Path("/proc/uptime").read_text().split()[0])  # to 10 ms (btime: whole seconds)
+        return boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _after(parts: list, k: int, claims) -> tuple | None:

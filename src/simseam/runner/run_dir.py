@@ -8,6 +8,9 @@ Layout of ``DIR``::
     summary.json      rebuilt from episodes.jsonl, written atomically (temp file + rename)
     episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
     report.html       the results page (runner/report.py), written when the run completes
+    timings.jsonl     a run stepped from its process (a port's or a batched scene's): one line per part (a task's
+                      batch) when its process started, when the part began to open, opened and finished running
+                      (epoch seconds), appended as each part ends: where the time went, not results
 
 Rules: the directory is checked when the ``RunDir`` is made (a file, or a place
 where no directory can be created or written, is a ``ConfigError``), and nothing
@@ -40,6 +43,8 @@ LOG_FILE = "episodes.jsonl"
 SUMMARY_FILE = "summary.json"
 REPORT_FILE = "report.html"
 RUN_FILES = (CONFIG_FILE, SPEC_FILE, LOG_FILE, SUMMARY_FILE)
+#: when each part of a run stepped from its process (a task's batch) opened and ran: where the time went, not results
+TIMING_FILE = "timings.jsonl"
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
@@ -153,7 +158,8 @@ class RunDir:
         try:
             if self.held and not self.resume:
                 for f in self.path.iterdir():
-                    if f.name in (*RUN_FILES, REPORT_FILE) or (f.name.startswith("episode_") and f.suffix == ".mp4"):
+                    if f.name in (*RUN_FILES, REPORT_FILE, TIMING_FILE) or (f.name.startswith("episode_")
+                                                                            and f.suffix == ".mp4"):
                         f.unlink()
             self.path.mkdir(parents=True, exist_ok=True)
             if not (self.resume and self.held):
@@ -193,6 +199,12 @@ class RunDir:
         self._log.write(json.dumps(episode) + "\n")
         self._log.flush()
         os.fsync(self._log.fileno())
+
+    def append_timing(self, entry: dict) -> None:
+        """One part's line in ``TIMING_FILE`` (``job._stepped``): appended and flushed (not results: not fsynced)."""
+        self.start()
+        with open(self.path / TIMING_FILE, "a") as f:
+            f.write(json.dumps(entry) + "\n")
 
     def summarize(self, spec_json: dict | None = None, *, interrupted: bool = False) -> dict | None:
         """``rebuild_summary`` of this run, or None when it never started and holds no earlier run to

@@ -13,7 +13,9 @@ directories into one:
   or the benchmark's packages, the scene, robot and checkpoint files' contents); the rest that differs
   (simseam's revision, the GPU, the renderer) is named in ``provenance_notes``;
 - the merged ``summary.json`` is ``complete`` when every planned index is there; the missing ones
-  are listed.
+  are listed;
+- the runs' ``timings.jsonl`` lines (where a stepped run's time went, per part) are put together in the merged
+  run's.
 
 ``simseam eval --shard i/K`` shards the same way over the global episode index ``task_index *
 episodes_per_task + e`` (its config's ``episodes`` is the total), except on a batched engine's port (``--engine
@@ -116,12 +118,26 @@ def merge_runs(out: Path, dirs: Sequence[Path], *, overwrite: bool = False, pref
     if spec is not None:
         write_json_atomic(out / SPEC_FILE, spec)
     _write_log(out, merged)
+    _merge_timings(out, dirs)
     summary = rebuild_summary(out, spec)
     _missing(summary, base, merged)
     summary["merged_from"] = [str(d) for d in dirs]
     summary["provenance_notes"] = notes
     write_json_atomic(out / "summary.json", summary)
     return summary
+
+
+def _merge_timings(out: Path, dirs: Sequence[Path]) -> None:
+    """The runs' ``TIMING_FILE`` lines, one after another, into ``out``'s (none: no file)."""
+    from simseam.runner.run_dir import TIMING_FILE
+
+    lines = [line for d in dirs if (Path(d) / TIMING_FILE).exists()
+             for line in (Path(d) / TIMING_FILE).read_text().splitlines() if line.strip()]
+    target = Path(out) / TIMING_FILE
+    if lines:
+        target.write_text("\n".join(lines) + "\n")
+    elif target.exists():
+        target.unlink()
 
 
 def _read_runs(dirs: Sequence[Path]) -> tuple[list[dict], list[dict | None]]:
