@@ -5,7 +5,9 @@ Each case runs the real command line in a subprocess (``python -m simseam.cli.ma
 sidecar boots, task changes, every episode (state + the preset's two 256x256 cameras each step) and
 the summary. From the run's own episode log it reports episodes/hour and env-steps/s (the policy's
 steps; the preset's 10 settle steps per episode are counted separately as ``settle_steps``), the mean step and
-the policy's share of a step (``policy``: its mean time per step over that plus the environment's step).
+the policy's share of a step (``policy``: its mean time per step over that plus the environment's step); from the
+port's ``timings.jsonl``, per process where the time went (``run_timings.per_process``: its start, its batches'
+opening and running).
 
     python benchmarks/bench_libero_scale.py --n 1 2 --episodes 2 --tasks libero_spatial/0,libero_spatial/1
     python benchmarks/bench_libero_scale.py --n 8 16 --episodes 5 --full 16     # the GPU machine
@@ -37,6 +39,9 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_timings import per_process  # noqa: E402
+
 EXTRA: list[str] = []  # options every eval gets (--image-size)
 
 
@@ -97,7 +102,7 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     log = (log_dir / f"{workdir.name}_{out.name}.log") if log_dir is not None else None
     argv = _eval_argv(preset, policy, n, episodes, tasks, out, warp)
     argv += (["--processes", str(shards)] if shards > 1 else []) + (["--mps"] if mps else [])
-    t0 = time.perf_counter()
+    t0, launched = time.perf_counter(), time.time()
     _run(argv, log)
     wall = time.perf_counter() - t0
     summary = json.loads((out / "summary.json").read_text())
@@ -117,7 +122,7 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
             "mean_policy_ms": round(sum(policy_ms) / len(policy_ms), 3) if policy_ms else None,
             "policy_share": (round(sum(policy_ms) / (sum(policy_ms) + sum(step_ms)), 4)
                              if policy_ms and len(policy_ms) == len(step_ms) else None),
-            "complete": summary["complete"]}
+            "complete": summary["complete"], "per_process": per_process(out, launched)}
 
 
 def main() -> None:
@@ -168,6 +173,8 @@ def main() -> None:
                 results.append(r)
                 print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}{' MPS' if mps else ''}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
                       f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
+                for row in r["per_process"]:  # where the port's time went (its timings.jsonl)
+                    print("    a process: " + ", ".join(f"{key} {v}" for key, v in row.items()), flush=True)
                 args.out.parent.mkdir(parents=True, exist_ok=True)  # written after every case: a long run keeps its rows
                 args.out.write_text(json.dumps({"machine": info, "results": results}, indent=2))
     finally:

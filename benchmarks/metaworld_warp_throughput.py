@@ -59,6 +59,9 @@ from typing import Any
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from run_timings import per_process  # noqa: E402
+
 OUT = Path(__file__).resolve().parent / "results" / "metaworld_warp_throughput.json"
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -304,35 +307,17 @@ def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | 
             raise RuntimeError(f"simseam {' '.join(argv)}: exit {done.returncode}\n{done.stdout[-2000:]}")
         summary = json.loads((out / "summary.json").read_text())
         lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
-        timed = [json.loads(line) for line in (out / "timings.jsonl").read_text().splitlines()]
         names = json.loads((out / "run.json").read_text())["tasks"]  # a claim's index is its task's place here
         holder = {names[int(p.name.removeprefix("task-"))]: int(p.read_text())
                   for p in (out / "shards" / "claims").glob("task-*")}
+        processes = per_process(out, t0_epoch)  # before the run's folder goes
     holders = list(holder.values())
     return {"command": "simseam " + " ".join(argv), "wall_seconds": wall,
             "episodes": summary["n_episodes"], "episodes_per_task": episodes, "tasks": len(tasks), "procs": procs,
             "mps": mps, "complete": summary["complete"], "env_steps_per_s": sum(r["steps"] for r in lines) / wall,
             "tasks_per_process": sorted(holders.count(i) for i in set(holders)), **cli_split(lines, holder, wall),
-            **timeline(timed, t0_epoch)}
+            "per_process": processes}
 
-
-def timeline(timed: list[dict], launched: float) -> dict[str, Any]:
-    """From the run's ``timings.jsonl`` (a line per task: its process's start, when its batch began to open,
-    opened and finished): per process the seconds from the command's launch to the process's start, from there to
-    its first task's batch opening, and the tasks' opening (build, prefetch waited for) and running (resets,
-    steps, the episodes written) summed."""
-    procs: dict[int, list[dict]] = {}
-    for t in timed:
-        procs.setdefault(t["process"], []).append(t)
-    rows = []
-    for mine in procs.values():
-        first = min(t["open"] for t in mine)
-        rows.append({"launch_to_process": round(mine[0]["process_started"] - launched, 2),
-                     "process_to_first_open": round(first - mine[0]["process_started"], 2),
-                     "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
-                     "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
-                     "last_done": round(max(t["ran"] for t in mine) - launched, 2), "tasks": len(mine)})
-    return {"per_process": sorted(rows, key=lambda r: r["last_done"])}
 
 
 def cli_split(lines: list[dict], holder: dict[str, int], wall: float) -> dict[str, Any]:
@@ -344,13 +329,13 @@ def cli_split(lines: list[dict], holder: dict[str, int], wall: float) -> dict[st
     for r in lines:
         secs = r["steps"] * r["step_latency_ms"]["mean"] / 1e3
         by_task[r["task"]] = max(by_task.get(r["task"], 0.0), secs)
-    per_process: dict[int, float] = {}
+    by_proc: dict[int, float] = {}
     for task, proc in holder.items():
-        per_process[proc] = per_process.get(proc, 0.0) + by_task.get(task, 0.0)
+        by_proc[proc] = by_proc.get(proc, 0.0) + by_task.get(task, 0.0)
     steps = sorted(r["step_latency_ms"]["mean"] for r in lines)
     return {"stepping_seconds": round(sum(by_task.values()), 2), "step_ms_median": steps[len(steps) // 2],
-            "stepping_per_process": sorted(round(v, 2) for v in per_process.values()),
-            "outside_stepping_per_process": sorted(round(wall - v, 2) for v in per_process.values())}
+            "stepping_per_process": sorted(round(v, 2) for v in by_proc.values()),
+            "outside_stepping_per_process": sorted(round(wall - v, 2) for v in by_proc.values())}
 
 
 def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None,

@@ -1,0 +1,32 @@
+"""Where a ``simseam eval`` run's time went, per process, from its ``timings.jsonl`` (the benches that time the
+product's command read it: ``metaworld_warp_throughput.py --mt50-cli``, ``bench_libero_scale.py``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+
+def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
+    """A row per process of the run in ``run`` (its ``timings.jsonl``: a line per task's batch, with its process's
+    start and when the batch began to open, opened and finished), ``launched`` the command's start (epoch
+    seconds): the seconds from the launch to the process's start, from there to its first batch opening, its
+    batches' opening (builds, the preparation waited for) and running (resets, steps, the episodes written)
+    summed, and when its last task ended; [] when the run wrote none."""
+    path = Path(run) / "timings.jsonl"
+    if not path.exists():
+        return []
+    procs: dict[int, list[dict]] = {}
+    for line in path.read_text().splitlines():
+        t = json.loads(line)
+        procs.setdefault(t["process"], []).append(t)
+    rows = []
+    for mine in procs.values():
+        started = mine[0]["process_started"]
+        rows.append({"launch_to_process": round(started - launched, 2),
+                     "process_to_first_open": round(min(t["open"] for t in mine) - started, 2),
+                     "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
+                     "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
+                     "last_done": round(max(t["ran"] for t in mine) - launched, 2), "tasks": len(mine)})
+    return sorted(rows, key=lambda r: r["last_done"])
