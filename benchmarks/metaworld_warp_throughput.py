@@ -60,7 +60,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run_timings import per_process  # noqa: E402
+from run_timings import per_process, stepping  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "metaworld_warp_throughput.json"
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -307,35 +307,15 @@ def mt50_cli_section(tasks: list[str], episodes: int, procs: int, device: str | 
             raise RuntimeError(f"simseam {' '.join(argv)}: exit {done.returncode}\n{done.stdout[-2000:]}")
         summary = json.loads((out / "summary.json").read_text())
         lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
-        names = json.loads((out / "run.json").read_text())["tasks"]  # a claim's index is its task's place here
-        holder = {names[int(p.name.removeprefix("task-"))]: int(p.read_text())
-                  for p in (out / "shards" / "claims").glob("task-*")}
         processes = per_process(out, t0_epoch)  # before the run's folder goes
-    holders = list(holder.values())
+        by_task = stepping(out)
+    step_ms = sorted(r["step_latency_ms"]["mean"] for r in lines)
     return {"command": "simseam " + " ".join(argv), "wall_seconds": wall,
             "episodes": summary["n_episodes"], "episodes_per_task": episodes, "tasks": len(tasks), "procs": procs,
             "mps": mps, "complete": summary["complete"], "env_steps_per_s": sum(r["steps"] for r in lines) / wall,
-            "tasks_per_process": sorted(holders.count(i) for i in set(holders)), **cli_split(lines, holder, wall),
+            "tasks_per_process": sorted(row["tasks"] for row in processes),
+            "stepping_seconds": round(sum(by_task.values()), 2), "step_ms_median": step_ms[len(step_ms) // 2],
             "per_process": processes}
-
-
-
-def cli_split(lines: list[dict], holder: dict[str, int], wall: float) -> dict[str, Any]:
-    """Where the command's time went, from its episode log: each task's stepping seconds (its episodes step in one
-    batch: the longest episode's steps times its mean step latency, the policy's share included), summed per
-    process (``holder``: each task's process, from the claims); the rest of a process's wall is its start, its
-    tasks' builds and resets, and the merge."""
-    by_task: dict[str, float] = {}
-    for r in lines:
-        secs = r["steps"] * r["step_latency_ms"]["mean"] / 1e3
-        by_task[r["task"]] = max(by_task.get(r["task"], 0.0), secs)
-    by_proc: dict[int, float] = {}
-    for task, proc in holder.items():
-        by_proc[proc] = by_proc.get(proc, 0.0) + by_task.get(task, 0.0)
-    steps = sorted(r["step_latency_ms"]["mean"] for r in lines)
-    return {"stepping_seconds": round(sum(by_task.values()), 2), "step_ms_median": steps[len(steps) // 2],
-            "stepping_per_process": sorted(round(v, 2) for v in by_proc.values()),
-            "outside_stepping_per_process": sorted(round(wall - v, 2) for v in by_proc.values())}
 
 
 def _mt50_timed(tasks: list[str], episodes: int, procs: int, device: str | None, env: dict | None,
@@ -493,8 +473,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{doc['mt50_cli']['command']}: {doc['mt50_cli']['wall_seconds']:.1f} s wall, "
               f"{doc['mt50_cli']['episodes']} episodes, tasks per process {doc['mt50_cli']['tasks_per_process']}; "
               f"stepping {doc['mt50_cli']['stepping_seconds']:.1f} s summed (a step's median "
-              f"{doc['mt50_cli']['step_ms_median']:.2f} ms), outside stepping per process "
-              f"{doc['mt50_cli']['outside_stepping_per_process']} s")
+              f"{doc['mt50_cli']['step_ms_median']:.2f} ms)")
         for row in doc["mt50_cli"]["per_process"]:
             print("  a process: " + ", ".join(f"{k} {v}" for k, v in row.items()))
         save()

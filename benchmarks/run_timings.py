@@ -8,15 +8,27 @@ from pathlib import Path
 from typing import Any
 
 
+def stepping(run: Path) -> dict[str, float]:
+    """Each task's stepping seconds, from the run's episode log: its episodes step in one batch, so the longest
+    episode's steps times its mean step latency (the policy's share included)."""
+    by_task: dict[str, float] = {}
+    for line in (Path(run) / "episodes.jsonl").read_text().splitlines():
+        r = json.loads(line)
+        secs = r["steps"] * (r["step_latency_ms"]["mean"] or 0.0) / 1e3  # none for an episode that never stepped
+        by_task[r["task"]] = max(by_task.get(r["task"], 0.0), secs)
+    return by_task
+
+
 def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
     """A row per process of the run in ``run`` (its ``timings.jsonl``: a line per task's batch, with its process's
     start and when the batch began to open, opened and finished), ``launched`` the command's start (epoch
     seconds): the seconds from the launch to the process's start, from there to its first batch opening, its
     batches' opening (builds, the preparation waited for) and running (resets, steps, the episodes written)
-    summed, and when its last task ended; [] when the run wrote none."""
+    summed, of which ``stepping`` (the episode log's), and when its last task ended; [] when the run wrote none."""
     path = Path(run) / "timings.jsonl"
     if not path.exists():
         return []
+    steps = stepping(run)
     procs: dict[int, list[dict]] = {}
     for line in path.read_text().splitlines():
         t = json.loads(line)
@@ -28,5 +40,6 @@ def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
                      "process_to_first_open": round(min(t["open"] for t in mine) - started, 2),
                      "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
                      "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
+                     "stepping": round(sum(steps.get(t["part"], 0.0) for t in mine), 2),
                      "last_done": round(max(t["ran"] for t in mine) - launched, 2), "tasks": len(mine)})
     return sorted(rows, key=lambda r: r["last_done"])

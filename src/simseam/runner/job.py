@@ -25,6 +25,7 @@ does not fit fails with the run directory as it was.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from dataclasses import dataclass, field
@@ -340,6 +341,7 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
             shared.close()
 
 
+@functools.lru_cache(maxsize=1)
 def process_started() -> float | None:
     """When this process started (epoch seconds, to the clock tick; Linux's /proc), or None where it cannot say."""
     try:

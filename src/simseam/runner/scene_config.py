@@ -104,7 +104,8 @@ class SceneConfig(BaseModel):
 
 def load_scene_config(path: str | Path) -> tuple[SceneConfig, Path]:
     """Parse a scene file; returns the config and the file's directory. A benchmark's own fields
-    are checked here too (its backend's ``normalize_config``), naming the file."""
+    are checked here too (``check_benchmark``: its port's on a batched engine, else its backend's), naming the
+    file."""
     cfg = load_yaml_model(path, SceneConfig, "scene file")
     if cfg.benchmark is not None:
         check_benchmark(cfg, cfg.benchmark.backend_config(), f"{path}: benchmark")

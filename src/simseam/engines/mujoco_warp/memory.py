@@ -139,14 +139,14 @@ def allocate_empty(sizes: list[tuple[Any, int, tuple[int, ...]]]) -> list[Any]:
         longest = max(shape, default=0)
         if longest >= DIM_LIMIT:
             raise ValueError(f"{DIM_LIMIT_TEXT}, got {longest} in an array of {size} bytes")
-        parts = [(size,)] if size < DIM_LIMIT else [(size >> 20, 1 << 20), (size & ((1 << 20) - 1),)]
-        out += [wp.empty(shape, dtype=wp.uint8, device=device) for shape in parts if shape[-1] > 0]
+        blocks = [(size,)] if size < DIM_LIMIT else [(size >> 20, 1 << 20), (size & ((1 << 20) - 1),)]
+        out += [wp.empty(block, dtype=wp.uint8, device=device) for block in blocks if block[-1] > 0]
     return out
 
 
 def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple], list[tuple]] | str:
-    """The arrays' ``(device, bytes)`` of one world and of two, or the first line of the allocation failure when not
-    even two worlds allocate."""
+    """The arrays' ``(device, bytes, shape)`` of one world and of two, or the first line of the allocation failure
+    when not even two worlds allocate."""
     try:
         one, two = (array_sizes(build(k)) for k in (1, 2))
     except Exception as exc:  # noqa: BLE001 - not even two worlds allocate: the search says how many do
@@ -179,11 +179,12 @@ def _too_big(build: Callable[[int], Any], n: int, free_bytes: Callable[[], int],
     one, two = layout
     bytes_one, bytes_two = sum(s for _, s, _ in one), sum(s for _, s, _ in two)
     per_world, fixed = bytes_two - bytes_one, 2 * bytes_one - bytes_two
+    need = fixed + per_world * n
     longest = max((max(shape, default=0) for _, _, shape in _sizes_at(one, two, n)), default=0)
-    if per_world <= 0 or (fixed + per_world * n <= room and longest < DIM_LIMIT):
+    if per_world <= 0 or (need <= room and longest < DIM_LIMIT):
         return None
-    reasons = [f"{per_world / 2**20:.2f} MiB a world, {(fixed + per_world * n) / 2**30:.1f} GiB for {n}, "
-               f"{room / 2**30:.1f} GiB free"] if fixed + per_world * n > room else []
+    reasons = [f"{per_world / 2**20:.2f} MiB a world, {need / 2**30:.1f} GiB for {n}, "
+               f"{room / 2**30:.1f} GiB free"] if need > room else []
     if longest >= DIM_LIMIT:
         reasons.append(f"an array {longest} long for {n}, past Warp's limit of 2**31 a dimension")
     by_dims = [(DIM_LIMIT - 1 - x) // (y - x) + 1 for (_, _, sa), (_, _, sb) in zip(one, two)
