@@ -196,3 +196,29 @@ def test_a_backends_catalog_is_asked_once_and_kept_in_its_venv(monkeypatch, tmp_
     (venv / provision.MARKER).write_text('{"seconds": 2}')  # provisioned again
     assert provision.catalog("pusht") == want and asked() == 2
     assert provision.catalog("pusht") == want and asked() == 2
+
+
+def test_provisioning_keeps_the_catalog_so_the_first_run_does_not_ask(monkeypatch, tmp_path):
+    """A venv provisioned afresh is asked for its catalog once, at the end of provisioning, and that answer is kept:
+    the first ``simseam eval`` (each of its ``--processes``) reads it instead of importing the benchmark. The
+    interpreter here is a stand-in: ``-m venv`` copies it into the venv, pip and the import check succeed, and it
+    counts the times it is asked for the catalog."""
+    monkeypatch.setenv(provision.DIR_ENV, str(tmp_path / "backends"))
+    asked = tmp_path / "asked"
+    base = tmp_path / "python3"
+    broken = tmp_path / "broken"
+    base.write_text("#!/bin/sh\n"
+                    'if [ "$1" = -m ] && [ "$2" = venv ]; then mkdir -p "$3/bin" && cp "$0" "$3/bin/python"; exit 0; fi\n'
+                    'if [ "$1" = -m ]; then exit 0; fi\n'
+                    f'case "$2" in *catalog*) [ -e {broken} ] && echo no module >&2 && exit 1\n'
+                    f'  echo asked >> {asked}; printf \'\\n{{"suites": {{"all": ["a"]}}}}\';; esac\n')
+    base.chmod(0o755)
+    monkeypatch.setattr(provision, "base_python", lambda: str(base))
+    said: list[str] = []
+    provision.provision("pusht", progress=said.append)
+    assert asked.read_text().splitlines() == ["asked"] and provision.catalog_file("pusht").exists()
+    assert said[-1] == "pusht: its suites (all) listed and kept"
+    assert provision.catalog("pusht") == {"suites": {"all": ["a"]}} and len(asked.read_text().splitlines()) == 1
+    broken.touch()  # a venv that cannot list its tasks is still provisioned; the run reports it
+    assert provision.provision("pusht", force=True, progress=said.append)["name"] == "pusht"
+    assert said[-1].startswith("pusht: its tasks not listed yet (pusht: listing its tasks failed: no module)")

@@ -10,6 +10,7 @@ import json
 import os
 import stat
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -104,3 +105,15 @@ def test_the_processes_share_the_cores_among_their_native_workers(monkeypatch):
     assert P.child_env(4, {})["SIMSEAM_NATIVE_WORKERS"] == "3"
     assert P.child_env(32, {})["SIMSEAM_NATIVE_WORKERS"] == "1"
     assert P.child_env(4, {"SIMSEAM_NATIVE_WORKERS": "8"})["SIMSEAM_NATIVE_WORKERS"] == "8"  # the user's stays
+
+
+def test_the_last_process_end_is_noticed_at_once(tmp_path):
+    """The run is over when its last process ends, not at the next poll: with polls a minute apart, two quick
+    processes return long before the first poll would come round (the merge follows at once)."""
+    argvs = [[sys.executable, "-c", "pass"], [sys.executable, "-c", "import sys; sys.exit(3)"]]
+    polls = []
+    t0 = time.monotonic()
+    codes = P.run_processes(argvs, [tmp_path / f"{i}.log" for i in range(2)], dict(os.environ),
+                            on_poll=lambda: polls.append(1), poll_s=60.0)
+    assert codes == [0, 3] and time.monotonic() - t0 < 30.0
+    assert 1 <= len(polls) <= 2  # one per process it waited on

@@ -138,7 +138,19 @@ def provision(name: str, *, force: bool = False, progress: Callable[[str], None]
                   "bytes": _du(target), "provisioned_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         (target / MARKER).write_text(json.dumps(record, indent=2))
         progress(f"{name}: provisioned in {record['seconds']:.0f} s, {record['bytes'] / 2**20:.0f} MiB at {target}")
+        _keep_catalog(name, progress)
         return record
+
+
+def _keep_catalog(name: str, progress: Callable[[str], None]) -> None:
+    """The new venv's catalog asked now and kept (``catalog``), so that the first ``simseam eval`` (each of its
+    ``--processes``) does not pay for it; one that cannot be listed is left for the run that asks to report."""
+    try:
+        suites = catalog(name).get("suites", {})
+    except (BackendUnavailableError, subprocess.TimeoutExpired, OSError, ValueError) as exc:
+        progress(f"{name}: its tasks not listed yet ({str(exc).splitlines()[0]}); a run asks again")
+        return
+    progress(f"{name}: its suites ({', '.join(suites) or 'none'}) listed and kept")
 
 
 def catalog(name: str, timeout: float = 300.0) -> dict:

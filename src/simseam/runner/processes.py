@@ -18,12 +18,12 @@ neither meets nor stops another) and quits it when the run ends; the card's sett
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -93,7 +93,8 @@ def run_processes(argvs: Sequence[list[str]], logs: Sequence[Path], env: dict,
     """Run the commands at once, each writing its console to its log; ``on_poll()`` while they run. Returns
     their exit codes. Ctrl-C (or SIGTERM, raised as ``KeyboardInterrupt`` by the caller's guard) is passed on to
     every process still running as SIGINT, each then ends its run as an interrupted one (its finished episodes
-    kept), and is raised again once all have ended."""
+    kept), and is raised again once all have ended. The last one's end is noticed at once (each pause waits on a
+    process still running), not up to ``poll_s`` later."""
     procs = []
     try:
         for argv, log in zip(argvs, logs):
@@ -101,10 +102,11 @@ def run_processes(argvs: Sequence[list[str]], logs: Sequence[Path], env: dict,
             with open(log, "w") as f:
                 procs.append(subprocess.Popen(argv, env=env, stdout=f, stderr=subprocess.STDOUT,
                                               stdin=subprocess.DEVNULL, start_new_session=True))
-        while any(p.poll() is None for p in procs):
+        while running := [p for p in procs if p.poll() is None]:
             if on_poll is not None:
                 on_poll()
-            time.sleep(poll_s)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                running[0].wait(timeout=poll_s)
     except BaseException:
         _interrupt(procs)
         raise
