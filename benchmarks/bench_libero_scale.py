@@ -19,6 +19,9 @@ whole tasks, merged by the command itself; ``--warp-runs R``: R times in a row, 
 first filled; ``--mps``: the port's case once more with ``--mps``, the processes as clients of a CUDA MPS server
 of the run's own): the GPU against the CPU backend in the same run, on the same machine. Without MPS the GPU runs one process's kernels at a time (it time-slices
 between processes); under MPS the shards' kernels run side by side.
+Each command's console is written to its log as it runs (``--logs``, else beside its run); ``--case-limit S`` gives
+a case still running after S seconds a Ctrl-C, as a user's would (its finished episodes and summary kept, its row
+marked cut, its rates over the episodes it finished), so that a call with a time limit still brings back a row.
 The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
 step either way): the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
@@ -32,6 +35,7 @@ import json
 import os
 import platform
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -82,29 +86,50 @@ def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: st
     return argv
 
 
-def _run(command: list[str], log: Path | None) -> None:
-    """The command in its own process; its failure stops the benchmark."""
-    proc = subprocess.run(command, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    if log is not None:
-        log.write_text(proc.stdout)
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(command)} failed (exit {proc.returncode}):\n{proc.stdout[-4000:]}")
+def _run(command: list[str], log: Path, limit: float | None = None) -> bool:
+    """The command in its own process, its console written to ``log`` as it goes (a call cut short still has it);
+    after ``limit`` seconds it gets a Ctrl-C (SIGINT: the run ends as an interrupted one, its finished episodes and
+    summary kept) and True is returned. Any other failure stops the benchmark."""
+    with open(log, "w") as f:
+        proc = subprocess.Popen(command, env=_env(), stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
+        cut = False
+        try:
+            proc.wait(timeout=limit)
+        except subprocess.TimeoutExpired:
+            cut = True
+            os.killpg(proc.pid, signal.SIGINT)
+            try:
+                proc.wait(timeout=120)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+        except BaseException:
+            os.killpg(proc.pid, signal.SIGKILL)
+            raise
+    if proc.returncode != 0 and not cut:
+        raise SystemExit(f"{' '.join(command)} failed (exit {proc.returncode}):\n{log.read_text()[-4000:]}")
+    return cut
 
 
 def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,
-             log_dir: Path | None, warp: str | None = None, shards: int = 1, mps: bool = False) -> dict:
+             log_dir: Path | None, warp: str | None = None, shards: int = 1, mps: bool = False,
+             limit: float | None = None) -> dict:
     """One ``simseam eval`` (the backend's CPU processes, or with ``warp`` the MuJoCo Warp port on that device)
     timed end to end, and what its run directory says it did. ``shards`` K > 1: ``--processes K`` (K processes of
-    whole tasks at once, merged by the command itself); ``mps``: with ``--mps``."""
+    whole tasks at once, merged by the command itself); ``mps``: with ``--mps``; ``limit``: a Ctrl-C after that
+    many seconds (``cut``: the rates then count the episodes finished by then)."""
     out = workdir / (f"{preset}_n{n}_{episodes or 'full'}{'_warp' if warp else ''}{f'_k{shards}' if shards > 1 else ''}"
                      + ("_mps" if mps else ""))
     workdir.mkdir(parents=True, exist_ok=True)
-    log = (log_dir / f"{workdir.name}_{out.name}.log") if log_dir is not None else None
+    log = (log_dir or workdir) / f"{workdir.name}_{out.name}.log"
     argv = _eval_argv(preset, policy, n, episodes, tasks, out, warp)
     argv += (["--processes", str(shards)] if shards > 1 else []) + (["--mps"] if mps else [])
     t0, launched = time.perf_counter(), time.time()
-    _run(argv, log)
+    cut = _run(argv, log, limit)
     wall = time.perf_counter() - t0
+    if not (out / "summary.json").exists():
+        raise SystemExit(f"{' '.join(argv)}: no summary after {wall:.0f} s{' (cut)' if cut else ''}:\n"
+                         f"{log.read_text()[-4000:]}")
     summary = json.loads((out / "summary.json").read_text())
     rows = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines() if line.strip()]
     steps = sum(e["steps"] for e in rows)
@@ -122,7 +147,8 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
             "mean_policy_ms": round(sum(policy_ms) / len(policy_ms), 3) if policy_ms else None,
             "policy_share": (round(sum(policy_ms) / (sum(policy_ms) + sum(step_ms)), 4)
                              if policy_ms and len(policy_ms) == len(step_ms) else None),
-            "complete": summary["complete"], "per_process": per_process(out, launched)}
+            "complete": summary["complete"], "cut_at_s": limit if cut else None,
+            "per_process": per_process(out, launched)}
 
 
 def main() -> None:
@@ -151,6 +177,9 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "libero_scale.json")
     ap.add_argument("--logs", type=Path, default=None, help="keep each run's console output here")
     ap.add_argument("--keep-runs", type=Path, default=None, help="keep the run directories here")
+    ap.add_argument("--case-limit", type=float, default=None, metavar="S",
+                    help="a case still running after S seconds gets a Ctrl-C, as a user's would: its finished "
+                         "episodes count (its row says cut), and the next case runs (a device call's time limit)")
     args = ap.parse_args()
     EXTRA.extend(["--image-size", str(args.image_size)] if args.image_size else [])
 
@@ -168,10 +197,11 @@ def main() -> None:
             for warp, attempt, mps in runs:
                 k = (args.warp_n or n) if warp else n
                 r = run_case(args.preset, args.policy, k, episodes, tasks, work / f"run{attempt}", args.logs, warp,
-                             args.warp_shards if warp else 1, mps)
+                             args.warp_shards if warp else 1, mps, args.case_limit)
                 r["attempt"] = attempt  # 2, 3...: the port's same run again, its caches warm (resets, kernels)
                 results.append(r)
-                print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}{' MPS' if mps else ''}  {r['episodes']} episodes in {r['wall_s']:.1f} s: "
+                print(f"  {r['engine']:<22} N={k:3d} x{r['processes']}{' MPS' if mps else ''}  {r['episodes']} episodes in {r['wall_s']:.1f} s"
+                      f"{' (cut)' if r['cut_at_s'] else ''}: "
                       f"{r['episodes_per_hour']:,.0f} episodes/h, {r['env_steps_per_s']:,.0f} env-steps/s", flush=True)
                 for row in r["per_process"]:  # where the port's time went (its timings.jsonl)
                     print("    a process: " + ", ".join(f"{key} {v}" for key, v in row.items()), flush=True)
@@ -188,10 +218,14 @@ def main() -> None:
     print(head)
     print("|" + "|".join("-" * (len(c)) for c in head.split("|")[1:-1]) + "|")
     for r in results:
-        print(f"| {r['engine']:<22} | {r['attempt']:>3} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {r['wall_s']:>8.1f} | "
+        print(f"| {r['engine']:<22} | {r['attempt']:>3} | {r['images']:<14} | {r['num_envs']:>3} | {r['processes']:>5} | {r['tasks']:>5} | {r['episodes']:>8} | {_wall(r):>8} | "
               f"{r['episodes_per_hour']:>10,.0f} | {r['env_steps_per_s']:>11,.0f} | "
               f"{(r['mean_step_ms'] or 0):>7.1f} | {_share(r):>6} | {r['successes']:>7} | {r['errors']:>6} | {'yes' if r['mps'] else 'no':>3} |")
     print(f"\nJSON: {args.out}")
+
+
+def _wall(r: dict) -> str:
+    return f"{r['wall_s']:.1f}" + (" cut" if r.get("cut_at_s") else "")
 
 
 def _share(r: dict) -> str:
