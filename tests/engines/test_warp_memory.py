@@ -55,6 +55,33 @@ def test_the_error_names_the_largest_number_of_worlds_that_allocates():
     assert calls[0] == 4096 and 37 in calls and 38 in calls and len(calls) <= 1 + 13  # a bisection, not a scan
 
 
+def test_the_native_librarys_line_for_each_failed_try_is_dropped_and_nothing_else(capfd):
+    """Warp's native code prints a line on the process's stderr for each device allocation that fails: the search's
+    tries that do not fit would print them above the one-line error. Those are dropped; what a try that fits
+    prints, and what a build failing otherwise prints, reach stderr as they would have."""
+    import os
+
+    def build(k: int):
+        if k == 13:
+            os.write(2, b"native: a note while building 13\n")
+        if k == 99:
+            os.write(2, b"native: a bad model\n")
+            raise ValueError("a bad model")
+        if k > 40:
+            os.write(2, f"native: out of memory at {k}\n".encode())
+            raise RuntimeError(f"Failed to allocate {k * 1000} bytes on device 'cuda:0'")
+        return k
+
+    with pytest.raises(WorldsDoNotFit, match="the largest number that fits is 40"):
+        fit_worlds(build, 100, "task t", "cuda:0")
+    assert largest_that_fits(build, 26) == 25
+    with pytest.raises(ValueError, match="a bad model"):
+        fit_worlds(build, 99, "task t", "cuda:0")
+    err = capfd.readouterr().err
+    assert "out of memory at" not in err
+    assert err.count("native: a note while building 13") == 1 and err.count("native: a bad model") == 1
+
+
 def test_not_even_one_world_and_other_errors():
     with pytest.raises(WorldsDoNotFit, match="not even one world fits") as info:
         fit_worlds(_build_up_to(0, []), 8, "task", "cuda:0")

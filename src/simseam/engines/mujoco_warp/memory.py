@@ -29,12 +29,20 @@ arrays are one dimension of worlds x rows, so enough worlds reach it on a GPU wh
 blank arrays keep that limit (each dimension of each array grows linearly with k, as its bytes do) and are
 allocated in two parts where a flat array of their bytes would exceed it: on an H100, 100,000 LIBERO worlds asked
 gave a 4.3 GB contact array, which Warp refused as a dimension, not as memory.
+
+Warp's native code prints its own line for each device allocation that fails ("Warp CUDA error 2: out of memory"),
+on the process's stderr: a try that does not fit would print one above the message. What a try prints there is held
+(``_stderr_held``) and dropped only when the try ran out of memory; anything else it printed is written back.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gc
-from typing import Any, Callable
+import os
+import sys
+import tempfile
+from typing import Any, Callable, Iterator
 
 from simseam.seam import ConfigError
 
@@ -92,7 +100,7 @@ def _allocates(build: Callable[[int], Any], k: int) -> bool:
     """Whether ``build(k)`` allocates (the built object dropped and the memory collected after); an error other
     than running out of memory is raised."""
     try:
-        built = build(k)
+        built = _quietly(build, k)
     except Exception as exc:  # noqa: BLE001 - only an allocation failure says "no"; others go up
         if not does_not_fit(exc):
             raise
@@ -101,6 +109,40 @@ def _allocates(build: Callable[[int], Any], k: int) -> bool:
     del built
     gc.collect()
     return True
+
+
+def _quietly(build: Callable[[int], Any], k: int) -> Any:
+    """``build(k)``, what it prints on stderr dropped if it does not fit (the native library's line about the
+    failed allocation), written back otherwise."""
+    with _stderr_held() as drop:
+        try:
+            return build(k)
+        except Exception as exc:
+            if does_not_fit(exc):
+                drop.append(True)
+            raise
+
+
+@contextlib.contextmanager
+def _stderr_held() -> Iterator[list]:
+    """The process's stderr (file descriptor 2: native libraries print there) held in a temporary file for the
+    block, then written back unless the block appended to the list it is given."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    drop: list = []
+    try:
+        with tempfile.TemporaryFile() as held:
+            os.dup2(held.fileno(), 2)
+            try:
+                yield drop
+            finally:
+                sys.stderr.flush()
+                os.dup2(saved, 2)
+                if not drop:
+                    held.seek(0)
+                    os.write(2, held.read())
+    finally:
+        os.close(saved)
 
 
 def array_sizes(obj: Any, seen: set[int] | None = None) -> list[tuple[Any, int, tuple[int, ...]]]:
@@ -148,7 +190,7 @@ def _footprint(build: Callable[[int], Any]) -> tuple[list[tuple], list[tuple]] |
     """The arrays' ``(device, bytes, shape)`` of one world and of two, or the first line of the allocation failure
     when not even two worlds allocate."""
     try:
-        one, two = (array_sizes(build(k)) for k in (1, 2))
+        one, two = (array_sizes(_quietly(build, k)) for k in (1, 2))
     except Exception as exc:  # noqa: BLE001 - not even two worlds allocate: the search says how many do
         if not does_not_fit(exc):
             raise
@@ -227,7 +269,7 @@ def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
         how = "measured by allocating arrays of their sizes"
     else:
         try:
-            return build(n)
+            return _quietly(build, n)
         except Exception as exc:  # noqa: BLE001 - re-raised unless it is an allocation failure
             if not does_not_fit(exc):
                 raise
