@@ -129,3 +129,50 @@ def test_image_size_makes_a_non_standard_run_of_a_preset_whose_cameras_are_sized
     assert with_image_size(p, None) is p and "image_size" not in p.config  # the preset itself is untouched
     with pytest.raises(ConfigError, match="aloha backend of preset aloha_insertion does not size its cameras"):
         with_image_size(preset("aloha_insertion"), 128)
+
+
+def test_render_picks_the_ports_renderer_and_keeps_the_run_standard():
+    """``simseam eval --render``: LIBERO's port on MuJoCo Warp draws its cameras with Warp's ray tracer or MuJoCo's
+    OpenGL renderer; the choice goes to the port in the task config, run.json records it, and the run stays
+    standard (the protocol is the same). Elsewhere it is one line naming what takes it."""
+    from simseam.runner.evaluate import with_render
+
+    p = preset("libero_spatial")
+    tasks = [f"libero_spatial/{i}" for i in range(10)]
+    drawn = eval_config(with_render(p, "opengl", "mujoco_warp"), "zero", tasks, 50, 0, False)
+    assert drawn["standard"] is True and drawn["task_config"]["render"] == "opengl"
+    assert with_render(p, None, "mujoco_warp") is p and "render" not in p.config
+    with pytest.raises(ConfigError, match=r"^--render: only with --engine"):
+        with_render(p, "opengl", None)
+    with pytest.raises(ConfigError, match=r"^--render: one of warp, opengl, got 'vulkan'$"):
+        with_render(p, "vulkan", "mujoco_warp")
+    with pytest.raises(ConfigError, match=r"^--render: the mujoco_warp port of metaworld draws its cameras one way "
+                                          r"only \(ports with a choice: libero\)$"):
+        with_render(preset("metaworld_mt10"), "opengl", "mujoco_warp")
+
+
+def test_eval_passes_render_to_the_port_and_to_each_process(monkeypatch, tmp_path):
+    """The command line's ``--render`` reaches the batch the port opens (its recipe's task config) and each process
+    of ``--processes`` (their arguments)."""
+    from typer.testing import CliRunner
+
+    from simseam.cli import eval_processes
+    from simseam.cli.main import app
+
+    seen = {}
+    monkeypatch.setattr("simseam.runner.job.execute", lambda job, executor, report: seen.update(
+        config=job.recipe.task_config(0)))
+    out = tmp_path / "run"
+    res = CliRunner().invoke(app, ["eval", "libero_spatial", "--engine", "mujoco_warp", "--sim-device", "cpu",
+                                   "--render", "opengl", "--policy", "zero", "--tasks", "libero_spatial/0",
+                                   "--episodes", "2", "--out", str(out)])
+    assert "no episode ran" in res.output  # the stand-in execute ran none
+    assert seen["config"]["render"] == "opengl" and seen["config"]["task"] == "libero_spatial/0"
+    monkeypatch.setattr(eval_processes, "eval_processes", lambda p, args, *rest: seen.update(args=args))
+    monkeypatch.setattr("simseam.cli.benchmarks.eval_processes", eval_processes.eval_processes)
+    res = CliRunner().invoke(app, ["eval", "libero_spatial", "--engine", "mujoco_warp", "--render", "opengl",
+                                   "--policy", "zero", "--processes", "2", "--out", str(tmp_path / "k")])
+    assert res.exit_code == 0, res.output
+    assert seen["args"][seen["args"].index("--render") + 1] == "opengl"
+    res = CliRunner().invoke(app, ["eval", "libero_spatial", "--render", "opengl", "--policy", "zero"])
+    assert res.exit_code == 2 and "--render: only with --engine" in res.output

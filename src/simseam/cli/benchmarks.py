@@ -102,6 +102,11 @@ MPS_OPTION = typer.Option(False, "--mps", help="--processes on CUDA: the process
                           "this run's own, so that their kernels run side by side (without it the GPU runs one "
                           "process's kernels at a time).")
 
+RENDER_OPTION = typer.Option(None, "--render", metavar="WHO", help="--engine mujoco_warp on a LIBERO preset, a policy "
+                             "that reads images: who draws the port's cameras: warp (MuJoCo Warp's ray tracer on the "
+                             "device, the default) or opengl (MuJoCo's OpenGL renderer on the host, as LIBERO draws "
+                             "them: slower, its images the CPU benchmark's).")
+
 CLAIMS_OPTION = typer.Option(None, "--claims", hidden=True, help="--processes' own: with --shard i/K and --engine, "
                              "the folder where the K processes claim whole tasks one at a time (runner.claims) "
                              "instead of task_index % K == i.")
@@ -146,10 +151,11 @@ def eval_command(
     processes: int = PROCESSES_OPTION,
     mps: bool = MPS_OPTION,
     image_size: int = IMAGE_SIZE_OPTION,
+    render: str = RENDER_OPTION,
     claims: Path = CLAIMS_OPTION,
 ) -> None:
     """Run a benchmark's standard evaluation protocol; report per-task and overall success (Wilson 95 %)."""
-    from simseam.runner.evaluate import check_engine, eval_recipe, preset, resolve_tasks, with_image_size
+    from simseam.runner.evaluate import eval_recipe, resolve_tasks
     from simseam.runner.job import Job
     from simseam.runner.run_dir import RunDir, default_run_dir
     from simseam.runner.sharding import parse_shard
@@ -160,8 +166,7 @@ def eval_command(
     try:
         shard_ik = parse_shard(shard) if shard is not None else None
         check_lockstep(policy_groups, policy_ready, envs_per_worker, num_envs, ray_address is not None)
-        p = with_image_size(preset(preset_name), image_size)
-        check_engine(p, engine)
+        p = _checked_preset(preset_name, image_size, render, engine)
         _check_executor(engine, sim_device, ray_address, video, lockstep_given=(policy_groups != 1 or policy_ready
                                                                                 or envs_per_worker != 1))
         _check_processes(processes, mps, engine, sim_device, shard)
@@ -173,7 +178,7 @@ def eval_command(
         if processes > 1:
             eval_processes(p, shard_args(preset_name, policy, seed, engine, ci_width, episodes=episodes, tasks=tasks,
                                          sim_device=sim_device, device=device, n_action_steps=n_action_steps,
-                                         num_envs=num_envs, image_size=image_size),
+                                         num_envs=num_envs, image_size=image_size, render=render),
                            len(task_list), n, out, default_out, processes, mps, overwrite, resume)
             return
         run_dir = RunDir(out, config, overwrite=overwrite, resume=resume, latest=default_out)  # written at start
@@ -186,6 +191,16 @@ def eval_command(
     console.print(_eval_start(p, job, executor, engine, n, config, (
         f"  shard {shard_ik[0]}/{shard_ik[1]}: {len(planned)} episode(s)" if shard_ik else "")))
     _eval_job(job, executor, p, engine)
+
+
+def _checked_preset(name: str, image_size: int | None, render: str | None, engine: str | None):
+    """The preset ``simseam eval`` runs: its cameras' ``--image-size``, its ``--engine`` (one with a port of it)
+    and that port's ``--render``, each checked."""
+    from simseam.runner.evaluate import check_engine, preset, with_image_size, with_render
+
+    p = with_image_size(preset(name), image_size)
+    check_engine(p, engine)
+    return with_render(p, render, engine)
 
 
 def _eval_plan(p, policy: str, task_list: list[str], n: int, seed: int, video: bool, ci_width: float,

@@ -144,10 +144,41 @@ def with_image_size(p: Preset, size: int | None) -> Preset:
     return replace(p, config={**p.config, "image_size": [int(size), int(size)]})
 
 
+def with_render(p: Preset, render: str | None, engine: str | None) -> Preset:
+    """``p`` with its port's cameras drawn by ``render`` (``simseam eval --render``: LIBERO's port on MuJoCo
+    Warp draws them with Warp's ray tracer, ``warp``, or MuJoCo's OpenGL renderer on the host, ``opengl``), or ``p``
+    as it is (None). Only a port with that choice takes it (its ``RENDERERS``); the run stays standard: the
+    protocol is the same, and run.json records the renderer in its task config."""
+    if render is None:
+        return p
+    if engine is None:
+        raise ConfigError("--render: only with --engine (a port's renderer); the preset's own backend draws its "
+                          "cameras as its benchmark does")
+    from simseam.runner.warp_vector import benchmark_port
+
+    renderers = getattr(benchmark_port(engine, p.backend), "RENDERERS", ())
+    if not renderers:
+        with_choice = [b for b in BENCHMARK_PORTS[engine] if getattr(benchmark_port(engine, b), "RENDERERS", ())]
+        raise ConfigError(f"--render: the {engine} port of {p.backend} draws its cameras one way only (ports with "
+                          f"a choice: {', '.join(with_choice) or 'none'})")
+    if render not in renderers:
+        raise ConfigError(f"--render: one of {', '.join(renderers)}, got {render!r}")
+    return replace(p, config={**p.config, "render": render})
+
+
+#: task-config keys that choose how an engine draws, not what the protocol is (a run with them stays standard)
+RENDER_KEYS = ("render",)
+
+
+def _protocol_config(config: dict) -> dict:
+    return {k: v for k, v in config.items() if k not in RENDER_KEYS}
+
+
 def eval_config(p: Preset, policy: str, tasks: list[str], episodes: int, seed: int, video: bool) -> dict:
     """What run.json records (``--resume`` requires the same)."""
     return {"preset": p.name, "backend": p.backend, "protocol": p.protocol, "standard": episodes == p.episodes
-            and (p.tasks is None or list(p.tasks) == tasks) and p.config == PRESETS[p.name].config,
+            and (p.tasks is None or list(p.tasks) == tasks)
+            and _protocol_config(p.config) == _protocol_config(PRESETS[p.name].config),
             "policy": policy, "tasks": tasks,
             "episodes": episodes * len(tasks), "episodes_per_task": episodes, "seed": seed, "video": video,
             "task_config": p.config, **({"per_task_config": p.per_task} if p.per_task else {})}

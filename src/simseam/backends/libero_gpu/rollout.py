@@ -95,6 +95,7 @@ class LiberoBatchRollout(NativePort):
 
     WORKER = "simseam.backends.libero_gpu.worker:NativeWorker"
     check_config = staticmethod(gpu_config)  # a scene file's ``benchmark:`` fields, as this port reads them
+    RENDERERS = RENDERERS  # who may draw its cameras (``render``; ``simseam eval --render``)
 
     def __init__(self, config: dict[str, Any], num_envs: int, worker: Any, *, privileged: bool = False,
                  device: str | None = None, engine: str = ENGINE):
