@@ -38,6 +38,10 @@
 #           machine (a warp_kernel_cache*.txz of /tmp/lww/cache/warp: install unpacks it, and the first run
 #           loads those kernels instead of compiling them, ~3.5 min on an H100):
 #             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_kcache
+#           optionally, in any call before install, LIBERO's reset states of a protocol's episodes computed here
+#           (benchmarks/device/libero_warp_resets.py: ~0.8 s a reset there, ~40 s of each process of a first run
+#           under --processes 10; a run with them is a warm run):
+#             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_resets
 #           the last call then (same command line):
 #             bash benchmarks/device/libero_warp_upload.sh install && source /tmp/lww/env.sh && <the run>, e.g.
 #             python3 -m simseam.cli.main eval libero_spatial --engine mujoco_warp --sim-device cuda:0 \
@@ -201,6 +205,10 @@ install() {
   check_kept
   for k in "$LW"/in/warp_kernel_cache*.txz; do  # kernels compiled on an earlier machine, received beforehand
     [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
+  done
+  for r in "$LW"/in/libero_resets*.txz; do  # LIBERO's reset states computed elsewhere (libero_warp_resets.py)
+    [ -f "$r" ] && mkdir -p "$LW/cache/libero_gpu" && tar -xJf "$r" -C "$LW/cache/libero_gpu" \
+      && echo "reset states: $(basename "$r") ($(tar -tJf "$r" | grep -vc '/$') files)"
   done
   cat > "$LW/env.sh" <<EOF
 export PYTHONPATH=$LW/site:$repo/src SIMSEAM_CACHE=$LW/cache WARP_CACHE_PATH=$LW/cache/warp MUJOCO_GL=egl
