@@ -9,7 +9,8 @@
 # The port's case runs once, under MPS (--warp-runs 0 --mps), after the CPU backend's. The JSON and each run's
 # console (written as it runs) come back in $OUT. Each case gets a Ctrl-C after CASE_LIMIT s (default 270: both fit
 # a 600 s call; a cut case's row counts the episodes it finished; on 7 December the two cases together ran past a
-# call's 600 s and nothing came back). PORT_ONLY=1: the port's case alone. A checkpoint trained on one task is a throughput figure on all ten: its successes
+# call's 600 s and nothing came back). PORT_ONLY=1: the port's case alone; CPU_ONLY=1: the CPU backend's alone (two
+# calls on one warm machine then give both, each with a call's whole time). A checkpoint trained on one task is a throughput figure on all ten: its successes
 # count only on its own task.
 set -euo pipefail
 NAME="${1:-libero_spatial_0_img}" IMAGE="${2:-128}" OUT="${OUT:-/tmp/out}"
@@ -19,7 +20,8 @@ NAME="${1:-libero_spatial_0_img}" IMAGE="${2:-128}" OUT="${OUT:-/tmp/out}"
 source /tmp/lww/env.sh
 export PYTHONPATH="$PYTHONPATH:/tmp/limg/site" HF_HUB_OFFLINE=1 TQDM_DISABLE=1
 mkdir -p "$OUT/logs"
+port=(--warp cuda:0 --warp-n 50 --warp-shards 10 --warp-runs 0 --mps)
+[ -n "${CPU_ONLY:-}" ] && port=()
 python3 benchmarks/bench_libero_scale.py --policy "lerobot:/tmp/limg/ckpt/$NAME" --image-size "$IMAGE" --n --full 16 \
-  --warp cuda:0 --warp-n 50 --warp-shards 10 --warp-runs 0 --mps --case-limit "${CASE_LIMIT:-270}" \
-  ${PORT_ONLY:+--port-only} --out "$OUT/libero_scale_img${IMAGE}_$NAME.json" \
-  --logs "$OUT/logs"
+  "${port[@]}" --case-limit "${CASE_LIMIT:-270}" ${PORT_ONLY:+--port-only} \
+  --out "$OUT/libero_scale_img${IMAGE}_$NAME${PORT_ONLY:+_port}${CPU_ONLY:+_cpu}.json" --logs "$OUT/logs"
