@@ -107,6 +107,14 @@ def test_the_processes_share_the_cores_among_their_native_workers(monkeypatch):
     assert P.child_env(4, {"SIMSEAM_NATIVE_WORKERS": "8"})["SIMSEAM_NATIVE_WORKERS"] == "8"  # the user's stays
 
 
+def test_the_processes_share_the_cores_among_their_thread_pools(monkeypatch):
+    """K processes each with a thread pool of every core (PyTorch's, OpenMP's default) would oversubscribe the
+    machine K times over: each gets its share, and a value the user set stays."""
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)))
+    assert [P.child_env(k, {})["OMP_NUM_THREADS"] for k in (1, 4, 10, 32)] == ["16", "4", "1", "1"]
+    assert P.child_env(4, {"OMP_NUM_THREADS": "2"})["OMP_NUM_THREADS"] == "2"
+
+
 def test_the_last_process_end_is_noticed_at_once(tmp_path):
     """The run is over when its last process ends, not at the next poll: with polls a minute apart, two quick
     processes return long before the first poll would come round (the merge follows at once)."""

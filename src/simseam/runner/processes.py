@@ -47,10 +47,15 @@ def claims_dir(out: Path) -> Path:
 
 
 def child_env(k: int, base: dict | None = None) -> dict:
-    """The processes' environment: ``base`` (default this one's), and the cores shared among the benchmark's
-    native workers of the K processes (``SIMSEAM_NATIVE_WORKERS``, unless set: LIBERO's reset processes)."""
+    """The processes' environment: ``base`` (default this one's), and the cores shared among the K processes,
+    each unless set: among the benchmark's native workers (``SIMSEAM_NATIVE_WORKERS``: LIBERO's reset processes)
+    and among their thread pools (``OMP_NUM_THREADS``: PyTorch's and OpenMP's, sized to every core by default, so
+    that K processes of a policy would run K times the cores' threads, each pool spinning between its calls, beside
+    the native workers that compute resets on the CPU)."""
     env = dict(os.environ if base is None else base)
-    env.setdefault("SIMSEAM_NATIVE_WORKERS", str(max(1, (len(os.sched_getaffinity(0)) - 1) // max(1, k))))
+    cores = len(os.sched_getaffinity(0))
+    env.setdefault("SIMSEAM_NATIVE_WORKERS", str(max(1, (cores - 1) // max(1, k))))
+    env.setdefault("OMP_NUM_THREADS", str(max(1, cores // max(1, k))))
     return env
 
 
