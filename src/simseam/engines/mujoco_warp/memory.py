@@ -127,9 +127,13 @@ def _quietly(build: Callable[[int], Any], k: int) -> Any:
 def _stderr_held() -> Iterator[list]:
     """The process's stderr (file descriptor 2: native libraries print there) held in a temporary file for the
     block, then written back unless the block appended to the list it is given."""
-    sys.stderr.flush()
-    saved = os.dup(2)
     drop: list = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no stderr to hold (closed, or replaced without a file)
+        yield drop
+        return
     try:
         with tempfile.TemporaryFile() as held:
             os.dup2(held.fileno(), 2)
