@@ -31,8 +31,10 @@ allocated in two parts where a flat array of their bytes would exceed it: on an 
 gave a 4.3 GB contact array, which Warp refused as a dimension, not as memory.
 
 Warp's native code prints its own line for each device allocation that fails ("Warp CUDA error 2: out of memory"),
-on the process's stderr: a try that does not fit would print one above the message. What a try prints there is held
-(``_stderr_held``) and dropped only when the try ran out of memory; anything else it printed is written back.
+on the process's stderr: each of the search's tries that does not fit would print one above the message. What a
+try prints there is held (``_stderr_held``) and dropped only when the try ran out of memory; anything else it
+printed is written back. The build of the number asked is not held (a crash there must show what it printed): where
+it fails, Warp's one line stands above the message.
 """
 
 from __future__ import annotations
@@ -273,7 +275,7 @@ def fit_worlds(build: Callable[[int], Any], n: int, what: str, device: Any,
         how = "measured by allocating arrays of their sizes"
     else:
         try:
-            return _quietly(build, n)
+            return build(n)  # not held: what a crash in the run's own build prints must reach stderr
         except Exception as exc:  # noqa: BLE001 - re-raised unless it is an allocation failure
             if not does_not_fit(exc):
                 raise
