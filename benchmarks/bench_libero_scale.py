@@ -35,7 +35,6 @@ import json
 import os
 import platform
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -44,6 +43,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(REPO / "src"))  # this checkout's simseam (the commands it times run it too)
 from run_timings import per_process  # noqa: E402
 
 EXTRA: list[str] = []  # options every eval gets (--image-size)
@@ -86,29 +86,30 @@ def _eval_argv(preset: str, policy: str, n: int, episodes: int | None, tasks: st
     return argv
 
 
+class _Cut(Exception):
+    """A case's time limit has come."""
+
+
 def _run(command: list[str], log: Path, limit: float | None = None) -> bool:
     """The command in its own process, its console written to ``log`` as it goes (a call cut short still has it);
-    after ``limit`` seconds it gets a Ctrl-C (SIGINT: the run ends as an interrupted one, its finished episodes and
-    summary kept) and True is returned. Any other failure stops the benchmark."""
-    with open(log, "w") as f:
-        proc = subprocess.Popen(command, env=_env(), stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
-        cut = False
-        try:
-            proc.wait(timeout=limit)
-        except subprocess.TimeoutExpired:
-            cut = True
-            os.killpg(proc.pid, signal.SIGINT)
-            try:
-                proc.wait(timeout=120)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-        except BaseException:
-            os.killpg(proc.pid, signal.SIGKILL)
-            raise
-    if proc.returncode != 0 and not cut:
-        raise SystemExit(f"{' '.join(command)} failed (exit {proc.returncode}):\n{log.read_text()[-4000:]}")
-    return cut
+    after ``limit`` seconds it gets a Ctrl-C (``runner.processes.run_processes``' own: SIGINT, the run ends as an
+    interrupted one with its finished episodes and summary kept) and True is returned. Any other failure stops the
+    benchmark."""
+    from simseam.runner.processes import run_processes
+
+    deadline = None if limit is None else time.monotonic() + limit
+
+    def check() -> None:
+        if deadline is not None and time.monotonic() > deadline:
+            raise _Cut
+
+    try:
+        (code,) = run_processes([command], [log], _env(), on_poll=check)
+    except _Cut:
+        return True
+    if code != 0:
+        raise SystemExit(f"{' '.join(command)} failed (exit {code}):\n{log.read_text()[-4000:]}")
+    return False
 
 
 def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str | None, workdir: Path,

@@ -10,8 +10,8 @@
 # console (written as it runs) come back in $OUT. Each case gets a Ctrl-C after CASE_LIMIT s (default 270: both fit
 # a 600 s call; a cut case's row counts the episodes it finished; on 7 December the two cases together ran past a
 # call's 600 s and nothing came back). PORT_ONLY=1: the port's case alone; CPU_ONLY=1: the CPU backend's alone (two
-# calls on one warm machine then give both, each with a call's whole time). A checkpoint trained on one task is a throughput figure on all ten: its successes
-# count only on its own task.
+# calls on one warm machine then give both, each with a call's whole time). A checkpoint trained on one task is a
+# throughput figure on all ten: its successes count only on its own task.
 set -euo pipefail
 NAME="${1:-libero_spatial_0_img}" IMAGE="${2:-128}" OUT="${OUT:-/tmp/out}"
 [ -f /tmp/lww/env.sh ] || { echo "libero_image_figure: /tmp/lww/env.sh missing: run libero_warp_upload.sh install first" >&2; exit 2; }
