@@ -136,6 +136,21 @@ def tiny_act(scripted_dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def tiny_act_te(tiny_act, tmp_path_factory):
+    """``tiny_act``'s weights with ACT's temporal ensembling (coefficient 0.01, one action a prediction, as
+    LeRobot requires): the policy re-plans every step and averages the overlapping chunks; returns
+    (checkpoint dir, None)."""
+    import json
+    import shutil
+
+    out = tmp_path_factory.mktemp("act_te") / "ckpt"
+    shutil.copytree(tiny_act[0], out)
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "temporal_ensemble_coeff": 0.01, "n_action_steps": 1}))
+    return out, None
+
+
+@pytest.fixture(scope="session")
 def tiny_dp(scripted_dataset, tmp_path_factory):
     """A tiny Diffusion Policy trained for 3 optimizer steps on ``scripted_dataset`` (through the device
     cache); returns (checkpoint dir, TrainResult)."""

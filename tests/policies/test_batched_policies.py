@@ -9,8 +9,9 @@ from simseam.policies.base import make_policy
 from simseam.policies.batch import PerEnvPolicies, make_policy_batch
 
 SEEDS = (3, 8, 11)
-#: the trained LeRobot policies batched: ACT, and Diffusion (an observation history per environment)
-CHECKPOINTS = ["tiny_act", "tiny_dp"]
+#: the trained LeRobot policies batched: ACT, ACT with temporal ensembling (an ensembler per environment), and
+#: Diffusion (an observation history per environment)
+CHECKPOINTS = ["tiny_act", "tiny_act_te", "tiny_dp"]
 
 
 def _unbatched(make, scenes, steps, seen=None):

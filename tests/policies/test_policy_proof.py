@@ -153,8 +153,8 @@ def sequential(proof, paths):
 
 
 def test_worker_processes_give_the_same_answer(sequential, paths):
-    """--num-envs 2 with this checkpoint: temporal ensembling keeps a history per episode, so each worker's
-    episodes get their own policy (LeRobotPolicy.make_batch declines to batch it)."""
+    """--num-envs 2 with this checkpoint: temporal ensembling keeps a running average per episode; the
+    batch keeps one ensembler per environment beside the one model the workers' observations share."""
     assert paths["workers"] == sequential
 
 

@@ -329,17 +329,18 @@ class LeRobotPolicy(BasePolicy):
         return action.squeeze(0).to("cpu", torch.float32).numpy()
 
     def make_batch(self, n: int) -> "LeRobotBatch | None":
-        """One model for ``n`` environments with per-environment chunk queues, when this policy's
-        ``select_action`` is a plain chunk queue (ACT without temporal ensembling); else None (the
-        caller then builds one instance per environment). Diffusion keeps each environment's observation
-        history beside its queue."""
-        if self.config.type not in BATCHABLE_TYPES or getattr(self.config, "temporal_ensemble_coeff", None) is not None:
+        """One model for ``n`` environments, when this policy's ``select_action`` is one of the kinds
+        ``LeRobotBatch`` keeps per environment (a chunk queue; ACT's temporal ensembler; Diffusion's
+        observation history beside its queue); else None (the caller then builds one instance per
+        environment)."""
+        if self.config.type not in BATCHABLE_TYPES:
             return None
         return LeRobotBatch(self, n)
 
 
-#: LeRobot policy types whose ``select_action`` executes ``n_action_steps`` of each predicted chunk from a queue,
-#: so one batched prediction with per-environment queues gives the same actions (tested: ACT, and Diffusion
+#: LeRobot policy types whose ``select_action`` executes ``n_action_steps`` of each predicted chunk from a queue
+#: or (ACT) ensembles each step's chunk with the earlier ones, so one batched prediction with per-environment
+#: queues or ensemblers gives the same actions (tested: ACT with and without temporal ensembling, and Diffusion
 #: with its observation history kept per environment)
 BATCHABLE_TYPES = frozenset({"act", "diffusion"})
 
@@ -358,7 +359,11 @@ class LeRobotBatch(PolicyBatch):
     """``lerobot:`` for N environments: one model, one chunk queue per environment; the environments
     whose queue is empty get one forward pass together (a batch of B). A policy with an observation
     history (Diffusion) keeps the last ``n_obs_steps`` frames of each environment's episode and its own
-    noise generator, both renewed by that environment's reset."""
+    noise generator, both renewed by that environment's reset. ACT with temporal ensembling predicts a
+    chunk for every environment at every step (one forward pass) and ensembles each environment's row
+    in that environment's own ``ACTTemporalEnsembler`` (LeRobot's class: its running average counts
+    the steps since that environment's reset), on the model's normalized actions as ``select_action``
+    does, before the postprocessor."""
 
     uses_images = True
     requires_privileged = False
@@ -374,6 +379,12 @@ class LeRobotBatch(PolicyBatch):
         self.last_images: list[dict[str, Any]] = [{} for _ in range(n)]
         self.noise: list[Any] = [None] * n
         self._diffusion = policy.config.type == "diffusion"
+        ensembler = getattr(policy.policy, "temporal_ensembler", None)
+        if getattr(policy.config, "temporal_ensemble_coeff", None) is not None and ensembler is not None:
+            coeff, chunk = policy.config.temporal_ensemble_coeff, policy.config.chunk_size
+            self.ensemblers: list[Any] | None = [type(ensembler)(coeff, chunk) for _ in range(n)]
+        else:
+            self.ensemblers = None
         #: forward passes (batches) run, and chunks predicted over all environments
         self.forward_passes = 0
         self.chunks_predicted = 0
@@ -386,6 +397,8 @@ class LeRobotBatch(PolicyBatch):
         self.history[env].clear()
         self.last_images[env] = {}
         self.noise[env] = self.policy.noise_generator()
+        if self.ensemblers is not None:
+            self.ensemblers[env].reset()
 
     def observe_next(self, env: int) -> ObsRequest | None:
         if not self.uses_images:
@@ -393,6 +406,8 @@ class LeRobotBatch(PolicyBatch):
         return None if self.policy.reads_frame(len(self.queues[env])) else STATE_ONLY
 
     def act_batch(self, envs, observations) -> np.ndarray:
+        if self.ensemblers is not None:
+            return self._act_ensembled(envs, observations)
         p = self.policy
         need = [k for k, e in enumerate(envs) if not self.queues[e]]
         if self._diffusion:
@@ -410,15 +425,33 @@ class LeRobotBatch(PolicyBatch):
                 self.queues[envs[k]].extend(c)
         return np.stack([self.queues[e].popleft() for e in envs]).astype(np.float32)
 
+    def _act_ensembled(self, envs, observations) -> np.ndarray:
+        """ACT's temporal ensembling for ``envs``: one forward pass for all, each row into its environment's
+        ensembler, then the postprocessor on the ``[B, action_dim]`` actions."""
+        p = self.policy
+        torch = p._torch
+        batch = self._frames(envs, observations)
+        with torch.inference_mode():
+            chunk = p.policy.predict_action_chunk(p.preprocessor(batch))
+            actions = torch.cat([self.ensemblers[e].update(chunk[k:k + 1]) for k, e in enumerate(envs)])
+            actions = p.postprocessor(actions)
+        self.forward_passes += 1
+        self.chunks_predicted += len(envs)
+        return actions.to("cpu", torch.float32).numpy()
+
+    def _frames(self, envs: list[int], observations: list) -> dict[str, Any]:
+        """The batch one forward pass reads: each environment's current frame (its history, for Diffusion)."""
+        p = self.policy
+        if self._diffusion:
+            return _stack([[*self.history[e]] for e in envs], p._torch)
+        return _stack([[p._frame(o, self.specs[e], None, True)] for e, o in zip(envs, observations)], p._torch,
+                      history=False)
+
     def _predict(self, envs: list[int], observations: list) -> np.ndarray:
         """``[len(envs), n_action_steps, action_dim]``: the next actions of ``envs`` in one forward pass."""
         p = self.policy
         torch = p._torch
-        if self._diffusion:
-            batch = _stack([[*self.history[e]] for e in envs], torch)
-        else:
-            batch = _stack([[p._frame(o, self.specs[e], None, True)] for e, o in zip(envs, observations)], torch,
-                           history=False)
+        batch = self._frames(envs, observations)
         with torch.inference_mode():
             batch = p.preprocessor(batch)
             if self._diffusion:
