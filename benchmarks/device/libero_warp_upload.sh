@@ -38,6 +38,11 @@
 #           machine (a warp_kernel_cache*.txz of /tmp/lww/cache/warp: install unpacks it, and the first run
 #           loads those kernels instead of compiling them, ~3.5 min on an H100):
 #             bash benchmarks/device/libero_warp_upload.sh receive .cache/libero_warp_kcache
+#           or the pieces `kcache_back` brought back (all of WARP_CACHE_PATH, 21 MB on 7 December: the kernels of
+#           the four suites' state runs and the image run; a call of its own, c0N are too large to share one):
+#             bash benchmarks/device/libero_warp_upload.sh receive .cache/lw_kcache
+#           and, after runs, on the same machine, to bring that cache back into $OUT (15 MB pieces):
+#             bash benchmarks/device/libero_warp_upload.sh kcache_back
 #           optionally, in any call before install, LIBERO's reset states of a protocol's episodes computed here
 #           (benchmarks/device/libero_warp_resets.py: ~0.8 s a reset there, ~40 s of each process of a first run
 #           under --processes 10; a run with them is a warm run):
@@ -206,6 +211,9 @@ install() {
   for k in "$LW"/in/warp_kernel_cache*.txz; do  # kernels compiled on an earlier machine, received beforehand
     [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
   done
+  if compgen -G "$LW/in/lw_kcache.txz.*" > /dev/null; then  # WARP_CACHE_PATH itself, in pieces (kcache_back below)
+    mkdir -p "$LW/cache/warp" && cat "$LW"/in/lw_kcache.txz.* | tar -xJ -C "$LW/cache/warp" && echo "kernel cache: lw_kcache"
+  fi
   for r in "$LW"/in/libero_resets*.txz; do  # LIBERO's reset states computed elsewhere (libero_warp_resets.py)
     [ -f "$r" ] && mkdir -p "$LW/cache/libero_gpu" && tar -xJf "$r" -C "$LW/cache/libero_gpu" \
       && echo "reset states: $(basename "$r") ($(tar -tJf "$r" | grep -vc '/$') files)"
@@ -235,5 +243,8 @@ case "${1:-}" in
   receive) receive_pieces "${2:-}" "$LW/in" ;;
   install) install ;;
   recut) recut "${2:-.cache/libero_warp_carry}" ;;
-  *) echo "usage: $0 prepare [DIR] | recut [DIR] | receive DIR/ck | install" >&2; exit 2 ;;
+  kcache_back)  # WARP_CACHE_PATH as lw_kcache.txz.NN in $OUT (a file the device tool brings back: 15 MB at most)
+    XZ_OPT="-T0 -6" tar -C "$LW/cache/warp" -cJf /tmp/lw_kcache.txz . && split -b 15000000 -d /tmp/lw_kcache.txz \
+      "${OUT:?}/lw_kcache.txz." && ls -l "$OUT"/lw_kcache.txz.* ;;
+  *) echo "usage: $0 prepare [DIR] | recut [DIR] | receive DIR/ck | install | kcache_back" >&2; exit 2 ;;
 esac
