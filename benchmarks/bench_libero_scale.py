@@ -148,7 +148,8 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
             "mean_policy_ms": round(sum(policy_ms) / len(policy_ms), 3) if policy_ms else None,
             "policy_share": (round(sum(policy_ms) / (sum(policy_ms) + sum(step_ms)), 4)
                              if policy_ms and len(policy_ms) == len(step_ms) else None),
-            "complete": summary["complete"], "cut_at_s": limit if cut else None,
+            # a Ctrl-C that came after the run had finished its episodes and merge (its summary complete) cut nothing
+            "complete": summary["complete"], "cut_at_s": limit if cut and not summary["complete"] else None,
             "per_process": per_process(out, launched)}
 
 
