@@ -7,6 +7,7 @@ import pytest
 
 from simseam.policies.base import make_policy
 from simseam.policies.batch import PerEnvPolicies, make_policy_batch
+from simseam.policies.lerobot_policy import LeRobotBatch
 
 SEEDS = (3, 8, 11)
 #: the trained LeRobot policies batched: ACT, ACT with temporal ensembling (an ensembler per environment), and
@@ -74,7 +75,7 @@ def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(request, checkpo
     seen = []
     reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, steps, seen)
     batch = make_policy_batch(f"lerobot:{out}", 3, device="cpu")
-    assert type(batch).__name__ == "LeRobotBatch"
+    assert isinstance(batch, LeRobotBatch)
     got = _batched(batch, scenes, steps, replay=seen)
     for a, b in zip(reference, got):
         np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-4)  # float32 sums in another order

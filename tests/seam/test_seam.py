@@ -91,3 +91,14 @@ def test_matrix_to_rpy_inverts_rpy_to_matrix():
     rng = np.random.default_rng(0)
     for rpy in [*rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], (50, 3)), (0.3, np.pi / 2, 0.2)]:
         np.testing.assert_allclose(rpy_to_matrix(matrix_to_rpy(rpy_to_matrix(rpy))), rpy_to_matrix(rpy), atol=1e-9)
+
+
+def test_the_union_of_requests_asks_for_what_any_asks_for():
+    from simseam.seam import STATE_ONLY, ObsRequest
+
+    assert ObsRequest.union([STATE_ONLY, STATE_ONLY]) == STATE_ONLY
+    assert ObsRequest.union([STATE_ONLY, None]) is None  # None: everything
+    both = ObsRequest.union([ObsRequest(images=frozenset({"a"}), depth=False),
+                             ObsRequest(images=frozenset({"b"}), depth=False, link_poses=True)])
+    assert both == ObsRequest(images=frozenset({"a", "b"}), depth=False, link_poses=True)
+    assert ObsRequest.union([STATE_ONLY, ObsRequest.full()]).images is None

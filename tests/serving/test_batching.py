@@ -145,7 +145,9 @@ def test_served_lerobot_batches_clients_into_one_forward_pass(batching_server, t
     for env, ref in enumerate(refs):
         np.testing.assert_allclose(got[env], ref, rtol=1e-3, atol=2e-4)  # float32 sums in another order
     served = server.batch
-    assert type(served).__name__ == "LeRobotBatch"
+    from simseam.policies.lerobot_policy import LeRobotBatch
+
+    assert isinstance(served, LeRobotBatch)
     assert served.forward_passes < served.chunks_predicted  # clients shared forward passes
 
 

@@ -335,7 +335,7 @@ class LeRobotPolicy(BasePolicy):
         environment)."""
         if self.config.type not in BATCHABLE_TYPES:
             return None
-        return LeRobotBatch(self, n)
+        return LeRobotArrayBatch(self, n) if self.config.type == "act" else LeRobotBatch(self, n)
 
 
 #: LeRobot policy types whose ``select_action`` executes ``n_action_steps`` of each predicted chunk from a queue
@@ -484,3 +484,67 @@ def _diffusion_actions(p: LeRobotPolicy, batch: dict[str, Any], noise) -> Any:
     if p.config.image_features:
         model_in["observation.images"] = torch.stack([batch[k] for k in p.config.image_features], dim=-4)
     return p.policy.diffusion.generate_actions(model_in, noise=noise)
+
+
+class LeRobotArrayBatch(LeRobotBatch):
+    """ACT's batch, which also reads a batch's observations as arrays (``act_arrays``, docs/seam.md: MuJoCo Warp's
+    worlds): the images and state of every environment come in as one array per key, on the simulator's device,
+    and go into the model through DLPack with no host copy; the environments that need a chunk (all of them at
+    every step with temporal ensembling) get one forward pass, each keeping its own queue or ensembler as on the
+    dict path. The actions come out of LeRobot's postprocessor (which ends on the host) and go back to the
+    observations' device: ``float32[N, action_dim]``, a few hundred bytes. Every environment's queue advances
+    each step (an idle one's is emptied by its next reset)."""
+
+    def act_arrays(self, arrays: dict[str, Any]) -> Any:
+        p = self.policy
+        torch = p._torch
+        ensembles = self.ensemblers is not None
+        need = list(range(self.n)) if ensembles else [e for e in range(self.n) if not self.queues[e]]
+        if need and p.image_names and not arrays.get(OBS_IMAGES):
+            need = []  # the batch drew no image: every environment that asked (the busy ones) has a queue, and
+            # the empty ones are idle (their rows are ignored: zeros below)
+        actions = None
+        if need:
+            with torch.inference_mode():
+                chunk = p.policy.predict_action_chunk(p.preprocessor(self._array_frames(arrays, need)))
+                if ensembles:
+                    actions = p.postprocessor(torch.cat([self.ensemblers[e].update(chunk[e:e + 1]) for e in need]))
+                else:
+                    chunk = p.postprocessor(chunk[:, : p.n_action_steps])
+                    for k, e in enumerate(need):
+                        self.queues[e].extend(chunk[k])
+            self.forward_passes += 1
+            self.chunks_predicted += len(need)
+        if actions is None:
+            dim = self.specs[next(e for e in range(self.n) if self.specs[e])].action_dim
+            actions = torch.stack([self.queues[e].popleft() if self.queues[e] else torch.zeros(dim)
+                                   for e in range(self.n)])
+        return actions.to(torch.from_dlpack(arrays[OBS_STATE]).device, torch.float32).contiguous()
+
+    def _array_frames(self, arrays: dict[str, Any], rows: list[int]) -> dict[str, Any]:
+        """The batch of ``rows`` as LeRobot reads it (images float32[B, 3, H, W] in [0, 1], state float32[B, S]),
+        sliced from the arrays on their device."""
+        p = self.policy
+        torch = p._torch
+        index = torch.as_tensor(rows, dtype=torch.long)
+        images = arrays.get(OBS_IMAGES) or {}
+        batch: dict[str, Any] = {}
+        for name in p.image_names:
+            key = p.contract.scene_key(name)
+            if key not in images:
+                raise ConfigError(f"lerobot:{p.source}: the observation arrays have no image {key!r} "
+                                  f"(cameras: {sorted(images)})")
+            img = torch.from_dlpack(images[key])
+            batch[p._feature_keys[name]] = img[index.to(img.device)].permute(0, 3, 1, 2).float() / 255.0
+        for key, field in ((STATE_KEY, OBS_STATE), (ENV_STATE_KEY, OBS_ENV_STATE)):
+            if key in p.config.input_features:
+                if field not in arrays:
+                    raise ConfigError(f"lerobot:{p.source}: the policy reads {field} and the observation arrays "
+                                      "have none")
+                values = torch.from_dlpack(arrays[field])
+                batch[key] = values[index.to(values.device)].to(torch.float32)
+        texts = [self.specs[e].task.instruction if self.specs[e] else "" for e in rows]
+        batch["task"] = texts if len(rows) > 1 else texts[0]
+        robots = [self.specs[e].robot.name if self.specs[e] else "" for e in rows]
+        batch["robot_type"] = robots if len(rows) > 1 else robots[0]
+        return batch

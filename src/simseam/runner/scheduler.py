@@ -26,8 +26,8 @@ in the last bits, as between any two batch sizes). M = N is plain lockstep.
 
 The array path: a policy with ``act_arrays(observations)`` on a batch that offers arrays
 (``seam.batch.ArrayBatch``: MuJoCo Warp) gets each step's ``observation_arrays(request)`` (one array per
-key for all environments, in the device's memory; ``request`` is the policy's ``observe_next(env)`` of the
-first busy environment when it has one, else everything) and answers ``float32[num_envs, action_dim]``
+key for all environments, in the device's memory; ``request`` is the union of the busy environments' own
+``observe_next(env)`` when the policy has it, else everything) and answers ``float32[num_envs, action_dim]``
 actions as any DLPack array, which the batch steps with ``step_arrays``: no host copy of observations or
 actions, one policy call per step for every environment (rows of idle environments are ignored). One
 group only. The per-episode results equal the per-environment dict path's for a policy that computes the
@@ -429,7 +429,8 @@ def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
     """The policy acts for ``envs`` and their step starts (``step_send``; the array path keeps the actions)."""
     t0 = time.perf_counter()
     if device:
-        request = policy.observe_next(envs[0]) if callable(getattr(policy, "observe_next", None)) else None
+        ask = getattr(policy, "observe_next", None)
+        request = ObsRequest.union([ask(e) for e in envs]) if callable(ask) else None
         actions = policy.act_arrays(batch.observation_arrays(request))
         return _Flight(envs, (time.perf_counter() - t0) * 1e3, device_actions=actions)
     actions = np.asarray(policy.act_batch(envs, [obs[e] for e in envs]), dtype=np.float32)

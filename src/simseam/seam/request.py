@@ -39,6 +39,16 @@ class ObsRequest:
     def wants_image(self, key: str) -> bool:
         return self.images is None or key in self.images
 
+    @staticmethod
+    def union(requests: "list[ObsRequest | None]") -> "ObsRequest | None":
+        """One request asking for everything any of ``requests`` asks for (None, the full request, among them:
+        None); e.g. one observation of a whole batch for environments that want different things."""
+        if any(r is None for r in requests):
+            return None
+        images = [r.images for r in requests]
+        return ObsRequest(images=None if any(i is None for i in images) else frozenset().union(*images),
+                          depth=any(r.depth for r in requests), link_poses=any(r.link_poses for r in requests))
+
     @property
     def renders(self) -> bool:
         """Whether any camera might be rendered."""
