@@ -175,3 +175,33 @@ def test_diffusion_history_does_not_leak_across_resets(tiny_dp, panda_spec, make
         for env, scene in ((0, first), (1, second)):
             obs[env] = scene.step(acts[env], batch.observe_next(env)).observation
     np.testing.assert_allclose(np.stack(got), fresh, rtol=1e-3, atol=2e-4)  # batched: float sums in another order
+
+
+@pytest.mark.learning
+def test_temporal_ensembles_equal_lerobots_ensembler_per_environment():
+    """Four environments reset at different steps, any subset acting each step: each row's actions equal
+    LeRobot's own ``ACTTemporalEnsembler`` fed that environment's chunks alone, from its reset on."""
+    import torch
+    from lerobot.policies.act.modeling_act import ACTTemporalEnsembler
+
+    from simseam.policies.lerobot_policy import TemporalEnsembles
+
+    coeff, chunk, dim, n = 0.05, 6, 3, 4
+    ours = TemporalEnsembles(torch, coeff, chunk, n)
+    theirs = [ACTTemporalEnsembler(coeff, chunk) for _ in range(n)]
+    gen = torch.Generator().manual_seed(5)
+    resets = {0: [0, 1, 2, 3], 3: [1], 5: [2, 0], 9: [3]}  # step -> the environments that start an episode
+    acting = [[0, 1, 2, 3], [0, 2], [1, 2, 3], [0, 1, 2, 3], [3, 1], [0, 1, 2, 3]]
+    compared = 0
+    for t in range(14):
+        for e in resets.get(t, []):
+            ours.reset(e)
+            theirs[e].reset()
+        rows = acting[t % len(acting)]
+        chunks = torch.randn((len(rows), chunk, dim), generator=gen)
+        got = ours.update(rows, chunks)
+        for k, e in enumerate(rows):
+            want = theirs[e].update(chunks[k:k + 1])[0]
+            assert torch.equal(got[k], want), (t, e, got[k], want)
+            compared += 1
+    assert compared > 40

@@ -355,15 +355,57 @@ def max_action_steps(cfg: Any) -> int | None:
     return None
 
 
+class TemporalEnsembles:
+    """ACT's temporal ensembling (LeRobot's ``ACTTemporalEnsembler.update``: the same running average, the same
+    float operations in the same order) for N environments at once, each with its own episode: one row of state
+    per environment, and ``update(rows, chunks)`` advances the rows acting now, a freshly reset one starting its
+    average from its first chunk. LeRobot's class keeps one count for its whole batch (all rows started
+    together); here an environment restarts alone, and one call serves a batch of any size with a few tensor
+    operations (tested against LeRobot's class, one instance per environment)."""
+
+    def __init__(self, torch, coeff: float, chunk: int, n: int):
+        self.torch, self.chunk, self.n = torch, int(chunk), n
+        self.weights = torch.exp(-coeff * torch.arange(chunk))
+        self.cumsum = torch.cumsum(self.weights, dim=0)
+        self.fresh = [True] * n
+        self.actions = None  # [n, chunk - 1, action_dim]: each row's average of its next steps
+        self.count = None  # [n, chunk - 1, 1]: the chunks averaged into each
+
+    def reset(self, env: int) -> None:
+        self.fresh[env] = True
+
+    def update(self, rows: list[int], chunks) -> Any:
+        """``chunks[k]`` (``[chunk, action_dim]``, normalized) is row ``rows[k]``'s prediction now; returns each
+        row's action of this step, ``[len(rows), action_dim]``."""
+        torch = self.torch
+        w, cs = self.weights.to(chunks.device), self.cumsum.to(chunks.device)
+        if self.actions is None:
+            self.actions = chunks.new_zeros((self.n, self.chunk - 1, chunks.shape[-1]))
+            self.count = torch.ones((self.n, self.chunk - 1, 1), dtype=torch.long, device=chunks.device)
+        index = torch.as_tensor(rows, dtype=torch.long, device=chunks.device)
+        avg, count = self.actions[index], self.count[index]
+        avg = (avg * cs[count - 1] + chunks[:, :-1] * w[count]) / cs[count]
+        count = torch.clamp(count + 1, max=self.chunk)
+        full = torch.cat([avg, chunks[:, -1:]], dim=1)
+        full_count = torch.cat([count, torch.ones_like(count[:, -1:])], dim=1)
+        fresh = torch.as_tensor([self.fresh[e] for e in rows], device=chunks.device)
+        full = torch.where(fresh[:, None, None], chunks, full)  # a first chunk is the average itself
+        full_count = torch.where(fresh[:, None, None], torch.ones_like(full_count), full_count)
+        for e in rows:
+            self.fresh[e] = False
+        self.actions[index], self.count[index] = full[:, 1:], full_count[:, 1:]
+        return full[:, 0]
+
+
 class LeRobotBatch(PolicyBatch):
     """``lerobot:`` for N environments: one model, one chunk queue per environment; the environments
     whose queue is empty get one forward pass together (a batch of B). A policy with an observation
     history (Diffusion) keeps the last ``n_obs_steps`` frames of each environment's episode and its own
     noise generator, both renewed by that environment's reset. ACT with temporal ensembling predicts a
     chunk for every environment at every step (one forward pass) and ensembles each environment's row
-    in that environment's own ``ACTTemporalEnsembler`` (LeRobot's class: its running average counts
-    the steps since that environment's reset), on the model's normalized actions as ``select_action``
-    does, before the postprocessor."""
+    with its earlier ones (``TemporalEnsembles``: LeRobot's running average, counted from that
+    environment's reset), on the model's normalized actions as ``select_action`` does, before the
+    postprocessor."""
 
     uses_images = True
     requires_privileged = False
@@ -379,12 +421,9 @@ class LeRobotBatch(PolicyBatch):
         self.last_images: list[dict[str, Any]] = [{} for _ in range(n)]
         self.noise: list[Any] = [None] * n
         self._diffusion = policy.config.type == "diffusion"
-        ensembler = getattr(policy.policy, "temporal_ensembler", None)
-        if getattr(policy.config, "temporal_ensemble_coeff", None) is not None and ensembler is not None:
-            coeff, chunk = policy.config.temporal_ensemble_coeff, policy.config.chunk_size
-            self.ensemblers: list[Any] | None = [type(ensembler)(coeff, chunk) for _ in range(n)]
-        else:
-            self.ensemblers = None
+        coeff = getattr(policy.config, "temporal_ensemble_coeff", None)
+        self.ensembles = (TemporalEnsembles(policy._torch, coeff, policy.config.chunk_size, n)
+                          if coeff is not None else None)
         #: forward passes (batches) run, and chunks predicted over all environments
         self.forward_passes = 0
         self.chunks_predicted = 0
@@ -397,8 +436,8 @@ class LeRobotBatch(PolicyBatch):
         self.history[env].clear()
         self.last_images[env] = {}
         self.noise[env] = self.policy.noise_generator()
-        if self.ensemblers is not None:
-            self.ensemblers[env].reset()
+        if self.ensembles is not None:
+            self.ensembles.reset(env)
 
     def observe_next(self, env: int) -> ObsRequest | None:
         if not self.uses_images:
@@ -406,7 +445,7 @@ class LeRobotBatch(PolicyBatch):
         return None if self.policy.reads_frame(len(self.queues[env])) else STATE_ONLY
 
     def act_batch(self, envs, observations) -> np.ndarray:
-        if self.ensemblers is not None:
+        if self.ensembles is not None:
             return self._act_ensembled(envs, observations)
         p = self.policy
         need = [k for k, e in enumerate(envs) if not self.queues[e]]
@@ -433,8 +472,7 @@ class LeRobotBatch(PolicyBatch):
         batch = self._frames(envs, observations)
         with torch.inference_mode():
             chunk = p.policy.predict_action_chunk(p.preprocessor(batch))
-            actions = torch.cat([self.ensemblers[e].update(chunk[k:k + 1]) for k, e in enumerate(envs)])
-            actions = p.postprocessor(actions)
+            actions = p.postprocessor(self.ensembles.update(list(envs), chunk))
         self.forward_passes += 1
         self.chunks_predicted += len(envs)
         return actions.to("cpu", torch.float32).numpy()
@@ -498,7 +536,7 @@ class LeRobotArrayBatch(LeRobotBatch):
     def act_arrays(self, arrays: dict[str, Any]) -> Any:
         p = self.policy
         torch = p._torch
-        ensembles = self.ensemblers is not None
+        ensembles = self.ensembles is not None
         need = list(range(self.n)) if ensembles else [e for e in range(self.n) if not self.queues[e]]
         if need and p.image_names and not arrays.get(OBS_IMAGES):
             need = []  # the batch drew no image: every environment that asked (the busy ones) has a queue, and
@@ -508,7 +546,7 @@ class LeRobotArrayBatch(LeRobotBatch):
             with torch.inference_mode():
                 chunk = p.policy.predict_action_chunk(p.preprocessor(self._array_frames(arrays, need)))
                 if ensembles:
-                    actions = p.postprocessor(torch.cat([self.ensemblers[e].update(chunk[e:e + 1]) for e in need]))
+                    actions = p.postprocessor(self.ensembles.update(need, chunk))
                 else:
                     chunk = p.postprocessor(chunk[:, : p.n_action_steps])
                     for k, e in enumerate(need):
