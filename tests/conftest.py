@@ -136,6 +136,16 @@ def tiny_act(scripted_dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def tiny_state_act(state_dataset, tmp_path_factory):
+    """A tiny ACT trained for 3 optimizer steps on ``state_dataset`` (proprioception and the cube's pose, no
+    camera); returns (checkpoint dir, TrainResult)."""
+    from simseam.runner.training import ActTrainConfig, train_act
+
+    out = tmp_path_factory.mktemp("state_act") / "ckpt"
+    return out, train_act(state_dataset[0], out, ActTrainConfig(steps=3, device="cpu", use_vae=False, **TINY_ACT))
+
+
+@pytest.fixture(scope="session")
 def tiny_act_te(tiny_act, tmp_path_factory):
     """``tiny_act``'s weights with ACT's temporal ensembling (coefficient 0.01, one action a prediction, as
     LeRobot requires): the policy re-plans every step and averages the overlapping chunks; returns

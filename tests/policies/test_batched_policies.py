@@ -86,6 +86,24 @@ def test_lerobot_batch_is_one_forward_pass_and_equals_unbatched(request, checkpo
 
 
 @pytest.mark.learning
+def test_a_state_policy_batched_reads_each_environments_state(tiny_state_act, panda_spec, make_scene):
+    """An ACT of proprioception and environment state (no camera): batched equals unbatched, one forward pass
+    per chunk boundary for all environments."""
+    out, _ = tiny_state_act
+    steps = 9
+    scenes = [make_scene(panda_spec, render_images=False, environment_state=True, privileged=True,
+                         max_steps=steps) for _ in SEEDS]
+    reference = _unbatched(lambda: make_policy(f"lerobot:{out}", device="cpu"), scenes, steps)
+    batch = make_policy_batch(f"lerobot:{out}", 3, device="cpu")
+    assert not batch.uses_images and batch.reads_environment_state
+    got = _batched(batch, scenes, steps)
+    for a, b in zip(reference, got):
+        np.testing.assert_allclose(a, b, rtol=1e-3, atol=2e-4)
+    assert batch.forward_passes == math.ceil(steps / batch.policy.n_action_steps)
+    assert not np.allclose(got[0], got[1], atol=1e-3)
+
+
+@pytest.mark.learning
 @pytest.mark.parametrize("checkpoint", CHECKPOINTS)
 def test_lerobot_batch_envs_out_of_step_keep_their_own_queues(request, checkpoint, panda_spec, make_scene):
     """Environments that start at different times (a vector env refilling a slot) each replay their own chunk."""

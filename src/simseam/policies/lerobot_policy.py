@@ -482,8 +482,40 @@ class LeRobotBatch(PolicyBatch):
         p = self.policy
         if self._diffusion:
             return _stack([[*self.history[e]] for e in envs], p._torch)
-        return _stack([[p._frame(o, self.specs[e], None, True)] for e, o in zip(envs, observations)], p._torch,
-                      history=False)
+        return self._batch(envs, {OBS_TASK: [o.get(OBS_TASK) for o in observations],
+                                  OBS_STATE: _stacked(observations, OBS_STATE),
+                                  OBS_ENV_STATE: _stacked(observations, OBS_ENV_STATE),
+                                  OBS_IMAGES: {k: np.stack([o[OBS_IMAGES][k] for o in observations])
+                                               for k in _common_images(observations)}})
+
+    def _batch(self, envs: list[int], arrays: dict[str, Any], source: str = "the observation") -> dict[str, Any]:
+        """LeRobot's batch of ``envs`` from one array per key (NumPy, or torch tensors on any device): ``uint8[B,
+        H, W, 3]`` images go to the policy's device as they are and become float32 ``[B, 3, H, W]`` in [0, 1]
+        there (a quarter of the bytes of floats crossing to a GPU); ``[B, S]`` state as float32. ``source``
+        names the arrays in a missing key's error."""
+        p = self.policy
+        torch = p._torch
+        images = arrays.get(OBS_IMAGES) or {}
+        batch: dict[str, Any] = {}
+        for name in p.image_names:
+            key = p.contract.scene_key(name)
+            if key not in images:
+                raise ConfigError(f"lerobot:{p.source}: {source} has no image {key!r} (cameras: {sorted(images)})")
+            img = _tensor(torch, images[key]).to(p.device)
+            batch[p._feature_keys[name]] = img.permute(0, 3, 1, 2).float() / 255.0
+        for key, field in ((STATE_KEY, OBS_STATE), (ENV_STATE_KEY, OBS_ENV_STATE)):
+            if key in p.config.input_features:
+                if arrays.get(field) is None:
+                    raise ConfigError(f"lerobot:{p.source}: the policy reads {field} and {source} has none"
+                                      + (" (set `environment_state: true` in the scene file)"
+                                         if field == OBS_ENV_STATE else ""))
+                batch[key] = _tensor(torch, arrays[field]).to(torch.float32)
+        given = arrays.get(OBS_TASK) or [None] * len(envs)  # an observation's own instruction, else the spec's
+        texts = [t or (self.specs[e].task.instruction if self.specs[e] else "") for e, t in zip(envs, given)]
+        robots = [self.specs[e].robot.name if self.specs[e] else "" for e in envs]
+        batch["task"] = texts if len(envs) > 1 else texts[0]
+        batch["robot_type"] = robots if len(envs) > 1 else robots[0]
+        return batch
 
     def _predict(self, envs: list[int], observations: list) -> np.ndarray:
         """``[len(envs), n_action_steps, action_dim]``: the next actions of ``envs`` in one forward pass."""
@@ -560,29 +592,31 @@ class LeRobotArrayBatch(LeRobotBatch):
         return actions.to(torch.from_dlpack(arrays[OBS_STATE]).device, torch.float32).contiguous()
 
     def _array_frames(self, arrays: dict[str, Any], rows: list[int]) -> dict[str, Any]:
-        """The batch of ``rows`` as LeRobot reads it (images float32[B, 3, H, W] in [0, 1], state float32[B, S]),
-        sliced from the arrays on their device."""
-        p = self.policy
-        torch = p._torch
-        index = torch.as_tensor(rows, dtype=torch.long)
-        images = arrays.get(OBS_IMAGES) or {}
-        batch: dict[str, Any] = {}
-        for name in p.image_names:
-            key = p.contract.scene_key(name)
-            if key not in images:
-                raise ConfigError(f"lerobot:{p.source}: the observation arrays have no image {key!r} "
-                                  f"(cameras: {sorted(images)})")
-            img = torch.from_dlpack(images[key])
-            batch[p._feature_keys[name]] = img[index.to(img.device)].permute(0, 3, 1, 2).float() / 255.0
-        for key, field in ((STATE_KEY, OBS_STATE), (ENV_STATE_KEY, OBS_ENV_STATE)):
-            if key in p.config.input_features:
-                if field not in arrays:
-                    raise ConfigError(f"lerobot:{p.source}: the policy reads {field} and the observation arrays "
-                                      "have none")
-                values = torch.from_dlpack(arrays[field])
-                batch[key] = values[index.to(values.device)].to(torch.float32)
-        texts = [self.specs[e].task.instruction if self.specs[e] else "" for e in rows]
-        batch["task"] = texts if len(rows) > 1 else texts[0]
-        robots = [self.specs[e].robot.name if self.specs[e] else "" for e in rows]
-        batch["robot_type"] = robots if len(rows) > 1 else robots[0]
-        return batch
+        """The batch of ``rows`` from a batch's observation arrays, sliced on their device."""
+        torch = self.policy._torch
+
+        def rows_of(a: Any) -> Any:
+            t = torch.from_dlpack(a)
+            return t[torch.as_tensor(rows, dtype=torch.long, device=t.device)]
+
+        images = {k: rows_of(v) for k, v in (arrays.get(OBS_IMAGES) or {}).items()}
+        picked = {f: rows_of(arrays[f]) for f in (OBS_STATE, OBS_ENV_STATE) if arrays.get(f) is not None}
+        return self._batch(rows, {**picked, OBS_IMAGES: images}, "the observation arrays")
+
+
+def _tensor(torch, a: Any) -> Any:
+    """A torch tensor of ``a``: NumPy's memory (made contiguous), or any DLPack producer's (no copy)."""
+    return torch.from_numpy(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else torch.from_dlpack(a)
+
+
+def _stacked(observations: list, key: str) -> np.ndarray | None:
+    """``key``'s values of every observation stacked (float32), or None when one of them lacks it."""
+    if any(key not in o for o in observations):
+        return None
+    return np.stack([np.asarray(o[key], dtype=np.float32) for o in observations])
+
+
+def _common_images(observations: list) -> list[str]:
+    """The image keys every observation has."""
+    keys = [set((o.get(OBS_IMAGES) or {})) for o in observations]
+    return sorted(set.intersection(*keys)) if keys else []
