@@ -22,7 +22,8 @@ def stepping(run: Path) -> dict[str, float]:
 def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
     """A row per process of the run in ``run`` (its ``timings.jsonl``: a line per task's batch, with its process's
     start and when the batch began to open, opened and finished), ``launched`` the command's start (epoch
-    seconds): the seconds from the launch to the process's start, from there to its first batch opening, its
+    seconds): the seconds from the launch to the process's start, from there to its first batch opening (of it,
+    to its policy built: ``of_it_policy``, None in runs that did not record it), its
     batches' opening (builds, the preparation waited for) and running (resets, steps, the episodes written)
     summed, of which ``stepping`` (the episode log's), and when its last task ended; [] when the run wrote none."""
     path = Path(run) / "timings.jsonl"
@@ -36,8 +37,10 @@ def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
     rows = []
     for mine in procs.values():
         started = mine[0]["process_started"]
+        ready = mine[0].get("policy_ready")  # when the process's policy was built (runs since 7 December)
         rows.append({"launch_to_process": round(started - launched, 2),
                      "process_to_first_open": round(min(t["open"] for t in mine) - started, 2),
+                     "of_it_policy": None if ready is None else round(ready - started, 2),
                      "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
                      "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
                      "stepping": round(sum(steps.get(t["part"], 0.0) for t in mine), 2),

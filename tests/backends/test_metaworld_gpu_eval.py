@@ -269,7 +269,8 @@ def test_shards_of_a_port_run_whole_tasks_and_merge_into_the_whole_run(tmp_path)
     # where the time went: one line per task, in the shard that ran it, put together in the merged run
     timed = [json.loads(x) for x in (both / "timings.jsonl").read_text().splitlines()]
     assert sorted(t["part"] for t in timed) == ["push-v3", "reach-v3"]
-    assert all(t["process_started"] <= t["open"] <= t["opened"] <= t["ran"] and t["episodes"] == 2 for t in timed)
+    assert all(t["process_started"] <= t["policy_ready"] <= t["open"] <= t["opened"] <= t["ran"]
+               and t["episodes"] == 2 for t in timed)
     for name, task in (("task-0", "reach-v3"), ("task-1", "push-v3")):
         mine = [json.loads(x) for x in (runs[f"s{held[name]}"] / "timings.jsonl").read_text().splitlines()]
         assert task in [t["part"] for t in mine] and mine[0]["process"] != os.getpid()

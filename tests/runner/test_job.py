@@ -6,6 +6,7 @@ indices map to their task and seed in one place (``BenchmarkRecipe``)."""
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
@@ -211,7 +212,7 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     batch = SimpleNamespace(reset=lambda *a: None)
     report = SimpleNamespace(envs=None, on_envs=None, on_error=None, on_worker_failure=None)
     timed = []
-    log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None,
+    log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None, policy_ready=time.time(),
                           timing=lambda t: (timed.append(t), events.append(("timed", t["part"], t["episodes"]))))
     _stepped(job, recipe, batch, 2, Lockstep(), "workers", "here", report, log)
     shared = [e for e in events if e[0] == "prefetch"][0][4]
@@ -223,4 +224,5 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
         ("timed", "task 2", 2), ("shared closed",)]
     # each part's timing: its process, when it began to open (before waiting for its preparation), opened, ran
     assert all(t["process_started"] <= t["open"] <= t["opened"] <= t["ran"] for t in timed)
+    assert {t["policy_ready"] for t in timed} == {log.policy_ready}  # when the process's policy was built
     assert [t["ran"] <= u["open"] for t, u in zip(timed, timed[1:])] == [True, True]

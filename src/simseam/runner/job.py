@@ -138,6 +138,9 @@ class _Log:
 
         self.job, self.report, rd = job, report, job.run_dir
         self.spec_written = rd is None or (rd.resume and (Path(rd.path) / SPEC_FILE).exists())
+        #: when this process's policy was built (epoch seconds; the timing lines say it: a model's import and
+        #: load is part of a process's start)
+        self.policy_ready: float | None = None
 
     def spec(self, spec_json: dict) -> None:
         if self.report.spec_json is None:
@@ -228,6 +231,7 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     from simseam.policies.batch import batch_for
 
     probe = make_policy(job.policy, **job.policy_kwargs)
+    log.policy_ready = time.time()
     batch = None
     try:
         recipe = job.recipe.for_policy(probe.requires_privileged, probe.uses_images, reads_environment_state(probe))
@@ -333,7 +337,8 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
                          on_done=lambda res: log.episode(res.to_json()), on_error=report.on_error,
                          on_worker_failure=report.on_worker_failure, keep=False)
             log.timing({"part": part.describe(), "episodes": len(indices), "process": os.getpid(),
-                        "process_started": process_started(), "open": opening, "opened": opened, "ran": time.time()})
+                        "process_started": process_started(), "policy_ready": log.policy_ready, "open": opening,
+                        "opened": opened, "ran": time.time()})
     finally:
         if ahead is not None:
             ahead()

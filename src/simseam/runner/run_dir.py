@@ -9,8 +9,9 @@ Layout of ``DIR``::
     episode_NNN.mp4   videos (written as episode_NNN.partial.mp4, renamed when complete)
     report.html       the results page (runner/report.py), written when the run completes
     timings.jsonl     a run stepped from its process (a port's or a batched scene's): one line per part (a task's
-                      batch) when its process started, when the part began to open, opened and finished running
-                      (epoch seconds), appended as each part ends: where the time went, not results
+                      batch) when its process started, when its policy was built, when the part began to open,
+                      opened and finished running (epoch seconds), appended as each part ends: where the time
+                      went, not results
 
 Rules: the directory is checked when the ``RunDir`` is made (a file, or a place
 where no directory can be created or written, is a ``ConfigError``), and nothing
