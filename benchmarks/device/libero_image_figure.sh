@@ -11,7 +11,9 @@
 # a 600 s call; a cut case's row counts the episodes it finished; on 7 December the two cases together ran past a
 # call's 600 s and nothing came back). PORT_ONLY=1: the port's case alone; CPU_ONLY=1: the CPU backend's alone (two
 # calls on one warm machine then give both, each with a call's whole time). A checkpoint trained on one task is a
-# throughput figure on all ten: its successes count only on its own task.
+# throughput figure on all ten: its successes count only on its own task. RESIZED=1 (the 2 x 256² case, with a
+# checkpoint trained at 128): the run uses a copy of it that reads IMAGE x IMAGE (resized_checkpoint.py): the
+# cameras' and the policy's time at that size, its successes count for nothing.
 set -euo pipefail
 NAME="${1:-libero_spatial_0_img}" IMAGE="${2:-128}" OUT="${OUT:-/tmp/out}"
 [ -f /tmp/lww/env.sh ] || { echo "libero_image_figure: /tmp/lww/env.sh missing: run libero_warp_upload.sh install first" >&2; exit 2; }
@@ -22,6 +24,12 @@ export PYTHONPATH="$PYTHONPATH:/tmp/limg/site" HF_HUB_OFFLINE=1 TQDM_DISABLE=1
 mkdir -p "$OUT/logs"
 port=(--warp cuda:0 --warp-n 50 --warp-shards 10 --warp-runs 0 --mps)
 [ -n "${CPU_ONLY:-}" ] && port=()
-python3 benchmarks/bench_libero_scale.py --policy "lerobot:/tmp/limg/ckpt/$NAME" --image-size "$IMAGE" --n --full 16 \
+CKPT="/tmp/limg/ckpt/$NAME"
+if [ -n "${RESIZED:-}" ]; then
+  CKPT="/tmp/limg/ckpt/${NAME}_at$IMAGE"
+  [ -d "$CKPT" ] || python3 benchmarks/device/resized_checkpoint.py "/tmp/limg/ckpt/$NAME" "$CKPT" "$IMAGE"
+fi
+python3 benchmarks/bench_libero_scale.py --policy "lerobot:$CKPT" --image-size "$IMAGE" --n --full 16 \
   "${port[@]}" --case-limit "${CASE_LIMIT:-270}" ${PORT_ONLY:+--port-only} \
-  --out "$OUT/libero_scale_img${IMAGE}_$NAME${PORT_ONLY:+_port}${CPU_ONLY:+_cpu}.json" --logs "$OUT/logs"
+  --out "$OUT/libero_scale_img${IMAGE}_$NAME${RESIZED:+_resized}${PORT_ONLY:+_port}${CPU_ONLY:+_cpu}.json" \
+  --logs "$OUT/logs"
