@@ -66,7 +66,7 @@ set -euo pipefail
 
 LW="${LW_ROOT:-/tmp/lww}"
 # shellcheck source=pieces.sh
-source "$(dirname "$0")/pieces.sh"  # mb, piece_bytes, pack, recut, receive_pieces, unpack_pieces
+source "$(dirname "$0")/pieces.sh"  # mb, piece_bytes, pack, recut, receive_pieces, unpack_pieces, cache_*
 # shellcheck source=standin_backend.sh
 source "$(dirname "$0")/standin_backend.sh"  # standin_backend
 SUITES="${LW_SUITES:-libero_spatial,libero_object}"
@@ -211,9 +211,7 @@ install() {
   for k in "$LW"/in/warp_kernel_cache*.txz; do  # kernels compiled on an earlier machine, received beforehand
     [ -f "$k" ] && mkdir -p "$LW/cache" && tar -xJf "$k" -C "$LW/cache" && echo "kernel cache: $(basename "$k")"
   done
-  if compgen -G "$LW/in/lw_kcache.txz.*" > /dev/null; then  # WARP_CACHE_PATH itself, in pieces (kcache_back below)
-    mkdir -p "$LW/cache/warp" && cat "$LW"/in/lw_kcache.txz.* | tar -xJ -C "$LW/cache/warp" && echo "kernel cache: lw_kcache"
-  fi
+  cache_in "$LW/in" lw_kcache "$LW/cache/warp"  # WARP_CACHE_PATH itself, in pieces (kcache_back below)
   for r in "$LW"/in/libero_resets*.txz; do  # LIBERO's reset states computed elsewhere (libero_warp_resets.py)
     [ -f "$r" ] && mkdir -p "$LW/cache/libero_gpu" && tar -xJf "$r" -C "$LW/cache/libero_gpu" \
       && echo "reset states: $(basename "$r") ($(tar -tJf "$r" | grep -vc '/$') files)"
@@ -243,8 +241,6 @@ case "${1:-}" in
   receive) receive_pieces "${2:-}" "$LW/in" ;;
   install) install ;;
   recut) recut "${2:-.cache/libero_warp_carry}" ;;
-  kcache_back)  # WARP_CACHE_PATH as lw_kcache.txz.NN in $OUT (a file the device tool brings back: 15 MB at most)
-    XZ_OPT="-T0 -6" tar -C "$LW/cache/warp" -cJf /tmp/lw_kcache.txz . && split -b 15000000 -d /tmp/lw_kcache.txz \
-      "${OUT:?}/lw_kcache.txz." && ls -l "$OUT"/lw_kcache.txz.* ;;
+  kcache_back) cache_back "$LW/cache/warp" "${OUT:?}" lw_kcache ;;  # WARP_CACHE_PATH as lw_kcache.txz.NN in $OUT
   *) echo "usage: $0 prepare [DIR] | recut [DIR] | receive DIR/ck | install | kcache_back" >&2; exit 2 ;;
 esac

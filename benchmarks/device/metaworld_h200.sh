@@ -17,6 +17,8 @@
 #     --out DIR/metaworld_warp_fidelity.json; FID_FROM=JSON keeps that file's tasks and runs only the others)
 # Logs and JSON go to $OUT (the device tool brings them back).
 set -uo pipefail
+# shellcheck source=pieces.sh
+source "$(dirname "$0")/pieces.sh"  # cache_back
 source /tmp/mw/env.sh
 export PYTHONUNBUFFERED=1
 OUT="${OUT:-/tmp/out}"; mkdir -p "$OUT"
@@ -53,8 +55,7 @@ case "${1:-}" in
       cat "/tmp/mt50_$run.log" >> "$OUT/mt50.log"  # one log: a call brings back at most 8 files
     done
     [ "${KCACHE:-1}" = 0 ] && exit 0  # KCACHE=0: no kernel cache back (an earlier call brought it)
-    XZ_OPT="-T0 -6" timeout 60 tar -C "$WARP_CACHE_PATH" -cJf /tmp/mw_kcache.txz . && ls -l /tmp/mw_kcache.txz
-    [ "$(stat -c %s /tmp/mw_kcache.txz)" -le 45000000 ] && split -b 15000000 -d /tmp/mw_kcache.txz "$OUT/mw_kcache.txz."
+    cache_back "$WARP_CACHE_PATH" "$OUT" mw_kcache 45000000
     ;;
   fidelity)  # resumable: a second call with FID_RESUME=1 (machine still warm) runs only the tasks not yet on disk
     mkdir -p /tmp/mwfid; FID=/tmp/mwfid/metaworld_warp_fidelity.json

@@ -93,10 +93,8 @@ kernel_caches() {
     [ -f "$k" ] && [ "$(basename "$WARP_CACHE_PATH")" = warp ] && tar -C "$(dirname "$WARP_CACHE_PATH")" -xJf "$k" \
       && echo "kernel cache: $(basename "$k")"
   done
-  if compgen -G "$MW/in/mw_kcache.txz.*" > /dev/null; then
-    cat "$MW"/in/mw_kcache.txz.* | tar -C "$WARP_CACHE_PATH" -xJf - && echo "kernel cache: mw_kcache.txz.*"
-  fi
-  return 0
+  cache_in "$MW/in" mw_kcache "$WARP_CACHE_PATH"
+  return 0  # a cache that does not unpack costs its kernels' compile, not the install
 }
 
 install() {  # [SITE]

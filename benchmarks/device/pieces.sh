@@ -73,3 +73,19 @@ unpack_pieces() {  # IN DEST: every piece there, their SHA256 checked, unpacked 
     || { echo "install: SHA256 mismatch" >&2; exit 2; }
   mkdir -p "$2"; cat "$1"/pkg.part* | xz -dc | tar -x -C "$2"
 }
+
+# A Warp kernel cache (a WARP_CACHE_PATH) between machines: brought back as one xz tar cut into NAME.txz.NN files of
+# 15 MB in OUT (the largest the device tool brings back), received on the next machine like a piece and unpacked
+# into its WARP_CACHE_PATH before the first run, which then loads those kernels instead of compiling them.
+cache_back() {  # SRC OUT NAME [MAX_BYTES]: nothing written (and 1 returned) when the tar is larger than MAX_BYTES
+  XZ_OPT="-T0 -6" timeout 60 tar -C "$1" -cJf "/tmp/$3.txz" . || return 1
+  if [ -n "${4:-}" ] && [ "$(stat -c %s "/tmp/$3.txz")" -gt "$4" ]; then
+    echo "kernel cache $3: $(mb "/tmp/$3.txz"), more than $4 bytes: not brought back" >&2; return 1
+  fi
+  split -b 15000000 -d "/tmp/$3.txz" "$2/$3.txz." && ls -l "$2/$3".txz.*
+}
+
+cache_in() {  # IN NAME DEST: the NAME.txz.NN received into IN unpacked into DEST (none received: nothing done)
+  compgen -G "$1/$2.txz.*" > /dev/null || return 0
+  mkdir -p "$3" && cat "$1/$2".txz.* | tar -C "$3" -xJf - && echo "kernel cache: $2"
+}
