@@ -35,7 +35,7 @@ from __future__ import annotations
 import os
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -56,6 +56,8 @@ from simseam.seam import (
     Observation,
     ObsRequest,
     RolloutSpec,
+    array_fields,
+    stack_observations,
 )
 
 
@@ -378,7 +380,9 @@ class TemporalEnsembles:
         """``chunks[k]`` (``[chunk, action_dim]``, normalized) is row ``rows[k]``'s prediction now; returns each
         row's action of this step, ``[len(rows), action_dim]``."""
         torch = self.torch
-        w, cs = self.weights.to(chunks.device), self.cumsum.to(chunks.device)
+        if self.weights.device != chunks.device:  # moved once, kept there
+            self.weights, self.cumsum = self.weights.to(chunks.device), self.cumsum.to(chunks.device)
+        w, cs = self.weights, self.cumsum
         if self.actions is None:
             self.actions = chunks.new_zeros((self.n, self.chunk - 1, chunks.shape[-1]))
             self.count = torch.ones((self.n, self.chunk - 1, 1), dtype=torch.long, device=chunks.device)
@@ -445,10 +449,7 @@ class LeRobotBatch(PolicyBatch):
         return None if self.policy.reads_frame(len(self.queues[env])) else STATE_ONLY
 
     def act_batch(self, envs, observations) -> np.ndarray:
-        if self.ensembles is not None:
-            return self._act_ensembled(envs, observations)
         p = self.policy
-        need = [k for k, e in enumerate(envs) if not self.queues[e]]
         if self._diffusion:
             for k, e in enumerate(envs):  # every step joins its environment's history (as populate_queues)
                 frame = p._frame(observations[k], self.specs[e], self.last_images[e],
@@ -456,37 +457,49 @@ class LeRobotBatch(PolicyBatch):
                 while len(self.history[e]) < self.history[e].maxlen - 1:
                     self.history[e].append(frame)  # an episode's first frame fills its history
                 self.history[e].append(frame)
-        if need:
-            chunk = self._predict([envs[k] for k in need], [observations[k] for k in need])
-            self.forward_passes += 1
-            self.chunks_predicted += len(need)
-            for k, c in zip(need, chunk):
-                self.queues[envs[k]].extend(c)
-        return np.stack([self.queues[e].popleft() for e in envs]).astype(np.float32)
+        seen = dict(zip(envs, observations))
+        actions = self._actions(list(envs), lambda need: self._frames(need, [seen[e] for e in need]))
+        return actions.to("cpu", p._torch.float32).numpy()
 
-    def _act_ensembled(self, envs, observations) -> np.ndarray:
-        """ACT's temporal ensembling for ``envs``: one forward pass for all, each row into its environment's
-        ensembler, then the postprocessor on the ``[B, action_dim]`` actions."""
+    def _actions(self, envs: list[int], frames_for: Callable[[list[int]], dict[str, Any]]) -> Any:
+        """This step's actions of ``envs`` (``[len(envs), action_dim]``, as LeRobot's postprocessor leaves them):
+        the environments whose queue ran out (all of them with temporal ensembling) get one forward pass on
+        ``frames_for(those)``, LeRobot's batch of their frames."""
         p = self.policy
         torch = p._torch
-        batch = self._frames(envs, observations)
-        with torch.inference_mode():
-            chunk = p.policy.predict_action_chunk(p.preprocessor(batch))
-            actions = p.postprocessor(self.ensembles.update(list(envs), chunk))
+        need = list(envs) if self.ensembles is not None else [e for e in envs if not self.queues[e]]
+        if not need:
+            return torch.stack([self.queues[e].popleft() for e in envs])
         self.forward_passes += 1
-        self.chunks_predicted += len(envs)
-        return actions.to("cpu", torch.float32).numpy()
+        self.chunks_predicted += len(need)
+        with torch.inference_mode():
+            batch = p.preprocessor(frames_for(need))
+            if self.ensembles is not None:  # ensembled on the normalized actions, as select_action does
+                return p.postprocessor(self.ensembles.update(need, p.policy.predict_action_chunk(batch)))
+            if self._diffusion:
+                chunk = _diffusion_actions(p, batch, p.draw_noise([self.noise[e] for e in need]))
+            else:
+                chunk = p.policy.predict_action_chunk(batch)[:, : p.n_action_steps]
+            chunk = p.postprocessor(chunk)
+        for k, e in enumerate(need):
+            self.queues[e].extend(chunk[k])
+        return torch.stack([self.queues[e].popleft() for e in envs])
 
     def _frames(self, envs: list[int], observations: list) -> dict[str, Any]:
-        """The batch one forward pass reads: each environment's current frame (its history, for Diffusion)."""
+        """The batch one forward pass reads: the environments' observations stacked as a batch's arrays would hold
+        them (``stack_observations``; the images every one has), or, for Diffusion, their histories."""
         p = self.policy
         if self._diffusion:
             return _stack([[*self.history[e]] for e in envs], p._torch)
-        return self._batch(envs, {OBS_TASK: [o.get(OBS_TASK) for o in observations],
-                                  OBS_STATE: _stacked(observations, OBS_STATE),
-                                  OBS_ENV_STATE: _stacked(observations, OBS_ENV_STATE),
-                                  OBS_IMAGES: {k: np.stack([o[OBS_IMAGES][k] for o in observations])
-                                               for k in _common_images(observations)}})
+        fields = array_fields(self.specs[envs[0]])
+        wanted: dict[str, Any] = {k: fields[k] for k in (OBS_STATE, OBS_ENV_STATE)
+                                  if k in fields and all(k in o for o in observations)}
+        images = {k: v for k, v in fields.get(OBS_IMAGES, {}).items()
+                  if all(k in (o.get(OBS_IMAGES) or {}) for o in observations)}
+        if images:
+            wanted[OBS_IMAGES] = images
+        arrays = stack_observations(observations, wanted)
+        return self._batch(envs, {**arrays, OBS_TASK: [o.get(OBS_TASK) for o in observations]})
 
     def _batch(self, envs: list[int], arrays: dict[str, Any], source: str = "the observation") -> dict[str, Any]:
         """LeRobot's batch of ``envs`` from one array per key (NumPy, or torch tensors on any device): ``uint8[B,
@@ -516,20 +529,6 @@ class LeRobotBatch(PolicyBatch):
         batch["task"] = texts if len(envs) > 1 else texts[0]
         batch["robot_type"] = robots if len(envs) > 1 else robots[0]
         return batch
-
-    def _predict(self, envs: list[int], observations: list) -> np.ndarray:
-        """``[len(envs), n_action_steps, action_dim]``: the next actions of ``envs`` in one forward pass."""
-        p = self.policy
-        torch = p._torch
-        batch = self._frames(envs, observations)
-        with torch.inference_mode():
-            batch = p.preprocessor(batch)
-            if self._diffusion:
-                chunk = _diffusion_actions(p, batch, p.draw_noise([self.noise[e] for e in envs]))
-            else:
-                chunk = p.policy.predict_action_chunk(batch)[:, : p.n_action_steps]
-            chunk = p.postprocessor(chunk)
-        return chunk.to("cpu", torch.float32).numpy()
 
 
 def _stack(frames: list[list[dict[str, Any]]], torch, history: bool = True) -> dict[str, Any]:
@@ -566,30 +565,16 @@ class LeRobotArrayBatch(LeRobotBatch):
     each step (an idle one's is emptied by its next reset)."""
 
     def act_arrays(self, arrays: dict[str, Any]) -> Any:
-        p = self.policy
-        torch = p._torch
-        ensembles = self.ensembles is not None
-        need = list(range(self.n)) if ensembles else [e for e in range(self.n) if not self.queues[e]]
-        if need and p.image_names and not arrays.get(OBS_IMAGES):
-            need = []  # the batch drew no image: every environment that asked (the busy ones) has a queue, and
-            # the empty ones are idle (their rows are ignored: zeros below)
-        actions = None
-        if need:
-            with torch.inference_mode():
-                chunk = p.policy.predict_action_chunk(p.preprocessor(self._array_frames(arrays, need)))
-                if ensembles:
-                    actions = p.postprocessor(self.ensembles.update(need, chunk))
-                else:
-                    chunk = p.postprocessor(chunk[:, : p.n_action_steps])
-                    for k, e in enumerate(need):
-                        self.queues[e].extend(chunk[k])
-            self.forward_passes += 1
-            self.chunks_predicted += len(need)
-        if actions is None:
-            dim = self.specs[next(e for e in range(self.n) if self.specs[e])].action_dim
-            actions = torch.stack([self.queues[e].popleft() if self.queues[e] else torch.zeros(dim)
-                                   for e in range(self.n)])
-        return actions.to(torch.from_dlpack(arrays[OBS_STATE]).device, torch.float32).contiguous()
+        torch = self.policy._torch
+        state = torch.from_dlpack(arrays[OBS_STATE])
+        drawn = not self.policy.image_names or bool(arrays.get(OBS_IMAGES))
+        # no image drawn: every environment that asked (the busy ones) has a queue; the empty ones are idle
+        acting = list(range(self.n)) if drawn else [e for e in range(self.n) if self.queues[e]]
+        dim = self.specs[next(e for e in range(self.n) if self.specs[e])].action_dim
+        out = torch.zeros((self.n, dim), dtype=torch.float32)  # an idle environment's row is ignored
+        if acting:
+            out[acting] = self._actions(acting, lambda need: self._array_frames(arrays, need)).to("cpu", torch.float32)
+        return out.to(state.device)
 
     def _array_frames(self, arrays: dict[str, Any], rows: list[int]) -> dict[str, Any]:
         """The batch of ``rows`` from a batch's observation arrays, sliced on their device."""
@@ -608,15 +593,3 @@ def _tensor(torch, a: Any) -> Any:
     """A torch tensor of ``a``: NumPy's memory (made contiguous), or any DLPack producer's (no copy)."""
     return torch.from_numpy(np.ascontiguousarray(a)) if isinstance(a, np.ndarray) else torch.from_dlpack(a)
 
-
-def _stacked(observations: list, key: str) -> np.ndarray | None:
-    """``key``'s values of every observation stacked (float32), or None when one of them lacks it."""
-    if any(key not in o for o in observations):
-        return None
-    return np.stack([np.asarray(o[key], dtype=np.float32) for o in observations])
-
-
-def _common_images(observations: list) -> list[str]:
-    """The image keys every observation has."""
-    keys = [set((o.get(OBS_IMAGES) or {})) for o in observations]
-    return sorted(set.intersection(*keys)) if keys else []
