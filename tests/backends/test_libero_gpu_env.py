@@ -521,3 +521,30 @@ def test_a_scene_file_picks_the_ports_renderer(tmp_path):
         load_scene_config(bad)
     with pytest.raises(ConfigError, match=r"benchmark: unknown field\(s\) \['render'\]"):
         load_scene_config(scene("render: opengl", ""))
+
+
+def test_arrays_with_cameras_keep_the_contract_and_run_the_dict_paths_episodes(worker):
+    """The port's observation arrays (seam/batch.py "Observations as arrays") with both cameras and the objects'
+    state: ``check_batch_rollout`` checks every leaf against the dicts of the same reset and step (the images
+    drawn at the substep robosuite samples) and ``step_arrays`` against ``step``. Then the scheduler's array path
+    (state and images read through DLPack; its resets ask for no image, and draw them all the same) runs the dict
+    path's episodes: 3 episodes on 2 worlds (the last alone), the same results, every image the policy read drawn,
+    and the worlds' final states equal bit for bit (so every action was)."""
+    from array_probe import DictPolicy, PixelStatePolicy, outcomes
+
+    from simseam.runner.scheduler import run_batch
+    from simseam.seam import check_batch_rollout
+
+    config = dict(cameras=True, image_size=[32, 32], environment_state=True, settle_steps=1)
+    spec = check_batch_rollout(_batch(worker, "libero_spatial/0", 2, **config))
+    assert set(spec.observation.images) == {"camera1", "camera2"} and "environment_state" in spec.observation.fields
+    got = {}
+    for cls in (PixelStatePolicy, DictPolicy):
+        with _batch(worker, "libero_spatial/0", 2, max_steps=3, **config) as batch:
+            policy = cls(2, 7, ("camera1", "camera2"))
+            results = outcomes(run_batch(batch, policy, range(3), seed=5))
+            got[cls] = results, policy, np.array(batch.world.physics.poses().qpos)
+    (arrays, probe, qpos), (dicts, _, want) = got[PixelStatePolicy], got[DictPolicy]
+    assert sorted(arrays) == [0, 1, 2] and arrays == dicts
+    assert probe.array_calls == 6 and probe.dlpack_devices == {(1, 0)} and probe.blank_rows == 0
+    np.testing.assert_array_equal(qpos, want)

@@ -138,3 +138,26 @@ def test_the_worlds_keep_the_batched_seam_contract_with_cameras(worker):
     batch = MetaWorldBatchRollout(_config(image_size=[32, 32]), 2, worker, device="cpu")
     spec = check_batch_rollout(batch)  # closes it
     assert spec.observation.images == {"camera1": (32, 32), "camera2": (32, 32)}
+
+
+def test_an_array_policy_on_the_worlds_arrays_runs_the_dict_paths_episodes(worker):
+    """The scheduler's array path on the port (``observation_arrays`` / ``step_arrays``: the state and both cameras
+    read through DLPack, no per-environment dicts) runs the episodes of the dict path: 5 episodes on 2 worlds (the
+    last alone, the other world idle), each episode's seed, steps, success and summed reward equal."""
+    from array_probe import DictPolicy, PixelStatePolicy, outcomes
+
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.runner.scheduler import run_batch
+
+    got = {}
+    for cls in (PixelStatePolicy, DictPolicy):
+        batch = MetaWorldBatchRollout(_config(image_size=[24, 24], max_steps=6), 2, worker, device="cpu")
+        try:
+            policy = cls(2, 4, ("camera1", "camera2"))
+            got[cls] = outcomes(run_batch(batch, policy, range(5), seed=3)), policy
+        finally:
+            batch.close()
+    (arrays, probe), (dicts, _) = got[PixelStatePolicy], got[DictPolicy]
+    assert sorted(arrays) == list(range(5)) and arrays == dicts
+    assert len({r[3] for r in arrays.values()}) == 5  # the episodes differ: a real comparison
+    assert probe.array_calls == 18 and probe.dlpack_devices == {(1, 0)}  # 3 rounds of 6 steps, host memory (kDLCPU)

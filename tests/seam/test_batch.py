@@ -128,3 +128,21 @@ def test_batched_rewards_are_the_single_rollouts_floats_exactly():
 
     r = BatchStepResult.of([0, 1], [StepResult({}, 0.1, False, False, {}), StepResult({}, 1 / 3, True, False, {})])
     assert r.reward.tolist() == [0.1, 1 / 3] and r[1].reward == 1 / 3
+
+
+def test_array_actions_takes_dlpack_arrays_and_names_what_is_wrong():
+    """``array_actions`` (the benchmark ports' ``step_arrays``): NumPy and sequences cast, a float32 DLPack array
+    (a torch tensor) read without a copy where NumPy shares its memory; a wrong dtype, shape or a non-array is one
+    ``InvalidActionError`` naming ``step_arrays``."""
+    import torch
+
+    from simseam.seam.batch import array_actions
+
+    t = torch.arange(8, dtype=torch.float32).reshape(2, 4)
+    got = array_actions(np, t, (2, 4))
+    assert got.dtype == np.float32 and got.ctypes.data == t.data_ptr()  # the tensor's own memory
+    np.testing.assert_array_equal(array_actions(np, [[0.5] * 4] * 2, (2, 4)), np.full((2, 4), 0.5, np.float32))
+    for bad, message in ((t.double(), "must be float32, got float64"), (t[:1], r"shape \(2, 4\), got \(1, 4\)"),
+                         ("nope", "a str is not a DLPack array"), ([["a"] * 4] * 2, "not numeric")):
+        with pytest.raises(InvalidActionError, match=f"step_arrays: .*{message}"):
+            array_actions(np, bad, (2, 4))

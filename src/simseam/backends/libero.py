@@ -121,6 +121,17 @@ def quat_to_axis_angle(quat_xyzw: np.ndarray) -> np.ndarray:
     return q[:3] * 2.0 * math.acos(w) / den
 
 
+def quat_to_axis_angle_rows(xp: Any, quats_xyzw: Any) -> Any:
+    """``quat_to_axis_angle`` of each row of float64[k, 4] (x, y, z, w) as arrays of ``xp`` (NumPy or a device
+    module such as CuPy): the same float operations in the same order; a row whose ``sqrt(1 - w^2)`` is 0 gives
+    zeros, as there."""
+    w = xp.clip(quats_xyzw[:, 3], -1.0, 1.0)
+    den = xp.sqrt(1.0 - w * w)
+    zero = den == 0.0
+    out = quats_xyzw[:, :3] * 2.0 * xp.arccos(w)[:, None] / xp.where(zero, 1.0, den)[:, None]
+    return xp.where(zero[:, None], 0.0, out)
+
+
 def object_names(env, obs: dict) -> tuple[str, ...]:
     """The objects of ``environment_state``, in the order of LIBERO's ``objects_dict`` (each must have its
     ``{obj}_pos`` and ``{obj}_quat`` observables in ``obs``)."""

@@ -189,7 +189,7 @@ class SimseamVectorEnv(gym.vector.VectorEnv):
 
     def _step(self, envs: np.ndarray, actions: Any):
         if self._arrays:
-            return self.batch.step_arrays(envs.tolist(), actions)
+            return self.batch.step_arrays(envs.tolist(), actions, self._request)
         r = self.batch.step(envs.tolist(), actions[envs], self._request)
         for e, o in zip(envs.tolist(), r.observations):
             self._last[e] = o

@@ -28,7 +28,9 @@ The array path: a policy with ``act_arrays(observations)`` on a batch that offer
 (``seam.batch.ArrayBatch``: MuJoCo Warp) gets each step's ``observation_arrays(request)`` (one array per
 key for all environments, in the device's memory; ``request`` is the union of the busy environments' own
 ``observe_next(env)`` when the policy has it, else everything) and answers ``float32[num_envs, action_dim]``
-actions as any DLPack array, which the batch steps with ``step_arrays``: no host copy of observations or
+actions as any DLPack array, which the batch steps with ``step_arrays`` (told what the next
+``observation_arrays`` will ask, so that a batch whose cameras sample during the step draws them): no host
+copy of observations or
 actions, one policy call per step for every environment (rows of idle environments are ignored). One
 group only. The per-episode results equal the per-environment dict path's for a policy that computes the
 same actions from the same values (the arrays' rows are the dicts' values, exactly).
@@ -398,6 +400,13 @@ def _run_groups(run: _BatchRun, groups: int, n: int) -> None:
                 flights[g] = run.send(members[g])
 
 
+def _union_request(policy, envs: list[int]) -> ObsRequest | None:
+    """What the array path's ``observation_arrays`` asks for ``envs``: the union of their ``observe_next``
+    (everything when the policy has none)."""
+    ask = getattr(policy, "observe_next", None)
+    return ObsRequest.union([ask(e) for e in envs]) if callable(ask) else None
+
+
 def _run_ready(send: Callable, turn: Callable, ready: int, n: int) -> None:
     """The ready rule's loop: every busy environment's step is in flight; each turn receives at least
     ``ready`` of them (fewer only when fewer are in flight), and the policy acts for those at once."""
@@ -422,6 +431,7 @@ class _Flight:
     policy_ms: float
     send_ms: float = 0.0
     device_actions: object = None
+    next_request: ObsRequest | None = None  # the array path: what the observation after the step will ask
     sends: dict | None = None  # the ready rule: each environment's own send (its policy and send times)
 
 
@@ -429,10 +439,9 @@ def _send(batch, policy, envs: list[int], obs: list, device: bool) -> _Flight:
     """The policy acts for ``envs`` and their step starts (``step_send``; the array path keeps the actions)."""
     t0 = time.perf_counter()
     if device:
-        ask = getattr(policy, "observe_next", None)
-        request = ObsRequest.union([ask(e) for e in envs]) if callable(ask) else None
-        actions = policy.act_arrays(batch.observation_arrays(request))
-        return _Flight(envs, (time.perf_counter() - t0) * 1e3, device_actions=actions)
+        actions = policy.act_arrays(batch.observation_arrays(_union_request(policy, envs)))
+        return _Flight(envs, (time.perf_counter() - t0) * 1e3, device_actions=actions,
+                       next_request=_union_request(policy, envs))
     actions = np.asarray(policy.act_batch(envs, [obs[e] for e in envs]), dtype=np.float32)
     if actions.shape != (len(envs), batch.spec.action_dim):
         raise SimulationError(f"act_batch returned shape {actions.shape} for {len(envs)} environments")
@@ -448,7 +457,7 @@ def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Vi
     spec = batch.spec
     t0 = time.perf_counter()
     if device:
-        r = batch.step_arrays(flight.envs, flight.device_actions)
+        r = batch.step_arrays(flight.envs, flight.device_actions, flight.next_request)
     elif at_least is None:
         r = batch.step_receive(flight.envs)
     else:

@@ -56,12 +56,17 @@ one array per key for all its environments instead of N dicts:
   ``jax.dlpack.from_dlpack``, ``np.from_dlpack`` on the host): device memory for a GPU engine, host
   memory for the others. Leaves may be views of the simulator's own buffers: they hold until the next
   ``reset`` / step of the batch (copy what you keep). Rows of environments never reset are unspecified.
-- ``step_arrays(envs, actions)``: one control step with ``actions`` ``float32[num_envs, action_dim]``
-  from any DLPack producer (a torch tensor on the batch's device: no host copy), row ``e`` for
-  environment ``e``; clipped to the slot bounds like ``step``'s. Rows of environments outside ``envs``
-  are the batch's to use or ignore: those environments' episodes do not advance (reset them before
-  stepping them again). Returns ``envs``' ``BatchStepResult`` with empty observation dicts (read them
-  with ``observation_arrays``).
+- ``step_arrays(envs, actions, observe=None)``: one control step with ``actions``
+  ``float32[num_envs, action_dim]`` from any DLPack producer (a torch tensor on the batch's device: no
+  host copy), row ``e`` for environment ``e``; clipped to the slot bounds like ``step``'s. Rows of
+  environments outside ``envs`` are the batch's to use or ignore: those environments' episodes do not
+  advance (reset them before stepping them again). Returns ``envs``' ``BatchStepResult`` with empty
+  observation dicts (read them with ``observation_arrays``). ``observe`` (one ``ObsRequest``, None =
+  everything) is what the ``observation_arrays`` after the step will ask: a batch whose cameras sample
+  during the step (LIBERO's observables, drawn at a substep) draws the images it asks for then; a batch
+  that draws on request ignores it. Such a batch also draws at a ``reset`` what the array path last
+  asked (its first reset: every camera), whatever that reset's own ``observe`` (the array path resets
+  with a state-only request: its dicts go unread).
 
 A batched policy declares that it reads arrays by having ``act_arrays(observations) -> actions``
 (``float32[num_envs, action_dim]``, any DLPack producer); ``runner.scheduler`` drives such a policy on
@@ -156,7 +161,7 @@ class ArrayBatch(Protocol):
 
     def observation_arrays(self, observe: ObsRequest | None = None) -> dict[str, Any]: ...
 
-    def step_arrays(self, envs: Sequence[int], actions: Any) -> BatchStepResult: ...
+    def step_arrays(self, envs: Sequence[int], actions: Any, observe: ObsRequest | None = None) -> BatchStepResult: ...
 
 
 def offers_arrays(batch: Any) -> bool:
@@ -203,13 +208,54 @@ def host_array(leaf: Any) -> np.ndarray:
     kind = leaf.__dlpack_device__()[0]
     if int(kind) in (1, 3):  # kDLCPU, kDLCUDAHost
         return np.from_dlpack(leaf)
-    for name in ("get", "numpy"):  # CuPy, then Warp
-        fn = getattr(leaf, name, None)
-        if callable(fn):
-            return np.asarray(fn())
-    if callable(getattr(leaf, "cpu", None)):  # torch
+    if callable(getattr(leaf, "get", None)):  # CuPy
+        return np.asarray(leaf.get())
+    if callable(getattr(leaf, "cpu", None)):  # torch (whose numpy() refuses device memory)
         return leaf.cpu().numpy()
+    if callable(getattr(leaf, "numpy", None)):  # Warp
+        return np.asarray(leaf.numpy())
     raise SimulationError(f"cannot copy a {type(leaf).__name__} on DLPack device {kind} to the host")
+
+
+def conform_arrays(xp: Any, values: dict, fields: dict, n: int, where: str = "observation") -> dict:
+    """``values`` (an ``observation_arrays`` candidate of ``n`` environments, arrays of ``xp``: NumPy or a device
+    module such as CuPy) restricted to ``fields`` (``array_fields``), each leaf cast to its dtype in ``xp``'s
+    memory (no copy when it has it); a leaf of the wrong shape is a ``SimulationError`` naming it."""
+    out = {}
+    for key, leaf in fields.items():
+        v = values[key]
+        if isinstance(leaf, dict):
+            out[key] = conform_arrays(xp, v, leaf, n, f"{where}[{key!r}]")
+            continue
+        dtype, shape = leaf
+        arr = xp.asarray(v, dtype=dtype)
+        if arr.shape != (n, *shape):
+            raise SimulationError(f"{where}[{key!r}]: shape {arr.shape}, expected {(n, *shape)}")
+        out[key] = arr
+    return out
+
+
+def array_actions(xp: Any, actions: Any, shape: tuple[int, int], where: str = "step_arrays") -> Any:
+    """``step_arrays``' ``actions`` as a float32 array of ``xp`` (NumPy, or a device module with ``from_dlpack``
+    such as CuPy) of ``shape``: a NumPy array or a sequence is cast; any other DLPack array must be float32 and
+    is read without a copy where ``xp`` shares its memory (a device array read by NumPy is copied to the host,
+    a host one given to a device module is copied there). Anything else: ``InvalidActionError`` naming
+    ``where``."""
+    if isinstance(actions, (np.ndarray, list, tuple)):
+        try:
+            arr = np.asarray(actions, dtype=np.float32)
+        except (TypeError, ValueError):
+            raise InvalidActionError(f"{where}: actions are not numeric") from None
+    else:
+        if not callable(getattr(actions, "__dlpack_device__", None)):
+            raise InvalidActionError(f"{where}: actions: a {type(actions).__name__} is not a DLPack array")
+        on_host = int(actions.__dlpack_device__()[0]) in (1, 3)  # kDLCPU, kDLCUDAHost
+        arr = host_array(actions) if xp is np or on_host else xp.from_dlpack(actions)
+        if arr.dtype != np.float32:
+            raise InvalidActionError(f"{where}: actions must be float32, got {arr.dtype}")
+    if tuple(arr.shape) != tuple(shape):
+        raise InvalidActionError(f"{where}: actions must have shape {tuple(shape)}, got {tuple(arr.shape)}")
+    return arr if xp is np else xp.asarray(arr)
 
 
 def stack_observations(observations: Sequence[Observation], fields: dict[str, Any]) -> dict[str, Any]:

@@ -62,7 +62,7 @@ ARRAYS = ("goal_pos", "goal_ori", "initial_joint", "grip")  # OscState's per-wor
 
 class LiberoBatch:
     """``LiberoBatch(suite, task, num_worlds, worker)``; ``reset(worlds, seeds)``, ``step(actions)``,
-    ``robot_state(rows)`` (host arrays of what the seam's observation holds), ``physics.poses()``. ``engine``:
+    ``robot_arrays(rows)`` (``xp`` arrays of what the seam's observation holds), ``physics.poses()``. ``engine``:
     ``mujoco_warp`` (N worlds on the Warp ``device``) or ``mujoco`` (one world on CPU MuJoCo, float64, no
     cameras: ``worlds.LiberoCpuWorlds``)."""
 
@@ -271,30 +271,36 @@ class LiberoBatch:
         idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
         return {k: _host(self.observed[IMAGE + k][idx]) for k in keys}
 
+    def image_arrays(self, keys: Sequence[str]) -> dict[str, Any]:
+        """Every world's last sampled images, per feature key of ``keys``: the ``xp`` buffers uint8[N, H, W, 3]
+        themselves (valid until the next step or reset)."""
+        return {k: self.observed[IMAGE + k] for k in keys}
+
     def _tick(self) -> None:
         """After a physics step: the worlds whose observables' clock says so sample."""
         self._observe(np.flatnonzero(self.clock.tick()))
 
-    def robot_state(self, rows: np.ndarray) -> dict[str, np.ndarray]:
-        """Host float64 arrays of ``rows``' observation (robosuite's observables as last sampled): ``eef_pos``
-        [k, 3], ``eef_quat`` [k, 4] (x, y, z, w, as robosuite's ``robot0_eef_quat``), ``gripper_qpos`` /
-        ``gripper_qvel`` [k, 2], ``joint_pos`` / ``joint_vel`` [k, 7]."""
-        o, f = self.observed, self.facts
-        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
-        qpos, qvel = _host(o["qpos"][idx]).astype(np.float64), _host(o["qvel"][idx]).astype(np.float64)
-        quat = _host(o["eef_quat"][idx]).astype(np.float64)
-        return {"eef_pos": _host(o["eef_pos"][idx]).astype(np.float64), "eef_quat": quat[:, [1, 2, 3, 0]],
-                "joint_pos": qpos[:, f["qpos_index"]], "joint_vel": qvel[:, f["qvel_index"]],
-                "gripper_qpos": qpos[:, f["gripper_qpos_index"]], "gripper_qvel": qvel[:, f["gripper_qvel_index"]]}
+    def robot_arrays(self, rows: Any) -> dict[str, Any]:
+        """``xp`` float64 arrays of ``rows``' observation (an ``xp`` index array, or ``slice(None)``: every world;
+        robosuite's observables as last sampled): ``eef_pos`` [k, 3], ``eef_quat`` [k, 4] (x, y, z, w, as
+        robosuite's ``robot0_eef_quat``), ``gripper_qpos`` / ``gripper_qvel`` [k, 2], ``joint_pos`` / ``joint_vel``
+        [k, 7]."""
+        o, f, xp = self.observed, self.facts, self.xp
+        qpos, qvel = o["qpos"][rows].astype(xp.float64), o["qvel"][rows].astype(xp.float64)
+        quat = o["eef_quat"][rows].astype(xp.float64)
+        at = lambda key: xp.asarray(np.asarray(f[key], dtype=np.int64))  # noqa: E731
+        return {"eef_pos": o["eef_pos"][rows].astype(xp.float64), "eef_quat": quat[:, xp.asarray([1, 2, 3, 0])],
+                "joint_pos": qpos[:, at("qpos_index")], "joint_vel": qvel[:, at("qvel_index")],
+                "gripper_qpos": qpos[:, at("gripper_qpos_index")], "gripper_qvel": qvel[:, at("gripper_qvel_index")]}
 
-    def environment_state(self, rows: np.ndarray) -> np.ndarray:
-        """Host float32[k, 7 * objects] of ``rows``' objects as last sampled: each object's position, then its
-        quaternion (x, y, z, w, as LIBERO's ``{obj}_quat``), in ``objects_dict`` order (the CPU backend's
-        ``environment_state``)."""
-        idx = self.xp.asarray(np.asarray(rows, dtype=np.int64))
-        pos = _host(self.observed["obj_pos"][idx]).astype(np.float64)
-        quat = _host(self.observed["obj_quat"][idx]).astype(np.float64)[..., [1, 2, 3, 0]]
-        return np.concatenate([pos, quat], axis=2).reshape(len(rows), -1).astype(np.float32)
+    def environment_arrays(self, rows: Any) -> Any:
+        """``xp`` float32[k, 7 * objects] of ``rows``' objects (an ``xp`` index array, or ``slice(None)``) as last
+        sampled: each object's position, then its quaternion (x, y, z, w, as LIBERO's ``{obj}_quat``), in
+        ``objects_dict`` order (the CPU backend's ``environment_state``)."""
+        xp = self.xp
+        pos = self.observed["obj_pos"][rows].astype(xp.float64)
+        quat = self.observed["obj_quat"][rows].astype(xp.float64)[..., xp.asarray([1, 2, 3, 0])]
+        return xp.concatenate([pos, quat], axis=2).reshape(pos.shape[0], -1).astype(xp.float32)
 
     def close(self) -> None:
         if self.renderer == "opengl" and self.cameras is not None:

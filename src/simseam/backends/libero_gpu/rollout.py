@@ -39,7 +39,14 @@ import numpy as np
 
 from simseam.backends.base import observation_spec
 from simseam.backends.native_port import NativePort
-from simseam.backends.libero import CAMERAS, JOINTS, STATE_NAMES, extra_fields, normalize_config, quat_to_axis_angle
+from simseam.backends.libero import (
+    CAMERAS,
+    JOINTS,
+    STATE_NAMES,
+    extra_fields,
+    normalize_config,
+    quat_to_axis_angle_rows,
+)
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
 from simseam.backends.libero_gpu.model import described
 from simseam.seam import (
@@ -65,7 +72,16 @@ from simseam.seam import (
     SimulationError,
     TaskSpec,
 )
-from simseam.seam.batch import BatchStepResult, EnvFailure, batch_actions, env_indices, per_env_requests
+from simseam.seam.batch import (
+    BatchStepResult,
+    EnvFailure,
+    array_actions,
+    array_fields,
+    batch_actions,
+    conform_arrays,
+    env_indices,
+    per_env_requests,
+)
 
 ENGINE = "mujoco_warp"
 
@@ -118,6 +134,7 @@ class LiberoBatchRollout(NativePort):
         self._dt_ns = int(round(1e9 / self._spec.control_hz))
         self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
+        self._expert_last = np.zeros((num_envs, 7), dtype=np.float32)  # each world's last expert action
 
     @classmethod
     def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
@@ -168,8 +185,8 @@ class LiberoBatchRollout(NativePort):
         if len(seeds) != idx.size:
             raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
         requests = per_env_requests(observe, idx.size, "reset")
-        if idx.size:
-            self.world.reset(idx, seeds, render=any(self._wanted(requests)))
+        if idx.size:  # with cameras, every reset draws them (what observation_arrays reads after it, too)
+            self.world.reset(idx, seeds, render=bool(self._spec.observation.images))
             if self.expert is not None:
                 self.expert.reset(idx)
         self._started[idx] = True
@@ -178,21 +195,42 @@ class LiberoBatchRollout(NativePort):
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
         self._check_open()
-        idx = env_indices(envs, self.num_envs, "step")
+        idx = self._stepped(envs)
         requests = per_env_requests(observe, idx.size, "step")
-        if not self._started[idx].all():
-            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
         full = np.tile(np.asarray(DUMMY_ACTION, dtype=np.float32), (self.num_envs, 1))
         full[idx] = batch_actions(self._spec, actions, idx.size)
         new = self.world.step(full, idx, render=any(self._wanted(requests)))
+        return self._result(idx, new, lambda: self._observations(idx, requests))
+
+    def step_arrays(self, envs: Sequence[int], actions: Any, observe: ObsRequest | None = None) -> BatchStepResult:
+        """One control step of ``envs`` with ``actions`` float32[num_envs, 7] (any DLPack array; on the worlds'
+        device: no host copy; the other rows unused: those worlds stay as they are), the result with empty
+        observations (read them with ``observation_arrays``). The cameras draw, where the observables sample,
+        the images ``observe`` asks for (None: every camera)."""
+        self._check_open()
+        idx = self._stepped(envs)
+        a = array_actions(self.world.xp, actions, (self.num_envs, 7))
+        new = self.world.step(a, idx, render=bool(self._wanted([observe])[0]))
+        if self.expert is not None:
+            self._expert_for(idx)
+        return self._result(idx, new, lambda: [{} for _ in range(idx.size)])
+
+    def _stepped(self, envs: Sequence[int]) -> np.ndarray:
+        idx = env_indices(envs, self.num_envs, "step")
+        if not self._started[idx].all():
+            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
+        return idx
+
+    def _result(self, idx: np.ndarray, new: np.ndarray, observations) -> BatchStepResult:
+        """``idx``'s part of a step (``new``: the worlds it made non-finite, whose episodes end as failures);
+        ``observations()`` after that."""
         self._end_failed(idx, new)
         success = self.world.success()[idx]
         steps = self.world.steps[idx]
         infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]), INFO_DIAGNOSTICS: {}}
                  for i in range(idx.size)]
         truncated = ~success & (steps >= self._spec.task.max_steps)
-        return BatchStepResult(idx, self._observations(idx, requests), success.astype(np.float64), success.copy(), truncated,
-                               infos)
+        return BatchStepResult(idx, observations(), success.astype(np.float64), success.copy(), truncated, infos)
 
     def _end_failed(self, idx: np.ndarray, new: np.ndarray) -> None:
         """Environments of ``idx`` whose world just became non-finite (``new``, or in their reset) end as
@@ -206,32 +244,61 @@ class LiberoBatchRollout(NativePort):
         keys = list(self._spec.observation.images)
         return [[k for k in keys if (r or ObsRequest()).wants_image(k)] for r in requests]
 
+    def _leaves(self, rows: Any) -> dict[str, Any]:
+        """The observation's state leaves of ``rows`` (an ``xp`` index array, or ``slice(None)``: every world) as
+        arrays of the worlds' ``xp``: the one computation behind the dicts (host copies of their rows) and
+        ``observation_arrays``."""
+        xp, s = self.world.xp, self.world.robot_arrays(rows)
+        axis = quat_to_axis_angle_rows(xp, s["eef_quat"])
+        out = {OBS_STATE: xp.concatenate([s["eef_pos"], axis, s["gripper_qpos"]], axis=1).astype(xp.float32),
+               OBS_JOINT_POSITIONS: xp.concatenate([s["joint_pos"], s["gripper_qpos"]], axis=1).astype(xp.float32),
+               OBS_JOINT_VELOCITIES: xp.concatenate([s["joint_vel"], s["gripper_qvel"]], axis=1).astype(xp.float32)}
+        if self.config["environment_state"]:
+            out[OBS_ENV_STATE] = self.world.environment_arrays(rows)
+        return out
+
+    def _expert_for(self, idx: np.ndarray) -> np.ndarray:
+        """The expert's action of ``idx`` now (once per step or reset: each world's expert moves on), kept for
+        ``observation_arrays``."""
+        actions = self.expert.act(idx)
+        self._expert_last[idx] = actions
+        return actions
+
     def _observations(self, idx: np.ndarray, requests: list) -> list[dict[str, Any]]:
         """The seam's observation of each of ``idx`` (one host copy of the batch's arrays), with the images
         ``requests`` ask for (drawn during the step or reset that asked)."""
         if not idx.size:
             return []
-        s = self.world.robot_state(idx)
-        axis = np.stack([quat_to_axis_angle(q) for q in s["eef_quat"]])
-        state = np.concatenate([s["eef_pos"], axis, s["gripper_qpos"]], axis=1).astype(np.float32)
-        qpos = np.concatenate([s["joint_pos"], s["gripper_qpos"]], axis=1).astype(np.float32)
-        qvel = np.concatenate([s["joint_vel"], s["gripper_qvel"]], axis=1).astype(np.float32)
-        expert = self.expert.act(idx) if self.expert is not None else None
-        objects = self.world.environment_state(idx) if self.config["environment_state"] else None
+        leaves = {k: _host(v) for k, v in self._leaves(self.world.xp.asarray(idx)).items()}
+        expert = self._expert_for(idx) if self.expert is not None else None
         wanted = self._wanted(requests)
         asked = sorted({k for w in wanted for k in w})
         images = self.world.images(idx, asked) if asked else {}
         text, out = self._spec.task.instruction, []
         for i, w in enumerate(idx.tolist()):
-            obs = {OBS_IMAGES: {k: np.ascontiguousarray(images[k][i]) for k in wanted[i]}, OBS_STATE: state[i],
-                   OBS_TASK: text, OBS_JOINT_POSITIONS: qpos[i], OBS_JOINT_VELOCITIES: qvel[i],
-                   OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns}
+            obs = {key: v[i] for key, v in leaves.items()}
+            obs.update({OBS_IMAGES: {k: np.ascontiguousarray(images[k][i]) for k in wanted[i]}, OBS_TASK: text,
+                        OBS_SIM_TIME_NS: int(self.world.steps[w]) * self._dt_ns})
             if expert is not None:
                 obs[OBS_EXPERT_ACTION] = expert[i]
-            if objects is not None:
-                obs[OBS_ENV_STATE] = objects[i]
             out.append(obs)
         return out
+
+    # ------------------------------------------------------------------------------------------ arrays
+    def observation_arrays(self, observe: ObsRequest | None = None) -> dict[str, Any]:
+        """Every environment's observation as one array per key in the worlds' device memory (CuPy on CUDA, NumPy on
+        Warp's CPU device; seam/batch.py "Observations as arrays"): the dicts' values, exactly (the same
+        computation); the images as last drawn (a reset draws them; a ``step_arrays`` draws what its ``observe``
+        asks). Rows of environments never reset: unspecified."""
+        self._check_open()
+        xp, n = self.world.xp, self.num_envs
+        fields = array_fields(self._spec, observe)
+        values = self._leaves(slice(None))
+        values[OBS_SIM_TIME_NS] = xp.asarray(self.world.steps * self._dt_ns)
+        values[OBS_IMAGES] = self.world.image_arrays(list(fields.get(OBS_IMAGES, {})))
+        if OBS_EXPERT_ACTION in fields:
+            values[OBS_EXPERT_ACTION] = xp.asarray(self._expert_last)
+        return conform_arrays(xp, values, fields, n)
 
     # ------------------------------------------------------------------------------------------- the rest
     def render(self, env: int) -> np.ndarray | None:
@@ -247,3 +314,7 @@ def _mujoco_version() -> str:
     import mujoco
 
     return mujoco.__version__
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") else np.asarray(a)

@@ -66,7 +66,10 @@ from simseam.seam import (
 from simseam.seam.batch import (
     BatchStepResult,
     EnvFailure,
+    array_actions,
+    array_fields,
     batch_actions,
+    conform_arrays,
     env_indices,
     per_env_requests,
 )
@@ -176,14 +179,32 @@ class MetaWorldBatchRollout(NativePort):
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
         self._check_open()
-        idx = env_indices(envs, self.num_envs, "step")
+        idx = self._stepped(envs)
         requests = per_env_requests(observe, idx.size, "step")
-        if not self._started[idx].all():
-            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
         a = batch_actions(self._spec, actions, idx.size)
         full = np.zeros((self.num_envs, 4), dtype=np.float32)  # the others hold still until their reset
         full[idx] = a
-        r = self.world.step(full)
+        return self._result(idx, self.world.step(full), lambda: self._observations(idx, requests))
+
+    def step_arrays(self, envs: Sequence[int], actions: Any, observe: ObsRequest | None = None) -> BatchStepResult:
+        """One control step of every world with ``actions`` float32[num_envs, 4] (any DLPack array; on the worlds'
+        device: no host copy), the result for ``envs`` with empty observations (read them with
+        ``observation_arrays``); the worlds outside ``envs`` take their rows too, their episodes do not advance.
+        ``observe`` goes unused: the cameras draw when ``observation_arrays`` asks."""
+        self._check_open()
+        idx = self._stepped(envs)
+        a = array_actions(self.world.xp, actions, (self.num_envs, 4))
+        return self._result(idx, self.world.step(a), lambda: [{} for _ in range(idx.size)])
+
+    def _stepped(self, envs: Sequence[int]) -> np.ndarray:
+        idx = env_indices(envs, self.num_envs, "step")
+        if not self._started[idx].all():
+            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
+        return idx
+
+    def _result(self, idx: np.ndarray, r: dict[str, Any], observations) -> BatchStepResult:
+        """``idx``'s part of the step ``r`` (``MetaWorldBatch.step``): a world newly non-finite ends its episode as a
+        failure; ``observations()`` after that."""
         success = r["success"][idx]
         steps = self.world.steps[idx]
         for e in np.flatnonzero(r["errors"][idx]):
@@ -194,8 +215,8 @@ class MetaWorldBatchRollout(NativePort):
         infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]),
                   INFO_DIAGNOSTICS: {k: float(v[i]) for k, v in diag.items()}} for i in range(idx.size)]
         truncated = ~success & (steps >= self._spec.task.max_steps)
-        return BatchStepResult(idx, self._observations(idx, requests), r["reward"][idx].astype(np.float64),
-                               success.copy(), truncated, infos)
+        return BatchStepResult(idx, observations(), r["reward"][idx].astype(np.float64), success.copy(), truncated,
+                               infos)
 
     def _images(self, idx: np.ndarray, requests: list) -> list[dict[str, np.ndarray]]:
         """Each of ``idx``'s requested images: one render of every world when any is asked (none otherwise),
@@ -231,6 +252,40 @@ class MetaWorldBatchRollout(NativePort):
             if expert is not None:
                 obs[OBS_EXPERT_ACTION] = expert[i]
             out.append(obs)
+        return out
+
+    # ------------------------------------------------------------------------------------------ arrays
+    def observation_arrays(self, observe: ObsRequest | None = None) -> dict[str, Any]:
+        """Every environment's observation as one array per key in the worlds' device memory (CuPy on CUDA, NumPy on
+        Warp's CPU device; seam/batch.py "Observations as arrays"): the dicts' values, exactly, from the same
+        arrays; the images drawn now for every world when asked. Rows of environments never reset: unspecified."""
+        self._check_open()
+        xp, n = self.world.physics.device_xp, self.num_envs
+        fields = array_fields(self._spec, observe)
+        full = xp.asarray(self.world.obs)
+        poses = self.world.physics.poses()
+        values: dict[str, Any] = {
+            OBS_STATE: full[:, :AGENT_POS] if self.config["state"] == "agent_pos" else full,
+            OBS_JOINT_POSITIONS: xp.asarray(poses.qpos)[:, xp.asarray(self._qadr)],
+            OBS_JOINT_VELOCITIES: xp.asarray(poses.qvel)[:, xp.asarray(self._vadr)],
+            OBS_SIM_TIME_NS: xp.asarray(self.world.steps * self._dt_ns)}
+        if OBS_ENV_STATE in fields:
+            values[OBS_ENV_STATE] = full[:, xp.asarray(list(ENV_STATE_SLOTS))]
+        if OBS_EXPERT_ACTION in fields:
+            values[OBS_EXPERT_ACTION] = xp.asarray(self._expert_rows())
+        wanted = fields.get(OBS_IMAGES, {})
+        images = self.world.render() if wanted else {}
+        values[OBS_IMAGES] = {k: xp.ascontiguousarray(images[k]) for k in wanted}
+        return conform_arrays(xp, values, fields, n)
+
+    def _expert_rows(self) -> np.ndarray:
+        """float32[num_envs, 4]: Meta-World's scripted expert's action for each started environment (one worker
+        call), zeros for the others."""
+        out = np.zeros((self.num_envs, 4), dtype=np.float32)
+        rows = np.flatnonzero(self._started)
+        if rows.size:
+            obs = _host(self.world.obs)[rows]
+            out[rows] = np.asarray(self.worker.call("expert", task=self.config["task"], obs=obs), dtype=np.float32)
         return out
 
     # ------------------------------------------------------------------------------------------- the rest

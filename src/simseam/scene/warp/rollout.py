@@ -34,7 +34,15 @@ from simseam.seam import (
     SimulationError,
     StepResult,
 )
-from simseam.seam.batch import Requests, SyncStepPair, array_fields, batch_actions, env_indices, per_env_requests
+from simseam.seam.batch import (
+    Requests,
+    SyncStepPair,
+    array_fields,
+    batch_actions,
+    conform_arrays,
+    env_indices,
+    per_env_requests,
+)
 from simseam.scene.warp.task_state import array_stream, array_view
 
 _FULL = ObsRequest()
@@ -96,23 +104,7 @@ def world_arrays(batch, request: ObsRequest | None = None) -> dict:
                     {k: on_host[k][w] for k in objects}) for w in range(n)]))
             if OBS_PRIVILEGED in fields:
                 out[OBS_PRIVILEGED] = {"eef_pose": array_view(xp, batch.eef_pose), "objects": objects}
-        return _conform(xp, out, fields, n)
-
-
-def _conform(xp, values: dict, fields: dict, n: int, where: str = "observation") -> dict:
-    """``values`` restricted to ``fields``, each leaf cast to its dtype on the device (no copy when it has it)."""
-    out = {}
-    for key, leaf in fields.items():
-        v = values[key]
-        if isinstance(leaf, dict):
-            out[key] = _conform(xp, v, leaf, n, f"{where}[{key!r}]")
-            continue
-        dtype, shape = leaf
-        arr = xp.asarray(v, dtype=dtype)
-        if arr.shape != (n, *shape):
-            raise SimulationError(f"{where}[{key!r}]: shape {arr.shape}, expected {(n, *shape)}")
-        out[key] = arr
-    return out
+        return conform_arrays(xp, out, fields, n)
 
 
 def _link_poses(batch, w: int) -> dict[str, np.ndarray]:
@@ -233,11 +225,12 @@ class WarpBatchRollout(SyncStepPair):
         self._check_open()
         return world_arrays(self.batch, observe)
 
-    def step_arrays(self, envs, actions) -> BatchStepResult:
+    def step_arrays(self, envs, actions, observe: ObsRequest | None = None) -> BatchStepResult:
         """One control step of every world with actions ``float32[num_envs, dim]`` (any DLPack producer on
         the scene's device: a policy's ``act_arrays``, no host copy); the result covers ``envs``, with empty
         observations (read them with ``observation_arrays``). Every world's physics advances; the
-        episodes of worlds outside ``envs`` do not."""
+        episodes of worlds outside ``envs`` do not. ``observe`` goes unused: the cameras draw when
+        ``observation_arrays`` asks."""
         self._check_open()
         idx = self._stepped(envs)
         r = self.batch.step(actions)
