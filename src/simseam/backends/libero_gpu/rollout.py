@@ -69,7 +69,6 @@ from simseam.seam import (
     RobotFacts,
     RolloutSpec,
     SensorFacts,
-    SimulationError,
     TaskSpec,
 )
 from simseam.seam.batch import (
@@ -132,7 +131,6 @@ class LiberoBatchRollout(NativePort):
                 raise
         self._spec = self._make_spec()
         self._dt_ns = int(round(1e9 / self._spec.control_hz))
-        self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
         self._expert_last = np.zeros((num_envs, 7), dtype=np.float32)  # each world's last expert action
 
@@ -179,11 +177,7 @@ class LiberoBatchRollout(NativePort):
 
     # ------------------------------------------------------------------------------------------ episodes
     def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
-        self._check_open()
-        idx = env_indices(envs, self.num_envs, "reset")
-        seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
-        if len(seeds) != idx.size:
-            raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
+        idx, seeds = self._reset_seeds(envs, seeds)
         requests = per_env_requests(observe, idx.size, "reset")
         if idx.size:  # with cameras, every reset draws them (what observation_arrays reads after it, too)
             self.world.reset(idx, seeds, render=bool(self._spec.observation.images))
@@ -194,7 +188,6 @@ class LiberoBatchRollout(NativePort):
         return self._observations(idx, requests)
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
-        self._check_open()
         idx = self._stepped(envs)
         requests = per_env_requests(observe, idx.size, "step")
         full = np.tile(np.asarray(DUMMY_ACTION, dtype=np.float32), (self.num_envs, 1))
@@ -207,19 +200,12 @@ class LiberoBatchRollout(NativePort):
         device: no host copy; the other rows unused: those worlds stay as they are), the result with empty
         observations (read them with ``observation_arrays``). The cameras draw, where the observables sample,
         the images ``observe`` asks for (None: every camera)."""
-        self._check_open()
         idx = self._stepped(envs)
         a = array_actions(self.world.xp, actions, (self.num_envs, 7))
         new = self.world.step(a, idx, render=bool(self._wanted([observe])[0]))
         if self.expert is not None:
             self._expert_for(idx)
         return self._result(idx, new, lambda: [{} for _ in range(idx.size)])
-
-    def _stepped(self, envs: Sequence[int]) -> np.ndarray:
-        idx = env_indices(envs, self.num_envs, "step")
-        if not self._started[idx].all():
-            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
-        return idx
 
     def _result(self, idx: np.ndarray, new: np.ndarray, observations) -> BatchStepResult:
         """``idx``'s part of a step (``new``: the worlds it made non-finite, whose episodes end as failures);

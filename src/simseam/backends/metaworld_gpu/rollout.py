@@ -55,12 +55,10 @@ from simseam.seam import (
     OBS_TASK,
     ActionSlot,
     ActionSpec,
-    ConfigError,
     ControlMode,
     ObsRequest,
     RobotFacts,
     RolloutSpec,
-    SimulationError,
     TaskSpec,
 )
 from simseam.seam.batch import (
@@ -110,7 +108,6 @@ class MetaWorldBatchRollout(NativePort):
         self._vadr = np.array([names.joint_qvel[j][0] for j in ROBOT_JOINTS])
         self._spec = self._make_spec()
         self._dt_ns = self._spec_dt_ns()
-        self._seed_stream = np.random.default_rng(0)
         self._started = np.zeros(num_envs, dtype=bool)
         self._success = np.zeros(num_envs, dtype=bool)
 
@@ -167,18 +164,13 @@ class MetaWorldBatchRollout(NativePort):
 
     # ------------------------------------------------------------------------------------------ episodes
     def reset(self, envs: Sequence[int], seeds: Sequence[int | None], observe=None) -> list[dict[str, Any]]:
-        self._check_open()
-        idx = env_indices(envs, self.num_envs, "reset")
-        seeds = [int(self._seed_stream.integers(0, 2**31 - 1)) if s is None else int(s) for s in seeds]
-        if len(seeds) != idx.size:
-            raise ConfigError(f"reset: {idx.size} environments but {len(seeds)} seeds")
+        idx, seeds = self._reset_seeds(envs, seeds)
         if idx.size:
             self.world.reset(idx, seeds)
         self._started[idx], self._success[idx] = True, False
         return self._observations(idx, per_env_requests(observe, idx.size, "reset"))
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
-        self._check_open()
         idx = self._stepped(envs)
         requests = per_env_requests(observe, idx.size, "step")
         a = batch_actions(self._spec, actions, idx.size)
@@ -191,16 +183,9 @@ class MetaWorldBatchRollout(NativePort):
         device: no host copy), the result for ``envs`` with empty observations (read them with
         ``observation_arrays``); the worlds outside ``envs`` take their rows too, their episodes do not advance.
         ``observe`` goes unused: the cameras draw when ``observation_arrays`` asks."""
-        self._check_open()
         idx = self._stepped(envs)
         a = array_actions(self.world.xp, actions, (self.num_envs, 4))
         return self._result(idx, self.world.step(a), lambda: [{} for _ in range(idx.size)])
-
-    def _stepped(self, envs: Sequence[int]) -> np.ndarray:
-        idx = env_indices(envs, self.num_envs, "step")
-        if not self._started[idx].all():
-            raise SimulationError(f"step() of envs {idx[~self._started[idx]].tolist()} before their reset()")
-        return idx
 
     def _result(self, idx: np.ndarray, r: dict[str, Any], observations) -> BatchStepResult:
         """``idx``'s part of the step ``r`` (``MetaWorldBatch.step``): a world newly non-finite ends its episode as a
