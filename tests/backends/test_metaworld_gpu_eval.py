@@ -340,3 +340,35 @@ def test_a_process_that_finds_every_task_claimed_ends_cleanly(tmp_path):
     res = CliRunner().invoke(app, ["eval", "metaworld_mt10", "--policy", "random", "--episodes", "2", "--claims",
                                    str(tmp_path / "claims"), "--out", str(tmp_path / "s2")])
     assert res.exit_code == 2 and "--claims: only with --shard i/K and --engine" in res.output
+
+
+def test_the_gym_vector_env_over_the_port_hands_out_its_arrays():
+    """``SimseamVectorEnv(batch=<the port>, device_arrays=True)``: the port's own observation arrays (DLPack leaves,
+    read by torch) and torch actions, the same observations, rewards and ends as the env of NumPy copies over another
+    batch of the same task, seeds and actions (autoreset included: max_steps 4 over 6 steps)."""
+    import torch
+
+    from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
+    from simseam.backends.metaworld_gpu.worker import NativeWorker
+    from simseam.gym import SimseamVectorEnv
+
+    with NativeWorker() as worker:
+        envs = {dev: SimseamVectorEnv(batch=MetaWorldBatchRollout({"task": TASK, "max_steps": 4}, 2, worker,
+                                                                  device="cpu"), device_arrays=dev)
+                for dev in (True, False)}
+        try:
+            first = {dev: env.reset(seed=5)[0] for dev, env in envs.items()}
+            assert torch.from_dlpack(first[True]["state"]).shape == (2, 39)
+            np.testing.assert_array_equal(np.from_dlpack(first[True]["state"]), first[False]["state"])
+            truncated = 0
+            for a in np.random.default_rng(0).uniform(-1, 1, (6, 2, 4)).astype(np.float32):
+                on_arrays = envs[True].step(torch.from_numpy(a))
+                on_copies = envs[False].step(a)
+                np.testing.assert_array_equal(np.from_dlpack(on_arrays[0]["state"]), on_copies[0]["state"])
+                for i in (1, 2, 3):  # reward, terminated, truncated
+                    np.testing.assert_array_equal(on_arrays[i], on_copies[i])
+                truncated += int(on_copies[3].sum())
+            assert truncated == 2  # both episodes reached max_steps, and the next step reset them
+        finally:
+            for env in envs.values():
+                env.close()
