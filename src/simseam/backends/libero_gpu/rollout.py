@@ -213,8 +213,8 @@ class LiberoBatchRollout(NativePort):
         self._end_failed(idx, new)
         success = self.world.success()[idx]
         steps = self.world.steps[idx]
-        infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]), INFO_DIAGNOSTICS: {}}
-                 for i in range(idx.size)]
+        key = self._spec.task.success_key
+        infos = [{key: s, INFO_STEPS: n, INFO_DIAGNOSTICS: {}} for s, n in zip(success.tolist(), steps.tolist())]
         truncated = ~success & (steps >= self._spec.task.max_steps)
         return BatchStepResult(idx, observations(), success.astype(np.float64), success.copy(), truncated, infos)
 

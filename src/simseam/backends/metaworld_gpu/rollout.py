@@ -109,7 +109,6 @@ class MetaWorldBatchRollout(NativePort):
         self._spec = self._make_spec()
         self._dt_ns = self._spec_dt_ns()
         self._started = np.zeros(num_envs, dtype=bool)
-        self._success = np.zeros(num_envs, dtype=bool)
 
     @classmethod
     def prefetch(cls, config: dict[str, Any], seeds: Sequence[int], worker: Any) -> None:
@@ -167,7 +166,7 @@ class MetaWorldBatchRollout(NativePort):
         idx, seeds = self._reset_seeds(envs, seeds)
         if idx.size:
             self.world.reset(idx, seeds)
-        self._started[idx], self._success[idx] = True, False
+        self._started[idx] = True
         return self._observations(idx, per_env_requests(observe, idx.size, "reset"))
 
     def step(self, envs: Sequence[int], actions: np.ndarray, observe=None) -> BatchStepResult:
@@ -196,9 +195,10 @@ class MetaWorldBatchRollout(NativePort):
             env = int(idx[e])
             self._failures[env] = EnvFailure(self.world.error_message(env))
             self._started[env] = False
-        diag = {k: r["diagnostics"][k][idx] for k in DIAGNOSTICS}
-        infos = [{self._spec.task.success_key: bool(success[i]), INFO_STEPS: int(steps[i]),
-                  INFO_DIAGNOSTICS: {k: float(v[i]) for k, v in diag.items()}} for i in range(idx.size)]
+        columns = zip(*(r["diagnostics"][k][idx].tolist() for k in DIAGNOSTICS))  # Python floats, row by row
+        key = self._spec.task.success_key
+        infos = [{key: s, INFO_STEPS: n, INFO_DIAGNOSTICS: dict(zip(DIAGNOSTICS, values))}
+                 for s, n, values in zip(success.tolist(), steps.tolist(), columns)]
         truncated = ~success & (steps >= self._spec.task.max_steps)
         return BatchStepResult(idx, observations(), r["reward"][idx].astype(np.float64), success.copy(), truncated,
                                infos)
