@@ -130,19 +130,31 @@ def test_batched_rewards_are_the_single_rollouts_floats_exactly():
     assert r.reward.tolist() == [0.1, 1 / 3] and r[1].reward == 1 / 3
 
 
-def test_array_actions_takes_dlpack_arrays_and_names_what_is_wrong():
-    """``array_actions`` (the benchmark ports' ``step_arrays``): NumPy and sequences cast, a float32 DLPack array
-    (a torch tensor) read without a copy where NumPy shares its memory; a wrong dtype, shape or a non-array is one
-    ``InvalidActionError`` naming ``step_arrays``."""
-    import torch
+class _DLPackArray:
+    """A DLPack producer that is not a NumPy array (as a torch tensor or a CuPy array is to NumPy)."""
 
+    def __init__(self, array: np.ndarray):
+        self.array = array
+
+    def __dlpack__(self, **kwargs):
+        return self.array.__dlpack__(**kwargs)
+
+    def __dlpack_device__(self):
+        return self.array.__dlpack_device__()
+
+
+def test_array_actions_takes_dlpack_arrays_and_names_what_is_wrong():
+    """``array_actions`` (the benchmark ports' ``step_arrays``): NumPy and sequences cast, a float32 DLPack array in
+    host memory read without a copy; a wrong dtype, shape or a non-array is one ``InvalidActionError`` naming
+    ``step_arrays``."""
     from simseam.seam.batch import array_actions
 
-    t = torch.arange(8, dtype=torch.float32).reshape(2, 4)
-    got = array_actions(np, t, (2, 4))
-    assert got.dtype == np.float32 and got.ctypes.data == t.data_ptr()  # the tensor's own memory
+    a = np.arange(8, dtype=np.float32).reshape(2, 4)
+    got = array_actions(np, _DLPackArray(a), (2, 4))
+    assert got.dtype == np.float32 and got.ctypes.data == a.ctypes.data  # the producer's own memory
     np.testing.assert_array_equal(array_actions(np, [[0.5] * 4] * 2, (2, 4)), np.full((2, 4), 0.5, np.float32))
-    for bad, message in ((t.double(), "must be float32, got float64"), (t[:1], r"shape \(2, 4\), got \(1, 4\)"),
+    for bad, message in ((_DLPackArray(a.astype(np.float64)), "must be float32, got float64"),
+                         (_DLPackArray(a[:1]), r"shape \(2, 4\), got \(1, 4\)"),
                          ("nope", "a str is not a DLPack array"), ([["a"] * 4] * 2, "not numeric")):
         with pytest.raises(InvalidActionError, match=f"step_arrays: .*{message}"):
             array_actions(np, bad, (2, 4))
