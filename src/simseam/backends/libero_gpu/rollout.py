@@ -79,6 +79,7 @@ from simseam.seam.batch import (
     batch_actions,
     conform_arrays,
     env_indices,
+    host_array,
     per_env_requests,
 )
 
@@ -255,7 +256,7 @@ class LiberoBatchRollout(NativePort):
         ``requests`` ask for (drawn during the step or reset that asked)."""
         if not idx.size:
             return []
-        leaves = {k: _host(v) for k, v in self._leaves(self.world.xp.asarray(idx)).items()}
+        leaves = {k: host_array(v) for k, v in self._leaves(self.world.xp.asarray(idx)).items()}
         expert = self._expert_for(idx) if self.expert is not None else None
         wanted = self._wanted(requests)
         asked = sorted({k for w in wanted for k in w})
@@ -300,7 +301,3 @@ def _mujoco_version() -> str:
     import mujoco
 
     return mujoco.__version__
-
-
-def _host(a: Any) -> np.ndarray:
-    return a.get() if hasattr(a, "get") else np.asarray(a)
