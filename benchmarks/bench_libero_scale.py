@@ -22,8 +22,9 @@ between processes); under MPS the shards' kernels run side by side.
 Each command's console is written to its log as it runs (``--logs``, else beside its run); ``--case-limit S`` gives
 a case still running after S seconds a Ctrl-C, as a user's would (its finished episodes and summary kept, its row
 marked cut, its rates over the episodes it finished), so that a call with a time limit still brings back a row.
-The port draws images only for a policy that reads them (the CPU backend's sidecars draw both cameras every
-step either way): the rows say which (``images``). Prints a table and writes JSON
+Both draw only the cameras a policy reads at each step (the CPU backend's sidecars blank the others' sensors,
+``robosuite_cameras.CameraSwitch``, and draw both cameras at each reset, on its last settle step); the rows say
+which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
 backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` on the GPU machine).
 """
@@ -139,7 +140,7 @@ def run_case(preset: str, policy: str, n: int, episodes: int | None, tasks: str 
     # the policy's share: its time per step (a batch's, shared by the episodes it acted for) over the step's and its
     policy_ms = [e["policy_latency_ms"]["mean"] for e in rows if (e.get("policy_latency_ms") or {}).get("mean") is not None]
     return {"preset": preset, "policy": policy, "engine": f"mujoco_warp ({warp})" if warp else "backend (CPU)",
-            "images": ("both cameras" if not warp else "policy's only") + (f" at {EXTRA[1]}" if EXTRA else ""), "num_envs": n, "processes": shards, "mps": mps,
+            "images": ("policy's; both at resets" if not warp else "policy's only") + (f" at {EXTRA[1]}" if EXTRA else ""), "num_envs": n, "processes": shards, "mps": mps,
             "tasks": len(summary["config"]["tasks"]),
             "episodes": len(rows), "errors": sum(1 for e in rows if e["error"]), "successes": summary["n_success"],
             "env_steps": steps, "settle_steps": settle, "wall_s": round(wall, 2),

@@ -15,6 +15,9 @@
 #     first; FID_RESUME=1 in the next back-to-back call finishes the tasks a FID_LIMIT cut off; returns mwfid.tgz:
 #     untar it into DIR, then: metaworld_warp_fidelity.py --tasks mt50 --seeds 0:50 --device cuda:0 --merge
 #     --out DIR/metaworld_warp_fidelity.json; FID_FROM=JSON keeps that file's tasks and runs only the others)
+#   bash benchmarks/device/metaworld_h200.sh kernels      (a fresh machine: every MT50 task's kernels compiled by KPROCS
+#     processes at once at TP_WORLDS worlds, one step a task, so that the next call's `throughput` over MT50 compiles
+#     nothing and fits one call)
 # Logs and JSON go to $OUT (the device tool brings them back).
 set -uo pipefail
 # shellcheck source=pieces.sh
@@ -91,5 +94,29 @@ case "${1:-}" in
     [ "${SSIM:-1}" = 0 ] || timeout "${SSIM_LIMIT:-240}" python3 benchmarks/metaworld_warp_cameras.py --device cuda:0 \
       --out "$OUT/cameras_ssim_cuda.json" --overwrite 2>&1 | quiet > "$OUT/ssim.log"; tail -12 "$OUT/ssim.log"
     ;;
-  *) echo "usage: $0 throughput | mt50x50 | fidelity | cameras" >&2; exit 2 ;;
+  kernels)  # the call before one that measures MT50 (a fresh machine, no kernel cache carried): every task's kernels
+    # compiled, and its model and reset states cached, by KPROCS processes at once (default 8), TP_WORLDS worlds
+    # (default 8192) for one step a task, so that the measuring call compiles nothing. One process alone took
+    # 252 s for the first task's kernels and 715 s of setups over the 50 tasks on 7 December; the tasks whose
+    # setups then compiled more kernels of their own lead, one to a process.
+    mapfile -t shares < <(python3 - "${KPROCS:-8}" <<'EOP'
+import sys
+from simseam.backends.metaworld_gpu.tasks import OBJECTS
+first = ["assembly-v3", "box-close-v3", "basketball-v3", "plate-slide-back-side-v3", "coffee-button-v3",
+         "button-press-topdown-v3", "stick-pull-v3", "coffee-pull-v3"]
+order = first + [t for t in sorted(OBJECTS) if t not in first]
+k = int(sys.argv[1])
+print("\n".join(",".join(order[i::k]) for i in range(k)))
+EOP
+)
+    for i in "${!shares[@]}"; do
+      timeout "${TP_LIMIT:-480}" python3 benchmarks/metaworld_warp_throughput.py --device cuda:0 --tasks "${shares[$i]}" \
+        --worlds "${TP_WORLDS:-8192}" --steps 1 --cpu-procs 0 --episodes 0 --out "/tmp/mwk_$i.json" --overwrite \
+        > "/tmp/mwk_$i.log" 2>&1 &
+    done
+    rc=0; for job in $(jobs -p); do wait "$job" || rc=$?; done
+    for i in "${!shares[@]}"; do echo "== process $i"; quiet < "/tmp/mwk_$i.log"; done > "$OUT/kernels.log"
+    grep -c "env-steps/s" "$OUT/kernels.log"; tail -4 "$OUT/kernels.log"; exit "$rc"
+    ;;
+  *) echo "usage: $0 throughput | mt50x50 | fidelity | cameras | kernels" >&2; exit 2 ;;
 esac
