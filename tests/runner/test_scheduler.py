@@ -202,3 +202,97 @@ def test_videos_of_a_batch_that_renders_are_written_by_the_scheduler(panda_spec,
         assert r.video == str(tmp_path / f"episode_{r.index:03d}.mp4")
         with imageio.get_reader(r.video) as video:
             assert sum(1 for _ in video) == r.steps + 1
+
+
+class _Ragged:
+    """A rollout without a simulator whose episodes differ by seed: seed s succeeds after ``5 + 37 * s % 2900``
+    steps when s is odd, and otherwise runs into the step limit; rewards are sums of uneven floats; ``crash_seed``'s
+    sidecar crashes at its third step."""
+
+    def __init__(self, spec, crash_seed: int):
+        self.spec, self.crash_seed, self.t, self.seed = spec, crash_seed, 0, None
+
+    def reset(self, seed=None, observe=None):
+        self.seed, self.t = seed, 0
+        return {"state": np.full(2, seed, np.float32)}
+
+    def step(self, action, observe=None):
+        from simseam.seam import INFO_DIAGNOSTICS, SidecarError, StepResult
+
+        self.t += 1
+        if self.seed == self.crash_seed and self.t == 3:
+            raise SidecarError("the sidecar process exited (signal 9)")
+        done = self.seed % 2 == 1 and self.t >= 5 + 37 * self.seed % 2900
+        info = {"success": done, INFO_DIAGNOSTICS: {"t": float(self.t), "seed": self.seed}}
+        return StepResult({"state": np.full(2, self.t, np.float32)}, 0.1 * self.t + 1e-3 / (self.seed + 1), done,
+                          False, info)
+
+    def restart(self):
+        pass
+
+    def close(self):
+        pass
+
+
+class _RaggedArrays(SyncBatchRollout):
+    """``_Ragged`` rollouts as a batch that offers arrays, its infos as ``InfoColumns`` (a port's)."""
+
+    def observation_arrays(self, observe=None):
+        return {"state": np.zeros((self.num_envs, 2), np.float32)}
+
+    def step_arrays(self, envs, actions, observe=None):
+        from simseam.seam import BatchStepResult, InfoColumns
+
+        r = self.step(envs, np.asarray(actions)[np.asarray(envs)])
+        infos = InfoColumns({"success": np.array([i.get("success", False) for i in r.infos])},
+                            {"t": [i.get("diagnostics", {}).get("t") for i in r.infos],
+                             "seed": [i.get("diagnostics", {}).get("seed") for i in r.infos]})
+        return BatchStepResult(r.envs, [{} for _ in r.envs], r.reward, r.terminated, r.truncated, infos)
+
+
+class _StillArrays(_Still):
+    """``_Still`` on the array path (``act_arrays``)."""
+
+    n = 3
+
+    def act_arrays(self, arrays):
+        return np.zeros((3, 2), np.float32)
+
+
+def test_the_array_paths_bookkeeping_on_columns_gives_the_per_environment_loops_results():
+    """The array path keeps its bookkeeping on arrays (``_Tally``, ``InfoColumns``): the same steps, success,
+    rewards (summed exactly alike), diagnostics and errors as the per-environment loop, one latency per step, over
+    ragged episodes (some ended by success, some by the step limit, one by a crashed sidecar), and over more steps
+    than the latency timeline keeps at once (4,096 flights)."""
+    import dataclasses
+
+    from spec_factory import make_spec
+
+    from simseam.runner.scheduler import _BatchRun
+
+    spec = make_spec(action_dim=2, cameras={}, state_dim=2)
+    spec = dataclasses.replace(spec, task=dataclasses.replace(spec.task, max_steps=3000),
+                               capabilities=("restart",))
+    out, tallied, original = {}, [], _BatchRun.__init__
+
+    def spy(self, *a, **k):
+        original(self, *a, **k)
+        tallied.append(self.tally is not None)
+
+    _BatchRun.__init__ = spy
+    try:
+        for name, policy in (("dicts", _Still()), ("arrays", _StillArrays())):
+            policy.n = 3
+            with _RaggedArrays([_Ragged(spec, crash_seed=6) for _ in range(3)]) as batch:
+                out[name] = run_batch(batch, policy, range(15), seed=0)
+    finally:
+        _BatchRun.__init__ = original
+    assert tallied == [False, True]
+    dicts, arrays = ({r.index: (r.seed, r.success, r.steps, r.reward, r.diagnostics, r.error) for r in out[k]}
+                     for k in ("dicts", "arrays"))
+    assert arrays == dicts
+    assert dicts[6][-1] == "SidecarError: the sidecar process exited (signal 9)" and dicts[6][2] == 0
+    assert {i for i, o in dicts.items() if o[1]} == {1, 3, 5, 7, 9, 11, 13} and dicts[8][2] == 3000  # both endings
+    assert sum(o[2] for o in dicts.values()) > 5 * 4096  # over 7,000 flights of 3: the timeline was let go of in part
+    assert all(len(r.step_ms) == len(r.policy_ms) == r.steps for r in out["arrays"])
+    assert all(x >= 0.0 for r in out["arrays"] for x in r.step_ms + r.policy_ms)

@@ -33,7 +33,12 @@ actions as any DLPack array, which the batch steps with ``step_arrays`` (told wh
 copy of observations or
 actions, one policy call per step for every environment (rows of idle environments are ignored). One
 group only. The per-episode results equal the per-environment dict path's for a policy that computes the
-same actions from the same values (the arrays' rows are the dicts' values, exactly).
+same actions from the same values (the arrays' rows are the dicts' values, exactly). There, with no
+videos and no ``on_step``, the bookkeeping of a step is done on arrays (``_Tally``): every busy environment
+steps in every flight, so an episode's steps, reward, success and latencies are kept per environment as
+columns and written into its ``EpisodeResult`` when it ends, and a step's infos are read as one success column
+(``seam.info_column``; a batch of thousands of worlds hands them out as ``InfoColumns``), not environment by
+environment.
 
 Failures (``BatchRollout.failures``): an environment whose process died loses its episode through no
 fault of the episode, which goes back to the front of the queue (at most ``max_attempts`` times, then
@@ -60,7 +65,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from simseam.runner.episodes import EpisodeResult, partial_video_path
-from simseam.seam import INFO_DIAGNOSTICS, ConfigError, ObsRequest, SimulationError, offers_arrays
+from simseam.seam import INFO_DIAGNOSTICS, ConfigError, ObsRequest, SimulationError, info_column, offers_arrays
 
 _NO_IMAGES = ObsRequest.state_only()  # the array path's resets: their dicts go unread
 
@@ -132,6 +137,47 @@ class _Episodes(EpisodeQueue):
             self.playing[env] = self.new_result(self.next())
             started.append(env)
         return started
+
+
+class _Tally:
+    """The array path's bookkeeping as columns over the environments (every busy environment steps in every
+    flight there): each one's steps, summed reward and success in its episode so far, and where the episode began
+    on the run's timeline of step and policy latencies (one entry a flight, shared by every environment in it).
+    ``settle`` writes them into the episode's ``EpisodeResult``: the same values the per-environment loop gives
+    (the reward summed in float64 in step order)."""
+
+    def __init__(self, n: int):
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.reward = np.zeros(n, dtype=np.float64)
+        self.success = np.zeros(n, dtype=bool)
+        self.begin = np.zeros(n, dtype=np.int64)  # on the timeline, counted from the run's first flight
+        self.step_ms: list[float] = []
+        self.policy_ms: list[float] = []
+        self.dropped = 0  # timeline entries before every playing episode's begin, let go
+
+    def start(self, envs: Sequence[int], playing: Sequence[object]) -> None:
+        """New episodes on ``envs``; the timeline kept from the oldest playing episode's beginning on."""
+        idx = np.asarray(envs, dtype=np.int64)
+        self.steps[idx], self.reward[idx], self.success[idx] = 0, 0.0, False
+        self.begin[idx] = self.dropped + len(self.step_ms)
+        if len(self.step_ms) > 4096:  # a long run: what no playing episode needs goes
+            live = [e for e, res in enumerate(playing) if res is not None]
+            gone = int(self.begin[live].min()) - self.dropped
+            del self.step_ms[:gone], self.policy_ms[:gone]
+            self.dropped += gone
+
+    def add(self, idx: np.ndarray, reward: np.ndarray, success: np.ndarray, step_ms: float, policy_ms: float) -> None:
+        """One flight of ``idx``: its rewards and success flags (one per environment) and its latencies."""
+        self.steps[idx] += 1
+        self.reward[idx] += reward
+        self.success[idx] |= success
+        self.step_ms.append(step_ms)
+        self.policy_ms.append(policy_ms)
+
+    def settle(self, env: int, res: EpisodeResult) -> None:
+        start, steps = int(self.begin[env]) - self.dropped, int(self.steps[env])
+        res.steps, res.reward, res.success = steps, float(self.reward[env]), bool(self.success[env])
+        res.step_ms, res.policy_ms = self.step_ms[start:start + steps], self.policy_ms[start:start + steps]
 
 
 class _Videos:
@@ -323,6 +369,8 @@ class _BatchRun:
         self.episodes, self.videos, self.device, self.calls, self.keep = episodes, videos, device, calls, keep
         self.obs: list = [None] * batch.num_envs
         self.results: list[EpisodeResult] = []
+        columns = device and videos.dir is None and calls.on_step is None
+        self.tally = _Tally(batch.num_envs) if columns else None  # the array path's bookkeeping as columns
 
     def finish(self, env: int, res: EpisodeResult) -> None:
         self.episodes.playing[env], self.obs[env] = None, None
@@ -353,6 +401,8 @@ class _BatchRun:
         """Start the next episodes on ``envs`` (again on those whose reset failed, while the queue lasts)."""
         episodes, policy = self.episodes, self.policy
         while started := episodes.take(envs):
+            if self.tally is not None:
+                self.tally.start(started, episodes.playing)
             for env in started:
                 policy.reset(env, self.spec)
                 self.videos.start(env, episodes.playing[env].index)
@@ -377,8 +427,11 @@ class _BatchRun:
     def turn(self, flight: _Flight, at_least: int | None = None) -> list[int]:
         """Receive ``flight``'s step (``at_least``: as soon as that many are in), finish the episodes that
         ended, start the next ones; the environments received."""
-        got, ended = _receive(self.batch, flight, self.obs, self.episodes, self.videos, self.device, self.failed,
-                              self.calls.on_step, at_least)
+        if self.tally is not None:
+            got, ended = _receive_tallied(self.batch, flight, self.episodes, self.tally, self.failed)
+        else:
+            got, ended = _receive(self.batch, flight, self.obs, self.episodes, self.videos, self.device, self.failed,
+                                  self.calls.on_step, at_least)
         for env, res in ended:
             res.video = self.videos.finish(env)
             self.finish(env, res)
@@ -496,6 +549,34 @@ def _receive(batch, flight: _Flight, obs: list, episodes: _Episodes, videos: _Vi
         if terminated[k] or truncated[k] or res.steps >= max_steps:
             res.diagnostics = dict(info.get(INFO_DIAGNOSTICS) or {})
             ended.append((env, res))
+    return busy, ended
+
+
+def _receive_tallied(batch, flight: _Flight, episodes: _Episodes, tally: _Tally,
+                     failed: Callable) -> tuple[list[int], list[tuple[int, EpisodeResult]]]:
+    """``_receive`` on the array path, its bookkeeping on columns (``_Tally``): only the environments whose
+    episodes end or fail are visited one by one."""
+    task = batch.spec.task
+    t0 = time.perf_counter()
+    r = batch.step_arrays(flight.envs, flight.device_actions, flight.next_request)
+    wait_ms = (time.perf_counter() - t0) * 1e3
+    busy, fails = flight.envs, batch.failures()
+    idx = np.asarray(busy, dtype=np.int64)
+    tally.add(idx, np.asarray(r.reward, dtype=np.float64), info_column(r.infos, task.success_key),
+              flight.send_ms + wait_ms, flight.policy_ms)
+    over = np.asarray(r.terminated, dtype=bool) | np.asarray(r.truncated, dtype=bool) | (tally.steps[idx] >= task.max_steps)
+    if fails:
+        over |= np.fromiter((env in fails for env in busy), dtype=bool, count=len(busy))
+    ended = []
+    for k in np.flatnonzero(over).tolist():
+        env = busy[k]
+        if fails and env in fails:
+            failed(env, fails[env])
+            continue
+        res = episodes.playing[env]
+        tally.settle(env, res)
+        res.diagnostics = dict(r.infos[k].get(INFO_DIAGNOSTICS) or {})
+        ended.append((env, res))
     return busy, ended
 
 

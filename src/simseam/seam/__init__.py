@@ -45,10 +45,12 @@ from simseam.seam.batch import (
     BatchRollout,
     BatchStepResult,
     EnvFailure,
+    InfoColumns,
     SyncBatchRollout,
     SyncStepPair,
     array_fields,
     host_array,
+    info_column,
     offers_arrays,
     stack_observations,
 )
@@ -87,7 +89,7 @@ from simseam.seam.spec import (
 )
 
 __all__ = [
-    "ActionSlot", "ActionSpec", "ArrayBatch", "array_fields", "host_array", "offers_arrays", "stack_observations", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "EnvFailure", "CAP_LINK_POSES", "CAP_PRIVILEGED",
+    "ActionSlot", "ActionSpec", "ArrayBatch", "array_fields", "host_array", "offers_arrays", "stack_observations", "BackendUnavailableError", "BaseFacts", "BatchRollout", "BatchStepResult", "EnvFailure", "InfoColumns", "info_column", "CAP_LINK_POSES", "CAP_PRIVILEGED",
     "CAP_RESTART", "ConfigError", "ControlMode", "FULL", "FieldSpec", "GripperFacts", "InvalidActionError",
     "JointFacts", "LinkFacts", "NormBound", "ObsRequest", "Observation", "ObservationSpec", "OPTIONAL_OBS_KEYS",
     "REQUIRED_OBS_KEYS", "RobotFacts", "RolloutContractError", "RolloutSpec", "STATE_ONLY", "SensorFacts",

@@ -75,12 +75,14 @@ such a batch through these two calls and nothing else.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from simseam.seam.errors import ConfigError, InvalidActionError, SidecarError, SimulationError
+from simseam.seam.keys import INFO_DIAGNOSTICS
 from simseam.seam.request import ObsRequest
 from simseam.seam.rollout import Observation, StepResult
 from simseam.seam.spec import CAP_RESTART, RolloutSpec
@@ -101,6 +103,55 @@ class EnvFailure:
     exitcode: int | None = None
 
 
+class InfoColumns(Sequence):
+    """A batched step's infos held as columns, for a batch of many environments: ``infos[k]`` is environment k's
+    dict, built when read (array values become Python scalars, as ``tolist`` gives them: the same dict as a
+    list of dicts would hold), ``column(key)`` one key's values for every environment at once. ``columns``: key
+    -> one value per environment (a list or a 1-D array); ``diagnostics``: name -> one value per environment,
+    the dict under ``INFO_DIAGNOSTICS`` (omitted when None). A step of thousands of environments then builds no
+    dict that nobody reads (the scheduler's array path reads the success column, and an episode's infos only
+    when it ends)."""
+
+    def __init__(self, columns: dict[str, Sequence], diagnostics: dict[str, Sequence] | None = None):
+        self.columns, self.diagnostics = dict(columns), diagnostics
+        sizes = {len(c) for c in (*self.columns.values(), *(diagnostics or {}).values())}
+        if len(sizes) > 1:
+            raise ValueError(f"InfoColumns: columns of different lengths {sorted(sizes)}")
+        self._n = sizes.pop() if sizes else 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._n))]
+        info = {key: _scalar(col[k]) for key, col in self.columns.items()}
+        if self.diagnostics is not None:
+            info[INFO_DIAGNOSTICS] = {name: _scalar(col[k]) for name, col in self.diagnostics.items()}
+        return info
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Sequence) and list(self) == list(other)
+
+    __hash__ = None
+
+    def column(self, key: str) -> Sequence:
+        return self.columns[key]
+
+
+def _scalar(value: Any) -> Any:
+    """An array's element as the Python scalar ``tolist`` gives (a list's element as it is)."""
+    return value.item() if hasattr(value, "item") else value
+
+
+def info_column(infos: Sequence[dict[str, Any]], key: str) -> np.ndarray:
+    """bool[k]: whether each of a step's infos holds a true ``key`` (``info.get(key)``), read as one column when
+    the infos are ``InfoColumns``."""
+    if isinstance(infos, InfoColumns) and key in infos.columns:
+        return np.asarray(infos.column(key)).astype(bool)
+    return np.fromiter((bool(info.get(key)) for info in infos), dtype=bool, count=len(infos))
+
+
 @dataclass(frozen=True)
 class BatchStepResult:
     """What ``BatchRollout.step`` returns: one entry per stepped environment, in the order asked."""
@@ -110,7 +161,7 @@ class BatchStepResult:
     reward: np.ndarray  # float64[k]: each a single rollout's reward (a Python float), exactly
     terminated: np.ndarray  # bool[k]
     truncated: np.ndarray  # bool[k]
-    infos: list[dict[str, Any]] = field(default_factory=list)
+    infos: Sequence[dict[str, Any]] = field(default_factory=list)  # a list, or ``InfoColumns``
 
     def __len__(self) -> int:
         return len(self.envs)

@@ -50,7 +50,6 @@ from simseam.backends.libero import (
 from simseam.backends.libero_gpu.env import DUMMY_ACTION, RENDERERS, LiberoBatch
 from simseam.backends.libero_gpu.model import described
 from simseam.seam import (
-    INFO_DIAGNOSTICS,
     OBS_ENV_STATE,
     INFO_STEPS,
     OBS_EXPERT_ACTION,
@@ -74,6 +73,7 @@ from simseam.seam import (
 from simseam.seam.batch import (
     BatchStepResult,
     EnvFailure,
+    InfoColumns,
     array_actions,
     array_fields,
     batch_actions,
@@ -214,8 +214,7 @@ class LiberoBatchRollout(NativePort):
         self._end_failed(idx, new)
         success = self.world.success()[idx]
         steps = self.world.steps[idx]
-        key = self._spec.task.success_key
-        infos = [{key: s, INFO_STEPS: n, INFO_DIAGNOSTICS: {}} for s, n in zip(success.tolist(), steps.tolist())]
+        infos = InfoColumns({self._spec.task.success_key: success, INFO_STEPS: steps}, {})
         truncated = ~success & (steps >= self._spec.task.max_steps)
         return BatchStepResult(idx, observations(), success.astype(np.float64), success.copy(), truncated, infos)
 

@@ -43,7 +43,6 @@ from simseam.backends.metaworld_gpu.model import described, task_model
 from simseam.backends.metaworld_gpu.resets import ResetCache
 from simseam.backends.native_port import NativePort
 from simseam.seam import (
-    INFO_DIAGNOSTICS,
     INFO_STEPS,
     OBS_ENV_STATE,
     OBS_EXPERT_ACTION,
@@ -64,6 +63,7 @@ from simseam.seam import (
 from simseam.seam.batch import (
     BatchStepResult,
     EnvFailure,
+    InfoColumns,
     array_actions,
     array_fields,
     batch_actions,
@@ -195,10 +195,8 @@ class MetaWorldBatchRollout(NativePort):
             env = int(idx[e])
             self._failures[env] = EnvFailure(self.world.error_message(env))
             self._started[env] = False
-        columns = zip(*(r["diagnostics"][k][idx].tolist() for k in DIAGNOSTICS))  # Python floats, row by row
-        key = self._spec.task.success_key
-        infos = [{key: s, INFO_STEPS: n, INFO_DIAGNOSTICS: dict(zip(DIAGNOSTICS, values))}
-                 for s, n, values in zip(success.tolist(), steps.tolist(), columns)]
+        infos = InfoColumns({self._spec.task.success_key: success, INFO_STEPS: steps},
+                            {k: r["diagnostics"][k][idx] for k in DIAGNOSTICS})
         truncated = ~success & (steps >= self._spec.task.max_steps)
         return BatchStepResult(idx, observations(), r["reward"][idx].astype(np.float64), success.copy(), truncated,
                                infos)

@@ -16,7 +16,6 @@ import numpy as np
 
 from simseam.math3d import matrix_to_quat
 from simseam.seam import (
-    INFO_DIAGNOSTICS,
     BatchStepResult,
     INFO_STEPS,
     OBS_IMAGES,
@@ -35,6 +34,7 @@ from simseam.seam import (
     StepResult,
 )
 from simseam.seam.batch import (
+    InfoColumns,
     Requests,
     SyncStepPair,
     array_fields,
@@ -243,9 +243,10 @@ class WarpBatchRollout(SyncStepPair):
         return idx
 
     def _result(self, idx: np.ndarray, r, observations: list) -> BatchStepResult:
-        key = self.spec.task.success_key
-        infos = [{key: bool(r.success[e]), INFO_STEPS: int(r.steps[e]), INFO_DIAGNOSTICS: self.batch.diagnostics(e)}
-                 for e in idx.tolist()]
+        diagnostics = self.batch.host_arrays().get("diagnostics", {})
+        infos = InfoColumns({self.spec.task.success_key: np.asarray(r.success[idx]).astype(bool),
+                             INFO_STEPS: np.asarray(r.steps[idx]).astype(np.int64)},
+                            {k: v[idx] for k, v in diagnostics.items()})
         return BatchStepResult(idx, observations, r.reward[idx].astype(np.float64), r.terminated[idx], r.truncated[idx], infos)
 
     def render(self, env: int) -> np.ndarray | None:
