@@ -44,6 +44,7 @@ from simseam.seam import (
     ObsRequest,
     array_fields,
     host_array,
+    info_column,
     offers_arrays,
     stack_observations,
 )
@@ -155,7 +156,7 @@ class SimseamVectorEnv(gym.vector.VectorEnv):
             r = self._step(stepped, a)
             reward[stepped], terminated[stepped], truncated[stepped] = r.reward, r.terminated, r.truncated
             key = self.batch.spec.task.success_key
-            success[stepped] = [bool(i.get(key, False)) for i in r.infos]
+            success[stepped] = info_column(r.infos, key)
         info: dict[str, Any] = {"is_success": success, "_is_success": ~resetting}
         ended = terminated | truncated
         if mode == AutoresetMode.SAME_STEP and ended.any():
