@@ -23,8 +23,8 @@ Each command's console is written to its log as it runs (``--logs``, else beside
 a case still running after S seconds a Ctrl-C, as a user's would (its finished episodes and summary kept, its row
 marked cut, its rates over the episodes it finished), so that a call with a time limit still brings back a row.
 Both draw only the cameras a policy reads at each step (the CPU backend's sidecars blank the others' sensors,
-``robosuite_cameras.CameraSwitch``, and draw both cameras at each reset, on its last settle step); the rows say
-which (``images``). Prints a table and writes JSON
+``robosuite_cameras.CameraSwitch``, and draw both cameras while resetting: robosuite's reset, the last settle
+step); the rows say which (``images``). Prints a table and writes JSON
 (default ``benchmarks/results/libero_scale.json``). Needs the LIBERO backend provisioned (``simseam
 backends provision libero``, or ``benchmarks/device/libero_upload.sh install`` on the GPU machine).
 """
