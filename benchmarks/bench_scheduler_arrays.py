@@ -41,7 +41,8 @@ sys.path.insert(1, str(Path(__file__).resolve().parent))
 from cpu_facts import CpuWindow, topology  # noqa: E402
 
 from simseam.runner import scheduler  # noqa: E402
-from simseam.seam import INFO_DIAGNOSTICS, INFO_STEPS, BatchStepResult, InfoColumns, SyncStepPair  # noqa: E402
+from simseam.seam import (  # noqa: E402
+    INFO_DIAGNOSTICS, INFO_STEPS, STATE_ONLY, BatchStepResult, InfoColumns, SyncStepPair)
 
 DIAGNOSTICS = ("near_object", "grasp_success", "grasp_reward", "in_place_reward", "obj_to_target", "unscaled_reward")
 
@@ -95,7 +96,8 @@ class FreeArrays(SyncStepPair):
 
 
 class ZeroArrays:
-    """A policy of the array path that answers one cached zero array."""
+    """A policy of the array path that answers one cached zero array and asks for no image (``STATE_ONLY``, as a
+    state policy does: the scheduler takes the union of every environment's request twice a step)."""
 
     def __init__(self, n: int, dim: int):
         self.n, self.zeros = n, np.zeros((n, dim), np.float32)
@@ -105,7 +107,7 @@ class ZeroArrays:
         pass
 
     def observe_next(self, env):
-        return None
+        return STATE_ONLY
 
     def act_batch(self, envs, observations):
         return self.zeros[:len(envs)]

@@ -43,6 +43,8 @@ class ObsRequest:
     def union(requests: "list[ObsRequest | None]") -> "ObsRequest | None":
         """One request asking for everything any of ``requests`` asks for (None, the full request, among them:
         None); e.g. one observation of a whole batch for environments that want different things."""
+        if requests and requests.count(requests[0]) == len(requests):  # one request for all (a batch's usual case)
+            return requests[0]
         if any(r is None for r in requests):
             return None
         images = [r.images for r in requests]
