@@ -158,3 +158,27 @@ def test_array_actions_takes_dlpack_arrays_and_names_what_is_wrong():
                          ("nope", "a str is not a DLPack array"), ([["a"] * 4] * 2, "not numeric")):
         with pytest.raises(InvalidActionError, match=f"step_arrays: .*{message}"):
             array_actions(np, bad, (2, 4))
+
+
+def test_info_columns_are_the_list_of_dicts_they_stand_for():
+    """``InfoColumns``: each environment's dict built when read, with the Python values ``tolist`` gives (a numpy
+    scalar left in would change what an episode's diagnostics serialise to), one column at once, the usual
+    sequence behaviour (iteration ends, negative and out-of-range indices), and columns of one length only."""
+    from simseam.seam import INFO_DIAGNOSTICS, InfoColumns, info_column
+
+    success, steps = np.array([True, False, True]), np.array([3, 4, 5], dtype=np.int64)
+    dist = np.array([0.25, 0.5, 1.5], dtype=np.float32)
+    ic = InfoColumns({"success": success, "steps": steps}, {"dist": dist})
+    listed = [{"success": s, "steps": n, INFO_DIAGNOSTICS: {"dist": d}}
+              for s, n, d in zip(success.tolist(), steps.tolist(), dist.tolist())]
+    assert len(ic) == 3 and list(ic) == listed and ic == listed and ic[-1] == listed[2] and ic[1:] == listed[1:]
+    assert {type(v) for v in ic[0].values()} == {bool, int, dict} and type(ic[0][INFO_DIAGNOSTICS]["dist"]) is float
+    assert ic.column("steps") is steps
+    assert info_column(ic, "success").tolist() == [True, False, True]
+    assert info_column(listed, "success").tolist() == [True, False, True]
+    assert info_column([{}, {"success": 1.0}], "success").tolist() == [False, True]  # .get, truthiness
+    with pytest.raises(IndexError, match="index 3 out of range for 3 environments"):
+        ic[3]
+    assert list(InfoColumns({})) == [] and INFO_DIAGNOSTICS not in InfoColumns({"success": [True]})[0]
+    with pytest.raises(ValueError, match=r"columns of different lengths \[2, 3\]"):
+        InfoColumns({"success": success}, {"dist": dist[:2]})

@@ -125,10 +125,15 @@ class InfoColumns(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return [self[i] for i in range(*k.indices(self._n))]
+        if not -self._n <= k < self._n:
+            raise IndexError(f"InfoColumns index {k} out of range for {self._n} environments")
         info = {key: _scalar(col[k]) for key, col in self.columns.items()}
         if self.diagnostics is not None:
             info[INFO_DIAGNOSTICS] = {name: _scalar(col[k]) for name, col in self.diagnostics.items()}
         return info
+
+    def __iter__(self):
+        return (self[k] for k in range(self._n))
 
     def __eq__(self, other) -> bool:
         return isinstance(other, Sequence) and list(self) == list(other)
