@@ -97,16 +97,15 @@ case "${1:-}" in
   kernels)  # the call before one that measures MT50 (a fresh machine, no kernel cache carried): every task's kernels
     # compiled, and its model and reset states cached, by KPROCS processes at once (default 8), TP_WORLDS worlds
     # (default 8192) for one step a task, so that the measuring call compiles nothing. One process alone took
-    # 252 s for the first task's kernels and 715 s of setups over the 50 tasks on 7 December; the tasks whose
-    # setups then compiled more kernels of their own lead, one to a process.
+    # 252 s for the first task's kernels and 715 s of setups over the 50 tasks on 7 December; the three tasks whose
+    # setups then compiled most kernels of their own (48-120 s) get a process each, the others share the rest.
     mapfile -t shares < <(python3 - "${KPROCS:-8}" <<'EOP'
 import sys
 from simseam.backends.metaworld_gpu.tasks import OBJECTS
-first = ["assembly-v3", "box-close-v3", "basketball-v3", "plate-slide-back-side-v3", "coffee-button-v3",
-         "button-press-topdown-v3", "stick-pull-v3", "coffee-pull-v3"]
-order = first + [t for t in sorted(OBJECTS) if t not in first]
-k = int(sys.argv[1])
-print("\n".join(",".join(order[i::k]) for i in range(k)))
+alone = ["assembly-v3", "box-close-v3", "basketball-v3"]
+rest = [t for t in sorted(OBJECTS) if t not in alone]
+k = int(sys.argv[1]) - len(alone)
+print("\n".join(alone + [",".join(rest[i::k]) for i in range(k)]))
 EOP
 )
     for i in "${!shares[@]}"; do
