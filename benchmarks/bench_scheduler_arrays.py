@@ -145,12 +145,12 @@ def scheduler_point(n: int, mode: str, episodes_per_env: int) -> dict:
             "us_per_env_step": wall / steps * 1e6, "successes": sum(r.success for r in results)}
 
 
-def port_point(n: int, mode: str, steps: int) -> dict:
+def port_point(n: int, mode: str, steps: int, device: str = "cpu") -> dict:
     from simseam.backends.metaworld_gpu.rollout import MetaWorldBatchRollout
     from simseam.backends.metaworld_gpu.worker import NativeWorker
 
     with NativeWorker() as worker:
-        batch = MetaWorldBatchRollout({"task": "reach-v3", "max_steps": steps}, n, worker, device="cpu")
+        batch = MetaWorldBatchRollout({"task": "reach-v3", "max_steps": steps}, n, worker, device=device)
         policy = ZeroArrays(n, 4)
         scheduler.run_batch(batch, policy, range(n))  # untimed: kernels loaded, reset states cached
         spent = {"physics": 0.0, "resets": 0.0}
@@ -173,16 +173,19 @@ def port_point(n: int, mode: str, steps: int) -> dict:
         batch.close()
     rest = wall - spent["physics"] - spent["resets"]
     return {"wall_s": wall, "physics_s": spent["physics"], "resets_s": spent["resets"], "flights": policy.calls,
-            "ms_per_step_without_physics_and_resets": rest / policy.calls * 1e3}
+            "ms_per_step_without_physics_and_resets": rest / policy.calls * 1e3,
+            "ms_per_step_without_resets": (wall - spent["resets"]) / policy.calls * 1e3}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, nargs="+", default=[1024, 8192])
+    ap.add_argument("--n", type=int, nargs="*", default=[1024, 8192])
     ap.add_argument("--episodes-per-env", type=int, default=3)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--port-worlds", type=int, default=1024, help="Meta-World's port on Warp's CPU device (0 skips)")
     ap.add_argument("--port-steps", type=int, default=6, help="the port's episode length (its max_steps)")
+    ap.add_argument("--port-device", default="cpu", help="the port's Warp device (cuda:0: physics.advance then "
+                    "times only its launches; read ms_per_step_without_resets there)")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "scheduler_arrays_cpu.json")
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args()
@@ -200,7 +203,8 @@ def main() -> int:
         if args.port_worlds:
             for r in range(args.rounds):
                 for mode in ("per_env", "columns"):
-                    doc["port"].setdefault(mode, []).append(port_point(args.port_worlds, mode, args.port_steps))
+                    doc["port"].setdefault(mode, []).append(port_point(args.port_worlds, mode, args.port_steps,
+                                                                         args.port_device))
     doc["cpu_window"] = window.facts()
     print_table(doc, args.port_worlds)
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -227,6 +231,8 @@ def print_table(doc: dict, port_worlds: int) -> None:
         print(f"{f'Meta-World port, {port_worlds} worlds*':<34} {a:16.2f} {b:16.2f} {a / b:6.1f}x   {rounds}")
         print("* the seam's step on Warp's CPU device, less physics.advance and the resets (its policy: one cached zero "
               "array)")
+        whole = {m: [round(r["ms_per_step_without_resets"], 2) for r in rows] for m, rows in doc["port"].items()}
+        print(f"the port's whole step (physics included, resets not), ms: {whole}")
 
 
 if __name__ == "__main__":
