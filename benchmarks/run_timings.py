@@ -22,10 +22,12 @@ def stepping(run: Path) -> dict[str, float]:
 def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
     """A row per process of the run in ``run`` (its ``timings.jsonl``: a line per task's batch, with its process's
     start and when the batch began to open, opened and finished), ``launched`` the command's start (epoch
-    seconds): the seconds from the launch to the process's start, from there to its first batch opening (of it,
-    to its policy built: ``of_it_policy``, None in runs that did not record it), its
-    batches' opening (builds, the preparation waited for) and running (resets, steps, the episodes written)
-    summed, of which ``stepping`` (the episode log's), and when its last task ended; [] when the run wrote none."""
+    seconds): the seconds from the launch to the process's start, from there to its first batch opening, from
+    the start to its policy built (``to_policy``, None in runs that did not record it; a policy that told what
+    it reads loads while the first batch opens, so it may end after the opening began), its batches' opening
+    (builds, the preparation waited for) and running (resets, steps, the episodes written; the first batch's
+    includes ``waited_for_policy``, the seconds it waited for a policy still loading) summed, of which
+    ``stepping`` (the episode log's), and when its last task ended; [] when the run wrote none."""
     path = Path(run) / "timings.jsonl"
     if not path.exists():
         return []
@@ -40,7 +42,8 @@ def per_process(run: Path, launched: float) -> list[dict[str, Any]]:
         ready = mine[0].get("policy_ready")  # when the process's policy was built (runs since 7 December)
         rows.append({"launch_to_process": round(started - launched, 2),
                      "process_to_first_open": round(min(t["open"] for t in mine) - started, 2),
-                     "of_it_policy": None if ready is None else round(ready - started, 2),
+                     "to_policy": None if ready is None else round(ready - started, 2),
+                     "waited_for_policy": None if ready is None else round(max(0.0, ready - mine[0]["opened"]), 2),
                      "opening": round(sum(t["opened"] - t["open"] for t in mine), 2),
                      "running": round(sum(t["ran"] - t["opened"] for t in mine), 2),
                      "stepping": round(sum(steps.get(t["part"], 0.0) for t in mine), 2),

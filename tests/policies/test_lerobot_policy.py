@@ -5,6 +5,8 @@ import json
 import math
 import re
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -348,3 +350,33 @@ def test_a_mistyped_checkpoint_directory_is_never_looked_up_on_the_hub(tmp_path,
         with pytest.raises(ConfigError, match=re.escape(f"lerobot:{source}: {fragment}")):
             make_policy(f"lerobot:{source}")
     assert not lp._is_local("lerobot/act_aloha_sim_transfer_cube_human")  # an owner/name stays a Hub id
+
+
+def test_a_checkpoint_tells_what_it_reads_before_it_loads(tiny_act, state_act, tmp_path, monkeypatch):
+    """``predict_traits`` of a local checkpoint (read from its files, torch not imported) equals what the made
+    policy reads, for an image policy, a state policy reading the objects' state, a single-camera policy, and a
+    saved contract that drops the object state; a Hub id, a missing directory and a registered name tell
+    nothing (making the policy says what is wrong)."""
+    from simseam.policies.base import PolicyTraits, predict_traits
+    from simseam.policies.contract import SKILL_FILE
+
+    single = _single_camera_act(tmp_path)
+    no_env = tmp_path / "no_env_state"
+    shutil.copytree(state_act, no_env)
+    skill = json.loads((no_env / SKILL_FILE).read_text())
+    (no_env / SKILL_FILE).write_text(json.dumps({**skill, "env_state_dim": None}))
+    told = {}
+    for ckpt in (tiny_act[0], state_act, single, no_env):
+        told[ckpt] = predict_traits(f"lerobot:{ckpt}", {"device": "cpu"})
+        assert told[ckpt] == PolicyTraits.of(make_policy(f"lerobot:{ckpt}", device="cpu")), ckpt
+    assert [t.uses_images for t in told.values()] == [True, False, True, False]
+    assert [t.reads_environment_state for t in told.values()] == [False, True, False, False]
+    assert predict_traits("lerobot:someone/some_policy", {}) is None
+    assert predict_traits(f"lerobot:{tmp_path / 'no_such_checkpoint'}", {}) is None
+    assert predict_traits("scripted", {}) is None
+    assert predict_traits(f"lerobot:{state_act}", {"config_overrides": {"input_features": {}}}) is None
+    check = (f"import sys; from simseam.policies.base import predict_traits; t = predict_traits('lerobot:{state_act}', "
+             "{}); assert t.reads_environment_state; "
+             "print(sorted(m for m in ('torch', 'lerobot') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr

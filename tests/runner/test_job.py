@@ -214,10 +214,11 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     timed = []
     log = SimpleNamespace(spec=lambda s: None, episode=lambda e: None, policy_ready=time.time(),
                           timing=lambda t: (timed.append(t), events.append(("timed", t["part"], t["episodes"]))))
-    _stepped(job, recipe, batch, 2, Lockstep(), "workers", "here", report, log)
+    _stepped(job, recipe, lambda: (events.append(("policy",)), batch)[1], 2, Lockstep(), "workers", "here", report,
+             log)
     shared = [e for e in events if e[0] == "prefetch"][0][4]
-    assert events == [
-        ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared),
+    assert events == [  # the policy batch is asked for once, when the first batch is open (it may be loading)
+        ("open", 0, 2), ("prefetch", 1, (2, 3), 5, shared), ("policy",),
         ("run", 0, (0, 1), 7), ("close", 0), ("timed", "task 0", 2),
         ("waited", 1), ("open", 1, 2), ("prefetch", 2, (4, 5), 3, shared), ("run", 1, (2, 3), 5), ("close", 1),
         ("timed", "task 1", 2), ("waited", 2), ("open", 2, 2), ("run", 2, (4, 5), 3), ("close", 2),
@@ -226,3 +227,81 @@ def test_a_batched_port_prepares_the_next_task_while_this_one_steps():
     assert all(t["process_started"] <= t["open"] <= t["opened"] <= t["ran"] for t in timed)
     assert {t["policy_ready"] for t in timed} == {log.policy_ready}  # when the process's policy was built
     assert [t["ran"] <= u["open"] for t, u in zip(timed, timed[1:])] == [True, True]
+
+
+@pytest.fixture
+def warp_scene(tmp_path):
+    path = tmp_path / "warp.yaml"
+    path.write_text("robot: franka_panda\nengine: {name: mujoco_warp, device: cpu}\ntask: lift_cube\nmax_steps: 60\n")
+    return path
+
+
+def _run_policy(scene, out, policy: str) -> list[dict]:
+    """Episodes 0-2 of ``scene`` on 2 environments with ``policy``: the run's log lines (timings dropped)."""
+    cfg, base = load_scene_config(scene)
+    rd = RunDir(out, {"test": "ahead"})
+    try:
+        execute(Job(SceneRecipe(cfg.model_dump(mode="json"), str(base), render_images=False, seed=SEED), policy, {},
+                    [0, 1, 2], SEED, rd), Executor("vector", 2))
+    finally:
+        rd.close()
+    lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    return sorted(({k: v for k, v in e.items() if k not in TIMING} for e in lines), key=lambda e: e["index"])
+
+
+def _slow_scheme(monkeypatch, told, envs_open):
+    """A ``slow:`` policy scheme that tells ``told`` before it is made, and whose making waits (at most 120 s)
+    for the run's first batch of environments to be open: a run that made the policy first would fail here."""
+    from simseam.policies.base import SCHEMES, make_policy
+
+    def slow(target, **kwargs):
+        if not envs_open.wait(120):
+            raise RuntimeError("the environments did not open while the policy was made")
+        return make_policy(target)
+
+    slow.predict_traits = lambda target, **kwargs: told
+    monkeypatch.setitem(SCHEMES, "slow", slow)
+
+
+def _opened_signal(monkeypatch):
+    import threading
+
+    opened = threading.Event()
+    original = SceneRecipe.open_envs
+
+    def open_envs(self, *a, **k):
+        envs = original(self, *a, **k)
+        opened.set()
+        return envs
+
+    monkeypatch.setattr(SceneRecipe, "open_envs", open_envs)
+    return opened
+
+
+def test_a_batched_engines_run_opens_its_worlds_while_the_policy_loads(warp_scene, tmp_path, monkeypatch):
+    """A run on a batched engine whose policy tells what it reads before it is made (``predict_traits``: a
+    LeRobot checkpoint's config) opens its first batch of worlds while the policy is made on a thread: the
+    policy here cannot be made until the worlds are open. The episodes are the plain run's; the run's timing
+    says the opening began before the policy was ready."""
+    from simseam.policies.base import PolicyTraits
+    from simseam.runner.run_dir import TIMING_FILE
+
+    plain = _run_policy(warp_scene, tmp_path / "plain", "scripted")
+    assert all(e["success"] for e in plain)
+    _slow_scheme(monkeypatch, PolicyTraits(requires_privileged=True, uses_images=False, reads_environment_state=False),
+                 _opened_signal(monkeypatch))
+    assert _run_policy(warp_scene, tmp_path / "ahead", "slow:scripted") == plain
+    timing = [json.loads(line) for line in (tmp_path / "ahead" / TIMING_FILE).read_text().splitlines()]
+    assert timing and timing[0]["open"] < timing[0]["policy_ready"] <= timing[0]["ran"]
+
+
+def test_a_policy_that_differs_from_what_it_told_runs_the_plain_way(warp_scene, tmp_path, monkeypatch):
+    """A policy whose made self asks for other things than it told (here: told no ground truth, the scripted
+    expert needs it): nothing is written with the wrong scene options; the run starts again with the policy
+    made first, and its episodes are the plain run's."""
+    from simseam.policies.base import PolicyTraits
+
+    plain = _run_policy(warp_scene, tmp_path / "plain", "scripted")
+    _slow_scheme(monkeypatch, PolicyTraits(requires_privileged=False, uses_images=False, reads_environment_state=False),
+                 _opened_signal(monkeypatch))
+    assert _run_policy(warp_scene, tmp_path / "told", "slow:scripted") == plain

@@ -20,6 +20,7 @@ from __future__ import annotations
 import inspect
 
 from collections import deque
+from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -103,6 +104,34 @@ SCHEMES: dict[str, str | Callable[..., Policy]] = {
     "lerobot": "simseam.policies.lerobot_policy:LeRobotPolicy",
     "remote": "simseam.policies.remote:make_remote_policy",
 }
+
+
+@dataclass(frozen=True)
+class PolicyTraits:
+    """What a policy asks of the scene it drives: ground truth (``requires_privileged``), images
+    (``uses_images``), the objects' state (``reads_environment_state``). A run picks the scene's options from
+    them."""
+
+    requires_privileged: bool
+    uses_images: bool
+    reads_environment_state: bool
+
+    @classmethod
+    def of(cls, policy: Any) -> "PolicyTraits":
+        return cls(bool(policy.requires_privileged), bool(policy.uses_images),
+                   bool(getattr(policy, "reads_environment_state", False)))
+
+
+def predict_traits(name: str, kwargs: dict[str, Any]) -> PolicyTraits | None:
+    """The traits policy spec ``name`` will have, told without making it, where its scheme can read them from
+    what it loads (``lerobot:``: a local checkpoint's config files, read before torch is imported: its factory's
+    ``predict_traits``); None where only the made policy can tell (registered names, ``remote:``, a Hub id, a
+    checkpoint that does not read). A run uses them to open its environments while a slow policy loads."""
+    scheme, sep, target = name.partition(":")
+    if not (sep and target and scheme in SCHEMES):
+        return None
+    predict = getattr(registry.load(SCHEMES, scheme, "policy scheme"), "predict_traits", None)
+    return predict(target, **kwargs) if predict is not None else None
 
 
 def register_policy(name: str) -> Callable:

@@ -168,6 +168,31 @@ class LeRobotPolicy(BasePolicy):
 
     uses_images = True
 
+    @staticmethod
+    def predict_traits(source: str, *, config_overrides: dict[str, Any] | None = None, **_: Any):
+        """The traits the policy will have (``policies.base.predict_traits``), from a local checkpoint's
+        ``config.json`` (its input features: images, ``observation.environment_state``) and saved contract,
+        read without importing torch or LeRobot; None for a Hub id or a checkpoint that does not read (making
+        the policy then says what is wrong)."""
+        import json
+
+        from simseam.policies.base import PolicyTraits
+
+        path = Path(source).expanduser()
+        if not _is_local(source) or "input_features" in (config_overrides or {}):
+            return None
+        try:
+            _check_checkpoint_dir(source, path)
+            features = json.loads((path / "config.json").read_text())["input_features"]
+            saved = SkillContract.load(path)
+        except (ConfigError, OSError, ValueError, KeyError, TypeError):
+            return None
+        if not isinstance(features, dict):
+            return None
+        images = any(k.startswith(IMAGE_PREFIX) or k == SINGLE_IMAGE_KEY for k in features)
+        env_state = saved.env_state_dim is not None if saved is not None else ENV_STATE_KEY in features
+        return PolicyTraits(requires_privileged=False, uses_images=images, reads_environment_state=env_state)
+
     def __init__(self, source: str | Path, *, device: str | None = None, n_action_steps: int | None = None,
                  image_map: dict[str, str] | None = None, config_overrides: dict[str, Any] | None = None,
                  noise_seed: int = 0):

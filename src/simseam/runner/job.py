@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -227,21 +228,23 @@ def _start_dataset(job: Job, report: JobReport, spec: RolloutSpec) -> None:
 def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     """``num_envs`` environments: the policy acting here for all of them (one batch, each part of the job
     on its own environments in turn), or inside each worker (whole episodes, every part on one set)."""
-    from simseam.policies.base import make_policy
+    from simseam.policies.base import make_policy, predict_traits
     from simseam.policies.batch import batch_for
 
+    traits = predict_traits(job.policy, job.policy_kwargs) if job.recipe.steps_here() else None
+    if traits is not None:
+        try:
+            _stepped_while_loading(job, executor, traits, report, log)
+            return
+        except _TraitsDiffer:
+            pass  # nothing was written: the run starts again, the policy made first
     probe = make_policy(job.policy, **job.policy_kwargs)
     log.policy_ready = time.time()
     batch = None
     try:
         recipe = job.recipe.for_policy(probe.requires_privileged, probe.uses_images, reads_environment_state(probe))
-        n = max(1, min(executor.num_envs or 1, len(job.indices)))
-        rule = executor.lockstep.fit(n)
-        renderer = recipe.renderer_for(executor.renderer)
+        n, rule, renderer = _batch_shape(job, executor, recipe)
         here = recipe.steps_here()
-        if here and rule.envs_per_worker > 1:
-            raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {recipe.describe()} steps its {n} "
-                              "environments in one batch in this process, not in worker processes")
         chosen = ""
         default = (_default_rule(job, probe, n) if rule.auto and not here and renderer == "workers"
                    and recipe.engine_in_worker() else None)  # no rule named
@@ -255,14 +258,91 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
             _whole_episodes(job, recipe, n, first, report, log)
             return
         probe = None  # the batch owns it
-        where = "one batched policy" + recipe.parts_in_turn
-        where += (", cameras drawn here in one batch" if renderer == "batched" else "") + rule.describe() + chosen
-        _stepped(job, recipe, batch, n, rule, renderer, where, report, log)
+        ready = batch
+        _stepped(job, recipe, lambda: ready, n, rule, renderer, _where(recipe, renderer, rule) + chosen, report, log)
     finally:
         if batch is not None:
             batch.close()
         if probe is not None:
             _close(probe)
+
+
+def _batch_shape(job: Job, executor: Executor, recipe) -> tuple[int, Lockstep, str]:
+    """How many environments a vector run of ``recipe`` steps, by which lockstep rule, with which renderer."""
+    n = max(1, min(executor.num_envs or 1, len(job.indices)))
+    rule = executor.lockstep.fit(n)
+    if recipe.steps_here() and rule.envs_per_worker > 1:
+        raise ConfigError(f"--envs-per-worker {rule.envs_per_worker}: {recipe.describe()} steps its {n} "
+                          "environments in one batch in this process, not in worker processes")
+    return n, rule, recipe.renderer_for(executor.renderer)
+
+
+def _where(recipe, renderer: str, rule: Lockstep) -> str:
+    """Where a stepped run's policy acts, for the run's first line."""
+    return ("one batched policy" + recipe.parts_in_turn + (", cameras drawn here in one batch"
+                                                           if renderer == "batched" else "") + rule.describe())
+
+
+class _TraitsDiffer(Exception):
+    """The policy, once made, asks the scene for other things than its files told (``predict_traits``)."""
+
+
+class _PolicyAhead:
+    """The run's policy made, and its batch for ``n`` environments built, on a thread while the first batch of
+    environments opens: a torch policy's imports and checkpoint (19-21 s a process on a GPU machine running ten)
+    beside the engine's start. ``batch()`` waits for it (and raises what making it raised); ``close()`` waits and
+    closes what was made."""
+
+    def __init__(self, job: Job, n: int, log: _Log):
+        self._job, self._n, self._log = job, n, log
+        self._made = self._error = None
+        self._thread = threading.Thread(target=self._make, name="simseam-policy", daemon=True)
+        self._thread.start()
+
+    def _make(self) -> None:
+        from simseam.policies.base import PolicyTraits, make_policy
+        from simseam.policies.batch import batch_for
+
+        job = self._job
+        try:
+            probe = make_policy(job.policy, **job.policy_kwargs)
+            traits = PolicyTraits.of(probe)
+            try:
+                self._made = traits, batch_for(probe, job.policy, self._n, job.policy_kwargs, acts_here=True)
+            except BaseException:
+                _close(probe)
+                raise
+            self._log.policy_ready = time.time()
+        except BaseException as exc:  # noqa: BLE001 - raised again where the run waits for the policy
+            self._error = exc
+
+    def batch(self, expected) -> Any:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        traits, batch = self._made
+        if traits != expected:
+            raise _TraitsDiffer(f"told {expected}, made {traits}")
+        return batch
+
+    def close(self) -> None:
+        self._thread.join()
+        if self._made is not None:
+            self._made[1].close()
+
+
+def _stepped_while_loading(job: Job, executor: Executor, traits, report: JobReport, log: _Log) -> None:
+    """A run on a batched engine whose policy told its ``traits`` before it was made (``predict_traits``): the
+    scene's options come from them, and the policy loads while the first part's batch opens (``_PolicyAhead``).
+    Raises ``_TraitsDiffer`` before anything is written if the made policy differs from what it told."""
+    recipe = job.recipe.for_policy(traits.requires_privileged, traits.uses_images, traits.reads_environment_state)
+    n, rule, renderer = _batch_shape(job, executor, recipe)
+    ahead = _PolicyAhead(job, n, log)
+    try:
+        _stepped(job, recipe, lambda: ahead.batch(traits), n, rule, renderer, _where(recipe, renderer, rule),
+                 report, log)
+    finally:
+        ahead.close()
 
 
 def _default_rule(job: Job, probe, workers: int) -> tuple[Any, int, Lockstep, str] | None:
@@ -307,11 +387,12 @@ def _whole_episodes(job: Job, recipe, n: int, probe, report: JobReport, log: _Lo
                   on_worker_failure=report.on_worker_failure, keep=False)
 
 
-def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str, where: str, report: JobReport,
-             log: _Log) -> None:
-    """Each part on its own environments (at most ``n``), stepped together from here with the policy
-    ``batch`` by the ``lockstep`` rule."""
-    shared, ahead = recipe.shared(), None
+def _stepped(job: Job, recipe, policy: Callable[[], Any], n: int, lockstep: Lockstep, renderer: str, where: str,
+             report: JobReport, log: _Log) -> None:
+    """Each part on its own environments (at most ``n``), stepped together from here with the policy batch
+    ``policy()`` (asked for once the first part's environments are open: it may still be loading) by the
+    ``lockstep`` rule."""
+    shared, ahead, batch = recipe.shared(), None, None
     parts = recipe.parts(job.indices, job.seed)
     try:
         for k, (part, indices, seed) in enumerate(parts):
@@ -328,6 +409,7 @@ def _stepped(job: Job, recipe, batch, n: int, lockstep: Lockstep, renderer: str,
                                 shared=shared) as envs:
                 opened = time.time()
                 ahead = _prefetch(_after(parts, k, job.claims), shared)  # the next part's, while this one steps
+                batch = policy() if batch is None else batch
                 batch.reset(0, envs.spec)  # the policy's contract, before anything is written
                 log.spec(envs.spec.to_json())
                 report.envs = envs
