@@ -380,3 +380,36 @@ def test_a_checkpoint_tells_what_it_reads_before_it_loads(tiny_act, state_act, t
              "print(sorted(m for m in ('torch', 'lerobot') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+def test_a_checkpoint_on_a_batched_engine_loads_while_the_worlds_open(state_act, tmp_path, monkeypatch):
+    """A real LeRobot checkpoint on MuJoCo Warp's worlds (Warp's CPU device), through the vector executor: made
+    on a thread while the first batch opens (its traits told by its files), it gives the episodes it gives when
+    made first (``predict_traits`` answering None): the same steps and rewards, to the bit."""
+    from simseam.policies import base
+    from simseam.runner.job import Executor, Job, execute
+    from simseam.runner.recipe import SceneRecipe
+    from simseam.runner.run_dir import TIMING_FILE, RunDir
+    from simseam.runner.scene_config import load_scene_config
+
+    scene = tmp_path / "warp.yaml"
+    scene.write_text("robot: franka_panda\nengine: {name: mujoco_warp, device: cpu}\ntask: lift_cube\n"
+                     "max_steps: 12\nenvironment_state: true\n")
+
+    def run(out):
+        cfg, where = load_scene_config(scene)
+        rd = RunDir(out, {"test": "lerobot ahead"})
+        try:
+            execute(Job(SceneRecipe(cfg.model_dump(mode="json"), str(where)), f"lerobot:{state_act}",
+                        {"device": "cpu"}, [0, 1], 3, rd), Executor("vector", 2))
+        finally:
+            rd.close()
+        lines = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+        return sorted(((e["index"], e["steps"], e["reward"]) for e in lines)), out / TIMING_FILE
+
+    ahead, timing = run(tmp_path / "ahead")
+    first = json.loads(timing.read_text().splitlines()[0])
+    assert first["process_started"] <= first["open"] and first["policy_ready"] <= first["ran"]
+    monkeypatch.setattr(base, "predict_traits", lambda name, kwargs: None)
+    plain, _ = run(tmp_path / "plain")
+    assert ahead == plain and [s for _, s, _ in plain] == [12, 12]
