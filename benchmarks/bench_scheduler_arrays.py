@@ -193,7 +193,7 @@ def main() -> int:
         print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
         return 2
     doc: dict = {"benchmark": "scheduler_arrays", "argv": sys.argv[1:], "machine": topology(), "scheduler": {},
-                 "port": {}}
+                 "port": {}, "port_device": args.port_device}
     with CpuWindow() as window:
         for n in args.n:
             for r in range(args.rounds):  # the modes alternate within a round
@@ -206,14 +206,14 @@ def main() -> int:
                     doc["port"].setdefault(mode, []).append(port_point(args.port_worlds, mode, args.port_steps,
                                                                          args.port_device))
     doc["cpu_window"] = window.facts()
-    print_table(doc, args.port_worlds)
+    print_table(doc, args.port_worlds, args.port_device)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(doc, indent=1))
     print(f"wrote {args.out}")
     return 0
 
 
-def print_table(doc: dict, port_worlds: int) -> None:
+def print_table(doc: dict, port_worlds: int, device: str) -> None:
     def med(rows: list, key: str) -> float:
         return statistics.median(r[key] for r in rows)
 
@@ -229,8 +229,9 @@ def print_table(doc: dict, port_worlds: int) -> None:
         rounds = " ".join(f"{r[key]:.1f}" for r in doc["port"]["per_env"]) + " | " + \
             " ".join(f"{r[key]:.1f}" for r in doc["port"]["columns"])
         print(f"{f'Meta-World port, {port_worlds} worlds*':<34} {a:16.2f} {b:16.2f} {a / b:6.1f}x   {rounds}")
-        print("* the seam's step on Warp's CPU device, less physics.advance and the resets (its policy: one cached zero "
-              "array)")
+        print(f"* the seam's step on Warp's device {device}, less physics.advance and the resets (its policy: one "
+              "cached zero array); on CUDA advance returns once its kernels are launched, so the wait for them is "
+              "in the rest")
         whole = {m: [round(r["ms_per_step_without_resets"], 2) for r in rows] for m, rows in doc["port"].items()}
         print(f"the port's whole step (physics included, resets not), ms: {whole}")
 
