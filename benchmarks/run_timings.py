@@ -10,7 +10,7 @@ from typing import Any
 
 def stepping(run: Path) -> dict[str, float]:
     """Each task's stepping seconds, from the run's episode log: its episodes step in one batch, so the longest
-    episode's steps times its mean step latency (the policy's share included)."""
+    episode's steps times its mean step latency (the step's own time: the policy's is not in it)."""
     by_task: dict[str, float] = {}
     for line in (Path(run) / "episodes.jsonl").read_text().splitlines():
         r = json.loads(line)
