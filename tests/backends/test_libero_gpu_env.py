@@ -293,23 +293,25 @@ def test_a_non_finite_world_ends_alone_named_by_task_and_init_state(worker):
     np.testing.assert_allclose(np.stack(got), np.stack(want), atol=1e-5)  # as on its own (float32 rounding)
 
 
-def _whole_step_run(worker, whole: bool) -> tuple[list[dict], np.ndarray]:
+def _whole_step_run(worker, whole: bool, cameras: bool = False) -> tuple[list[dict], np.ndarray]:
     """Three worlds of libero_spatial/3, world 1's observable clock moved 7 substeps on: resets, steps of all and of
-    some worlds, a reset of one; each step's observation buffers (copies) and the first step's sampling rows."""
+    some worlds, a reset of one; each step's observation buffers (copies) and the first step's sampling rows.
+    ``cameras``: both cameras at 24 x 32 (MuJoCo Warp's ray tracer), drawn at every step and reset."""
     from simseam.backends.libero_gpu.env import LiberoBatch
 
-    batch = LiberoBatch("libero_spatial", 3, 3, worker, device="cpu", settle_steps=2, whole_step=whole)
+    views = [("agentview", "camera1", (24, 32)), ("robot0_eye_in_hand", "camera2", (24, 32))] if cameras else []
+    batch = LiberoBatch("libero_spatial", 3, 3, worker, device="cpu", settle_steps=2, whole_step=whole, cameras=views)
     try:
-        assert batch.whole_step == whole and batch._sampler is not None
-        batch.reset([0, 1, 2], [1, 7, 9])
+        assert batch.whole_step == whole and batch._sampler is not None and (batch._images is not None) == cameras
+        batch.reset([0, 1, 2], [1, 7, 9], render=cameras)
         batch.clock.t[1] = (batch.clock.t[1] + 7 * batch.clock.dt) % batch.clock.period[1]
         rows, seen = batch.clock.copy().ahead(batch.cfg.substeps), []
         for k, a in enumerate(_actions(4)):
             worlds = None if k % 2 == 0 else [0, 2]
-            batch.step(np.tile(a, (3, 1)), worlds=worlds)
+            batch.step(np.tile(a, (3, 1)), worlds=worlds, render=cameras)
             seen.append({key: np.array(v) for key, v in batch.observed.items()})
             if k == 1:
-                batch.reset([1], [4])
+                batch.reset([1], [4], render=cameras)
         return seen, rows
     finally:
         batch.close()
@@ -328,6 +330,23 @@ def test_the_observables_sampled_inside_the_step_are_the_hosts(worker):
         for key in want:
             np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key} after step {step}")
     assert not np.array_equal(whole[0]["qpos"], whole[1]["qpos"])  # the steps moved the worlds
+
+
+def test_the_images_drawn_inside_the_step_are_the_hosts(worker):
+    """While the cameras draw (MuJoCo Warp's ray tracer), a whole control step is still device launches: the
+    cameras drawn after the substeps where some world samples (``observables.ImageSampler``; one captured CUDA
+    graph per set of such substeps on a GPU), each world keeping its own substep's images, mirrored as the host
+    keeps them: bit for bit the host's images and observables, with the worlds sampling at different substeps,
+    through steps of some of the worlds and a reset of one."""
+    (whole, rows), (host, _) = _whole_step_run(worker, True, cameras=True), _whole_step_run(worker, False, True)
+    assert np.flatnonzero(rows.any(axis=1)).size == 2  # the step draws after two substeps
+    for step, (got, want) in enumerate(zip(whole, host)):
+        assert got.keys() == want.keys() and {"image:camera1", "image:camera2"} <= set(want)
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key], err_msg=f"{key} after step {step}")
+    first, second = whole[0]["image:camera1"], whole[2]["image:camera1"]
+    assert first.std() > 10 and not np.array_equal(first, first[:, :, ::-1])  # a scene, not a symmetric blank
+    assert not np.array_equal(first[0], second[0])  # the arm moved between the steps
 
 
 def test_the_observables_clock_ahead_is_its_ticks():

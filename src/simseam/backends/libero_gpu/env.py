@@ -19,8 +19,9 @@ sampled: they sample after the physics step where their clock says (``observable
 as that substep's ``step1`` posed them (MuJoCo's ``mj_step`` leaves the poses of the state before its
 integration) and the joints' qpos and qvel after it. On MuJoCo Warp that sampling is a device launch after each
 substep (``observables.Sampler``: the clock depends on time alone, so a step's sampling substeps are known before
-it runs), and the whole control step is one captured CUDA graph; while the cameras draw, a graph per substep and
-the sampling on the host between them. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
+it runs), and the whole control step is one captured CUDA graph, the cameras (MuJoCo Warp's ray tracer) drawn in it
+after the substeps where some world samples (``observables.ImageSampler``); while MuJoCo's OpenGL renderer draws,
+a graph per substep and the sampling on the host between them. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
 ``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
 evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
@@ -101,6 +102,7 @@ class LiberoBatch:
         self.cameras, self._render = self._make_cameras(cameras), False
         self.whole_step = bool(whole_step)  # read at each step: a bench times both ways on one batch
         self._sampler = self._make_sampler() if engine == "mujoco_warp" else None
+        self._images = self._make_image_sampler()
 
     def _make_physics(self, engine: str, device: str | None, cameras: bool) -> Any:
         if engine == "mujoco_warp":
@@ -118,15 +120,30 @@ class LiberoBatch:
         return Sampler(self.physics, self.observed, int(self.facts["eef_site_id"]), int(names["eef_body"]),
                        [int(names["bodies"][o]) for o in names["objects"]], self.cfg.substeps)
 
+    def _make_image_sampler(self) -> Any:
+        """The cameras drawn inside a step's device launches (``observables.ImageSampler``): MuJoCo Warp's ray
+        tracer on MuJoCo Warp's worlds; None otherwise (MuJoCo's OpenGL renderer draws on the host)."""
+        if self._sampler is None or self.cameras is None or self.renderer != "warp":
+            return None
+        from simseam.backends.libero_gpu.observables import ImageSampler
+
+        return ImageSampler(self.cameras, {k[len(IMAGE):]: v for k, v in self.observed.items() if k.startswith(IMAGE)},
+                            self._sampler)
+
     def _control_step(self, actions: Any) -> None:
         """One control step of every world, the observables sampled where their clock says: inside the step's
-        device launches (``observables.Sampler``: one captured graph per control step on CUDA), or on the host
-        after each substep (while the cameras draw, on CPU MuJoCo, or without ``whole_step``)."""
-        if not self.whole_step or self._sampler is None or (self._render and self.cameras is not None):
+        device launches (``observables.Sampler``, and ``ImageSampler`` while the cameras draw: one captured graph
+        per control step on CUDA, per set of substeps where the cameras draw), or on the host after each substep
+        (on CPU MuJoCo, while MuJoCo's OpenGL renderer draws, or without ``whole_step``)."""
+        drawing = self._render and self.cameras is not None
+        if not self.whole_step or self._sampler is None or (drawing and self._images is None):
             self.osc = control_step(self.physics, self.cfg, self.osc, actions, self.facts, self._tick)
             return
-        self._sampler.load(self.clock.ahead(self.cfg.substeps))
-        self.osc = control_step(self.physics, self.cfg, self.osc, actions, self.facts, sampler=self._sampler)
+        masks = self.clock.ahead(self.cfg.substeps)
+        self._sampler.load(masks)
+        drawn = tuple(int(k) for k in np.flatnonzero(masks.any(axis=1))) if drawing else ()
+        self.osc = control_step(self.physics, self.cfg, self.osc, actions, self.facts, sampler=self._sampler,
+                                images=self._images, drawn=drawn)
 
     @staticmethod
     def reset_cache(worker: Any, info: dict[str, Any], settle_steps: int) -> ResetCache:

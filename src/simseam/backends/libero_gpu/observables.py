@@ -7,7 +7,9 @@ before the step runs (``Clock.ahead``). ``Sampler.launch(d, k)`` copies, for the
 substep ``k``, what the observables read of MuJoCo Warp's data then (the end-effector site's position, the
 ``eef_body``'s quaternion, qpos, qvel, each object's root body pose) into the batch's observation buffers: the same
 values ``env.LiberoBatch._observe`` copies on the host after that substep, with no host round trip between the
-substeps.
+substeps. ``ImageSampler.launch(m, d, k)`` does the same for the cameras (MuJoCo Warp's ray tracer): every world
+drawn, the sampling worlds' images kept, mirrored left-right as ``_observe`` keeps them; launched only after the
+substeps where some world samples.
 """
 
 from __future__ import annotations
@@ -125,3 +127,28 @@ class Sampler:
         wp.launch(sample_kernel, dim=self.n, device=self.device,
                   inputs=[self.mask, int(k), self.site, self.body, self.bodies, d.site_xpos, d.xpos, d.xquat, d.qpos,
                           d.qvel, *self.out])
+
+
+def _alias_images(a: Any, device: Any) -> Any:
+    """An ``xp`` uint8[N, H, W, 3] array (contiguous) as a Warp array sharing its memory."""
+    if device.is_cuda:
+        return wp.from_dlpack(a)
+    return wp.array(a, dtype=wp.uint8, device="cpu", copy=False)
+
+
+class ImageSampler:
+    """The cameras' share of a ``Sampler``: ``cameras`` (an ``engines.mujoco_warp.cameras.WarpCameras`` of the
+    batch's worlds) drawn into ``images`` (feature key -> the batch's ``xp`` uint8[N, H, W, 3] buffer, written in
+    place) for the worlds ``sampler``'s mask says, mirrored left-right (as robosuite's images reach the CPU
+    backend). ``launch(m, d, k)`` after a substep ``k`` where some world samples."""
+
+    def __init__(self, cameras: Any, images: dict[str, Any], sampler: Sampler):
+        for key, a in images.items():
+            if a.dtype != np.uint8 or not a.flags.c_contiguous:
+                raise TypeError(f"the image buffer {key!r} must be contiguous uint8, not {a.dtype}")
+        self.cameras, self.sampler = cameras, sampler
+        self.out = {key: _alias_images(a, sampler.device) for key, a in images.items()}
+
+    def launch(self, m: Any, d: Any, k: int) -> None:
+        self.cameras.cast(m, d)
+        self.cameras.unpack_rows(self.out, self.sampler.mask, k, mirror=True)

@@ -127,19 +127,24 @@ class ControllerReads:
             self.graphs.launch("substep_first" if first else "substep", launches)
             self._wp.synchronize_device(self.device)
 
-    def control_substeps(self, controller: Any, substeps: int, sampler: Any) -> None:
+    def control_substeps(self, controller: Any, substeps: int, sampler: Any, images: Any = None,
+                         drawn: tuple[int, ...] = ()) -> None:
         """A whole control step of every world (``substeps`` of ``control_substep``'s launches, ``sampler``'s
-        launch after each: ``observables.Sampler``, the observables sampled on the device): on CUDA one captured
-        graph, one launch and one wait per control step instead of one per substep."""
+        launch after each: ``observables.Sampler``, the observables sampled on the device; ``images``'s too after
+        the substeps ``drawn``: ``observables.ImageSampler``, the cameras): on CUDA one captured graph per set of
+        drawn substeps, one launch and one wait per control step instead of one per substep."""
         def launches():
             for k in range(substeps):
                 self._mjw.step1(self.m, self.d)
                 controller.launch(self.d, k == 0)
                 self._mjw.step2(self.m, self.d)
                 sampler.launch(self.d, k)
+                if k in drawn:
+                    images.launch(self.m, self.d, k)
 
         with self._wp.ScopedDevice(self.device):
-            self.graphs.launch(f"control_step{substeps}", launches)
+            self.graphs.launch(f"control_step{substeps}" + (f"_drawn{'_'.join(map(str, drawn))}" if drawn else ""),
+                               launches)
             self._wp.synchronize_device(self.device)
 
     def read(self) -> ArmTerms:

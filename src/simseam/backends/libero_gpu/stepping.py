@@ -19,13 +19,15 @@ EULER = 0  # mjINT_EULER
 
 
 def control_step(physics: Any, cfg: C.OscConfig, state: C.OscState, action: Any, facts: dict[str, Any],
-                 after_substep: Callable[[], None] | None = None, sampler: Any = None) -> C.OscState:
+                 after_substep: Callable[[], None] | None = None, sampler: Any = None, images: Any = None,
+                 drawn: tuple[int, ...] = ()) -> C.OscState:
     """One 20 Hz control step (``cfg.substeps`` physics steps) of every world under ``action`` float[N, 7]
     (``xp`` of ``physics``); returns the controller's state after it. ``after_substep()`` runs after each
     physics step (where robosuite updates its observables). A world whose reading is not finite gets zero
     torques (the batch ends its episode). MuJoCo Warp's worlds run each substep as device launches only
     (``physics.ControllerReads.control_substep``), or with ``sampler`` (``observables.Sampler``, loaded: the
-    observables sampled on the device, in place of ``after_substep``) the whole step as device launches
+    observables sampled on the device, in place of ``after_substep``; with ``images``, an
+    ``observables.ImageSampler``, the cameras drawn after the substeps ``drawn``) the whole step as device launches
     (``control_substeps``); CPU MuJoCo's world is read, controlled and written here."""
     if int(physics.mjm.opt.integrator) != EULER:
         raise SimulationError("LIBERO port: the controller runs between step1 and step2, which needs the Euler "
@@ -34,7 +36,7 @@ def control_step(physics: Any, cfg: C.OscConfig, state: C.OscState, action: Any,
         controller = physics.warp_controller(cfg, facts)
         controller.load(state, action)
         if sampler is not None:
-            physics.control_substeps(controller, cfg.substeps, sampler)
+            physics.control_substeps(controller, cfg.substeps, sampler, images, drawn)
             return controller.state(state)
         for k in range(cfg.substeps):
             physics.control_substep(controller, k == 0)

@@ -100,6 +100,15 @@ class WarpCameras:
                       inputs=[self.rc.rgb_data, adr, width, out], device=self.device)
         return self.images
 
+    def unpack_rows(self, out: dict[str, Any], mask: Any, k: int, mirror: bool = False) -> None:
+        """The last cast's pixels into ``out`` (a Warp uint8[N, H, W, 3] per feature key) for the worlds whose
+        ``mask[k]`` (Warp int32[K, N]) is set, the others' images left as they are; ``mirror``: left-right.
+        Device launches only (a captured graph may hold them)."""
+        for key, adr, width in self._adr:
+            dst = out[key]
+            wp.launch(K.unpack_rgb_u8_rows_kernel, dim=(self.num_worlds, dst.shape[1] * dst.shape[2]),
+                      inputs=[self.rc.rgb_data, adr, width, mask, int(k), int(mirror), dst], device=self.device)
+
     def render(self, m: Any, d: Any) -> dict[str, Any]:
         """Every camera of every world from the state in ``d``: ``cast`` then ``unpack``."""
         with wp.ScopedDevice(self.device):

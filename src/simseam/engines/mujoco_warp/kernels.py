@@ -572,6 +572,24 @@ def unpack_rgb_u8_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, ou
 
 
 @wp.kernel(enable_backward=False)
+def unpack_rgb_u8_rows_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, mask: wp.array2d[wp.int32], k: int,
+                              mirror: int, out: wp.array4d[wp.uint8]):
+    """``unpack_rgb_u8_kernel`` for the worlds whose ``mask[k]`` is set (the others' images stay), the image
+    mirrored left-right when ``mirror`` is 1."""
+    w, pix = wp.tid()
+    if mask[k, w] == 0:
+        return
+    x = pix % width
+    y = pix // width
+    if mirror == 1:
+        x = width - 1 - x
+    v = packed[w, adr + pix]
+    out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
+    out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
+    out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+
+
+@wp.kernel(enable_backward=False)
 def site_geoms_kernel(geom_xpos: wp.array2d[wp.vec3], geom_xmat: wp.array2d[wp.mat33],
                       site_xpos: wp.array2d[wp.vec3], site_xmat: wp.array2d[wp.mat33], sites: wp.array[int],
                       ngeom: int, out_xpos: wp.array2d[wp.vec3], out_xmat: wp.array2d[wp.mat33]):
