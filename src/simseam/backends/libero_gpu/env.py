@@ -21,8 +21,8 @@ integration) and the joints' qpos and qvel after it. On MuJoCo Warp that samplin
 substep (``observables.Sampler``: the clock depends on time alone, so a step's sampling substeps are known before
 it runs), and the whole control step is one captured CUDA graph, the cameras (MuJoCo Warp's ray tracer) drawn in it
 after the substeps where some world samples (``observables.ImageSampler``); while MuJoCo's OpenGL renderer draws,
-a graph per substep and the sampling on the host between them. Success after a step is LIBERO's ``_check_success`` (its BDDL goal, batched:
-``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
+a graph per substep and the sampling on the host between them. Success after a step is LIBERO's
+``_check_success`` (its BDDL goal, batched: ``predicates.GoalCheck`` over ``state.LiberoState.from_warp``) on the data as the step left it, as LIBERO
 evaluates it. A world whose qpos or qvel is not finite is flagged in
 ``errors`` (its task, init state and seed in ``error_message``) and parked on a finite state so that it spreads
 nothing into the batch's shared contact arrays; the others go on.
