@@ -54,8 +54,7 @@ def main() -> int:
     ap.add_argument("--overwrite", action="store_true")
     args = ap.parse_args()
     if args.out.exists() and not args.overwrite:
-        print(f"{args.out} exists; pass --overwrite to replace it", file=sys.stderr)
-        return 2
+        ap.error(f"{args.out} exists; pass --overwrite to replace it")
     doc: dict = {"benchmark": "exit", "argv": sys.argv[1:], "machine": topology(), "ways": {w: [] for w in WAYS}}
     with tempfile.TemporaryDirectory() as tmp, CpuWindow() as window:
         scene = args.scene or Path(tmp) / "scene.yaml"
