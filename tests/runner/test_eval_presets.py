@@ -97,15 +97,15 @@ def test_an_eval_turns_on_the_object_state_for_a_policy_that_reads_it(monkeypatc
     not read it leaves the preset's config as it is. No backend is started: ``open_benchmark`` is replaced."""
     from types import SimpleNamespace
 
-    from simseam.policies.base import BasePolicy
-    from simseam.runner.job import reads_environment_state
+    from simseam.policies.base import BasePolicy, PolicyTraits
     from simseam.runner.recipe import policy_options
 
     assert policy_options("libero", False, True) == {"environment_state": True}
     assert policy_options("libero", True, True) == {"cameras": True, "environment_state": True}
     assert policy_options("libero", False, False) == {}
     assert policy_options("metaworld", False, True) == {}  # Meta-World gives its object state by default
-    assert not reads_environment_state(BasePolicy()) and not reads_environment_state(SimpleNamespace())
+    assert not PolicyTraits.of(BasePolicy()).reads_environment_state
+    assert not PolicyTraits.of(SimpleNamespace(requires_privileged=False, uses_images=True)).reads_environment_state
     opened = _stop_at_open(monkeypatch)
 
     class StatePolicy(BasePolicy):

@@ -33,15 +33,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from simseam.policies.base import PolicyTraits
 from simseam.runner.recipe import BenchmarkRecipe, SceneRecipe
 from simseam.runner.scheduler import Lockstep
 from simseam.seam import ConfigError, RolloutSpec
 
 
-def reads_environment_state(policy: Any) -> bool:
-    """Whether ``policy`` reads ``environment_state`` (a LeRobot checkpoint trained on it says so in its
-    contract): a benchmark whose objects' state is off unless asked for turns it on for it."""
-    return bool(getattr(policy, "reads_environment_state", False))
+def _recipe_for(job: Job, traits: PolicyTraits) -> Any:
+    """The job's recipe with the scene options a policy of ``traits`` (``policies.base.PolicyTraits``) asks for:
+    ground truth, cameras, the objects' state (a benchmark whose objects' state is off unless asked for turns it
+    on for a policy that reads it)."""
+    return job.recipe.for_policy(traits.requires_privileged, traits.uses_images, traits.reads_environment_state)
 
 EXECUTORS = ("inline", "vector", "ray")
 
@@ -186,7 +188,7 @@ def _inline(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     policy = make_policy(job.policy, **job.policy_kwargs)
     rollout = None
     try:
-        recipe = job.recipe.for_policy(policy.requires_privileged, policy.uses_images, reads_environment_state(policy))
+        recipe = _recipe_for(job, PolicyTraits.of(policy))
         for part, indices, seed in recipe.parts(job.indices, job.seed):
             with report.status(part.describe()) as status:
                 rollout = part.build(progress=status.update)
@@ -242,7 +244,7 @@ def _vector(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
     log.policy_ready = time.time()
     batch = None
     try:
-        recipe = job.recipe.for_policy(probe.requires_privileged, probe.uses_images, reads_environment_state(probe))
+        recipe = _recipe_for(job, PolicyTraits.of(probe))
         n, rule, renderer = _batch_shape(job, executor, recipe)
         here = recipe.steps_here()
         chosen = ""
@@ -300,7 +302,7 @@ class _PolicyAhead:
         self._thread.start()
 
     def _make(self) -> None:
-        from simseam.policies.base import PolicyTraits, make_policy
+        from simseam.policies.base import make_policy
         from simseam.policies.batch import batch_for
 
         job = self._job
@@ -335,7 +337,7 @@ def _stepped_while_loading(job: Job, executor: Executor, traits, report: JobRepo
     """A run on a batched engine whose policy told its ``traits`` before it was made (``predict_traits``): the
     scene's options come from them, and the policy loads while the first part's batch opens (``_PolicyAhead``).
     Raises ``_TraitsDiffer`` before anything is written if the made policy differs from what it told."""
-    recipe = job.recipe.for_policy(traits.requires_privileged, traits.uses_images, traits.reads_environment_state)
+    recipe = _recipe_for(job, traits)
     n, rule, renderer = _batch_shape(job, executor, recipe)
     ahead = _PolicyAhead(job, n, log)
     try:
@@ -487,8 +489,7 @@ def _ray(job: Job, executor: Executor, report: JobReport, log: _Log) -> None:
 
     probe = _SpecProbe(job.policy, job.policy_kwargs)  # meets the first actor's spec before anything is written
     try:
-        recipe = job.recipe.for_policy(probe.policy.requires_privileged, probe.policy.uses_images,
-                                        reads_environment_state(probe.policy))
+        recipe = _recipe_for(job, PolicyTraits.of(probe.policy))
         first, _, _ = recipe.parts(job.indices, job.seed)[0]
         if report.on_envs:
             report.on_envs(None, executor.num_envs or 0, f"Ray ({executor.address})")

@@ -95,11 +95,14 @@ def sample_kernel(mask: wp.array2d(dtype=wp.int32), k: int, site: int, body: int
             obj_quat[i, o, a] = bq[a]
 
 
-def _alias(a: Any, device: Any) -> Any:
-    """An ``xp`` float32 array (contiguous) as a Warp array sharing its memory."""
+def _alias(key: str, a: Any, device: Any, dtype: Any = np.float32) -> Any:
+    """The batch's buffer ``key``, an ``xp`` array of ``dtype`` (contiguous: a ``TypeError`` otherwise), as a Warp
+    array sharing its memory."""
+    if a.dtype != dtype or not a.flags.c_contiguous:
+        raise TypeError(f"the observation buffer {key!r} must be contiguous {np.dtype(dtype)}, not {a.dtype}")
     if device.is_cuda:
         return wp.from_dlpack(a)
-    return wp.array(a, dtype=wp.float32, device="cpu", copy=False)
+    return wp.array(a, dtype=wp.dtype_from_numpy(np.dtype(dtype)), device="cpu", copy=False)
 
 
 class Sampler:
@@ -110,11 +113,7 @@ class Sampler:
     def __init__(self, physics: Any, observed: dict[str, Any], site: int, body: int, bodies: list[int],
                  substeps: int):
         self.n, self.device = physics.num_worlds, physics.device
-        for key in KEYS:
-            a = observed[key]
-            if a.dtype != np.float32 or not a.flags.c_contiguous:
-                raise TypeError(f"the observation buffer {key!r} must be contiguous float32, not {a.dtype}")
-        self.out = [_alias(observed[k], self.device) for k in KEYS]
+        self.out = [_alias(k, observed[k], self.device) for k in KEYS]
         self.site, self.body = int(site), int(body)
         self.bodies = wp.array(np.asarray(bodies, dtype=np.int32), dtype=wp.int32, device=self.device)
         self.mask = wp.zeros((int(substeps), self.n), dtype=wp.int32, device=self.device)
@@ -129,13 +128,6 @@ class Sampler:
                           d.qvel, *self.out])
 
 
-def _alias_images(a: Any, device: Any) -> Any:
-    """An ``xp`` uint8[N, H, W, 3] array (contiguous) as a Warp array sharing its memory."""
-    if device.is_cuda:
-        return wp.from_dlpack(a)
-    return wp.array(a, dtype=wp.uint8, device="cpu", copy=False)
-
-
 class ImageSampler:
     """The cameras' share of a ``Sampler``: ``cameras`` (an ``engines.mujoco_warp.cameras.WarpCameras`` of the
     batch's worlds) drawn into ``images`` (feature key -> the batch's ``xp`` uint8[N, H, W, 3] buffer, written in
@@ -143,11 +135,8 @@ class ImageSampler:
     backend). ``launch(m, d, k)`` after a substep ``k`` where some world samples."""
 
     def __init__(self, cameras: Any, images: dict[str, Any], sampler: Sampler):
-        for key, a in images.items():
-            if a.dtype != np.uint8 or not a.flags.c_contiguous:
-                raise TypeError(f"the image buffer {key!r} must be contiguous uint8, not {a.dtype}")
         self.cameras, self.sampler = cameras, sampler
-        self.out = {key: _alias_images(a, sampler.device) for key, a in images.items()}
+        self.out = {key: _alias(key, a, sampler.device, np.uint8) for key, a in images.items()}
 
     def launch(self, m: Any, d: Any, k: int) -> None:
         self.cameras.cast(m, d)

@@ -559,16 +559,19 @@ def reset_ref_kernel(rows: wp.array[int], ref_ok: wp.array[int]):
 
 
 # ------------------------------------------------------------------------------------------ cameras
+@wp.func
+def _put_rgb(v: wp.uint32, out: wp.array4d[wp.uint8], w: int, y: int, x: int):
+    """One packed ABGR pixel into ``out[w, y, x]`` as R, G, B."""
+    out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
+    out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
+    out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+
+
 @wp.kernel(enable_backward=False)
 def unpack_rgb_u8_kernel(packed: wp.array2d[wp.uint32], adr: int, width: int, out: wp.array4d[wp.uint8]):
     """MuJoCo Warp's packed ABGR pixels of one camera -> uint8 [nworld, H, W, 3]."""
     w, pix = wp.tid()
-    x = pix % width
-    y = pix // width
-    v = packed[w, adr + pix]
-    out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
-    out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
-    out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+    _put_rgb(packed[w, adr + pix], out, w, pix // width, pix % width)
 
 
 @wp.kernel(enable_backward=False)
@@ -580,13 +583,9 @@ def unpack_rgb_u8_rows_kernel(packed: wp.array2d[wp.uint32], adr: int, width: in
     if mask[k, w] == 0:
         return
     x = pix % width
-    y = pix // width
     if mirror == 1:
         x = width - 1 - x
-    v = packed[w, adr + pix]
-    out[w, y, x, 0] = wp.uint8((v >> wp.uint32(16)) & wp.uint32(0xFF))
-    out[w, y, x, 1] = wp.uint8((v >> wp.uint32(8)) & wp.uint32(0xFF))
-    out[w, y, x, 2] = wp.uint8(v & wp.uint32(0xFF))
+    _put_rgb(packed[w, adr + pix], out, w, pix // width, x)
 
 
 @wp.kernel(enable_backward=False)
